@@ -1,0 +1,132 @@
+"""The ``semslam`` command."""
+
+from __future__ import annotations
+
+import functools
+import sys
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+from semslam import __version__
+from semslam.errors import SemslamError
+
+app = typer.Typer(
+    name="semslam",
+    help="Factor-graph back-end for underwater semantic SLAM.",
+    no_args_is_help=True,
+    pretty_exceptions_enable=False,
+    add_completion=False,
+)
+config_app = typer.Typer(help="Inspect the configuration.", no_args_is_help=True)
+app.add_typer(config_app, name="config")
+
+
+def user_errors(fn):
+    """A user error becomes one line on stderr and exit code 1, never a traceback."""
+
+    @functools.wraps(fn)
+    def wrapper(*args, **kwargs):
+        try:
+            return fn(*args, **kwargs)
+        except SemslamError as exc:
+            typer.echo(f"semslam: error: {exc}", err=True)
+            raise typer.Exit(1) from None
+        except KeyboardInterrupt:
+            typer.echo("semslam: interrupted", err=True)
+            raise typer.Exit(130) from None
+
+    return wrapper
+
+
+def not_implemented(what: str, issue: str):
+    typer.echo(f"semslam: {what} is not implemented yet ({issue})", err=True)
+    raise typer.Exit(2)
+
+
+def _version(value: bool):
+    if value:
+        typer.echo(f"semslam {__version__}")
+        raise typer.Exit()
+
+
+@app.callback()
+def main(
+    version: bool = typer.Option(False, "--version", callback=_version, is_eager=True, help="Print the version."),
+):
+    """Factor-graph back-end for underwater semantic SLAM."""
+
+
+MissionArg = typer.Argument(..., help="ROS 1 .bag, ROS 2 bag directory or .mcap")
+ConfigOpt = typer.Option(None, "--config", "-c", help="YAML configuration (see `semslam config dump`)")
+
+
+@app.command()
+@user_errors
+def info(mission: Path = MissionArg, config: Optional[Path] = ConfigOpt):
+    """Sensors, topics, message types, counts, rates, duration and gaps of a mission."""
+    from semslam.config import load_config
+    from semslam.mission.bag import read_mission
+    from semslam.mission.summary import summarize
+
+    cfg = load_config(config)
+    m = read_mission(mission, cfg.reader)
+    typer.echo(summarize(m, progress=sys.stderr.isatty()).format())
+
+
+@config_app.command("dump")
+@user_errors
+def config_dump(config: Optional[Path] = ConfigOpt):
+    """Print the resolved configuration (defaults, overridden by --config)."""
+    from semslam.config import dump_config, load_config
+
+    typer.echo(dump_config(load_config(config)), nl=False)
+
+
+@app.command()
+@user_errors
+def simulate(
+    scene: str = typer.Argument(..., help="tank or field"),
+    out: Path = typer.Option(..., "--out", "-o", help="bag to write (.bag = ROS 1, otherwise a ROS 2 directory)"),
+    seed: int = typer.Option(0, "--seed", help="random seed (the default reproduces one fixed layout)"),
+):
+    """Simulate a mission with ground truth and write it as an ordinary ROS bag."""
+    not_implemented("simulate", "issue 3 / issue 8")
+
+
+@app.command()
+@user_errors
+def run(
+    mission: Path = MissionArg,
+    out: Path = typer.Option(..., "--out", "-o", help="output directory"),
+    estimator: str = typer.Option("graph", "--estimator", "-e", help="graph, ekf or dr"),
+    batch: bool = typer.Option(False, "--batch", help="graph: re-optimise the whole mission at the end"),
+    frontends: str = typer.Option("", "--frontends", help="comma-separated front-end names"),
+    config: Optional[Path] = ConfigOpt,
+):
+    """Run one estimator over a mission and write its trajectory, map and metrics."""
+    not_implemented("run", "issues 4, 5 and 9")
+
+
+@app.command()
+@user_errors
+def compare(
+    mission: Path = MissionArg,
+    out: Path = typer.Option(..., "--out", "-o", help="output directory"),
+    config: Optional[Path] = ConfigOpt,
+):
+    """dr, ekf and graph on identical inputs, with a report."""
+    not_implemented("compare", "issue 9")
+
+
+@app.command()
+@user_errors
+def demo(out: Optional[Path] = typer.Option(None, "--out", "-o", help="output directory")):
+    """Simulate the default tank mission and compare dr, ekf and graph on it."""
+    typer.echo("semslam demo will: simulate the default tank mission (seed 0), run dr, ekf and graph on it")
+    typer.echo("with the laser front-end, and write the comparison report. Not implemented yet (issue 9).")
+
+
+if __name__ == "__main__":  # pragma: no cover
+    app()

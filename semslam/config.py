@@ -1,0 +1,68 @@
+"""The typed configuration of semslam: every default lives here (or in the section model it names),
+documented by its Field description. ``semslam config dump`` prints the resolved configuration."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from semslam.errors import ConfigError
+from semslam.mission.config import ReaderConfig
+
+
+class MotionNoiseConfig(BaseModel):
+    """Process noise of the vehicle motion model, shared by every estimator (no estimator gets its own tuning)."""
+
+    model_config = ConfigDict(extra="forbid")
+    accel_sigma_m_s2: float = Field(0.05, gt=0, description="white linear-acceleration noise (body frame)")
+    angular_rate_sigma_rad_s: float = Field(0.01, gt=0, description="white angular-rate noise")
+
+
+class AssociationConfig(BaseModel):
+    """Data association (JCBB) and landmark initialisation, shared by the graph and the EKF."""
+
+    model_config = ConfigDict(extra="forbid")
+    confidence: float = Field(0.99, gt=0, lt=1, description="chi-square confidence of the compatibility gates")
+    min_observations: int = Field(3, ge=1, description="consistent observations before a landmark enters the map")
+    merge_angle_rad: float = Field(0.175, gt=0, description="collinear pipe segments merged below this angle")
+    merge_distance_m: float = Field(0.3, gt=0, description="... and this distance between them")
+
+
+class SemslamConfig(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    reader: ReaderConfig = Field(default_factory=ReaderConfig)
+    motion: MotionNoiseConfig = Field(default_factory=MotionNoiseConfig)
+    association: AssociationConfig = Field(default_factory=AssociationConfig)
+    graph: dict[str, Any] = Field(default_factory=dict, description="graph back-end section (semslam.backend)")
+    ekf: dict[str, Any] = Field(default_factory=dict, description="EKF section (semslam.ekf)")
+    frontends: dict[str, dict[str, Any]] = Field(
+        default_factory=dict, description="front-end name → its own section, validated by the front-end"
+    )
+
+
+def load_config(path: str | Path | None = None) -> SemslamConfig:
+    """The defaults, overridden by the YAML file at ``path`` if given."""
+    if path is None:
+        return SemslamConfig()
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError(f"{path}: configuration file not found")
+    try:
+        data = yaml.safe_load(path.read_text()) or {}
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{path}: not valid YAML ({str(exc).splitlines()[0]})") from exc
+    if not isinstance(data, dict):
+        raise ConfigError(f"{path}: expected a mapping at the top level")
+    try:
+        return SemslamConfig.model_validate(data)
+    except ValidationError as exc:
+        err = exc.errors()[0]
+        key = ".".join(str(x) for x in err["loc"])
+        raise ConfigError(f"{path}: {key}: {err['msg']}") from exc
+
+
+def dump_config(config: SemslamConfig) -> str:
+    return yaml.safe_dump(config.model_dump(mode="json"), sort_keys=False)

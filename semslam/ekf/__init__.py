@@ -1,0 +1,1 @@
+"""The EKF-SLAM of Vallicrosa et al. 2021 and dead reckoning."""

@@ -1,0 +1,101 @@
+"""The interface every estimator (``graph``, ``ekf``, ``dr``) shares, and the results it returns.
+
+An estimator consumes measurements and observations in time order, answers its current estimate
+through an :class:`EstimateView`, and at the end returns an :class:`EstimatorResult`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+
+from semslam.mission.measurements import Measurement
+from semslam.observations import Observation
+
+LANDMARK_KINDS = ("object", "pipe", "structure")
+
+
+@dataclass
+class LandmarkEstimate:
+    """One mapped landmark with its global id, in {W}.
+
+    - object: ``position`` (3,), ``covariance`` 3×3, ``class_posterior`` class → probability.
+    - pipe: ``p``, ``q`` endpoints (3,) on the estimated line, ``covariance`` of the line
+      parameters (4×4, the estimator's own minimal parametrisation).
+    - structure: ``pose`` T_W,model (4×4), ``covariance`` 6×6 (rotation, translation).
+    """
+
+    id: int
+    kind: str
+    position: np.ndarray | None = None
+    p: np.ndarray | None = None
+    q: np.ndarray | None = None
+    pose: np.ndarray | None = None
+    covariance: np.ndarray | None = None
+    model: str | None = None
+    class_posterior: Mapping[str, float] | None = None
+    n_observations: int = 0
+    connected: tuple[int, ...] = ()  # global ids of connected landmarks (object ↔ pipes)
+
+
+@dataclass
+class Trajectory:
+    """Body poses T_WB over time. ``position_cov`` is the 3×3 position covariance in {W}."""
+
+    stamps: np.ndarray  # (N,) int64 ns
+    positions: np.ndarray  # (N, 3)
+    orientations: np.ndarray  # (N, 4) quaternion (x, y, z, w)
+    position_cov: np.ndarray | None = None  # (N, 3, 3)
+    velocities: np.ndarray | None = None  # (N, 3) body frame
+    velocity_cov: np.ndarray | None = None  # (N, 3, 3)
+
+    def __len__(self) -> int:
+        return len(self.stamps)
+
+    def to_tum(self, path) -> None:
+        """Write ``stamp x y z qx qy qz qw`` lines (stamp in seconds), readable by evo."""
+        data = np.column_stack([self.stamps * 1e-9, self.positions, self.orientations])
+        np.savetxt(path, data, fmt="%.9f", header="timestamp tx ty tz qx qy qz qw")
+
+
+@dataclass
+class EstimatorResult:
+    """What an estimator returns at the end of a mission."""
+
+    name: str
+    trajectory: Trajectory
+    landmarks: list[LandmarkEstimate] = field(default_factory=list)
+    online_trajectory: Trajectory | None = None  # each pose as the estimator gave it at its time
+    update_times_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    update_n_landmarks: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
+    history: dict = field(default_factory=dict)  # e.g. per-landmark uncertainty volume over time
+    diagnostics: list[str] = field(default_factory=list)  # recovered failures, warnings
+
+
+@runtime_checkable
+class EstimateView(Protocol):
+    """Read-only view of an estimator's current estimate, handed to front-ends."""
+
+    def pose_at(self, stamp: int) -> np.ndarray | None:
+        """Current estimate of T_WB (4×4) at ``stamp`` (ns), or None if the estimator cannot tell."""
+
+    def landmarks(self) -> Sequence[LandmarkEstimate]:
+        """The current map, with global ids."""
+
+
+@runtime_checkable
+class Estimator(Protocol):
+    name: str
+
+    def process_measurement(self, measurement: Measurement) -> None:
+        """Navigation (and ground-truth) measurements, in stamp order."""
+
+    def process_observations(self, stamp: int, observations: Sequence[Observation]) -> None:
+        """All observations a front-end drew from one measurement at ``stamp`` (associated jointly)."""
+
+    def view(self) -> EstimateView: ...
+
+    def finish(self) -> EstimatorResult: ...

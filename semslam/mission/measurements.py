@@ -1,0 +1,169 @@
+"""Measurement types: what the sensors said, in their own frames, stamped in integer nanoseconds.
+
+Conventions (see DESIGN.md): world {W} is NED (z = depth, positive down), body {B} is
+x forward / y right / z down, each sensor {S} has a fixed extrinsic T_BS in the mission
+metadata. Quaternions are stored (x, y, z, w), as ROS and the TUM format store them.
+Arrays are made read-only so that a measurement really is immutable once built.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+def _frozen(a, dtype=np.float64, shape=None) -> np.ndarray:
+    arr = np.array(a, dtype=dtype, copy=True)
+    if shape is not None and arr.shape != shape:
+        raise ValueError(f"expected shape {shape}, got {arr.shape}")
+    arr.flags.writeable = False
+    return arr
+
+
+@dataclass(frozen=True)
+class Measurement:
+    """Base of all measurements: ``stamp`` in ns, ``sensor`` the sensor name of the mission."""
+
+    stamp: int
+    sensor: str
+
+    def is_finite(self) -> bool:
+        """False if any numeric field holds NaN or inf (such measurements are dropped and counted)."""
+        for value in vars(self).values():
+            if isinstance(value, np.ndarray) and value.dtype.kind == "f" and not np.isfinite(value).all():
+                return False
+            if isinstance(value, float) and not np.isfinite(value):
+                return False
+        return True
+
+
+@dataclass(frozen=True)
+class DvlVelocity(Measurement):
+    """Velocity of the DVL head with respect to the ground, in the DVL frame {S}.
+
+    ``valid`` is False during dropouts (bottom lock lost); ``beam_valid`` keeps the per-beam flags
+    when the message had them. An invalid reading carries no velocity information.
+    """
+
+    velocity: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    covariance: np.ndarray = field(default_factory=lambda: np.eye(3))
+    valid: bool = True
+    beam_valid: tuple[bool, ...] | None = None
+    altitude: float | None = None
+
+    def __post_init__(self):
+        object.__setattr__(self, "velocity", _frozen(self.velocity, shape=(3,)))
+        object.__setattr__(self, "covariance", _frozen(self.covariance, shape=(3, 3)))
+
+    def is_finite(self) -> bool:
+        # An invalid DVL reading may legitimately carry NaN velocity; it is kept as a dropout marker.
+        return (not self.valid) or super().is_finite()
+
+
+@dataclass(frozen=True)
+class Attitude(Measurement):
+    """AHRS orientation R_WS of the sensor frame in the world (NED), quaternion (x, y, z, w).
+
+    ``covariance`` is 3×3 over (roll, pitch, yaw) errors; ``angular_rate`` (rad/s, sensor frame)
+    is optional.
+    """
+
+    orientation: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, 0.0, 1.0]))
+    covariance: np.ndarray = field(default_factory=lambda: np.eye(3))
+    angular_rate: np.ndarray | None = None
+
+    def __post_init__(self):
+        q = np.asarray(self.orientation, dtype=np.float64)
+        n = np.linalg.norm(q)
+        object.__setattr__(self, "orientation", _frozen(q / n if n > 0 else q, shape=(4,)))
+        object.__setattr__(self, "covariance", _frozen(self.covariance, shape=(3, 3)))
+        if self.angular_rate is not None:
+            object.__setattr__(self, "angular_rate", _frozen(self.angular_rate, shape=(3,)))
+
+
+@dataclass(frozen=True)
+class Depth(Measurement):
+    """Depth of the pressure sensor below the surface (m, positive down) and its variance (m²)."""
+
+    depth: float = 0.0
+    variance: float = 1.0
+
+    def __post_init__(self):
+        object.__setattr__(self, "depth", float(self.depth))
+        object.__setattr__(self, "variance", float(self.variance))
+
+
+@dataclass(frozen=True)
+class PointCloud(Measurement):
+    """Laser scan: N×3 float32 points in the sensor frame, optional N intensities."""
+
+    points: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), np.float32))
+    intensity: np.ndarray | None = None
+
+    def __post_init__(self):
+        pts = _frozen(self.points, dtype=np.float32)
+        if pts.ndim != 2 or pts.shape[1] != 3:
+            raise ValueError(f"points must be N×3, got {pts.shape}")
+        object.__setattr__(self, "points", pts)
+        if self.intensity is not None:
+            object.__setattr__(self, "intensity", _frozen(self.intensity, dtype=np.float32, shape=(len(pts),)))
+
+
+@dataclass(frozen=True)
+class SonarSwath(Measurement):
+    """One multibeam swath in the sensor frame: beam angles across track (rad), ranges (m), intensities.
+
+    Only beams with a return are kept (a ``LaserScan``'s inf / out-of-range beams are removed on read).
+    Beam i points along (0, sin(angle_i), cos(angle_i)) in {S}: the sensor's z axis looks down at
+    angle 0 and positive angles go to starboard (y).
+    """
+
+    angles: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    ranges: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    intensities: np.ndarray | None = None
+
+    def __post_init__(self):
+        angles = _frozen(self.angles)
+        object.__setattr__(self, "angles", angles)
+        object.__setattr__(self, "ranges", _frozen(self.ranges, shape=angles.shape))
+        if self.intensities is not None:
+            object.__setattr__(self, "intensities", _frozen(self.intensities, shape=angles.shape))
+
+    def points(self) -> np.ndarray:
+        """The returns as N×3 points in the sensor frame."""
+        return np.stack(
+            [np.zeros_like(self.ranges), self.ranges * np.sin(self.angles), self.ranges * np.cos(self.angles)],
+            axis=1,
+        )
+
+
+@dataclass(frozen=True)
+class GroundTruthPose(Measurement):
+    """True body pose T_WB: position (m, NED) and orientation quaternion (x, y, z, w)."""
+
+    position: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    orientation: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, 0.0, 1.0]))
+
+    def __post_init__(self):
+        object.__setattr__(self, "position", _frozen(self.position, shape=(3,)))
+        object.__setattr__(self, "orientation", _frozen(self.orientation, shape=(4,)))
+
+    def matrix(self) -> np.ndarray:
+        """T_WB as a 4×4 homogeneous matrix."""
+        from scipy.spatial.transform import Rotation
+
+        T = np.eye(4)
+        T[:3, :3] = Rotation.from_quat(self.orientation).as_matrix()
+        T[:3, 3] = self.position
+        return T
+
+
+MEASUREMENT_TYPES: tuple[type[Measurement], ...] = (
+    DvlVelocity,
+    Attitude,
+    Depth,
+    PointCloud,
+    SonarSwath,
+    GroundTruthPose,
+)

@@ -1,0 +1,86 @@
+"""The mission: sensor metadata (extrinsics, topics) and a time-ordered stream of measurements."""
+
+from __future__ import annotations
+
+from collections import Counter
+from collections.abc import Callable, Iterable, Iterator
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from semslam.mission.ground_truth import GroundTruthMap
+from semslam.mission.measurements import Measurement
+
+SENSOR_KINDS = ("dvl", "ahrs", "depth", "laser", "sonar", "ground_truth")
+
+
+@dataclass
+class SensorInfo:
+    """One sensor of the vehicle: its kind, where it is recorded, and its extrinsic T_BS (4×4)."""
+
+    name: str
+    kind: str
+    topic: str | None = None
+    msgtype: str | None = None
+    T_BS: np.ndarray = field(default_factory=lambda: np.eye(4))
+
+    def __post_init__(self):
+        if self.kind not in SENSOR_KINDS:
+            raise ValueError(f"sensor {self.name!r}: unknown kind {self.kind!r} (expected one of {SENSOR_KINDS})")
+        self.T_BS = np.asarray(self.T_BS, dtype=float).reshape(4, 4)
+
+
+@dataclass
+class MissionMetadata:
+    """Everything about a mission that is not a measurement."""
+
+    name: str = "mission"
+    sensors: dict[str, SensorInfo] = field(default_factory=dict)
+    ground_truth: GroundTruthMap | None = None
+    extras: dict = field(default_factory=dict)  # e.g. the simulator's declared noise and scene
+
+    def sensors_of_kind(self, kind: str) -> list[SensorInfo]:
+        return [s for s in self.sensors.values() if s.kind == kind]
+
+
+@dataclass
+class SensorStats:
+    """Per-sensor statistics of a mission stream, as ``semslam info`` reports them."""
+
+    count: int = 0
+    first: int | None = None
+    last: int | None = None
+    dropped_nonfinite: int = 0
+    invalid: int = 0  # e.g. DVL readings flagged invalid (dropouts)
+    max_gap_s: float = 0.0
+    gaps: list[tuple[float, float]] = field(default_factory=list)  # (start_s, duration_s) of dropouts/gaps
+
+    @property
+    def rate_hz(self) -> float | None:
+        if self.count < 2 or self.first is None or self.last is None or self.last == self.first:
+            return None
+        return (self.count - 1) / ((self.last - self.first) * 1e-9)
+
+
+class Mission:
+    """A mission: metadata plus measurements iterated in stamp order.
+
+    The measurements come from ``source``, a callable returning a fresh iterator each time, so a
+    large bag can be streamed more than once without being held in memory.
+    """
+
+    def __init__(self, metadata: MissionMetadata, source: Callable[[], Iterable[Measurement]]):
+        self.metadata = metadata
+        self._source = source
+        self.dropped: Counter[str] = Counter()  # sensor -> measurements dropped as non-finite (filled by readers)
+
+    @classmethod
+    def from_measurements(cls, metadata: MissionMetadata, measurements: Iterable[Measurement]) -> "Mission":
+        items = sorted(measurements, key=lambda m: m.stamp)  # stable: equal stamps keep their order
+        return cls(metadata, lambda: iter(items))
+
+    def __iter__(self) -> Iterator[Measurement]:
+        return iter(self._source())
+
+    def of_type(self, cls: type[Measurement]) -> Iterator[Measurement]:
+        return (m for m in self if isinstance(m, cls))

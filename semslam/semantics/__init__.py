@@ -1,0 +1,1 @@
+"""Semantics: class posteriors, connectivity constraints, the semantic map."""

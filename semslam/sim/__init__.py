@@ -1,0 +1,1 @@
+"""Simulated missions with ground truth: scenes, trajectories, sensor models."""
