@@ -1,0 +1,114 @@
+"""Configuration of the laser front-end (the ``frontends.laser`` section), every default documented.
+
+Distances in metres, angles in degrees only where the key says ``_deg``. The defaults follow
+Vallicrosa et al. 2021 (30° normals, 50-point neighbourhood, curvature threshold 0.025, pipe radius
+≤ 0.064 m, length ≥ 0.30 m); values the paper does not give are chosen for a scanner with ~5 mm
+range noise looking at a structure 1–4 m away, and say why in their description.
+"""
+
+from __future__ import annotations
+
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+
+class _Section(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+class PreprocessConfig(_Section):
+    min_range: float = Field(0.3, ge=0, description="points closer to the sensor are dropped (vehicle, bubbles)")
+    max_range: float = Field(6.0, gt=0, description="points farther are dropped (range noise grows with range)")
+    voxel_size: float = Field(
+        0.02, gt=0, description="voxel grid for downsampling; 2 cm keeps ≥ 5 points across a 5 cm-radius pipe"
+    )
+    outlier_neighbors: int = Field(20, ge=2, description="statistical outlier removal: neighbours per point")
+    outlier_std_ratio: float = Field(
+        3.0, gt=0, description="... a point goes if its mean neighbour distance exceeds mean + ratio × std"
+    )
+
+
+class PlaneConfig(_Section):
+    neighbors: int = Field(50, ge=5, description="neighbourhood of the normal and curvature estimate (paper: 50)")
+    graph_neighbors: int = Field(12, ge=2, description="nearest neighbours linked in the region-growing graph")
+    max_normal_angle_deg: float = Field(30.0, gt=0, lt=90, description="region growing: max angle between normals")
+    growth_curvature: float = Field(
+        0.05,
+        gt=0,
+        description="only points below this curvature propagate a region (PCL's seed rule); pipes of radius "
+        "≤ 0.064 m seen over a 50-point neighbourhood are above it, so regions stop at them",
+    )
+    flat_curvature: float = Field(0.025, gt=0, description="a region with mean curvature below this is flat (paper)")
+    min_plane_extent: float = Field(
+        0.4,
+        gt=0,
+        description="a flat region is a tank plane only if its second principal extent (√12·σ) exceeds this; "
+        "smaller flat regions (object faces) are structure unless coplanar with a tank plane",
+    )
+    plane_distance: float = Field(
+        0.012, gt=0, description="points within this distance of a tank plane and next to it join it (border strip)"
+    )
+    border_hops: int = Field(3, ge=0, description="graph hops over which the border strip may join a plane")
+
+
+class PipeConfig(_Section):
+    normal_neighbors: int = Field(
+        10, ge=4, description="neighbourhood of the normals used by the cylinder fit (smaller than a pipe's half-circumference)"
+    )
+    max_radius: float = Field(0.064, gt=0, description="largest pipe radius (paper)")
+    min_radius: float = Field(0.015, gt=0, description="smallest pipe radius accepted")
+    radius_prior: float | None = Field(
+        None, gt=0, description="known pipe radius; when given, hypotheses must be within radius_tolerance of it"
+    )
+    radius_tolerance: float = Field(0.012, gt=0, description="allowed deviation from radius_prior")
+    min_length: float = Field(0.30, gt=0, description="shortest pipe segment reported (paper)")
+    min_points: int = Field(40, ge=5, description="fewest inliers of a pipe segment")
+    distance_tolerance: float = Field(0.012, gt=0, description="inlier: |distance to axis − radius| below this")
+    normal_tolerance_deg: float = Field(30.0, gt=0, lt=90, description="inlier: normal within this of radial")
+    hypotheses: int = Field(300, ge=10, description="RANSAC hypotheses per extracted pipe, scored together")
+    score_sample: int = Field(2000, ge=100, description="points on which hypotheses are scored (then all points)")
+    max_pipes: int = Field(20, ge=1, description="most pipes extracted from one scan")
+    max_gap: float = Field(
+        0.08, gt=0, description="inliers farther apart than this along the axis split into separate segments"
+    )
+    merge_angle_deg: float = Field(10.0, gt=0, description="duplicates: axes within this angle ...")
+    merge_distance: float = Field(0.03, gt=0, description="... axes this close (lateral) ...")
+    merge_gap: float = Field(0.05, ge=0, description="... and intervals overlapping or separated by less than this")
+    range_sigma: float = Field(0.005, gt=0, description="range noise σ of one point at 1 m (endpoint covariance)")
+    range_sigma_per_m: float = Field(0.002, ge=0, description="growth of the point σ per metre of range")
+    endpoint_sigma: float = Field(
+        0.02, gt=0, description="along-axis σ of an endpoint (extreme projection; ≈ voxel size + ray spacing)"
+    )
+    seed: int = Field(0, description="RANSAC random seed (scans are processed deterministically)")
+
+    @model_validator(mode="after")
+    def _radii(self):
+        if self.min_radius >= self.max_radius:
+            raise ValueError("min_radius must be below max_radius")
+        return self
+
+
+class ObjectConfig(_Section):
+    body_size: tuple[float, float, float] = Field(
+        (0.30, 0.30, 0.30),
+        description="body box (along pipe, across, up) centred on the object, m; larger than the largest body",
+    )
+    handle_size: tuple[float, float, float] = Field(
+        (0.30, 0.30, 0.25), description="handle box stacked above the body (mushroom), same axes, m"
+    )
+    join_distance: float = Field(0.20, gt=0, description="pipe ends whose object-centre guesses are closer join one object")
+    collinear_angle_deg: float = Field(30.0, gt=0, lt=90, description="two pipes within this of opposite are collinear")
+    min_points: int = Field(30, ge=1, description="fewest (non-pipe) points in the crop for an object")
+    cluster_distance: float = Field(0.05, gt=0, description="Euclidean clustering radius inside the crop")
+    position_sigma: float = Field(0.02, gt=0, description="σ floor of an object position (shape / model error)")
+
+
+class LaserConfig(_Section):
+    """The ``frontends.laser`` section."""
+
+    preprocess: PreprocessConfig = Field(default_factory=PreprocessConfig)
+    planes: PlaneConfig = Field(default_factory=PlaneConfig)
+    pipes: PipeConfig = Field(default_factory=PipeConfig)
+    objects: ObjectConfig = Field(default_factory=ObjectConfig)
+    full_resolution_clouds: bool = Field(
+        True, description="object clouds from the raw points of the segmented voxels (denser for recognition)"
+    )

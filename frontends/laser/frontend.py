@@ -1,0 +1,149 @@
+"""The laser front-end: a scan in, pipe (line) and object (point) observations out, in {S}.
+
+``segment_scan`` runs the stages (pre-processing, plane removal, pipes, objects) and keeps every
+intermediate result for evaluation and figures; ``LaserFrontend`` wraps it behind the front-end
+protocol of ``semslam.registry``.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Any, ClassVar, Protocol
+
+import numpy as np
+from pydantic import ValidationError
+
+from frontends.laser.config import LaserConfig
+from frontends.laser.objects import SegmentedObject, segment_objects
+from frontends.laser.pipes import Pipe, detect_pipes
+from frontends.laser.planes import PlaneResult, remove_planes
+from frontends.laser.preprocess import Preprocessed, local_geometry, preprocess
+from semslam.errors import ConfigError
+from semslam.mission.measurements import PointCloud
+from semslam.observations import Connectivity, LineObservation, Observation, PointObservation
+
+UP_NED = np.array([0.0, 0.0, -1.0])  # against gravity in the world frame (NED: z down)
+
+
+class Recognizer(Protocol):
+    """Object recognition hook: class likelihoods P(Z | X) of a segmented cloud (sensor frame)."""
+
+    def classify(self, cloud: np.ndarray, connectivity: Connectivity) -> dict[str, float]: ...
+
+
+@dataclass
+class ScanSegmentation:
+    """Everything one scan went through. Indices: ``structure`` indexes ``pre.points``; pipe inliers
+    and object indices index ``structure`` (the structure cloud)."""
+
+    pre: Preprocessed
+    planes: PlaneResult
+    structure: np.ndarray
+    normals: np.ndarray  # small-neighbourhood normals of the structure points
+    pipes: list[Pipe]
+    objects: list[SegmentedObject]
+    up: np.ndarray
+    timings: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def structure_points(self) -> np.ndarray:
+        return self.pre.points[self.structure]
+
+    def raw_indices(self, voxel_indices: np.ndarray) -> np.ndarray:
+        """Raw scan points that fell in the given voxels (indices into ``pre.points``)."""
+        sel = np.zeros(len(self.pre.points) + 1, bool)
+        sel[voxel_indices] = True
+        return np.flatnonzero(sel[self.pre.raw_to_voxel])  # raw_to_voxel −1 → the extra False slot
+
+
+def segment_scan(points: np.ndarray, cfg: LaserConfig, up: np.ndarray | None = None) -> ScanSegmentation:
+    """Run all stages on a raw scan (N×3, {S}). ``up`` is the unit up direction in {S}; when None the
+    direction towards the sensor is used (the scanner looks down at the structure)."""
+    tm: dict[str, float] = {}
+    t0 = time.perf_counter()
+    pre = preprocess(points, cfg.preprocess, cfg.planes)
+    t1 = time.perf_counter()
+    planes = remove_planes(pre, cfg.planes)
+    t2 = time.perf_counter()
+    structure = np.flatnonzero(planes.structure)
+    spts = pre.points[structure]
+    if up is None:
+        up = -spts.mean(axis=0) if len(spts) else -UP_NED
+        up = up / max(np.linalg.norm(up), 1e-12)
+    pipes: list[Pipe] = []
+    normals = np.zeros((len(structure), 3))
+    if len(structure) >= cfg.pipes.min_points:
+        k = cfg.pipes.normal_neighbors
+        normals, _ = local_geometry(pre.points, pre.knn[structure, :k], structure)
+        remap = np.full(len(pre.points), -1, np.int64)
+        remap[structure] = np.arange(len(structure))
+        pipes = detect_pipes(spts, normals, remap[pre.knn[structure]], cfg.pipes)
+    t3 = time.perf_counter()
+    objects = segment_objects(spts, pipes, up, cfg.objects, cfg.pipes.range_sigma_per_m)
+    t4 = time.perf_counter()
+    tm.update(preprocess=t1 - t0, planes=t2 - t1, pipes=t3 - t2, objects=t4 - t3, total=t4 - t0)
+    return ScanSegmentation(pre, planes, structure, normals, pipes, objects, up, tm)
+
+
+class LaserFrontend:
+    """Laser scanner front-end (``frontends.laser`` section validated by :class:`LaserConfig`).
+
+    Consumes :class:`PointCloud` scans; returns one :class:`LineObservation` per pipe segment and one
+    :class:`PointObservation` per object (class likelihoods filled only when a ``recognizer`` is set).
+    """
+
+    name: ClassVar[str] = "laser"
+    consumes: ClassVar[tuple[type, ...]] = (PointCloud,)
+
+    def __init__(self, metadata: Any, config: dict | None = None, recognizer: Recognizer | None = None):
+        try:
+            self.config = LaserConfig.model_validate(dict(config or {}))
+        except ValidationError as exc:
+            err = exc.errors()[0]
+            key = ".".join(str(x) for x in err["loc"])
+            raise ConfigError(f"frontends.laser.{key}: {err['msg']}") from exc
+        self.metadata = metadata
+        self.recognizer = recognizer
+        self.last: ScanSegmentation | None = None  # the latest scan's stages, for inspection
+
+    def _up(self, sensor: str, stamp: int, view) -> np.ndarray | None:
+        """Up (against gravity) in {S}: R_WSᵀ·up_W, with R_WS from the current pose estimate, or from
+        the extrinsic alone (level vehicle; yaw does not change "up") when there is none."""
+        info = getattr(self.metadata, "sensors", {}).get(sensor) if self.metadata is not None else None
+        if info is None:
+            return None
+        R_BS = np.asarray(info.T_BS)[:3, :3]
+        T_WB = view.pose_at(stamp) if view is not None else None
+        R_WB = np.asarray(T_WB)[:3, :3] if T_WB is not None else np.eye(3)
+        return (R_WB @ R_BS).T @ UP_NED
+
+    def process(self, measurement: PointCloud, view=None) -> list[Observation]:
+        seg = segment_scan(measurement.points, self.config, self._up(measurement.sensor, measurement.stamp, view))
+        self.last = seg
+        stamp, sensor = measurement.stamp, measurement.sensor
+        obs: list[Observation] = [
+            LineObservation(stamp, sensor, p=pp.p, q=pp.q, covariance=pp.covariance, radius=pp.radius)
+            for pp in seg.pipes
+        ]
+        spts = seg.structure_points
+        for o in seg.objects:
+            conn = Connectivity(len(o.directions), o.configuration, tuple(tuple(map(float, d)) for d in o.directions))
+            if self.config.full_resolution_clouds:
+                cloud = np.asarray(measurement.points)[seg.raw_indices(seg.structure[o.indices])]
+            else:
+                cloud = spts[o.indices]
+            cloud = np.asarray(cloud, dtype=np.float32)
+            likelihood = self.recognizer.classify(cloud, conn) if self.recognizer is not None else None
+            obs.append(
+                PointObservation(
+                    stamp,
+                    sensor,
+                    position=o.position,
+                    covariance=o.covariance,
+                    cloud=cloud,
+                    class_likelihood=likelihood,
+                    connectivity=conn,
+                )
+            )
+        return obs

@@ -1,0 +1,229 @@
+"""Pipe detection: sequential cylinder RANSAC with normals, then duplicate merge (all in {S}, metres).
+
+A hypothesis is drawn, as in PCL's ``SACMODEL_CYLINDER``, from two points with their normals: the
+axis is n1 × n2, the axis point and radius come from where the two normal lines meet. Hypotheses are
+drawn in a batch (pairs of neighbours, where both points are likely on one pipe) and scored together
+on a sample of the remaining points: a point is an inlier when its distance to the axis is within
+``distance_tolerance`` of the radius *and* its normal is within ``normal_tolerance_deg`` of radial
+(which is what keeps a pipe's cylinder off the flat faces of objects). The best hypothesis is
+refined (axis from the inlier normals, circle fit across it), its inliers split into runs along the
+axis where they have gaps, and every run at least ``min_length`` long is a pipe segment whose
+endpoints are its extreme projections on the axis.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from frontends.laser.config import PipeConfig
+
+
+@dataclass
+class Pipe:
+    """A detected pipe segment: axis endpoints ``p``, ``q`` (m, {S}), unit ``axis`` (p→q), radius,
+    the indices of its inlier points, and the 6×6 covariance of [p; q]."""
+
+    p: np.ndarray
+    q: np.ndarray
+    axis: np.ndarray
+    radius: float
+    inliers: np.ndarray
+    covariance: np.ndarray
+
+    @property
+    def length(self) -> float:
+        return float(np.linalg.norm(self.q - self.p))
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    return v / np.linalg.norm(v, axis=-1, keepdims=True)
+
+
+def hypotheses(p1, n1, p2, n2, cfg: PipeConfig):
+    """Cylinders (axis point c, unit axis a, radius r) through point pairs with normals (batched).
+
+    Normals point out of the pipe (towards the sensor), so the axis lies behind both points along
+    −n. Returns the arrays and the mask of valid hypotheses.
+    """
+    a = np.cross(n1, n2)
+    s = np.linalg.norm(a, axis=1)
+    ok = s > np.sin(np.radians(8.0))  # near-parallel normals do not define an axis
+    a = a / np.maximum(s, 1e-12)[:, None]
+    # Closest points of the normal lines p1 + t n1 and p2 + u n2.
+    w = p1 - p2
+    b = np.einsum("ij,ij->i", n1, n2)
+    d = np.einsum("ij,ij->i", n1, w)
+    e = np.einsum("ij,ij->i", n2, w)
+    den = np.maximum(1.0 - b * b, 1e-12)
+    t = (b * e - d) / den
+    u = (e - b * d) / den
+    c = 0.5 * (p1 + t[:, None] * n1 + p2 + u[:, None] * n2)
+    r = -0.5 * (t + u)
+    ok &= (t < 0) & (u < 0) & np.isfinite(r)
+    ok &= (r >= cfg.min_radius) & (r <= cfg.max_radius)
+    if cfg.radius_prior is not None:
+        ok &= np.abs(r - cfg.radius_prior) <= cfg.radius_tolerance
+    return c, a, r, ok
+
+
+def inlier_mask(points, normals, c, a, r, cfg: PipeConfig) -> np.ndarray:
+    """Inliers of cylinders (c, a, r) given as H×3, H×3, H; points N×3 → H×N mask (H may be 1)."""
+    v = points[None, :, :] - c[:, None, :]
+    along = np.einsum("hnj,hj->hn", v, a)
+    radial = v - along[:, :, None] * a[:, None, :]
+    dist = np.linalg.norm(radial, axis=2)
+    cos_n = np.einsum("hnj,nj->hn", radial, normals) / np.maximum(dist, 1e-12)
+    return (np.abs(dist - r[:, None]) <= cfg.distance_tolerance) & (
+        cos_n >= np.cos(np.radians(cfg.normal_tolerance_deg))
+    )
+
+
+def fit_cylinder(points: np.ndarray, normals: np.ndarray, a0: np.ndarray, cfg: PipeConfig):
+    """Least-squares cylinder: axis from the inlier normals, circle fit across the axis.
+
+    The axis is the direction least spanned by the normals (all normals of a cylinder are
+    orthogonal to it); the centre and radius are an algebraic circle fit refined by Gauss–Newton on
+    the geometric distance, or the centre alone when the radius is known.
+    """
+    _, vecs = np.linalg.eigh(normals.T @ normals)
+    a = vecs[:, 0] if vecs[:, 0] @ a0 >= 0 else -vecs[:, 0]
+    e1 = _unit(np.cross(a, [1.0, 0, 0]) if abs(a[0]) < 0.9 else np.cross(a, [0, 1.0, 0]))
+    e2 = np.cross(a, e1)
+    o = points.mean(axis=0)
+    x = np.column_stack([(points - o) @ e1, (points - o) @ e2])
+    if cfg.radius_prior is not None:
+        nx = _unit(np.column_stack([normals @ e1, normals @ e2]))
+        r = cfg.radius_prior
+        cx = (x - r * nx).mean(axis=0)
+    else:
+        A = np.column_stack([2 * x, np.ones(len(x))])
+        sol, *_ = np.linalg.lstsq(A, (x**2).sum(axis=1), rcond=None)
+        cx = sol[:2]
+        r = float(np.sqrt(max(sol[2] + cx @ cx, 1e-12)))
+        for _ in range(5):  # geometric refinement: residual |x − c| − r
+            dv = x - cx
+            dn = np.maximum(np.linalg.norm(dv, axis=1), 1e-12)
+            J = np.column_stack([-dv / dn[:, None], -np.ones(len(x))])
+            res = dn - r
+            step, *_ = np.linalg.lstsq(J, -res, rcond=None)
+            cx, r = cx + step[:2], r + step[2]
+    c = o + cx[0] * e1 + cx[1] * e2
+    return c, a, float(r)
+
+
+def _runs(t: np.ndarray, max_gap: float) -> list[np.ndarray]:
+    """Split positions along the axis into runs without gaps above ``max_gap`` (index arrays)."""
+    order = np.argsort(t)
+    cuts = np.flatnonzero(np.diff(t[order]) > max_gap) + 1
+    return np.split(order, cuts)
+
+
+def endpoint_covariance(p, q, axis, n_points, mean_range, cfg: PipeConfig) -> np.ndarray:
+    """6×6 covariance of [p; q].
+
+    Across the axis: a line fitted to n points spread evenly along it has, at its ends, variance
+    4σ²/n and correlation −1/2 between the two ends (σ the point noise, growing with range).
+    Along the axis: the extreme projection is uncertain by ``endpoint_sigma`` (sampling) and σ.
+    """
+    sigma = cfg.range_sigma + cfg.range_sigma_per_m * mean_range
+    lat = np.eye(3) - np.outer(axis, axis)
+    s = sigma**2 / max(n_points, 1)
+    along = (cfg.endpoint_sigma**2 + sigma**2) * np.outer(axis, axis)
+    cov = np.zeros((6, 6))
+    cov[:3, :3] = cov[3:, 3:] = 4 * s * lat + along
+    cov[:3, 3:] = cov[3:, :3] = -2 * s * lat
+    return cov
+
+
+def _make_pipe(points, normals, idx, a0, cfg: PipeConfig) -> Pipe:
+    c, a, r = fit_cylinder(points[idx], normals[idx], a0, cfg)
+    t = (points[idx] - c) @ a
+    p, q = c + t.min() * a, c + t.max() * a
+    rng = float(np.linalg.norm(points[idx], axis=1).mean())
+    return Pipe(p, q, a, r, idx, endpoint_covariance(p, q, a, len(idx), rng, cfg))
+
+
+def detect_pipes(points: np.ndarray, normals: np.ndarray, neighbors: np.ndarray, cfg: PipeConfig) -> list[Pipe]:
+    """Pipes among ``points`` (N×3, {S}) with outward ``normals``; ``neighbors`` (N×k) index lists
+    used to draw point pairs (−1 = none). Returns merged pipe segments."""
+    n = len(points)
+    rng = np.random.default_rng(cfg.seed)
+    free = np.ones(n, bool)
+    pipes: list[Pipe] = []
+    failures = 0
+    for _ in range(cfg.max_pipes * 3):
+        if len(pipes) >= cfg.max_pipes or failures >= 3:
+            break
+        cand = np.flatnonzero(free)
+        if len(cand) < cfg.min_points:
+            break
+        i = rng.choice(cand, cfg.hypotheses)
+        j = neighbors[i, rng.integers(neighbors.shape[1] // 3, neighbors.shape[1], cfg.hypotheses)]
+        good = j >= 0
+        good[good] &= free[j[good]]
+        i, j = i[good], j[good]
+        c, a, r, ok = hypotheses(points[i], normals[i], points[j], normals[j], cfg)
+        if not ok.any():
+            failures += 1
+            continue
+        c, a, r = c[ok], a[ok], r[ok]
+        sample = cand if len(cand) <= cfg.score_sample else rng.choice(cand, cfg.score_sample, replace=False)
+        scores = inlier_mask(points[sample], normals[sample], c, a, r, cfg).sum(axis=1)
+        best = int(np.argmax(scores))
+        if scores[best] * len(cand) / len(sample) < cfg.min_points:
+            break
+        idx = cand[inlier_mask(points[cand], normals[cand], c[best : best + 1], a[best : best + 1], r[best : best + 1], cfg)[0]]
+        # Refine twice: the model from all inliers, then the inliers of the refined model.
+        for _ in range(2):
+            if len(idx) < 6:
+                break
+            c1, a1, r1 = fit_cylinder(points[idx], normals[idx], a[best], cfg)
+            if not (cfg.min_radius <= r1 <= cfg.max_radius):
+                break
+            idx = cand[inlier_mask(points[cand], normals[cand], c1[None], a1[None], np.array([r1]), cfg)[0]]
+            c[best], a[best], r[best] = c1, a1, r1
+        free[idx] = False  # consumed, whether or not a run is long enough
+        found = False
+        for run in _runs((points[idx] - c[best]) @ a[best], cfg.max_gap):
+            seg = idx[run]
+            if len(seg) < cfg.min_points:
+                continue
+            pipe = _make_pipe(points, normals, seg, a[best], cfg)
+            if pipe.length >= cfg.min_length and cfg.min_radius <= pipe.radius <= cfg.max_radius:
+                pipes.append(pipe)
+                found = True
+        failures = 0 if found else failures + 1
+    return merge_duplicates(pipes, points, normals, cfg)
+
+
+def merge_duplicates(pipes: list[Pipe], points, normals, cfg: PipeConfig) -> list[Pipe]:
+    """Merge segments of one pipe found twice: near-parallel, coaxial, overlapping or nearly touching."""
+    pipes = list(pipes)
+    cos_max = np.cos(np.radians(cfg.merge_angle_deg))
+    merged = True
+    while merged and len(pipes) > 1:
+        merged = False
+        for x in range(len(pipes)):
+            for y in range(x + 1, len(pipes)):
+                A, B = pipes[x], pipes[y]
+                if abs(A.axis @ B.axis) < cos_max:
+                    continue
+                mid_b = 0.5 * (B.p + B.q)
+                off = mid_b - A.p
+                lateral = np.linalg.norm(off - (off @ A.axis) * A.axis)
+                if lateral > cfg.merge_distance:
+                    continue
+                tb = sorted([(B.p - A.p) @ A.axis, (B.q - A.p) @ A.axis])
+                gap = max(tb[0] - A.length, -tb[1], 0.0)
+                if gap > cfg.merge_gap:
+                    continue
+                seg = np.union1d(A.inliers, B.inliers)
+                pipes[x] = _make_pipe(points, normals, seg, A.axis, cfg)
+                del pipes[y]
+                merged = True
+                break
+            if merged:
+                break
+    return pipes

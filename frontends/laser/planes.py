@@ -1,0 +1,134 @@
+"""Plane removal by region growing over normals (Vallicrosa et al. 2021, §3.1).
+
+Regions grow between neighbouring points whose normals are within ``max_normal_angle_deg`` of each
+other; as in PCL's region growing, only smooth points (curvature below ``growth_curvature``)
+propagate a region, so growth starts from the least-curved points and stops at edges and pipes.
+It is computed at once: the k-NN graph keeps the edges that pass both tests and
+``scipy.sparse.csgraph.connected_components`` labels the regions (no loop over points).
+
+Each region is then flat or structure by its mean curvature (threshold 0.025). Flat alone is not
+enough: an object's top face is flat too, and removing every flat region would remove it (the
+coplanar failure of plain RANSAC that the paper describes, in another guise). So a flat region is a
+*tank plane* only if it is also large (second principal extent ≥ ``min_plane_extent``); smaller flat
+regions join a tank plane only if they lie on it (same normal, centroid on the plane). Finally the
+curved border strip where a plane meets a pipe or an object (its neighbourhoods mix both surfaces)
+joins the plane point by point, only if adjacent to it and within ``plane_distance`` of it; the
+pipe and object points a few millimetres above the plane are not adjacent-and-on-plane and stay.
+All in the sensor frame {S}.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+
+from frontends.laser.config import PlaneConfig
+from frontends.laser.preprocess import Preprocessed
+
+
+@dataclass
+class PlaneResult:
+    """``structure`` (M,) bool: points kept; ``region`` (M,) region label of every point;
+    ``plane_of`` (M,) index of the tank plane a removed point belongs to (−1 if kept);
+    ``planes`` list of (unit normal, offset d) with n·x = d, in {S}."""
+
+    structure: np.ndarray
+    region: np.ndarray
+    plane_of: np.ndarray
+    planes: list[tuple[np.ndarray, float]] = field(default_factory=list)
+
+
+def grow_regions(pre: Preprocessed, cfg: PlaneConfig) -> np.ndarray:
+    """Region label of every point (connected components of the smooth, normal-consistent graph)."""
+    m = len(pre.points)
+    g = min(cfg.graph_neighbors, pre.knn.shape[1] - 1)
+    i = np.repeat(np.arange(m), g)
+    j = pre.knn[:, 1 : g + 1].ravel()
+    n, kappa = pre.normals, pre.curvature
+    cos_min = np.cos(np.radians(cfg.max_normal_angle_deg))
+    smooth = kappa < cfg.growth_curvature
+    ok = (np.einsum("ij,ij->i", n[i], n[j]) >= cos_min) & smooth[i] & smooth[j]
+    graph = coo_matrix((np.ones(ok.sum(), np.int8), (i[ok], j[ok])), shape=(m, m))
+    _, labels = connected_components(graph, directed=False)
+    return labels
+
+
+def _region_moments(points: np.ndarray, labels: np.ndarray, n_labels: int):
+    """Count, centroid and covariance of every region, from bincount sums (coordinates centred)."""
+    origin = points.mean(axis=0)
+    x = points - origin
+    cnt = np.bincount(labels, minlength=n_labels).astype(float)
+    s = np.stack([np.bincount(labels, x[:, a], n_labels) for a in range(3)], axis=1)
+    ss = np.empty((n_labels, 3, 3))
+    for a in range(3):
+        for b in range(a, 3):
+            ss[:, a, b] = ss[:, b, a] = np.bincount(labels, x[:, a] * x[:, b], n_labels)
+    c = np.maximum(cnt, 1.0)
+    mean = s / c[:, None]
+    cov = ss / c[:, None, None] - mean[:, :, None] * mean[:, None, :]
+    return cnt, mean + origin, cov
+
+
+def remove_planes(pre: Preprocessed, cfg: PlaneConfig) -> PlaneResult:
+    """Label regions, find the tank planes among them and mark every point kept as structure."""
+    m = len(pre.points)
+    if m == 0:
+        e = np.zeros(0, bool)
+        return PlaneResult(e, np.zeros(0, np.int64), np.zeros(0, np.int64))
+    labels = grow_regions(pre, cfg)
+    n_labels = labels.max() + 1
+    cnt, centroid, cov = _region_moments(pre.points, labels, n_labels)
+    mean_kappa = np.bincount(labels, pre.curvature, n_labels) / np.maximum(cnt, 1)
+
+    cand = np.flatnonzero((cnt >= 10) & (mean_kappa < cfg.flat_curvature))
+    plane_of_region = np.full(n_labels, -1, np.int64)
+    planes: list[tuple[np.ndarray, float]] = []
+    if len(cand):
+        evals, evecs = np.linalg.eigh(cov[cand])
+        extent = np.sqrt(12.0 * np.clip(evals[:, 1], 0, None))
+        normals = evecs[:, :, 0]
+        big = extent >= cfg.min_plane_extent
+        for r, nrm in zip(cand[big], normals[big]):  # a handful of tank planes per scan
+            plane_of_region[r] = len(planes)
+            planes.append((nrm, float(nrm @ centroid[r])))
+        if planes:
+            # Small flat regions lying on a tank plane (the floor cut up by pipes and shadows) join it.
+            P = np.array([p[0] for p in planes])
+            D = np.array([p[1] for p in planes])
+            small = cand[~big]
+            cos_n = np.abs(normals[~big] @ P.T)  # regions × planes
+            dist = np.abs(centroid[small] @ P.T - D)
+            on = (cos_n >= np.cos(np.radians(cfg.max_normal_angle_deg))) & (dist <= cfg.plane_distance)
+            has = on.any(axis=1)
+            plane_of_region[small[has]] = np.argmin(np.where(on, dist, np.inf), axis=1)[has]
+
+    plane_of = plane_of_region[labels]
+    if planes and cfg.border_hops > 0:
+        plane_of = _join_border(pre, plane_of, planes, cfg)
+    return PlaneResult(plane_of < 0, labels, plane_of, planes)
+
+
+def _join_border(pre: Preprocessed, plane_of: np.ndarray, planes, cfg: PlaneConfig) -> np.ndarray:
+    """Grow the tank planes, a hop at a time, over adjacent points that lie on them."""
+    g = min(cfg.graph_neighbors, pre.knn.shape[1] - 1)
+    nbr = pre.knn[:, 1 : g + 1]
+    P = np.array([p[0] for p in planes])
+    D = np.array([p[1] for p in planes])
+    plane_of = plane_of.copy()
+    for _ in range(cfg.border_hops):
+        free = np.flatnonzero(plane_of < 0)
+        if len(free) == 0:
+            break
+        nb_plane = plane_of[nbr[free]]  # free × g
+        cand = nb_plane.max(axis=1)  # a plane any neighbour belongs to (corners: either will do)
+        has = cand >= 0
+        free, cand = free[has], cand[has]
+        dist = np.abs(np.einsum("ij,ij->i", pre.points[free], P[cand]) - D[cand])
+        join = dist <= cfg.plane_distance
+        if not join.any():
+            break
+        plane_of[free[join]] = cand[join]
+    return plane_of
