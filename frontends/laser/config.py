@@ -44,6 +44,11 @@ class PlaneConfig(_Section):
         description="a flat region is a tank plane only if its second principal extent (√12·σ) exceeds this; "
         "smaller flat regions (object faces) are structure unless coplanar with a tank plane",
     )
+    min_plane_area: float = Field(
+        0.25,
+        gt=0,
+        description="... or if its area (points × voxel²) exceeds this, m² (a wall seen as a narrow strip)",
+    )
     plane_distance: float = Field(
         0.012, gt=0, description="points within this distance of a tank plane and next to it join it (border strip)"
     )

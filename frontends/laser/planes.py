@@ -9,7 +9,8 @@ It is computed at once: the k-NN graph keeps the edges that pass both tests and
 Each region is then flat or structure by its mean curvature (threshold 0.025). Flat alone is not
 enough: an object's top face is flat too, and removing every flat region would remove it (the
 coplanar failure of plain RANSAC that the paper describes, in another guise). So a flat region is a
-*tank plane* only if it is also large (second principal extent ≥ ``min_plane_extent``); smaller flat
+*tank plane* only if it is also large (second principal extent ≥ ``min_plane_extent`` or area ≥ ``min_plane_area``, the
+area counted as points × voxel² since the cloud is voxel-downsampled); smaller flat
 regions join a tank plane only if they lie on it (same normal, centroid on the plane). Finally the
 curved border strip where a plane meets a pipe or an object (its neighbourhoods mix both surfaces)
 joins the plane point by point, only if adjacent to it and within ``plane_distance`` of it; the
@@ -72,7 +73,7 @@ def _region_moments(points: np.ndarray, labels: np.ndarray, n_labels: int):
     return cnt, mean + origin, cov
 
 
-def remove_planes(pre: Preprocessed, cfg: PlaneConfig) -> PlaneResult:
+def remove_planes(pre: Preprocessed, cfg: PlaneConfig, voxel_size: float) -> PlaneResult:
     """Label regions, find the tank planes among them and mark every point kept as structure."""
     m = len(pre.points)
     if m == 0:
@@ -90,7 +91,7 @@ def remove_planes(pre: Preprocessed, cfg: PlaneConfig) -> PlaneResult:
         evals, evecs = np.linalg.eigh(cov[cand])
         extent = np.sqrt(12.0 * np.clip(evals[:, 1], 0, None))
         normals = evecs[:, :, 0]
-        big = extent >= cfg.min_plane_extent
+        big = (extent >= cfg.min_plane_extent) | (cnt[cand] * voxel_size**2 >= cfg.min_plane_area)
         for r, nrm in zip(cand[big], normals[big]):  # a handful of tank planes per scan
             plane_of_region[r] = len(planes)
             planes.append((nrm, float(nrm @ centroid[r])))
@@ -123,12 +124,12 @@ def _join_border(pre: Preprocessed, plane_of: np.ndarray, planes, cfg: PlaneConf
         if len(free) == 0:
             break
         nb_plane = plane_of[nbr[free]]  # free × g
-        cand = nb_plane.max(axis=1)  # a plane any neighbour belongs to (corners: either will do)
-        has = cand >= 0
-        free, cand = free[has], cand[has]
-        dist = np.abs(np.einsum("ij,ij->i", pre.points[free], P[cand]) - D[cand])
-        join = dist <= cfg.plane_distance
+        adjacent = (nb_plane[:, :, None] == np.arange(len(P))).any(axis=1)  # free × planes
+        dist = np.abs(pre.points[free] @ P.T - D)
+        dist = np.where(adjacent, dist, np.inf)  # at a corner, either adjacent plane may take it
+        best = dist.argmin(axis=1)
+        join = dist[np.arange(len(free)), best] <= cfg.plane_distance
         if not join.any():
             break
-        plane_of[free[join]] = cand[join]
+        plane_of[free[join]] = best[join]
     return plane_of

@@ -17,6 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import open3d as o3d
+from scipy.sparse import csr_matrix
 
 from frontends.laser.config import PlaneConfig, PreprocessConfig
 
@@ -60,30 +61,69 @@ def knn_search(points: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
     return idx.numpy().astype(np.int64), d2.numpy()
 
 
+def neighbourhood_covariances(points: np.ndarray, knn: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
+    """Covariance (R×3×3) of each neighbourhood ``knn`` (R×k indices into ``points``).
+
+    All neighbourhoods at once as one sparse product: with A the R×N neighbour-incidence matrix and
+    F the per-point moments (x, y, z, xx, xy, xz, yy, yz, zz) of coordinates centred on the cloud
+    (float64, so E[xxᵀ] − E[x]E[x]ᵀ loses nothing at these scales), A·F sums every neighbourhood.
+    """
+    r, k = knn.shape
+    n = len(points)
+    A = csr_matrix((np.ones(r * k), knn.ravel(), np.arange(0, r * k + 1, k)), shape=(r, n))
+    x = points - points.mean(axis=0)
+    F = np.column_stack([x, x[:, [0, 0, 0, 1, 1, 2]] * x[:, [0, 1, 2, 1, 2, 2]]])
+    S = (A @ F) / k
+    mean = S[:, :3]
+    sec = S[:, 3:] - mean[:, [0, 0, 0, 1, 1, 2]] * mean[:, [0, 1, 2, 1, 2, 2]]
+    cov = np.empty((r, 3, 3))
+    for col, (a, b) in enumerate([(0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)]):
+        cov[:, a, b] = cov[:, b, a] = sec[:, col]
+    return cov
+
+
+def smallest_eigen(cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Smallest eigenvalue and its unit eigenvector of symmetric 3×3 matrices, in closed form.
+
+    Eigenvalues by the trigonometric solution of the characteristic cubic (Smith 1961); the
+    eigenvector is the largest cross product of two rows of (C − λ0·I), which span its complement.
+    Much faster than a batched LAPACK call on tens of thousands of 3×3 matrices.
+    """
+    a00, a11, a22 = cov[:, 0, 0], cov[:, 1, 1], cov[:, 2, 2]
+    a01, a02, a12 = cov[:, 0, 1], cov[:, 0, 2], cov[:, 1, 2]
+    q = (a00 + a11 + a22) / 3.0
+    p1 = a01**2 + a02**2 + a12**2
+    p2 = (a00 - q) ** 2 + (a11 - q) ** 2 + (a22 - q) ** 2 + 2.0 * p1
+    p = np.sqrt(np.maximum(p2 / 6.0, 1e-300))
+    b00, b11, b22 = (a00 - q) / p, (a11 - q) / p, (a22 - q) / p
+    b01, b02, b12 = a01 / p, a02 / p, a12 / p
+    det = b00 * (b11 * b22 - b12 * b12) - b01 * (b01 * b22 - b12 * b02) + b02 * (b01 * b12 - b11 * b02)
+    phi = np.arccos(np.clip(det / 2.0, -1.0, 1.0)) / 3.0
+    lam0 = q + 2.0 * p * np.cos(phi + 2.0 * np.pi / 3.0)
+    M = cov - lam0[:, None, None] * np.eye(3)
+    c = np.stack([np.cross(M[:, 0], M[:, 1]), np.cross(M[:, 0], M[:, 2]), np.cross(M[:, 1], M[:, 2])], axis=1)
+    norms = np.linalg.norm(c, axis=2)
+    best = norms.argmax(axis=1)
+    v = c[np.arange(len(cov)), best]
+    nv = norms[np.arange(len(cov)), best]
+    degenerate = nv < 1e-300  # isotropic or zero covariance: no preferred normal
+    v = np.where(degenerate[:, None], np.array([0.0, 0.0, 1.0]), v / np.where(degenerate, 1.0, nv)[:, None])
+    return np.maximum(lam0, 0.0), v
+
+
 def local_geometry(
     points: np.ndarray, knn: np.ndarray, rows: np.ndarray | None = None, viewpoint=(0.0, 0.0, 0.0)
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Normals (towards ``viewpoint``) and curvature λ0/(λ0+λ1+λ2) of the neighbourhoods ``knn``
-    (R×k indices into ``points``) of the points ``rows`` (all points when None).
-
-    The neighbourhood covariances are formed in one batch: neighbours are centred on their query
-    point (float32 is then exact enough), the six second moments summed over the neighbourhood.
-    """
+    """Normals (towards ``viewpoint``) and curvature κ = λ0/(λ0+λ1+λ2) of the neighbourhoods ``knn``
+    (R×k indices into ``points``) of the points ``rows`` (all points when None)."""
     centre = points if rows is None else points[rows]
-    q = (points[knn] - centre[:, None, :]).astype(np.float32)  # R×k×3
-    k = knn.shape[1]
-    mean = q.mean(axis=1)
-    cov = np.empty((len(centre), 3, 3), np.float32)
-    for a in range(3):
-        for b in range(a, 3):
-            cov[:, a, b] = cov[:, b, a] = (q[:, :, a] * q[:, :, b]).sum(axis=1) / k - mean[:, a] * mean[:, b]
-    evals, evecs = np.linalg.eigh(cov)  # ascending
-    evals = np.clip(evals, 0.0, None)
-    curvature = evals[:, 0] / np.maximum(evals.sum(axis=1), 1e-20)
-    normals = evecs[:, :, 0].astype(np.float64)
+    cov = neighbourhood_covariances(points, knn)
+    lam0, normals = smallest_eigen(cov)
+    trace = np.trace(cov, axis1=1, axis2=2)
+    curvature = np.where(trace > 0, lam0 / np.maximum(trace, 1e-300), 0.0)
     flip = np.einsum("ij,ij->i", normals, np.asarray(viewpoint) - centre) < 0
     normals[flip] *= -1.0
-    return normals, curvature.astype(np.float64)
+    return normals, curvature
 
 
 def statistical_inliers(knn_dist2: np.ndarray, neighbors: int, std_ratio: float) -> np.ndarray:
