@@ -171,3 +171,32 @@ def raycast(
     pts = (d[hit] * r[:, None]).astype(np.float32)
     gid = gid[hit]
     return SynthScan(pts, np.asarray(kinds)[gid], np.asarray(indices)[gid], scene)
+
+
+def truth_of(scan: SynthScan, T_scene: np.ndarray | None = None):
+    """The ground truth of a scan for :mod:`frontends.laser.evaluation`, in {S}."""
+    from frontends.laser.evaluation import OBJECT, PIPE, PLANE, ScanTruth
+
+    T = np.eye(4) if T_scene is None else np.asarray(T_scene)
+
+    def tf(x):
+        return T[:3, :3] @ np.asarray(x, float) + T[:3, 3]
+
+    kind = np.select([scan.kind <= SynthScan.WALL, scan.kind == SynthScan.PIPE], [PLANE, PIPE], OBJECT)
+    pipes = [(tf(p.p), tf(p.q), p.radius) for p in scan.scene.pipes]
+    objects = [(tf(o.center), o.configuration) for o in scan.scene.objects]
+    return ScanTruth(kind, scan.index.copy(), pipes, objects)
+
+
+def viewpoint(yaw_deg: float = 0.0, shift=(0.0, 0.0), tilt_deg: float = 0.0, height: float = 0.0) -> np.ndarray:
+    """A scene transform T_scene: the scene turned by ``yaw`` about the sensor's view axis (z),
+    shifted in x, y, tilted about x, and moved ``height`` closer to the sensor."""
+    from scipy.spatial.transform import Rotation
+
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_euler("xz", [tilt_deg, yaw_deg], degrees=True).as_matrix()
+    T[:3, 3] = [shift[0], shift[1], -height]
+    # rotate about the point under the sensor on the floor, so the structure stays in view
+    c = np.array([0.0, 0.0, default_scene().floor_z])
+    T[:3, 3] += c - T[:3, :3] @ c
+    return T

@@ -1,0 +1,183 @@
+"""Scoring a segmented scan against ground truth (tests and ``experiments/laser_eval.py``).
+
+Ground truth for one scan, in the sensor frame {S}: what every raw point hit (``kind``: plane,
+pipe, object or other; ``index``: which pipe / object), the pipe axes and the object positions
+with their connectivity configuration. The figures are those of the acceptance of issue 6.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from frontends.laser.frontend import ScanSegmentation
+
+PLANE, PIPE, OBJECT, OTHER = 0, 2, 3, -1
+
+
+@dataclass
+class ScanTruth:
+    """``kind`` (N,) per raw point: PLANE, PIPE, OBJECT or OTHER; ``index`` (N,) pipe / object index
+    (−1 otherwise); ``pipes`` list of (p, q, radius); ``objects`` list of (position, configuration);
+    ``object_visible_configuration`` the configuration counting only the pipes seen (or None)."""
+
+    kind: np.ndarray
+    index: np.ndarray
+    pipes: list[tuple[np.ndarray, np.ndarray, float]]
+    objects: list[tuple[np.ndarray, int | None]]
+    object_visible_configuration: list[int | None] | None = None
+
+
+@dataclass
+class ScanScore:
+    structure_kept: float  # fraction of pipe + object points kept by plane removal
+    plane_removed: float  # fraction of floor + wall points removed
+    n_visible_pipes: int  # ≥ min_visible of their length seen
+    n_recalled_pipes: int
+    n_detections: int
+    n_true_detections: int
+    endpoint_errors: list[float] = field(default_factory=list)  # m, against the visible extent
+    axis_errors_deg: list[float] = field(default_factory=list)
+    n_visible_objects: int = 0
+    n_single_segment: int = 0  # visible objects with exactly one segment
+    object_errors: list[float] = field(default_factory=list)  # m, of the single segments
+    n_config_correct: int = 0  # of the single segments, configuration = truth
+    n_config_visible_correct: int = 0  # ... = configuration of the pipes seen
+    n_object_segments: int = 0
+    n_spurious_objects: int = 0  # segments near no visible object
+
+
+def _unit(v):
+    return v / np.linalg.norm(v)
+
+
+def pipe_visibility(points: np.ndarray, truth: ScanTruth, k: int, bin_size: float = 0.02):
+    """Fraction of pipe k's length hit by the scan, and the visible extent [t0, t1] along p→q."""
+    p, q, _ = truth.pipes[k]
+    a = _unit(q - p)
+    length = float(np.linalg.norm(q - p))
+    hits = points[(truth.kind == PIPE) & (truth.index == k)]
+    if len(hits) == 0:
+        return 0.0, None
+    t = np.clip((hits - p) @ a, 0.0, length)
+    n_bins = max(int(np.ceil(length / bin_size)), 1)
+    covered = np.unique(np.minimum((t / bin_size).astype(int), n_bins - 1))
+    return len(covered) / n_bins, (float(t.min()), float(t.max()))
+
+
+def score_scan(
+    points: np.ndarray,
+    seg: ScanSegmentation,
+    truth: ScanTruth,
+    min_visible: float = 0.5,
+    match_angle_deg: float = 10.0,
+    match_distance: float = 0.1,
+    object_gate: float = 0.15,
+    min_object_hits: int = 30,
+) -> ScanScore:
+    points = np.asarray(points, dtype=np.float64)
+    v = seg.pre.raw_to_voxel
+    kept = np.zeros(len(points), bool)
+    kept[v >= 0] = seg.planes.structure[v[v >= 0]]
+    struct = (truth.kind == PIPE) | (truth.kind == OBJECT)
+    plane = truth.kind == PLANE
+    structure_kept = float(kept[struct].mean()) if struct.any() else float("nan")
+    plane_removed = float(1.0 - kept[plane].mean()) if plane.any() else float("nan")
+
+    # Pipes: a detection is true when near-parallel to a truth pipe, on its axis and overlapping it.
+    vis = [pipe_visibility(points, truth, k) for k in range(len(truth.pipes))]
+    match = np.full(len(seg.pipes), -1)
+    for d, det in enumerate(seg.pipes):
+        best = np.inf
+        for k, (p, q, _) in enumerate(truth.pipes):
+            a = _unit(q - p)
+            if abs(a @ det.axis) < np.cos(np.radians(match_angle_deg)):
+                continue
+            mid = 0.5 * (det.p + det.q)
+            lateral = np.linalg.norm((mid - p) - ((mid - p) @ a) * a)
+            t = sorted([(det.p - p) @ a, (det.q - p) @ a])
+            overlap = min(t[1], np.linalg.norm(q - p)) - max(t[0], 0.0)
+            if lateral <= match_distance and overlap > 0 and lateral < best:
+                best, match[d] = lateral, k
+    visible = [k for k, (f, _) in enumerate(vis) if f >= min_visible]
+    score = ScanScore(
+        structure_kept,
+        plane_removed,
+        len(visible),
+        len(set(match[match >= 0]) & set(visible)),
+        len(seg.pipes),
+        int((match >= 0).sum()),
+    )
+    for d, k in enumerate(match):
+        if k < 0 or vis[k][1] is None:
+            continue
+        p, q, _ = truth.pipes[k]
+        a = _unit(q - p)
+        det = seg.pipes[d]
+        score.axis_errors_deg.append(float(np.degrees(np.arccos(min(abs(a @ det.axis), 1.0)))))
+        t0, t1 = vis[k][1]
+        ends = (det.p, det.q) if (det.q - det.p) @ a > 0 else (det.q, det.p)
+        for e, t in zip(ends, (t0, t1)):
+            score.endpoint_errors.append(float(np.linalg.norm(e - (p + t * a))))
+
+    # Objects: visible = hit by enough rays; exactly one segment within the gate.
+    seg_pos = np.array([o.position for o in seg.objects]).reshape(-1, 3)
+    score.n_object_segments = len(seg_pos)
+    near_any = np.zeros(len(seg_pos), bool)
+    for j, (pos, config) in enumerate(truth.objects):
+        hits = int(((truth.kind == OBJECT) & (truth.index == j)).sum())
+        d = np.linalg.norm(seg_pos - pos, axis=1) if len(seg_pos) else np.zeros(0)
+        near = d <= object_gate
+        near_any |= near
+        if hits < min_object_hits:
+            continue
+        score.n_visible_objects += 1
+        if near.sum() == 1:
+            score.n_single_segment += 1
+            o = seg.objects[int(np.flatnonzero(near)[0])]
+            score.object_errors.append(float(d[near][0]))
+            score.n_config_correct += int(o.configuration == config)
+            if truth.object_visible_configuration is not None:
+                score.n_config_visible_correct += int(o.configuration == truth.object_visible_configuration[j])
+    score.n_spurious_objects = int((~near_any).sum())
+    return score
+
+
+def summarize(scores: list[ScanScore]) -> dict:
+    """Overall figures of a list of scan scores (the acceptance of issue 6)."""
+
+    def ratio(a, b):
+        return float(a / b) if b else None
+
+    def med(x):
+        return float(np.median(x)) if len(x) else None
+
+    structure = [s.structure_kept for s in scores if np.isfinite(s.structure_kept)]
+    plane = [s.plane_removed for s in scores if np.isfinite(s.plane_removed)]
+    ep = [e for s in scores for e in s.endpoint_errors]
+    ax = [e for s in scores for e in s.axis_errors_deg]
+    oe = [e for s in scores for e in s.object_errors]
+    vis_obj = sum(s.n_visible_objects for s in scores)
+    single = sum(s.n_single_segment for s in scores)
+    return {
+        "scans": len(scores),
+        "structure_kept_mean": float(np.mean(structure)) if structure else None,
+        "structure_kept_min": float(np.min(structure)) if structure else None,
+        "plane_removed_mean": float(np.mean(plane)) if plane else None,
+        "plane_removed_min": float(np.min(plane)) if plane else None,
+        "pipe_recall": ratio(sum(s.n_recalled_pipes for s in scores), sum(s.n_visible_pipes for s in scores)),
+        "pipe_precision": ratio(sum(s.n_true_detections for s in scores), sum(s.n_detections for s in scores)),
+        "endpoint_error_median_m": med(ep),
+        "endpoint_error_p90_m": float(np.percentile(ep, 90)) if ep else None,
+        "axis_error_median_deg": med(ax),
+        "axis_error_p90_deg": float(np.percentile(ax, 90)) if ax else None,
+        "objects_single_segment": ratio(single, vis_obj),
+        "object_error_median_m": med(oe),
+        "object_within_5cm": ratio(sum(e <= 0.05 for e in oe), len(oe)),
+        "configuration_correct": ratio(sum(s.n_config_correct for s in scores), single),
+        "configuration_visible_correct": ratio(sum(s.n_config_visible_correct for s in scores), single),
+        "spurious_objects": sum(s.n_spurious_objects for s in scores),
+        "visible_objects": vis_obj,
+        "visible_pipes": sum(s.n_visible_pipes for s in scores),
+    }
