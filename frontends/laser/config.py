@@ -25,6 +25,12 @@ class PreprocessConfig(_Section):
     outlier_std_ratio: float = Field(
         3.0, gt=0, description="... a point goes if its mean neighbour distance exceeds mean + ratio × std"
     )
+    outlier_min_distance: float = Field(
+        0.12,
+        ge=0,
+        description="... and this (m): on a scan dominated by dense planes the std is tiny, and thin parts "
+        "(a valve stem, a handle rim) would otherwise go; stray returns are farther from everything",
+    )
 
 
 class PlaneConfig(_Section):

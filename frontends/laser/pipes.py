@@ -145,21 +145,39 @@ def _make_pipe(points, normals, idx, a0, cfg: PipeConfig) -> Pipe:
     return Pipe(p, q, a, r, idx, endpoint_covariance(p, q, a, len(idx), rng, cfg))
 
 
+def _refine(points, normals, cand, c, a, r, cfg: PipeConfig):
+    """Refit a hypothesis to its inliers among ``cand`` twice; None if the fit leaves the radius range."""
+    idx = cand[inlier_mask(points[cand], normals[cand], c[None], a[None], np.array([r]), cfg)[0]]
+    for _ in range(2):
+        if len(idx) < cfg.min_points:
+            return None
+        c, a, r = fit_cylinder(points[idx], normals[idx], a, cfg)
+        if not (cfg.min_radius <= r <= cfg.max_radius):
+            return None
+        idx = cand[inlier_mask(points[cand], normals[cand], c[None], a[None], np.array([r]), cfg)[0]]
+    return c, a, r, idx
+
+
 def detect_pipes(points: np.ndarray, normals: np.ndarray, neighbors: np.ndarray, cfg: PipeConfig) -> list[Pipe]:
     """Pipes among ``points`` (N×3, {S}) with outward ``normals``; ``neighbors`` (N×k) index lists
-    used to draw point pairs (−1 = none). Returns merged pipe segments."""
+    used to draw point pairs (−1 = none). Returns merged pipe segments.
+
+    Two masks: ``free`` points may still be inliers; ``seedable`` points may still seed hypotheses.
+    A model that yields a pipe consumes its inliers; one that does not (an object's curved part, a
+    bad fit) only stops seeding from them, so a pipe sharing points with it can still be found.
+    """
     n = len(points)
     rng = np.random.default_rng(cfg.seed)
     free = np.ones(n, bool)
+    seedable = np.ones(n, bool)
     pipes: list[Pipe] = []
     failures = 0
-    for _ in range(cfg.max_pipes * 3):
-        if len(pipes) >= cfg.max_pipes or failures >= 3:
-            break
+    while len(pipes) < cfg.max_pipes and failures < 5:
+        seeds = np.flatnonzero(seedable & free)
         cand = np.flatnonzero(free)
-        if len(cand) < cfg.min_points:
+        if len(seeds) < cfg.min_points:
             break
-        i = rng.choice(cand, cfg.hypotheses)
+        i = rng.choice(seeds, cfg.hypotheses)
         j = neighbors[i, rng.integers(neighbors.shape[1] // 3, neighbors.shape[1], cfg.hypotheses)]
         good = j >= 0
         good[good] &= free[j[good]]
@@ -171,29 +189,27 @@ def detect_pipes(points: np.ndarray, normals: np.ndarray, neighbors: np.ndarray,
         c, a, r = c[ok], a[ok], r[ok]
         sample = cand if len(cand) <= cfg.score_sample else rng.choice(cand, cfg.score_sample, replace=False)
         scores = inlier_mask(points[sample], normals[sample], c, a, r, cfg).sum(axis=1)
-        best = int(np.argmax(scores))
-        if scores[best] * len(cand) / len(sample) < cfg.min_points:
+        if scores.max() * len(cand) / len(sample) < cfg.min_points:
             break
-        idx = cand[inlier_mask(points[cand], normals[cand], c[best : best + 1], a[best : best + 1], r[best : best + 1], cfg)[0]]
-        # Refine twice: the model from all inliers, then the inliers of the refined model.
-        for _ in range(2):
-            if len(idx) < 6:
-                break
-            c1, a1, r1 = fit_cylinder(points[idx], normals[idx], a[best], cfg)
-            if not (cfg.min_radius <= r1 <= cfg.max_radius):
-                break
-            idx = cand[inlier_mask(points[cand], normals[cand], c1[None], a1[None], np.array([r1]), cfg)[0]]
-            c[best], a[best], r[best] = c1, a1, r1
-        free[idx] = False  # consumed, whether or not a run is long enough
+        # Refine the few best hypotheses and keep the one with most inliers after refinement.
+        refined = [_refine(points, normals, cand, c[h], a[h], r[h], cfg) for h in np.argsort(scores)[::-1][:3]]
+        refined = [m for m in refined if m is not None]
+        if not refined:
+            seedable[i[np.flatnonzero(ok)[np.argmax(scores)]]] = False
+            failures += 1
+            continue
+        cb, ab, rb, idx = max(refined, key=lambda m: len(m[3]))
         found = False
-        for run in _runs((points[idx] - c[best]) @ a[best], cfg.max_gap):
+        for run in _runs((points[idx] - cb) @ ab, cfg.max_gap):
             seg = idx[run]
             if len(seg) < cfg.min_points:
                 continue
-            pipe = _make_pipe(points, normals, seg, a[best], cfg)
+            pipe = _make_pipe(points, normals, seg, ab, cfg)
             if pipe.length >= cfg.min_length and cfg.min_radius <= pipe.radius <= cfg.max_radius:
                 pipes.append(pipe)
+                free[seg] = False
                 found = True
+        seedable[idx] = False
         failures = 0 if found else failures + 1
     return merge_duplicates(pipes, points, normals, cfg)
 

@@ -126,10 +126,11 @@ def local_geometry(
     return normals, curvature
 
 
-def statistical_inliers(knn_dist2: np.ndarray, neighbors: int, std_ratio: float) -> np.ndarray:
-    """open3d's statistical outlier rule: mean distance to the neighbours ≤ global mean + ratio × std."""
+def statistical_inliers(knn_dist2: np.ndarray, neighbors: int, std_ratio: float, min_distance: float = 0.0) -> np.ndarray:
+    """open3d's statistical outlier rule: mean distance to the neighbours ≤ global mean + ratio × std
+    (or ≤ ``min_distance``, an absolute floor under the statistical threshold)."""
     d = np.sqrt(knn_dist2[:, 1 : neighbors + 1]).mean(axis=1)
-    return d <= d.mean() + std_ratio * d.std()
+    return d <= max(d.mean() + std_ratio * d.std(), min_distance)
 
 
 def preprocess(points: np.ndarray, pre: PreprocessConfig, planes: PlaneConfig) -> Preprocessed:
@@ -145,7 +146,7 @@ def preprocess(points: np.ndarray, pre: PreprocessConfig, planes: PlaneConfig) -
     if len(vox) <= k:
         return _empty(raw_to_voxel)
     knn, d2 = knn_search(vox, k)
-    good = statistical_inliers(d2, pre.outlier_neighbors, pre.outlier_std_ratio)
+    good = statistical_inliers(d2, pre.outlier_neighbors, pre.outlier_std_ratio, pre.outlier_min_distance)
     if not good.all():
         # Outliers are isolated, so they are rarely anyone's neighbour: drop their rows and, where
         # one appears in a neighbour list, put the query point itself there instead of searching again.
