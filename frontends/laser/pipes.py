@@ -81,14 +81,21 @@ def inlier_mask(points, normals, c, a, r, cfg: PipeConfig) -> np.ndarray:
 
 
 def fit_cylinder(points: np.ndarray, normals: np.ndarray, a0: np.ndarray, cfg: PipeConfig):
-    """Least-squares cylinder: axis from the inlier normals, circle fit across the axis.
+    """Least-squares cylinder: axis, then a circle fit across the axis.
 
-    The axis is the direction least spanned by the normals (all normals of a cylinder are
-    orthogonal to it); the centre and radius are an algebraic circle fit refined by Gauss–Newton on
+    The centre and radius are an algebraic circle fit refined by Gauss–Newton on
     the geometric distance, or the centre alone when the radius is known.
     """
-    _, vecs = np.linalg.eigh(normals.T @ normals)
-    a = vecs[:, 0] if vecs[:, 0] @ a0 >= 0 else -vecs[:, 0]
+    # Axis: along a long segment the points' principal direction is the axis (the visible
+    # half-shell is the same all along it) and it is far better conditioned than the normals; on a
+    # short, stubby set the normals decide (all normals of a cylinder are orthogonal to its axis).
+    pv, pvecs = np.linalg.eigh(np.cov(points.T))
+    if pv[2] > 9.0 * max(pv[1], 1e-12):
+        a = pvecs[:, 2]
+    else:
+        _, vecs = np.linalg.eigh(normals.T @ normals)
+        a = vecs[:, 0]
+    a = a if a @ a0 >= 0 else -a
     e1 = _unit(np.cross(a, [1.0, 0, 0]) if abs(a[0]) < 0.9 else np.cross(a, [0, 1.0, 0]))
     e2 = np.cross(a, e1)
     o = points.mean(axis=0)
@@ -102,13 +109,21 @@ def fit_cylinder(points: np.ndarray, normals: np.ndarray, a0: np.ndarray, cfg: P
         sol, *_ = np.linalg.lstsq(A, (x**2).sum(axis=1), rcond=None)
         cx = sol[:2]
         r = float(np.sqrt(max(sol[2] + cx @ cx, 1e-12)))
-        for _ in range(5):  # geometric refinement: residual |x − c| − r
-            dv = x - cx
+        # Geometric refinement (residual |x − c| − r) with trimming: a visible arc of a few voxels
+        # is easily pulled by the handful of object points where the pipe enters an object.
+        use = np.ones(len(x), bool)
+        for it in range(8):
+            dv = x[use] - cx
             dn = np.maximum(np.linalg.norm(dv, axis=1), 1e-12)
-            J = np.column_stack([-dv / dn[:, None], -np.ones(len(x))])
-            res = dn - r
-            step, *_ = np.linalg.lstsq(J, -res, rcond=None)
+            J = np.column_stack([-dv / dn[:, None], -np.ones(len(dv))])
+            step, *_ = np.linalg.lstsq(J, -(dn - r), rcond=None)
             cx, r = cx + step[:2], r + step[2]
+            if it in (3, 5):
+                res = np.linalg.norm(x - cx, axis=1) - r
+                sigma = 1.4826 * np.median(np.abs(res[use]))
+                keep = np.abs(res) <= max(3.0 * sigma, 0.003)
+                if keep.sum() >= 6:
+                    use = keep
     c = o + cx[0] * e1 + cx[1] * e2
     return c, a, float(r)
 

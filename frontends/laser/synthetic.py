@@ -10,6 +10,7 @@ Each returned point carries the id of the geometry it hit, for ground-truth labe
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import lru_cache
 
 import numpy as np
 import open3d as o3d
@@ -200,3 +201,9 @@ def viewpoint(yaw_deg: float = 0.0, shift=(0.0, 0.0), tilt_deg: float = 0.0, hei
     c = np.array([0.0, 0.0, default_scene().floor_z])
     T[:3, 3] += c - T[:3, :3] @ c
     return T
+
+
+@lru_cache(maxsize=4)
+def cached_scan(n_rays: int = 60_000, seed: int = 0) -> SynthScan:
+    """The default scene from the default viewpoint, cast once per process (tests share it)."""
+    return raycast(default_scene(), n_rays=n_rays, seed=seed)
