@@ -1,0 +1,107 @@
+"""Cylinder RANSAC pipes: hypotheses, fit, covariance, detection on a ray-cast scene, merge."""
+
+import numpy as np
+
+from frontends.laser import LaserConfig, segment_scan
+from frontends.laser.config import PipeConfig
+from frontends.laser.evaluation import score_scan
+from frontends.laser.pipes import endpoint_covariance, fit_cylinder, hypotheses, merge_duplicates, _make_pipe
+from frontends.laser.synthetic import cached_scan, truth_of
+
+
+def _cylinder(c, a, r, n, rng, length=1.0, noise=0.0):
+    """Points and outward normals on the half of a cylinder facing −z (the sensor side)."""
+    a = a / np.linalg.norm(a)
+    e1 = np.cross(a, [0, 0, 1.0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(a, e1)
+    e2 = e2 if e2[2] < 0 else -e2  # towards the sensor
+    th = rng.uniform(-1.3, 1.3, n)
+    t = rng.uniform(0, length, n)
+    nrm = np.outer(np.cos(th), e2) + np.outer(np.sin(th), e1)
+    pts = c + np.outer(t, a) + r * nrm + rng.normal(0, noise, (n, 3))
+    return pts, nrm
+
+
+def test_hypothesis_from_two_points_is_exact():
+    rng = np.random.default_rng(0)
+    c, a, r = np.array([0.2, -0.1, 2.0]), np.array([1.0, 0.4, 0.1]), 0.05
+    pts, nrm = _cylinder(c, a, r, 40, rng)
+    cc, aa, rr, ok = hypotheses(pts[:20], nrm[:20], pts[20:], nrm[20:], PipeConfig())
+    good = ok & (np.linalg.norm(np.cross(nrm[:20], nrm[20:]), axis=1) > 0.3)
+    assert good.sum() >= 10
+    au = a / np.linalg.norm(a)
+    assert np.allclose(np.abs(aa[good] @ au), 1.0, atol=1e-9)
+    assert np.allclose(rr[good], r, atol=1e-9)
+    off = cc[good] - c
+    assert np.allclose(np.linalg.norm(off - np.outer(off @ au, au), axis=1), 0.0, atol=1e-9)  # on the axis
+
+
+def test_hypotheses_reject_radius_out_of_range_and_prior():
+    rng = np.random.default_rng(1)
+    pts, nrm = _cylinder(np.zeros(3), np.array([0, 1.0, 0]), 0.10, 40, rng)
+    *_, ok = hypotheses(pts[:20], nrm[:20], pts[20:], nrm[20:], PipeConfig())
+    assert not ok.any()  # 10 cm > the 6.4 cm maximum
+    pts, nrm = _cylinder(np.zeros(3), np.array([0, 1.0, 0]), 0.03, 40, rng)
+    *_, ok = hypotheses(pts[:20], nrm[:20], pts[20:], nrm[20:], PipeConfig(radius_prior=0.05))
+    assert not ok.any()
+
+
+def test_fit_cylinder_noisy():
+    rng = np.random.default_rng(2)
+    c, a, r = np.array([0.0, 0.0, 2.0]), np.array([1.0, 1.0, 0.0]), 0.045
+    pts, nrm = _cylinder(c, a, r, 600, rng, length=0.8, noise=0.003)
+    cc, aa, rr = fit_cylinder(pts, nrm, a, PipeConfig())
+    au = a / np.linalg.norm(a)
+    assert np.degrees(np.arccos(abs(aa @ au))) < 0.5
+    assert abs(rr - r) < 0.003
+    off = cc - c
+    assert np.linalg.norm(off - (off @ au) * au) < 0.003
+    # with the radius known, the centre still comes out right
+    cc, aa, rr = fit_cylinder(pts, nrm, a, PipeConfig(radius_prior=r))
+    off = cc - c
+    assert rr == r and np.linalg.norm(off - (off @ au) * au) < 0.003
+
+
+def test_endpoint_covariance_structure():
+    cfg = PipeConfig()
+    a = np.array([0.0, 1.0, 0.0])
+    c1 = endpoint_covariance(np.zeros(3), a, a, 100, 2.0, cfg)
+    c2 = endpoint_covariance(np.zeros(3), a, a, 400, 2.0, cfg)
+    c3 = endpoint_covariance(np.zeros(3), a, a, 100, 4.0, cfg)
+    for c in (c1, c2, c3):
+        assert np.allclose(c, c.T) and np.linalg.eigvalsh(c).min() > 0
+    lat = np.array([1.0, 0, 0])
+    assert np.isclose(lat @ c1[:3, :3] @ lat, 4 * lat @ c2[:3, :3] @ lat)  # ∝ 1/n across the axis
+    assert lat @ c3[:3, :3] @ lat > lat @ c1[:3, :3] @ lat  # grows with range
+    assert np.isclose(a @ c1[:3, :3] @ a, a @ c2[:3, :3] @ a)  # along: sampling, not count
+    assert lat @ c1[:3, 3:] @ lat < 0  # the two ends of a fitted line swing oppositely
+
+
+def test_pipes_found_on_ray_cast_scene():
+    scan = cached_scan()
+    seg = segment_scan(scan.points, LaserConfig())
+    score = score_scan(scan.points, seg, truth_of(scan))
+    assert score.n_visible_pipes == 6
+    assert score.n_recalled_pipes == 6
+    assert score.n_true_detections == score.n_detections == 6
+    assert np.median(score.endpoint_errors) < 0.05 and max(score.endpoint_errors) < 0.10
+    assert max(score.axis_errors_deg) < 2.0
+    radii = sorted(p.radius for p in seg.pipes)
+    assert abs(radii[0] - 0.04) < 0.008 and all(abs(r - 0.05) < 0.008 for r in radii[1:])
+
+
+def test_duplicate_detections_merge():
+    rng = np.random.default_rng(3)
+    c, a = np.array([0.0, 0.0, 2.0]), np.array([1.0, 0.0, 0.0])
+    pts, nrm = _cylinder(c, a, 0.05, 800, rng, length=1.0, noise=0.002)
+    cfg = PipeConfig()
+    t = pts[:, 0]
+    allp, alln = np.vstack([pts, pts + [0, 0.5, 0]]), np.vstack([nrm, nrm])
+    first = _make_pipe(allp, alln, np.flatnonzero(t < 0.6), a, cfg)
+    second = _make_pipe(allp, alln, np.flatnonzero(t > 0.45), a, cfg)  # overlapping halves
+    other = _make_pipe(allp, alln, np.arange(800, 1600), a, cfg)  # a parallel pipe 0.5 m away
+    merged = merge_duplicates([first, second, other], allp, alln, cfg)
+    assert len(merged) == 2
+    whole = min(merged, key=lambda p: abs(p.p[1]) + abs(p.q[1]))
+    assert whole.length > 0.97
