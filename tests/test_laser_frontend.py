@@ -1,0 +1,101 @@
+"""The laser front-end behind the registry: configuration, observations, recognition hook."""
+
+import numpy as np
+import pytest
+
+from frontends.laser import LaserFrontend
+from semslam.errors import ConfigError
+from semslam.mission.measurements import PointCloud
+from semslam.mission.mission import MissionMetadata, SensorInfo
+from semslam.observations import Connectivity, LineObservation, PointObservation
+from semslam.registry import Frontend, load_frontend_class
+from frontends.laser.synthetic import cached_scan
+
+
+class _View:
+    def __init__(self, T_WB=None):
+        self.T_WB = T_WB
+
+    def pose_at(self, stamp):
+        return self.T_WB
+
+    def landmarks(self):
+        return []
+
+
+def _metadata():
+    # laser looking down: sensor axes = body axes (x forward, y right, z down)
+    return MissionMetadata(sensors={"laser": SensorInfo("laser", "laser", "/scan", T_BS=np.eye(4))})
+
+
+def test_registered_as_laser():
+    cls = load_frontend_class("laser")
+    assert cls is LaserFrontend
+    fe = cls(_metadata(), {})
+    assert isinstance(fe, Frontend) and fe.name == "laser" and PointCloud in fe.consumes
+
+
+def test_config_errors_name_the_key():
+    with pytest.raises(ConfigError, match="frontends.laser.pipes.max_radius"):
+        LaserFrontend(_metadata(), {"pipes": {"max_radius": -1}})
+    with pytest.raises(ConfigError, match="frontends.laser.planes.bogus"):
+        LaserFrontend(_metadata(), {"planes": {"bogus": 1}})
+
+
+def test_process_gives_lines_and_points():
+    scan = cached_scan()
+    fe = LaserFrontend(_metadata(), {})
+    obs = fe.process(PointCloud(stamp=123, sensor="laser", points=scan.points), _View(np.eye(4)))
+    lines = [o for o in obs if isinstance(o, LineObservation)]
+    points = [o for o in obs if isinstance(o, PointObservation)]
+    assert len(lines) == 6 and len(points) == 5
+    assert all(o.stamp == 123 and o.sensor == "laser" for o in obs)
+    for ln in lines:
+        assert np.linalg.eigvalsh(ln.covariance).min() > 0
+        assert 0.03 < ln.radius < 0.064
+    for pt in points:
+        assert pt.class_likelihood is None
+        assert np.linalg.eigvalsh(pt.covariance).min() > 0
+        assert pt.cloud.dtype == np.float32 and pt.cloud.shape[1] == 3
+        assert isinstance(pt.connectivity, Connectivity) and pt.connectivity.configuration in (1, 2, 3, 4)
+        assert len(pt.connectivity.directions) == pt.connectivity.n_pipes
+    # full-resolution clouds: the raw points of the object's voxels, more than the voxels
+    seg = fe.last
+    biggest = max(points, key=lambda p: len(p.cloud))
+    assert len(biggest.cloud) > max(len(o.indices) for o in seg.objects)
+    # "up" came from the pose and extrinsic: the sensor's −z
+    assert np.allclose(seg.up, [0, 0, -1.0])
+
+
+def test_recognizer_hook_fills_likelihoods():
+    seen = []
+
+    class Recognizer:
+        def classify(self, cloud, connectivity):
+            seen.append((cloud.shape, connectivity.configuration))
+            return {"valve": 0.7, "elbow": 0.3}
+
+    scan = cached_scan()
+    fe = LaserFrontend(_metadata(), {}, recognizer=Recognizer())
+    obs = fe.process(PointCloud(stamp=1, sensor="laser", points=scan.points), _View())
+    points = [o for o in obs if isinstance(o, PointObservation)]
+    assert len(seen) == len(points) == 5
+    assert all(dict(p.class_likelihood) == {"valve": 0.7, "elbow": 0.3} for p in points)
+
+
+def test_up_follows_vehicle_attitude():
+    fe = LaserFrontend(_metadata(), {})
+    pitch = np.radians(20)
+    T = np.eye(4)
+    T[:3, :3] = [[np.cos(pitch), 0, np.sin(pitch)], [0, 1, 0], [-np.sin(pitch), 0, np.cos(pitch)]]
+    up = fe._up("laser", 0, _View(T))
+    assert np.allclose(up, T[:3, :3].T @ [0, 0, -1.0])
+    assert np.allclose(fe._up("laser", 0, _View(None)), [0, 0, -1.0])  # level vehicle assumed
+    assert fe._up("unknown", 0, _View(T)) is None
+
+
+def test_empty_and_tiny_scans():
+    fe = LaserFrontend(_metadata(), {})
+    assert fe.process(PointCloud(stamp=1, sensor="laser", points=np.zeros((0, 3))), _View()) == []
+    few = np.random.default_rng(0).normal(size=(30, 3)).astype(np.float32) + [0, 0, 2]
+    assert fe.process(PointCloud(stamp=1, sensor="laser", points=few), _View()) == []

@@ -1,0 +1,55 @@
+"""Object segmentation at pipe ends: connectivity configurations, mushroom crop, positions."""
+
+import numpy as np
+
+from frontends.laser import LaserConfig, segment_scan
+from frontends.laser.objects import _line_intersection, box_frame, configuration_of
+from frontends.laser.synthetic import SynthScan, cached_scan
+
+
+def test_configurations():
+    x, y = np.array([1.0, 0, 0]), np.array([0, 1.0, 0])
+    assert configuration_of(x[None], 30) == 1
+    assert configuration_of(np.array([x, -x]), 30) == 2
+    assert configuration_of(np.array([x, -np.array([0.97, 0.24, 0])]), 30) == 2  # 14° off: still collinear
+    assert configuration_of(np.array([x, y]), 30) == 3
+    assert configuration_of(np.array([x, -x, y]), 30) == 4
+
+
+def test_line_intersection_and_box_frame():
+    p = np.array([[0.0, -1.0, 2.0], [1.0, 0.0, 2.0]])
+    d = np.array([[0, 1.0, 0], [-1.0, 0, 0]])
+    assert np.allclose(_line_intersection(p, d), [0, 0, 2.0])
+    R = box_frame(np.array([1.0, 0, 0.1]), np.array([0, 0, -1.0]))
+    assert np.allclose(R.T @ R, np.eye(3))
+    assert R[:, 2] @ [0, 0, -1.0] > 0.99 and abs(R[:, 2] @ R[:, 0]) < 1e-12
+
+
+def test_objects_segmented_once_with_configuration_and_position():
+    scan = cached_scan()
+    seg = segment_scan(scan.points, LaserConfig())
+    truth = scan.scene.objects
+    assert len(seg.objects) == len(truth)
+    for o in truth:
+        d = np.linalg.norm([s.position - o.center for s in seg.objects], axis=1)
+        assert (d < 0.15).sum() == 1  # exactly one segment
+        found = seg.objects[int(d.argmin())]
+        assert d.min() < 0.05
+        assert found.configuration == o.configuration
+        assert len(found.directions) == len(o.pipes)
+
+
+def test_mushroom_crop_takes_the_valve_handle_and_no_floor():
+    scan = cached_scan()
+    seg = segment_scan(scan.points, LaserConfig())
+    pts = seg.structure_points
+    valve = scan.scene.objects[4]  # one connection, with a handle above the body
+    o = min(seg.objects, key=lambda s: np.linalg.norm(s.position - valve.center))
+    cloud = pts[o.indices]
+    top_of_body = valve.center[2] - valve.size[2] / 2
+    handle = cloud[:, 2] < top_of_body - 0.05  # up is −z: the stem and hand wheel above the body
+    assert handle.sum() >= 10
+    assert cloud[:, 2].max() < scan.scene.floor_z - 0.01  # nothing of the floor
+    # the crop's points are the object's: most voxels of the cloud come from object rays
+    raw = seg.raw_indices(seg.structure[o.indices])
+    assert (scan.kind[raw] == SynthScan.OBJECT).mean() > 0.9
