@@ -44,6 +44,7 @@ class ScanScore:
     object_errors: list[float] = field(default_factory=list)  # m, of the single segments
     n_config_correct: int = 0  # of the single segments, configuration = truth
     n_config_visible_correct: int = 0  # ... = configuration of the pipes seen
+    n_config_visible_known: int = 0  # single segments whose seen-pipes configuration is known
     n_object_segments: int = 0
     n_spurious_objects: int = 0  # segments near no visible object
 
@@ -139,6 +140,7 @@ def score_scan(
             score.object_errors.append(float(d[near][0]))
             score.n_config_correct += int(o.configuration == config)
             if truth.object_visible_configuration is not None:
+                score.n_config_visible_known += 1
                 score.n_config_visible_correct += int(o.configuration == truth.object_visible_configuration[j])
     score.n_spurious_objects = int((~near_any).sum())
     return score
@@ -176,7 +178,9 @@ def summarize(scores: list[ScanScore]) -> dict:
         "object_error_median_m": med(oe),
         "object_within_5cm": ratio(sum(e <= 0.05 for e in oe), len(oe)),
         "configuration_correct": ratio(sum(s.n_config_correct for s in scores), single),
-        "configuration_visible_correct": ratio(sum(s.n_config_visible_correct for s in scores), single),
+        "configuration_visible_correct": ratio(
+            sum(s.n_config_visible_correct for s in scores), sum(s.n_config_visible_known for s in scores)
+        ),
         "spurious_objects": sum(s.n_spurious_objects for s in scores),
         "visible_objects": vis_obj,
         "visible_pipes": sum(s.n_visible_pipes for s in scores),
