@@ -69,15 +69,18 @@ def hypotheses(p1, n1, p2, n2, cfg: PipeConfig):
 
 
 def inlier_mask(points, normals, c, a, r, cfg: PipeConfig) -> np.ndarray:
-    """Inliers of cylinders (c, a, r) given as H×3, H×3, H; points N×3 → H×N mask (H may be 1)."""
-    v = points[None, :, :] - c[:, None, :]
-    along = np.einsum("hnj,hj->hn", v, a)
-    radial = v - along[:, :, None] * a[:, None, :]
-    dist = np.linalg.norm(radial, axis=2)
-    cos_n = np.einsum("hnj,nj->hn", radial, normals) / np.maximum(dist, 1e-12)
-    return (np.abs(dist - r[:, None]) <= cfg.distance_tolerance) & (
-        cos_n >= np.cos(np.radians(cfg.normal_tolerance_deg))
-    )
+    """Inliers of cylinders (c, a, r) given as H×3, H×3, H; points N×3 → H×N mask (H may be 1).
+
+    Written with H×N matrix products only (no H×N×3 temporaries): with v = p − c,
+    |v|² = |p|² − 2c·p + |c|², along = a·p − a·c, radial distance² = |v|² − along², and
+    radial·n = p·n − c·n − along (a·n).
+    """
+    along = a @ points.T - np.einsum("hj,hj->h", a, c)[:, None]
+    v2 = (points * points).sum(axis=1)[None, :] - 2.0 * (c @ points.T) + (c * c).sum(axis=1)[:, None]
+    dist = np.sqrt(np.maximum(v2 - along * along, 1e-18))
+    rn = (points * normals).sum(axis=1)[None, :] - c @ normals.T - along * (a @ normals.T)
+    close = np.abs(dist - r[:, None]) <= cfg.distance_tolerance
+    return close & (rn >= np.cos(np.radians(cfg.normal_tolerance_deg)) * dist)
 
 
 def fit_cylinder(points: np.ndarray, normals: np.ndarray, a0: np.ndarray, cfg: PipeConfig):
@@ -112,13 +115,18 @@ def fit_cylinder(points: np.ndarray, normals: np.ndarray, a0: np.ndarray, cfg: P
         # Geometric refinement (residual |x − c| − r) with trimming: a visible arc of a few voxels
         # is easily pulled by the handful of object points where the pipe enters an object.
         use = np.ones(len(x), bool)
-        for it in range(8):
+        for it in range(6):
             dv = x[use] - cx
-            dn = np.maximum(np.linalg.norm(dv, axis=1), 1e-12)
-            J = np.column_stack([-dv / dn[:, None], -np.ones(len(dv))])
-            step, *_ = np.linalg.lstsq(J, -(dn - r), rcond=None)
+            dn = np.maximum(np.sqrt((dv * dv).sum(axis=1)), 1e-12)
+            J = np.empty((len(dv), 3))
+            J[:, :2] = -dv / dn[:, None]
+            J[:, 2] = -1.0
+            try:
+                step = np.linalg.solve(J.T @ J, -(J.T @ (dn - r)))  # Gauss–Newton normal equations
+            except np.linalg.LinAlgError:
+                break
             cx, r = cx + step[:2], r + step[2]
-            if it in (3, 5):
+            if it in (2, 4):
                 res = np.linalg.norm(x - cx, axis=1) - r
                 sigma = 1.4826 * np.median(np.abs(res[use]))
                 keep = np.abs(res) <= max(3.0 * sigma, 0.003)
@@ -206,14 +214,17 @@ def detect_pipes(points: np.ndarray, normals: np.ndarray, neighbors: np.ndarray,
         scores = inlier_mask(points[sample], normals[sample], c, a, r, cfg).sum(axis=1)
         if scores.max() * len(cand) / len(sample) < cfg.min_points:
             break
-        # Refine the few best hypotheses and keep the one with most inliers after refinement.
-        refined = [_refine(points, normals, cand, c[h], a[h], r[h], cfg) for h in np.argsort(scores)[::-1][:3]]
-        refined = [m for m in refined if m is not None]
-        if not refined:
+        # Refine the best hypothesis; if its fit leaves the radius range, the next best (up to 3).
+        refined = None
+        for h in np.argsort(scores)[::-1][:3]:
+            refined = _refine(points, normals, cand, c[h], a[h], r[h], cfg)
+            if refined is not None:
+                break
+        if refined is None:
             seedable[i[np.flatnonzero(ok)[np.argmax(scores)]]] = False
             failures += 1
             continue
-        cb, ab, rb, idx = max(refined, key=lambda m: len(m[3]))
+        cb, ab, rb, idx = refined
         found = False
         for run in _runs((points[idx] - cb) @ ab, cfg.max_gap):
             seg = idx[run]
