@@ -48,8 +48,8 @@ class TankConfig(_Section):
     """The tank: flat rectangular floor at ``depth_m``, four plane walls sloping up to the surface."""
 
     depth_m: float = Field(5.0, gt=0, description="floor depth below the surface (m)")
-    floor_half_x_m: float = Field(3.9, gt=0, description="half length of the flat floor along north (m)")
-    floor_half_y_m: float = Field(3.4, gt=0, description="half width of the flat floor along east (m)")
+    floor_half_x_m: float = Field(4.2, gt=0, description="half length of the flat floor along north (m)")
+    floor_half_y_m: float = Field(4.6, gt=0, description="half width of the flat floor along east (m)")
     wall_slope_deg: float = Field(
         55.0, gt=5, le=90, description="angle of the side walls above the horizontal (90 = vertical)"
     )
@@ -80,7 +80,7 @@ class TrajectoryConfig(_Section):
     semi_axes_m: tuple[float, float] = Field(
         (3.3, 2.3), description="semi-axes (north, east) of the elliptic path around the structure centre (m)"
     )
-    start_angle_deg: float = Field(180.0, description="bearing of the start point from the structure centre (deg)")
+    start_angle_deg: float = Field(90.0, description="bearing of the start point from the structure centre (deg)")
     start_depth_m: float = Field(0.0, description="depth of the body origin at the start (on the surface)")
     work_depth_m: float = Field(2.9, gt=0, description="mean working depth (m)")
     depth_swing_m: float = Field(0.25, ge=0, description="depth oscillation amplitude, twice per loop (m)")
@@ -99,7 +99,7 @@ class DvlConfig(_Section):
     min_valid_beams: int = Field(3, ge=1, le=4, description="fewer valid beams → the reading is invalid")
     relock_s: float = Field(1.0, ge=0, description="after losing bottom lock, time to re-acquire it (s)")
     random_dropout_rate: float = Field(
-        0.08, ge=0, lt=0.9, description="expected fraction of the mission lost to random dropout bursts"
+        0.07, ge=0, lt=0.9, description="expected fraction of the mission lost to random dropout bursts"
     )
     burst_s: tuple[float, float] = Field((2.0, 10.0), description="min and max duration of a dropout burst (s)")
     mount: Mount = Field(default_factory=lambda: Mount(xyz=(-0.25, 0.0, 0.30)))
