@@ -232,3 +232,15 @@ def test_default_mission_dimensions():
     # the last pose has gone round `loops` times
     ang = np.unwrap(np.arctan2(p[:, 1] - traj.center[1], p[:, 0] - traj.center[0]))
     assert abs(ang[-1] - ang[0]) == pytest.approx(2 * np.pi * 3, rel=1e-6)
+
+
+def test_preview_png(tmp_path, short_mission):
+    from semslam.sim.preview import render_preview
+
+    out = tmp_path / "preview.png"
+    render_preview(short_mission, out)
+    import matplotlib.image as mpimg
+
+    img = mpimg.imread(out)
+    assert img.shape[0] > 800 and img.shape[1] > 1200
+    assert img[..., :3].std() > 0.05  # something was drawn
