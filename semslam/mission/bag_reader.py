@@ -149,8 +149,11 @@ class BagMission(Mission):
 
 
 def _one_line(exc: BaseException) -> str:
-    text = str(exc).strip().splitlines()
-    return f"{type(exc).__name__}: {text[0]}" if text else type(exc).__name__
+    text = " ".join(str(exc).split())  # one line, whatever the library put in it
+    name = type(exc).__name__
+    if name.endswith("ReaderError"):  # rosbags' own messages say what is wrong; the class adds nothing
+        return text or name
+    return f"{name}: {text}" if text else name
 
 
 def bag_kind(path: Path) -> int:
