@@ -180,7 +180,7 @@ def open_bag(path: Path):
     try:
         reader = AnyReader([path], default_typestore=typestore(version))
         reader.open()
-        add_missing_types(reader.typestore, version)
+        add_missing_types(reader.typestore, version, {c.msgtype for c in reader.connections})
     except MissionError:
         raise
     except Exception as exc:  # what a damaged / foreign file raises varies: sqlite3, struct, yaml, rosbags...

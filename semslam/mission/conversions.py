@@ -175,10 +175,11 @@ def decode_pointcloud2_arrays(msg) -> tuple[np.ndarray, np.ndarray | None]:
 
 def _decode_pointcloud2(msg, sensor: str, cfg: ReaderConfig) -> PointCloud:
     points, intensity = decode_pointcloud2_arrays(msg)
-    ok = np.isfinite(points).all(axis=1)
-    if intensity is not None:
-        ok &= np.isfinite(intensity)
-    if not ok.all():
+    # Cheap whole-array test first; the per-point mask only for clouds that have invalid points.
+    if not (np.isfinite(points.reshape(-1)).all() and (intensity is None or np.isfinite(intensity).all())):
+        ok = np.isfinite(points).all(axis=1)
+        if intensity is not None:
+            ok &= np.isfinite(intensity)
         points = points[ok]
         intensity = None if intensity is None else intensity[ok]
     return PointCloud(stamp_ns(msg.header), sensor, points=points, intensity=intensity)

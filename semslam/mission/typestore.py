@@ -36,12 +36,36 @@ def typestore(ros_version: int) -> Typestore:
     return store
 
 
-def add_missing_types(target: Typestore, ros_version: int) -> None:
-    """Register into ``target`` (a bag's own store) the standard and shipped types it lacks.
+def add_missing_types(target: Typestore, ros_version: int, msgtypes) -> None:
+    """Register into ``target`` (a bag's own store) those of ``msgtypes`` it lacks, from ours.
 
     A bag may embed definitions for some connections only; the others then deserialize with ours.
+    Only the needed types (and what they contain) are registered: building a type is not free.
     """
     ours = typestore(ros_version)
-    missing = {name: defs for name, defs in ours.fielddefs.items() if name not in target.fielddefs}
+    missing: dict = {}
+    todo = [t for t in msgtypes if t not in target.fielddefs and t in ours.fielddefs]
+    while todo:
+        name = todo.pop()
+        if name in missing or name in target.fielddefs:
+            continue
+        missing[name] = ours.fielddefs[name]
+        todo.extend(_contained(missing[name]))
     if missing:
         target.register(missing)
+
+
+def _contained(fielddef) -> list[str]:
+    """Names of the message types used by the fields of one rosbags field definition."""
+    out = []
+
+    def walk(desc):
+        kind, rest = desc
+        if kind.name == "NAME":
+            out.append(rest)
+        elif kind.name in ("ARRAY", "SEQUENCE"):
+            walk(rest[0])
+
+    for _, desc in fielddef[1]:
+        walk(desc)
+    return out
