@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from semslam.errors import MissionError
 from semslam.mission import Attitude, Depth, DvlVelocity, Mission, MissionMetadata, PointCloud, SonarSwath
 from semslam.mission.bag import read_mission, write_mission
 from semslam.mission.config import ReaderConfig
@@ -229,21 +230,64 @@ def test_twist_dvl_validity_marker(tmp_path):
     assert [x.valid for x in back] == [True, False]
 
 
-def test_reorder_buffer_releases_in_header_stamp_order(tmp_path):
-    """Recording time ≠ header stamp (latency differs per sensor): the stream follows header stamps."""
+def _latency_bag(path: Path, late_s: float, clock_offset_s: float = 0.0) -> Path:
+    """/fast stamped t + 50 ms recorded at once; /slow stamped t recorded ``late_s`` later.
+
+    The recording clock runs ``clock_offset_s`` ahead of the header stamps (wall vs simulated time).
+    """
+    from rosbags.rosbag1 import Writer
     from rosbags.typesys import Stores, get_typestore
 
     store = get_typestore(Stores.ROS1_NOETIC)
     T = store.types
     fp = lambda t: T["sensor_msgs/msg/FluidPressure"](header=header(store, 1, t), fluid_pressure=101325.0, variance=1.0)  # noqa: E731
-    from rosbags.rosbag1 import Writer
-
-    with Writer(tmp_path / "lat.bag") as w:
+    off = int(clock_offset_s * 1e9)
+    with Writer(path) as w:
         slow = w.add_connection("/slow", "sensor_msgs/msg/FluidPressure", typestore=store)
         fast = w.add_connection("/fast", "sensor_msgs/msg/FluidPressure", typestore=store)
-        for k in range(10):
+        for k in range(40):
             t = 10**9 + k * 100_000_000
-            w.write(fast, t + 1_000_000, store.serialize_ros1(fp(t + 50_000_000), "sensor_msgs/msg/FluidPressure"))
-            w.write(slow, t + 500_000_000, store.serialize_ros1(fp(t), "sensor_msgs/msg/FluidPressure"))  # 0.5 s late
-    stamps = [m.stamp for m in read_mission(tmp_path / "lat.bag")]
-    assert len(stamps) == 20 and stamps == sorted(stamps)
+            w.write(fast, off + t + 1_000_000, store.serialize_ros1(fp(t + 50_000_000), "sensor_msgs/msg/FluidPressure"))
+            w.write(slow, off + t + int(late_s * 1e9), store.serialize_ros1(fp(t), "sensor_msgs/msg/FluidPressure"))
+    return path
+
+
+@pytest.mark.parametrize("clock_offset_s", [0.0, 1.7e9])
+def test_reorder_buffer_releases_in_header_stamp_order(tmp_path, clock_offset_s):
+    """Recording time ≠ header stamp (latency differs per sensor): the stream follows header stamps."""
+    path = _latency_bag(tmp_path / "lat.bag", late_s=0.5, clock_offset_s=clock_offset_s)
+    stamps = [m.stamp for m in read_mission(path)]
+    assert len(stamps) == 80 and stamps == sorted(stamps)
+
+
+def test_message_later_than_reorder_window_is_an_error(tmp_path):
+    path = _latency_bag(tmp_path / "lat.bag", late_s=1.0)
+    with pytest.raises(MissionError, match=r"topic /slow: message stamped 1.000000 s arrived after messages "
+                                           r"stamped more than reorder_window_s=0.5 s later"):
+        list(read_mission(path, ReaderConfig(reorder_window_s=0.5)))
+    assert len(list(read_mission(path))) == 80  # the default 2 s window absorbs it
+
+
+def test_ros2_directory_with_mcap_storage(tmp_path, sample_mission):
+    """`ros2 bag record -s mcap` makes a directory with metadata.yaml and an .mcap file."""
+    from rosbags.rosbag2 import StoragePlugin, Writer
+
+    from semslam.mission.typestore import typestore
+
+    store = typestore(2)
+    mission = sample_mission(seconds=0.5)
+    path = tmp_path / "rec"
+    with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as w:
+        conns = {}
+        from semslam.mission.conversions import MSGTYPE_OF, Encoder
+
+        enc = Encoder(store, 2, ReaderConfig())
+        for m in mission:
+            msgtype = MSGTYPE_OF[type(m)]
+            if m.sensor not in conns:
+                conns[m.sensor] = w.add_connection("/" + m.sensor, msgtype, typestore=store)
+            w.write(conns[m.sensor], m.stamp, store.serialize_cdr(enc.encode(m, m.sensor), msgtype))
+    assert any(path.glob("*.mcap"))
+    back = read_mission(path)
+    assert sorted(back.metadata.sensors) == sorted(mission.metadata.sensors)
+    assert len(list(back)) == len(list(mission))

@@ -7,8 +7,10 @@ backwards) is found while streaming. Every such problem is a ``MissionError`` wi
 the file, topic and field.
 
 Streaming: messages come from the bag in recording-time order; measurements are released in
-header-stamp order through a reorder buffer that holds ``ReaderConfig.reorder_window_s`` of
-recording time, so sensors with different latencies still interleave correctly. A header stamp of
+header-stamp order through a reorder buffer: a measurement is released once a message stamped
+``ReaderConfig.reorder_window_s`` later has arrived, so sensors with different latencies still
+interleave correctly (the window is in header-stamp time, so it does not matter whether the
+recording clock is the same as the stamps' — wall time vs simulated time). A header stamp of
 0 (driver did not fill it) is replaced by the recording time.
 """
 
@@ -84,6 +86,7 @@ class BagMission(Mission):
         fields: dict[str, Counter[str]] = defaultdict(Counter)
         last_stamp: dict[str, int] = {}
         released = -(2**63)
+        newest = -(2**63)
         heap: list[tuple[int, int, Measurement]] = []
         seq = 0
         with open_bag(self.path) as reader:
@@ -132,12 +135,13 @@ class BagMission(Mission):
                     continue
                 if stamp < released:
                     raise MissionError(
-                        f"{where}: message stamped {stamp * 1e-9:.6f} s was recorded more than "
-                        f"reorder_window_s={cfg.reorder_window_s} s after later-stamped messages"
+                        f"{where}: message stamped {stamp * 1e-9:.6f} s arrived after messages stamped more "
+                        f"than reorder_window_s={cfg.reorder_window_s} s later (raise reorder_window_s)"
                     )
                 heapq.heappush(heap, (stamp, seq, m))
                 seq += 1
-                horizon = t_bag - window
+                newest = max(newest, stamp)
+                horizon = newest - window
                 while heap and heap[0][0] <= horizon:
                     released, _, out = heapq.heappop(heap)
                     yield out

@@ -31,8 +31,8 @@ class ReaderConfig(BaseModel):
     reorder_window_s: float = Field(
         2.0,
         ge=0,
-        description="measurements are released in header-stamp order after this much recording time; "
-        "a message stamped earlier than one already released is an error",
+        description="stamp-order buffer: messages of different topics may arrive this much out of "
+        "header-stamp order; a message later than that is an error",
     )
     on_nonfinite: Literal["drop", "error"] = Field(
         "drop", description="a measurement with NaN/inf: drop it and count it (reported by info), or fail"
