@@ -159,3 +159,11 @@ def test_sidecar_is_optional(tmp_path, sample_mission):
     assert r.exit_code == 0, r.output
     assert int(row(r.stdout, "nav/dvl")[4]) == 5  # sensors named after their topics
     shutil.rmtree(path)
+
+
+def test_configured_kind_must_match_message_type(tmp_path, sample_mission):
+    path = write_mission(sample_mission(seconds=0.5), tmp_path / "m.bag")
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text("reader:\n  sensors:\n    imu:\n      topic: /nav/dvl\n      kind: ahrs\n")
+    assert_one_line_error(info(path, "--config", cfg),
+                          "topic /nav/dvl: cola2_msgs/DVL feeds a dvl sensor, but configured sensor 'imu' is of kind ahrs")

@@ -63,8 +63,15 @@ class BagMission(Mission):
     last complete pass over the bag; ``message_counts`` (topic → count) come from the bag's index.
     """
 
-    def __init__(self, metadata: MissionMetadata, path: Path, bindings: list[Binding], config: ReaderConfig,
-                 ros_version: int, message_counts: dict[str, int]):
+    def __init__(
+        self,
+        metadata: MissionMetadata,
+        path: Path,
+        bindings: list[Binding],
+        config: ReaderConfig,
+        ros_version: int,
+        message_counts: dict[str, int],
+    ):
         super().__init__(metadata, self._stream)
         self.path = path
         self.bindings = bindings
@@ -198,7 +205,9 @@ def open_bag(path: Path):
             pass
 
 
-def _bind(path: Path, topics: dict[str, str | None], cfg: ReaderConfig, side: MissionMetadata | None) -> list[Binding]:
+def _bind(
+    path: Path, topics: dict[str, str | None], cfg: ReaderConfig, side: MissionMetadata | None
+) -> list[Binding]:
     """Which sensor reads which topic: the configuration, else the sidecar + discovery by message type."""
 
     def binding(sensor: str, kind: str, topic: str, origin: str) -> Binding:
@@ -208,13 +217,24 @@ def _bind(path: Path, topics: dict[str, str | None], cfg: ReaderConfig, side: Mi
                 f"(topics: {', '.join(sorted(topics)) or 'none'})"
             )
         if kind not in SENSOR_KINDS:
-            raise MissionError(f"{path}: {origin} sensor {sensor!r}: unknown kind {kind!r} (expected {', '.join(SENSOR_KINDS)})")
+            raise MissionError(
+                f"{path}: {origin} sensor {sensor!r}: unknown kind {kind!r} (expected {', '.join(SENSOR_KINDS)})"
+            )
         msgtype = topics[topic]
         if msgtype is None:
             raise MissionError(f"{path}: topic {topic} carries several message types")
         codec = CODECS.get(msgtype)
         if codec is None:
-            raise MissionError(f"{path}: topic {topic}: message type {short_msgtype(msgtype)} is not supported (supported: {SUPPORTED})")
+            raise MissionError(
+                f"{path}: topic {topic}: message type {short_msgtype(msgtype)} is not supported "
+                f"(supported: {SUPPORTED})"
+            )
+        # A scan is a scan: point clouds and swaths may come from a laser or a sonar.
+        if kind != codec.kind and not {kind, codec.kind} <= {"laser", "sonar"}:
+            raise MissionError(
+                f"{path}: topic {topic}: {short_msgtype(msgtype)} feeds a {codec.kind} sensor, "
+                f"but {origin} sensor {sensor!r} is of kind {kind}"
+            )
         return Binding(sensor, kind, topic, msgtype, codec)
 
     if cfg.sensors:
@@ -247,7 +267,9 @@ def read_mission(path: str | Path, config: ReaderConfig | None = None) -> BagMis
     side = sidecar.load(sidecar.sidecar_path(path)) if path.exists() else None
     with open_bag(path) as reader:
         version = 1 if not reader.is2 else 2
-        topics = {name: (normalize_msgtype(info.msgtype) if info.msgtype else None) for name, info in reader.topics.items()}
+        topics = {
+            name: (normalize_msgtype(info.msgtype) if info.msgtype else None) for name, info in reader.topics.items()
+        }
         counts = {name: int(info.msgcount) for name, info in reader.topics.items()}
     bindings = _bind(path, topics, cfg, side)
 

@@ -14,6 +14,8 @@ import shutil
 import tempfile
 from pathlib import Path
 
+import numpy as np
+
 from semslam.errors import MissionError
 from semslam.mission import sidecar
 from semslam.mission.config import ReaderConfig
@@ -132,10 +134,13 @@ def _write_messages(mission: Mission, fmt: str, target: Path, cfg: ReaderConfig)
                 topic = _topic_of(m.sensor, given)
                 if topics.setdefault(topic, m.sensor) != m.sensor:
                     raise MissionError(f"sensors {topics[topic]!r} and {m.sensor!r} both map to topic {topic}")
-                kind = given.kind if given is not None else KIND_OF[type(m)]
-                T = given.T_BS if given is not None else None
-                info = SensorInfo(m.sensor, kind, topic=topic, msgtype=MSGTYPE_OF[type(m)],
-                                  **({"T_BS": T} if T is not None else {}))
+                info = SensorInfo(
+                    m.sensor,
+                    given.kind if given is not None else KIND_OF[type(m)],
+                    topic=topic,
+                    msgtype=MSGTYPE_OF[type(m)],
+                    T_BS=given.T_BS if given is not None else np.eye(4),
+                )
                 sensors[m.sensor] = info
             msgtype = MSGTYPE_OF[type(m)]
             if msgtype != info.msgtype:
@@ -158,7 +163,7 @@ def _write_messages(mission: Mission, fmt: str, target: Path, cfg: ReaderConfig)
             sensors[name] = SensorInfo(name, given.kind, topic=topic, msgtype=msgtype, T_BS=given.T_BS)
     except BaseException:
         try:
-            sink.writer.abort() if hasattr(sink.writer, "abort") else None
+            sink.writer.abort()  # release the file handles; the temporary directory is removed by the caller
         except Exception:
             pass
         raise

@@ -98,4 +98,5 @@ def load(path: Path) -> MissionMetadata | None:
     extras = doc.get("extras") or {}
     if not isinstance(extras, dict):
         raise MissionError(f"{path}: extras: expected an object")
-    return MissionMetadata(name=str(doc.get("name") or "mission"), sensors=sensors, ground_truth=ground_truth, extras=extras)
+    name = str(doc.get("name") or "mission")
+    return MissionMetadata(name=name, sensors=sensors, ground_truth=ground_truth, extras=extras)

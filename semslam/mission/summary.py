@@ -86,7 +86,8 @@ class MissionSummary:
         widths = [max(len(r[i]) for r in rows) for i in range(len(header))]
         numeric = set(range(4, len(header)))
         for r in rows:
-            lines.append("  ".join(c.rjust(w) if i in numeric else c.ljust(w) for i, (c, w) in enumerate(zip(r, widths))).rstrip())
+            cells = (c.rjust(w) if i in numeric else c.ljust(w) for i, (c, w) in enumerate(zip(r, widths)))
+            lines.append("  ".join(cells).rstrip())
         gap_lines = []
         for s in self.sensors:
             what = "DVL dropout" if s.kind == "dvl" else "gap"
@@ -96,7 +97,8 @@ class MissionSummary:
             if len(s.stats.gaps) > MAX_GAPS_LISTED:
                 gap_lines.append(f"  {s.name}: ... {len(s.stats.gaps) - MAX_GAPS_LISTED} more")
         if gap_lines:
-            lines += ["", f"gaps (longer than {GAP_FACTOR:g}× the stream's median period; DVL: between valid readings):"]
+            lines += ["", f"gaps (longer than {GAP_FACTOR:g}× the stream's median period; "
+                      "DVL: between valid readings):"]
             lines += gap_lines
         drop_lines = [
             f"  {s.name}: {s.stats.dropped_nonfinite} message(s) dropped"
@@ -110,7 +112,9 @@ class MissionSummary:
         return "\n".join(lines) + "\n"
 
 
-def _gaps(stamps: np.ndarray, valid: np.ndarray | None, t0: int) -> tuple[list[tuple[float, float]], float, float | None]:
+def _gaps(
+    stamps: np.ndarray, valid: np.ndarray | None, t0: int
+) -> tuple[list[tuple[float, float]], float, float | None]:
     """(gaps as (start s from t0, duration s), max gap s, median period s) of one stream."""
     if stamps.size < 2:
         return [], 0.0, None
