@@ -106,7 +106,27 @@ def run(
     config: Optional[Path] = ConfigOpt,
 ):
     """Run one estimator over a mission and write its trajectory, map and metrics."""
-    not_implemented("run", "issues 4, 5 and 9")
+    from semslam.config import load_config
+    from semslam.estimators import create_estimator
+    from semslam.eval.outputs import build_metrics, write_outputs
+    from semslam.mission.bag import read_mission
+    from semslam.pipeline import run_pipeline
+    from semslam.registry import create_frontends
+
+    cfg = load_config(config)
+    m = read_mission(mission, cfg.reader)
+    est = create_estimator(estimator, m.metadata, cfg, batch=batch)
+    names = [n.strip() for n in frontends.split(",") if n.strip()]
+    fes = create_frontends(names, m.metadata, cfg.frontends)
+    result = run_pipeline(m, [est], fes, progress=sys.stderr.isatty())
+    metrics = build_metrics(result, m.metadata)
+    write_outputs(out, cfg, result, metrics)
+    e = metrics["estimators"][est.name]
+    ate = "n/a" if e["ate_rmse_m"] is None else f"{e['ate_rmse_m']:.3f} m"
+    typer.echo(
+        f"{est.name}: ATE RMSE {ate}, {e['n_objects']} objects, {e['n_pipes']} pipes, "
+        f"{e['n_structures']} structures; outputs in {out}"
+    )
 
 
 @app.command()
