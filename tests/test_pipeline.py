@@ -121,3 +121,18 @@ def test_metrics_and_outputs(tmp_path):
     assert m["objects"][0]["class"] == "Elbow"
     assert json.loads((out / "metrics.json").read_text())["estimators"]["a"]["ate_rmse_m"] == pytest.approx(0.1)
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]  # staging folder cleaned up
+
+
+def test_report_embeds_every_figure_it_lists(tmp_path):
+    from semslam.eval.report import write_report
+
+    mission = _mission()
+    res = run_pipeline(mission, [Recorder("dr", 0.3), Recorder("graph", 0.05)], [CountingFrontend()])
+    metrics = build_metrics(res, mission.metadata)
+    page = write_report(tmp_path, res, mission.metadata, metrics).read_text()
+    figs = sorted(p.name for p in (tmp_path / "figures").iterdir())
+    assert {"trajectories.png", "maps.png", "position_error.png", "update_cost.png"} <= set(figs)
+    assert page.count("data:image/png;base64,") == len(figs)
+    md = (tmp_path / "report.md").read_text()
+    assert all(f"figures/{f}" in md for f in figs)
+    assert "0.300" in md and "0.050" in md  # the ATE of each estimator is in the table
