@@ -155,8 +155,17 @@ def compare(
 @user_errors
 def demo(out: Optional[Path] = typer.Option(None, "--out", "-o", help="output directory")):
     """Simulate the default tank mission and compare dr, ekf and graph on it."""
-    typer.echo("semslam demo will: simulate the default tank mission (seed 0), run dr, ekf and graph on it")
-    typer.echo("with the laser front-end, and write the comparison report. Not implemented yet (issue 9).")
+    from semslam.demo import run_demo
+    from semslam.eval.report import metrics_table, recognition_table, text_table
+
+    metrics, report = run_demo(out, progress=True)
+    typer.echo(text_table(metrics_table(metrics)))
+    rec = recognition_table(metrics)
+    if rec:
+        typer.echo("")
+        typer.echo(text_table(rec))
+    typer.echo(f"\nwhole comparison: {metrics['wall_time_s']:.0f} s for {metrics['mission']['duration_s']:.0f} s of mission")
+    typer.echo(f"report: {report.resolve()}")
 
 
 if __name__ == "__main__":  # pragma: no cover
