@@ -291,3 +291,23 @@ def test_ros2_directory_with_mcap_storage(tmp_path, sample_mission):
     back = read_mission(path)
     assert sorted(back.metadata.sensors) == sorted(mission.metadata.sensors)
     assert len(list(back)) == len(list(mission))
+
+
+@pytest.mark.parametrize("fields, data_len, expected", [
+    ([("x", 0), ("y", 4)], 24, "topic /cloud: field fields: no 'z' field (have ['x', 'y'])"),
+    ([("x", 0), ("y", 4), ("z", 8)], 20, "topic /cloud: field data: 20 bytes, expected 24 (2 points × 12)"),
+])
+def test_malformed_pointcloud2_is_one_clear_error(tmp_path, fields, data_len, expected):
+    from rosbags.typesys import Stores, get_typestore
+
+    store = get_typestore(Stores.ROS1_NOETIC)
+    T = store.types
+    PF = T["sensor_msgs/msg/PointField"]
+    msg = T["sensor_msgs/msg/PointCloud2"](
+        header=header(store, 1, 10**9), height=1, width=2,
+        fields=[PF(name=n, offset=o, datatype=7, count=1) for n, o in fields],
+        is_bigendian=False, point_step=12, row_step=24, data=np.zeros(data_len, np.uint8), is_dense=True)
+    path = write_raw(tmp_path / "bad.bag", 1, {"/cloud": ("sensor_msgs/msg/PointCloud2", [(10**9, msg)])}, store)
+    with pytest.raises(MissionError) as err:
+        list(read_mission(path))
+    assert str(err.value) == f"{path}: {expected} (message at t=1.000000 s)"
