@@ -311,3 +311,16 @@ def test_malformed_pointcloud2_is_one_clear_error(tmp_path, fields, data_len, ex
     with pytest.raises(MissionError) as err:
         list(read_mission(path))
     assert str(err.value) == f"{path}: {expected} (message at t=1.000000 s)"
+
+
+def test_uniform_grid_of_sparse_and_irregular_swaths():
+    from semslam.mission.conversions import Unencodable, uniform_grid
+
+    inc = float(np.float32(np.deg2rad(0.5)))
+    for kept in ([0, 1, 2, 3], [0, 2, 5], [0, 17, 35], [4, 100, 101, 239]):
+        angles = float(np.float32(-1.0)) + np.array(kept) * inc
+        a0, step, idx = uniform_grid(angles)
+        np.testing.assert_allclose(float(a0) + idx * float(step), angles, atol=1e-6)
+        assert np.all(np.diff(idx) > 0)
+    with pytest.raises(Unencodable, match="not on a uniform grid"):
+        uniform_grid(np.array([0.0, 0.1, 0.1 * np.pi, 0.7]))

@@ -33,6 +33,7 @@ from semslam.mission.conversions import (
     CODECS,
     Codec,
     MalformedMessage,
+    Unusable,
     nonfinite_field,
     normalize_msgtype,
     short_msgtype,
@@ -127,9 +128,9 @@ class BagMission(Mission):
                     m = b.codec.decode(msg, b.sensor, cfg)
                 except MalformedMessage as exc:
                     raise MissionError(f"{where}: {exc} (message at t={stamp * 1e-9:.6f} s)") from None
-                if m is None:  # e.g. an Imu without orientation: no measurement of this kind
+                except Unusable as exc:  # e.g. an Imu without orientation: no AHRS reading in it
                     dropped[b.sensor] += 1
-                    fields[b.sensor]["orientation_covariance"] += 1
+                    fields[b.sensor][exc.field] += 1
                     continue
                 if m.stamp != stamp:
                     m = dataclasses.replace(m, stamp=stamp)
