@@ -74,7 +74,10 @@ class TrajectoryConfig(_Section):
     """The vehicle starts at rest on the surface, descends and circles the structure facing it."""
 
     loops: float = Field(3.0, gt=0, description="loops around the structure")
-    duration_s: float = Field(490.0, gt=0, description="mission length (s); 490 s gives 245 laser scans")
+    duration_s: float | None = Field(
+        None, gt=0, description="mission length (s); default rest_s + ramp_s/2 + loops × loop_period_s (490 s, 245 scans)"
+    )
+    loop_period_s: float = Field(156.6667, gt=0, description="time per loop at cruise speed (s), when duration_s is unset")
     rest_s: float = Field(5.0, ge=0, description="time at rest on the surface before moving (s)")
     ramp_s: float = Field(30.0, gt=0, description="time to reach cruise speed and working depth (s)")
     semi_axes_m: tuple[float, float] = Field(
@@ -85,6 +88,12 @@ class TrajectoryConfig(_Section):
     work_depth_m: float = Field(2.9, gt=0, description="mean working depth (m)")
     depth_swing_m: float = Field(0.25, ge=0, description="depth oscillation amplitude, twice per loop (m)")
     roll_pitch_amplitude_deg: float = Field(1.0, ge=0, description="amplitude of the roll/pitch wobble (deg)")
+
+    @model_validator(mode="after")
+    def _duration(self):
+        if self.duration_s is None:
+            self.duration_s = round(self.rest_s + self.ramp_s / 2 + self.loops * self.loop_period_s, 3)
+        return self
 
 
 class DvlConfig(_Section):
