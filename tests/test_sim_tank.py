@@ -144,10 +144,13 @@ def test_scene_labels(layout):
     """Rays straight down from above a pipe / an object / open floor, and sideways into a wall,
     report the right kind and id at the right distance."""
     scene = TankScene(CFG.tank, layout)
-    pipe = max(layout.pipes, key=lambda p: p.length if abs(p.q[2] - p.p[2]) < 1e-9 else 0)  # a horizontal pipe
+    horizontal = [p for p in layout.pipes if abs(p.q[2] - p.p[2]) < 1e-9]
+    top = min(p.p[2] for p in horizontal)
+    pipe = max((p for p in horizontal if p.p[2] == top), key=lambda p: p.length)  # nothing above it
     mid = (pipe.p + pipe.q) / 2
     t, kind, ident = scene.cast([mid - [0, 0, 2.0]], [[0, 0, 1.0]])
     assert kind[0] == PIPE and ident[0] == pipe.id
+    assert t[0] == pytest.approx(2.0 - pipe.radius, abs=2e-3)  # the 24-gon cylinder is within 0.3 mm of round
     top = min(layout.objects, key=lambda o: o.position[2])
     t, kind, ident = scene.cast([top.position - [0, 0, 2.0]], [[0, 0, 1.0]])
     assert kind[0] in (OBJECT, PIPE)

@@ -61,7 +61,7 @@ class StructureConfig(_Section):
     layout_yaml: Path | None = Field(None, description="load the layout from this YAML instead of generating it")
     center_xy_m: tuple[float, float] = Field((0.0, 0.0), description="horizontal centre of the structure (m, NED)")
     grid: tuple[int, int, int] = Field((3, 3, 3), description="lattice nodes along x, y, z where fittings may sit")
-    spacing_m: Vec3 = Field((0.65, 0.65, 0.55), description="lattice spacing along x, y, z (m)")
+    spacing_m: Vec3 = Field((0.6, 0.6, 0.5), description="lattice spacing along x, y, z (m)")
     floor_clearance_m: float = Field(0.12, ge=0, description="height of the lowest pipe axis above the floor (m)")
     pipe_radius_m: float = Field(0.0315, gt=0, le=0.064, description="outer radius of the PVC pipes (m)")
     min_objects: int = Field(20, ge=6, description="at least this many objects (all six classes appear)")
