@@ -140,8 +140,8 @@ class LaserConfig(_Section):
 
     rate_hz: float = Field(0.5, gt=0)
     range_sigma_m: float = Field(0.005, gt=0, description="white range noise along each ray (m)")
-    fov_deg: tuple[float, float] = Field((70.0, 50.0), description="horizontal and vertical field of view (deg)")
-    resolution: tuple[int, int] = Field((360, 280), description="rays across and along (≈100k per scan)")
+    fov_deg: tuple[float, float] = Field((50.0, 45.0), description="horizontal and vertical field of view (deg)")
+    resolution: tuple[int, int] = Field((336, 300), description="rays across and along (≈100k per scan)")
     min_range_m: float = Field(0.3, ge=0, description="closer returns are dropped (m)")
     max_range_m: float = Field(9.0, gt=0, description="farther returns are dropped (m)")
     mount: Mount = Field(
