@@ -266,3 +266,23 @@ def test_written_bag_reads_back_identically(tmp_path, short_mission):
     for name, s in short_mission.metadata.sensors.items():
         np.testing.assert_allclose(back.metadata.sensors[name].T_BS, s.T_BS)
     render_preview(back, tmp_path / "p.png")
+
+
+def test_simulate_to_bag_with_options(tmp_path):
+    """The CLI's path: YAML config ← options; the options land in the resolved config of the bag."""
+    from semslam.errors import ConfigError
+    from semslam.mission.bag import read_mission
+    from semslam.sim.simulate import simulate_tank_to_bag
+
+    cfg = tmp_path / "sim.yaml"
+    cfg.write_text("trajectory: {rest_s: 1.0, ramp_s: 5.0, loop_period_s: 20.0}\nlaser: {resolution: [40, 30]}\n")
+    simulate_tank_to_bag(tmp_path / "m.bag", seed=4, dvl_dropout_rate=0.3, loops=0.5, config=cfg,
+                         preview=tmp_path / "m.png")
+    back = read_mission(tmp_path / "m.bag")
+    resolved = back.metadata.extras["simulator"]["config"]
+    assert resolved["seed"] == 4 and resolved["dvl"]["random_dropout_rate"] == 0.3
+    assert resolved["trajectory"]["loops"] == 0.5 and resolved["trajectory"]["duration_s"] == pytest.approx(13.5)
+    assert (tmp_path / "m.png").stat().st_size > 10_000
+    cfg.write_text("dvl: {random_dropout_rate: 2}\n")
+    with pytest.raises(ConfigError, match="dvl.random_dropout_rate"):
+        simulate_tank_to_bag(tmp_path / "n.bag", config=cfg)

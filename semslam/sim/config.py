@@ -99,7 +99,7 @@ class TrajectoryConfig(_Section):
 class DvlConfig(_Section):
     """Doppler velocity log: 4 Janus beams; velocity of the DVL head over ground in {S}."""
 
-    rate_hz: float = Field(5.0, gt=0)
+    rate_hz: float = Field(5.0, gt=0, description="DVL readings per second")
     sigma_m_s: float = Field(0.01, gt=0, description="white noise per axis (m/s); also the message covariance")
     beam_angle_deg: float = Field(30.0, gt=0, lt=80, description="beam tilt from the DVL z axis (deg)")
     beam_azimuths_deg: tuple[float, ...] = Field((45.0, 135.0, 225.0, 315.0), description="beam azimuths in {S}")
@@ -111,34 +111,36 @@ class DvlConfig(_Section):
         0.07, ge=0, lt=0.9, description="expected fraction of the mission lost to random dropout bursts"
     )
     burst_s: tuple[float, float] = Field((2.0, 10.0), description="min and max duration of a dropout burst (s)")
-    mount: Mount = Field(default_factory=lambda: Mount(xyz=(-0.25, 0.0, 0.30)))
+    mount: Mount = Field(
+        default_factory=lambda: Mount(xyz=(-0.25, 0.0, 0.30)), description="behind and below the body origin, axes as {B}"
+    )
 
 
 class AhrsConfig(_Section):
     """Attitude and heading reference system; orientation R_WS with additive roll/pitch/yaw noise."""
 
-    rate_hz: float = Field(20.0, gt=0)
+    rate_hz: float = Field(20.0, gt=0, description="AHRS readings per second")
     roll_pitch_sigma_deg: float = Field(0.1, gt=0, description="white noise of roll and pitch (deg)")
     heading_sigma_deg: float = Field(0.5, gt=0, description="white noise of the heading (deg)")
     heading_bias_drift_deg: float = Field(
         2.0, ge=0, description="the heading bias drifts linearly by this much over the mission (sign from the seed)"
     )
     angular_rate_sigma_rad_s: float = Field(0.002, gt=0, description="white noise of the angular rate (rad/s)")
-    mount: Mount = Field(default_factory=Mount)
+    mount: Mount = Field(default_factory=Mount, description="at the body origin, axes as {B}")
 
 
 class DepthConfig(_Section):
     """Pressure sensor, reported as depth of the sensor (m, down)."""
 
-    rate_hz: float = Field(8.0, gt=0)
+    rate_hz: float = Field(8.0, gt=0, description="pressure readings per second")
     sigma_m: float = Field(0.02, gt=0, description="white noise of the depth (m); also the message variance")
-    mount: Mount = Field(default_factory=lambda: Mount(xyz=(0.0, 0.0, -0.20)))
+    mount: Mount = Field(default_factory=lambda: Mount(xyz=(0.0, 0.0, -0.20)), description="20 cm above the body origin")
 
 
 class LaserConfig(_Section):
     """Scanning laser, simulated as a ray-cast grid; sensor frame x right, y down, z along the view axis."""
 
-    rate_hz: float = Field(0.5, gt=0)
+    rate_hz: float = Field(0.5, gt=0, description="laser scans per second (each an instantaneous snapshot)")
     range_sigma_m: float = Field(0.005, gt=0, description="white range noise along each ray (m)")
     fov_deg: tuple[float, float] = Field((50.0, 45.0), description="horizontal and vertical field of view (deg)")
     resolution: tuple[int, int] = Field((336, 300), description="rays across and along (≈100k per scan)")
@@ -151,6 +153,8 @@ class LaserConfig(_Section):
 
 
 class GroundTruthConfig(_Section):
+    """True body poses T_WB, written as nav_msgs/Odometry."""
+
     rate_hz: float = Field(50.0, ge=20, description="rate of the true body poses (Hz)")
 
 

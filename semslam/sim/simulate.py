@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 
 from semslam.mission.mission import Mission, MissionMetadata, SensorInfo
@@ -116,3 +118,41 @@ def simulate_tank(config: TankSimConfig | None = None, *, progress: bool = False
     }
     meta = MissionMetadata(name=cfg.mission_name, sensors=sensors, ground_truth=ground_truth, extras=extras)
     return Mission.from_measurements(meta, [*dvl.measurements, *ahrs, *depth, *gt, *laser.measurements])
+
+
+def simulate_tank_to_bag(
+    out: str | Path,
+    *,
+    seed: int = 0,
+    dvl_dropout_rate: float | None = None,
+    loops: float | None = None,
+    preview: str | Path | None = None,
+    config: str | Path | None = None,
+    layout: str | Path | None = None,
+    overwrite: bool = False,
+    progress: bool = False,
+) -> Mission:
+    """What ``semslam simulate tank`` does: resolve the configuration (defaults ← YAML ``config`` ←
+    the options given), simulate, write the bag (+ sidecar) at ``out`` and, if asked, the preview PNG.
+
+    Options map to: ``seed`` → ``seed``; ``dvl_dropout_rate`` → ``dvl.random_dropout_rate``;
+    ``loops`` → ``trajectory.loops`` (the duration follows unless ``trajectory.duration_s`` is set);
+    ``layout`` → ``structure.layout_yaml``. Returns the simulated mission.
+    """
+    from semslam.mission.bag import write_mission
+    from semslam.sim.config import load_tank_config
+    from semslam.sim.preview import render_preview
+
+    overrides: dict = {"seed": seed}
+    if dvl_dropout_rate is not None:
+        overrides["dvl__random_dropout_rate"] = dvl_dropout_rate
+    if loops is not None:
+        overrides["trajectory__loops"] = loops
+    if layout is not None:
+        overrides["structure__layout_yaml"] = str(layout)
+    cfg = load_tank_config(config, **overrides)
+    mission = simulate_tank(cfg, progress=progress)
+    write_mission(mission, out, overwrite=overwrite)
+    if preview is not None:
+        render_preview(mission, preview)
+    return mission
