@@ -526,7 +526,11 @@ class TankScene:
             self._kind[gid], self._ident[gid] = kind, ident
 
     def cast(self, origins: np.ndarray, dirs: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        rays = np.hstack([np.asarray(origins, np.float32).reshape(-1, 3), np.asarray(dirs, np.float32).reshape(-1, 3)])
+        """Cast rays from ``origins`` (N×3, or one 3-vector for all) along unit ``dirs`` (N×3), in {W}."""
+        dirs = np.asarray(dirs, np.float32).reshape(-1, 3)
+        rays = np.empty((len(dirs), 6), np.float32)
+        rays[:, :3] = np.asarray(origins, np.float32).reshape(-1, 3)  # one origin broadcasts to all rays
+        rays[:, 3:] = dirs
         ans = self.scene.cast_rays(o3d.core.Tensor(rays))
         t = ans["t_hit"].numpy()
         gid = ans["geometry_ids"].numpy().astype(np.int64)
