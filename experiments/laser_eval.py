@@ -9,8 +9,8 @@ connectivity configuration). Writes ``per_scan.csv``, ``summary.json`` and one s
 Sources:
   * ``--source synthetic`` (default): the ray-cast mock-up of ``frontends.laser.synthetic`` seen from
     ``--scans`` random viewpoints (yaw, shift, tilt, height), range noise σ 5 mm, ~100k points;
-  * ``--source tank``: the simulated tank mission of ``semslam.sim`` (when available), every
-    ``--every``-th scan, its truth from the simulator's per-point hit labels.
+  * ``--source tank``: the simulated tank mission of ``semslam.sim`` (``--seed``), every
+    ``--every``-th scan; each point's truth is re-cast from the true sensor pose along its ray.
 
     python experiments/laser_eval.py --out out/laser_eval [--source tank] [--scans 20]
 """
@@ -56,16 +56,66 @@ def synthetic_scans(n: int, seed: int):
         yield f"synthetic_{i:03d}", scan.points, truth_of(scan, T), T[:3, :3] @ np.array([0, 0, -1.0])
 
 
+def tank_truth(scene, T_WS: np.ndarray, points: np.ndarray, gt, min_pipe_hits: int = 20):
+    """Ground truth of one tank scan in {S}: each point's hit re-cast from the true sensor pose
+    (kind and id of the surface along its ray; range noise does not change the label)."""
+    from frontends.laser.evaluation import OBJECT, OTHER, PIPE, PLANE, ScanTruth
+    from frontends.laser.objects import configuration_of
+    from semslam.sim.tank import FLOOR, OBJECT as SIM_OBJECT, PIPE as SIM_PIPE, WALL
+
+    R, o = T_WS[:3, :3], T_WS[:3, 3]
+    d = np.asarray(points, float)
+    d = d / np.linalg.norm(d, axis=1, keepdims=True)
+    _, kind, ident = scene.cast(o, d @ R.T)
+    ours = np.select([(kind == FLOOR) | (kind == WALL), kind == SIM_PIPE, kind == SIM_OBJECT], [PLANE, PIPE, OBJECT], OTHER)
+    index = np.where((kind == SIM_PIPE) | (kind == SIM_OBJECT), ident, -1)
+    T_SW = np.linalg.inv(T_WS)
+
+    def tf(x):
+        return T_SW[:3, :3] @ np.asarray(x, float) + T_SW[:3, 3]
+
+    pipe_by_id = {p.id: p for p in gt.pipes}
+    pipes = [(tf(p.p), tf(p.q), p.radius) for p in gt.pipes]  # list index = pipe id in the simulator
+    assert all(p.id == k for k, p in enumerate(gt.pipes))
+    hits = np.bincount(index[ours == PIPE], minlength=len(pipes)) if (ours == PIPE).any() else np.zeros(len(pipes))
+    objects, visible_conf = [], []
+    for ob in gt.objects:
+        pos = tf(ob.position)
+        dirs, vis_dirs = [], []
+        for pid in ob.pipes:
+            p = pipe_by_id[pid]
+            far = np.asarray(p.q) if np.linalg.norm(np.subtract(p.p, ob.position)) < np.linalg.norm(np.subtract(p.q, ob.position)) else np.asarray(p.p)
+            u = far - np.asarray(ob.position)
+            u = T_SW[:3, :3] @ (u / np.linalg.norm(u))
+            dirs.append(u)
+            if hits[pid] >= min_pipe_hits:
+                vis_dirs.append(u)
+        objects.append((pos, configuration_of(np.array(dirs), 30.0) if dirs else None))
+        visible_conf.append(configuration_of(np.array(vis_dirs), 30.0) if vis_dirs else None)
+    return ScanTruth(ours, index, pipes, objects, visible_conf)
+
+
 def tank_scans(every: int, seed: int):
-    """Scans of the simulated tank mission with their truth (needs ``semslam.sim``)."""
-    try:
-        from semslam.sim import laser_truth, simulate_tank  # type: ignore[attr-defined]
-    except ImportError as exc:  # the simulator is another issue's; say so plainly
-        raise SystemExit(f"tank source unavailable: {exc}") from exc
-    mission = simulate_tank(seed=seed)
-    for k, (points, truth, up, stamp) in enumerate(laser_truth(mission)):
-        if k % every == 0:
-            yield f"scan_{stamp}", points, truth, up
+    """(name, points, truth, up) for the scans of the simulated tank mission (``semslam.sim``)."""
+    from semslam.mission.measurements import GroundTruthPose, PointCloud
+    from semslam.sim import TankSimConfig, simulate_tank
+    from semslam.sim.tank import TankScene, make_layout
+
+    cfg = TankSimConfig(seed=seed)
+    mission = simulate_tank(cfg)
+    scene = TankScene(cfg.tank, make_layout(cfg.structure, cfg.tank, cfg.seed))
+    T_BS = mission.metadata.sensors["laser"].T_BS
+    gt = mission.metadata.ground_truth
+    poses = {m.stamp: m for m in mission.of_type(GroundTruthPose)}
+    stamps = np.array(sorted(poses))
+    for k, scan in enumerate(mission.of_type(PointCloud)):
+        if k % every:
+            continue
+        near = stamps[np.argmin(np.abs(stamps - scan.stamp))]
+        assert abs(near - scan.stamp) < 1e6, "no true pose at the scan's stamp"
+        T_WS = poses[near].matrix() @ T_BS
+        up = T_WS[:3, :3].T @ np.array([0.0, 0.0, -1.0])
+        yield f"scan_{k:03d}", scan.points, tank_truth(scene, T_WS, scan.points, gt), up
 
 
 def check(summary: dict) -> dict:

@@ -51,5 +51,5 @@ def test_mushroom_crop_takes_the_valve_handle_and_no_floor():
     assert handle.sum() >= 10
     assert cloud[:, 2].max() < scan.scene.floor_z - 0.01  # nothing of the floor
     # the crop's points are the object's: most voxels of the cloud come from object rays
-    raw = seg.raw_indices(seg.structure[o.indices])
+    raw = seg.raw_indices(o.indices)
     assert (scan.kind[raw] == SynthScan.OBJECT).mean() > 0.9

@@ -21,9 +21,16 @@ class PreprocessConfig(_Section):
     voxel_size: float = Field(
         0.03,
         gt=0,
-        description="voxel grid for downsampling; 3 cm keeps ~5 points across the visible half of a 5 cm-radius "
-        "pipe and a 100k-point scan near 0.2 s; 2 cm halves the endpoint error at twice the time",
+        description="voxel grid of the plane segmentation (the whole scan, mostly floor and walls): 3 cm keeps a "
+        "100k-point scan near 0.2 s; pipes and objects use structure_voxel_size",
     )
+    structure_voxel_size: float = Field(
+        0.01,
+        gt=0,
+        description="the structure (what plane removal keeps, a few % of a scan) is re-sampled from the raw "
+        "points at this finer grid for pipes and objects: a 3 cm-radius pipe needs ~1 cm",
+    )
+    structure_neighbors: int = Field(24, ge=4, description="neighbours per point of the structure cloud")
     outlier_neighbors: int = Field(20, ge=2, description="statistical outlier removal: neighbours per point")
     outlier_std_ratio: float = Field(
         3.0, gt=0, description="... a point goes if its mean neighbour distance exceeds mean + ratio × std"

@@ -18,7 +18,7 @@ from frontends.laser.config import LaserConfig
 from frontends.laser.objects import SegmentedObject, segment_objects
 from frontends.laser.pipes import Pipe, detect_pipes
 from frontends.laser.planes import PlaneResult, remove_planes
-from frontends.laser.preprocess import Preprocessed, local_geometry, preprocess
+from frontends.laser.preprocess import Preprocessed, knn_search, local_geometry, preprocess, voxel_downsample
 from semslam.errors import ConfigError
 from semslam.mission.measurements import PointCloud
 from semslam.observations import Connectivity, LineObservation, Observation, PointObservation
@@ -34,56 +34,76 @@ class Recognizer(Protocol):
 
 @dataclass
 class ScanSegmentation:
-    """Everything one scan went through. Indices: ``structure`` indexes ``pre.points``; pipe inliers
-    and object indices index ``structure`` (the structure cloud)."""
+    """Everything one scan went through, in {S}.
+
+    ``pre`` is the coarse cloud of the plane segmentation and ``planes`` its result; ``structure``
+    indexes the coarse voxels kept. ``structure_points`` is the structure re-sampled finely from the
+    raw points (``raw_to_structure`` maps every raw point to its fine voxel, −1 if not structure),
+    with ``normals``; pipe inliers and object indices index ``structure_points``.
+    """
 
     pre: Preprocessed
     planes: PlaneResult
     structure: np.ndarray
-    normals: np.ndarray  # small-neighbourhood normals of the structure points
+    structure_points: np.ndarray
+    raw_to_structure: np.ndarray
+    normals: np.ndarray
     pipes: list[Pipe]
     objects: list[SegmentedObject]
     up: np.ndarray
     timings: dict[str, float] = field(default_factory=dict)
 
-    @property
-    def structure_points(self) -> np.ndarray:
-        return self.pre.points[self.structure]
+    def raw_indices(self, structure_indices: np.ndarray) -> np.ndarray:
+        """Raw scan points that fell in the given fine structure voxels."""
+        sel = np.zeros(len(self.structure_points) + 1, bool)
+        sel[structure_indices] = True
+        return np.flatnonzero(sel[self.raw_to_structure])  # −1 → the extra False slot
 
-    def raw_indices(self, voxel_indices: np.ndarray) -> np.ndarray:
-        """Raw scan points that fell in the given voxels (indices into ``pre.points``)."""
-        sel = np.zeros(len(self.pre.points) + 1, bool)
-        sel[voxel_indices] = True
-        return np.flatnonzero(sel[self.pre.raw_to_voxel])  # raw_to_voxel −1 → the extra False slot
+
+def structure_cloud(raw: np.ndarray, pre: Preprocessed, planes: PlaneResult, cfg: LaserConfig):
+    """The structure at fine resolution: raw points of the kept coarse voxels, re-voxelised.
+
+    Returns (points M×3, raw_to_structure (N,), neighbours M×k, normals M×3).
+    """
+    v = pre.raw_to_voxel
+    keep = np.flatnonzero((v >= 0) & planes.structure[np.maximum(v, 0)])
+    raw_to_structure = np.full(len(raw), -1, np.int64)
+    k = max(cfg.preprocess.structure_neighbors, cfg.pipes.normal_neighbors)
+    if len(keep) <= k:
+        return np.zeros((0, 3)), raw_to_structure, np.zeros((0, k), np.int64), np.zeros((0, 3))
+    pts, inv = voxel_downsample(raw[keep], cfg.preprocess.structure_voxel_size)
+    raw_to_structure[keep] = inv
+    if len(pts) <= k:
+        return pts, raw_to_structure, np.zeros((len(pts), 0), np.int64), np.zeros((len(pts), 3))
+    knn, _ = knn_search(pts, k)
+    normals, _ = local_geometry(pts, knn[:, : cfg.pipes.normal_neighbors])
+    return pts, raw_to_structure, knn, normals
 
 
 def segment_scan(points: np.ndarray, cfg: LaserConfig, up: np.ndarray | None = None) -> ScanSegmentation:
     """Run all stages on a raw scan (N×3, {S}). ``up`` is the unit up direction in {S}; when None the
     direction towards the sensor is used (the scanner looks down at the structure)."""
     tm: dict[str, float] = {}
+    raw = np.asarray(points, dtype=np.float64)
     t0 = time.perf_counter()
-    pre = preprocess(points, cfg.preprocess, cfg.planes)
+    pre = preprocess(raw, cfg.preprocess, cfg.planes)
     t1 = time.perf_counter()
     planes = remove_planes(pre, cfg.planes, cfg.preprocess.voxel_size)
-    t2 = time.perf_counter()
     structure = np.flatnonzero(planes.structure)
-    spts = pre.points[structure]
+    t1b = time.perf_counter()
+    spts, raw_to_s, knn, normals = structure_cloud(raw, pre, planes, cfg)
+    t2 = time.perf_counter()
     if up is None:
         up = -spts.mean(axis=0) if len(spts) else -UP_NED
         up = up / max(np.linalg.norm(up), 1e-12)
     pipes: list[Pipe] = []
-    normals = np.zeros((len(structure), 3))
-    if len(structure) >= cfg.pipes.min_points:
-        k = cfg.pipes.normal_neighbors
-        normals, _ = local_geometry(pre.points, pre.knn[structure, :k], structure)
-        remap = np.full(len(pre.points), -1, np.int64)
-        remap[structure] = np.arange(len(structure))
-        pipes = detect_pipes(spts, normals, remap[pre.knn[structure]], cfg.pipes)
+    if len(spts) >= cfg.pipes.min_points and knn.shape[1] > 1:
+        pipes = detect_pipes(spts, normals, knn, cfg.pipes)
     t3 = time.perf_counter()
     objects = segment_objects(spts, pipes, up, cfg.objects, cfg.pipes.range_sigma_per_m)
     t4 = time.perf_counter()
-    tm.update(preprocess=t1 - t0, planes=t2 - t1, pipes=t3 - t2, objects=t4 - t3, total=t4 - t0)
-    return ScanSegmentation(pre, planes, structure, normals, pipes, objects, up, tm)
+    tm.update(preprocess=t1 - t0, planes=t1b - t1, structure=t2 - t1b, pipes=t3 - t2, objects=t4 - t3, total=t4 - t0)
+    return ScanSegmentation(pre, planes, structure, spts, raw_to_s, normals, pipes, objects, up, tm)
 
 
 class LaserFrontend:
@@ -130,7 +150,7 @@ class LaserFrontend:
         for o in seg.objects:
             conn = Connectivity(len(o.directions), o.configuration, tuple(tuple(map(float, d)) for d in o.directions))
             if self.config.full_resolution_clouds:
-                cloud = np.asarray(measurement.points)[seg.raw_indices(seg.structure[o.indices])]
+                cloud = np.asarray(measurement.points)[seg.raw_indices(o.indices)]
             else:
                 cloud = spts[o.indices]
             cloud = np.asarray(cloud, dtype=np.float32)
