@@ -85,11 +85,24 @@ class PipeConfig(_Section):
     min_points: int = Field(40, ge=5, description="fewest inliers of a pipe segment")
     distance_tolerance: float = Field(0.012, gt=0, description="inlier: |distance to axis − radius| below this")
     normal_tolerance_deg: float = Field(30.0, gt=0, lt=90, description="inlier: normal within this of radial")
-    hypotheses: int = Field(300, ge=10, description="RANSAC hypotheses per extracted pipe, scored together")
-    score_sample: int = Field(2000, ge=100, description="points on which hypotheses are scored (then all points)")
+    hypotheses: int = Field(150, ge=10, description="RANSAC hypotheses per extracted pipe, scored together")
+    score_sample: int = Field(1000, ge=100, description="points on which hypotheses are scored (then all points)")
     max_pipes: int = Field(20, ge=1, description="most pipes extracted from one scan")
     max_gap: float = Field(
-        0.08, gt=0, description="inliers farther apart than this along the axis split into separate segments"
+        0.05, gt=0, description="inliers farther apart than this along the axis split into separate segments"
+    )
+    fitting_reach: float = Field(
+        0.05, gt=0, description="points up to this far outside a pipe's surface are looked at for fittings"
+    )
+    fitting_points: int = Field(
+        6, ge=1, description="this many such points in one bin along the axis mark a fitting (a body, a branch)"
+    )
+    bump_bin: float = Field(0.02, gt=0, description="bin along the axis in which fittings are looked for")
+    bump_height: float = Field(
+        0.004,
+        gt=0,
+        description="a bin whose median distance to the axis exceeds the pipe's by this is a fitting (sockets are "
+        "≥ 6 mm wider than their pipe) and cuts the pipe",
     )
     merge_angle_deg: float = Field(10.0, gt=0, description="duplicates: axes within this angle ...")
     merge_distance: float = Field(0.03, gt=0, description="... axes this close (lateral) ...")

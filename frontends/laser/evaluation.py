@@ -35,6 +35,8 @@ class ScanScore:
     plane_removed: float  # fraction of floor + wall points removed
     n_visible_pipes: int  # ≥ min_visible of their length seen
     n_recalled_pipes: int
+    n_visible_long_pipes: int  # ... and at least min_pipe_length long (what the detector may report)
+    n_recalled_long_pipes: int
     n_detections: int
     n_true_detections: int
     endpoint_errors: list[float] = field(default_factory=list)  # m, against the visible extent
@@ -76,6 +78,7 @@ def score_scan(
     match_distance: float = 0.1,
     object_gate: float = 0.15,
     min_object_hits: int = 30,
+    min_pipe_length: float = 0.30,
 ) -> ScanScore:
     points = np.asarray(points, dtype=np.float64)
     v = seg.pre.raw_to_voxel
@@ -102,11 +105,15 @@ def score_scan(
             if lateral <= match_distance and overlap > 0 and lateral < best:
                 best, match[d] = lateral, k
     visible = [k for k, (f, _) in enumerate(vis) if f >= min_visible]
+    long = [k for k in visible if np.linalg.norm(truth.pipes[k][1] - truth.pipes[k][0]) >= min_pipe_length]
+    found = set(match[match >= 0].tolist())
     score = ScanScore(
         structure_kept,
         plane_removed,
         len(visible),
-        len(set(match[match >= 0]) & set(visible)),
+        len(found & set(visible)),
+        len(long),
+        len(found & set(long)),
         len(seg.pipes),
         int((match >= 0).sum()),
     )
@@ -169,6 +176,9 @@ def summarize(scores: list[ScanScore]) -> dict:
         "plane_removed_mean": float(np.mean(plane)) if plane else None,
         "plane_removed_min": float(np.min(plane)) if plane else None,
         "pipe_recall": ratio(sum(s.n_recalled_pipes for s in scores), sum(s.n_visible_pipes for s in scores)),
+        "pipe_recall_long": ratio(
+            sum(s.n_recalled_long_pipes for s in scores), sum(s.n_visible_long_pipes for s in scores)
+        ),
         "pipe_precision": ratio(sum(s.n_true_detections for s in scores), sum(s.n_detections for s in scores)),
         "endpoint_error_median_m": med(ep),
         "endpoint_error_p90_m": float(np.percentile(ep, 90)) if ep else None,
@@ -184,4 +194,5 @@ def summarize(scores: list[ScanScore]) -> dict:
         "spurious_objects": sum(s.n_spurious_objects for s in scores),
         "visible_objects": vis_obj,
         "visible_pipes": sum(s.n_visible_pipes for s in scores),
+        "visible_long_pipes": sum(s.n_visible_long_pipes for s in scores),
     }

@@ -143,6 +143,38 @@ def _runs(t: np.ndarray, max_gap: float) -> list[np.ndarray]:
     return np.split(order, cuts)
 
 
+def split_at_fittings(
+    t: np.ndarray, residual: np.ndarray, t_foreign: np.ndarray, cfg: PipeConfig
+) -> list[np.ndarray]:
+    """Runs of a pipe's inliers, cut where a fitting sits on it (index arrays into ``t``).
+
+    ``t`` are the inliers' positions along the axis, ``residual`` their distance to the axis minus
+    the radius; ``t_foreign`` the positions of the other points just outside the pipe's surface
+    (within ``fitting_reach`` of it). A fitting shows either way: sockets and unions are wider than
+    the pipe they join (bins of ``bump_bin`` whose median residual stands ``bump_height`` above
+    the pipe's), and bodies, branches and handles put many foreign points around the axis (at least
+    ``fitting_points`` in a bin). Those bins' inliers leave the pipe (to the objects), the pipe is
+    cut there, and runs are split where the remaining inliers have gaps longer than ``max_gap``.
+    """
+    if len(t) == 0:
+        return []
+    t0 = t.min()
+    b = np.floor((t - t0) / cfg.bump_bin).astype(np.int64)
+    order = np.argsort(b, kind="stable")
+    bs, rs = b[order], residual[order]
+    starts = np.flatnonzero(np.r_[True, bs[1:] != bs[:-1]])
+    counts = np.diff(np.r_[starts, len(bs)])
+    med = np.array([np.median(rs[s : s + c]) for s, c in zip(starts, counts)])  # one per bin, not per point
+    bad = set(bs[starts][(med - np.median(residual) > cfg.bump_height) & (counts >= 3)].tolist())
+    if len(t_foreign):
+        fb = np.floor((t_foreign - t0) / cfg.bump_bin).astype(np.int64)
+        u, c = np.unique(fb, return_counts=True)
+        bad |= set(u[c >= cfg.fitting_points].tolist())
+    keep = ~np.isin(b, np.fromiter(bad, np.int64, len(bad)))
+    kept = np.flatnonzero(keep)
+    return [kept[r] for r in _runs(t[kept], cfg.max_gap)]
+
+
 def endpoint_covariance(p, q, axis, n_points, mean_range, cfg: PipeConfig) -> np.ndarray:
     """6×6 covariance of [p; q].
 
@@ -226,7 +258,13 @@ def detect_pipes(points: np.ndarray, normals: np.ndarray, neighbors: np.ndarray,
             continue
         cb, ab, rb, idx = refined
         found = False
-        for run in _runs((points[idx] - cb) @ ab, cfg.max_gap):
+        v = points - cb
+        t_all = v @ ab
+        res_all = np.linalg.norm(v - np.outer(t_all, ab), axis=1) - rb
+        t, residual = t_all[idx], res_all[idx]
+        near = (res_all > cfg.distance_tolerance) & (res_all < cfg.fitting_reach)
+        near &= (t_all > t.min() - cfg.max_gap) & (t_all < t.max() + cfg.max_gap)
+        for run in split_at_fittings(t, residual, t_all[near], cfg):
             seg = idx[run]
             if len(seg) < cfg.min_points:
                 continue
