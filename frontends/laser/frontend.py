@@ -66,8 +66,9 @@ def structure_cloud(raw: np.ndarray, pre: Preprocessed, planes: PlaneResult, cfg
     Returns (points M×3, raw_to_structure (N,), neighbours M×k, normals M×3).
     """
     v = pre.raw_to_voxel
-    keep = np.flatnonzero((v >= 0) & planes.structure[np.maximum(v, 0)])
     raw_to_structure = np.full(len(raw), -1, np.int64)
+    kept_voxel = np.append(planes.structure, False)  # v = −1 (cropped, outlier) → the False slot
+    keep = np.flatnonzero(kept_voxel[v])
     k = max(cfg.preprocess.structure_neighbors, cfg.pipes.normal_neighbors)
     if len(keep) <= k:
         return np.zeros((0, 3)), raw_to_structure, np.zeros((0, k), np.int64), np.zeros((0, 3))
