@@ -33,9 +33,9 @@ from frontends.laser.evaluation import score_scan, summarize  # noqa: E402
 from frontends.laser.figures import stage_figure  # noqa: E402
 
 ACCEPTANCE = {
-    "structure_kept_mean": (">=", 0.98),
-    "plane_removed_mean": (">=", 0.98),
-    "pipe_recall": (">=", 0.95),
+    "structure_kept_overall": (">=", 0.98),
+    "plane_removed_overall": (">=", 0.98),
+    "pipe_recall_long": (">=", 0.95),
     "pipe_precision": (">=", 0.95),
     "endpoint_error_median_m": ("<=", 0.05),
     "axis_error_median_deg": ("<=", 2.0),

@@ -80,14 +80,23 @@ class PipeConfig(_Section):
     radius_prior: float | None = Field(
         None, gt=0, description="known pipe radius; when given, hypotheses must be within radius_tolerance of it"
     )
-    radius_tolerance: float = Field(0.012, gt=0, description="allowed deviation from radius_prior")
-    min_length: float = Field(0.30, gt=0, description="shortest pipe segment reported (paper)")
+    radius_tolerance: float = Field(
+        0.004, gt=0, description="allowed deviation from radius_prior (sockets are ≥ 6 mm wider than their pipe)"
+    )
+    min_length: float = Field(0.30, gt=0, description="shortest pipe segment reported as an observation (paper)")
+    min_detect_length: float = Field(
+        0.10,
+        gt=0,
+        description="shortest pipe segment detected: shorter pipes than min_length are not reported, but they "
+        "still separate objects and count in their connectivity (the tank has 13 cm pipes between fittings)",
+    )
     min_points: int = Field(40, ge=5, description="fewest inliers of a pipe segment")
     distance_tolerance: float = Field(0.012, gt=0, description="inlier: |distance to axis − radius| below this")
     normal_tolerance_deg: float = Field(30.0, gt=0, lt=90, description="inlier: normal within this of radial")
     hypotheses: int = Field(150, ge=10, description="RANSAC hypotheses per extracted pipe, scored together")
     score_sample: int = Field(1000, ge=100, description="points on which hypotheses are scored (then all points)")
-    max_pipes: int = Field(20, ge=1, description="most pipes extracted from one scan")
+    max_pipes: int = Field(40, ge=1, description="most pipe segments extracted from one scan")
+    max_failures: int = Field(8, ge=1, description="RANSAC stops after this many rounds in a row without a pipe")
     max_gap: float = Field(
         0.05, gt=0, description="inliers farther apart than this along the axis split into separate segments"
     )

@@ -37,8 +37,12 @@ class ScanScore:
     n_recalled_pipes: int
     n_visible_long_pipes: int  # ... and at least min_pipe_length long (what the detector may report)
     n_recalled_long_pipes: int
-    n_detections: int
+    n_detections: int  # reported (≥ min_pipe_length)
     n_true_detections: int
+    n_structure_points: int = 0
+    n_structure_kept: int = 0
+    n_plane_points: int = 0
+    n_plane_removed: int = 0
     endpoint_errors: list[float] = field(default_factory=list)  # m, against the visible extent
     axis_errors_deg: list[float] = field(default_factory=list)
     n_visible_objects: int = 0
@@ -104,19 +108,27 @@ def score_scan(
             overlap = min(t[1], np.linalg.norm(q - p)) - max(t[0], 0.0)
             if lateral <= match_distance and overlap > 0 and lateral < best:
                 best, match[d] = lateral, k
+    # Detections at least min_pipe_length long are the reported ones (precision, recall of long
+    # pipes); shorter ones only count in the recall of all pipes.
+    reported = np.array([det.length >= min_pipe_length for det in seg.pipes], bool)
     visible = [k for k, (f, _) in enumerate(vis) if f >= min_visible]
     long = [k for k in visible if np.linalg.norm(truth.pipes[k][1] - truth.pipes[k][0]) >= min_pipe_length]
     found = set(match[match >= 0].tolist())
+    found_reported = set(match[(match >= 0) & reported].tolist())
     score = ScanScore(
         structure_kept,
         plane_removed,
         len(visible),
         len(found & set(visible)),
         len(long),
-        len(found & set(long)),
-        len(seg.pipes),
-        int((match >= 0).sum()),
+        len(found_reported & set(long)),
+        int(reported.sum()),
+        int(((match >= 0) & reported).sum()),
     )
+    score.n_structure_points = int(struct.sum())
+    score.n_structure_kept = int(kept[struct].sum())
+    score.n_plane_points = int(plane.sum())
+    score.n_plane_removed = int(plane.sum() - kept[plane].sum())
     for d, k in enumerate(match):
         if k < 0 or vis[k][1] is None:
             continue
@@ -171,6 +183,8 @@ def summarize(scores: list[ScanScore]) -> dict:
     single = sum(s.n_single_segment for s in scores)
     return {
         "scans": len(scores),
+        "structure_kept_overall": ratio(sum(s.n_structure_kept for s in scores), sum(s.n_structure_points for s in scores)),
+        "plane_removed_overall": ratio(sum(s.n_plane_removed for s in scores), sum(s.n_plane_points for s in scores)),
         "structure_kept_mean": float(np.mean(structure)) if structure else None,
         "structure_kept_min": float(np.min(structure)) if structure else None,
         "plane_removed_mean": float(np.mean(plane)) if plane else None,

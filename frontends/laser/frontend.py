@@ -146,6 +146,7 @@ class LaserFrontend:
         obs: list[Observation] = [
             LineObservation(stamp, sensor, p=pp.p, q=pp.q, covariance=pp.covariance, radius=pp.radius)
             for pp in seg.pipes
+            if pp.reported(self.config.pipes)
         ]
         spts = seg.structure_points
         for o in seg.objects:

@@ -7,8 +7,9 @@ on a sample of the remaining points: a point is an inlier when its distance to t
 ``distance_tolerance`` of the radius *and* its normal is within ``normal_tolerance_deg`` of radial
 (which is what keeps a pipe's cylinder off the flat faces of objects). The best hypothesis is
 refined (axis from the inlier normals, circle fit across it), its inliers split into runs along the
-axis where they have gaps, and every run at least ``min_length`` long is a pipe segment whose
-endpoints are its extreme projections on the axis.
+axis where they have gaps or fittings, and every run at least ``min_detect_length`` long is a pipe
+segment whose endpoints are its extreme projections on the axis (``reported`` when at least
+``min_length`` long: shorter ones only serve the object segmentation and connectivity).
 """
 
 from __future__ import annotations
@@ -35,6 +36,10 @@ class Pipe:
     @property
     def length(self) -> float:
         return float(np.linalg.norm(self.q - self.p))
+
+    def reported(self, cfg: PipeConfig) -> bool:
+        """Long enough to be an observation (shorter ones only serve segmentation and connectivity)."""
+        return self.length >= cfg.min_length
 
 
 def _unit(v: np.ndarray) -> np.ndarray:
@@ -227,7 +232,9 @@ def detect_pipes(points: np.ndarray, normals: np.ndarray, neighbors: np.ndarray,
     seedable = np.ones(n, bool)
     pipes: list[Pipe] = []
     failures = 0
-    while len(pipes) < cfg.max_pipes and failures < 5:
+    for _ in range(3 * cfg.max_pipes):
+        if len(pipes) >= cfg.max_pipes or failures >= cfg.max_failures:
+            break
         seeds = np.flatnonzero(seedable & free)
         cand = np.flatnonzero(free)
         if len(seeds) < cfg.min_points:
@@ -239,21 +246,25 @@ def detect_pipes(points: np.ndarray, normals: np.ndarray, neighbors: np.ndarray,
         i, j = i[good], j[good]
         c, a, r, ok = hypotheses(points[i], normals[i], points[j], normals[j], cfg)
         if not ok.any():
+            seedable[i] = False  # these seeds give no cylinder at all (flat or ragged surface)
             failures += 1
             continue
-        c, a, r = c[ok], a[ok], r[ok]
+        i, c, a, r = i[ok], c[ok], a[ok], r[ok]
         sample = cand if len(cand) <= cfg.score_sample else rng.choice(cand, cfg.score_sample, replace=False)
-        scores = inlier_mask(points[sample], normals[sample], c, a, r, cfg).sum(axis=1)
-        if scores.max() * len(cand) / len(sample) < cfg.min_points:
-            break
+        in_sample = inlier_mask(points[sample], normals[sample], c, a, r, cfg)
+        scores = in_sample.sum(axis=1)
         # Refine the best hypothesis; if its fit leaves the radius range, the next best (up to 3).
         refined = None
-        for h in np.argsort(scores)[::-1][:3]:
-            refined = _refine(points, normals, cand, c[h], a[h], r[h], cfg)
-            if refined is not None:
-                break
+        tried = np.argsort(scores)[::-1][:3]
+        if scores[tried[0]] * len(cand) / len(sample) >= cfg.min_points:
+            for h in tried:
+                refined = _refine(points, normals, cand, c[h], a[h], r[h], cfg)
+                if refined is not None:
+                    break
         if refined is None:
-            seedable[i[np.flatnonzero(ok)[np.argmax(scores)]]] = False
+            # No pipe here: stop seeding from these hypotheses' seeds and sampled inliers.
+            seedable[i[tried]] = False
+            seedable[sample[in_sample[tried].any(axis=0)]] = False
             failures += 1
             continue
         cb, ab, rb, idx = refined
@@ -269,7 +280,7 @@ def detect_pipes(points: np.ndarray, normals: np.ndarray, neighbors: np.ndarray,
             if len(seg) < cfg.min_points:
                 continue
             pipe = _make_pipe(points, normals, seg, ab, cfg)
-            if pipe.length >= cfg.min_length and cfg.min_radius <= pipe.radius <= cfg.max_radius:
+            if pipe.length >= cfg.min_detect_length and cfg.min_radius <= pipe.radius <= cfg.max_radius:
                 pipes.append(pipe)
                 free[seg] = False
                 found = True
