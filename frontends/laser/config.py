@@ -98,7 +98,9 @@ class PipeConfig(_Section):
     max_pipes: int = Field(40, ge=1, description="most pipe segments extracted from one scan")
     max_failures: int = Field(8, ge=1, description="RANSAC stops after this many rounds in a row without a pipe")
     max_gap: float = Field(
-        0.05, gt=0, description="inliers farther apart than this along the axis split into separate segments"
+        0.25,
+        gt=0,
+        description="a gap without a fitting in it (occlusion) is bridged up to this length along the axis",
     )
     fitting_reach: float = Field(
         0.05, gt=0, description="points up to this far outside a pipe's surface are looked at for fittings"

@@ -159,7 +159,8 @@ def split_at_fittings(
     the pipe they join (bins of ``bump_bin`` whose median residual stands ``bump_height`` above
     the pipe's), and bodies, branches and handles put many foreign points around the axis (at least
     ``fitting_points`` in a bin). Those bins' inliers leave the pipe (to the objects), the pipe is
-    cut there, and runs are split where the remaining inliers have gaps longer than ``max_gap``.
+    cut there. A plain gap (a pipe in front hides part of this one) is bridged unless longer than
+    ``max_gap``: fittings, not gaps, are what separate two pipes.
     """
     if len(t) == 0:
         return []
@@ -175,9 +176,17 @@ def split_at_fittings(
         fb = np.floor((t_foreign - t0) / cfg.bump_bin).astype(np.int64)
         u, c = np.unique(fb, return_counts=True)
         bad |= set(u[c >= cfg.fitting_points].tolist())
-    keep = ~np.isin(b, np.fromiter(bad, np.int64, len(bad)))
-    kept = np.flatnonzero(keep)
-    return [kept[r] for r in _runs(t[kept], cfg.max_gap)]
+    bad_bins = np.sort(np.fromiter(bad, np.int64, len(bad)))
+    kept = np.flatnonzero(~np.isin(b, bad_bins))
+    if len(kept) == 0:
+        return []
+    kept = kept[np.argsort(t[kept])]
+    tk = t[kept]
+    # Cut between consecutive kept points with a fitting bin between them, or too far apart.
+    lo = t0 + bad_bins * cfg.bump_bin
+    fitting_between = np.searchsorted(lo, tk[1:]) > np.searchsorted(lo, tk[:-1])
+    cuts = np.flatnonzero(fitting_between | (np.diff(tk) > cfg.max_gap)) + 1
+    return np.split(kept, cuts)
 
 
 def endpoint_covariance(p, q, axis, n_points, mean_range, cfg: PipeConfig) -> np.ndarray:
