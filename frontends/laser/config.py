@@ -95,6 +95,7 @@ class PipeConfig(_Section):
     normal_tolerance_deg: float = Field(30.0, gt=0, lt=90, description="inlier: normal within this of radial")
     hypotheses: int = Field(150, ge=10, description="RANSAC hypotheses per extracted pipe, scored together")
     score_sample: int = Field(1000, ge=100, description="points on which hypotheses are scored (then all points)")
+    refine_rounds: int = Field(5, ge=1, description="at most this many fit → inliers rounds per hypothesis")
     max_pipes: int = Field(40, ge=1, description="most pipe segments extracted from one scan")
     max_failures: int = Field(8, ge=1, description="RANSAC stops after this many rounds in a row without a pipe")
     max_gap: float = Field(

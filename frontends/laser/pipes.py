@@ -215,15 +215,19 @@ def _make_pipe(points, normals, idx, a0, cfg: PipeConfig) -> Pipe:
 
 
 def _refine(points, normals, cand, c, a, r, cfg: PipeConfig):
-    """Refit a hypothesis to its inliers among ``cand`` twice; None if the fit leaves the radius range."""
+    """Refit a hypothesis to its inliers among ``cand`` until they stop changing (at most
+    ``refine_rounds``); None if the fit leaves the radius range."""
     idx = cand[inlier_mask(points[cand], normals[cand], c[None], a[None], np.array([r]), cfg)[0]]
-    for _ in range(2):
+    for _ in range(cfg.refine_rounds):
+        prev = len(idx)
         if len(idx) < cfg.min_points:
             return None
         c, a, r = fit_cylinder(points[idx], normals[idx], a, cfg)
         if not (cfg.min_radius <= r <= cfg.max_radius):
             return None
         idx = cand[inlier_mask(points[cand], normals[cand], c[None], a[None], np.array([r]), cfg)[0]]
+        if abs(len(idx) - prev) <= 2:
+            break
     return c, a, r, idx
 
 
