@@ -104,12 +104,13 @@ class PipeConfig(_Section):
         description="a gap without a fitting in it (occlusion) is bridged up to this length along the axis",
     )
     fitting_reach: float = Field(
-        0.05, gt=0, description="points up to this far outside a pipe's surface are looked at for fittings"
+        0.04, gt=0, description="points up to this far outside a pipe's surface are looked at for fittings"
     )
     fitting_points: int = Field(
         6, ge=1, description="this many such points in one bin along the axis mark a fitting (a body, a branch)"
     )
     bump_bin: float = Field(0.02, gt=0, description="bin along the axis in which fittings are looked for")
+    bump_window: float = Field(0.15, gt=0, description="half-width of the pipe's local level around a bin (m)")
     bump_height: float = Field(
         0.004,
         gt=0,
@@ -141,7 +142,11 @@ class ObjectConfig(_Section):
     handle_size: tuple[float, float, float] = Field(
         (0.30, 0.30, 0.25), description="handle box stacked above the body (mushroom), same axes, m"
     )
-    join_distance: float = Field(0.20, gt=0, description="pipe ends whose object-centre guesses are closer join one object")
+    line_tolerance: float = Field(0.03, gt=0, description="pipe ends meet when their axes pass this close (m)")
+    max_inline_gap: float = Field(0.30, gt=0, description="longest in-line object between two facing pipe ends (m)")
+    max_port_distance: float = Field(
+        0.15, gt=0, description="farthest a junction lies beyond the pipe ends meeting there (port to centre, m)"
+    )
     collinear_angle_deg: float = Field(30.0, gt=0, lt=90, description="two pipes within this of opposite are collinear")
     min_points: int = Field(30, ge=1, description="fewest (non-pipe) points in the crop for an object")
     cluster_distance: float = Field(0.05, gt=0, description="Euclidean clustering radius inside the crop")

@@ -1,8 +1,9 @@
 """Object segmentation at pipe extremities, with connectivity (Vallicrosa et al. 2021, §3.3).
 
-Objects (valves, elbows, tees...) sit where pipes end. Every pipe end guesses an object centre half
-a body length beyond it; ends whose guesses meet are one object, and the pipes at it give its
-connectivity: 1 = one pipe, 2 = two collinear pipes, 3 = two orthogonal pipes, 4 = three or more.
+Objects (valves, elbows, tees...) sit where pipes end. Pipe ends that face each other on one line
+(an in-line part between them) or whose axes cross just beyond them (a junction) meet at one
+object, and the pipes at it give its connectivity: 1 = one pipe, 2 = two collinear pipes, 3 = two
+orthogonal pipes, 4 = three or more. A lone pipe end is an object only if something is there.
 The object is cropped from the structure points (pipe inliers excluded) with an oriented box in a
 frame (pipe direction, across, up): the "mushroom" (body box plus a handle box above it) when the
 object has one connection or two collinear ones — a valve's handle stands above its body — and the
@@ -82,6 +83,40 @@ def _largest_cluster(points: np.ndarray, radius: float) -> np.ndarray:
     return np.flatnonzero(lab == np.bincount(lab).argmax())
 
 
+def join_ends(ends: np.ndarray, out: np.ndarray, owner: np.ndarray, cfg: ObjectConfig) -> np.ndarray:
+    """Group pipe ends that meet at one object (label per end).
+
+    Two ends of different pipes meet at an in-line object when they face each other on one line
+    (outward directions opposite within ``collinear_angle_deg``, lateral offset below
+    ``line_tolerance``, gap below ``max_inline_gap``), and at a junction when their axes cross
+    (closest approach below ``line_tolerance``) within ``max_port_distance`` beyond both ends.
+    """
+    n = len(ends)
+    cos_c = np.cos(np.radians(cfg.collinear_angle_deg))
+    i, j = np.triu_indices(n, 1)
+    keep = owner[i] != owner[j]
+    i, j = i[keep], j[keep]
+    oi, oj = out[i], out[j]
+    d = ends[j] - ends[i]
+    dot = np.einsum("ij,ij->i", oi, oj)
+    # in-line: facing each other on one line
+    gap = np.einsum("ij,ij->i", d, oi)
+    lateral = np.linalg.norm(d - gap[:, None] * oi, axis=1)
+    inline = (dot <= -cos_c) & (gap > -cfg.line_tolerance) & (gap <= cfg.max_inline_gap) & (lateral <= cfg.line_tolerance)
+    # junction: the two axes cross just beyond both ends
+    den = np.maximum(1.0 - dot**2, 1e-12)
+    e_i = np.einsum("ij,ij->i", oi, d)
+    e_j = np.einsum("ij,ij->i", oj, d)
+    s_i = (e_i - dot * e_j) / den  # along oi from ends[i]
+    s_j = (dot * e_i - e_j) / den  # along oj from ends[j]
+    miss = np.linalg.norm(ends[i] + s_i[:, None] * oi - ends[j] - s_j[:, None] * oj, axis=1)
+    lo, hi = -cfg.line_tolerance, cfg.max_port_distance
+    cross = (np.abs(dot) < cos_c) & (miss <= cfg.line_tolerance) & (s_i >= lo) & (s_i <= hi) & (s_j >= lo) & (s_j <= hi)
+    link = inline | cross
+    graph = coo_matrix((np.ones(link.sum(), np.int8), (i[link], j[link])), shape=(n, n))
+    return connected_components(graph, directed=False)[1]
+
+
 def segment_objects(
     points: np.ndarray, pipes: list[Pipe], up: np.ndarray, cfg: ObjectConfig, range_sigma_per_m: float = 0.002
 ) -> list[SegmentedObject]:
@@ -99,19 +134,13 @@ def segment_objects(
     # Pipe ends: position, outward direction (away from the pipe), guessed object centre.
     ends = np.array([e for p in pipes for e in (p.p, p.q)])
     out = np.array([o for p in pipes for o in (-p.axis, p.axis)])
+    owner = np.repeat(np.arange(len(pipes)), 2)
     guess = ends + out * body[0] / 2
-    occupied = np.array(
-        [in_box(X, g, box_frame(o, up), body).sum() >= cfg.min_points for g, o in zip(guess, out)], bool
-    )
-    idx = np.flatnonzero(occupied)
-    if len(idx) == 0:
-        return []
-    d = np.linalg.norm(guess[idx, None] - guess[None, idx], axis=2)
-    _, group = connected_components(coo_matrix(d <= cfg.join_distance), directed=False)
+    group = join_ends(ends, out, owner, cfg)
 
     objects: list[SegmentedObject] = []
     for gi in range(group.max() + 1):
-        members = idx[group == gi]
+        members = np.flatnonzero(group == gi)
         dirs = -out[members]  # pipe axes leaving the object
         e = ends[members]
         config = configuration_of(dirs, cfg.collinear_angle_deg)

@@ -171,7 +171,13 @@ def split_at_fittings(
     starts = np.flatnonzero(np.r_[True, bs[1:] != bs[:-1]])
     counts = np.diff(np.r_[starts, len(bs)])
     med = np.array([np.median(rs[s : s + c]) for s, c in zip(starts, counts)])  # one per bin, not per point
-    bad = set(bs[starts][(med - np.median(residual) > cfg.bump_height) & (counts >= 3)].tolist())
+    # Against the pipe's own level nearby (a slightly tilted fit makes the level drift along the
+    # axis): the median over ±bump_window, longer than any socket.
+    ids = bs[starts]
+    w = int(np.ceil(cfg.bump_window / cfg.bump_bin))
+    lo, hi = np.searchsorted(ids, ids - w), np.searchsorted(ids, ids + w, side="right")
+    level = np.array([np.median(med[a:b]) for a, b in zip(lo, hi)])
+    bad = set(ids[(med - level > cfg.bump_height) & (counts >= 3)].tolist())
     if len(t_foreign):
         fb = np.floor((t_foreign - t0) / cfg.bump_bin).astype(np.int64)
         u, c = np.unique(fb, return_counts=True)
