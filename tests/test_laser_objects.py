@@ -53,3 +53,26 @@ def test_mushroom_crop_takes_the_valve_handle_and_no_floor():
     # the crop's points are the object's: most voxels of the cloud come from object rays
     raw = seg.raw_indices(o.indices)
     assert (scan.kind[raw] == SynthScan.OBJECT).mean() > 0.9
+
+
+def test_pipe_ends_join_by_geometry():
+    from frontends.laser.config import ObjectConfig
+    from frontends.laser.objects import join_ends
+
+    cfg = ObjectConfig()
+    x, y = np.array([1.0, 0, 0]), np.array([0, 1.0, 0])
+    # pipe 0 ends at x = −0.06 going out +x; pipe 1 starts at x = +0.06 going out −x: an in-line valve
+    # pipe 2 ends 8 cm short of a junction at (1, 0) from −y; pipe 3 leaves it towards +x 8 cm away
+    # pipe 4 ends at (0, 0.5) going +x but on another line: nothing to do with the others
+    ends = np.array([[-0.06, 0, 0], [0.06, 0, 0], [1.0, -0.08, 0], [1.08, 0, 0], [0.0, 0.5, 0]])
+    out = np.array([x, -x, y, -x, x])
+    owner = np.arange(5)
+    g = join_ends(ends, out, owner, cfg)
+    assert g[0] == g[1] and g[2] == g[3]
+    assert len({g[0], g[2], g[4]}) == 3
+    # two ends of one pipe never join, even when they would face each other
+    g = join_ends(ends[:2], out[:2], np.array([0, 0]), cfg)
+    assert g[0] != g[1]
+    # facing ends farther apart than any in-line object stay apart
+    g = join_ends(np.array([[-0.2, 0, 0], [0.2, 0, 0]]), np.array([x, -x]), np.arange(2), cfg)
+    assert g[0] != g[1]

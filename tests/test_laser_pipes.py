@@ -105,3 +105,25 @@ def test_duplicate_detections_merge():
     assert len(merged) == 2
     whole = min(merged, key=lambda p: abs(p.p[1]) + abs(p.q[1]))
     assert whole.length > 0.97
+
+
+def test_split_at_fittings_socket_and_body_but_not_occlusion():
+    from frontends.laser.pipes import split_at_fittings
+
+    cfg = PipeConfig()
+    rng = np.random.default_rng(4)
+    t = np.sort(rng.uniform(0, 1.2, 1200))
+    residual = rng.normal(0, 0.003, len(t))
+    socket = (t > 0.30) & (t < 0.39)
+    residual[socket] += 0.007  # a socket, 7 mm wider than the pipe
+    hidden = (t > 0.60) & (t < 0.75)  # a pipe in front hides 15 cm: a gap, not a fitting
+    t, residual = t[~hidden], residual[~hidden]
+    body = rng.uniform(0.95, 1.05, 40)  # a valve body around the axis at t = 1
+    keep = ~((t > 0.95) & (t < 1.05))  # ... where the pipe itself is not seen
+    t, residual = t[keep], residual[keep]
+    runs = split_at_fittings(t, residual, body, cfg)
+    spans = sorted((t[r].min(), t[r].max()) for r in runs if len(r) > 5)
+    assert len(spans) == 3
+    assert spans[0][1] < 0.31 and 0.38 < spans[1][0] < 0.42  # cut at the socket, its points dropped
+    assert spans[1][1] > 0.9  # the occlusion gap is bridged
+    assert spans[2][0] > 1.04

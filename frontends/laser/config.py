@@ -117,6 +117,11 @@ class PipeConfig(_Section):
         description="a bin whose median distance to the axis exceeds the pipe's by this is a fitting (sockets are "
         "≥ 6 mm wider than their pipe) and cuts the pipe",
     )
+    bump_height_known_radius: float = Field(
+        0.003,
+        gt=0,
+        description="the same when radius_prior is given: the fit then has no radius bias, so the test can be finer",
+    )
     merge_angle_deg: float = Field(10.0, gt=0, description="duplicates: axes within this angle ...")
     merge_distance: float = Field(0.03, gt=0, description="... axes this close (lateral) ...")
     merge_gap: float = Field(0.05, ge=0, description="... and intervals overlapping or separated by less than this")

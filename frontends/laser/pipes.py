@@ -177,7 +177,8 @@ def split_at_fittings(
     w = int(np.ceil(cfg.bump_window / cfg.bump_bin))
     lo, hi = np.searchsorted(ids, ids - w), np.searchsorted(ids, ids + w, side="right")
     level = np.array([np.median(med[a:b]) for a, b in zip(lo, hi)])
-    bad = set(ids[(med - level > cfg.bump_height) & (counts >= 3)].tolist())
+    height = cfg.bump_height if cfg.radius_prior is None else cfg.bump_height_known_radius
+    bad = set(ids[(med - level > height) & (counts >= 3)].tolist())
     if len(t_foreign):
         fb = np.floor((t_foreign - t0) / cfg.bump_bin).astype(np.int64)
         u, c = np.unique(fb, return_counts=True)
