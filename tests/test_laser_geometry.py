@@ -7,6 +7,7 @@ from frontends.laser.preprocess import (
     knn_search,
     local_geometry,
     preprocess,
+    eigen3,
     smallest_eigen,
     statistical_inliers,
     voxel_downsample,
@@ -23,6 +24,8 @@ def test_smallest_eigen_matches_lapack():
     C[:200] = np.einsum("nij,nj,nkj->nik", Q, ev, Q)
     lam, v = smallest_eigen(C)
     w, V = np.linalg.eigh(C)
+    l0, l1, l2, _ = eigen3(C)
+    assert np.allclose(np.column_stack([l0, l1, l2]), w, atol=1e-10 * w[:, 2].max(), rtol=1e-6)
     assert np.allclose(lam, w[:, 0], atol=1e-12 * w[:, 2].max(), rtol=1e-6)
     assert np.allclose(np.abs(np.einsum("ij,ij->i", v, V[:, :, 0])), 1.0, atol=1e-6)
 

@@ -77,3 +77,34 @@ def test_small_flat_patch_above_floor_is_structure():
     is_top = pre.points[:, 2] < 1.9
     assert res.structure[is_top].mean() > 0.98
     assert res.structure[~is_top].mean() < 0.01
+
+
+def test_vertical_lattice_of_thin_pipes_is_not_a_wall():
+    """Thin pipes in one vertical plane: 50-point neighbourhoods along them are flat ribbons facing
+    the sensor, all coplanar. Without the planarity test region growing makes a "wall" of them."""
+    rng = np.random.default_rng(2)
+    r = 0.0315
+
+    def pipe(p, q, n=2500):
+        p, q = np.asarray(p, float), np.asarray(q, float)
+        a = (q - p) / np.linalg.norm(q - p)
+        e1 = np.cross(a, [0, 0, 1.0])
+        e1 /= np.linalg.norm(e1)
+        e2 = np.cross(a, e1)
+        e2 = e2 if e2[2] < 0 else -e2  # towards the sensor (−z)
+        th = rng.uniform(-1.4, 1.4, n)
+        t = rng.uniform(0, 1, n)
+        return p + np.outer(t, q - p) + r * (np.outer(np.cos(th), e2) + np.outer(np.sin(th), e1))
+
+    # a 3 × 3 lattice in the plane z = 2.5 (facing the sensor), 0.6 m apart
+    parts = [pipe((-0.6, y, 2.5), (0.6, y, 2.5)) for y in (-0.6, 0.0, 0.6)]
+    parts += [pipe((x, -0.6, 2.5), (x, 0.6, 2.5)) for x in (-0.6, 0.0, 0.6)]
+    floor = np.column_stack([rng.uniform(-1.5, 1.5, (30000, 2)), np.full(30000, 3.0)])
+    pts = np.vstack(parts + [floor]) + rng.normal(0, 0.003, (len(floor) + 6 * 2500, 3))
+    cfg = LaserConfig()
+    pre = preprocess(pts, cfg.preprocess, cfg.planes)
+    res = remove_planes(pre, cfg.planes, cfg.preprocess.voxel_size)
+    is_pipe = pre.points[:, 2] < 2.9
+    assert res.structure[is_pipe].mean() > 0.98
+    assert res.structure[~is_pipe].mean() < 0.02
+    assert len(res.planes) == 1

@@ -53,6 +53,13 @@ class PlaneConfig(_Section):
         description="only points below this curvature propagate a region (PCL's seed rule); pipes of radius "
         "≤ 0.064 m seen over a 50-point neighbourhood are above it, so regions stop at them",
     )
+    min_planarity: float = Field(
+        0.2,
+        ge=0,
+        le=1,
+        description="only surface-like neighbourhoods (λ1/λ2 above this) propagate a region: a thin pipe's is a "
+        "ribbon (≪ 0.2), a plane's a disc (≈ 1) or at its border a half disc (≈ 0.5)",
+    )
     flat_curvature: float = Field(0.025, gt=0, description="a region with mean curvature below this is flat (paper)")
     min_plane_extent: float = Field(
         0.4,
@@ -64,6 +71,9 @@ class PlaneConfig(_Section):
         0.25,
         gt=0,
         description="... or if its area (points × voxel²) exceeds this, m² (a wall seen as a narrow strip)",
+    )
+    max_plane_offset: float = Field(
+        0.03, gt=0, description="points of a tank plane's regions farther than this from the plane are structure (m)"
     )
     plane_distance: float = Field(
         0.012, gt=0, description="points within this distance of a tank plane and next to it join it (border strip)"

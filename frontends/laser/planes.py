@@ -3,6 +3,9 @@
 Regions grow between neighbouring points whose normals are within ``max_normal_angle_deg`` of each
 other; as in PCL's region growing, only smooth points (curvature below ``growth_curvature``)
 propagate a region, so growth starts from the least-curved points and stops at edges and pipes.
+Smooth must also mean surface-like (planarity λ1/λ2 ≥ ``min_planarity``): along a pipe thinner than
+the neighbourhood, the neighbourhood is a flat ribbon facing the sensor, and a lattice of such
+ribbons in one vertical plane would otherwise make a "wall".
 It is computed at once: the k-NN graph keeps the edges that pass both tests and
 ``scipy.sparse.csgraph.connected_components`` labels the regions (no loop over points).
 
@@ -15,6 +18,9 @@ regions join a tank plane only if they lie on it (same normal, centroid on the p
 curved border strip where a plane meets a pipe or an object (its neighbourhoods mix both surfaces)
 joins the plane point by point, only if adjacent to it and within ``plane_distance`` of it; the
 pipe and object points a few millimetres above the plane are not adjacent-and-on-plane and stay.
+Conversely a region that crept from the floor onto pipes (along a thin pipe a 50-point
+neighbourhood is a flat ribbon facing the sensor, like the floor) gives back every point farther
+than ``max_plane_offset`` from its plane.
 All in the sensor frame {S}.
 """
 
@@ -50,7 +56,7 @@ def grow_regions(pre: Preprocessed, cfg: PlaneConfig) -> np.ndarray:
     j = pre.knn[:, 1 : g + 1].ravel()
     n, kappa = pre.normals, pre.curvature
     cos_min = np.cos(np.radians(cfg.max_normal_angle_deg))
-    smooth = kappa < cfg.growth_curvature
+    smooth = (kappa < cfg.growth_curvature) & (pre.planarity >= cfg.min_planarity)
     ok = (np.einsum("ij,ij->i", n[i], n[j]) >= cos_min) & smooth[i] & smooth[j]
     graph = coo_matrix((np.ones(ok.sum(), np.int8), (i[ok], j[ok])), shape=(m, m))
     _, labels = connected_components(graph, directed=False)
@@ -107,9 +113,42 @@ def remove_planes(pre: Preprocessed, cfg: PlaneConfig, voxel_size: float) -> Pla
             plane_of_region[small[has]] = np.argmin(np.where(on, dist, np.inf), axis=1)[has]
 
     plane_of = plane_of_region[labels]
+    if planes:
+        plane_of, planes = _keep_on_plane(pre.points, plane_of, planes, cfg.max_plane_offset)
     if planes and cfg.border_hops > 0:
         plane_of = _join_border(pre, plane_of, planes, cfg)
     return PlaneResult(plane_of < 0, labels, plane_of, planes)
+
+
+def _keep_on_plane(points, plane_of, planes, max_offset: float):
+    """Guard against leaks: a tank plane keeps only the points of its regions that lie on it.
+
+    Along a thin pipe a 50-point neighbourhood is a ribbon, flat and facing the sensor like the
+    floor, so a region can creep from the floor onto pipes. The planes are refitted to the points
+    within ``max_offset`` of them, and every point farther away goes back to the structure.
+    """
+    P = np.array([p[0] for p in planes])
+    D = np.array([p[1] for p in planes])
+    on = plane_of >= 0
+    idx = np.flatnonzero(on)
+    dist = np.abs(np.einsum("ij,ij->i", points[idx], P[plane_of[idx]]) - D[plane_of[idx]])
+    good = dist <= max_offset
+    refit = []
+    for k in range(len(planes)):  # a handful of planes
+        pts = points[idx[good & (plane_of[idx] == k)]]
+        if len(pts) < 3:
+            refit.append(planes[k])
+            continue
+        c = pts.mean(axis=0)
+        n = np.linalg.eigh(np.cov((pts - c).T))[1][:, 0]
+        n = n if n @ P[k] >= 0 else -n
+        refit.append((n, float(n @ c)))
+    P = np.array([p[0] for p in refit])
+    D = np.array([p[1] for p in refit])
+    dist = np.abs(np.einsum("ij,ij->i", points[idx], P[plane_of[idx]]) - D[plane_of[idx]])
+    plane_of = plane_of.copy()
+    plane_of[idx[dist > max_offset]] = -1
+    return plane_of, refit
 
 
 def _join_border(pre: Preprocessed, plane_of: np.ndarray, planes, cfg: PlaneConfig) -> np.ndarray:

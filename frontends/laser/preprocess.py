@@ -38,6 +38,7 @@ class Preprocessed:
     knn_dist2: np.ndarray
     normals: np.ndarray
     curvature: np.ndarray
+    planarity: np.ndarray  # λ1/λ2 of the neighbourhood: ≈ 1 on a surface, ≪ 1 along a thin pipe
 
 
 def voxel_downsample(points: np.ndarray, voxel: float) -> tuple[np.ndarray, np.ndarray]:
@@ -83,7 +84,13 @@ def neighbourhood_covariances(points: np.ndarray, knn: np.ndarray, rows: np.ndar
 
 
 def smallest_eigen(cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Smallest eigenvalue and its unit eigenvector of symmetric 3×3 matrices, in closed form.
+    """Smallest eigenvalue and its unit eigenvector of symmetric 3×3 matrices (see :func:`eigen3`)."""
+    lam0, _, _, v = eigen3(cov)
+    return lam0, v
+
+
+def eigen3(cov: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Eigenvalues λ0 ≤ λ1 ≤ λ2 of symmetric 3×3 matrices and the unit eigenvector of λ0, in closed form.
 
     Eigenvalues by the trigonometric solution of the characteristic cubic (Smith 1961); the
     eigenvector is the largest cross product of two rows of (C − λ0·I), which span its complement.
@@ -100,6 +107,12 @@ def smallest_eigen(cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     det = b00 * (b11 * b22 - b12 * b12) - b01 * (b01 * b22 - b12 * b02) + b02 * (b01 * b12 - b11 * b02)
     phi = np.arccos(np.clip(det / 2.0, -1.0, 1.0)) / 3.0
     lam0 = q + 2.0 * p * np.cos(phi + 2.0 * np.pi / 3.0)
+    lam2 = q + 2.0 * p * np.cos(phi)
+    lam1 = 3.0 * q - lam0 - lam2
+    return np.maximum(lam0, 0.0), np.maximum(lam1, 0.0), np.maximum(lam2, 0.0), _null_vector(cov, lam0)
+
+
+def _null_vector(cov, lam0):
     M = cov - lam0[:, None, None] * np.eye(3)
     c = np.stack([np.cross(M[:, 0], M[:, 1]), np.cross(M[:, 0], M[:, 2]), np.cross(M[:, 1], M[:, 2])], axis=1)
     norms = np.linalg.norm(c, axis=2)
@@ -107,8 +120,7 @@ def smallest_eigen(cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     v = c[np.arange(len(cov)), best]
     nv = norms[np.arange(len(cov)), best]
     degenerate = nv < 1e-300  # isotropic or zero covariance: no preferred normal
-    v = np.where(degenerate[:, None], np.array([0.0, 0.0, 1.0]), v / np.where(degenerate, 1.0, nv)[:, None])
-    return np.maximum(lam0, 0.0), v
+    return np.where(degenerate[:, None], np.array([0.0, 0.0, 1.0]), v / np.where(degenerate, 1.0, nv)[:, None])
 
 
 def local_geometry(
@@ -116,14 +128,25 @@ def local_geometry(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Normals (towards ``viewpoint``) and curvature κ = λ0/(λ0+λ1+λ2) of the neighbourhoods ``knn``
     (R×k indices into ``points``) of the points ``rows`` (all points when None)."""
+    normals, curvature, _ = local_shape(points, knn, rows, viewpoint)
+    return normals, curvature
+
+
+def local_shape(points, knn, rows=None, viewpoint=(0.0, 0.0, 0.0)):
+    """Normals, curvature and planarity λ1/λ2 of the neighbourhoods (see :func:`local_geometry`).
+
+    Planarity tells a surface patch (≈ 1) from a line-like one (≪ 1): along a pipe thinner than the
+    neighbourhood, the neighbourhood is a flat ribbon whose curvature alone looks like a plane's.
+    """
     centre = points if rows is None else points[rows]
     cov = neighbourhood_covariances(points, knn)
-    lam0, normals = smallest_eigen(cov)
-    trace = np.trace(cov, axis1=1, axis2=2)
+    lam0, lam1, lam2, normals = eigen3(cov)
+    trace = lam0 + lam1 + lam2
     curvature = np.where(trace > 0, lam0 / np.maximum(trace, 1e-300), 0.0)
+    planarity = np.where(lam2 > 0, lam1 / np.maximum(lam2, 1e-300), 0.0)
     flip = np.einsum("ij,ij->i", normals, np.asarray(viewpoint) - centre) < 0
     normals[flip] *= -1.0
-    return normals, curvature
+    return normals, curvature, planarity
 
 
 def statistical_inliers(knn_dist2: np.ndarray, neighbors: int, std_ratio: float, min_distance: float = 0.0) -> np.ndarray:
@@ -158,10 +181,10 @@ def preprocess(points: np.ndarray, pre: PreprocessConfig, planes: PlaneConfig) -
             knn = np.where(bad, knn[:, :1], knn)
             d2 = np.where(bad, 0.0, d2)
     raw_to_voxel[keep] = inv
-    normals, curvature = local_geometry(vox, knn[:, : planes.neighbors])
-    return Preprocessed(vox, raw_to_voxel, knn, d2, normals, curvature)
+    normals, curvature, planarity = local_shape(vox, knn[:, : planes.neighbors])
+    return Preprocessed(vox, raw_to_voxel, knn, d2, normals, curvature, planarity)
 
 
 def _empty(raw_to_voxel) -> Preprocessed:
     z3 = np.zeros((0, 3))
-    return Preprocessed(z3, raw_to_voxel, np.zeros((0, 1), np.int64), np.zeros((0, 1)), z3, np.zeros(0))
+    return Preprocessed(z3, raw_to_voxel, np.zeros((0, 1), np.int64), np.zeros((0, 1)), z3, np.zeros(0), np.zeros(0))
