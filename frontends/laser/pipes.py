@@ -14,6 +14,7 @@ segment whose endpoints are its extreme projections on the axis (``reported`` wh
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -166,19 +167,26 @@ def split_at_fittings(
         return []
     t0 = t.min()
     b = np.floor((t - t0) / cfg.bump_bin).astype(np.int64)
-    order = np.argsort(b, kind="stable")
+    n_bins = int(b.max()) + 1
+    # Median residual per bin, vectorised: sort by (bin, residual), take each bin's middle element.
+    order = np.lexsort((residual, b))
     bs, rs = b[order], residual[order]
     starts = np.flatnonzero(np.r_[True, bs[1:] != bs[:-1]])
     counts = np.diff(np.r_[starts, len(bs)])
-    med = np.array([np.median(rs[s : s + c]) for s, c in zip(starts, counts)])  # one per bin, not per point
+    med = np.full(n_bins, np.nan)
+    med[bs[starts]] = 0.5 * (rs[starts + (counts - 1) // 2] + rs[starts + counts // 2])
+    cnt = np.zeros(n_bins, np.int64)
+    cnt[bs[starts]] = counts
     # Against the pipe's own level nearby (a slightly tilted fit makes the level drift along the
-    # axis): the median over ±bump_window, longer than any socket.
-    ids = bs[starts]
+    # axis): the median of the bin medians over ±bump_window, longer than any socket.
     w = int(np.ceil(cfg.bump_window / cfg.bump_bin))
-    lo, hi = np.searchsorted(ids, ids - w), np.searchsorted(ids, ids + w, side="right")
-    level = np.array([np.median(med[a:b]) for a, b in zip(lo, hi)])
+    padded = np.pad(med, w, constant_values=np.nan)
+    windows = np.lib.stride_tricks.sliding_window_view(padded, 2 * w + 1)
+    with warnings.catch_warnings():  # empty bins (occlusion) are NaN; an all-NaN window gives NaN
+        warnings.simplefilter("ignore", RuntimeWarning)
+        level = np.nanmedian(windows, axis=1)
     height = cfg.bump_height if cfg.radius_prior is None else cfg.bump_height_known_radius
-    bad = set(ids[(med - level > height) & (counts >= 3)].tolist())
+    bad = set(np.flatnonzero((med - level > height) & (cnt >= 3)).tolist())
     if len(t_foreign):
         fb = np.floor((t_foreign - t0) / cfg.bump_bin).astype(np.int64)
         u, c = np.unique(fb, return_counts=True)
