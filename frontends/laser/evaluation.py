@@ -35,7 +35,7 @@ class ScanScore:
     plane_removed: float  # fraction of floor + wall points removed
     n_visible_pipes: int  # ≥ min_visible of their length seen
     n_recalled_pipes: int
-    n_visible_long_pipes: int  # ... and at least min_pipe_length long (what the detector may report)
+    n_visible_long_pipes: int  # ... and seen over at least min_pipe_length (what the detector may report)
     n_recalled_long_pipes: int
     n_detections: int  # reported (≥ min_pipe_length)
     n_true_detections: int
@@ -112,7 +112,8 @@ def score_scan(
     # pipes); shorter ones only count in the recall of all pipes.
     reported = np.array([det.length >= min_pipe_length for det in seg.pipes], bool)
     visible = [k for k, (f, _) in enumerate(vis) if f >= min_visible]
-    long = [k for k in visible if np.linalg.norm(truth.pipes[k][1] - truth.pipes[k][0]) >= min_pipe_length]
+    # "long": seen over at least min_pipe_length (a pipe seen over less cannot give a reported segment)
+    long = [k for k in visible if vis[k][1][1] - vis[k][1][0] >= min_pipe_length]
     found = set(match[match >= 0].tolist())
     found_reported = set(match[(match >= 0) & reported].tolist())
     score = ScanScore(
