@@ -134,7 +134,12 @@ class PipeConfig(_Section):
     )
     merge_angle_deg: float = Field(10.0, gt=0, description="duplicates: axes within this angle ...")
     merge_distance: float = Field(0.03, gt=0, description="... axes this close (lateral) ...")
-    merge_gap: float = Field(0.05, ge=0, description="... and intervals overlapping or separated by less than this")
+    merge_gap: float = Field(
+        0.01,
+        ge=0,
+        description="... and intervals overlapping or separated by less than this: duplicates overlap, while two "
+        "pipes cut apart at a socket are a few cm apart and must stay two",
+    )
     range_sigma: float = Field(0.005, gt=0, description="range noise σ of one point at 1 m (endpoint covariance)")
     range_sigma_per_m: float = Field(0.002, ge=0, description="growth of the point σ per metre of range")
     endpoint_sigma: float = Field(
