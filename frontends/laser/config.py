@@ -107,7 +107,7 @@ class PipeConfig(_Section):
     score_sample: int = Field(1000, ge=100, description="points on which hypotheses are scored (then all points)")
     refine_rounds: int = Field(5, ge=1, description="at most this many fit → inliers rounds per hypothesis")
     max_pipes: int = Field(40, ge=1, description="most pipe segments extracted from one scan")
-    max_failures: int = Field(8, ge=1, description="RANSAC stops after this many rounds in a row without a pipe")
+    max_failures: int = Field(12, ge=1, description="RANSAC stops after this many rounds in a row without a pipe")
     max_gap: float = Field(
         0.25,
         gt=0,
