@@ -127,3 +127,20 @@ def test_split_at_fittings_socket_and_body_but_not_occlusion():
     assert spans[0][1] < 0.31 and 0.38 < spans[1][0] < 0.42  # cut at the socket, its points dropped
     assert spans[1][1] > 0.9  # the occlusion gap is bridged
     assert spans[2][0] > 1.04
+
+
+def test_lone_bin_does_not_cut_but_a_body_in_a_gap_does():
+    from frontends.laser.pipes import split_at_fittings
+
+    cfg = PipeConfig()
+    rng = np.random.default_rng(5)
+    t = np.sort(rng.uniform(0, 1.0, 1000))
+    residual = rng.normal(0, 0.002, len(t))
+    stray = np.full(8, 0.41)  # 8 points of something passing close by in one 2 cm bin
+    runs = split_at_fittings(t, residual, stray, cfg)
+    assert len(runs) == 1 and len(runs[0]) == len(t)
+    # a 12 cm gap: bridged when empty (occlusion), cut when a body fills it (faces not cylinder inliers)
+    keep = (t < 0.5) | (t > 0.62)
+    around = rng.uniform(0.5, 0.62, 30)
+    assert len(split_at_fittings(t[keep], residual[keep], np.zeros(0), cfg)) == 1
+    assert len(split_at_fittings(t[keep], residual[keep], np.zeros(0), cfg, around)) == 2

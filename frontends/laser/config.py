@@ -119,6 +119,12 @@ class PipeConfig(_Section):
     fitting_points: int = Field(
         6, ge=1, description="this many such points in one bin along the axis mark a fitting (a body, a branch)"
     )
+    gap_reach: float = Field(
+        0.10, gt=0, description="a gap in a pipe's inliers with points this close to its surface holds a fitting (m)"
+    )
+    min_fitting_length: float = Field(
+        0.04, gt=0, description="fitting evidence must span this much of the axis to cut a pipe (m)"
+    )
     bump_bin: float = Field(0.02, gt=0, description="bin along the axis in which fittings are looked for")
     bump_window: float = Field(0.15, gt=0, description="half-width of the pipe's local level around a bin (m)")
     bump_height: float = Field(

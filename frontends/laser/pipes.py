@@ -150,7 +150,7 @@ def _runs(t: np.ndarray, max_gap: float) -> list[np.ndarray]:
 
 
 def split_at_fittings(
-    t: np.ndarray, residual: np.ndarray, t_foreign: np.ndarray, cfg: PipeConfig
+    t: np.ndarray, residual: np.ndarray, t_foreign: np.ndarray, cfg: PipeConfig, t_around: np.ndarray | None = None
 ) -> list[np.ndarray]:
     """Runs of a pipe's inliers, cut where a fitting sits on it (index arrays into ``t``).
 
@@ -159,9 +159,11 @@ def split_at_fittings(
     (within ``fitting_reach`` of it). A fitting shows either way: sockets and unions are wider than
     the pipe they join (bins of ``bump_bin`` whose median residual stands ``bump_height`` above
     the pipe's), and bodies, branches and handles put many foreign points around the axis (at least
-    ``fitting_points`` in a bin). Those bins' inliers leave the pipe (to the objects), the pipe is
-    cut there. A plain gap (a pipe in front hides part of this one) is bridged unless longer than
-    ``max_gap``: fittings, not gaps, are what separate two pipes.
+    ``fitting_points`` in a bin, over at least ``min_fitting_length``). Those bins' inliers leave
+    the pipe (to the objects), the pipe is cut there. A gap in the inliers (a pipe in front hides
+    part of this one) is bridged unless longer than ``max_gap`` or holding at least
+    ``fitting_points`` of ``t_around`` (points within ``gap_reach`` of the surface: a body whose
+    faces are not cylinder inliers): fittings, not gaps, are what separate two pipes.
     """
     if len(t) == 0:
         return []
@@ -192,6 +194,14 @@ def split_at_fittings(
         u, c = np.unique(fb, return_counts=True)
         bad |= set(u[c >= cfg.fitting_points].tolist())
     bad_bins = np.sort(np.fromiter(bad, np.int64, len(bad)))
+    # A fitting is at least min_fitting_length long (the shortest socket is 8.8 cm): a lone bin is
+    # noise or a pipe passing close by, not a fitting.
+    if len(bad_bins):
+        run_start = np.r_[True, np.diff(bad_bins) > 1]
+        run_id = np.cumsum(run_start) - 1
+        run_len = np.bincount(run_id)
+        need = max(int(round(cfg.min_fitting_length / cfg.bump_bin)), 1)
+        bad_bins = bad_bins[run_len[run_id] >= need]
     kept = np.flatnonzero(~np.isin(b, bad_bins))
     if len(kept) == 0:
         return []
@@ -200,8 +210,13 @@ def split_at_fittings(
     # Cut between consecutive kept points with a fitting bin between them, or too far apart.
     lo = t0 + bad_bins * cfg.bump_bin
     fitting_between = np.searchsorted(lo, tk[1:]) > np.searchsorted(lo, tk[:-1])
-    cuts = np.flatnonzero(fitting_between | (np.diff(tk) > cfg.max_gap)) + 1
-    return np.split(kept, cuts)
+    gap = np.diff(tk)
+    cut = fitting_between | (gap > cfg.max_gap)
+    if t_around is not None and len(t_around):
+        ta = np.sort(t_around)
+        inside = np.searchsorted(ta, tk[1:]) - np.searchsorted(ta, tk[:-1], side="right")
+        cut |= (gap > cfg.min_fitting_length) & (inside >= cfg.fitting_points)
+    return np.split(kept, np.flatnonzero(cut) + 1)
 
 
 def endpoint_covariance(p, q, axis, n_points, mean_range, cfg: PipeConfig) -> np.ndarray:
@@ -301,9 +316,10 @@ def detect_pipes(points: np.ndarray, normals: np.ndarray, neighbors: np.ndarray,
         t_all = v @ ab
         res_all = np.linalg.norm(v - np.outer(t_all, ab), axis=1) - rb
         t, residual = t_all[idx], res_all[idx]
-        near = (res_all > cfg.distance_tolerance) & (res_all < cfg.fitting_reach)
-        near &= (t_all > t.min() - cfg.max_gap) & (t_all < t.max() + cfg.max_gap)
-        for run in split_at_fittings(t, residual, t_all[near], cfg):
+        span = (t_all > t.min() - cfg.max_gap) & (t_all < t.max() + cfg.max_gap)
+        near = (res_all > cfg.distance_tolerance) & (res_all < cfg.fitting_reach) & span
+        around = (res_all > cfg.distance_tolerance) & (res_all < cfg.gap_reach) & span
+        for run in split_at_fittings(t, residual, t_all[near], cfg, t_all[around]):
             seg = idx[run]
             if len(seg) < cfg.min_points:
                 continue
