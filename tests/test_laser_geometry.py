@@ -50,13 +50,6 @@ def test_statistical_outliers_found():
     assert good[:3000].mean() > 0.99
 
 
-def _cylinder_points(r, length, n, rng, noise=0.0):
-    th = rng.uniform(0, np.pi, n)  # the half facing the sensor (which looks along +z)
-    z = rng.uniform(0, length, n)
-    pts = np.column_stack([z, r * np.cos(th), 2.0 - r * np.sin(th)])
-    return pts + rng.normal(0, noise, pts.shape)
-
-
 def test_normals_and_curvature_plane_vs_pipe():
     rng = np.random.default_rng(3)
     plane = np.column_stack([rng.uniform(-1, 1, (8000, 2)), 2.0 + rng.normal(0, 0.002, 8000)])

@@ -110,8 +110,10 @@ def segment_scan(points: np.ndarray, cfg: LaserConfig, up: np.ndarray | None = N
 class LaserFrontend:
     """Laser scanner front-end (``frontends.laser`` section validated by :class:`LaserConfig`).
 
-    Consumes :class:`PointCloud` scans; returns one :class:`LineObservation` per pipe segment and one
-    :class:`PointObservation` per object (class likelihoods filled only when a ``recognizer`` is set).
+    Consumes :class:`PointCloud` scans; returns one :class:`LineObservation` per pipe segment at least
+    ``pipes.min_length`` long and one :class:`PointObservation` per object (class likelihoods filled
+    only when a ``recognizer`` is set: pass one to the constructor or assign ``frontend.recognizer``).
+    When the pipes' radius is known (the tank's 31.5 mm PVC), give it as ``pipes.radius_prior``.
     """
 
     name: ClassVar[str] = "laser"
@@ -136,6 +138,8 @@ class LaserFrontend:
             return None
         R_BS = np.asarray(info.T_BS)[:3, :3]
         T_WB = view.pose_at(stamp) if view is not None else None
+        if T_WB is not None and hasattr(T_WB, "matrix"):  # a gtsam.Pose3 rather than a 4×4 array
+            T_WB = T_WB.matrix()
         R_WB = np.asarray(T_WB)[:3, :3] if T_WB is not None else np.eye(3)
         return (R_WB @ R_BS).T @ UP_NED
 
