@@ -16,7 +16,9 @@ from frontends.laser.frontend import ScanSegmentation  # noqa: E402
 
 
 def _scatter(ax, pts, c, s=0.4, cmap="viridis", **kw):
-    ax.scatter(pts[:, 0], pts[:, 1], c=c, s=s, cmap=cmap, linewidths=0, **kw)
+    if isinstance(c, np.ndarray) and c.ndim == 1 and len(c) == len(pts):  # values to colour-map
+        kw["cmap"] = cmap
+    ax.scatter(pts[:, 0], pts[:, 1], c=c, s=s, linewidths=0, **kw)
 
 
 def stage_figure(raw: np.ndarray, seg: ScanSegmentation, path, title: str = "", truth=None) -> None:
@@ -36,8 +38,8 @@ def stage_figure(raw: np.ndarray, seg: ScanSegmentation, path, title: str = "", 
     st = seg.structure_points
     _scatter(ax, st, st[:, 2], s=1.5, cmap="plasma")
     ax.set_title(
-        f"planes removed: {len(pts)} voxels, {removed.sum()} on {len(seg.planes.planes)} tank planes (grey), "
-        f"{len(st)} structure"
+        f"planes removed: {removed.sum()} of {len(pts)} voxels on {len(seg.planes.planes)} planes (grey)\n"
+        f"structure re-sampled finely: {len(st)} points (colour = z)"
     )
 
     ax = axes[1, 0]
