@@ -179,6 +179,9 @@ def test_dvl_dropouts_where_configured():
     res_d = S.simulate_dvl(default.dvl, traj, scene, st, t, np.random.default_rng(0), np.random.default_rng(1))
     assert 0.10 <= res_d.invalid_fraction <= 0.20
     assert {c for _, _, c in res_d.intervals} >= {"walls", "random"}
+    clean = TankSimConfig(dvl={"random_dropout_rate": 0.0, "wall_beams_lost": False})
+    res_c = S.simulate_dvl(clean.dvl, traj, scene, st, t, np.random.default_rng(0), np.random.default_rng(1))
+    assert res_c.valid.all() and res_c.intervals == []
     heavy = TankSimConfig(dvl={"random_dropout_rate": 0.4})
     res_h = S.simulate_dvl(heavy.dvl, traj, scene, st, t, np.random.default_rng(0), np.random.default_rng(1))
     assert res_h.invalid_fraction > 0.35
@@ -286,3 +289,13 @@ def test_simulate_to_bag_with_options(tmp_path):
     cfg.write_text("dvl: {random_dropout_rate: 2}\n")
     with pytest.raises(ConfigError, match="dvl.random_dropout_rate"):
         simulate_tank_to_bag(tmp_path / "n.bag", config=cfg)
+
+
+def test_preview_without_ground_truth(tmp_path, short_mission):
+    """A real mission has no ground truth and no scene: the preview still draws the trajectory."""
+    from semslam.mission import Mission, MissionMetadata
+    from semslam.sim.preview import render_preview
+
+    bare = Mission.from_measurements(MissionMetadata(name="real"), list(short_mission))
+    render_preview(bare, tmp_path / "bare.png")
+    assert (tmp_path / "bare.png").stat().st_size > 10_000

@@ -105,6 +105,9 @@ class DvlConfig(_Section):
     beam_azimuths_deg: tuple[float, ...] = Field((45.0, 135.0, 225.0, 315.0), description="beam azimuths in {S}")
     min_range_m: float = Field(0.3, ge=0, description="beams closer than this give no return (m)")
     max_range_m: float = Field(30.0, gt=0, description="beams further than this give no return (m)")
+    wall_beams_lost: bool = Field(
+        True, description="beams hitting the sloped walls give no return (False: they track the wall like the floor)"
+    )
     min_valid_beams: int = Field(3, ge=1, le=4, description="fewer valid beams → the reading is invalid")
     relock_s: float = Field(1.0, ge=0, description="after losing bottom lock, time to re-acquire it (s)")
     random_dropout_rate: float = Field(

@@ -16,7 +16,7 @@ from scipy.spatial.transform import Rotation
 
 from semslam.mission.measurements import Attitude, Depth, DvlVelocity, GroundTruthPose, PointCloud
 from semslam.sim.config import AhrsConfig, DepthConfig, DvlConfig, LaserConfig
-from semslam.sim.tank import FLOOR, OBJECT, PIPE, TankScene
+from semslam.sim.tank import FLOOR, OBJECT, PIPE, WALL, TankScene
 from semslam.sim.trajectory import Trajectory
 
 
@@ -114,7 +114,8 @@ def simulate_dvl(
     nb = len(beams_S)
     rng_t, kind, _ = scene.cast(np.repeat(origins, nb, axis=0), dirs.reshape(-1, 3))
     rng_t, kind = rng_t.reshape(-1, nb), kind.reshape(-1, nb)
-    beam_ok = np.isin(kind, (FLOOR, PIPE, OBJECT)) & (rng_t >= cfg.min_range_m) & (rng_t <= cfg.max_range_m)
+    surfaces = (FLOOR, PIPE, OBJECT) if cfg.wall_beams_lost else (FLOOR, WALL, PIPE, OBJECT)
+    beam_ok = np.isin(kind, surfaces) & (rng_t >= cfg.min_range_m) & (rng_t <= cfg.max_range_m)
     lost = beam_ok.sum(1) < cfg.min_valid_beams
 
     duration = float(t[-1]) if len(t) else 0.0
