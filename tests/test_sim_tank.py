@@ -138,6 +138,20 @@ def test_bad_yaml_layouts_are_user_errors(tmp_path, layout):
         load_layout_yaml(bad)
     with pytest.raises(ConfigError, match="not found"):
         load_layout_yaml(tmp_path / "missing.yaml")
+    not_a_layout = tmp_path / "sim.yaml"
+    not_a_layout.write_text("trajectory: {loops: 1}\n")
+    with pytest.raises(ConfigError, match="unknown key 'trajectory'"):
+        load_layout_yaml(not_a_layout)
+    with pytest.raises(ConfigError, match="non-empty 'objects'"):
+        layout_from_dict({"pipes": []})
+
+
+def test_docstring_example_layout():
+    import yaml as _yaml
+
+    text = layout_from_dict.__doc__.split("::")[1]
+    lay = layout_from_dict(_yaml.safe_load(text))
+    assert lay.objects[0].pipes == (0, 1) and check_layout(lay) == []
 
 
 def test_scene_labels(layout):
