@@ -58,7 +58,14 @@ def test_streams_rates_and_metadata(short_mission):
     assert all(type(m.stamp) is int for m in ms)
     assert [m.stamp for m in ms] == sorted(m.stamp for m in ms)
     count = {c: sum(isinstance(m, c) for m in ms) for c in (DvlVelocity, Attitude, Depth, PointCloud, GroundTruthPose)}
-    assert count == {DvlVelocity: 301, Attitude: 1201, Depth: 481, PointCloud: 30, GroundTruthPose: 3001}
+    assert count == {DvlVelocity: 300, Attitude: 1200, Depth: 480, PointCloud: 30, GroundTruthPose: 3001}
+    # the sensors are not synchronised: no two streams share a stamp, except laser scans and ground truth
+    by_sensor = {s: {m.stamp for m in ms if m.sensor == s} for s in ("dvl", "ahrs", "depth", "laser")}
+    assert not (by_sensor["dvl"] & by_sensor["ahrs"]) and not (by_sensor["dvl"] & by_sensor["depth"])
+    assert not (by_sensor["ahrs"] & by_sensor["depth"])
+    assert by_sensor["laser"] <= {m.stamp for m in ms if m.sensor == "ground_truth"}
+    t0 = int(round(short_config().start_time_s * 1e9))
+    assert min(by_sensor["dvl"]) - t0 == 11_000_000 and max(by_sensor["dvl"]) - t0 <= 60 * 10**9
     meta = short_mission.metadata
     expected = {
         "dvl": ("dvl", "cola2_msgs/msg/DVL"),

@@ -20,13 +20,17 @@ from semslam.sim.tank import FLOOR, OBJECT, PIPE, WALL, TankScene
 from semslam.sim.trajectory import Trajectory
 
 
-def sample_times(start_ns: int, rate_hz: float, duration_s: float, first: int = 0) -> tuple[np.ndarray, np.ndarray]:
-    """Stamps (int64 ns) at ``rate_hz`` from ``start_ns`` (sample index ``first`` on) up to the end of
-    the mission, and the same instants in float seconds since the start."""
+def sample_times(
+    start_ns: int, rate_hz: float, duration_s: float, first: int = 0, offset_s: float = 0.0
+) -> tuple[np.ndarray, np.ndarray]:
+    """Stamps (int64 ns) at ``rate_hz``, the first ``offset_s`` after ``start_ns`` (sample index
+    ``first`` on), up to the end of the mission; and the same instants in float seconds since the start."""
     period = int(round(1e9 / rate_hz))
-    n_last = int(np.floor(duration_s * 1e9 / period + 1e-9))
+    off = int(round(offset_s * 1e9))
+    n_last = int(np.floor((duration_s * 1e9 - off) / period + 1e-9))
     k = np.arange(first, n_last + 1, dtype=np.int64)
-    return start_ns + k * period, k * period * 1e-9
+    ns = off + k * period
+    return start_ns + ns, ns * 1e-9
 
 
 def _skew_cross(w: np.ndarray, r: np.ndarray) -> np.ndarray:
