@@ -95,7 +95,7 @@ class Layout:
         lib = cad.library()
         out = {}
         for p in self.pipes:
-            out[(PIPE, p.id)] = cad._cyl(p.p, p.q, p.radius)
+            out[(PIPE, p.id)] = cad.cylinder(p.p, p.q, p.radius)
         for o in self.objects:
             out[(OBJECT, o.id)] = lib[o.model].transformed(o.T_WM)
         return out
