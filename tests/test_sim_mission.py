@@ -113,6 +113,9 @@ def test_declared_noise_is_the_noise(short_mission):
     assert np.std(err[:, 2]) == pytest.approx(np.sqrt(cov[0, 0]), rel=0.1)
     assert np.std(err[:, 1]) == pytest.approx(np.sqrt(cov[1, 1]), rel=0.1)
     assert np.sqrt(cov[0, 0]) == pytest.approx(np.deg2rad(0.1)) and np.sqrt(cov[2, 2]) == pytest.approx(np.deg2rad(0.5))
+    w_err = np.array([a.angular_rate for a in att]) - traj.angular_rate(t) @ cfg.ahrs.mount.matrix()[:3, :3]
+    assert np.std(w_err, axis=0) == pytest.approx([cfg.ahrs.angular_rate_sigma_rad_s] * 3, rel=0.1)
+    assert np.abs(w_err.mean(0)).max() < 4 * cfg.ahrs.angular_rate_sigma_rad_s / np.sqrt(len(att))
     # the heading bias drifts by 2° per mission: here, over 60 s, the mean yaw error grows by 2° · 60/60
     late = t > 50
     assert abs(err[late, 0].mean()) == pytest.approx(np.deg2rad(2.0) * t[late].mean() / 60, abs=np.deg2rad(0.1))
