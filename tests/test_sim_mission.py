@@ -188,7 +188,10 @@ def test_dvl_dropouts_where_configured():
     default = TankSimConfig()
     res_d = S.simulate_dvl(default.dvl, traj, scene, st, t, np.random.default_rng(0), np.random.default_rng(1))
     assert 0.10 <= res_d.invalid_fraction <= 0.20
-    assert {c for _, _, c in res_d.intervals} >= {"walls", "random"}
+    assert {c for _, _, c in res_d.intervals} == {"walls", "random"}  # never merged into longer bursts
+    assert all(2.0 - 1e-9 <= e - s <= 10.0 for s, e, _ in res_d.intervals)
+    random_time = sum(e - s for s, e, c in res_d.intervals if c == "random")
+    assert random_time == pytest.approx(default.dvl.random_dropout_rate * t[-1], abs=1e-6)
     clean = TankSimConfig(dvl={"random_dropout_rate": 0.0, "wall_beams_lost": False})
     res_c = S.simulate_dvl(clean.dvl, traj, scene, st, t, np.random.default_rng(0), np.random.default_rng(1))
     assert res_c.valid.all() and res_c.intervals == []

@@ -114,7 +114,8 @@ class DvlConfig(_Section):
     min_valid_beams: int = Field(3, ge=1, le=4, description="fewer valid beams → the reading is invalid")
     relock_s: float = Field(1.0, ge=0, description="after losing bottom lock, time to re-acquire it (s)")
     random_dropout_rate: float = Field(
-        0.07, ge=0, lt=0.9, description="expected fraction of the mission lost to random dropout bursts"
+        0.07, ge=0, lt=0.9,
+        description="fraction of the mission lost to random dropout bursts (placed ≥ 1 s clear of the wall dropouts)",
     )
     burst_s: tuple[float, float] = Field((2.0, 10.0), description="min and max duration of a dropout burst (s)")
     mount: Mount = Field(

@@ -72,17 +72,28 @@ def _merge(intervals):
 
 
 def random_bursts(rate: float, burst_s: tuple[float, float], duration_s: float, rng: np.random.Generator):
-    """Dropout bursts of uniform length in ``burst_s`` separated by exponential gaps, so that on
-    average a fraction ``rate`` of the time is lost: (start_s, end_s) pairs."""
-    if rate <= 0:
+    """Random dropout bursts, non-overlapping, of lengths uniform in ``burst_s`` and totalling
+    ``rate`` × ``duration_s`` (the last one shortened to fit; a remainder below ``burst_s[0]``
+    lengthens the shortest burst), placed uniformly at random: (start_s, end_s) pairs in time order."""
+    total = rate * duration_s
+    lengths: list[float] = []
+    while total - sum(lengths) >= burst_s[0]:
+        lengths.append(min(float(rng.uniform(*burst_s)), total - sum(lengths)))
+    if not lengths:
         return []
-    mean_burst = 0.5 * (burst_s[0] + burst_s[1])
-    mean_gap = mean_burst * (1 - rate) / rate
-    out, t = [], float(rng.exponential(mean_gap))
-    while t < duration_s:
-        d = float(rng.uniform(*burst_s))
-        out.append((t, min(t + d, duration_s)))
-        t += d + float(rng.exponential(mean_gap))
+    rest = total - sum(lengths)  # < burst_s[0]: lengthen the shortest burst by it if it stays ≤ burst_s[1]
+    i = int(np.argmin(lengths))
+    if lengths[i] + rest <= burst_s[1]:
+        lengths[i] += rest
+    free = duration_s - sum(lengths)
+    # n+1 gaps: a uniformly random split of the free time (sorted uniform cut points)
+    cuts = np.sort(rng.uniform(0.0, free, size=len(lengths)))
+    gaps = np.diff(np.concatenate([[0.0], cuts]))
+    out, t = [], 0.0
+    for g, d in zip(gaps, lengths):
+        t += float(g)
+        out.append((t, t + d))
+        t += d
     return out
 
 
@@ -133,8 +144,13 @@ def simulate_dvl(
             e = float(t[run[-1]]) + dt + cfg.relock_s
             e = max(e, s + cfg.burst_s[0])
             intervals.append((s, min(e, duration + dt), "walls"))
-    intervals += [(s, e, "random") for s, e in random_bursts(cfg.random_dropout_rate, cfg.burst_s, duration, rng_dropout)]
-    intervals = _merge(intervals)
+    # random bursts keep ≥ 1 s clear of the wall dropouts so that bursts stay within burst_s (redraw
+    # the placement until they do; after 200 tries, accept merged bursts)
+    for _ in range(200):
+        rnd = random_bursts(cfg.random_dropout_rate, cfg.burst_s, duration, rng_dropout)
+        if all(s >= we + 1.0 or e <= ws - 1.0 for s, e in rnd for ws, we, _ in intervals):
+            break
+    intervals = _merge(intervals + [(s, e, "random") for s, e in rnd])
     valid = np.ones(len(t), bool)
     for s, e, _ in intervals:
         valid[(t >= s - 1e-9) & (t < e - 1e-9)] = False
