@@ -554,3 +554,11 @@ class TankScene:
     def distance(self, points: np.ndarray) -> np.ndarray:
         """Unsigned distance (m) from each point to the nearest surface of the scene."""
         return self.scene.compute_distance(o3d.core.Tensor(np.asarray(points, np.float32))).numpy()
+
+
+def simulate_tank(config=None, *, progress: bool = False):
+    """The whole tank mission: forwards to :func:`semslam.sim.simulate.simulate_tank` (also importable
+    from here, next to the scene it simulates)."""
+    from semslam.sim.simulate import simulate_tank as _simulate
+
+    return _simulate(config, progress=progress)
