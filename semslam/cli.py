@@ -100,6 +100,8 @@ def simulate(
     overwrite: bool = typer.Option(False, "--overwrite", help="replace an existing bag"),
 ):
     """Simulate a mission with ground truth and write it as an ordinary ROS bag."""
+    if out.exists() and not overwrite:  # say so before minutes of simulation, not after
+        raise SemslamError(f"{out}: already exists (use --overwrite to replace it)")
     if scene == "tank":
         from semslam.sim.simulate import simulate_tank_to_bag
 
