@@ -112,7 +112,8 @@ def simulate_dvl(
     Each beam is ray-cast into the tank; a beam is lost when it hits a sloped wall or has no return
     within [min_range, max_range]. With fewer than ``min_valid_beams`` the bottom lock is lost;
     re-acquiring it takes ``relock_s`` and a loss lasts at least ``burst_s[0]``. Random bursts
-    (``random_dropout_rate``) come on top. Invalid readings carry NaN velocity and ``valid=False``.
+    (``random_dropout_rate`` of the time) are placed ≥ 1 s clear of those. Invalid readings carry NaN
+    velocity and ``valid=False``.
     """
     T_BS = cfg.mount.matrix()
     R_BS, t_BS = T_BS[:3, :3], T_BS[:3, 3]
