@@ -114,6 +114,15 @@ class DvlPreintegrator:
         self._v.append(np.asarray(v_B, float))
         self._cov.append(np.asarray(cov_B, float))
 
+    def drop_last(self) -> None:
+        """Forget the newest sample (used when it becomes the next keyframe's velocity factor)."""
+        for lst in (self._t, self._dR, self._v, self._cov):
+            lst.pop()
+
+    @property
+    def last_stamp(self) -> float | None:
+        return self._t[-1] if self._t else None
+
     @property
     def n_samples(self) -> int:
         return len(self._t)
