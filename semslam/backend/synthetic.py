@@ -292,3 +292,48 @@ def position_errors(stamps: np.ndarray, positions: np.ndarray, gt_stamps: np.nda
     """Euclidean position errors (no alignment) against ground truth interpolated at ``stamps``."""
     ref = np.column_stack([np.interp(stamps, gt_stamps, gt_pos[:, i]) for i in range(3)])
     return np.linalg.norm(positions - ref, axis=1)
+
+
+@dataclass
+class LandmarkReport:
+    """Mapped landmarks against ground truth, through the ``truth_id`` of their observations
+    (evaluation only: the estimator never reads it)."""
+
+    errors_m: dict  # landmark id → error (object/structure: position; pipe: mean distance of the GT axis ends to the line)
+    truth_of: dict  # landmark id → majority truth id (None: a false positive)
+    duplicated: list  # truth ids mapped by more than one landmark
+    wrongly_merged: list  # landmark ids whose observations come from more than one truth id (or mix in false positives)
+    missed: list  # truth ids observed at least min_obs times but not mapped
+
+    @property
+    def median_error_m(self) -> float:
+        return float(np.median(list(self.errors_m.values()))) if self.errors_m else float("nan")
+
+
+def landmark_report(result, gt: GroundTruthMap) -> LandmarkReport:
+    from collections import Counter
+
+    hist = result.history.get("landmark_observations", {})
+    objects = {o.id: o for o in gt.objects}
+    pipes = {p.id: p for p in gt.pipes}
+    structures = {s.id: s for s in gt.structures}
+    errors, truth_of, merged = {}, {}, []
+    for lm in result.landmarks:
+        ids = [tid for _, tid in hist.get(lm.id, [])]
+        counts = Counter(ids)
+        tid = counts.most_common(1)[0][0] if counts else None
+        truth_of[lm.id] = tid
+        if len(counts) > 1:
+            merged.append(lm.id)
+        if tid is None:
+            continue
+        if lm.kind == "object" and tid in objects:
+            errors[lm.id] = float(np.linalg.norm(lm.position - np.asarray(objects[tid].position)))
+        elif lm.kind == "pipe" and tid in pipes:
+            d = (lm.q - lm.p) / np.linalg.norm(lm.q - lm.p)
+            ends = np.array([pipes[tid].p, pipes[tid].q]) - lm.p
+            errors[lm.id] = float(np.mean(np.linalg.norm(ends - np.outer(ends @ d, d), axis=1)))
+        elif lm.kind == "structure" and tid in structures:
+            errors[lm.id] = float(np.linalg.norm(lm.pose[:3, 3] - np.asarray(structures[tid].position)))
+    c = Counter(t for t in truth_of.values() if t is not None)
+    return LandmarkReport(errors, truth_of, sorted(t for t, n in c.items() if n > 1), merged, [])
