@@ -106,7 +106,27 @@ def run(
     config: Optional[Path] = ConfigOpt,
 ):
     """Run one estimator over a mission and write its trajectory, map and metrics."""
-    not_implemented("run", "issues 4, 5 and 9")
+    from semslam.config import load_config
+    from semslam.estimators import create_estimator
+    from semslam.eval.outputs import build_metrics, write_outputs
+    from semslam.mission.bag import read_mission
+    from semslam.pipeline import run_pipeline
+    from semslam.registry import create_frontends
+
+    cfg = load_config(config)
+    m = read_mission(mission, cfg.reader)
+    est = create_estimator(estimator, m.metadata, cfg, batch=batch)
+    names = [n.strip() for n in frontends.split(",") if n.strip()]
+    fes = create_frontends(names, m.metadata, cfg.frontends)
+    result = run_pipeline(m, [est], fes, progress=sys.stderr.isatty())
+    metrics = build_metrics(result, m.metadata)
+    write_outputs(out, cfg, result, metrics)
+    e = metrics["estimators"][est.name]
+    ate = "n/a" if e["ate_rmse_m"] is None else f"{e['ate_rmse_m']:.3f} m"
+    typer.echo(
+        f"{est.name}: ATE RMSE {ate}, {e['n_objects']} objects, {e['n_pipes']} pipes, "
+        f"{e['n_structures']} structures; outputs in {out}"
+    )
 
 
 @app.command()
@@ -114,18 +134,38 @@ def run(
 def compare(
     mission: Path = MissionArg,
     out: Path = typer.Option(..., "--out", "-o", help="output directory"),
+    frontends: Optional[str] = typer.Option(None, "--frontends", help="comma-separated; default: by sensor kind"),
     config: Optional[Path] = ConfigOpt,
 ):
     """dr, ekf and graph on identical inputs, with a report."""
-    not_implemented("compare", "issue 9")
+    from semslam.compare import compare_to_dir
+    from semslam.config import load_config
+    from semslam.eval.report import metrics_table, text_table
+    from semslam.mission.bag import read_mission
+
+    cfg = load_config(config)
+    m = read_mission(mission, cfg.reader)
+    names = None if frontends is None else [n.strip() for n in frontends.split(",") if n.strip()]
+    metrics, report = compare_to_dir(m, cfg, out, names, progress=sys.stderr.isatty())
+    typer.echo(text_table(metrics_table(metrics)))
+    typer.echo(f"report: {report}")
 
 
 @app.command()
 @user_errors
 def demo(out: Optional[Path] = typer.Option(None, "--out", "-o", help="output directory")):
     """Simulate the default tank mission and compare dr, ekf and graph on it."""
-    typer.echo("semslam demo will: simulate the default tank mission (seed 0), run dr, ekf and graph on it")
-    typer.echo("with the laser front-end, and write the comparison report. Not implemented yet (issue 9).")
+    from semslam.demo import run_demo
+    from semslam.eval.report import metrics_table, recognition_table, text_table
+
+    metrics, report = run_demo(out, progress=True)
+    typer.echo(text_table(metrics_table(metrics)))
+    rec = recognition_table(metrics)
+    if rec:
+        typer.echo("")
+        typer.echo(text_table(rec))
+    typer.echo(f"\nwhole comparison: {metrics['wall_time_s']:.0f} s for {metrics['mission']['duration_s']:.0f} s of mission")
+    typer.echo(f"report: {report.resolve()}")
 
 
 if __name__ == "__main__":  # pragma: no cover
