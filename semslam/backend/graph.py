@@ -102,6 +102,7 @@ class GraphEstimator:
         self.diagnostics: list[str] = []
         self._ambiguous: set[int] = set()
         self._current_obs: list = []
+        self._volume: dict[int, list[tuple[int, float]]] = {}  # landmark id → [(stamp, log det cov)]
 
     # ------------------------------------------------------------------ protocol
     def view(self) -> GraphView:
@@ -553,6 +554,8 @@ class GraphEstimator:
                     lm.covariance = self.isam.marginalCovariance(lm.key)
                 except RuntimeError:
                     lm.covariance = np.eye({"object": 3, "pipe": 4, "structure": 6}[lm.kind]) * 1e2
+                ev = np.linalg.eigvalsh(lm.covariance)
+                self._volume.setdefault(lid, []).append((self.kf_stamps[-1], float(np.sum(np.log(np.maximum(ev, 1e-300))))))
 
     # ------------------------------------------------------------------ views and results
     def pose_at(self, stamp: int) -> gtsam.Pose3 | None:
@@ -654,6 +657,11 @@ class GraphEstimator:
             position_cov=np.array([c for _, _, c in self.online]),
         )
         landmarks = self.landmark_estimates(self.cfg.covariance_in_result, values, marginals)
+        _connect(landmarks, self.landmarks, self.assoc.merge_distance_m)
+        history["landmark_kind"] = {lm.id: lm.kind for lm in self.landmarks.values()}
+        history["landmark_volume"] = {
+            lid: (np.array([s for s, _ in v], np.int64), np.array([x for _, x in v])) for lid, v in self._volume.items()
+        }
         history["landmark_observations"] = {
             lm.id: [(r.stamp, getattr(r.observation, "truth_id", None)) for r in lm.history] for lm in self.landmarks.values()
         }
@@ -683,6 +691,26 @@ def _value(src, key, kind: str | None = None):
     if c == "l":
         return np.asarray(src.atPoint3(key) if is_values else src.calculateEstimatePoint3(key), float)
     return np.asarray(src.atVector(key) if is_values else src.calculateEstimateVector(key), float)
+
+
+def _connect(estimates: list[LandmarkEstimate], landmarks: dict[int, Landmark], max_distance: float) -> None:
+    """Object ↔ pipe connectivity: an object whose views reported attached pipes is connected to
+    the pipe landmarks passing within ``max_distance`` of it (segment distance)."""
+    pipes = [e for e in estimates if e.kind == "pipe" and e.p is not None]
+    by_id = {e.id: e for e in estimates}
+    for e in estimates:
+        if e.kind != "object":
+            continue
+        seen_pipes = any(
+            getattr(r.observation, "connectivity", None) is not None and r.observation.connectivity.n_pipes > 0
+            for r in landmarks[e.id].history
+        )
+        if not seen_pipes:
+            continue
+        for pe in pipes:
+            if _point_segment_distance(e.position[None], pe.p, pe.q)[0] <= max_distance:
+                e.connected = tuple(sorted({*e.connected, pe.id}))
+                by_id[pe.id].connected = tuple(sorted({*by_id[pe.id].connected, e.id}))
 
 
 def _landmark_point(lm: Landmark) -> np.ndarray:
