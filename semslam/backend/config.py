@@ -37,6 +37,12 @@ class GraphConfig(BaseModel):
     pre_gate_m: float = Field(
         2.0, gt=0, description="Euclidean pre-gate (m) before the Mahalanobis test: cheaper association on large maps"
     )
+    landmark_cov_refresh_s: float = Field(
+        10.0,
+        ge=0,
+        description="a landmark's marginal covariance for gating is recomputed at most this often "
+        "(a landmark's marginal only shrinks, so a stale one is conservative)",
+    )
     track_timeout_s: float = Field(
         60.0, gt=0, description="a tentative landmark not seen again within this time is forgotten (false positive)"
     )

@@ -36,6 +36,7 @@ class Landmark:
     model: str | None = None
     estimate: object = None  # Point3 (3,), θ (4,), or gtsam.Pose3
     covariance: np.ndarray | None = None
+    cov_stamp: int | None = None  # when ``covariance`` was last computed
     connected: set[int] = field(default_factory=set)
 
     def class_posterior(self) -> dict[str, float] | None:

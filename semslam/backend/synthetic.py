@@ -146,14 +146,22 @@ def _place_landmarks(cfg: SyntheticConfig, traj: _Trajectory, rng) -> GroundTrut
     """Objects and pipes on the seabed along the path (within 2.5 m of it), kept apart."""
     tt = np.linspace(0, cfg.duration_s, 2000)
     path = traj.xy(tt)
-    placed: list[np.ndarray] = []  # sample points of everything placed, for separation
+    sep = cfg.min_separation_m
+    grid: dict[tuple[int, int], list[np.ndarray]] = {}  # cell → sample points, for O(1) separation checks
+
+    def cells(pts):
+        return {(int(np.floor(x / sep)), int(np.floor(y / sep))) for x, y in pts[:, :2]}
 
     def free(pts):
-        if not placed:
+        near = [p for cx, cy in cells(pts) for dx in (-1, 0, 1) for dy in (-1, 0, 1) for p in grid.get((cx + dx, cy + dy), ())]
+        if not near:
             return True
-        allp = np.vstack(placed)
-        d = np.linalg.norm(pts[:, None, :2] - allp[None, :, :2], axis=2)
-        return d.min() >= cfg.min_separation_m
+        d = np.linalg.norm(pts[:, None, :2] - np.array(near)[None, :, :2], axis=2)
+        return d.min() >= sep
+
+    def place(pts):
+        for p in pts:
+            grid.setdefault((int(np.floor(p[0] / sep)), int(np.floor(p[1] / sep))), []).append(p)
 
     def near_path():
         base = path[rng.integers(len(path))]
@@ -161,7 +169,7 @@ def _place_landmarks(cfg: SyntheticConfig, traj: _Trajectory, rng) -> GroundTrut
         return base + rng.uniform(0, 2.0) * np.array([np.cos(ang), np.sin(ang)])
 
     objects, pipes, structures = [], [], []
-    for _ in range(200 * (cfg.n_pipes + 1)):
+    for _ in range(50 * (cfg.n_pipes + 1)):
         if len(pipes) >= cfg.n_pipes:
             break
         a = near_path()
@@ -171,15 +179,15 @@ def _place_landmarks(cfg: SyntheticConfig, traj: _Trajectory, rng) -> GroundTrut
         zz = cfg.seabed_depth_m - 0.1
         samples = np.column_stack([np.linspace(a[0], b[0], 12), np.linspace(a[1], b[1], 12), np.full(12, zz)])
         if free(samples):
-            placed.append(samples)
+            place(samples)
             pipes.append(GtPipe(len(pipes), (a[0], a[1], zz), (b[0], b[1], zz), 0.05))
-    for _ in range(200 * (cfg.n_objects + 1)):
+    for _ in range(50 * (cfg.n_objects + 1)):
         if len(objects) >= cfg.n_objects:
             break
         a = near_path()
         p = np.array([a[0], a[1], cfg.seabed_depth_m - 0.15])
         if free(p[None]):
-            placed.append(p[None])
+            place(p[None])
             objects.append(GtObject(100 + len(objects), CLASSES[len(objects) % len(CLASSES)], tuple(p)))
     for k in range(cfg.n_structures):
         a = near_path()
