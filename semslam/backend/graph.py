@@ -441,6 +441,10 @@ class GraphEstimator:
             s = lm.anchor.to_line_frame(lm.estimate, np.vstack([T_WS.transformFrom(z.p), T_WS.transformFrom(z.q)]))[:, 2]
             lo, hi = lm.extent
             lm.extent = (min(lo, float(s.min())), max(hi, float(s.max())))
+            # Along-axis σ of the endpoints (their covariance projected on the segment direction).
+            u = (z.q - z.p) / np.linalg.norm(z.q - z.p)
+            sig = float(np.sqrt(max(u @ z.covariance[:3, :3] @ u, u @ z.covariance[3:, 3:] @ u, 1e-8)))
+            lm.seen_ends.append((float(s.min()), float(s.max()), sig))
 
     def _track(self, stamp, k, z, pose, pose_cov, T_BS, factors, values) -> None:
         """Extend (or start) a tentative landmark; promote it to the graph once it has
@@ -598,7 +602,7 @@ class GraphEstimator:
             elif lm.kind == "pipe":
                 c, d = lm.anchor.point(est), lm.anchor.direction(est)
                 # extent was measured in the line frame centred at c0: project onto the new line
-                lo, hi = lm.extent
+                lo, hi = lm.robust_extent()
                 foot = (lm.anchor.c0 - c) @ d
                 le.p, le.q = c + (foot + lo) * d, c + (foot + hi) * d
                 le.covariance = cov

@@ -37,10 +37,27 @@ class Landmark:
     estimate: object = None  # Point3 (3,), θ (4,), or gtsam.Pose3
     covariance: np.ndarray | None = None
     cov_stamp: int | None = None  # when ``covariance`` was last computed
+    seen_ends: list[tuple[float, float, float]] = field(default_factory=list)  # pipes: (s_lo, s_hi, σ_along) per view
     connected: set[int] = field(default_factory=set)
 
     def class_posterior(self) -> dict[str, float] | None:
         return class_posterior(self.class_likelihoods)
+
+    def robust_extent(self) -> tuple[float, float]:
+        """The pipe's ends along its axis (line frame), robust to endpoint noise.
+
+        Every view sees a stretch inside the pipe, its ends noisy along the axis (σ); a view that
+        saw the real end puts its endpoint within a few σ of the extreme one, a clipped view lies
+        further in. Each end is the mean of the endpoints within 3σ of the extreme: the extreme
+        alone (``extent``) is biased outwards by the noise.
+        """
+        if not self.seen_ends:
+            return self.extent
+        e = np.array(self.seen_ends)
+        sig = float(np.median(e[:, 2]))
+        lo = e[:, 0][e[:, 0] <= e[:, 0].min() + 3 * sig].mean()
+        hi = e[:, 1][e[:, 1] >= e[:, 1].max() - 3 * sig].mean()
+        return (float(lo), float(hi)) if hi > lo else self.extent
 
 
 def class_posterior(likelihoods: Sequence[Mapping[str, float]]) -> dict[str, float] | None:
