@@ -104,6 +104,11 @@ class GraphEstimator:
         self._ambiguous: set[int] = set()
         self._current_obs: list = []
         self._volume: dict[int, list[tuple[int, float]]] = {}  # landmark id → [(stamp, log det cov)]
+        # Bounding sphere (centre, radius) of every landmark, refreshed with its estimate.
+        self._sphere_row: dict[int, int] = {}
+        self._sphere_ids: list[int] = []
+        self._sphere_c = np.zeros((0, 3))
+        self._sphere_r = np.zeros(0)
 
     # ------------------------------------------------------------------ protocol
     def view(self) -> GraphView:
@@ -253,6 +258,9 @@ class GraphEstimator:
             lm = self.landmarks.get(lid)
             if lm is not None and not any(o == lid for _, o in self._factors):
                 del self.landmarks[lid]
+                row = self._sphere_row.pop(lid, None)
+                if row is not None:
+                    self._sphere_c[row] = np.inf  # never near again
         keep_keys = {X(i) for i in range(len(self.kf_stamps))} | {V(i) for i in range(len(self.kf_stamps))}
         keep_keys |= {lm.key for lm in self.landmarks.values()}
         full = gtsam.Values()
@@ -376,17 +384,15 @@ class GraphEstimator:
         self._ambiguous: set[int] = set()
         if not self.landmarks:
             return [None] * len(obs)
-        lms = list(self.landmarks.values())
-        anchor_pts = np.array([_landmark_point(lm) for lm in lms])
         obs_pts = np.array([self._world_summary(z, pose, T) for z, T in zip(obs, T_BS)])
-        dist = np.linalg.norm(obs_pts[:, None, :] - anchor_pts[None, :, :], axis=2)
-        # Pipes: distance to the seen segment rather than to its middle.
-        for j, lm in enumerate(lms):
-            if lm.kind == "pipe":
-                dist[:, j] = _point_segment_distance(obs_pts, *_pipe_ends(lm))
+        # Coarse pre-gate on the cached spheres (O(map) in numpy only, so the cost stays flat).
+        ids, centres, radii = self._spheres()
+        dist = np.linalg.norm(obs_pts[:, None, :] - centres[None, :, :], axis=2) - radii[None, :]
         near = np.flatnonzero((dist <= self.cfg.pre_gate_m + 1.0).any(axis=0))
         if near.size == 0:
             return [None] * len(obs)
+        lms = [self.landmarks[ids[j]] for j in near if ids[j] in self.landmarks]
+        near = np.arange(len(lms))
         self._refresh_landmarks({lms[j].id for j in near}, covariance=True)
         cand_lms = [lms[j] for j in near]
         anchor_pts = np.array([_landmark_point(lm) for lm in cand_lms])
@@ -535,6 +541,7 @@ class GraphEstimator:
             lm.estimate = poses[r.keyframe].compose(gtsam.Pose3(T @ r.observation.pose))
             values.insert(key, lm.estimate)
         self.landmarks[lid] = lm
+        self._update_sphere(lm)
         for r, T in zip(tr.records, Ts):
             factors.append((self._landmark_factor(lm, r.keyframe, r.observation, T, poses[r.keyframe]), lid))
             self._record(lm, r.stamp, r.keyframe, r.observation, poses[r.keyframe], T)
@@ -548,12 +555,33 @@ class GraphEstimator:
         horizon = stamp - int(self.cfg.track_timeout_s * 1e9)
         self.tracks = [t for t in self.tracks if t.last_stamp >= horizon]
 
+    def _spheres(self) -> tuple[list[int], np.ndarray, np.ndarray]:
+        n = len(self._sphere_ids)
+        return self._sphere_ids, self._sphere_c[:n], self._sphere_r[:n]
+
+    def _update_sphere(self, lm: Landmark) -> None:
+        if lm.kind == "pipe":
+            a, b = _pipe_ends(lm)
+            c, r = 0.5 * (a + b), 0.5 * float(np.linalg.norm(b - a))
+        else:
+            c, r = _landmark_point(lm), 0.0
+        row = self._sphere_row.get(lm.id)
+        if row is None:
+            row = len(self._sphere_ids)
+            if row >= len(self._sphere_r):  # amortised growth
+                self._sphere_c = np.vstack([self._sphere_c, np.zeros((max(64, row), 3))])
+                self._sphere_r = np.concatenate([self._sphere_r, np.zeros(max(64, row))])
+            self._sphere_row[lm.id] = row
+            self._sphere_ids.append(lm.id)
+        self._sphere_c[row], self._sphere_r[row] = c, r
+
     def _refresh_landmarks(self, ids, covariance: bool = False) -> None:
         for lid in ids:
             lm = self.landmarks.get(lid)
             if lm is None:
                 continue
             lm.estimate = _value(self.isam, lm.key, lm.kind)
+            self._update_sphere(lm)
             stale = lm.cov_stamp is None or (self.kf_stamps[-1] - lm.cov_stamp) * 1e-9 >= self.cfg.landmark_cov_refresh_s
             if covariance and stale:
                 lm.cov_stamp = self.kf_stamps[-1]
