@@ -416,8 +416,17 @@ class EkfEstimator:
                 m_W, d_W = geo.line_plucker(self.state.x[f.index : f.index + 4])
                 f.ends = _union_on_line(f.ends, seen, m_W, d_W)
         self._reproject_pipes()
-        new = [o for o, j in zip(obs, pairs) if j is None]
+        new = [o for o, j in zip(obs, pairs) if j is None and not self._near_mapped(o)]
         self._tentative(stamp, new)
+
+    def _near_mapped(self, o: _Obs) -> bool:
+        """An unpaired observation still compatible with a mapped feature at the looser track gate is
+        ambiguous, not new: it is dropped rather than started as a duplicate feature."""
+        from semslam.backend.association import individual_nis
+
+        problem = EkfAssociationProblem(self, [o])
+        gate = chi2.ppf(self.cfg.track_gate_confidence, 3 if o.kind == "object" else 4)
+        return any(individual_nis(problem, 0, j) < gate for j in range(len(self._features)))
 
     def _joint_update(self, paired: list[tuple[_Obs, _Feature]]) -> None:
         """One EKF update with every paired observation stacked (H sparse: vehicle + those features)."""
