@@ -167,3 +167,8 @@ def test_line_initialisation_jacobians(beta):
     assert_jac(G_x, numjac(f, X, h=1e-8), rtol=1e-4, atol=1e-5)
     f = lambda pq: mdl.line_initialise(X, pq[:3], pq[3:], R_BS, T_BS)[0]
     assert_jac(G_pq, numjac(f, np.r_[ps, qs], h=1e-8), rtol=1e-4, atol=1e-5)
+
+
+def test_rot_batch_matches_rot():
+    e = RNG.uniform(-1.5, 1.5, size=(10, 3))
+    np.testing.assert_allclose(g.rot_batch(e), np.array([g.rot(*r) for r in e]), atol=1e-14)

@@ -37,6 +37,10 @@ class EkfConfig(BaseModel):
         0.3, ge=0, description="an observed pipe segment pairs with a mapped pipe only if it overlaps its saved "
         "extent within this gap (collinear pipes stay distinct)"
     )
+    pre_gate_m: float = Field(
+        2.0, gt=0, description="Euclidean pre-gate (m, plus 3σ of the vehicle position) before the χ² tests: "
+        "saves work on large maps; must exceed the plausible landmark position error"
+    )
     track_timeout_s: float = Field(
         60.0, gt=0, description="a tentative feature not seen again within this time is forgotten (false positive)"
     )

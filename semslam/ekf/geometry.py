@@ -45,6 +45,21 @@ def rot(phi: float, theta: float, psi: float) -> np.ndarray:
     )
 
 
+def rot_batch(e: np.ndarray) -> np.ndarray:
+    """R = Rz(ψ) Ry(θ) Rx(φ) for each row (φ, θ, ψ) of e (K×3) → (K, 3, 3)."""
+    cf, sf = np.cos(e[:, 0]), np.sin(e[:, 0])
+    ct, st = np.cos(e[:, 1]), np.sin(e[:, 1])
+    cp, sp = np.cos(e[:, 2]), np.sin(e[:, 2])
+    return np.stack(
+        [
+            np.stack([cp * ct, cp * st * sf - sp * cf, cp * st * cf + sp * sf], axis=-1),
+            np.stack([sp * ct, sp * st * sf + cp * cf, sp * st * cf - cp * sf], axis=-1),
+            np.stack([-st, ct * sf, ct * cf], axis=-1),
+        ],
+        axis=1,
+    )
+
+
 def euler(R: np.ndarray) -> np.ndarray:
     """(φ, θ, ψ) of R = Rz(ψ) Ry(θ) Rx(φ)."""
     theta = -np.arcsin(np.clip(R[2, 0], -1.0, 1.0))
