@@ -487,11 +487,19 @@ class EkfEstimator:
                 x[f.index : f.index + 3] = geo.wrap(x[f.index : f.index + 3])
 
     def _reproject_pipes(self) -> None:
-        x = self.state.x
-        for f in self._features:
-            if f.kind == "pipe":
-                m_W, d_W = geo.line_plucker(x[f.index : f.index + 4])
-                f.ends = geo.project_on_line(f.ends, m_W, d_W)
+        """Saved pipe endpoints onto their (updated) lines, all pipes at once."""
+        pipes = [f for f in self._features if f.kind == "pipe"]
+        if not pipes:
+            return
+        lp = self.state.x[np.array([f.index for f in pipes])[:, None] + np.arange(4)]
+        U = geo.rot_batch(lp[:, :3])
+        d = U[:, :, 1]
+        c = np.cross(d, lp[:, 3:4] * U[:, :, 0])  # closest points d × m
+        ends = np.array([f.ends for f in pipes])  # (K, 2, 3)
+        s = np.einsum("kej,kj->ke", ends - c[:, None], d)
+        ends = c[:, None] + s[..., None] * d[:, None]
+        for f, e in zip(pipes, ends):
+            f.ends = e
 
     # ------------------------------------------------------------ SLAM: new features
     def _world(self, o: _Obs):

@@ -26,6 +26,11 @@ def skew(v: np.ndarray) -> np.ndarray:
     return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
 
 
+def cross3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """a × b for 3-vectors (np.cross is slow on single vectors)."""
+    return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
+
+
 def wrap(a):
     """Angle(s) wrapped to [-π, π)."""
     return (np.asarray(a) + np.pi) % (2 * np.pi) - np.pi
@@ -136,7 +141,7 @@ def plucker_from_endpoints(p: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np
     diff = q - p
     L = np.linalg.norm(diff)
     d = diff / L
-    m = np.cross(p, d)
+    m = cross3(p, d)
     Pd = (np.eye(3) - np.outer(d, d)) / L
     J = np.zeros((6, 6))
     J[3:, :3] = -Pd
@@ -150,7 +155,7 @@ def orthonormal_from_plucker(m: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, 
     """(U, ρ) from Plücker (m, d) with unit d and m ≠ 0."""
     rho = float(np.linalg.norm(m))
     u1 = m / rho
-    u3 = np.cross(u1, d)
+    u3 = cross3(u1, d)
     return np.column_stack([u1, d, u3]), rho
 
 
@@ -208,7 +213,7 @@ def line_params_from_error(l: np.ndarray) -> np.ndarray:
 
 def closest_point(m: np.ndarray, d: np.ndarray) -> np.ndarray:
     """Point of the line nearest the origin: d × m."""
-    return np.cross(d, m)
+    return cross3(d, m)
 
 
 def project_on_line(points: np.ndarray, m: np.ndarray, d: np.ndarray) -> np.ndarray:

@@ -18,6 +18,7 @@ import numpy as np
 
 from semslam.ekf.geometry import (
     body_to_euler_rate,
+    cross3,
     euler,
     euler_rate_jacobian,
     euler_rate_to_body,
@@ -117,7 +118,7 @@ def dvl_update(
     """DVL: z = R_BSᵀ (v_B + ω_B × t_BS) in the DVL frame (eqs. 25–29), linear in v_B (ω_B is the input)."""
     H = np.zeros((3, NX))
     H[:, VEL] = R_BS.T
-    h = R_BS.T @ (x[VEL] + np.cross(omega_B, t_BS))
+    h = R_BS.T @ (x[VEL] + cross3(omega_B, t_BS))
     return NavUpdate(v_S - h, H, cov_S)
 
 
@@ -166,7 +167,7 @@ def line_to_sensor(x: np.ndarray, l: np.ndarray, R_BS: np.ndarray, t_BS: np.ndar
     """
     R, t, R_WB, E = sensor_pose(x, R_BS, t_BS)
     m_W, d_W = line_plucker(l)
-    m_S = R.T @ (m_W - np.cross(t, d_W))
+    m_S = R.T @ (m_W - cross3(t, d_W))
     d_S = R.T @ d_W
     W = R_BS.T @ E  # ∂ω_S/∂e
     J_x = np.zeros((6, NX))
@@ -236,7 +237,7 @@ def line_world(x: np.ndarray, p: np.ndarray, q: np.ndarray, R_BS: np.ndarray, t_
     R, t, R_WB, E = sensor_pose(x, R_BS, t_BS)
     m_S, d_S, J_pq = plucker_from_endpoints(p, q)
     d_W = R @ d_S
-    m_W = R @ m_S + np.cross(t, d_W)
+    m_W = R @ m_S + cross3(t, d_W)
     W = R_BS.T @ E
     Jx = np.zeros((6, NX))
     Jx[3:, ATT] = -R @ skew(d_S) @ W
