@@ -14,8 +14,11 @@ uncertainty), and enters the state once it has been seen ``association.min_obser
 from its latest observation with the full cross-covariances (eqs. 39–45). With
 ``min_observations = 1`` this is exactly the paper's flow.
 
-Pipes keep the endpoints of what was seen of them: after every update the saved endpoints are
-re-projected onto the updated line, and a paired segment extends them.
+Pipes keep the endpoints of every view of them (in {W}); they are re-projected onto the current line
+estimate whenever used, so they follow every update, and the pipe's ends are a noise-robust extreme of
+them. A segment pairs with a pipe only if it comes within ``pipe_extent_gap_m`` of that extent and no
+object (mapped or tentative) lies on the line between them: collinear pipes on either side of an
+in-line valve stay distinct, partial views of one pipe do not split it.
 """
 
 from __future__ import annotations
@@ -67,7 +70,7 @@ class _Feature:
     index: int  # first state index
     size: int
     n_obs: int = 1
-    ends: np.ndarray | None = None  # (2, 3) saved endpoints on the line (pipes)
+    extent: _Extent | None = None  # pipes: what was seen of them
     class_log: dict[str, float] = field(default_factory=dict)
     vol_stamps: list[int] = field(default_factory=list)
     vol: list[float] = field(default_factory=list)
@@ -87,7 +90,7 @@ class _Track:
     cov: np.ndarray
     n: int
     last_stamp: int
-    ends: np.ndarray | None = None
+    extent: _Extent | None = None
     class_log: dict[str, float] = field(default_factory=dict)
 
 
@@ -108,23 +111,69 @@ def _posterior(log: dict[str, float]) -> dict[str, float] | None:
     return dict(zip(log.keys(), map(float, p)))
 
 
-def _line_extent(ends: np.ndarray, m: np.ndarray, d: np.ndarray) -> tuple[float, float]:
-    c = geo.closest_point(m, d)
-    s = (ends - c) @ d
-    return float(s.min()), float(s.max())
+class _Extent:
+    """What was seen of a pipe: every view's endpoints in {W} (saved as seen) with their along-axis σ.
+
+    The saved endpoints are re-projected onto the current line estimate whenever the extent is used,
+    so they follow every update. Each end is robust to endpoint noise: the median of the view ends
+    within 6σ of the extreme one (the extreme alone is biased outwards by the noise; views clipped
+    by the field of view lie further in and are left out)."""
+
+    def __init__(self):
+        self._pts: list[np.ndarray] = []  # (2, 3) per view
+        self._sig: list[float] = []
+
+    def add(self, ends_W: np.ndarray, sigma: float) -> None:
+        self._pts.append(np.asarray(ends_W, float))
+        self._sig.append(float(sigma))
+
+    def merge(self, other: "_Extent") -> None:
+        self._pts += other._pts
+        self._sig += other._sig
+
+    def interval(self, m: np.ndarray, d: np.ndarray) -> tuple[float, float]:
+        c = geo.closest_point(m, d)
+        s = (np.array(self._pts) - c) @ d  # (K, 2)
+        lo, hi = s.min(axis=1), s.max(axis=1)
+        w = 6.0 * float(np.median(self._sig))
+        a = float(np.median(lo[lo <= lo.min() + w]))
+        b = float(np.median(hi[hi >= hi.max() - w]))
+        return (a, b) if b > a else (float(lo.min()), float(hi.max()))
+
+    def ends(self, m: np.ndarray, d: np.ndarray) -> np.ndarray:
+        c = geo.closest_point(m, d)
+        a, b = self.interval(m, d)
+        return np.array([c + a * d, c + b * d])
+
+    def gap(self, ends_W: np.ndarray, m: np.ndarray, d: np.ndarray) -> float:
+        """Gap (m) along the line between the seen extent and a segment; 0 when they overlap."""
+        a, b = self.interval(m, d)
+        s = (ends_W - geo.closest_point(m, d)) @ d
+        return max(0.0, s.min() - b, a - s.max())
+
+    def separated(self, ends_W: np.ndarray, m: np.ndarray, d: np.ndarray, objects: np.ndarray,
+                  radius: float, margin: float = 0.1) -> bool:
+        """True when an object (N×3, in {W}) on the line lies between the seen extent and the segment:
+        collinear pipes joined by an in-line part (a valve, a socket) are different pipes."""
+        if len(objects) == 0:
+            return False
+        c = geo.closest_point(m, d)
+        r = objects - c
+        s_obj = r @ d
+        on_line = np.linalg.norm(r - s_obj[:, None] * d, axis=1) < radius
+        if not on_line.any():
+            return False
+        a, b = self.interval(m, d)
+        s = (ends_W - c) @ d
+        lo, hi = (b - margin, s.min() + margin) if s.mean() > 0.5 * (a + b) else (s.max() - margin, a + margin)
+        return bool(np.any(on_line & (s_obj > lo) & (s_obj < hi)))
 
 
-def _extent_gap(ends_a: np.ndarray, ends_b: np.ndarray, m: np.ndarray, d: np.ndarray) -> float:
-    """Gap (m) between two segments projected onto the line (m, d); 0 when they overlap."""
-    a0, a1 = _line_extent(ends_a, m, d)
-    b0, b1 = _line_extent(ends_b, m, d)
-    return max(0.0, b0 - a1, a0 - b1)
-
-
-def _union_on_line(ends_a: np.ndarray, ends_b: np.ndarray, m: np.ndarray, d: np.ndarray) -> np.ndarray:
-    c = geo.closest_point(m, d)
-    s = np.concatenate([(ends_a - c) @ d, (ends_b - c) @ d])
-    return np.array([c + s.min() * d, c + s.max() * d])
+def _along_sigma(o: LineObservation) -> float:
+    """Endpoint σ along the segment, from its 6×6 covariance."""
+    d = (o.q - o.p) / np.linalg.norm(o.q - o.p)
+    C = np.asarray(o.covariance)
+    return float(np.sqrt(0.5 * (d @ C[:3, :3] @ d + d @ C[3:, 3:] @ d)))
 
 
 # --------------------------------------------------------------------------- observations
@@ -394,7 +443,9 @@ class EkfEstimator:
             h, H_x, H_l = mdl.point_measurement(x, l, o.R_BS, o.t_BS)
             return PairLinearization(o.obs.position - h, H_x, H_l, np.asarray(o.obs.covariance))
         m_W, d_W = geo.line_plucker(l)
-        if _extent_gap(f.ends, o.ends_W, m_W, d_W) > self.cfg.pipe_extent_gap_m:
+        if f.extent.gap(o.ends_W, m_W, d_W) > self.cfg.pipe_extent_gap_m or f.extent.separated(
+            o.ends_W, m_W, d_W, self._object_positions(), self.cfg.pipe_object_radius_m
+        ):
             return None
         nu, H_x, H_l, R = mdl.line_innovation(x, l, o.line, o.R_BS, o.t_BS)
         return PairLinearization(nu, H_x, H_l, R)
@@ -431,6 +482,13 @@ class EkfEstimator:
                 near[i, pip] = np.linalg.norm(off, axis=1) < gate
         return near
 
+    def _object_positions(self) -> np.ndarray:
+        """Mapped and tentative objects in {W} (N×3), the separators of collinear pipes."""
+        x = self.state.x
+        pts = [x[f.index : f.index + 3] for f in self._features if f.kind == "object"]
+        pts += [t.mean for t in self._tracks if t.kind == "object"]
+        return np.array(pts).reshape(-1, 3)
+
     def _associate_batch(self, obs: list[_Obs]) -> list[int | None]:
         if not self._features:
             return [None] * len(obs)
@@ -445,12 +503,9 @@ class EkfEstimator:
         for o, f in paired:
             f.n_obs += 1
             _fuse_class(f.class_log, getattr(o.obs, "class_likelihood", None))
-            if f.kind == "pipe":  # extend the saved extent with the segment seen now
+            if f.kind == "pipe":  # save the segment seen now (placed with the updated pose)
                 R, t, _, _ = mdl.sensor_pose(self.state.xv, o.R_BS, o.t_BS)
-                seen = np.array([o.obs.p, o.obs.q]) @ R.T + t
-                m_W, d_W = geo.line_plucker(self.state.x[f.index : f.index + 4])
-                f.ends = _union_on_line(f.ends, seen, m_W, d_W)
-        self._reproject_pipes()
+                f.extent.add(np.array([o.obs.p, o.obs.q]) @ R.T + t, _along_sigma(o.obs))
         new = [o for o, j in zip(obs, pairs) if j is None and not self._near_mapped(o)]
         self._tentative(stamp, new)
 
@@ -486,21 +541,6 @@ class EkfEstimator:
             if f.kind == "pipe":  # keep the Euler angles of the line in range
                 x[f.index : f.index + 3] = geo.wrap(x[f.index : f.index + 3])
 
-    def _reproject_pipes(self) -> None:
-        """Saved pipe endpoints onto their (updated) lines, all pipes at once."""
-        pipes = [f for f in self._features if f.kind == "pipe"]
-        if not pipes:
-            return
-        lp = self.state.x[np.array([f.index for f in pipes])[:, None] + np.arange(4)]
-        U = geo.rot_batch(lp[:, :3])
-        d = U[:, :, 1]
-        c = np.cross(d, lp[:, 3:4] * U[:, :, 0])  # closest points d × m
-        ends = np.array([f.ends for f in pipes])  # (K, 2, 3)
-        s = np.einsum("kej,kj->ke", ends - c[:, None], d)
-        ends = c[:, None] + s[..., None] * d[:, None]
-        for f, e in zip(pipes, ends):
-            f.ends = e
-
     # ------------------------------------------------------------ SLAM: new features
     def _world(self, o: _Obs):
         """The observation in {W} with the current pose: (mean, covariance, Jacobians for augmentation)."""
@@ -527,7 +567,9 @@ class EkfEstimator:
                 m_o, d_o = -m_o, -d_o
                 D = np.array([-1.0, -1.0, 1.0, 1.0])
                 cov = cov * np.outer(D, D)
-            if _extent_gap(tr.ends, o.ends_W, m_t, d_t) > self.cfg.pipe_extent_gap_m:
+            if tr.extent.gap(o.ends_W, m_t, d_t) > self.cfg.pipe_extent_gap_m or tr.extent.separated(
+                o.ends_W, m_t, d_t, self._object_positions(), self.cfg.pipe_object_radius_m
+            ):
                 return math.inf
             U_t, rho_t = geo.orthonormal_from_plucker(m_t, d_t)
             U_o, rho_o = geo.orthonormal_from_plucker(m_o, d_o)
@@ -554,17 +596,16 @@ class EkfEstimator:
                 if nis < best_nis:
                     best, best_nis = k, nis
             if best is None:
-                tr = _Track(o.kind, mean, cov, 1, stamp, o.ends_W.copy() if o.ends_W is not None else None)
+                tr = _Track(o.kind, mean, cov, 1, stamp, _Extent() if o.kind == "pipe" else None)
                 self._tracks.append(tr)
                 used.add(len(self._tracks) - 1)
             else:
                 tr = self._tracks[best]
                 used.add(best)
-                if tr.kind == "pipe":
-                    m, d = mean[:3], mean[3:]
-                    tr.ends = _union_on_line(tr.ends, o.ends_W, m, d)
                 tr.mean, tr.cov, tr.n, tr.last_stamp = mean, cov, tr.n + 1, stamp
             _fuse_class(tr.class_log, getattr(o.obs, "class_likelihood", None))
+            if tr.kind == "pipe":
+                tr.extent.add(o.ends_W, _along_sigma(o.obs))
             if tr.n >= self.assoc.min_observations:
                 self._add_feature(o, tr)
                 tr.n = -1  # consumed
@@ -575,14 +616,11 @@ class EkfEstimator:
         if o.kind == "object":
             l, G_x, G_z = mdl.point_initialise(x, o.obs.position, o.R_BS, o.t_BS)
             idx = self.state.augment(l, G_x, G_z, np.asarray(o.obs.covariance))
-            ends = None
         else:
             l, G_x, G_pq = mdl.line_initialise(x, o.obs.p, o.obs.q, o.R_BS, o.t_BS)
             idx = self.state.augment(l, G_x, G_pq, np.asarray(o.obs.covariance))
-            m_W, d_W = geo.line_plucker(l)
-            ends = geo.project_on_line(tr.ends, m_W, d_W)
         self._features.append(
-            _Feature(self._next_id, o.kind, idx, len(l), n_obs=tr.n, ends=ends, class_log=dict(tr.class_log))
+            _Feature(self._next_id, o.kind, idx, len(l), n_obs=tr.n, extent=tr.extent, class_log=dict(tr.class_log))
         )
         self._next_id += 1
 
@@ -635,8 +673,8 @@ class EkfEstimator:
         if f.kind == "object":
             return LandmarkEstimate(f.id, "object", position=l, covariance=cov,
                                     class_posterior=_posterior(f.class_log), n_observations=f.n_obs)
-        return LandmarkEstimate(f.id, "pipe", p=f.ends[0].copy(), q=f.ends[1].copy(), covariance=cov,
-                                n_observations=f.n_obs)
+        p, q = f.extent.ends(*geo.line_plucker(l))
+        return LandmarkEstimate(f.id, "pipe", p=p, q=q, covariance=cov, n_observations=f.n_obs)
 
     def landmarks(self) -> list[LandmarkEstimate]:
         if not self.feature_updates:
