@@ -87,12 +87,34 @@ def config_dump(config: Optional[Path] = ConfigOpt):
 @app.command()
 @user_errors
 def simulate(
-    scene: str = typer.Argument(..., help="tank or field"),
-    out: Path = typer.Option(..., "--out", "-o", help="bag to write (.bag = ROS 1, otherwise a ROS 2 directory)"),
-    seed: int = typer.Option(0, "--seed", help="random seed (the default reproduces one fixed layout)"),
+    scene: str = typer.Argument(..., help="tank (laser, DVL, AHRS, depth) or field (multibeam sonar)"),
+    out: Path = typer.Option(..., "--out", "-o", help="bag to write: .bag = ROS 1, .mcap, otherwise a ROS 2 directory"),
+    seed: int = typer.Option(0, "--seed", help="random seed (seed 0 reproduces the default layout)"),
+    loops: Optional[float] = typer.Option(None, "--loops", help="tank: loops around the structure (default 3)"),
+    dvl_dropout_rate: Optional[float] = typer.Option(
+        None, "--dvl-dropout-rate", help="tank: fraction of the mission lost to random DVL dropout bursts"
+    ),
+    layout: Optional[Path] = typer.Option(None, "--layout", help="tank: structure layout YAML instead of a seeded one"),
+    preview: Optional[Path] = typer.Option(None, "--preview", help="also render the scene and trajectory to this PNG"),
+    sim_config: Optional[Path] = typer.Option(None, "--sim-config", help="YAML overriding the simulator defaults"),
+    overwrite: bool = typer.Option(False, "--overwrite", help="replace an existing bag"),
 ):
     """Simulate a mission with ground truth and write it as an ordinary ROS bag."""
-    not_implemented("simulate", "issue 3 / issue 8")
+    if out.exists() and not overwrite:  # say so before minutes of simulation, not after
+        raise SemslamError(f"{out}: already exists (use --overwrite to replace it)")
+    if scene == "tank":
+        from semslam.sim.simulate import simulate_tank_to_bag
+
+        m = simulate_tank_to_bag(
+            out, seed=seed, dvl_dropout_rate=dvl_dropout_rate, loops=loops, preview=preview,
+            config=sim_config, layout=layout, overwrite=overwrite, progress=sys.stderr.isatty(),
+        )
+    elif scene == "field":
+        not_implemented("simulate field", "issue 8")
+    else:
+        raise SemslamError(f"unknown scene {scene!r} (choose tank or field)")
+    gt = m.metadata.ground_truth
+    typer.echo(f"wrote {out}: {len(gt.objects)} objects, {len(gt.pipes)} pipes" + (f"; preview {preview}" if preview else ""))
 
 
 @app.command()
