@@ -3,10 +3,18 @@
 ``EkfEstimator(metadata, config)`` (name "ekf") and ``DeadReckoning(metadata, config)`` (name "dr")
 implement the :class:`semslam.estimation.Estimator` protocol; ``config`` is the full
 :class:`semslam.config.SemslamConfig` (sections ``motion``, ``association`` and ``ekf`` =
-:class:`EkfConfig`).
+:class:`EkfConfig`). The estimators are imported lazily so that ``semslam.ekf.config`` (imported
+by ``semslam.config``) creates no import cycle.
 """
 
 from semslam.ekf.config import EkfConfig
-from semslam.ekf.estimator import DeadReckoning, EkfEstimator
 
 __all__ = ["DeadReckoning", "EkfConfig", "EkfEstimator"]
+
+
+def __getattr__(name):
+    if name in ("DeadReckoning", "EkfEstimator"):
+        from semslam.ekf import estimator
+
+        return getattr(estimator, name)
+    raise AttributeError(name)
