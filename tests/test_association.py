@@ -120,6 +120,6 @@ def test_optional_candidate_pre_gate_limits_the_pairs_tested():
     original = prob.pair
     prob.pair = lambda i, j: tested.append(j) or original(i, j)
     assert jcbb(prob) == [1]
-    prob.candidates = lambda i: [0, 2]  # a pre-gate that (wrongly) left out landmark 1
+    prob.candidate_landmarks = lambda i: [0, 2]  # a pre-gate that (wrongly) left out landmark 1
     tested.clear()
     assert jcbb(prob) == [0] and 1 not in tested

@@ -17,11 +17,16 @@ def test_every_default_is_documented():
         assert field.description, name
 
 
-def test_invalid_section_is_one_clear_line():
+def test_invalid_section_is_one_clear_line(tmp_path):
+    from semslam.config import load_config
+
+    f = tmp_path / "c.yaml"
+    f.write_text("ekf:\n  pre_gate_m: -1\n")
     with pytest.raises(ConfigError, match=r"ekf\.pre_gate_m"):
-        EkfEstimator(MissionMetadata(), SemslamConfig(ekf={"pre_gate_m": -1}))
+        load_config(f)
+    f.write_text("ekf:\n  bogus: 1\n")
     with pytest.raises(ConfigError, match=r"ekf\.bogus"):
-        EkfEstimator(MissionMetadata(), SemslamConfig(ekf={"bogus": 1}))
+        load_config(f)
 
 
 def test_without_ground_truth_the_filter_starts_at_the_origin_at_the_measured_depth():

@@ -40,7 +40,7 @@ class AssociationProblem(Protocol):
     def covariance(self, a: int | None, b: int | None) -> np.ndarray:
         """Cross-covariance block: None = the vehicle block, an int = landmark j."""
 
-    # Optional: ``candidates(i) -> Iterable[int]``, the landmarks worth testing for observation i
+    # Optional: ``candidate_landmarks(i) -> Iterable[int]``, the landmarks worth testing for observation i
     # (e.g. from a cheap Euclidean pre-gate). Without it every landmark is tested, at ~50 µs a pair.
 
 
@@ -153,7 +153,7 @@ def jcbb(problem: AssociationProblem, confidence: float = 0.99, max_hypotheses: 
 
     # Individual compatibility, candidates sorted by NIS so that good hypotheses come first.
     candidates: list[list[tuple[float, int, PairLinearization]]] = []
-    candidates_of = getattr(problem, "candidates", None)
+    candidates_of = getattr(problem, "candidate_landmarks", None)
     for i in range(n):
         row = []
         for j in (candidates_of(i) if candidates_of is not None else range(m)):
