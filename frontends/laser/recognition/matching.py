@@ -11,9 +11,30 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 
 import numpy as np
+from sklearn.base import BaseEstimator, TransformerMixin
 from sklearn.pipeline import make_pipeline
-from sklearn.preprocessing import FunctionTransformer, StandardScaler
+from sklearn.preprocessing import StandardScaler
 from sklearn.svm import SVC
+
+
+def principal_extents(cloud: np.ndarray) -> np.ndarray:
+    """Standard deviations (m) of a cloud along its principal axes, largest first (3,).
+
+    A metric size cue, invariant to rotation and translation. ESF and VFH are scale-free by
+    design (PCL scales the cloud to a unit sphere), but CAD models and laser clouds are metric,
+    and the fittings of the tank differ in size as much as in shape.
+    """
+    c = np.asarray(cloud, dtype=np.float64)
+    c = c - c.mean(axis=0)
+    ev = np.linalg.eigvalsh(c.T @ c / max(len(c), 1))[::-1]
+    return np.sqrt(np.maximum(ev, 1e-10))
+
+
+def size_distances(query: np.ndarray, database: np.ndarray) -> np.ndarray:
+    """L1 distance between log principal extents (query 3 or Q×3, database V×3)."""
+    q = np.log(np.atleast_2d(query))
+    out = np.abs(q[:, None, :] - np.log(database)[None, :, :]).sum(axis=2)
+    return out[0] if np.ndim(query) == 1 else out
 
 
 def chi2_distances(query: np.ndarray, database: np.ndarray) -> np.ndarray:
@@ -60,14 +81,35 @@ class ChiSquareNN:
         return {str(c): float(d[self.y_ == c].min()) for c in self.classes_}
 
 
-def make_svm(C: float = 10.0, gamma: str | float = "scale", seed: int = 0):
-    """An RBF SVM on square-rooted, standardised histograms (the square root — Hellinger's map —
-    tames the dominant bins). ``probability=True`` for Platt-scaled class scores."""
-    return make_pipeline(
-        FunctionTransformer(np.sqrt),
-        StandardScaler(),
-        SVC(kernel="rbf", C=C, gamma=gamma, probability=True, random_state=seed),
-    )
+def svm_features(hist: np.ndarray, extents: np.ndarray | None = None) -> np.ndarray:
+    """SVM inputs: square-rooted histograms (Hellinger's map tames the dominant bins), then the log
+    principal extents when a size cue is wanted."""
+    x = np.sqrt(np.atleast_2d(hist))
+    return x if extents is None else np.hstack([x, np.log(np.atleast_2d(extents))])
+
+
+class _TailGain(TransformerMixin, BaseEstimator):
+    """Multiplies the last ``n`` (standardised) columns by ``gain``: lets 3 size inputs weigh
+    against hundreds of histogram bins in the RBF kernel."""
+
+    def __init__(self, n: int = 0, gain: float = 1.0):
+        self.n = n
+        self.gain = gain
+
+    def fit(self, X, y=None):
+        return self
+
+    def transform(self, X):
+        X = np.array(X, dtype=np.float64, copy=True)
+        if self.n:
+            X[:, -self.n :] *= self.gain
+        return X
+
+
+def make_svm(C: float = 10.0, gamma: str | float = "scale", n_size: int = 0, size_gain: float = 16.0):
+    """An RBF SVM on standardised features (see :func:`svm_features`); the last ``n_size``
+    columns (the size cue) are up-weighted by ``size_gain`` after standardisation."""
+    return make_pipeline(StandardScaler(), _TailGain(n_size, size_gain), SVC(kernel="rbf", C=C, gamma=gamma))
 
 
 def leave_one_out(

@@ -21,7 +21,14 @@ import numpy as np
 
 from frontends.laser.recognition.cvfh import cvfh
 from frontends.laser.recognition.esf import esf
-from frontends.laser.recognition.matching import ChiSquareNN, chi2_distances, make_svm, set_distances
+from frontends.laser.recognition.matching import (
+    chi2_distances,
+    make_svm,
+    principal_extents,
+    set_distances,
+    size_distances,
+    svm_features,
+)
 from frontends.laser.recognition.pose import ModelSurface, PoseEstimate, estimate_pose
 from frontends.laser.recognition.views import (
     RecognitionError,
@@ -97,6 +104,7 @@ class Recognizer:
         confusion: np.ndarray | None = None,
         default_accuracy: float = 0.8,
         apply_connectivity: bool = False,
+        size_weight: float = 0.2,
         seed: int = 0,
     ):
         if descriptor not in DESCRIPTORS:
@@ -111,10 +119,13 @@ class Recognizer:
         self.seed = seed
         self.classes = database.classes
         self.apply_connectivity = apply_connectivity
+        self.size_weight = float(size_weight)
         self._labels = database.labels
         self._features = database.features(descriptor)
+        self._extents = database.features("extent")
         if method == "svm":
-            self._svm = make_svm(seed=seed).fit(self._features, self._labels)
+            ext = self._extents if self.size_weight > 0 else None
+            self._svm = make_svm(n_size=0 if ext is None else 3).fit(svm_features(self._features, ext), self._labels)
         self.connectivity = ConnectivityTable(self._compatibility())
         k = len(self.classes)
         if confusion is None:
@@ -152,10 +163,13 @@ class Recognizer:
             raise ValueError(f"a segment needs at least 10 points (N×3), got shape {pts.shape}")
         q = self.describe(pts)
         d = set_distances(q, self._features) if self.descriptor == "cvfh" else chi2_distances(q, self._features)
+        ext = principal_extents(pts)
+        if self.size_weight > 0:
+            d = d + self.size_weight * size_distances(ext, self._extents)
         view = int(np.argmin(d))
         if self.method == "nn":
             return Recognition(str(self._labels[view]), view, float(d[view]))
-        cls = str(self._svm.predict(q[None])[0])
+        cls = str(self._svm.predict(svm_features(q, ext if self.size_weight > 0 else None))[0])
         in_cls = np.flatnonzero(self._labels == cls)
         view = int(in_cls[np.argmin(d[in_cls])])
         return Recognition(cls, view, float(d[view]))

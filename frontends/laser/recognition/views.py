@@ -34,10 +34,11 @@ import open3d as o3d
 
 from frontends.laser.recognition.cvfh import cvfh
 from frontends.laser.recognition.esf import esf
+from frontends.laser.recognition.matching import principal_extents
 from frontends.laser.recognition.vfh import vfh
 from semslam.errors import SemslamError
 
-DESCRIPTOR_VERSION = "1"  # bump when a descriptor's definition changes: invalidates the cache
+DESCRIPTOR_VERSION = "2"  # bump when a descriptor's definition changes: invalidates the cache
 CAD_SUFFIXES = (".stl", ".obj", ".ply")
 
 
@@ -163,11 +164,13 @@ def render_views(
 
 @dataclass
 class Descriptors:
-    """Descriptors of V views: ESF (V×640), VFH (V×308), CVFH (list of R_i×308)."""
+    """Descriptors of V views: ESF (V×640), VFH (V×308), CVFH (list of R_i×308) and the
+    principal extents (V×3, metres)."""
 
     esf: np.ndarray
     vfh: np.ndarray
     cvfh: list[np.ndarray]
+    extent: np.ndarray
 
 
 def describe(clouds: Sequence[np.ndarray], seed: int = 0) -> Descriptors:
@@ -175,7 +178,8 @@ def describe(clouds: Sequence[np.ndarray], seed: int = 0) -> Descriptors:
     e = np.array([esf(c, seed=seed + i) for i, c in enumerate(clouds)]).reshape(-1, 640)
     v = np.array([vfh(c) for c in clouds]).reshape(-1, 308)
     cv = [cvfh(c) for c in clouds]
-    return Descriptors(e, v, cv)
+    x = np.array([principal_extents(c) for c in clouds]).reshape(-1, 3)
+    return Descriptors(e, v, cv, x)
 
 
 @dataclass
@@ -204,6 +208,7 @@ class ModelViews:
             vfh=d.vfh,
             cvfh=np.concatenate(d.cvfh) if d.cvfh else np.empty((0, 308)),
             cvfh_offsets=offsets,
+            extent=d.extent,
             ports=np.array([np.r_[p, q] for p, q in self.ports]).reshape(-1, 6),
         )
         tmp.replace(path)  # atomic: a concurrent reader never sees half a file
@@ -215,7 +220,9 @@ class ModelViews:
                 meta = json.loads(str(z["meta"]))
                 off = z["cvfh_offsets"]
                 flat = z["cvfh"]
-                desc = Descriptors(z["esf"], z["vfh"], [flat[off[i] : off[i + 1]] for i in range(len(off) - 1)])
+                desc = Descriptors(
+                    z["esf"], z["vfh"], [flat[off[i] : off[i + 1]] for i in range(len(off) - 1)], z["extent"]
+                )
                 ports = [(p[:3], p[3:]) for p in z["ports"]]
                 return cls(meta["name"], meta["cls"], meta["key"], z["T_CM"], z["n_points"], desc, ports)
         except Exception as exc:  # noqa: BLE001 - any unreadable cache file is the same user-facing problem
@@ -315,7 +322,9 @@ class ViewDatabase:
             return np.concatenate([m.descriptors.vfh for m in self.models])
         if kind == "cvfh":
             return [c for m in self.models for c in m.descriptors.cvfh]
-        raise RecognitionError(f"unknown descriptor {kind!r} (esf, vfh or cvfh)")
+        if kind == "extent":
+            return np.concatenate([m.descriptors.extent for m in self.models])
+        raise RecognitionError(f"unknown descriptor {kind!r} (esf, vfh, cvfh or extent)")
 
     def model(self, name: str) -> ModelViews:
         for m in self.models:
