@@ -112,13 +112,15 @@ def synthetic_records(syn: dict, n_landmarks: int, seed: int) -> list[Observatio
     from semslam.semantics.likelihood import ConfusionModel
 
     classes = syn["classes"]
-    model = ConfusionModel(np.array(syn["confusion"]), classes)
+    counts = np.array(syn["confusion"], dtype=np.float64)
+    model = ConfusionModel(counts, classes)  # the smoothed P(Z | X) the recogniser reports
+    rates = counts / counts.sum(axis=1, keepdims=True)  # the errors it actually makes
     ports = {"Ball-Valve": [1, 2], "Butterfly-Valve": [1, 2], "R-Socket": [1, 2], "Elbow": [1, 3]}
     rng = np.random.default_rng(seed)
     events = []
     for lid in range(n_landmarks):
         cls = classes[lid % len(classes)]
-        row = model.p_z_given_x[classes.index(cls)]
+        row = rates[classes.index(cls)]
         for t in range(int(rng.integers(3, 11))):
             z = classes[rng.choice(len(classes), p=row)]
             conf = int(rng.choice(ports.get(cls, [1, 2, 3, 4]))) if rng.random() < 0.5 else None

@@ -21,8 +21,25 @@ import open3d as o3d
 @dataclass(frozen=True)
 class PoseEstimate:
     T_SM: np.ndarray  # 4×4
-    fitness: float  # fraction of segment points with a model point within the correspondence distance
-    rmse_m: float  # RMS distance of those correspondences
+    fitness: float  # segment points explained × model points facing the sensor that were seen (0..1)
+    rmse_m: float  # RMS distance of the segment's inlier correspondences
+
+
+def _score(T, seg, target, surface, tol) -> PoseEstimate:
+    """Two-sided fit of a pose: the fraction of segment points near the placed model, times the
+    fraction of the model's sensor-facing points near the segment (a pose that explains the
+    segment but puts unseen model surface in plain view scores low)."""
+    T = np.asarray(T)
+    model = o3d.geometry.PointCloud(surface.pcd).transform(T)
+    d_seg = np.asarray(target.compute_point_cloud_distance(model))
+    pts = np.asarray(model.points)
+    nrm = np.asarray(model.normals)
+    facing = np.einsum("ij,ij->i", nrm, -pts) > 0
+    seen = np.asarray(model.select_by_index(np.flatnonzero(facing)).compute_point_cloud_distance(target)) < 2 * tol if facing.any() else np.zeros(0)
+    inl = d_seg < tol
+    frac_model = float(seen.mean()) if len(seen) else 0.0
+    rmse = float(np.sqrt(np.mean(d_seg[inl] ** 2))) if inl.any() else np.inf
+    return PoseEstimate(T.copy(), float(inl.mean()) * frac_model, rmse)
 
 
 def _rot_about(axis: np.ndarray, angle: float) -> np.ndarray:
@@ -52,8 +69,8 @@ def estimate_pose(
     max_correspondence_m: float = 0.02,
     max_iterations: int = 40,
 ) -> PoseEstimate:
-    """T_SM of the model whose ``surface`` best explains ``segment`` (N×3, {S}), starting from a
-    database view's camera pose ``T_CM_init`` (4×4)."""
+    """T_SM of the model whose ``surface`` best explains ``segment`` (N×3, {S}), starting from
+    database views' camera poses ``T_CM_init`` (4×4, or K×4×4 to try several views)."""
     seg = np.asarray(segment, dtype=np.float64)
     source = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(seg))
     # ICP aligns the model (source) to the segment (target), so that T maps {M} to {S}.
@@ -64,10 +81,11 @@ def estimate_pose(
     c_seg = seg.mean(axis=0)
     best: PoseEstimate | None = None
     crit = o3d.pipelines.registration.ICPConvergenceCriteria(max_iteration=max_iterations)
-    for k in range(n_rolls):
+    inits = np.asarray(T_CM_init, dtype=np.float64).reshape(-1, 4, 4)
+    for T_init, k in ((T, k) for T in inits for k in range(n_rolls)):
         R_roll = _rot_about(np.array([0.0, 0.0, 1.0]), 2 * np.pi * k / n_rolls)
         T0 = np.eye(4)
-        T0[:3, :3] = R_roll @ T_CM_init[:3, :3]
+        T0[:3, :3] = R_roll @ T_init[:3, :3]
         # Visible model points face the camera: use the model points' centroid on the camera side.
         pts_c = surface.points @ T0[:3, :3].T
         front = pts_c[:, 2] <= np.median(pts_c[:, 2])
@@ -76,12 +94,7 @@ def estimate_pose(
             model_pcd, target, max_correspondence_m, T0,
             o3d.pipelines.registration.TransformationEstimationPointToPlane(), crit,
         )  # fmt: skip
-        # Fitness measured from the segment's side: how much of the segment the model explains.
-        dist = np.asarray(target.compute_point_cloud_distance(o3d.geometry.PointCloud(model_pcd).transform(reg.transformation)))
-        inl = dist < max_correspondence_m
-        est = PoseEstimate(
-            np.asarray(reg.transformation).copy(), float(inl.mean()), float(np.sqrt(np.mean(dist[inl] ** 2))) if inl.any() else np.inf
-        )
+        est = _score(reg.transformation, seg, target, surface, max_correspondence_m)
         if best is None or (est.fitness, -est.rmse_m) > (best.fitness, -best.rmse_m):
             best = est
     assert best is not None

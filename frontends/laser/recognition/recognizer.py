@@ -177,10 +177,16 @@ class Recognizer:
     def classify(self, cloud: np.ndarray, connectivity=None) -> dict[str, float]:
         """P(Z | X): the likelihood of this segment's recognition under every class X.
 
-        ``connectivity`` (a :class:`semslam.observations.Connectivity`, a configuration 1–4, or
-        None) only matters with ``apply_connectivity``; otherwise the fusion applies it.
+        ``cloud``: N×3 (float32 or float64, sensor frame, metres). A segment too small or too
+        degenerate to describe (fewer than 10 points, all collinear) gets the uninformative
+        likelihood (1 for every class). ``connectivity`` (a
+        :class:`semslam.observations.Connectivity`, a configuration 1–4, or None) only matters with
+        ``apply_connectivity``; otherwise the fusion applies it.
         """
-        lik = self.model.likelihood(self.recognise(cloud).cls)
+        try:
+            lik = self.model.likelihood(self.recognise(cloud).cls)
+        except ValueError:  # too few or degenerate points: no evidence, not a failure of the scan
+            lik = {c: 1.0 for c in self.classes}
         if self.apply_connectivity and connectivity is not None:
             conf = getattr(connectivity, "configuration", connectivity)
             if conf is not None:
@@ -189,14 +195,19 @@ class Recognizer:
                     lik = {c: v * m for (c, v), m in zip(lik.items(), mask)}
         return lik
 
-    def pose(self, cloud: np.ndarray, recognition: Recognition | None = None) -> tuple[str, PoseEstimate]:
-        """Name of the recognised model and its pose T_SM (ICP from the best view's camera pose)."""
-        rec = recognition or self.recognise(cloud)
+    def pose(self, cloud: np.ndarray, recognition: Recognition | None = None, n_views: int = 12) -> tuple[str, PoseEstimate]:
+        """Name of the recognised model and its pose T_SM: ICP started from the camera poses of
+        the ``n_views`` views of that model nearest to the segment's descriptor."""
+        pts = np.asarray(cloud, dtype=np.float64)
+        rec = recognition or self.recognise(pts)
         mi = int(self.db.view_model[rec.view])
         if mi not in self._surfaces:
-            mesh = self._mesh_of(mi)
-            self._surfaces[mi] = ModelSurface(mesh, seed=self.seed)
-        return self.db.models[mi].name, estimate_pose(cloud, self._surfaces[mi], self.db.T_CM[rec.view])
+            self._surfaces[mi] = ModelSurface(self._mesh_of(mi), seed=self.seed)
+        views = np.flatnonzero(self.db.view_model == mi)
+        q = self.describe(pts)
+        d = set_distances(q, [self._features[v] for v in views]) if self.descriptor == "cvfh" else chi2_distances(q, self._features[views])
+        best = views[np.argsort(d)[:n_views]]
+        return self.db.models[mi].name, estimate_pose(pts, self._surfaces[mi], self.db.T_CM[best])
 
     def _mesh_of(self, model_index: int):
         mv = self.db.models[model_index]

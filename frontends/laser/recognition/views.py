@@ -1,8 +1,8 @@
 """The view database: partial views of CAD models rendered by a virtual laser scanner, described
 once and cached on disk.
 
-As in the papers, each model is seen from many viewpoints (Fibonacci sphere, ``n_views`` ≥ 12)
-by a virtual scanner — a ray grid with the laser's angular resolution, cast with Open3D's
+As in the papers, each model is seen from many viewpoints (Fibonacci sphere, ``n_views`` ≥ 12
+directions, each at a few distances because ESF depends on the point density) by a virtual scanner — a ray grid with the laser's angular resolution, cast with Open3D's
 ``RaycastingScene`` — with Gaussian range noise along each ray (σ 5 mm, the scanner's). Every view
 keeps its ESF, VFH and CVFH descriptors and the camera pose T_CM (model frame {M} → camera frame
 {C}; {C}: z along the view axis, x right, y down, the scanner at its origin), which seeds the ICP
@@ -50,15 +50,15 @@ class RecognitionError(SemslamError):
 class ViewParams:
     """How the views of a model are rendered (distances in metres, angles in radians)."""
 
-    n_views: int = 42
-    distance_m: float = 1.5
+    n_views: int = 42  # viewing directions; each is rendered at every distance below
+    distances_m: tuple[float, ...] = (1.0, 1.6, 2.4)  # ESF depends on point density: cover the working range
     angular_resolution_rad: float = float(np.deg2rad(70.0 / 360.0))  # the simulated laser's
     range_sigma_m: float = 0.005
     min_points: int = 30  # views with fewer points (grazing, tiny) are dropped
     seed: int = 0
 
     def __post_init__(self):
-        if self.n_views < 1 or self.distance_m <= 0 or self.angular_resolution_rad <= 0 or self.range_sigma_m < 0:
+        if self.n_views < 1 or not self.distances_m or min(self.distances_m) <= 0 or self.angular_resolution_rad <= 0 or self.range_sigma_m < 0:
             raise RecognitionError(f"invalid view parameters: {self}")
 
 
@@ -264,10 +264,11 @@ def build_model_views(
             mv.cls = cls
             return mv
     rng = np.random.default_rng(params.seed)
+    dirs = fibonacci_directions(params.n_views)
     clouds, T_CM = render_views(
         mesh,
-        fibonacci_directions(params.n_views),
-        distance_m=params.distance_m,
+        np.tile(dirs, (len(params.distances_m), 1)),
+        distance_m=np.repeat(np.asarray(params.distances_m, dtype=np.float64), len(dirs)),
         angular_resolution_rad=params.angular_resolution_rad,
         range_sigma_m=params.range_sigma_m,
         rng=rng,
