@@ -87,12 +87,34 @@ def config_dump(config: Optional[Path] = ConfigOpt):
 @app.command()
 @user_errors
 def simulate(
-    scene: str = typer.Argument(..., help="tank or field"),
-    out: Path = typer.Option(..., "--out", "-o", help="bag to write (.bag = ROS 1, otherwise a ROS 2 directory)"),
-    seed: int = typer.Option(0, "--seed", help="random seed (the default reproduces one fixed layout)"),
+    scene: str = typer.Argument(..., help="tank (laser, DVL, AHRS, depth) or field (multibeam sonar)"),
+    out: Path = typer.Option(..., "--out", "-o", help="bag to write: .bag = ROS 1, .mcap, otherwise a ROS 2 directory"),
+    seed: int = typer.Option(0, "--seed", help="random seed (seed 0 reproduces the default layout)"),
+    loops: Optional[float] = typer.Option(None, "--loops", help="tank: loops around the structure (default 3)"),
+    dvl_dropout_rate: Optional[float] = typer.Option(
+        None, "--dvl-dropout-rate", help="tank: fraction of the mission lost to random DVL dropout bursts"
+    ),
+    layout: Optional[Path] = typer.Option(None, "--layout", help="tank: structure layout YAML instead of a seeded one"),
+    preview: Optional[Path] = typer.Option(None, "--preview", help="also render the scene and trajectory to this PNG"),
+    sim_config: Optional[Path] = typer.Option(None, "--sim-config", help="YAML overriding the simulator defaults"),
+    overwrite: bool = typer.Option(False, "--overwrite", help="replace an existing bag"),
 ):
     """Simulate a mission with ground truth and write it as an ordinary ROS bag."""
-    not_implemented("simulate", "issue 3 / issue 8")
+    if out.exists() and not overwrite:  # say so before minutes of simulation, not after
+        raise SemslamError(f"{out}: already exists (use --overwrite to replace it)")
+    if scene == "tank":
+        from semslam.sim.simulate import simulate_tank_to_bag
+
+        m = simulate_tank_to_bag(
+            out, seed=seed, dvl_dropout_rate=dvl_dropout_rate, loops=loops, preview=preview,
+            config=sim_config, layout=layout, overwrite=overwrite, progress=sys.stderr.isatty(),
+        )
+    elif scene == "field":
+        not_implemented("simulate field", "issue 8")
+    else:
+        raise SemslamError(f"unknown scene {scene!r} (choose tank or field)")
+    gt = m.metadata.ground_truth
+    typer.echo(f"wrote {out}: {len(gt.objects)} objects, {len(gt.pipes)} pipes" + (f"; preview {preview}" if preview else ""))
 
 
 @app.command()
@@ -106,7 +128,27 @@ def run(
     config: Optional[Path] = ConfigOpt,
 ):
     """Run one estimator over a mission and write its trajectory, map and metrics."""
-    not_implemented("run", "issues 4, 5 and 9")
+    from semslam.config import load_config
+    from semslam.estimators import create_estimator
+    from semslam.eval.outputs import build_metrics, write_outputs
+    from semslam.mission.bag import read_mission
+    from semslam.pipeline import run_pipeline
+    from semslam.registry import create_frontends
+
+    cfg = load_config(config)
+    m = read_mission(mission, cfg.reader)
+    est = create_estimator(estimator, m.metadata, cfg, batch=batch)
+    names = [n.strip() for n in frontends.split(",") if n.strip()]
+    fes = create_frontends(names, m.metadata, cfg.frontends)
+    result = run_pipeline(m, [est], fes, progress=sys.stderr.isatty())
+    metrics = build_metrics(result, m.metadata)
+    write_outputs(out, cfg, result, metrics)
+    e = metrics["estimators"][est.name]
+    ate = "n/a" if e["ate_rmse_m"] is None else f"{e['ate_rmse_m']:.3f} m"
+    typer.echo(
+        f"{est.name}: ATE RMSE {ate}, {e['n_objects']} objects, {e['n_pipes']} pipes, "
+        f"{e['n_structures']} structures; outputs in {out}"
+    )
 
 
 @app.command()
@@ -114,18 +156,38 @@ def run(
 def compare(
     mission: Path = MissionArg,
     out: Path = typer.Option(..., "--out", "-o", help="output directory"),
+    frontends: Optional[str] = typer.Option(None, "--frontends", help="comma-separated; default: by sensor kind"),
     config: Optional[Path] = ConfigOpt,
 ):
     """dr, ekf and graph on identical inputs, with a report."""
-    not_implemented("compare", "issue 9")
+    from semslam.compare import compare_to_dir
+    from semslam.config import load_config
+    from semslam.eval.report import metrics_table, text_table
+    from semslam.mission.bag import read_mission
+
+    cfg = load_config(config)
+    m = read_mission(mission, cfg.reader)
+    names = None if frontends is None else [n.strip() for n in frontends.split(",") if n.strip()]
+    metrics, report = compare_to_dir(m, cfg, out, names, progress=sys.stderr.isatty())
+    typer.echo(text_table(metrics_table(metrics)))
+    typer.echo(f"report: {report}")
 
 
 @app.command()
 @user_errors
 def demo(out: Optional[Path] = typer.Option(None, "--out", "-o", help="output directory")):
     """Simulate the default tank mission and compare dr, ekf and graph on it."""
-    typer.echo("semslam demo will: simulate the default tank mission (seed 0), run dr, ekf and graph on it")
-    typer.echo("with the laser front-end, and write the comparison report. Not implemented yet (issue 9).")
+    from semslam.demo import run_demo
+    from semslam.eval.report import metrics_table, recognition_table, text_table
+
+    metrics, report = run_demo(out, progress=True)
+    typer.echo(text_table(metrics_table(metrics)))
+    rec = recognition_table(metrics)
+    if rec:
+        typer.echo("")
+        typer.echo(text_table(rec))
+    typer.echo(f"\nwhole comparison: {metrics['wall_time_s']:.0f} s for {metrics['mission']['duration_s']:.0f} s of mission")
+    typer.echo(f"report: {report.resolve()}")
 
 
 if __name__ == "__main__":  # pragma: no cover

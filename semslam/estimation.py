@@ -71,7 +71,10 @@ class EstimatorResult:
     online_trajectory: Trajectory | None = None  # each pose as the estimator gave it at its time
     update_times_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
     update_n_landmarks: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
-    history: dict = field(default_factory=dict)  # e.g. per-landmark uncertainty volume over time
+    # Over-time histories for the comparison figures (any key may be absent):
+    #   "landmark_volume": {landmark id: (stamps (K,) int64 ns, volume (K,) = sum of log eigenvalues)}
+    #   "landmark_kind":   {landmark id: "object" | "pipe" | "structure"}
+    history: dict = field(default_factory=dict)
     diagnostics: list[str] = field(default_factory=list)  # recovered failures, warnings
 
 

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Literal
+
 from pydantic import BaseModel, ConfigDict, Field
 
 
@@ -26,3 +28,12 @@ class ReaderConfig(BaseModel):
     atmospheric_pressure_pa: float = Field(101325.0, gt=0, description="pressure at the surface")
     gravity_m_s2: float = Field(9.80665, gt=0)
     dvl_min_valid_beams: int = Field(3, ge=1, le=4, description="per-beam DVLs: fewer valid beams → invalid")
+    reorder_window_s: float = Field(
+        2.0,
+        ge=0,
+        description="stamp-order buffer: messages of different topics may arrive this much out of "
+        "header-stamp order; a message later than that is an error",
+    )
+    on_nonfinite: Literal["drop", "error"] = Field(
+        "drop", description="a measurement with NaN/inf: drop it and count it (reported by info), or fail"
+    )

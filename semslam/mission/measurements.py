@@ -76,7 +76,9 @@ class Attitude(Measurement):
     def __post_init__(self):
         q = np.asarray(self.orientation, dtype=np.float64)
         n = np.linalg.norm(q)
-        object.__setattr__(self, "orientation", _frozen(q / n if n > 0 else q, shape=(4,)))
+        if n > 0 and abs(n - 1.0) > 1e-12:  # leave unit quaternions bit-exact (lossless bag round trips)
+            q = q / n
+        object.__setattr__(self, "orientation", _frozen(q, shape=(4,)))
         object.__setattr__(self, "covariance", _frozen(self.covariance, shape=(3, 3)))
         if self.angular_rate is not None:
             object.__setattr__(self, "angular_rate", _frozen(self.angular_rate, shape=(3,)))

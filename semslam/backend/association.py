@@ -1,0 +1,211 @@
+"""Data association by Joint Compatibility Branch and Bound (Neira & Tardós, 2001).
+
+Shared by the graph back-end and the EKF, so it knows nothing of either: the caller describes the
+problem through :class:`AssociationProblem` (innovations, Jacobians, and covariance blocks of its
+state), and :func:`jcbb` returns, for each observation, the landmark it pairs with, or None.
+
+For a hypothesis H = {(i, j_i)}, the joint innovation ν_H stacks the pair innovations and
+S_H = J P Jᵀ + R with J = [H_x | H_l] over the vehicle block and the paired landmark blocks.
+H is jointly compatible when ν_Hᵀ S_H⁻¹ ν_H < χ²(Σ d_i, confidence). The branch and bound keeps
+the hypothesis with the most pairings (ties: the smaller joint NIS). The joint NIS is grown one
+pair at a time by a Schur-complement update, so a node costs O(k²d) rather than a fresh inverse.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+from scipy.stats import chi2
+
+
+@dataclass
+class PairLinearization:
+    """Linearisation of observation i against landmark j."""
+
+    innovation: np.ndarray  # (d,) z_i - h_i(x, l_j)
+    H_x: np.ndarray  # (d, n_x) Jacobian wrt the vehicle block
+    H_l: np.ndarray  # (d, n_lj) Jacobian wrt landmark j's block
+    R: np.ndarray  # (d, d) observation noise in the innovation's coordinates
+
+
+class AssociationProblem(Protocol):
+    n_observations: int
+    n_landmarks: int
+
+    def pair(self, i: int, j: int) -> PairLinearization | None:
+        """None when observation i cannot be landmark j (other kind, incompatible class, ...)."""
+
+    def covariance(self, a: int | None, b: int | None) -> np.ndarray:
+        """Cross-covariance block: None = the vehicle block, an int = landmark j."""
+
+
+class _Blocks:
+    """Memoised covariance blocks and pair linearisations of one problem."""
+
+    def __init__(self, problem: AssociationProblem):
+        self.problem = problem
+        self._cov: dict[tuple, np.ndarray] = {}
+
+    def cov(self, a, b) -> np.ndarray:
+        key = (a, b)
+        if key not in self._cov:
+            rev = (b, a)
+            if rev in self._cov:
+                self._cov[key] = self._cov[rev].T
+            else:
+                self._cov[key] = np.asarray(self.problem.covariance(a, b), dtype=float)
+        return self._cov[key]
+
+    def cross(self, pa: PairLinearization, ja: int, pb: PairLinearization, jb: int) -> np.ndarray:
+        """Covariance between the predicted measurements of two pairs (without R)."""
+        s = pa.H_x @ self.cov(None, None) @ pb.H_x.T
+        s = s + pa.H_x @ self.cov(None, jb) @ pb.H_l.T
+        s = s + pa.H_l @ self.cov(ja, None) @ pb.H_x.T
+        s = s + pa.H_l @ self.cov(ja, jb) @ pb.H_l.T
+        return s
+
+
+def individual_nis(problem: AssociationProblem, i: int, j: int) -> float:
+    """Mahalanobis distance² of observation i against landmark j (inf if they cannot pair)."""
+    p = problem.pair(i, j)
+    if p is None:
+        return float("inf")
+    blocks = _Blocks(problem)
+    S = blocks.cross(p, j, p, j) + p.R
+    return _nis(p.innovation, S)
+
+
+def joint_nis(problem: AssociationProblem, pairs: list[tuple[int, int]]) -> float:
+    """Joint Mahalanobis distance² of a hypothesis [(i, j), ...], computed directly (no Schur update)."""
+    if not pairs:
+        return 0.0
+    blocks = _Blocks(problem)
+    lins = [(j, problem.pair(i, j)) for i, j in pairs]
+    if any(p is None for _, p in lins):
+        return float("inf")
+    nu = np.concatenate([np.asarray(p.innovation, dtype=float) for _, p in lins])
+    S = np.block([[blocks.cross(pa, ja, pb, jb) for jb, pb in lins] for ja, pa in lins])
+    S = S + _block_diag([p.R for _, p in lins])
+    return _nis(nu, S)
+
+
+def _block_diag(mats: list[np.ndarray]) -> np.ndarray:
+    n = sum(m.shape[0] for m in mats)
+    out = np.zeros((n, n))
+    k = 0
+    for m in mats:
+        d = m.shape[0]
+        out[k : k + d, k : k + d] = m
+        k += d
+    return out
+
+
+def _nis(nu: np.ndarray, S: np.ndarray) -> float:
+    try:
+        return float(nu @ np.linalg.solve(S, nu))
+    except np.linalg.LinAlgError:
+        return float("inf")
+
+
+@dataclass
+class _Node:
+    """A hypothesis on the search path: its pairs and the pieces for the Schur update."""
+
+    pairs: list  # [(i, j, PairLinearization)]
+    nu: np.ndarray  # stacked innovation
+    S_inv: np.ndarray  # inverse of the joint innovation covariance
+    nis: float
+    dof: int
+
+
+def jcbb(problem: AssociationProblem, confidence: float = 0.99, max_hypotheses: int = 100_000) -> list[int | None]:
+    """Joint Compatibility Branch and Bound.
+
+    Returns, for each observation, the index of the landmark it pairs with, or None (a new
+    landmark or a spurious observation). Pairings are one-to-one. Individual compatibility
+    χ²(d, confidence) gates the candidates first; joint compatibility χ²(Σd, confidence) the
+    hypotheses. ``max_hypotheses`` bounds the nodes expanded; the best hypothesis found so far is
+    returned when it is reached.
+    """
+    n, m = problem.n_observations, problem.n_landmarks
+    if n == 0 or m == 0:
+        return [None] * n
+    blocks = _Blocks(problem)
+
+    # Individual compatibility, candidates sorted by NIS so that good hypotheses come first.
+    candidates: list[list[tuple[float, int, PairLinearization]]] = []
+    for i in range(n):
+        row = []
+        for j in range(m):
+            p = problem.pair(i, j)
+            if p is None:
+                continue
+            nu = np.asarray(p.innovation, dtype=float)
+            S = blocks.cross(p, j, p, j) + p.R
+            d2 = _nis(nu, S)
+            if d2 < chi2.ppf(confidence, len(nu)):
+                row.append((d2, j, p))
+        candidates.append(sorted(row, key=lambda t: t[0]))
+
+    best_pairs: list = []
+    best_nis = np.inf
+    expanded = 0
+    used: set[int] = set()
+    # Upper bound of pairings still possible from observation i on (for pruning).
+    can_pair = np.array([1 if c else 0 for c in candidates])
+    remaining_possible = np.concatenate([np.cumsum(can_pair[::-1])[::-1], [0]])
+
+    def extend(node: _Node, i: int, j: int, p: PairLinearization) -> _Node | None:
+        nu_new = np.asarray(p.innovation, dtype=float)
+        C = blocks.cross(p, j, p, j) + p.R
+        if not node.pairs:
+            try:
+                S_inv = np.linalg.inv(C)
+            except np.linalg.LinAlgError:
+                return None
+            nis = float(nu_new @ S_inv @ nu_new)
+            return _Node([(i, j, p)], nu_new, S_inv, nis, len(nu_new))
+        B = np.vstack([blocks.cross(pa, ja, p, j) for (_, ja, pa) in node.pairs])  # (D, d_new)
+        K = node.S_inv @ B
+        schur = C - B.T @ K
+        try:
+            schur_inv = np.linalg.inv(schur)
+        except np.linalg.LinAlgError:
+            return None
+        r = nu_new - B.T @ (node.S_inv @ node.nu)
+        nis = node.nis + float(r @ schur_inv @ r)
+        top_left = node.S_inv + K @ schur_inv @ K.T
+        top_right = -K @ schur_inv
+        S_inv = np.block([[top_left, top_right], [top_right.T, schur_inv]])
+        return _Node(node.pairs + [(i, j, p)], np.concatenate([node.nu, nu_new]), S_inv, nis, node.dof + len(nu_new))
+
+    def search(node: _Node, i: int):
+        nonlocal best_pairs, best_nis, expanded
+        k = len(node.pairs)
+        if i == n:
+            if k > len(best_pairs) or (k == len(best_pairs) and k > 0 and node.nis < best_nis):
+                best_pairs, best_nis = list(node.pairs), node.nis
+            return
+        if expanded >= max_hypotheses or k + remaining_possible[i] < len(best_pairs):
+            return
+        for _, j, p in candidates[i]:
+            if j in used:
+                continue
+            expanded += 1
+            child = extend(node, i, j, p)
+            if child is None or child.nis >= chi2.ppf(confidence, child.dof):
+                continue
+            used.add(j)
+            search(child, i + 1)
+            used.discard(j)
+        # Star branch: observation i unpaired, worth it only if it can still match the best.
+        if k + remaining_possible[i + 1] >= len(best_pairs):
+            search(node, i + 1)
+
+    search(_Node([], np.zeros(0), np.zeros((0, 0)), 0.0, 0), 0)
+    result: list[int | None] = [None] * n
+    for i, j, _ in best_pairs:
+        result[i] = j
+    return result

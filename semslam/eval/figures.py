@@ -1,0 +1,179 @@
+"""Comparison figures (matplotlib, Agg): what people would rather look at than read.
+
+Each function takes results and returns a matplotlib Figure; the caller saves it. Axes follow
+NED: top views plot east (y) to the right and north (x) up; side views plot depth (z) down.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from semslam.estimation import EstimatorResult, Trajectory  # noqa: E402
+from semslam.mission.ground_truth import GroundTruthMap  # noqa: E402
+
+COLORS = {"truth": "k", "dr": "tab:red", "ekf": "tab:blue", "graph": "tab:green", "graph_online": "tab:olive"}
+
+
+def _color(name: str) -> str:
+    return COLORS.get(name, None)
+
+
+def trajectories(truth: Trajectory | None, results: Mapping[str, EstimatorResult]):
+    """Top (north/east) and side (north/depth) views of the trajectories."""
+    fig, (top, side) = plt.subplots(1, 2, figsize=(13, 5.5))
+    series = ([("truth", truth)] if truth is not None else []) + [(n, r.trajectory) for n, r in results.items()]
+    for name, tr in series:
+        kw = dict(color=_color(name), lw=1.6 if name == "truth" else 1.0, label=name)
+        if name == "truth":
+            kw["ls"] = "--"
+        top.plot(tr.positions[:, 1], tr.positions[:, 0], **kw)
+        side.plot(tr.positions[:, 0], tr.positions[:, 2], **kw)
+    top.set(xlabel="east [m]", ylabel="north [m]", title="top view", aspect="equal")
+    side.set(xlabel="north [m]", ylabel="depth [m]", title="side view")
+    side.invert_yaxis()
+    for ax in (top, side):
+        ax.grid(alpha=0.3)
+        ax.legend(loc="best", fontsize=8)
+    fig.tight_layout()
+    return fig
+
+
+def maps(results: Mapping[str, EstimatorResult], truth: GroundTruthMap | None, observations=None):
+    """Top views of each estimator's map over the true landmarks (the paper's Figure 10)."""
+    names = list(results)
+    fig, axes = plt.subplots(1, len(names), figsize=(5.5 * len(names), 5.2), squeeze=False)
+    for ax, name in zip(axes[0], names):
+        if truth is not None:
+            for p in truth.pipes:
+                ax.plot([p.p[1], p.q[1]], [p.p[0], p.q[0]], color="0.75", lw=4, solid_capstyle="round")
+            if truth.objects:
+                xy = truth.object_positions()
+                ax.scatter(xy[:, 1], xy[:, 0], s=60, facecolors="none", edgecolors="0.4", label="true objects")
+        for lm in results[name].landmarks:
+            if lm.kind == "pipe" and lm.p is not None:
+                ax.plot([lm.p[1], lm.q[1]], [lm.p[0], lm.q[0]], color=_color(name) or "tab:blue", lw=1.2)
+            elif lm.kind == "object" and lm.position is not None:
+                ax.scatter(lm.position[1], lm.position[0], s=12, color=_color(name) or "tab:blue")
+            elif lm.kind == "structure" and lm.pose is not None:
+                ax.scatter(lm.pose[1, 3], lm.pose[0, 3], marker="s", s=40, color=_color(name) or "tab:blue")
+        ax.set(title=f"{name} map", xlabel="east [m]", ylabel="north [m]", aspect="equal")
+        ax.grid(alpha=0.3)
+    fig.tight_layout()
+    return fig
+
+
+def _interp_truth(truth: Trajectory, stamps: np.ndarray) -> np.ndarray:
+    t = truth.stamps.astype(float)
+    return np.column_stack([np.interp(stamps.astype(float), t, truth.positions[:, k]) for k in range(3)])
+
+
+def position_errors(truth: Trajectory, results: Mapping[str, EstimatorResult]):
+    """Position error per axis over time with the estimator's ±2σ (the paper's Figures 13–14)."""
+    fig, axes = plt.subplots(3, 1, figsize=(12, 8), sharex=True)
+    t0 = truth.stamps[0]
+    for name, r in results.items():
+        tr = r.trajectory
+        if len(tr) == 0:
+            continue
+        err = tr.positions - _interp_truth(truth, tr.stamps)
+        t = (tr.stamps - t0) * 1e-9
+        for k, ax in enumerate(axes):
+            ax.plot(t, err[:, k], color=_color(name), lw=0.9, label=name)
+            if tr.position_cov is not None:
+                s2 = 2 * np.sqrt(np.maximum(tr.position_cov[:, k, k], 0))
+                ax.fill_between(t, -s2, s2, color=_color(name), alpha=0.15, lw=0)
+    for k, (ax, lab) in enumerate(zip(axes, ("north", "east", "depth"))):
+        ax.set_ylabel(f"{lab} error [m]")
+        ax.grid(alpha=0.3)
+    axes[0].legend(loc="upper left", fontsize=8, ncol=4)
+    axes[0].set_title("position error and ±2σ")
+    axes[-1].set_xlabel("mission time [s]")
+    fig.tight_layout()
+    return fig
+
+
+def velocities(results: Mapping[str, EstimatorResult]):
+    """Body velocity estimates with ±2σ over time (None if no estimator reports velocities)."""
+    have = {n: r for n, r in results.items() if r.trajectory.velocities is not None}
+    if not have:
+        return None
+    fig, axes = plt.subplots(3, 1, figsize=(12, 7), sharex=True)
+    t0 = min(r.trajectory.stamps[0] for r in have.values())
+    for name, r in have.items():
+        tr = r.trajectory
+        t = (tr.stamps - t0) * 1e-9
+        for k, ax in enumerate(axes):
+            ax.plot(t, tr.velocities[:, k], color=_color(name), lw=0.8, label=name)
+            if tr.velocity_cov is not None:
+                s2 = 2 * np.sqrt(np.maximum(tr.velocity_cov[:, k, k], 0))
+                ax.fill_between(t, tr.velocities[:, k] - s2, tr.velocities[:, k] + s2, color=_color(name), alpha=0.15, lw=0)
+    for ax, lab in zip(axes, ("u", "v", "w")):
+        ax.set_ylabel(f"{lab} [m/s]")
+        ax.grid(alpha=0.3)
+    axes[0].legend(loc="upper left", fontsize=8)
+    axes[0].set_title("body velocity and ±2σ")
+    axes[-1].set_xlabel("mission time [s]")
+    fig.tight_layout()
+    return fig
+
+
+def uncertainty_volumes(results: Mapping[str, EstimatorResult]):
+    """Uncertainty volume (sum of log eigenvalues) of each landmark over time (Figures 11–12)."""
+    have = {n: r for n, r in results.items() if r.history.get("landmark_volume")}
+    if not have:
+        return None
+    fig, axes = plt.subplots(len(have), 2, figsize=(12, 3.8 * len(have)), squeeze=False)
+    for row, (name, r) in zip(axes, have.items()):
+        kinds = r.history.get("landmark_kind", {})
+        for lid, (stamps, vol) in r.history["landmark_volume"].items():
+            ax = row[0] if kinds.get(lid, "object") == "pipe" else row[1]
+            ax.plot(np.asarray(stamps) * 1e-9, vol, lw=0.8)
+        row[0].set(title=f"{name}: pipes", ylabel="Σ log λ", xlabel="time [s]")
+        row[1].set(title=f"{name}: objects", ylabel="Σ log λ", xlabel="time [s]")
+        for ax in row:
+            ax.grid(alpha=0.3)
+    fig.tight_layout()
+    return fig
+
+
+def update_cost(results: Mapping[str, EstimatorResult]):
+    """Per-update wall time against the number of landmarks in the map."""
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    for name, r in results.items():
+        if len(r.update_times_s) and len(r.update_n_landmarks) == len(r.update_times_s):
+            ax.scatter(r.update_n_landmarks, np.asarray(r.update_times_s) * 1e3, s=4, alpha=0.5,
+                       color=_color(name), label=name)
+    ax.set(xlabel="landmarks in the map", ylabel="update time [ms]", yscale="log", title="per-update cost")
+    ax.grid(alpha=0.3)
+    if ax.get_legend_handles_labels()[0]:
+        ax.legend(fontsize=8)
+    fig.tight_layout()
+    return fig
+
+
+def confusion_matrices(recognition: Mapping[str, dict], classes: list[str]):
+    """One confusion matrix per recognition stage (rows: true class, columns: recognised)."""
+    stages = [s for s in ("SYN", "DESC", "BAYS", "SEM") if s in recognition and recognition[s].get("confusion")]
+    if not stages:
+        return None
+    fig, axes = plt.subplots(1, len(stages), figsize=(4.6 * len(stages), 4.4), squeeze=False)
+    for ax, stage in zip(axes[0], stages):
+        C = np.asarray(recognition[stage]["confusion"], float)
+        Cn = C / np.maximum(C.sum(axis=1, keepdims=True), 1)
+        ax.imshow(Cn, cmap="Blues", vmin=0, vmax=1)
+        for (i, j), v in np.ndenumerate(C):
+            if v:
+                ax.text(j, i, f"{int(v)}", ha="center", va="center", fontsize=7,
+                        color="white" if Cn[i, j] > 0.5 else "black")
+        ax.set_xticks(range(len(classes)), classes, rotation=60, ha="right", fontsize=7)
+        ax.set_yticks(range(len(classes)), classes, fontsize=7)
+        f1 = recognition[stage].get("f1")
+        ax.set_title(f"{stage}" + (f" (F1 {f1:.2f})" if isinstance(f1, (int, float)) else ""))
+    fig.tight_layout()
+    return fig

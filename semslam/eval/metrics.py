@@ -1,0 +1,216 @@
+"""Metrics of an estimator's result against ground truth: trajectory errors (through evo),
+landmark errors, consistency (NEES) and timing. Library functions that return plain dicts with
+the keys of ``metrics.json`` (DESIGN.md); a key without ground truth is None, never invented."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from semslam.estimation import EstimatorResult, LandmarkEstimate, Trajectory
+from semslam.mission.ground_truth import GroundTruthMap
+
+ALIGNMENTS = ("none", "se3", "origin")
+
+
+def _evo_traj(stamps_ns, positions, quats_xyzw):
+    from evo.core.trajectory import PoseTrajectory3D
+
+    q = np.asarray(quats_xyzw, float)
+    return PoseTrajectory3D(
+        positions_xyz=np.asarray(positions, float),
+        orientations_quat_wxyz=q[:, [3, 0, 1, 2]],
+        timestamps=np.asarray(stamps_ns, np.int64) * 1e-9,
+    )
+
+
+@dataclass
+class TrajectoryErrors:
+    ate_rmse_m: float
+    ate_max_m: float
+    ate_median_m: float
+    rpe_rmse_m: float | None
+    errors_m: np.ndarray  # per associated pose
+    stamps: np.ndarray  # ns, of the associated poses
+
+
+def trajectory_errors(
+    estimate: Trajectory,
+    truth: Trajectory,
+    alignment: str = "none",
+    rpe_delta_m: float = 1.0,
+    max_dt_s: float = 0.05,
+) -> TrajectoryErrors | None:
+    """APE (translation) and RPE (translation per ``rpe_delta_m`` travelled) with evo.
+
+    ``alignment``: "none" (the world frame is observable: depth and AHRS fix it — the default),
+    "se3" (Umeyama) or "origin" (first poses aligned). None when no pose could be associated.
+    """
+    from evo.core import metrics, sync
+    from evo.core.units import Unit
+
+    if alignment not in ALIGNMENTS:
+        raise ValueError(f"alignment must be one of {ALIGNMENTS}")
+    if len(estimate) == 0 or len(truth) == 0:
+        return None
+    ref = _evo_traj(truth.stamps, truth.positions, truth.orientations)
+    est = _evo_traj(estimate.stamps, estimate.positions, estimate.orientations)
+    try:
+        ref, est = sync.associate_trajectories(ref, est, max_diff=max_dt_s)
+    except Exception:  # evo raises when nothing associates
+        return None
+    if alignment == "se3":
+        est.align(ref)
+    elif alignment == "origin":
+        est.align_origin(ref)
+    ape = metrics.APE(metrics.PoseRelation.translation_part)
+    ape.process_data((ref, est))
+    rpe_rmse = None
+    try:
+        rpe = metrics.RPE(metrics.PoseRelation.translation_part, delta=rpe_delta_m, delta_unit=Unit.meters)
+        rpe.process_data((ref, est))
+        rpe_rmse = float(rpe.get_statistic(metrics.StatisticsType.rmse))
+    except Exception:  # too short a trajectory for one delta
+        rpe_rmse = None
+    errors = np.asarray(ape.error, float)
+    return TrajectoryErrors(
+        ate_rmse_m=float(np.sqrt(np.mean(errors**2))),
+        ate_max_m=float(errors.max()),
+        ate_median_m=float(np.median(errors)),
+        rpe_rmse_m=rpe_rmse,
+        errors_m=errors,
+        stamps=np.round(np.asarray(ref.timestamps) * 1e9).astype(np.int64),
+    )
+
+
+def position_nees(estimate: Trajectory, truth: Trajectory, max_dt_s: float = 0.05) -> float | None:
+    """Mean over poses of eᵀ P⁻¹ e for the 3-D position error (expected value 3 if consistent)."""
+    if estimate.position_cov is None or len(truth) == 0 or len(estimate) == 0:
+        return None
+    idx = np.searchsorted(truth.stamps, estimate.stamps)
+    idx = np.clip(idx, 1, len(truth.stamps) - 1)
+    left_closer = (estimate.stamps - truth.stamps[idx - 1]) < (truth.stamps[idx] - estimate.stamps)
+    idx = np.where(left_closer, idx - 1, idx)
+    ok = np.abs(truth.stamps[idx] - estimate.stamps) <= max_dt_s * 1e9
+    if not ok.any():
+        return None
+    e = estimate.positions[ok] - truth.positions[idx[ok]]
+    P = estimate.position_cov[ok]
+    try:
+        nees = np.einsum("ni,ni->n", e, np.linalg.solve(P, e[..., None])[..., 0])
+    except np.linalg.LinAlgError:
+        return None
+    return float(np.mean(nees))
+
+
+def _point_to_line(points: np.ndarray, p: np.ndarray, q: np.ndarray) -> np.ndarray:
+    d = (q - p) / np.linalg.norm(q - p)
+    v = points - p
+    return np.linalg.norm(v - np.outer(v @ d, d), axis=1)
+
+
+@dataclass
+class LandmarkMatch:
+    kind: str
+    estimate_id: int
+    truth_id: int
+    error_m: float
+
+
+def match_landmarks(
+    landmarks: list[LandmarkEstimate], truth: GroundTruthMap, gate_m: float = 0.5
+) -> tuple[list[LandmarkMatch], dict]:
+    """One-to-one assignment (Hungarian) of mapped landmarks to ground truth within ``gate_m``.
+
+    Object error: distance between positions. Pipe error: mean distance of the estimated endpoints
+    to the true pipe axis (endpoints are only as long as what was seen). Structure error: distance
+    between origins. Returns the matches and counts of duplicates (an estimate left unmatched
+    whose nearest truth is already matched within the gate) and spurious estimates.
+    """
+    matches: list[LandmarkMatch] = []
+    counts = {"duplicates": 0, "spurious": 0}
+    for kind, gts in (("object", truth.objects), ("pipe", truth.pipes), ("structure", truth.structures)):
+        ests = [lm for lm in landmarks if lm.kind == kind]
+        if not ests:
+            continue
+        if not gts:
+            counts["spurious"] += len(ests)
+            continue
+        C = np.full((len(ests), len(gts)), np.inf)
+        for a, lm in enumerate(ests):
+            if kind == "object":
+                C[a] = np.linalg.norm(np.array([g.position for g in gts]) - lm.position, axis=1)
+            elif kind == "structure":
+                C[a] = np.linalg.norm(np.array([g.position for g in gts]) - lm.pose[:3, 3], axis=1)
+            else:
+                ends = np.stack([lm.p, lm.q])
+                C[a] = [
+                    _point_to_line(ends, np.array(g.p), np.array(g.q)).mean()
+                    # a segment beyond the true pipe's extent is not that pipe
+                    + max(0.0, _beyond_segment(ends, np.array(g.p), np.array(g.q)))
+                    for g in gts
+                ]
+        big = 1e6
+        rows, cols = linear_sum_assignment(np.where(np.isfinite(C) & (C <= gate_m), C, big))
+        matched_rows = set()
+        for a, b in zip(rows, cols):
+            if C[a, b] <= gate_m:
+                matches.append(LandmarkMatch(kind, ests[a].id, gts[b].id, float(C[a, b])))
+                matched_rows.add(a)
+        for a in range(len(ests)):
+            if a in matched_rows:
+                continue
+            if np.min(C[a]) <= gate_m:
+                counts["duplicates"] += 1
+            else:
+                counts["spurious"] += 1
+    return matches, counts
+
+
+def _beyond_segment(points: np.ndarray, p: np.ndarray, q: np.ndarray) -> float:
+    """How far (m) the points' projections fall outside the segment [p, q] along its axis."""
+    L = np.linalg.norm(q - p)
+    t = (points - p) @ ((q - p) / L)
+    return float(np.max(np.maximum(0.0, np.maximum(-t, t - L))))
+
+
+def estimator_metrics(
+    result: EstimatorResult,
+    truth_trajectory: Trajectory | None,
+    truth_map: GroundTruthMap | None,
+    runtime_s: float | None,
+    alignment: str = "none",
+) -> dict:
+    """The per-estimator block of metrics.json."""
+    out: dict = {
+        "ate_rmse_m": None,
+        "ate_max_m": None,
+        "rpe_rmse_m": None,
+        "landmark_median_error_m": None,
+        "n_objects": sum(lm.kind == "object" for lm in result.landmarks),
+        "n_pipes": sum(lm.kind == "pipe" for lm in result.landmarks),
+        "n_structures": sum(lm.kind == "structure" for lm in result.landmarks),
+        "runtime_s": runtime_s,
+        "update_ms_median": None,
+        "update_ms_p95": None,
+        "nees_mean": None,
+    }
+    if len(result.update_times_s):
+        out["update_ms_median"] = float(np.median(result.update_times_s) * 1e3)
+        out["update_ms_p95"] = float(np.percentile(result.update_times_s, 95) * 1e3)
+    if truth_trajectory is not None:
+        errs = trajectory_errors(result.trajectory, truth_trajectory, alignment=alignment)
+        if errs is not None:
+            out.update(ate_rmse_m=errs.ate_rmse_m, ate_max_m=errs.ate_max_m, rpe_rmse_m=errs.rpe_rmse_m)
+        out["nees_mean"] = position_nees(result.trajectory, truth_trajectory)
+    if truth_map is not None and result.landmarks:
+        matches, counts = match_landmarks(result.landmarks, truth_map)
+        if matches:
+            out["landmark_median_error_m"] = float(np.median([m.error_m for m in matches]))
+        for kind in ("object", "pipe", "structure"):
+            errs_k = [m.error_m for m in matches if m.kind == kind]
+            out[f"{kind}_median_error_m"] = float(np.median(errs_k)) if errs_k else None
+        out.update({f"landmark_{k}": v for k, v in counts.items()})
+    return out

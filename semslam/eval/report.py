@@ -1,0 +1,140 @@
+"""The comparison report: figures/*.png, report.md and a self-contained report.html."""
+
+from __future__ import annotations
+
+import base64
+import html
+from pathlib import Path
+
+import matplotlib.pyplot as plt
+
+from semslam.eval import figures
+from semslam.mission.mission import MissionMetadata
+from semslam.pipeline import PipelineResult
+
+ROWS = [
+    ("ATE RMSE [m]", "ate_rmse_m", "{:.3f}"),
+    ("ATE max [m]", "ate_max_m", "{:.3f}"),
+    ("RPE RMSE [m/m]", "rpe_rmse_m", "{:.3f}"),
+    ("landmark median error [m]", "landmark_median_error_m", "{:.3f}"),
+    ("objects mapped", "n_objects", "{}"),
+    ("pipes mapped", "n_pipes", "{}"),
+    ("structures mapped", "n_structures", "{}"),
+    ("duplicated landmarks", "landmark_duplicates", "{}"),
+    ("NEES (position, mean; 3 = consistent)", "nees_mean", "{:.2f}"),
+    ("update median [ms]", "update_ms_median", "{:.2f}"),
+    ("update p95 [ms]", "update_ms_p95", "{:.2f}"),
+    ("run time [s]", "runtime_s", "{:.1f}"),
+]
+
+
+def _fmt(value, fmt) -> str:
+    return "–" if value is None else fmt.format(value)
+
+
+def metrics_table(metrics: dict) -> list[list[str]]:
+    """The estimator comparison as rows of strings (header first)."""
+    names = list(metrics["estimators"])
+    rows = [["", *names]]
+    for label, key, fmt in ROWS:
+        rows.append([label, *(_fmt(metrics["estimators"][n].get(key), fmt) for n in names)])
+    return rows
+
+
+def recognition_table(metrics: dict) -> list[list[str]]:
+    rec = metrics.get("recognition") or {}
+    rows = [["stage", "accuracy", "precision", "recall", "F1"]]
+    for stage in ("SYN", "DESC", "BAYS", "SEM"):
+        if stage in rec:
+            r = rec[stage]
+            rows.append([stage, *(_fmt(r.get(k), "{:.2f}") for k in ("accuracy", "precision", "recall", "f1"))])
+    return rows if len(rows) > 1 else []
+
+
+def text_table(rows: list[list[str]]) -> str:
+    widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
+    lines = ["  ".join(c.ljust(w) if i == 0 else c.rjust(w) for i, (c, w) in enumerate(zip(r, widths))) for r in rows]
+    lines.insert(1, "  ".join("-" * w for w in widths))
+    return "\n".join(lines)
+
+
+def _md_table(rows: list[list[str]]) -> str:
+    out = ["| " + " | ".join(rows[0]) + " |", "|" + "---|" * len(rows[0])]
+    out += ["| " + " | ".join(r) + " |" for r in rows[1:]]
+    return "\n".join(out)
+
+
+def _html_table(rows: list[list[str]]) -> str:
+    head = "".join(f"<th>{html.escape(c)}</th>" for c in rows[0])
+    body = "".join("<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in r) + "</tr>" for r in rows[1:])
+    return f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
+
+
+def make_figures(out_dir: Path, pipeline: PipelineResult, metadata: MissionMetadata, metrics: dict) -> list[tuple[str, Path]]:
+    """Render every figure that the available data allows; returns (caption, path) pairs."""
+    fig_dir = out_dir / "figures"
+    fig_dir.mkdir(parents=True, exist_ok=True)
+    gt = metadata.ground_truth
+    results = pipeline.results
+    classes = list(gt.classes) if gt is not None else []
+    candidates = [
+        ("Trajectories: truth, DR, EKF and graph (top and side views)", "trajectories.png",
+         lambda: figures.trajectories(pipeline.truth, results)),
+        ("Maps: DR (every observation placed with the DR pose), EKF and graph over the true landmarks",
+         "maps.png", lambda: figures.maps(results, gt)),
+        ("Position error with ±2σ over time", "position_error.png",
+         lambda: figures.position_errors(pipeline.truth, results) if pipeline.truth is not None else None),
+        ("Body velocity with ±2σ over time", "velocity.png", lambda: figures.velocities(results)),
+        ("Uncertainty volume of each pipe and object over time", "uncertainty_volume.png",
+         lambda: figures.uncertainty_volumes(results)),
+        ("Recognition confusion matrices per stage", "confusion.png",
+         lambda: figures.confusion_matrices(metrics.get("recognition") or {}, classes)),
+        ("Per-update time against the number of landmarks", "update_cost.png", lambda: figures.update_cost(results)),
+    ]
+    made = []
+    for caption, name, build in candidates:
+        fig = build()
+        if fig is None:
+            continue
+        path = fig_dir / name
+        fig.savefig(path, dpi=110)
+        plt.close(fig)
+        made.append((caption, path))
+    return made
+
+
+def write_report(out_dir: str | Path, pipeline: PipelineResult, metadata: MissionMetadata, metrics: dict) -> Path:
+    """figures/*.png, report.md and a self-contained report.html (images embedded)."""
+    out_dir = Path(out_dir)
+    figs = make_figures(out_dir, pipeline, metadata, metrics)
+    title = f"semslam comparison — {metadata.name}"
+    est_rows = metrics_table(metrics)
+    rec_rows = recognition_table(metrics)
+    m = metrics["mission"]
+    mission_line = (
+        f"Mission duration {m['duration_s']:.0f} s; ground-truth landmarks seen: "
+        f"{m['gt_objects']} objects, {m['gt_pipes']} pipes, {m['gt_structures']} structures."
+    )
+    md = [f"# {title}", "", mission_line, "", "## Estimators", "", _md_table(est_rows), ""]
+    if rec_rows:
+        md += ["## Recognition", "", _md_table(rec_rows), ""]
+    md += ["## Figures", ""]
+    md += [f"### {cap}\n\n![{cap}](figures/{p.name})\n" for cap, p in figs]
+    (out_dir / "report.md").write_text("\n".join(md))
+
+    imgs = "".join(
+        f"<figure><img alt='{html.escape(cap)}' src='data:image/png;base64,"
+        f"{base64.b64encode(p.read_bytes()).decode()}'><figcaption>{html.escape(cap)}</figcaption></figure>"
+        for cap, p in figs
+    )
+    page = f"""<!doctype html><html><head><meta charset="utf-8"><title>{html.escape(title)}</title>
+<style>body{{font-family:sans-serif;max-width:1200px;margin:2em auto;color:#222}}
+table{{border-collapse:collapse;margin:1em 0}}td,th{{border:1px solid #ccc;padding:4px 10px;text-align:right}}
+td:first-child,th:first-child{{text-align:left}}figure{{margin:2em 0}}img{{max-width:100%}}
+figcaption{{color:#555;font-size:90%}}</style></head><body>
+<h1>{html.escape(title)}</h1><p>{html.escape(mission_line)}</p>
+<h2>Estimators</h2>{_html_table(est_rows)}
+{"<h2>Recognition</h2>" + _html_table(rec_rows) if rec_rows else ""}
+<h2>Figures</h2>{imgs}</body></html>"""
+    (out_dir / "report.html").write_text(page)
+    return out_dir / "report.html"

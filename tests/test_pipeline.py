@@ -1,0 +1,138 @@
+"""The driver feeds identical, time-ordered streams to every estimator; outputs follow DESIGN.md."""
+
+import json
+
+import numpy as np
+import pytest
+
+from semslam.config import SemslamConfig
+from semslam.estimation import EstimatorResult, LandmarkEstimate, Trajectory
+from semslam.eval.outputs import build_metrics, write_outputs
+from semslam.mission import (
+    Depth,
+    GroundTruthMap,
+    GroundTruthPose,
+    GtObject,
+    Mission,
+    MissionMetadata,
+    PointCloud,
+)
+from semslam.observations import PointObservation
+from semslam.pipeline import run_pipeline
+
+REQUIRED_ESTIMATOR_KEYS = {
+    "ate_rmse_m", "ate_max_m", "rpe_rmse_m", "landmark_median_error_m", "n_objects", "n_pipes",
+    "n_structures", "runtime_s", "update_ms_median", "update_ms_p95", "nees_mean",
+}
+
+
+class Recorder:
+    """A fake estimator: records what it is fed; its trajectory is the truth shifted by ``offset``."""
+
+    def __init__(self, name, offset=0.0):
+        self.name, self.offset, self.stream, self.truth = name, offset, [], []
+
+    def process_measurement(self, m):
+        self.stream.append(("m", m.stamp, type(m).__name__))
+        if isinstance(m, GroundTruthPose):
+            self.truth.append(m)
+
+    def process_observations(self, stamp, obs):
+        self.stream.append(("o", stamp, tuple(o.position.tolist() for o in obs)))
+
+    def view(self):
+        return self
+
+    def pose_at(self, stamp):
+        return None
+
+    def landmarks(self):
+        return []
+
+    def finish(self):
+        stamps = np.array([p.stamp for p in self.truth])
+        pos = np.array([p.position for p in self.truth]) + [self.offset, 0, 0]
+        traj = Trajectory(stamps, pos, np.array([p.orientation for p in self.truth]),
+                          position_cov=np.tile(np.eye(3) * self.offset**2, (len(stamps), 1, 1)))
+        lm = LandmarkEstimate(id=0, kind="object", position=np.array([1.0 + self.offset, 2.0, 3.0]),
+                              class_posterior={"Elbow": 0.8, "R-Tee": 0.2})
+        return EstimatorResult(self.name, traj, [lm], online_trajectory=traj if self.name == "a" else None,
+                               update_times_s=np.array([0.001, 0.002, 0.003]))
+
+
+class CountingFrontend:
+    name = "counting"
+    consumes = (PointCloud,)
+
+    def __init__(self):
+        self.views = []
+
+    def process(self, m, view):
+        self.views.append(view)
+        return [PointObservation(m.stamp, m.sensor, position=m.points.mean(axis=0))]
+
+
+def _mission():
+    ms = []
+    for k in range(50):
+        t = k * 100_000_000
+        ms.append(GroundTruthPose(t, "gt", position=[0.1 * k, 0, 2], orientation=[0, 0, 0, 1]))
+        ms.append(Depth(t + 1, "depth", depth=2.0, variance=0.01))
+        if k % 10 == 0:
+            ms.append(PointCloud(t + 2, "laser", points=np.full((4, 3), k, np.float32)))
+    gt = GroundTruthMap(classes=("Elbow", "R-Tee"), objects=(GtObject(7, "Elbow", (1.0, 2.0, 3.0)),))
+    return Mission.from_measurements(MissionMetadata(ground_truth=gt), ms[::-1])  # out of order on purpose
+
+
+def test_every_estimator_sees_the_identical_time_ordered_stream():
+    a, b = Recorder("a", 0.1), Recorder("b", 0.2)
+    fe = CountingFrontend()
+    res = run_pipeline(_mission(), [a, b], [fe], view_estimator="b")
+    assert a.stream == b.stream
+    stamps = [s[1] for s in a.stream]
+    assert stamps == sorted(stamps)
+    assert sum(1 for s in a.stream if s[0] == "o") == 5
+    assert all(v is b for v in fe.views)  # front-ends see the chosen estimator's view
+    assert res.n_measurements == 105 and len(res.observations) == 5
+    assert res.duration_s == pytest.approx(4.9, abs=1e-6)
+
+
+def test_metrics_and_outputs(tmp_path):
+    res = run_pipeline(_mission(), [Recorder("a", 0.1), Recorder("b", 0.2)], [CountingFrontend()])
+    metrics = build_metrics(res, _mission().metadata)
+    assert set(metrics["estimators"]) == {"a", "a_online", "b"}
+    for name in ("a", "b"):
+        e = metrics["estimators"][name]
+        assert REQUIRED_ESTIMATOR_KEYS <= set(e)
+    assert metrics["estimators"]["a"]["ate_rmse_m"] == pytest.approx(0.1, abs=1e-9)
+    assert metrics["estimators"]["b"]["ate_max_m"] == pytest.approx(0.2, abs=1e-9)
+    assert metrics["estimators"]["b"]["landmark_median_error_m"] == pytest.approx(0.2, abs=1e-9)
+    assert metrics["estimators"]["a"]["nees_mean"] == pytest.approx(1.0)  # error 1σ along one axis
+    assert metrics["estimators"]["a"]["update_ms_median"] == pytest.approx(2.0)
+    assert metrics["mission"]["gt_objects"] == 1 and metrics["mission"]["gt_pipes"] == 0
+
+    out = write_outputs(tmp_path / "run", SemslamConfig(), res, metrics)
+    names = {p.name for p in out.iterdir()}
+    assert {"config.yaml", "metrics.json", "trajectory_a.tum", "trajectory_a_online.tum", "map_a.json",
+            "map_a.ply", "trajectory_b.tum"} <= names
+    tum = np.loadtxt(out / "trajectory_a.tum")
+    assert tum.shape == (50, 8) and tum[3, 1] == pytest.approx(0.4)
+    m = json.loads((out / "map_b.json").read_text())
+    assert m["objects"][0]["class"] == "Elbow"
+    assert json.loads((out / "metrics.json").read_text())["estimators"]["a"]["ate_rmse_m"] == pytest.approx(0.1)
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]  # staging folder cleaned up
+
+
+def test_report_embeds_every_figure_it_lists(tmp_path):
+    from semslam.eval.report import write_report
+
+    mission = _mission()
+    res = run_pipeline(mission, [Recorder("dr", 0.3), Recorder("graph", 0.05)], [CountingFrontend()])
+    metrics = build_metrics(res, mission.metadata)
+    page = write_report(tmp_path, res, mission.metadata, metrics).read_text()
+    figs = sorted(p.name for p in (tmp_path / "figures").iterdir())
+    assert {"trajectories.png", "maps.png", "position_error.png", "update_cost.png"} <= set(figs)
+    assert page.count("data:image/png;base64,") == len(figs)
+    md = (tmp_path / "report.md").read_text()
+    assert all(f"figures/{f}" in md for f in figs)
+    assert "0.300" in md and "0.050" in md  # the ATE of each estimator is in the table
