@@ -3,8 +3,8 @@
 The initial guess is the camera pose T_CM of the best-matching database view, moved so that the
 model's visible centroid lands on the segment's centroid, and tried at several rolls about the
 viewing axis (ESF is rotation invariant, so the view fixes the viewing direction but not the
-roll). Each guess is refined by point-to-plane ICP against points sampled on the mesh; the guess
-with the best fitness (then lowest RMSE) wins.
+roll). Each guess gets a few point-to-plane ICP iterations against points sampled on the mesh,
+the best few are refined to convergence, and the best two-sided fit (then lowest RMSE) wins.
 
 Frames: the segment is in the sensor frame {S} (metres); the result is T_SM, model frame {M} →
 {S}.
@@ -51,7 +51,7 @@ def _rot_about(axis: np.ndarray, angle: float) -> np.ndarray:
 class ModelSurface:
     """Points and normals sampled uniformly on a model mesh, for ICP."""
 
-    def __init__(self, mesh: o3d.geometry.TriangleMesh, n_points: int = 4000, seed: int = 0):
+    def __init__(self, mesh: o3d.geometry.TriangleMesh, n_points: int = 2000, seed: int = 0):
         m = o3d.geometry.TriangleMesh(mesh)
         m.compute_triangle_normals()
         m.compute_vertex_normals()
@@ -68,6 +68,7 @@ def estimate_pose(
     n_rolls: int = 8,
     max_correspondence_m: float = 0.02,
     max_iterations: int = 40,
+    refine: int = 3,
 ) -> PoseEstimate:
     """T_SM of the model whose ``surface`` best explains ``segment`` (N×3, {S}), starting from
     database views' camera poses ``T_CM_init`` (4×4, or K×4×4 to try several views)."""
@@ -79,9 +80,12 @@ def estimate_pose(
     target.estimate_normals(o3d.geometry.KDTreeSearchParamKNN(20))
     target.orient_normals_towards_camera_location(np.zeros(3))
     c_seg = seg.mean(axis=0)
-    best: PoseEstimate | None = None
-    crit = o3d.pipelines.registration.ICPConvergenceCriteria(max_iteration=max_iterations)
+    # Coarse ICP from every initial guess, then the best few refined to convergence.
+    coarse = o3d.pipelines.registration.ICPConvergenceCriteria(max_iteration=max(5, max_iterations // 6))
+    fine = o3d.pipelines.registration.ICPConvergenceCriteria(max_iteration=max_iterations)
+    p2plane = o3d.pipelines.registration.TransformationEstimationPointToPlane()
     inits = np.asarray(T_CM_init, dtype=np.float64).reshape(-1, 4, 4)
+    candidates: list[PoseEstimate] = []
     for T_init, k in ((T, k) for T in inits for k in range(n_rolls)):
         R_roll = _rot_about(np.array([0.0, 0.0, 1.0]), 2 * np.pi * k / n_rolls)
         T0 = np.eye(4)
@@ -90,10 +94,12 @@ def estimate_pose(
         pts_c = surface.points @ T0[:3, :3].T
         front = pts_c[:, 2] <= np.median(pts_c[:, 2])
         T0[:3, 3] = c_seg - pts_c[front].mean(axis=0)
-        reg = o3d.pipelines.registration.registration_icp(
-            model_pcd, target, max_correspondence_m, T0,
-            o3d.pipelines.registration.TransformationEstimationPointToPlane(), crit,
-        )  # fmt: skip
+        reg = o3d.pipelines.registration.registration_icp(model_pcd, target, max_correspondence_m, T0, p2plane, coarse)
+        candidates.append(_score(reg.transformation, seg, target, surface, max_correspondence_m))
+    candidates.sort(key=lambda e: (e.fitness, -e.rmse_m), reverse=True)
+    best: PoseEstimate | None = None
+    for cand in candidates[:refine]:
+        reg = o3d.pipelines.registration.registration_icp(model_pcd, target, max_correspondence_m, cand.T_SM, p2plane, fine)
         est = _score(reg.transformation, seg, target, surface, max_correspondence_m)
         if best is None or (est.fitness, -est.rmse_m) > (best.fitness, -best.rmse_m):
             best = est
