@@ -231,3 +231,20 @@ def test_classify_degenerate_segments_is_uninformative_not_an_error(database):
     assert rec.classify(np.zeros((5, 3), np.float32), None) == {c: 1.0 for c in db.classes}
     line = np.c_[np.linspace(0, 1, 50), np.zeros(50), np.zeros(50)].astype(np.float32)
     assert rec.classify(line, None) == {c: 1.0 for c in db.classes}
+
+
+def test_default_recognizer_calibrates_once_and_caches_the_syn_confusion(request, tmp_path, monkeypatch):
+    from frontends.laser.recognition import recognizer as recmod
+
+    params = ViewParams(n_views=12, distances_m=(1.2, 1.9))
+    held = HeldOutParams(n_per_model=3, distance_range_m=(1.2, 2.0))
+    views = _view_cache(request)
+    rec = recmod.default_recognizer(models=shapes(), params=params, held_out=held, cache_dir=views)
+    assert rec.confusion.sum() == 12 and rec.classes == ["Cylinder", "Sphere", "Torus", "L"]
+    assert np.trace(rec.confusion) >= 10
+    # The SYN confusion is cached with the views: a second recogniser does not re-calibrate.
+    monkeypatch.setattr(recmod.Recognizer, "calibrate", lambda *a, **k: pytest.fail("re-calibrated"))
+    again = recmod.default_recognizer(models=shapes(), params=params, held_out=held, cache_dir=views)
+    np.testing.assert_array_equal(again.confusion, rec.confusion)
+    # P(Z | X) is the smoothed, row-normalised SYN confusion.
+    np.testing.assert_allclose(again.model.p_z_given_x.sum(axis=1), 1.0)
