@@ -94,13 +94,15 @@ def trace_lines(lut: np.ndarray, start: np.ndarray, end: np.ndarray, chunk: int 
     sum of three rows gathered from the offset table; the padding repeats the last voxel, whose
     repeats are subtracted after.
     """
-    table = _offset_table()
+    table = _offset_table().reshape(-1, GRID)
     d = end - start
     ext = np.abs(d)
     sidx = np.arange(3)[None, :] + 3 * (d < 0)
     # No need to single out the major axis: with m = l the closed form gives exactly k.
     l = ext.max(axis=1)
     count = np.maximum(l, 1)
+    # Row of the (flattened) offset table for each segment and axis: one index array per gather.
+    rows_of = (l[:, None] * GRID + ext) * len(_SIGNED_STRIDES) + sidx
     base = (start @ np.array([GRID * GRID, GRID, 1])).astype(np.int32)
     lut8 = lut.view(np.uint8)
 
@@ -114,10 +116,10 @@ def trace_lines(lut: np.ndarray, start: np.ndarray, end: np.ndarray, chunk: int 
         sel = order[i : i + rows]
         i += rows
         kmax = int(sorted_count[min(n, i) - 1])
-        ls = l[sel]
-        flat = table[ls, ext[sel, 0], sidx[sel, 0], :kmax]
-        flat += table[ls, ext[sel, 1], sidx[sel, 1], :kmax]
-        flat += table[ls, ext[sel, 2], sidx[sel, 2], :kmax]
+        rs = rows_of[sel]
+        flat = table[rs[:, 0], :kmax]
+        flat += table[rs[:, 1], :kmax]
+        flat += table[rs[:, 2], :kmax]
         flat += base[sel, None]
         hit = lut8[flat]
         inside[sel] = hit.sum(axis=1, dtype=np.int64) - (kmax - count[sel]) * hit[:, -1]
