@@ -15,6 +15,7 @@ from semslam.semantics import (
     compatible_configurations,
     configuration_of,
     confusion_matrix,
+    fuse,
     recognition_metrics,
 )
 from semslam.semantics.connectivity import DEFAULT_COMPATIBILITY, most_restrictive
@@ -211,3 +212,17 @@ def test_unassociated_observations_are_not_fused():
     recs = [ObservationRecord("Elbow", lik_a), ObservationRecord("R-Tee", lik_b)]
     preds = stage_predictions(recs, CLASSES)
     assert preds["BAYS"] == ["Elbow", "R-Tee"]
+
+
+def test_stateless_fuse_matches_the_incremental_fusion():
+    model = ConfusionModel(noisy_confusion(0.6), CLASSES)
+    liks = [model.likelihood(z) for z in ["Elbow", "Ball-Valve", "Elbow"]] + [None]  # None: no recognition
+    f = ClassFusion(CLASSES)
+    for lik in liks:
+        if lik:
+            f.update(3, lik, configuration=3)
+    assert fuse(liks, [3, 3, 3]) == pytest.approx(f.posterior(3))
+    assert fuse(liks) == pytest.approx(f.posterior(3, use_connectivity=False))
+    assert fuse([None, {}]) is None
+    # Classes are taken from the likelihoods' keys when not given.
+    assert set(fuse([{"a": 0.9, "b": 0.1}])) == {"a", "b"}

@@ -10,7 +10,7 @@ No front-end is imported here.
 """
 
 from semslam.semantics.connectivity import ConnectivityTable, compatible_configurations, configuration_of
-from semslam.semantics.fusion import ClassFusion
+from semslam.semantics.fusion import ClassFusion, fuse
 from semslam.semantics.likelihood import ConfusionModel
 from semslam.semantics.metrics import (
     STAGES,
@@ -30,5 +30,6 @@ __all__ = [
     "compatible_configurations",
     "configuration_of",
     "confusion_matrix",
+    "fuse",
     "recognition_metrics",
 ]

@@ -128,3 +128,29 @@ class ClassFusion:
             "configuration": self.configuration(landmark_id),
             "connectivity_conflict": self.conflict(landmark_id),
         }
+
+
+def fuse(
+    likelihoods: Sequence[Mapping[str, float] | None],
+    configurations: Iterable[int | None] = (),
+    *,
+    classes: Sequence[str] | None = None,
+    connectivity: ConnectivityTable | None = None,
+    prior: Mapping[str, float] | None = None,
+) -> dict[str, float] | None:
+    """Stateless fusion of one landmark's observations: the class posterior from its likelihood
+    vectors P(Z | X) (None entries skipped) and the pipe configurations seen at it (SEM stage;
+    pass no configurations for BAYS). ``classes`` default to the keys of the likelihoods in order
+    of appearance; a class missing from a likelihood has likelihood 0 there (floored, see module).
+    None when there is no likelihood at all."""
+    liks = [lik for lik in likelihoods if lik]
+    if not liks:
+        return None
+    if classes is None:
+        classes = list(dict.fromkeys(k for lik in liks for k in lik))
+    f = ClassFusion(classes, prior=prior, connectivity=connectivity)
+    for lik in liks:
+        f.update(0, lik)
+    for c in configurations:
+        f.update(0, None, c)
+    return f.posterior(0)
