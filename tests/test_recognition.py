@@ -248,3 +248,27 @@ def test_default_recognizer_calibrates_once_and_caches_the_syn_confusion(request
     np.testing.assert_array_equal(again.confusion, rec.confusion)
     # P(Z | X) is the smoothed, row-normalised SYN confusion.
     np.testing.assert_allclose(again.model.p_z_given_x.sum(axis=1), 1.0)
+
+
+def test_recognition_config_validates_and_builds(request, monkeypatch):
+    from pydantic import ValidationError
+
+    from frontends.laser.recognition import config as cfgmod
+    from frontends.laser.recognition import recognizer as recmod
+
+    with pytest.raises(ValidationError):
+        cfgmod.RecognitionConfig.model_validate({"descriptor": "shot"})
+    with pytest.raises(ValidationError):
+        cfgmod.RecognitionConfig.model_validate({"n_views": 6})  # fewer than the paper's 12
+    seen = {}
+
+    def fake(**kwargs):
+        seen.update(kwargs)
+        return "recognizer"
+
+    monkeypatch.setattr(recmod, "default_recognizer", fake)
+    out = cfgmod.recognizer_from_config({"method": "svm", "size_weight": 0.0, "n_views": 12, "distances_m": [1.5]})
+    assert out == "recognizer"
+    assert seen["method"] == "svm" and seen["size_weight"] == 0.0
+    assert seen["params"].n_views == 12 and seen["params"].distances_m == (1.5,)
+    assert seen["params"].angular_resolution_rad == pytest.approx(np.deg2rad(0.15))

@@ -236,6 +236,7 @@ def default_recognizer(
     *,
     descriptor: str = "esf",
     method: str = "nn",
+    size_weight: float = 0.2,
     params: ViewParams = ViewParams(),
     held_out: HeldOutParams = HeldOutParams(),
     cache_dir: str | Path | None = None,
@@ -251,10 +252,10 @@ def default_recognizer(
         mesh = _read_mesh(Path(entry["path"]), entry.get("scale", 1.0))
         models[name] = (entry["cls"], mesh, [(np.asarray(p), np.asarray(d)) for p, d in entry.get("ports", [])])
     db = load_database(models, params, cache_dir=cache_dir, include_user_models=False)
-    rec = Recognizer(db, descriptor=descriptor, method=method)
+    rec = Recognizer(db, descriptor=descriptor, method=method, size_weight=size_weight)
 
     key = hashlib.sha256(
-        json.dumps([sorted(m.key for m in db.models), descriptor, method, repr(held_out)]).encode()
+        json.dumps([sorted(m.key for m in db.models), descriptor, method, size_weight, repr(held_out)]).encode()
     ).hexdigest()[:16]
     path = Path(cache_dir or default_cache_dir()) / "syn" / f"confusion-{key}.json"
     if path.is_file():
