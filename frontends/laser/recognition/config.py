@@ -18,7 +18,7 @@ class RecognitionConfig(BaseModel):
         0.2, ge=0, description="weight of the metric size cue beside the scale-free descriptor (0: descriptor only)"
     )
     n_views: int = Field(24, ge=12, description="viewing directions per CAD model in the view database")
-    distances_m: tuple[float, ...] = Field((1.0, 1.6, 2.4), min_length=1, description="rendering distances (m)")
+    distances_m: tuple[float, ...] = Field((1.0, 1.6, 2.4, 3.6), min_length=1, description="rendering distances (m)")
     angular_resolution_deg: float = Field(0.15, gt=0, description="the laser's angular step between rays (deg)")
     range_sigma_m: float = Field(0.005, ge=0, description="range noise of the rendered views (m)")
     held_out_per_model: int = Field(20, ge=1, description="held-out synthetic views per model for the SYN confusion")

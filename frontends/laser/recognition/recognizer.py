@@ -62,7 +62,7 @@ class HeldOutParams:
     database's Fibonacci ones), random distances and rolls, fresh noise."""
 
     n_per_model: int = 20
-    distance_range_m: tuple[float, float] = (1.0, 2.5)
+    distance_range_m: tuple[float, float] = (1.0, 4.0)
     range_sigma_m: float = 0.005
     seed: int = 12345
 

@@ -51,7 +51,7 @@ class ViewParams:
     """How the views of a model are rendered (distances in metres, angles in radians)."""
 
     n_views: int = 24  # viewing directions; each is rendered at every distance below
-    distances_m: tuple[float, ...] = (1.0, 1.6, 2.4)  # ESF depends on point density: cover the working range
+    distances_m: tuple[float, ...] = (1.0, 1.6, 2.4, 3.6)  # ESF depends on point density: cover the working range
     angular_resolution_rad: float = float(np.deg2rad(0.15))  # the simulated laser's (50°/336, 45°/300 rays)
     range_sigma_m: float = 0.005
     min_points: int = 30  # views with fewer points (grazing, tiny) are dropped
