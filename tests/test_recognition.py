@@ -213,7 +213,8 @@ def test_icp_pose_recovers_the_object_pose(database):
 def test_six_class_cad_library_held_out_esf_accuracy(request):
     cad = pytest.importorskip("semslam.sim.cad")
     models = {n: (m.cls, m.mesh, list(m.ports)) for n, m in cad.library().items() if m.source is None}
-    db = load_database(models, ViewParams(n_views=12), cache_dir=_view_cache(request), include_user_models=False)
+    params = ViewParams(n_views=12, distances_m=(1.0, 1.8, 3.0))  # a lighter database than the default
+    db = load_database(models, params, cache_dir=_view_cache(request), include_user_models=False)
     clouds, labels = held_out_views(models, HeldOutParams(n_per_model=8), RES)  # 1–2.5 m, random rolls
     for kwargs in ({}, {"method": "svm", "size_weight": 0.0}):  # ESF + size cue NN; pure ESF + SVM
         conf = Recognizer(db, **kwargs).evaluate(clouds, labels)
