@@ -52,13 +52,18 @@ def _voxel_index(p: np.ndarray) -> np.ndarray:
 
 
 def _surface_lut(vox: np.ndarray) -> np.ndarray:
-    """Flat boolean 64³ grid: the voxels of the points, dilated by one voxel (PCL ``voxelize9``)."""
-    nb = (vox[:, None, :] + _NEIGHBOURS[None]).reshape(-1, 3)
-    ok = np.all((nb >= 0) & (nb < GRID), axis=1)
-    nb = nb[ok]
-    lut = np.zeros(GRID**3, dtype=bool)
-    lut[(nb[:, 0] * GRID + nb[:, 1]) * GRID + nb[:, 2]] = True
-    return lut
+    """Flat boolean 64³ grid: the voxels of the points, dilated by one voxel (PCL ``voxelize9``).
+
+    Marked in a grid padded by one voxel on every side (no bounds checks), then cropped: PCL drops
+    the neighbours that fall outside the grid, which is what the crop does."""
+    P = GRID + 2
+    occ = np.zeros(P**3, dtype=bool)
+    occ[((vox[:, 0] + 1) * P + vox[:, 1] + 1) * P + vox[:, 2] + 1] = True
+    base = np.flatnonzero(occ)
+    offs = (_NEIGHBOURS[:, 0] * P + _NEIGHBOURS[:, 1]) * P + _NEIGHBOURS[:, 2]
+    dil = np.zeros(P**3, dtype=bool)
+    dil[(base[:, None] + offs[None, :]).ravel()] = True
+    return np.ascontiguousarray(dil.reshape(P, P, P)[1:-1, 1:-1, 1:-1]).ravel()
 
 
 _OFFSETS: np.ndarray | None = None
@@ -84,13 +89,16 @@ def _offset_table() -> np.ndarray:
     return _OFFSETS
 
 
-def trace_lines(lut: np.ndarray, start: np.ndarray, end: np.ndarray, chunk: int = 65536) -> tuple[np.ndarray, np.ndarray]:
+def trace_lines(
+    lut: np.ndarray, start: np.ndarray, end: np.ndarray, chunk: int = 65536, band: int = 4
+) -> tuple[np.ndarray, np.ndarray]:
     """Walk every segment ``start[i] → end[i]`` (integer voxel coordinates in [0, 64), L×3) through
     the grid, as PCL's ``lci``.
 
     Returns ``(inside, count)``: per segment, how many visited voxels are set in the flat boolean
-    grid ``lut`` and how many voxels were visited. Vectorised: segments are sorted by length and
-    processed in padded blocks of about ``chunk`` voxels (cache-sized); each row of a block is the
+    grid ``lut`` and how many voxels were visited. Vectorised: segments are sorted by length, grouped
+    in bands of ``band`` voxels of length and processed in padded blocks of about ``chunk`` voxels
+    (cache-sized); each row of a block is the
     sum of three rows gathered from the offset table; the padding repeats the last voxel, whose
     repeats are subtracted after.
     """
@@ -103,26 +111,31 @@ def trace_lines(lut: np.ndarray, start: np.ndarray, end: np.ndarray, chunk: int 
     count = np.maximum(l, 1)
     # Row of the (flattened) offset table for each segment and axis: one index array per gather.
     rows_of = (l[:, None] * GRID + ext) * len(_SIGNED_STRIDES) + sidx
-    base = (start @ np.array([GRID * GRID, GRID, 1])).astype(np.int32)
+    base = ((start[:, 0] * GRID + start[:, 1]) * GRID + start[:, 2]).astype(np.int32)
     lut8 = lut.view(np.uint8)
 
     inside = np.empty(len(start), dtype=np.int64)
     order = np.argsort(count.astype(np.int16), kind="stable")
     sorted_count = count[order]
-    n = len(order)
-    i = 0
-    while i < n:
-        rows = max(1, chunk // int(sorted_count[min(n - 1, i + 64)]))
-        sel = order[i : i + rows]
-        i += rows
-        kmax = int(sorted_count[min(n, i) - 1])
-        rs = rows_of[sel]
-        flat = table[rs[:, 0], :kmax]
-        flat += table[rs[:, 1], :kmax]
-        flat += table[rs[:, 2], :kmax]
-        flat += base[sel, None]
-        hit = lut8[flat]
-        inside[sel] = hit.sum(axis=1, dtype=np.int64) - (kmax - count[sel]) * hit[:, -1]
+    # Bands of similar length (little padding), each cut into blocks of about ``chunk`` voxels.
+    bands = np.searchsorted(sorted_count, np.arange(band, GRID + band, band), side="right")
+    lo = 0
+    for hi in bands:
+        if hi == lo:
+            continue
+        step = max(1, chunk // int(sorted_count[hi - 1]))
+        for i in range(lo, hi, step):
+            j = min(i + step, hi)
+            sel = order[i:j]
+            kmax = int(sorted_count[j - 1])
+            rs = rows_of[sel]
+            flat = table[rs[:, 0], :kmax]
+            flat += table[rs[:, 1], :kmax]
+            flat += table[rs[:, 2], :kmax]
+            flat += base[sel, None]
+            hit = lut8[flat]
+            inside[sel] = hit.sum(axis=1, dtype=np.int64) - (kmax - count[sel]) * hit[:, -1]
+        lo = hi
     return inside, count
 
 
@@ -135,29 +148,33 @@ def _classify_lines(inside: np.ndarray, count: np.ndarray) -> tuple[np.ndarray, 
     return cls, ratio
 
 
+def _norm(v: np.ndarray) -> np.ndarray:
+    return np.sqrt(np.einsum("ij,ij->i", v, v))
+
+
 def _sample_triplets(pts: np.ndarray, n: int, rng: np.random.Generator) -> tuple[np.ndarray, ...]:
-    """``n`` random index triplets of distinct points spanning a non-degenerate triangle."""
+    """``n`` random index triplets (n×3) of distinct points spanning a non-degenerate triangle,
+    with their side vectors v21, v31, v23, side lengths a, b, c and Heron product."""
     N = len(pts)
-    chosen: list[np.ndarray] = []
+    chosen: list[tuple[np.ndarray, ...]] = []
     have = 0
     for _ in range(50):
         m = int((n - have) * 1.25) + 64
         idx = rng.integers(0, N, size=(m, 3))
-        ok = (idx[:, 0] != idx[:, 1]) & (idx[:, 0] != idx[:, 2]) & (idx[:, 1] != idx[:, 2])
-        idx = idx[ok]
+        idx = idx[(idx[:, 0] != idx[:, 1]) & (idx[:, 0] != idx[:, 2]) & (idx[:, 1] != idx[:, 2])]
         p1, p2, p3 = pts[idx[:, 0]], pts[idx[:, 1]], pts[idx[:, 2]]
-        a = np.linalg.norm(p2 - p1, axis=1)
-        b = np.linalg.norm(p3 - p1, axis=1)
-        c = np.linalg.norm(p2 - p3, axis=1)
+        v21, v31, v23 = p2 - p1, p3 - p1, p2 - p3
+        a, b, c = _norm(v21), _norm(v31), _norm(v23)
         s = 0.5 * (a + b + c)
-        idx = idx[s * (s - a) * (s - b) * (s - c) > 0.001]
-        chosen.append(idx)
-        have += len(idx)
+        heron = s * (s - a) * (s - b) * (s - c)
+        ok = heron > 0.001
+        chosen.append(tuple(x[ok] for x in (idx, v21, v31, v23, a, b, c, heron)))
+        have += int(ok.sum())
         if have >= n:
             break
     else:
         raise ValueError("ESF: the cloud is degenerate (no non-collinear point triplets)")
-    return np.concatenate(chosen)[:n]
+    return tuple(np.concatenate(parts)[:n] for parts in zip(*chosen))
 
 
 def _hist(values: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
@@ -183,15 +200,8 @@ def esf(cloud: np.ndarray, *, n_samples: int = 20000, seed: int | np.random.Gene
     vox = _voxel_index(pts)
     lut = _surface_lut(vox)
 
-    idx = _sample_triplets(pts, n_samples, rng)
+    idx, v21, v31, v23, a, b, c, heron = _sample_triplets(pts, n_samples, rng)
     i1, i2, i3 = idx[:, 0], idx[:, 1], idx[:, 2]
-    p1, p2, p3 = pts[i1], pts[i2], pts[i3]
-    v21, v31, v23 = p2 - p1, p3 - p1, p2 - p3
-    a = np.linalg.norm(v21, axis=1)
-    b = np.linalg.norm(v31, axis=1)
-    c = np.linalg.norm(v23, axis=1)
-    s = 0.5 * (a + b + c)
-    heron = s * (s - a) * (s - b) * (s - c)
 
     def angle_bin(u, un, v, vn):
         cosang = np.abs(np.einsum("ij,ij->i", u, v)) / (un * vn)
