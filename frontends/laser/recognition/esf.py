@@ -48,7 +48,7 @@ _NEIGHBOURS = np.stack(np.meshgrid([-1, 0, 1], [-1, 0, 1], [-1, 0, 1], indexing=
 
 def _voxel_index(p: np.ndarray) -> np.ndarray:
     """PCL's grid index of scaled coordinates (in voxels, grid centred on the origin)."""
-    return np.where(p < 0.0, np.floor(p) + HALF, np.ceil(p) + HALF - 1).astype(np.int64)
+    return np.where(p < 0.0, np.floor(p) + HALF, np.ceil(p) + HALF - 1).astype(np.int32)
 
 
 def _surface_lut(vox: np.ndarray) -> np.ndarray:
@@ -105,7 +105,7 @@ def trace_lines(
     table = _offset_table().reshape(-1, GRID)
     d = end - start
     ext = np.abs(d)
-    sidx = np.arange(3)[None, :] + 3 * (d < 0)
+    sidx = np.arange(3, dtype=np.int32)[None, :] + 3 * (d < 0).astype(np.int32)
     # No need to single out the major axis: with m = l the closed form gives exactly k.
     l = ext.max(axis=1)
     count = np.maximum(l, 1)
@@ -133,8 +133,8 @@ def trace_lines(
             flat += table[rs[:, 1], :kmax]
             flat += table[rs[:, 2], :kmax]
             flat += base[sel, None]
-            hit = lut8[flat]
-            inside[sel] = hit.sum(axis=1, dtype=np.int64) - (kmax - count[sel]) * hit[:, -1]
+            hit = np.take(lut8, flat)
+            inside[sel] = hit.sum(axis=1, dtype=np.int32) - (kmax - count[sel]) * hit[:, -1]
         lo = hi
     return inside, count
 
