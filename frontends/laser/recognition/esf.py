@@ -167,14 +167,14 @@ def _sample_triplets(pts: np.ndarray, n: int, rng: np.random.Generator) -> tuple
         a, b, c = _norm(v21), _norm(v31), _norm(v23)
         s = 0.5 * (a + b + c)
         heron = s * (s - a) * (s - b) * (s - c)
-        ok = heron > 0.001
+        ok = np.flatnonzero(heron > 0.001)[: n - have]
         chosen.append(tuple(x[ok] for x in (idx, v21, v31, v23, a, b, c, heron)))
-        have += int(ok.sum())
+        have += len(ok)
         if have >= n:
             break
     else:
         raise ValueError("ESF: the cloud is degenerate (no non-collinear point triplets)")
-    return tuple(np.concatenate(parts)[:n] for parts in zip(*chosen))
+    return chosen[0] if len(chosen) == 1 else tuple(np.concatenate(parts) for parts in zip(*chosen))
 
 
 def _hist(values: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
