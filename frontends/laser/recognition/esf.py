@@ -212,9 +212,8 @@ def esf(cloud: np.ndarray, *, n_samples: int = 20000, seed: int | np.random.Gene
     th3 = angle_bin(v23, c, v21, a)  # at p2
 
     # Lines 1→2, 1→3, 2→3 (PCL's order), traced between the voxels of their endpoints.
-    starts = np.concatenate([vox[i1], vox[i1], vox[i2]])
-    ends = np.concatenate([vox[i2], vox[i3], vox[i3]])
-    inside, count = trace_lines(lut, starts, ends)
+    v1, v2, v3 = vox[i1], vox[i2], vox[i3]
+    inside, count = trace_lines(lut, np.concatenate([v1, v1, v2]), np.concatenate([v2, v3, v3]))
     line_cls, ratio = _classify_lines(inside, count)
     d2 = np.concatenate([a, b, c])
 
@@ -227,24 +226,22 @@ def esf(cloud: np.ndarray, *, n_samples: int = 20000, seed: int | np.random.Gene
     tri = np.where(in3 <= 21, 0, np.where(cnt3 - in3 < 4, 1, 2))
     wt_d3 = np.where(tri == 0, 0.0, np.where(tri == 1, 1.0, in3 / cnt3))
 
-    # A3: each angle weighted by the voxel length of the side opposite to it, / 32.
-    a3 = np.zeros((3, _NB))
-    for t in range(3):  # rows: out, in, mixed (the triangle classes)
-        sel = tri == t
-        w = np.concatenate([pc23[sel], pc12[sel], pc13[sel]]) / 32.0
-        a3[t] = _hist(np.concatenate([th1[sel], th2[sel], th3[sel]]), w)
+    # A3: each angle weighted by the voxel length of the side opposite to it, / 32; one histogram
+    # per triangle class (rows: out, in, mixed).
+    a3 = np.bincount(
+        np.concatenate([tri * _NB + th1, tri * _NB + th2, tri * _NB + th3]),
+        weights=np.concatenate([pc23, pc12, pc13]) / 32.0,
+        minlength=3 * _NB,
+    ).reshape(3, _NB)
     a3_out, a3_in, a3_mix = a3
 
     d3 = np.sqrt(np.sqrt(heron))
     d3_bin = np.rint(d3 / d3.max() * (_NB - 1)).astype(np.int64)
-    d3_in = _hist(d3_bin[wt_d3 >= 0.999])
-    d3_out = _hist(d3_bin[wt_d3 <= 0.001])
-    d3_mix = _hist(d3_bin[(wt_d3 > 0.001) & (wt_d3 < 0.999)])
+    d3_cls = np.where(wt_d3 >= 0.999, 0, np.where(wt_d3 <= 0.001, 1, 2))  # in, out, mixed
+    d3_in, d3_out, d3_mix = np.bincount(d3_cls * _NB + d3_bin, minlength=3 * _NB).reshape(3, _NB).astype(np.float64)
 
     d2_bin = np.rint(d2 / d2.max() * (_NB - 1)).astype(np.int64)
-    h_in = _hist(d2_bin[line_cls == 0])
-    h_out = _hist(d2_bin[line_cls == 1])
-    h_mix = _hist(d2_bin[line_cls == 2])
+    h_in, h_out, h_mix = np.bincount(line_cls.astype(np.int64) * _NB + d2_bin, minlength=3 * _NB).reshape(3, _NB).astype(np.float64)
     h_ratio = _hist(np.rint(ratio[line_cls == 2] * (_NB - 1)).astype(np.int64))
 
     hist = np.concatenate(
