@@ -201,7 +201,7 @@ def main() -> None:
     ap.add_argument("--max-scans", type=int, default=0, help="--tank: use about this many scans (0: all)")
     ap.add_argument("--min-points", type=int, default=50, help="--tank: fewest hits of a visible object or pipe")
     ap.add_argument("--mode", choices=["online", "final"], default="online", help="score each observation online or with the final map")
-    ap.add_argument("--views", type=int, default=42, help="database views per model")
+    ap.add_argument("--views", type=int, default=24, help="database viewing directions per model (each at every distance)")
     ap.add_argument("--held-out", type=int, default=30, help="held-out views per model")
     ap.add_argument("--cache-dir", type=Path, default=None)
     ap.add_argument("--seed", type=int, default=0)
