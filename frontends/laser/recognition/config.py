@@ -25,7 +25,7 @@ class RecognitionConfig(BaseModel):
     cache_dir: Path | None = Field(None, description="view cache (default $SEMSLAM_CACHE_DIR or ~/.cache/semslam)")
 
 
-def recognizer_from_config(cfg: RecognitionConfig | dict | None = None):
+def recognizer_from_config(cfg: RecognitionConfig | dict | None = None, *, progress: bool = False):
     """The default recogniser (built-in CAD library + user models, calibrated, cached) as configured."""
     import numpy as np
 
@@ -46,4 +46,5 @@ def recognizer_from_config(cfg: RecognitionConfig | dict | None = None):
         params=params,
         held_out=HeldOutParams(n_per_model=cfg.held_out_per_model, range_sigma_m=cfg.range_sigma_m),
         cache_dir=cfg.cache_dir,
+        progress=progress,
     )

@@ -241,6 +241,7 @@ def default_recognizer(
     held_out: HeldOutParams = HeldOutParams(),
     cache_dir: str | Path | None = None,
     models: dict | None = None,
+    progress: bool = False,
 ) -> Recognizer:
     """A recogniser over the built-in CAD library (plus registered user models), calibrated on
     held-out synthetic views; the views and the SYN confusion are cached (by model content and
@@ -251,7 +252,7 @@ def default_recognizer(
     for name, entry in registered_models(cache_dir).items():
         mesh = _read_mesh(Path(entry["path"]), entry.get("scale", 1.0))
         models[name] = (entry["cls"], mesh, [(np.asarray(p), np.asarray(d)) for p, d in entry.get("ports", [])])
-    db = load_database(models, params, cache_dir=cache_dir, include_user_models=False)
+    db = load_database(models, params, cache_dir=cache_dir, include_user_models=False, progress=progress)
     rec = Recognizer(db, descriptor=descriptor, method=method, size_weight=size_weight)
 
     key = hashlib.sha256(

@@ -427,15 +427,20 @@ def load_database(
     *,
     cache_dir: str | Path | None = None,
     include_user_models: bool = True,
+    progress: bool = False,
 ) -> ViewDatabase:
     """The view database of ``models`` (name → (class, mesh, ports); default: the simulator's
-    built-in library) plus, unless disabled, every user model registered with :func:`add_model`."""
+    built-in library) plus, unless disabled, every user model registered with :func:`add_model`.
+    ``progress`` shows a progress bar (rendering a model's views takes seconds; cached ones load
+    at once)."""
     models = builtin_models() if models is None else models
     meshes = {name: mesh for name, (_cls, mesh, _ports) in models.items()}
-    views = [
-        build_model_views(name, cls, mesh, params, ports=ports, cache_dir=cache_dir)
-        for name, (cls, mesh, ports) in models.items()
-    ]
+    items = list(models.items())
+    if progress:
+        from tqdm import tqdm
+
+        items = tqdm(items, desc="CAD model views", unit="model")
+    views = [build_model_views(name, cls, mesh, params, ports=ports, cache_dir=cache_dir) for name, (cls, mesh, ports) in items]
     if include_user_models:
         for name, entry in registered_models(cache_dir).items():
             path = Path(entry["path"])
