@@ -9,6 +9,8 @@ from typing import Any
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
+from semslam.backend.config import GraphConfig
+from semslam.ekf.config import EkfConfig
 from semslam.errors import ConfigError
 from semslam.mission.config import ReaderConfig
 
@@ -36,8 +38,8 @@ class SemslamConfig(BaseModel):
     reader: ReaderConfig = Field(default_factory=ReaderConfig)
     motion: MotionNoiseConfig = Field(default_factory=MotionNoiseConfig)
     association: AssociationConfig = Field(default_factory=AssociationConfig)
-    graph: dict[str, Any] = Field(default_factory=dict, description="graph back-end section (semslam.backend)")
-    ekf: dict[str, Any] = Field(default_factory=dict, description="EKF section (semslam.ekf)")
+    graph: GraphConfig = Field(default_factory=GraphConfig, description="graph back-end (semslam.backend)")
+    ekf: EkfConfig = Field(default_factory=EkfConfig, description="EKF-SLAM and dead reckoning (semslam.ekf)")
     frontends: dict[str, dict[str, Any]] = Field(
         default_factory=dict, description="front-end name → its own section, validated by the front-end"
     )

@@ -28,7 +28,7 @@ def demo_mission(progress: bool = False) -> Path:
     """The default tank mission as a ROS 1 bag, simulated on first use and cached."""
     from semslam.mission.bag import write_mission
     from semslam.sim.config import TankSimConfig
-    from semslam.sim.tank import simulate_tank
+    from semslam.sim.simulate import simulate_tank
 
     path = cache_dir() / "missions" / f"tank-default-{_simulator_fingerprint()}.bag"
     if not path.exists():

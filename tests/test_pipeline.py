@@ -56,7 +56,9 @@ class Recorder:
                           position_cov=np.tile(np.eye(3) * self.offset**2, (len(stamps), 1, 1)))
         lm = LandmarkEstimate(id=0, kind="object", position=np.array([1.0 + self.offset, 2.0, 3.0]),
                               class_posterior={"Elbow": 0.8, "R-Tee": 0.2})
-        return EstimatorResult(self.name, traj, [lm], online_trajectory=traj if self.name == "a" else None,
+        # "a" smooths: its online estimate (a further 0.05 m off) differs from the final one; "b" filters.
+        online = Trajectory(stamps, pos + [0.05, 0, 0], traj.orientations) if self.name == "a" else traj
+        return EstimatorResult(self.name, traj, [lm], online_trajectory=online,
                                update_times_s=np.array([0.001, 0.002, 0.003]))
 
 
@@ -105,6 +107,7 @@ def test_metrics_and_outputs(tmp_path):
         e = metrics["estimators"][name]
         assert REQUIRED_ESTIMATOR_KEYS <= set(e)
     assert metrics["estimators"]["a"]["ate_rmse_m"] == pytest.approx(0.1, abs=1e-9)
+    assert metrics["estimators"]["a_online"]["ate_rmse_m"] == pytest.approx(0.15, abs=1e-9)
     assert metrics["estimators"]["b"]["ate_max_m"] == pytest.approx(0.2, abs=1e-9)
     assert metrics["estimators"]["b"]["landmark_median_error_m"] == pytest.approx(0.2, abs=1e-9)
     assert metrics["estimators"]["a"]["nees_mean"] == pytest.approx(1.0)  # error 1σ along one axis

@@ -58,7 +58,14 @@ def test_streams_rates_and_metadata(short_mission):
     assert all(type(m.stamp) is int for m in ms)
     assert [m.stamp for m in ms] == sorted(m.stamp for m in ms)
     count = {c: sum(isinstance(m, c) for m in ms) for c in (DvlVelocity, Attitude, Depth, PointCloud, GroundTruthPose)}
-    assert count == {DvlVelocity: 301, Attitude: 1201, Depth: 481, PointCloud: 30, GroundTruthPose: 3001}
+    assert count == {DvlVelocity: 300, Attitude: 1200, Depth: 480, PointCloud: 30, GroundTruthPose: 3001}
+    # the sensors are not synchronised: no two streams share a stamp, except laser scans and ground truth
+    by_sensor = {s: {m.stamp for m in ms if m.sensor == s} for s in ("dvl", "ahrs", "depth", "laser")}
+    assert not (by_sensor["dvl"] & by_sensor["ahrs"]) and not (by_sensor["dvl"] & by_sensor["depth"])
+    assert not (by_sensor["ahrs"] & by_sensor["depth"])
+    assert by_sensor["laser"] <= {m.stamp for m in ms if m.sensor == "ground_truth"}
+    t0 = int(round(short_config().start_time_s * 1e9))
+    assert min(by_sensor["dvl"]) - t0 == 11_000_000 and max(by_sensor["dvl"]) - t0 <= 60 * 10**9
     meta = short_mission.metadata
     expected = {
         "dvl": ("dvl", "cola2_msgs/msg/DVL"),
@@ -106,6 +113,9 @@ def test_declared_noise_is_the_noise(short_mission):
     assert np.std(err[:, 2]) == pytest.approx(np.sqrt(cov[0, 0]), rel=0.1)
     assert np.std(err[:, 1]) == pytest.approx(np.sqrt(cov[1, 1]), rel=0.1)
     assert np.sqrt(cov[0, 0]) == pytest.approx(np.deg2rad(0.1)) and np.sqrt(cov[2, 2]) == pytest.approx(np.deg2rad(0.5))
+    w_err = np.array([a.angular_rate for a in att]) - traj.angular_rate(t) @ cfg.ahrs.mount.matrix()[:3, :3]
+    assert np.std(w_err, axis=0) == pytest.approx([cfg.ahrs.angular_rate_sigma_rad_s] * 3, rel=0.1)
+    assert np.abs(w_err.mean(0)).max() < 4 * cfg.ahrs.angular_rate_sigma_rad_s / np.sqrt(len(att))
     # the heading bias drifts by 2° per mission: here, over 60 s, the mean yaw error grows by 2° · 60/60
     late = t > 50
     assert abs(err[late, 0].mean()) == pytest.approx(np.deg2rad(2.0) * t[late].mean() / 60, abs=np.deg2rad(0.1))
@@ -178,7 +188,13 @@ def test_dvl_dropouts_where_configured():
     default = TankSimConfig()
     res_d = S.simulate_dvl(default.dvl, traj, scene, st, t, np.random.default_rng(0), np.random.default_rng(1))
     assert 0.10 <= res_d.invalid_fraction <= 0.20
-    assert {c for _, _, c in res_d.intervals} >= {"walls", "random"}
+    assert {c for _, _, c in res_d.intervals} == {"walls", "random"}  # never merged into longer bursts
+    assert all(2.0 - 1e-9 <= e - s <= 10.0 for s, e, _ in res_d.intervals)
+    random_time = sum(e - s for s, e, c in res_d.intervals if c == "random")
+    assert random_time == pytest.approx(default.dvl.random_dropout_rate * t[-1], abs=1e-6)
+    clean = TankSimConfig(dvl={"random_dropout_rate": 0.0, "wall_beams_lost": False})
+    res_c = S.simulate_dvl(clean.dvl, traj, scene, st, t, np.random.default_rng(0), np.random.default_rng(1))
+    assert res_c.valid.all() and res_c.intervals == []
     heavy = TankSimConfig(dvl={"random_dropout_rate": 0.4})
     res_h = S.simulate_dvl(heavy.dvl, traj, scene, st, t, np.random.default_rng(0), np.random.default_rng(1))
     assert res_h.invalid_fraction > 0.35
@@ -286,3 +302,13 @@ def test_simulate_to_bag_with_options(tmp_path):
     cfg.write_text("dvl: {random_dropout_rate: 2}\n")
     with pytest.raises(ConfigError, match="dvl.random_dropout_rate"):
         simulate_tank_to_bag(tmp_path / "n.bag", config=cfg)
+
+
+def test_preview_without_ground_truth(tmp_path, short_mission):
+    """A real mission has no ground truth and no scene: the preview still draws the trajectory."""
+    from semslam.mission import Mission, MissionMetadata
+    from semslam.sim.preview import render_preview
+
+    bare = Mission.from_measurements(MissionMetadata(name="real"), list(short_mission))
+    render_preview(bare, tmp_path / "bare.png")
+    assert (tmp_path / "bare.png").stat().st_size > 10_000

@@ -138,6 +138,20 @@ def test_bad_yaml_layouts_are_user_errors(tmp_path, layout):
         load_layout_yaml(bad)
     with pytest.raises(ConfigError, match="not found"):
         load_layout_yaml(tmp_path / "missing.yaml")
+    not_a_layout = tmp_path / "sim.yaml"
+    not_a_layout.write_text("trajectory: {loops: 1}\n")
+    with pytest.raises(ConfigError, match="unknown key 'trajectory'"):
+        load_layout_yaml(not_a_layout)
+    with pytest.raises(ConfigError, match="non-empty 'objects'"):
+        layout_from_dict({"pipes": []})
+
+
+def test_docstring_example_layout():
+    import yaml as _yaml
+
+    text = layout_from_dict.__doc__.split("::")[1]
+    lay = layout_from_dict(_yaml.safe_load(text))
+    assert lay.objects[0].pipes == (0, 1) and check_layout(lay) == []
 
 
 def test_scene_labels(layout):
@@ -177,3 +191,30 @@ def test_ground_truth_map(layout):
     np.testing.assert_allclose(Rotation.from_quat(o.orientation).as_matrix(), src.T_WM[:3, :3], atol=1e-9)
     assert gt.pipes[3].radius == layout.pipes[3].radius
     assert json.loads(json.dumps(gt.to_dict()))["objects"][4]["pipes"] == list(src.pipes)  # sidecar-ready
+
+
+def test_user_model_in_a_yaml_layout(tmp_path):
+    """A registered user mesh (any class name) can be placed in a YAML layout; its ports connect pipes."""
+    import open3d as o3d
+
+    box = o3d.geometry.TriangleMesh.create_box(0.2, 0.1, 0.1)
+    box.translate((-0.1, -0.05, -0.05))
+    path = tmp_path / "flange.stl"
+    box.compute_triangle_normals()
+    o3d.io.write_triangle_mesh(str(path), box)
+    cad.register_model(path, "Flange", name="my-flange", ports=[((0.1, 0, 0), (1, 0, 0)), ((-0.1, 0, 0), (-1, 0, 0))])
+    try:
+        data = {
+            "objects": [{"cls": "Flange", "model": "my-flange", "position": [1.0, 2.0, 4.5], "rpy_deg": [0, 0, 90]}],
+            "pipes": [
+                {"p": [1.0, 2.1, 4.5], "q": [1.0, 2.8, 4.5], "radius": 0.03},
+                {"p": [1.0, 1.9, 4.5], "q": [1.0, 1.2, 4.5], "radius": 0.03},
+                {"p": [3.0, 3.0, 4.5], "q": [3.5, 3.0, 4.5], "radius": 0.03},
+            ],
+        }
+        lay = layout_from_dict(data)
+        assert lay.objects[0].pipes == (0, 1)
+        gt = lay.ground_truth()
+        assert "Flange" in gt.classes and gt.objects[0].model == "my-flange"
+    finally:
+        cad.unregister_model("my-flange")

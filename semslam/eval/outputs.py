@@ -85,6 +85,14 @@ def map_geometry(landmarks: list[LandmarkEstimate]):
     return mesh
 
 
+def _has_distinct_online(result: EstimatorResult) -> bool:
+    """A smoother's online estimate differs from its final one; a filter's is the same thing."""
+    on, tr = result.online_trajectory, result.trajectory
+    if on is None or on is tr:
+        return False
+    return not (len(on) == len(tr) and np.array_equal(on.positions, tr.positions))
+
+
 def build_metrics(pipeline: PipelineResult, metadata: MissionMetadata) -> dict:
     """metrics.json (DESIGN.md): mission, per-estimator, recognition and sonar blocks."""
     gt = metadata.ground_truth
@@ -109,7 +117,7 @@ def build_metrics(pipeline: PipelineResult, metadata: MissionMetadata) -> dict:
     for name, result in pipeline.results.items():
         runtime = pipeline.timing_s.get(f"estimator:{name}")
         metrics["estimators"][name] = estimator_metrics(result, pipeline.truth, gt, runtime)
-        if result.online_trajectory is not None:
+        if _has_distinct_online(result):
             online = EstimatorResult(f"{name}_online", result.online_trajectory, result.landmarks, None,
                                      result.update_times_s, result.update_n_landmarks)
             metrics["estimators"][f"{name}_online"] = estimator_metrics(online, pipeline.truth, gt, runtime)
@@ -127,7 +135,7 @@ def write_outputs(out_dir: str | Path, config: SemslamConfig, pipeline: Pipeline
         (stage / "config.yaml").write_text(dump_config(config))
         for name, result in pipeline.results.items():
             result.trajectory.to_tum(stage / f"trajectory_{name}.tum")
-            if result.online_trajectory is not None:
+            if _has_distinct_online(result):
                 result.online_trajectory.to_tum(stage / f"trajectory_{name}_online.tum")
             (stage / f"map_{name}.json").write_text(json.dumps(map_to_dict(result), indent=1))
             o3d.io.write_triangle_mesh(str(stage / f"map_{name}.ply"), map_geometry(result.landmarks))

@@ -134,7 +134,7 @@ def _rot_z_to(d: np.ndarray) -> np.ndarray:
     return np.eye(3) + vx + vx @ vx * (1.0 / (1.0 + c))
 
 
-def _cyl(p0, p1, r: float) -> o3d.geometry.TriangleMesh:
+def cylinder(p0, p1, r: float) -> o3d.geometry.TriangleMesh:
     """Closed cylinder of radius r from point p0 to point p1."""
     p0, p1 = np.asarray(p0, float), np.asarray(p1, float)
     axis = p1 - p0
@@ -180,12 +180,12 @@ def _ball_valve():
     x_port = 0.099
     parts = [
         _sphere((0, 0, 0), 0.056),  # ball housing
-        _cyl((-0.085, 0, 0), (0.085, 0, 0), 0.045),  # body
-        _cyl((-0.085, 0, 0), (-0.045, 0, 0), 0.060),  # union nuts: the widest part (120 mm)
-        _cyl((0.045, 0, 0), (0.085, 0, 0), 0.060),
-        _cyl((-x_port, 0, 0), (-0.085, 0, 0), 0.041),  # pipe tails
-        _cyl((0.085, 0, 0), (x_port, 0, 0), 0.041),
-        _cyl((0, 0, 0.04), (0, 0, 0.085), 0.013),  # stem
+        cylinder((-0.085, 0, 0), (0.085, 0, 0), 0.045),  # body
+        cylinder((-0.085, 0, 0), (-0.045, 0, 0), 0.060),  # union nuts: the widest part (120 mm)
+        cylinder((0.045, 0, 0), (0.085, 0, 0), 0.060),
+        cylinder((-x_port, 0, 0), (-0.085, 0, 0), 0.041),  # pipe tails
+        cylinder((0.085, 0, 0), (x_port, 0, 0), 0.041),
+        cylinder((0, 0, 0.04), (0, 0, 0.085), 0.013),  # stem
         _box((-0.035, -0.016, 0.085), (0.095, 0.016, 0.100)),  # lever along the pipe (open)
     ]
     return _union(parts), [_port(-x_port, 0, 0, -1, 0, 0), _port(x_port, 0, 0, 1, 0, 0)]
@@ -195,10 +195,10 @@ def _elbow():
     L = 0.084  # junction → socket mouth
     parts = [
         _sphere((0, 0, 0), _BODY),  # the bend
-        _cyl((0, 0, 0), (0.044, 0, 0), _BODY),
-        _cyl((0, 0, 0), (0, 0.044, 0), _BODY),
-        _cyl((0.044, 0, 0), (L, 0, 0), _SOCK),  # sockets
-        _cyl((0, 0.044, 0), (0, L, 0), _SOCK),
+        cylinder((0, 0, 0), (0.044, 0, 0), _BODY),
+        cylinder((0, 0, 0), (0, 0.044, 0), _BODY),
+        cylinder((0.044, 0, 0), (L, 0, 0), _SOCK),  # sockets
+        cylinder((0, 0.044, 0), (0, L, 0), _SOCK),
     ]
     return _union(parts), [_port(L, 0, 0, 1, 0, 0), _port(0, L, 0, 0, 1, 0)]
 
@@ -206,11 +206,11 @@ def _elbow():
 def _r_tee():
     L = 0.084
     parts = [
-        _cyl((0, -0.044, 0), (0, 0.044, 0), _BODY),  # run body
-        _cyl((0, -L, 0), (0, -0.044, 0), _SOCK),
-        _cyl((0, 0.044, 0), (0, L, 0), _SOCK),
-        _cyl((0, 0, 0), (0.050, 0, 0), _BODY * 0.9),  # branch (reduced body, hence "R-")
-        _cyl((0.050, 0, 0), (L, 0, 0), _SOCK * 0.95),
+        cylinder((0, -0.044, 0), (0, 0.044, 0), _BODY),  # run body
+        cylinder((0, -L, 0), (0, -0.044, 0), _SOCK),
+        cylinder((0, 0.044, 0), (0, L, 0), _SOCK),
+        cylinder((0, 0, 0), (0.050, 0, 0), _BODY * 0.9),  # branch (reduced body, hence "R-")
+        cylinder((0.050, 0, 0), (L, 0, 0), _SOCK * 0.95),
         _sphere((0, 0, 0), _BODY),
     ]
     return _union(parts), [_port(0, -L, 0, 0, -1, 0), _port(0, L, 0, 0, 1, 0), _port(L, 0, 0, 1, 0, 0)]
@@ -219,9 +219,9 @@ def _r_tee():
 def _r_socket():
     L = 0.044
     parts = [
-        _cyl((-L, 0, 0), (-0.006, 0, 0), 0.0375),  # the larger half
-        _cyl((-0.006, 0, 0), (0.006, 0, 0), 0.0345),  # reducing step / central stop
-        _cyl((0.006, 0, 0), (L, 0, 0), 0.0360),  # the reduced half
+        cylinder((-L, 0, 0), (-0.006, 0, 0), 0.0375),  # the larger half
+        cylinder((-0.006, 0, 0), (0.006, 0, 0), 0.0345),  # reducing step / central stop
+        cylinder((0.006, 0, 0), (L, 0, 0), 0.0360),  # the reduced half
     ]
     return _union(parts), [_port(-L, 0, 0, -1, 0, 0), _port(L, 0, 0, 1, 0, 0)]
 
@@ -229,11 +229,11 @@ def _r_socket():
 def _butterfly_valve():
     x_port = 0.0605
     parts = [
-        _cyl((-0.025, 0, 0), (0.025, 0, 0), 0.0875),  # wafer body holding the disc
-        _cyl((-x_port, 0, 0), (-0.025, 0, 0), 0.046),  # flange stubs
-        _cyl((0.025, 0, 0), (x_port, 0, 0), 0.046),
+        cylinder((-0.025, 0, 0), (0.025, 0, 0), 0.0875),  # wafer body holding the disc
+        cylinder((-x_port, 0, 0), (-0.025, 0, 0), 0.046),  # flange stubs
+        cylinder((0.025, 0, 0), (x_port, 0, 0), 0.046),
         _box((-0.018, -0.018, -0.092), (0.018, 0.018, -0.080)),  # bottom lug
-        _cyl((0, 0, 0.080), (0, 0, 0.165), 0.021),  # neck
+        cylinder((0, 0, 0.080), (0, 0, 0.165), 0.021),  # neck
         _box((-0.035, -0.035, 0.165), (0.035, 0.035, 0.190)),  # gear/lock head
         _box((-0.016, -0.075, 0.190), (0.016, 0.1555, 0.1955)),  # long lever across the pipe
     ]
@@ -244,14 +244,14 @@ def _three_way_ball_valve():
     x_port, y_port = 0.120, 0.100
     parts = [
         _sphere((0, 0, 0), 0.060),  # ball housing
-        _cyl((-0.095, 0, 0), (0.095, 0, 0), 0.045),
-        _cyl((-0.095, 0, 0), (-0.055, 0, 0), 0.055),  # union nuts
-        _cyl((0.055, 0, 0), (0.095, 0, 0), 0.055),
-        _cyl((0, 0.040, 0), (0, 0.085, 0), 0.055),
-        _cyl((-x_port, 0, 0), (-0.095, 0, 0), 0.041),  # tails
-        _cyl((0.095, 0, 0), (x_port, 0, 0), 0.041),
-        _cyl((0, 0.085, 0), (0, y_port, 0), 0.041),
-        _cyl((0, 0, 0.045), (0, 0, 0.095), 0.013),  # stem
+        cylinder((-0.095, 0, 0), (0.095, 0, 0), 0.045),
+        cylinder((-0.095, 0, 0), (-0.055, 0, 0), 0.055),  # union nuts
+        cylinder((0.055, 0, 0), (0.095, 0, 0), 0.055),
+        cylinder((0, 0.040, 0), (0, 0.085, 0), 0.055),
+        cylinder((-x_port, 0, 0), (-0.095, 0, 0), 0.041),  # tails
+        cylinder((0.095, 0, 0), (x_port, 0, 0), 0.041),
+        cylinder((0, 0.085, 0), (0, y_port, 0), 0.041),
+        cylinder((0, 0, 0.045), (0, 0, 0.095), 0.013),  # stem
         _box((-0.070, -0.015, 0.095), (0.070, 0.015, 0.112)),  # T-handle: bar along the run ...
         _box((-0.015, 0.0, 0.095), (0.015, 0.075, 0.112)),  # ... and a stub towards the branch
     ]

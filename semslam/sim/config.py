@@ -100,15 +100,22 @@ class DvlConfig(_Section):
     """Doppler velocity log: 4 Janus beams; velocity of the DVL head over ground in {S}."""
 
     rate_hz: float = Field(5.0, gt=0, description="DVL readings per second")
+    time_offset_s: float = Field(
+        0.011, ge=0, lt=1, description="first reading this long after the mission start (the sensors are not synchronised)"
+    )
     sigma_m_s: float = Field(0.01, gt=0, description="white noise per axis (m/s); also the message covariance")
     beam_angle_deg: float = Field(30.0, gt=0, lt=80, description="beam tilt from the DVL z axis (deg)")
     beam_azimuths_deg: tuple[float, ...] = Field((45.0, 135.0, 225.0, 315.0), description="beam azimuths in {S}")
     min_range_m: float = Field(0.3, ge=0, description="beams closer than this give no return (m)")
     max_range_m: float = Field(30.0, gt=0, description="beams further than this give no return (m)")
+    wall_beams_lost: bool = Field(
+        True, description="beams hitting the sloped walls give no return (False: they track the wall like the floor)"
+    )
     min_valid_beams: int = Field(3, ge=1, le=4, description="fewer valid beams → the reading is invalid")
     relock_s: float = Field(1.0, ge=0, description="after losing bottom lock, time to re-acquire it (s)")
     random_dropout_rate: float = Field(
-        0.07, ge=0, lt=0.9, description="expected fraction of the mission lost to random dropout bursts"
+        0.07, ge=0, lt=0.9,
+        description="fraction of the mission lost to random dropout bursts (placed ≥ 1 s clear of the wall dropouts)",
     )
     burst_s: tuple[float, float] = Field((2.0, 10.0), description="min and max duration of a dropout burst (s)")
     mount: Mount = Field(
@@ -120,6 +127,9 @@ class AhrsConfig(_Section):
     """Attitude and heading reference system; orientation R_WS with additive roll/pitch/yaw noise."""
 
     rate_hz: float = Field(20.0, gt=0, description="AHRS readings per second")
+    time_offset_s: float = Field(
+        0.003, ge=0, lt=1, description="first reading this long after the mission start (the sensors are not synchronised)"
+    )
     roll_pitch_sigma_deg: float = Field(0.1, gt=0, description="white noise of roll and pitch (deg)")
     heading_sigma_deg: float = Field(0.5, gt=0, description="white noise of the heading (deg)")
     heading_bias_drift_deg: float = Field(
@@ -133,6 +143,9 @@ class DepthConfig(_Section):
     """Pressure sensor, reported as depth of the sensor (m, down)."""
 
     rate_hz: float = Field(8.0, gt=0, description="pressure readings per second")
+    time_offset_s: float = Field(
+        0.007, ge=0, lt=1, description="first reading this long after the mission start (the sensors are not synchronised)"
+    )
     sigma_m: float = Field(0.02, gt=0, description="white noise of the depth (m); also the message variance")
     mount: Mount = Field(default_factory=lambda: Mount(xyz=(0.0, 0.0, -0.20)), description="20 cm above the body origin")
 

@@ -28,7 +28,7 @@ def _object_mesh(o, lib):
 
 
 def _pipe_mesh(p):
-    m = cad._cyl(p.p, p.q, p.radius)
+    m = cad.cylinder(p.p, p.q, p.radius)
     return np.asarray(m.vertices), np.asarray(m.triangles)
 
 

@@ -16,17 +16,21 @@ from scipy.spatial.transform import Rotation
 
 from semslam.mission.measurements import Attitude, Depth, DvlVelocity, GroundTruthPose, PointCloud
 from semslam.sim.config import AhrsConfig, DepthConfig, DvlConfig, LaserConfig
-from semslam.sim.tank import FLOOR, OBJECT, PIPE, TankScene
+from semslam.sim.tank import FLOOR, OBJECT, PIPE, WALL, TankScene
 from semslam.sim.trajectory import Trajectory
 
 
-def sample_times(start_ns: int, rate_hz: float, duration_s: float, first: int = 0) -> tuple[np.ndarray, np.ndarray]:
-    """Stamps (int64 ns) at ``rate_hz`` from ``start_ns`` (sample index ``first`` on) up to the end of
-    the mission, and the same instants in float seconds since the start."""
+def sample_times(
+    start_ns: int, rate_hz: float, duration_s: float, first: int = 0, offset_s: float = 0.0
+) -> tuple[np.ndarray, np.ndarray]:
+    """Stamps (int64 ns) at ``rate_hz``, the first ``offset_s`` after ``start_ns`` (sample index
+    ``first`` on), up to the end of the mission; and the same instants in float seconds since the start."""
     period = int(round(1e9 / rate_hz))
-    n_last = int(np.floor(duration_s * 1e9 / period + 1e-9))
+    off = int(round(offset_s * 1e9))
+    n_last = int(np.floor((duration_s * 1e9 - off) / period + 1e-9))
     k = np.arange(first, n_last + 1, dtype=np.int64)
-    return start_ns + k * period, k * period * 1e-9
+    ns = off + k * period
+    return start_ns + ns, ns * 1e-9
 
 
 def _skew_cross(w: np.ndarray, r: np.ndarray) -> np.ndarray:
@@ -68,17 +72,28 @@ def _merge(intervals):
 
 
 def random_bursts(rate: float, burst_s: tuple[float, float], duration_s: float, rng: np.random.Generator):
-    """Dropout bursts of uniform length in ``burst_s`` separated by exponential gaps, so that on
-    average a fraction ``rate`` of the time is lost: (start_s, end_s) pairs."""
-    if rate <= 0:
+    """Random dropout bursts, non-overlapping, of lengths uniform in ``burst_s`` and totalling
+    ``rate`` × ``duration_s`` (the last one shortened to fit; a remainder below ``burst_s[0]``
+    lengthens the shortest burst), placed uniformly at random: (start_s, end_s) pairs in time order."""
+    total = rate * duration_s
+    lengths: list[float] = []
+    while total - sum(lengths) >= burst_s[0]:
+        lengths.append(min(float(rng.uniform(*burst_s)), total - sum(lengths)))
+    if not lengths:
         return []
-    mean_burst = 0.5 * (burst_s[0] + burst_s[1])
-    mean_gap = mean_burst * (1 - rate) / rate
-    out, t = [], float(rng.exponential(mean_gap))
-    while t < duration_s:
-        d = float(rng.uniform(*burst_s))
-        out.append((t, min(t + d, duration_s)))
-        t += d + float(rng.exponential(mean_gap))
+    rest = total - sum(lengths)  # < burst_s[0]: lengthen the shortest burst by it if it stays ≤ burst_s[1]
+    i = int(np.argmin(lengths))
+    if lengths[i] + rest <= burst_s[1]:
+        lengths[i] += rest
+    free = duration_s - sum(lengths)
+    # n+1 gaps: a uniformly random split of the free time (sorted uniform cut points)
+    cuts = np.sort(rng.uniform(0.0, free, size=len(lengths)))
+    gaps = np.diff(np.concatenate([[0.0], cuts]))
+    out, t = [], 0.0
+    for g, d in zip(gaps, lengths):
+        t += float(g)
+        out.append((t, t + d))
+        t += d
     return out
 
 
@@ -97,7 +112,8 @@ def simulate_dvl(
     Each beam is ray-cast into the tank; a beam is lost when it hits a sloped wall or has no return
     within [min_range, max_range]. With fewer than ``min_valid_beams`` the bottom lock is lost;
     re-acquiring it takes ``relock_s`` and a loss lasts at least ``burst_s[0]``. Random bursts
-    (``random_dropout_rate``) come on top. Invalid readings carry NaN velocity and ``valid=False``.
+    (``random_dropout_rate`` of the time) are placed ≥ 1 s clear of those. Invalid readings carry NaN
+    velocity and ``valid=False``.
     """
     T_BS = cfg.mount.matrix()
     R_BS, t_BS = T_BS[:3, :3], T_BS[:3, 3]
@@ -114,7 +130,8 @@ def simulate_dvl(
     nb = len(beams_S)
     rng_t, kind, _ = scene.cast(np.repeat(origins, nb, axis=0), dirs.reshape(-1, 3))
     rng_t, kind = rng_t.reshape(-1, nb), kind.reshape(-1, nb)
-    beam_ok = np.isin(kind, (FLOOR, PIPE, OBJECT)) & (rng_t >= cfg.min_range_m) & (rng_t <= cfg.max_range_m)
+    surfaces = (FLOOR, PIPE, OBJECT) if cfg.wall_beams_lost else (FLOOR, WALL, PIPE, OBJECT)
+    beam_ok = np.isin(kind, surfaces) & (rng_t >= cfg.min_range_m) & (rng_t <= cfg.max_range_m)
     lost = beam_ok.sum(1) < cfg.min_valid_beams
 
     duration = float(t[-1]) if len(t) else 0.0
@@ -128,8 +145,13 @@ def simulate_dvl(
             e = float(t[run[-1]]) + dt + cfg.relock_s
             e = max(e, s + cfg.burst_s[0])
             intervals.append((s, min(e, duration + dt), "walls"))
-    intervals += [(s, e, "random") for s, e in random_bursts(cfg.random_dropout_rate, cfg.burst_s, duration, rng_dropout)]
-    intervals = _merge(intervals)
+    # random bursts keep ≥ 1 s clear of the wall dropouts so that bursts stay within burst_s (redraw
+    # the placement until they do; after 200 tries, accept merged bursts)
+    for _ in range(200):
+        rnd = random_bursts(cfg.random_dropout_rate, cfg.burst_s, duration, rng_dropout)
+        if all(s >= we + 1.0 or e <= ws - 1.0 for s, e in rnd for ws, we, _ in intervals):
+            break
+    intervals = _merge(intervals + [(s, e, "random") for s, e in rnd])
     valid = np.ones(len(t), bool)
     for s, e, _ in intervals:
         valid[(t >= s - 1e-9) & (t < e - 1e-9)] = False

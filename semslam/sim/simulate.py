@@ -72,12 +72,12 @@ def simulate_tank(config: TankSimConfig | None = None, *, progress: bool = False
     start_ns = int(round(cfg.start_time_s * 1e9))
     T = cfg.trajectory.duration_s
 
-    st, t = S.sample_times(start_ns, cfg.dvl.rate_hz, T)
+    st, t = S.sample_times(start_ns, cfg.dvl.rate_hz, T, offset_s=cfg.dvl.time_offset_s)
     dvl = S.simulate_dvl(cfg.dvl, traj, scene, st, t, _rng(cfg.seed, "dvl_noise"), _rng(cfg.seed, "dvl_dropout"))
-    st, t = S.sample_times(start_ns, cfg.ahrs.rate_hz, T)
+    st, t = S.sample_times(start_ns, cfg.ahrs.rate_hz, T, offset_s=cfg.ahrs.time_offset_s)
     bias = S.heading_bias(cfg.ahrs, t, T, _rng(cfg.seed, "heading_bias"))
     ahrs = S.simulate_ahrs(cfg.ahrs, traj, st, t, _rng(cfg.seed, "ahrs"), bias)
-    st, t = S.sample_times(start_ns, cfg.depth.rate_hz, T)
+    st, t = S.sample_times(start_ns, cfg.depth.rate_hz, T, offset_s=cfg.depth.time_offset_s)
     depth = S.simulate_depth(cfg.depth, traj, st, t, _rng(cfg.seed, "depth"))
     st, t = S.sample_times(start_ns, cfg.ground_truth.rate_hz, T)
     gt = S.ground_truth_poses(traj, st, t)

@@ -95,7 +95,7 @@ class Layout:
         lib = cad.library()
         out = {}
         for p in self.pipes:
-            out[(PIPE, p.id)] = cad._cyl(p.p, p.q, p.radius)
+            out[(PIPE, p.id)] = cad.cylinder(p.p, p.q, p.radius)
         for o in self.objects:
             out[(OBJECT, o.id)] = lib[o.model].transformed(o.T_WM)
         return out
@@ -214,9 +214,22 @@ def _vec3(value, where: str) -> np.ndarray:
 def layout_from_dict(data: dict, source: str = "layout") -> Layout:
     """A layout from its plain description. Objects: ``cls``, optional ``model`` (default the class's
     built-in), ``position``, ``orientation`` [x,y,z,w] or ``rpy_deg``, optional ``pipes`` (inferred
-    from the geometry when absent). Pipes: ``p``, ``q``, ``radius``. Ids default to list order."""
+    from the geometry when absent). Pipes: ``p``, ``q``, ``radius``. Ids default to list order.
+    Positions in {W} (m). Example (an elbow joining two pipes at the floor)::
+
+        objects:
+          - {cls: Elbow, position: [0.0, 0.0, 4.8], rpy_deg: [0, 0, 0]}
+        pipes:
+          - {p: [0.084, 0.0, 4.8], q: [0.6, 0.0, 4.8], radius: 0.0315}
+          - {p: [0.0, 0.084, 4.8], q: [0.0, 0.6, 4.8], radius: 0.0315}
+    """
     if not isinstance(data, dict):
         raise ConfigError(f"{source}: expected a mapping with 'objects' and 'pipes'")
+    unknown = sorted(set(data) - {"objects", "pipes"})
+    if unknown:
+        raise ConfigError(f"{source}: unknown key {unknown[0]!r} in a layout (expected 'objects' and 'pipes')")
+    if not data.get("objects"):
+        raise ConfigError(f"{source}: a layout needs a non-empty 'objects' list")
     lib = cad.library()
     pipes = []
     for i, e in enumerate(data.get("pipes") or []):
@@ -541,3 +554,11 @@ class TankScene:
     def distance(self, points: np.ndarray) -> np.ndarray:
         """Unsigned distance (m) from each point to the nearest surface of the scene."""
         return self.scene.compute_distance(o3d.core.Tensor(np.asarray(points, np.float32))).numpy()
+
+
+def simulate_tank(config=None, *, progress: bool = False):
+    """The whole tank mission: forwards to :func:`semslam.sim.simulate.simulate_tank` (also importable
+    from here, next to the scene it simulates)."""
+    from semslam.sim.simulate import simulate_tank as _simulate
+
+    return _simulate(config, progress=progress)

@@ -1,0 +1,206 @@
+"""Benchmark of the graph back-end (not a test).
+
+1. The default mission (the tank simulator when available, else a tank-like synthetic circle:
+   490 s, 245 scans at 0.5 Hz, 20 objects, 12 pipes, DVL dropouts) with the oracle front-end:
+   per-update wall time median / p95 over several runs, and the whole-mission batch (LM) time.
+2. A long synthetic lawnmower mission (≥ 2 h, ≥ 2000 landmarks): per-update cost against map size,
+   to show it stays flat as the map grows.
+3. CustomFactor vs built-in cost: linearisation of the object-point CustomFactor against built-in
+   factors of the same size.
+
+Run: ``python experiments/bench_graph.py [--runs 3] [--long-hours 2] [--skip-long]``.
+Timings on a shared machine are noisy: report medians.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+
+import gtsam
+import numpy as np
+
+from frontends.oracle import OracleFrontend
+from semslam.backend.graph import GraphEstimator
+from semslam.backend.run import run_graph
+from semslam.backend.synthetic import (
+    SyntheticConfig,
+    dead_reckoning,
+    ground_truth_positions,
+    landmark_report,
+    position_errors,
+    simulate,
+)
+from semslam.config import SemslamConfig
+
+
+def default_mission():
+    try:
+        from semslam.sim.tank import TankSimConfig, simulate_tank
+
+        return simulate_tank(TankSimConfig()), "tank"
+    except ImportError:
+        cfg = SyntheticConfig(duration_s=490.0, dropouts=((100.0, 20.0), (300.0, 15.0)), ahrs_yaw_bias_rad=0.0, seed=0)
+        return simulate(cfg), "synthetic-circle-490s"
+
+
+def summarize(res, mission) -> dict:
+    t = np.asarray(res.update_times_s) * 1e3
+    kinds = np.array(res.history.get("update_kinds", ["?"] * len(t)))
+    gs, gp = ground_truth_positions(mission)
+    e = position_errors(res.trajectory.stamps, res.trajectory.positions, gs, gp)
+    eo = position_errors(res.online_trajectory.stamps, res.online_trajectory.positions, gs, gp)
+    out = {
+        "update_ms_median": float(np.median(t)),
+        "update_ms_p95": float(np.percentile(t, 95)),
+        "obs_update_ms_median": float(np.median(t[kinds == "observations"])) if (kinds == "observations").any() else None,
+        "obs_update_ms_p95": float(np.percentile(t[kinds == "observations"], 95)) if (kinds == "observations").any() else None,
+        "n_updates": int(len(t)),
+        "n_landmarks": len(res.landmarks),
+        "ate_rmse_m": float(np.sqrt(np.mean(e**2))),
+        "online_ate_rmse_m": float(np.sqrt(np.mean(eo**2))),
+        "batch_time_s": res.history.get("batch_time_s"),
+    }
+    if mission.metadata.ground_truth is not None:
+        rep = landmark_report(res, mission.metadata.ground_truth)
+        out["landmark_median_error_m"] = rep.median_error_m
+        out["duplicated"] = len(rep.duplicated)
+        out["wrongly_merged"] = len(rep.wrongly_merged)
+    return out
+
+
+def bench_default(runs: int) -> dict:
+    mission, name = default_mission()
+    gs, gp = ground_truth_positions(mission)
+    ts, p = dead_reckoning(mission)
+    dr = float(np.sqrt(np.mean(position_errors(ts, p, gs, gp) ** 2)))
+    rows = []
+    for r in range(runs):
+        fe = OracleFrontend(mission.metadata, {"seed": r})
+        t0 = time.perf_counter()
+        res = run_graph(mission, SemslamConfig(), [fe], batch=True)
+        row = summarize(res, mission)
+        row["wall_s"] = time.perf_counter() - t0
+        rows.append(row)
+        print(f"  run {r}: {json.dumps(row)}", flush=True)
+    keys = [k for k in rows[0] if isinstance(rows[0][k], (int, float)) and rows[0][k] is not None]
+    return {"mission": name, "dr_ate_rmse_m": dr, "runs": runs, **{k: float(np.median([x[k] for x in rows])) for k in keys}}
+
+
+def bench_long(hours: float) -> dict:
+    duration = hours * 3600.0
+    cfg = SyntheticConfig(
+        duration_s=duration,
+        path="lawnmower",
+        lane_length_m=120.0,
+        lane_spacing_m=5.0,
+        n_lanes=8,
+        n_objects=1600,
+        n_pipes=500,
+        n_structures=5,
+        min_separation_m=0.8,
+        gt_rate_hz=5.0,
+        ahrs_rate_hz=10.0,
+        dropouts=tuple((s, 20.0) for s in np.arange(600.0, duration, 900.0)),
+        ahrs_yaw_bias_rad=0.0,
+        seed=11,
+    )
+    t0 = time.perf_counter()
+    mission = simulate(cfg)
+    gt = mission.metadata.ground_truth
+    print(f"  long mission simulated in {time.perf_counter() - t0:.1f} s: {len(gt.objects)} objects, {len(gt.pipes)} pipes", flush=True)
+    fe = OracleFrontend(mission.metadata, {"seed": 0})
+    t0 = time.perf_counter()
+    est = GraphEstimator(mission.metadata, SemslamConfig(graph={"covariance_in_result": False}))
+    view, next_report = est.view(), 600.0
+    start = None
+    for m in mission:
+        start = m.stamp if start is None else start
+        est.process_measurement(m)
+        if isinstance(m, fe.consumes):
+            obs = fe.process(m, view)
+            if obs:
+                est.process_observations(m.stamp, obs)
+        if (m.stamp - start) * 1e-9 >= next_report:
+            recent = np.array(est.update_times[-600:]) * 1e3
+            print(f"    t={next_report:6.0f} s  landmarks={len(est.landmarks):5d}  last-600 updates: "
+                  f"median {np.median(recent):.1f} ms  p95 {np.percentile(recent, 95):.1f} ms  wall {time.perf_counter() - t0:.0f} s", flush=True)
+            next_report += 600.0
+    res = est.finish()
+    wall = time.perf_counter() - t0
+    t = np.asarray(res.update_times_s) * 1e3
+    n = np.asarray(res.update_n_landmarks)
+    kinds = np.array(res.history["update_kinds"])
+    obs = kinds == "observations"
+    # Per-update cost by map size: deciles of the mission.
+    bins = []
+    for chunk_t, chunk_n in zip(np.array_split(t[obs], 10), np.array_split(n[obs], 10)):
+        bins.append({"landmarks": int(chunk_n.max()), "ms_median": float(np.median(chunk_t)), "ms_p95": float(np.percentile(chunk_t, 95))})
+    return {
+        "duration_h": hours,
+        "wall_s": wall,
+        "n_landmarks": len(res.landmarks),
+        "n_keyframes": len(res.trajectory),
+        "update_ms_median": float(np.median(t)),
+        "update_ms_p95": float(np.percentile(t, 95)),
+        "by_map_size": bins,
+        **{k: v for k, v in summarize(res, mission).items() if k in ("ate_rmse_m", "landmark_median_error_m", "duplicated", "wrongly_merged")},
+    }
+
+
+def bench_factor_cost(n: int = 20000) -> dict:
+    """Linearisation cost per factor: the object-point CustomFactor vs built-ins of similar size."""
+    from factors.landmarks import point_factor
+
+    rng = np.random.default_rng(0)
+    values = gtsam.Values()
+    values.insert(gtsam.symbol("x", 0), gtsam.Pose3(gtsam.Rot3.Expmap(rng.normal(size=3)), rng.normal(size=3)))
+    values.insert(gtsam.symbol("l", 0), rng.normal(size=3))
+    values.insert(gtsam.symbol("y", 0), gtsam.Pose3())
+    x, l, y = gtsam.symbol("x", 0), gtsam.symbol("l", 0), gtsam.symbol("y", 0)
+    noise3 = gtsam.noiseModel.Isotropic.Sigma(3, 0.02)
+    factors = {
+        "CustomFactor point (3)": point_factor(x, l, np.ones(3), np.eye(3) * 4e-4, np.eye(4)),
+        "BearingRangeFactor3D (3)": gtsam.BearingRangeFactor3D(x, l, gtsam.Unit3(np.array([1.0, 0, 0])), 2.0, noise3),
+        "BetweenFactorPose3 (6)": gtsam.BetweenFactorPose3(x, y, gtsam.Pose3(), gtsam.noiseModel.Isotropic.Sigma(6, 0.1)),
+    }
+    out = {}
+    for name, f in factors.items():
+        reps = []
+        for _ in range(3):
+            t0 = time.perf_counter()
+            for _ in range(n):
+                f.linearize(values)
+            reps.append((time.perf_counter() - t0) / n * 1e6)
+        out[name] = float(np.median(reps))
+    return {"linearize_us": out}
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--runs", type=int, default=3)
+    ap.add_argument("--long-hours", type=float, default=2.0)
+    ap.add_argument("--skip-long", action="store_true")
+    ap.add_argument("--skip-default", action="store_true")
+    ap.add_argument("--out", default=None, help="write the numbers as JSON here")
+    a = ap.parse_args()
+    report = {}
+    print("factor cost ...", flush=True)
+    report["factor_cost"] = bench_factor_cost()
+    print(json.dumps(report["factor_cost"], indent=1), flush=True)
+    if not a.skip_default:
+        print("default mission ...", flush=True)
+        report["default"] = bench_default(a.runs)
+        print(json.dumps(report["default"], indent=1), flush=True)
+    if not a.skip_long:
+        print("long mission ...", flush=True)
+        report["long"] = bench_long(a.long_hours)
+        print(json.dumps(report["long"], indent=1), flush=True)
+    if a.out:
+        with open(a.out, "w") as fh:
+            json.dump(report, fh, indent=1)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,85 @@
+"""Monte Carlo consistency study of the EKF (the larger version of tests/test_ekf_consistency.py).
+
+N runs of the synthetic circling mission (truth drawn from the filter's own motion model, DVL
+dropouts); the 9-state vehicle NEES is sampled every second and averaged over the runs (ANEES). A
+consistent filter keeps the ANEES inside the two-sided 95 % χ²(9N)/N interval about 95 % of the time.
+With ``--features`` the runs include point/line observations (EKF-SLAM), where the well-known
+linearisation overconfidence of EKF-SLAM may show.
+
+    python experiments/ekf_nees_study.py [--runs 50] [--duration 120] [--features] [--png PATH]
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+from scipy.stats import chi2
+
+from semslam.config import SemslamConfig
+from semslam.ekf import EkfEstimator
+from semslam.ekf import geometry as geo
+from semslam.ekf.synthetic import simulate_circling
+
+ACCEL, RATE = 0.01, 0.002
+
+
+def run(seed: int, duration: float, features: bool):
+    sim = simulate_circling(seed=seed, duration_s=duration, accel_sigma=ACCEL, rate_sigma=RATE,
+                            dropouts=((30.0, 15.0), (80.0, 15.0)), with_features=features,
+                            velocity_tau_s=None if not features else 30.0, track_gain=0.0 if not features else 0.1)
+    est = EkfEstimator(sim.metadata, SemslamConfig(motion={"accel_sigma_m_s2": ACCEL,
+                                                           "angular_rate_sigma_rad_s": RATE}))
+    ts = sim.truth_stamps
+    out_t, out_nees = [], []
+    for m, obs in sim.stream():
+        est.process_measurement(m)
+        if obs:
+            est.process_observations(m.stamp, obs)
+        if m.sensor == "ahrs" and m.stamp % 1_000_000_000 == 0 and m.stamp > 0:
+            i = np.searchsorted(ts, m.stamp)
+            e = est.state.x[:9] - sim.truth_states[i]
+            e[3:6] = geo.wrap(e[3:6])
+            out_t.append(m.stamp * 1e-9)
+            out_nees.append(float(e @ np.linalg.solve(est.state.P[:9, :9], e)))
+    return np.array(out_t), np.array(out_nees)
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--runs", type=int, default=50)
+    ap.add_argument("--duration", type=float, default=120.0)
+    ap.add_argument("--features", action="store_true")
+    ap.add_argument("--png", default="experiments/out/ekf_nees.png")
+    args = ap.parse_args()
+    results = [run(s, args.duration, args.features) for s in range(args.runs)]
+    t = results[0][0]
+    anees = np.mean([r[1] for r in results], axis=0)
+    lo, hi = chi2.ppf([0.025, 0.975], 9 * args.runs) / args.runs
+    inside = np.mean((anees > lo) & (anees < hi))
+    print(f"runs {args.runs}, duration {args.duration:.0f} s, features {args.features}")
+    print(f"ANEES mean {anees.mean():.2f} (dimension 9), 95 % bounds [{lo:.2f}, {hi:.2f}], inside {inside:.0%} of the time")
+    if args.png:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+
+        Path(args.png).parent.mkdir(parents=True, exist_ok=True)
+        fig, ax = plt.subplots(figsize=(7, 3.5))
+        ax.plot(t, anees, label=f"ANEES over {args.runs} runs")
+        ax.axhline(lo, color="k", ls="--", lw=0.8, label="95 % bounds")
+        ax.axhline(hi, color="k", ls="--", lw=0.8)
+        for s, d in ((30.0, 15.0), (80.0, 15.0)):
+            ax.axvspan(s, s + d, color="0.9", label="DVL dropout" if s == 30.0 else None)
+        ax.set_xlabel("time (s)")
+        ax.set_ylabel("vehicle NEES (9 dof)")
+        ax.legend(loc="upper right")
+        fig.tight_layout()
+        fig.savefig(args.png, dpi=120)
+        print(f"figure: {args.png}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,201 @@
+"""Landmark factors: object point, pipe line (minimal 4-DoF), CAD structure (6-DoF).
+
+All observations are in the sensor frame {S} of a sensor mounted at T_BS on the body; the
+vehicle variable is X = T_WB (gtsam.Pose3, right perturbation ξ = (ω, v)).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import gtsam
+import numpy as np
+
+from factors.geometry import pose_point_jacobian, skew, so3_exp, so3_right_jacobian
+
+# --------------------------------------------------------------------------------------------
+# Object point
+
+
+def point_residual(T_WB: gtsam.Pose3, l_W: np.ndarray, T_BS: np.ndarray, z_S: np.ndarray, jac: bool = False):
+    """r = R_BSᵀ (R_WBᵀ (l − t_WB) − t_BS) − z_S; Jacobians 3×6 wrt X and 3×3 wrt l."""
+    R = T_WB.rotation().matrix()
+    R_BS, t_BS = T_BS[:3, :3], T_BS[:3, 3]
+    l_B = R.T @ (l_W - T_WB.translation())
+    r = R_BS.T @ (l_B - t_BS) - z_S
+    if not jac:
+        return r
+    H_x = R_BS.T @ np.hstack([skew(l_B), -np.eye(3)])
+    H_l = R_BS.T @ R.T
+    return r, H_x, H_l
+
+
+def point_factor(x: int, l: int, z_S, cov_S, T_BS, robust=None) -> gtsam.CustomFactor:
+    """Object position z_S seen from the sensor (CustomFactor on X, L: GTSAM's Python API has no
+    pose-to-point factor with a sensor offset and a Cartesian covariance)."""
+    z_S, T_BS = np.asarray(z_S, float), np.asarray(T_BS, float)
+
+    def error(this, values, H):
+        T, lw = values.atPose3(x), values.atPoint3(l)
+        if H is None:
+            return point_residual(T, lw, T_BS, z_S)
+        r, H[0], H[1] = point_residual(T, lw, T_BS, z_S, jac=True)
+        return r
+
+    return gtsam.CustomFactor(_noise(np.asarray(cov_S, float), robust), [x, l], error)
+
+
+# --------------------------------------------------------------------------------------------
+# Pipe line
+
+
+@dataclass(frozen=True)
+class LineAnchor:
+    """The fixed chart of a line landmark, chosen once at initialisation.
+
+    A line is stored as the 4-vector θ = (α, β, a, b):
+        R_L(θ) = R0 · Exp([α, β, 0]),  direction d = R_L e_z,  point on the line c0 + R_L (a, b, 0).
+    (α, β) tilt the direction about the anchor point c0; (a, b) shift the line perpendicular to it.
+    Four parameters for four degrees of freedom: no gauge (rotation about the line and sliding
+    along it are not parameters), so one observed segment gives a full-rank 4×4 system.
+    Singularities: the chart covers directions within π of the anchor direction R0 e_z (|(α,β)| = π
+    is singular); near the anchor — where the estimate stays, since c0 and R0 come from the
+    first observations — it is smooth, and unlike Plücker/(point, direction) forms it has no special
+    case for lines through the world origin or parallel to an axis. The observed segment has to
+    have non-zero length (its endpoints give the four perpendicular offsets).
+    """
+
+    R0: np.ndarray  # 3×3
+    c0: np.ndarray  # (3,)
+
+    @staticmethod
+    def from_points(p: np.ndarray, q: np.ndarray) -> "LineAnchor":
+        """Anchor at the midpoint of p, q with e_z along q − p."""
+        d = (q - p) / np.linalg.norm(q - p)
+        helper = np.array([1.0, 0.0, 0.0]) if abs(d[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+        x = np.cross(helper, d)
+        x /= np.linalg.norm(x)
+        y = np.cross(d, x)
+        return LineAnchor(np.column_stack([x, y, d]), 0.5 * (p + q))
+
+    def rotation(self, theta: np.ndarray) -> np.ndarray:
+        return self.R0 @ so3_exp(np.array([theta[0], theta[1], 0.0]))
+
+    def direction(self, theta) -> np.ndarray:
+        return self.rotation(theta)[:, 2]
+
+    def point(self, theta) -> np.ndarray:
+        """The point of the line closest to c0 (foot of the anchor)."""
+        return self.c0 + self.rotation(theta) @ np.array([theta[2], theta[3], 0.0])
+
+    def to_line_frame(self, theta, e_W: np.ndarray) -> np.ndarray:
+        """Coordinates of world points (N,3) in the line frame centred at c0."""
+        return (np.atleast_2d(e_W) - self.c0) @ self.rotation(theta)
+
+
+def line_residual(
+    T_WB: gtsam.Pose3, theta: np.ndarray, anchor: LineAnchor, T_BS: np.ndarray, p_S, q_S, jac: bool = False
+):
+    """Perpendicular offsets (4,) of the observed endpoints from the line:
+    r = P (R_Lᵀ (e_W − c0)) − (a, b) for e ∈ {p, q}, P the x,y rows.
+
+    Jacobians: 4×6 wrt X, 4×4 wrt θ. The residual ignores where along the line the endpoints lie
+    (a segment's ends are arbitrary along the pipe axis).
+    """
+    R_BS, t_BS = T_BS[:3, :3], T_BS[:3, 3]
+    R = T_WB.rotation().matrix()
+    t = T_WB.translation()
+    phi = np.array([theta[0], theta[1], 0.0])
+    RL = anchor.R0 @ so3_exp(phi)
+    ab = np.asarray(theta[2:4])
+    r = np.zeros(4)
+    H_x = np.zeros((4, 6))
+    H_l = np.zeros((4, 4))
+    Jr = so3_right_jacobian(phi)[:, :2] if jac else None
+    for k, e_S in enumerate((p_S, q_S)):
+        e_B = R_BS @ e_S + t_BS
+        e_W = t + R @ e_B
+        e_L = RL.T @ (e_W - anchor.c0)
+        r[2 * k : 2 * k + 2] = e_L[:2] - ab
+        if jac:
+            H_x[2 * k : 2 * k + 2] = (RL.T @ pose_point_jacobian(R, e_B))[:2]
+            H_l[2 * k : 2 * k + 2, :2] = (skew(e_L) @ Jr)[:2]
+            H_l[2 * k : 2 * k + 2, 2:] = -np.eye(2)
+    if not jac:
+        return r
+    return r, H_x, H_l
+
+
+def line_observation_covariance(
+    T_WB: gtsam.Pose3, theta, anchor: LineAnchor, T_BS: np.ndarray, cov_pq_S: np.ndarray
+) -> np.ndarray:
+    """Covariance (4×4) of the line residual from the 6×6 endpoint covariance (sensor frame):
+    each endpoint's covariance rotated into the line frame and projected perpendicular to it."""
+    M = (anchor.rotation(theta).T @ T_WB.rotation().matrix() @ T_BS[:3, :3])[:2]  # 2×3
+    J = np.zeros((4, 6))
+    J[:2, :3] = M
+    J[2:, 3:] = M
+    return J @ cov_pq_S @ J.T
+
+
+def line_factor(x: int, l: int, anchor: LineAnchor, p_S, q_S, cov4: np.ndarray, T_BS, robust=None):
+    """Pipe segment p_S, q_S seen from the sensor, on X and the 4-vector line landmark L
+    (CustomFactor: GTSAM's Python API has no line type). ``cov4`` from
+    :func:`line_observation_covariance` at the linearisation point of creation."""
+    p_S, q_S, T_BS = np.asarray(p_S, float), np.asarray(q_S, float), np.asarray(T_BS, float)
+
+    def error(this, values, H):
+        T, th = values.atPose3(x), values.atVector(l)
+        if H is None:
+            return line_residual(T, th, anchor, T_BS, p_S, q_S)
+        r, H[0], H[1] = line_residual(T, th, anchor, T_BS, p_S, q_S, jac=True)
+        return r
+
+    return gtsam.CustomFactor(_noise(cov4, robust), [x, l], error)
+
+
+# --------------------------------------------------------------------------------------------
+# Structure
+
+
+def structure_factor(x: int, s: int, T_S_model: np.ndarray, cov6: np.ndarray, T_BS: np.ndarray, robust=None):
+    """CAD model pose T_S,model on X and the structure landmark M = T_W,model: built-in
+    BetweenFactorPose3(X, M, T_BS·T_S,model). Exact: the covariance is on the model side (right
+    perturbation), and T_BS T_S,model Exp(ξ) = T_B,model Exp(ξ)."""
+    meas = gtsam.Pose3(np.asarray(T_BS, float) @ np.asarray(T_S_model, float))
+    return gtsam.BetweenFactorPose3(x, s, meas, _noise(np.asarray(cov6, float), robust))
+
+
+def structure_residual(T_WB: gtsam.Pose3, M: gtsam.Pose3, T_BS: np.ndarray, T_S_model: np.ndarray, jac=False):
+    """Residual Log((T_BS T_S,model)⁻¹ T_WB⁻¹ M) of the structure factor, with its Jacobians
+    (6×6 wrt X, 6×6 wrt M), for data association."""
+    meas = gtsam.Pose3(np.asarray(T_BS, float) @ np.asarray(T_S_model, float))
+    H1 = np.zeros((6, 6), order="F")
+    H2 = np.zeros((6, 6), order="F")
+    between = T_WB.between(M, H1, H2)
+    Hlog = np.zeros((6, 6), order="F")
+    err = gtsam.Pose3.Logmap(meas.between(between), Hlog)
+    if not jac:
+        return err
+    return err, Hlog @ H1, Hlog @ H2
+
+
+# --------------------------------------------------------------------------------------------
+
+
+def robust_kernel(name: str, k: float):
+    """gtsam m-estimator by name ('huber', 'cauchy', 'tukey', 'none')."""
+    name = name.lower()
+    if name == "none":
+        return None
+    table = {
+        "huber": gtsam.noiseModel.mEstimator.Huber,
+        "cauchy": gtsam.noiseModel.mEstimator.Cauchy,
+        "tukey": gtsam.noiseModel.mEstimator.Tukey,
+    }
+    return table[name].Create(k)
+
+
+def _noise(cov: np.ndarray, robust):
+    base = gtsam.noiseModel.Gaussian.Covariance(cov)
+    return base if robust is None else gtsam.noiseModel.Robust.Create(robust, base)

@@ -1,0 +1,241 @@
+"""Navigation factors: DVL body velocity (with lever arm), DVL/AHRS preintegration with a motion
+model across dropouts, AHRS attitude, and depth (with lever arm).
+
+State per keyframe k (see semslam.backend): ``X(k)`` = T_WB (gtsam.Pose3, {W} NED, {B} x fwd /
+y right / z down) and ``V(k)`` = the body-frame velocity v_B of the vehicle origin (Vector3, m/s).
+The body velocity is a state only so that DVL dropouts can be bridged by a motion model (velocity
+as a Wiener process, white acceleration σ_a) whose uncertainty grows with the gap.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import gtsam
+import numpy as np
+
+from factors.geometry import euler_zyx_rate_matrix, rot_to_roll_pitch, skew
+
+# --------------------------------------------------------------------------------------------
+# DVL velocity
+
+
+def dvl_to_body(
+    v_S: np.ndarray, cov_S: np.ndarray, T_BS: np.ndarray, omega_B: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Body velocity v_B and its covariance from a DVL reading v_S (DVL frame).
+
+    The DVL head at t_BS moves with v_S = R_SB (v_B + ω_B × t_BS); the model is linear in v_B, so
+    v_B = R_BS v_S − ω_B × t_BS exactly, with covariance R_BS Σ_S R_BSᵀ (ω_B, from the AHRS, is
+    treated as known: its error times a lever arm of a few decimetres is negligible).
+    """
+    R_BS, t_BS = T_BS[:3, :3], T_BS[:3, 3]
+    w = np.zeros(3) if omega_B is None else np.asarray(omega_B, float)
+    return R_BS @ v_S - np.cross(w, t_BS), R_BS @ cov_S @ R_BS.T
+
+
+def dvl_residual(v_B: np.ndarray, v_S: np.ndarray, T_BS: np.ndarray, omega_B: np.ndarray) -> np.ndarray:
+    """The DVL measurement residual in the DVL frame: R_SB (v_B + ω × t_BS) − v_S (for tests)."""
+    R_BS, t_BS = T_BS[:3, :3], T_BS[:3, 3]
+    return R_BS.T @ (v_B + np.cross(omega_B, t_BS)) - v_S
+
+
+def dvl_velocity_factor(
+    key: int, v_S: np.ndarray, cov_S: np.ndarray, T_BS: np.ndarray, omega_B=None, extra_var: float = 0.0
+) -> gtsam.NonlinearFactor:
+    """DVL factor on the body velocity V(k): built-in PriorFactorVector on v_B.
+
+    Equivalent to the lever-arm residual :func:`dvl_residual` whitened by Σ_S (the map is affine
+    and R_BS orthogonal, so the Mahalanobis norms are identical). ``extra_var`` (m²/s²) inflates
+    it isotropically, e.g. σ_a²·age for a reading ``age`` seconds older than the keyframe.
+    """
+    v_B, cov_B = dvl_to_body(v_S, cov_S, T_BS, omega_B)
+    cov_B = cov_B + extra_var * np.eye(3)
+    return gtsam.PriorFactorVector(key, v_B, gtsam.noiseModel.Gaussian.Covariance(cov_B))
+
+
+def velocity_random_walk_factor(key_i: int, key_j: int, dt: float, accel_sigma: float) -> gtsam.NonlinearFactor:
+    """Motion model on the body velocity: v_j − v_i ~ N(0, σ_a² Δt I) (built-in BetweenFactorVector)."""
+    sigma = accel_sigma * np.sqrt(max(dt, 1e-6))
+    return gtsam.BetweenFactorVector(key_i, key_j, np.zeros(3), gtsam.noiseModel.Isotropic.Sigma(3, sigma))
+
+
+# --------------------------------------------------------------------------------------------
+# Preintegration between keyframes
+
+
+@dataclass
+class DisplacementIntegral:
+    """The displacement of the body origin between keyframes i and j, in {B_i}:
+
+        R_iᵀ (p_j − p_i) = c + A v_i + B v_j + n,   n ~ N(0, Σ).
+
+    ``c`` collects the DVL samples inside (t_i, t_j]; A and B weight the keyframe velocity states
+    over the segments before the first and after the last sample (the whole interval in a dropout).
+    """
+
+    dt: float
+    c: np.ndarray
+    A: np.ndarray
+    B: np.ndarray
+    cov: np.ndarray
+    n_samples: int
+    last_sample_age: float | None  # t_j − stamp of the last DVL sample (None: no sample)
+    last_sample: tuple[np.ndarray, np.ndarray] | None  # (v_B, Σ_B) of the last sample
+
+
+class DvlPreintegrator:
+    """Integrates DVL body velocities with AHRS relative rotations from keyframe i on.
+
+    The velocity profile is piecewise linear through the knots (v_i at t_i, every valid DVL sample,
+    v_j at t_j) and the position integral uses the trapezoid rule, rotating each knot into {B_i}
+    with the AHRS: ∫ R_i(t) v(t) dt ≈ Σ_knots w_k ΔR_k v_k with w_k = (t_{k+1} − t_{k−1}) / 2.
+    Deviations of the true velocity from the linear interpolant between two knots Δt apart are a
+    Brownian bridge whose integral has variance σ_a² Δt³ / 12 per axis; that is the motion-model
+    noise, and over a dropout (no knot) it grows with the cube of the gap.
+    """
+
+    def __init__(self, t_i: float, R_i: np.ndarray, accel_sigma: float, attitude_sigma: float = 0.0):
+        self.t_i = t_i
+        self.R_i_T = np.asarray(R_i).T
+        self.accel_sigma = accel_sigma
+        self.attitude_sigma = attitude_sigma
+        self._t: list[float] = []
+        self._dR: list[np.ndarray] = []
+        self._v: list[np.ndarray] = []
+        self._cov: list[np.ndarray] = []
+
+    def add(self, t: float, R_WB: np.ndarray, v_B: np.ndarray, cov_B: np.ndarray) -> None:
+        """A valid DVL sample (already in the body frame, :func:`dvl_to_body`) at time t (s)."""
+        if t <= self.t_i or (self._t and t <= self._t[-1]):
+            return  # out of order or at the keyframe itself: the keyframe's own prior carries it
+        self._t.append(t)
+        self._dR.append(self.R_i_T @ R_WB)
+        self._v.append(np.asarray(v_B, float))
+        self._cov.append(np.asarray(cov_B, float))
+
+    def drop_last(self) -> None:
+        """Forget the newest sample (used when it becomes the next keyframe's velocity factor)."""
+        for lst in (self._t, self._dR, self._v, self._cov):
+            lst.pop()
+
+    @property
+    def last_stamp(self) -> float | None:
+        return self._t[-1] if self._t else None
+
+    @property
+    def n_samples(self) -> int:
+        return len(self._t)
+
+    def integrate(self, t_j: float, R_j: np.ndarray) -> DisplacementIntegral:
+        dt = t_j - self.t_i
+        knots_t = np.array([self.t_i, *self._t, t_j])
+        seg = np.diff(knots_t)
+        w = np.zeros(len(knots_t))
+        w[:-1] += seg / 2
+        w[1:] += seg / 2
+        dR_j = self.R_i_T @ R_j
+        c = np.zeros(3)
+        cov = np.eye(3) * (self.accel_sigma**2 * float(np.sum(seg**3)) / 12.0 + 1e-12)
+        for k in range(len(self._t)):
+            wk, dR, v = w[k + 1], self._dR[k], self._v[k]
+            c += wk * (dR @ v)
+            cov += wk**2 * (dR @ self._cov[k] @ dR.T)
+            if self.attitude_sigma > 0:  # attitude noise rotates the sample: δ = −ΔR [v]× δθ
+                Sv = dR @ skew(v)
+                cov += wk**2 * self.attitude_sigma**2 * (Sv @ Sv.T)
+        last = (self._v[-1], self._cov[-1]) if self._t else None
+        return DisplacementIntegral(
+            dt=dt,
+            c=c,
+            A=w[0] * np.eye(3),
+            B=w[-1] * dR_j,
+            cov=cov,
+            n_samples=len(self._t),
+            last_sample_age=(t_j - self._t[-1]) if self._t else None,
+            last_sample=last,
+        )
+
+
+def displacement_residual(T_i: gtsam.Pose3, T_j: gtsam.Pose3, v_i, v_j, d: DisplacementIntegral, jac: bool = False):
+    """r = R_iᵀ (p_j − p_i) − c − A v_i − B v_j and, with ``jac``, its Jacobians
+    (3×6 wrt X_i, 3×6 wrt X_j, 3×3 wrt V_i, 3×3 wrt V_j)."""
+    Ri = T_i.rotation().matrix()
+    Rj = T_j.rotation().matrix()
+    delta = Ri.T @ (T_j.translation() - T_i.translation())
+    r = delta - d.c - d.A @ v_i - d.B @ v_j
+    if not jac:
+        return r
+    H_i = np.hstack([skew(delta), -np.eye(3)])
+    H_j = np.hstack([np.zeros((3, 3)), Ri.T @ Rj])
+    return r, (H_i, H_j, -d.A, -d.B)
+
+
+def displacement_factor(xi: int, xj: int, vi: int, vj: int, d: DisplacementIntegral) -> gtsam.CustomFactor:
+    """Preintegrated DVL/AHRS displacement between keyframes (CustomFactor on X_i, X_j, V_i, V_j).
+
+    No built-in expresses a position-only displacement in {B_i} with velocity states; the
+    rotations are left to the absolute AHRS factors so that the AHRS is not counted twice.
+    """
+
+    def error(this: gtsam.CustomFactor, values: gtsam.Values, H):
+        Ti, Tj = values.atPose3(xi), values.atPose3(xj)
+        v_i, v_j = values.atVector(vi), values.atVector(vj)
+        if H is None:
+            return displacement_residual(Ti, Tj, v_i, v_j, d)
+        r, Hs = displacement_residual(Ti, Tj, v_i, v_j, d, jac=True)
+        for k, Hk in enumerate(Hs):
+            H[k] = Hk
+        return r
+
+    return gtsam.CustomFactor(gtsam.noiseModel.Gaussian.Covariance(d.cov), [xi, xj, vi, vj], error)
+
+
+# --------------------------------------------------------------------------------------------
+# AHRS
+
+
+def ahrs_body_rotation(R_WS: np.ndarray, cov_rpy: np.ndarray, R_BS: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """R_WB = R_WS R_BSᵀ from an AHRS reading and the covariance of its right-tangent error.
+
+    The AHRS covariance is over (roll, pitch, yaw) of R_WS; the Euler-rate matrix E maps it to the
+    sensor-frame angle error (R_WS → R_WS Exp(E δ)), and R_WB → R_WB Exp(R_BS E δ).
+    """
+    roll, pitch = rot_to_roll_pitch(R_WS)
+    J = R_BS @ euler_zyx_rate_matrix(roll, pitch)
+    return R_WS @ R_BS.T, J @ cov_rpy @ J.T
+
+
+def attitude_factor(key: int, R_WB: np.ndarray, cov_tangent: np.ndarray) -> gtsam.NonlinearFactor:
+    """AHRS roll, pitch and heading on X(k): built-in PoseRotationPrior3D (rotation part only)."""
+    return gtsam.PoseRotationPrior3D(key, gtsam.Rot3(R_WB), gtsam.noiseModel.Gaussian.Covariance(cov_tangent))
+
+
+# --------------------------------------------------------------------------------------------
+# Depth
+
+
+def depth_residual(T_WB: gtsam.Pose3, t_BS: np.ndarray, depth: float, jac: bool = False):
+    """r = [p_W,S]_z − depth with p_W,S = t + R t_BS (the pressure sensor's position); 1×6 Jacobian."""
+    R = T_WB.rotation().matrix()
+    r = np.array([T_WB.translation()[2] + R[2] @ t_BS - depth])
+    if not jac:
+        return r
+    H = np.hstack([-(R @ skew(t_BS))[2], R[2]]).reshape(1, 6)
+    return r, H
+
+
+def depth_factor(key: int, depth: float, variance: float, t_BS: np.ndarray) -> gtsam.CustomFactor:
+    """Depth of the pressure sensor on X(k) with its lever arm (CustomFactor: no built-in
+    constrains one world coordinate of a point attached to a pose)."""
+    t_BS = np.asarray(t_BS, float)
+
+    def error(this, values, H):
+        T = values.atPose3(key)
+        if H is None:
+            return depth_residual(T, t_BS, depth)
+        r, H0 = depth_residual(T, t_BS, depth, jac=True)
+        H[0] = H0
+        return r
+
+    return gtsam.CustomFactor(gtsam.noiseModel.Isotropic.Sigma(1, float(np.sqrt(variance))), [key], error)

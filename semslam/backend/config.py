@@ -1,0 +1,56 @@
+"""Configuration of the graph back-end (section ``graph`` of the semslam configuration)."""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+
+class GraphConfig(BaseModel):
+    """iSAM2 / batch graph back-end. Motion noise and association settings are shared with the EKF
+    and live in ``motion`` and ``association``."""
+
+    model_config = ConfigDict(extra="forbid")
+    batch: bool = Field(
+        False, description="after the online pass, re-optimise the whole mission with Levenberg–Marquardt"
+    )
+    keyframe_max_interval_s: float = Field(
+        1.0, gt=0, description="a keyframe at least this often, besides one per exteroceptive observation batch"
+    )
+    initial_pose: Literal["first_ground_truth", "origin"] = Field(
+        "first_ground_truth",
+        description="start pose: the first GroundTruthPose of the stream (a surface fix) or the origin with the AHRS attitude",
+    )
+    initial_position_sigma_m: float = Field(0.01, gt=0, description="prior σ on the start position (per axis)")
+    initial_rotation_sigma_rad: float = Field(0.05, gt=0, description="prior σ on the start attitude (the AHRS refines it)")
+    initial_velocity_sigma_m_s: float = Field(0.5, gt=0, description="prior σ on the start body velocity")
+    dvl_max_age_s: float = Field(0.5, gt=0, description="a DVL sample older than this at a keyframe is not a velocity factor")
+    ahrs_max_age_s: float = Field(0.5, gt=0, description="an AHRS sample older than this at a keyframe is not used")
+    depth_max_age_s: float = Field(0.5, gt=0, description="a depth sample older than this at a keyframe is not used")
+    relinearize_threshold: float = Field(0.01, gt=0, description="iSAM2 relinearisation threshold (tangent norm)")
+    relinearize_skip: int = Field(1, ge=1, description="iSAM2 relinearises every this many updates")
+    robust_kernel: Literal["huber", "cauchy", "tukey", "none"] = Field(
+        "huber", description="m-estimator on landmark factors"
+    )
+    robust_k: float = Field(1.345, gt=0, description="kernel width in whitened units (σ)")
+    pre_gate_m: float = Field(
+        2.0, gt=0, description="Euclidean pre-gate (m) before the Mahalanobis test: cheaper association on large maps"
+    )
+    landmark_cov_refresh_s: float = Field(
+        10.0,
+        ge=0,
+        description="a landmark's marginal covariance for gating is recomputed at most this often "
+        "(a landmark's marginal only shrinks, so a stale one is conservative)",
+    )
+    track_timeout_s: float = Field(
+        60.0, gt=0, description="a tentative landmark not seen again within this time is forgotten (false positive)"
+    )
+    track_gate_confidence: float = Field(
+        0.999, gt=0, lt=1, description="χ² confidence for an observation to extend a tentative landmark"
+    )
+    pipe_extent_gap_m: float = Field(
+        0.3, ge=0, description="a pipe observation must overlap a pipe landmark's extent within this gap to pair with it"
+    )
+    batch_max_iterations: int = Field(100, ge=1, description="Levenberg–Marquardt iterations in batch mode")
+    covariance_in_result: bool = Field(True, description="marginal covariances of every keyframe and landmark in the result")

@@ -1,0 +1,790 @@
+"""The graph back-end: iSAM2 online (and Levenberg–Marquardt batch) smoothing over keyframes with
+navigation factors between them and object / pipe / structure landmarks.
+
+State (see factors.navigation): per keyframe k, X(k) = T_WB (Pose3) and V(k) = body velocity.
+Keyframes are created at every observation batch and at least every
+``GraphConfig.keyframe_max_interval_s``. Between consecutive keyframes: the preintegrated
+DVL/AHRS displacement (with the velocity motion model across dropouts) and, over intervals with no
+DVL at all, the velocity random walk. At each keyframe: the AHRS attitude, the depth and the latest
+DVL velocity. Landmarks: object points L(id), pipe lines P(id) (4-vector, anchored chart),
+structures S(id) (Pose3), with robust kernels, data association by JCBB against the current
+estimate, and initialisation after ``association.min_observations`` consistent observations.
+"""
+
+from __future__ import annotations
+
+import bisect
+import time
+from functools import lru_cache
+from collections.abc import Sequence
+
+import gtsam
+import numpy as np
+from scipy.spatial.transform import Rotation
+from scipy.stats import chi2
+
+from factors.landmarks import (
+    LineAnchor,
+    line_factor,
+    line_observation_covariance,
+    point_factor,
+    robust_kernel,
+    structure_factor,
+)
+from factors.navigation import attitude_factor, depth_factor, displacement_factor, dvl_velocity_factor, velocity_random_walk_factor
+from factors.geometry import pose_point_jacobian
+from semslam.backend.association import jcbb
+from semslam.backend.config import GraphConfig
+from semslam.backend.landmarks import Landmark, ObservationRecord, Track, merge_collinear
+from semslam.backend.navigation import NavigationBuffer
+from semslam.backend.problem import Candidate, GraphAssociationProblem
+from semslam.config import SemslamConfig
+from semslam.estimation import EstimatorResult, LandmarkEstimate, Trajectory
+from semslam.mission.measurements import GroundTruthPose, Measurement
+from semslam.mission.mission import MissionMetadata
+from semslam.observations import LineObservation, OdometryObservation, PointObservation, StructureObservation
+
+X = gtsam.symbol_shorthand.X
+V = gtsam.symbol_shorthand.V
+KEY_OF_KIND = {"object": gtsam.symbol_shorthand.L, "pipe": gtsam.symbol_shorthand.P, "structure": gtsam.symbol_shorthand.S}
+KIND_OF_OBS = {PointObservation: "object", LineObservation: "pipe", StructureObservation: "structure"}
+
+
+class GraphView:
+    """Read-only view of the graph estimate handed to front-ends."""
+
+    def __init__(self, est: "GraphEstimator"):
+        self._est = est
+
+    def pose_at(self, stamp: int) -> np.ndarray | None:
+        p = self._est.pose_at(stamp)
+        return None if p is None else p.matrix()
+
+    def landmarks(self) -> Sequence[LandmarkEstimate]:
+        return self._est.landmark_estimates(covariance=False)
+
+
+class GraphEstimator:
+    """iSAM2 graph estimator (name ``graph``) implementing :class:`semslam.estimation.Estimator`."""
+
+    name = "graph"
+
+    def __init__(self, metadata: MissionMetadata, config: SemslamConfig | None = None, batch: bool | None = None):
+        config = config or SemslamConfig()
+        g = config.graph
+        self.cfg: GraphConfig = g if isinstance(g, GraphConfig) else GraphConfig.model_validate(g or {})
+        self.batch = self.cfg.batch if batch is None else bool(batch)
+        self.assoc = config.association
+        self.motion = config.motion
+        self.metadata = metadata
+        self.nav = NavigationBuffer(metadata, config.motion.accel_sigma_m_s2, config.motion.angular_rate_sigma_rad_s)
+        params = gtsam.ISAM2Params()
+        params.setRelinearizeThreshold(self.cfg.relinearize_threshold)
+        params.relinearizeSkip = self.cfg.relinearize_skip
+        self.isam = gtsam.ISAM2(params)
+        self.robust = robust_kernel(self.cfg.robust_kernel, self.cfg.robust_k)
+        self._wait_for_gt = self.cfg.initial_pose == "first_ground_truth" and bool(metadata.sensors_of_kind("ground_truth"))
+        self._initial_gt: GroundTruthPose | None = None
+        # Graph bookkeeping: every factor with its owner (None = navigation, else a landmark id),
+        # and every variable's initial value, for batch optimisation and failure recovery.
+        self._factors: list[tuple[gtsam.NonlinearFactor, int | None]] = []
+        self._initial = gtsam.Values()
+        self.kf_stamps: list[int] = []
+        self._pose: gtsam.Pose3 | None = None  # latest keyframe pose estimate
+        self._vel: np.ndarray | None = None
+        self._pose_cov: np.ndarray | None = None
+        self.online: list[tuple[int, gtsam.Pose3, np.ndarray]] = []
+        self.landmarks: dict[int, Landmark] = {}
+        self.tracks: list[Track] = []
+        self._next_id = 0
+        self.update_times: list[float] = []
+        self.update_n_landmarks: list[int] = []
+        self.update_kinds: list[str] = []
+        self.diagnostics: list[str] = []
+        self._ambiguous: set[int] = set()
+        self._current_obs: list = []
+        self._volume: dict[int, list[tuple[int, float]]] = {}  # landmark id → [(stamp, log det cov)]
+        # Bounding sphere (centre, radius) of every landmark, refreshed with its estimate.
+        self._sphere_row: dict[int, int] = {}
+        self._sphere_ids: list[int] = []
+        self._sphere_c = np.zeros((0, 3))
+        self._sphere_r = np.zeros(0)
+
+    # ------------------------------------------------------------------ protocol
+    def view(self) -> GraphView:
+        return GraphView(self)
+
+    def process_measurement(self, measurement: Measurement) -> None:
+        if isinstance(measurement, GroundTruthPose):
+            if self._initial_gt is None:
+                self._initial_gt = measurement
+            return
+        self.nav.add(measurement)
+        if self.nav.attitude is None:
+            return
+        if not self.kf_stamps:
+            if not self._wait_for_gt or self._initial_gt is not None:
+                self._timed(lambda: self._first_keyframe(measurement.stamp), "keyframe")
+            return
+        if (measurement.stamp - self.kf_stamps[-1]) * 1e-9 >= self.cfg.keyframe_max_interval_s:
+            self._timed(lambda: self._keyframe(measurement.stamp), "keyframe")
+
+    def process_observations(self, stamp: int, observations: Sequence) -> None:
+        if not observations:
+            return
+        if not self.kf_stamps:
+            self.diagnostics.append(f"{stamp}: {len(observations)} observations before the first keyframe, ignored")
+            return
+        self._timed(lambda: self._observations(stamp, list(observations)), "observations")
+
+    # ------------------------------------------------------------------ keyframes
+    def _timed(self, fn, kind: str) -> None:
+        t0 = time.perf_counter()
+        fn()
+        self.update_times.append(time.perf_counter() - t0)
+        self.update_n_landmarks.append(len(self.landmarks))
+        self.update_kinds.append(kind)
+
+    def _nav_factors_at(self, k: int, t: float) -> tuple[list, np.ndarray, np.ndarray | None]:
+        """AHRS, depth and DVL factors of keyframe k at time t; returns (factors, R_WB, v_B prior mean)."""
+        factors = []
+        R, cov_R = self.nav.attitude_at(t)
+        if t - self.nav.attitude.t <= self.cfg.ahrs_max_age_s:
+            factors.append(attitude_factor(X(k), R, cov_R))
+        v_prior = None
+        dvl = self.nav.dvl
+        if dvl is not None and 0 <= t - dvl.t <= self.cfg.dvl_max_age_s:
+            age = t - dvl.t
+            factors.append(dvl_velocity_factor(V(k), dvl.v_S, dvl.cov_S, dvl.T_BS, dvl.omega_B, self.motion.accel_sigma_m_s2**2 * age))
+            v_prior = dvl.v_B
+        dep = self.nav.depth
+        if dep is not None and 0 <= t - dep.t <= self.cfg.depth_max_age_s:
+            age = t - dep.t
+            # Bring the reading to t along the vertical velocity (from the DVL, else none).
+            vz = float((R @ (v_prior if v_prior is not None else np.zeros(3)))[2])
+            var = dep.variance + (self.motion.accel_sigma_m_s2 * age**1.5) ** 2 + (0.01 * age) ** 2
+            factors.append(depth_factor(X(k), dep.depth + vz * age, var, dep.t_BS))
+        return factors, R, v_prior
+
+    def _first_keyframe(self, stamp: int) -> None:
+        t = stamp * 1e-9
+        factors, R, v_prior = self._nav_factors_at(0, t)
+        if self._initial_gt is not None and self.cfg.initial_pose == "first_ground_truth":
+            pos = np.asarray(self._initial_gt.position, float)
+            R0 = Rotation.from_quat(self._initial_gt.orientation).as_matrix()
+        else:
+            pos, R0 = np.zeros(3), R
+        pose0 = gtsam.Pose3(gtsam.Rot3(R0), pos)
+        sig = np.r_[[self.cfg.initial_rotation_sigma_rad] * 3, [self.cfg.initial_position_sigma_m] * 3]
+        factors.append(gtsam.PriorFactorPose3(X(0), pose0, gtsam.noiseModel.Diagonal.Sigmas(sig)))
+        v0 = v_prior if v_prior is not None else np.zeros(3)
+        factors.append(gtsam.PriorFactorVector(V(0), v0, gtsam.noiseModel.Isotropic.Sigma(3, self.cfg.initial_velocity_sigma_m_s)))
+        values = gtsam.Values()
+        values.insert(X(0), pose0)
+        values.insert(V(0), v0)
+        self.kf_stamps.append(stamp)
+        self._commit([(f, None) for f in factors], values)
+        self._after_keyframe(t)
+
+    def _keyframe(self, stamp: int) -> int:
+        """Create keyframe k at ``stamp`` with its navigation factors; returns k."""
+        k = len(self.kf_stamps)
+        t = stamp * 1e-9
+        factors, R, v_prior = self._nav_factors_at(k, t)
+        # A DVL sample used as V(k)'s prior is removed from the displacement's knots (no double use).
+        drop_last = v_prior is not None and self.nav.preint.last_stamp == self.nav.dvl.t
+        if drop_last:
+            self.nav.preint.drop_last()
+        d = self.nav.preint.integrate(t, R)
+        factors.append(displacement_factor(X(k - 1), X(k), V(k - 1), V(k), d))
+        if d.n_samples == 0:  # no knot between the two velocity states: the process model links them
+            factors.append(velocity_random_walk_factor(V(k - 1), V(k), d.dt, self.motion.accel_sigma_m_s2))
+        v_init = v_prior if v_prior is not None else self._vel
+        p_init = self._pose.translation() + self._pose.rotation().matrix() @ (d.c + d.A @ self._vel + d.B @ v_init)
+        values = gtsam.Values()
+        values.insert(X(k), gtsam.Pose3(gtsam.Rot3(R), p_init))
+        values.insert(V(k), np.asarray(v_init, float))
+        self.kf_stamps.append(stamp)
+        self._commit([(f, None) for f in factors], values)
+        self._after_keyframe(t)
+        return k
+
+    def _after_keyframe(self, t: float) -> None:
+        k = len(self.kf_stamps) - 1
+        self._refresh_current()
+        R, _ = self.nav.attitude_at(t)
+        att_sigma = float(np.sqrt(np.trace(self.nav.attitude.cov) / 3))
+        self.nav.start_interval(t, R, att_sigma)
+        R_pose = self._pose.rotation().matrix()
+        self.online.append((self.kf_stamps[k], self._pose, R_pose @ self._pose_cov[3:, 3:] @ R_pose.T))
+
+    def _refresh_current(self) -> None:
+        k = len(self.kf_stamps) - 1
+        self._pose = self.isam.calculateEstimatePose3(X(k))
+        self._vel = np.asarray(self.isam.calculateEstimateVector(V(k)))
+        try:
+            self._pose_cov = self.isam.marginalCovariance(X(k))
+        except RuntimeError:
+            self._pose_cov = np.eye(6) * 1e2
+
+    # ------------------------------------------------------------------ graph updates
+    def _commit(self, factors: list[tuple], values: gtsam.Values) -> bool:
+        """Add factors (with their owners) and new variables to iSAM2; recover from a failure by
+        dropping the landmark factors of this update (and landmarks they would have created)
+        and rebuilding iSAM2 from the rest. Returns False if something was dropped."""
+        graph = gtsam.NonlinearFactorGraph()
+        for f, _ in factors:
+            graph.add(f)
+        try:
+            self.isam.update(graph, values)
+            self._factors.extend(factors)
+            self._initial.insert(values)
+            return True
+        except RuntimeError as exc:
+            msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+            stamp = self.kf_stamps[-1] if self.kf_stamps else 0
+            owners = sorted({o for _, o in factors if o is not None})
+            self.diagnostics.append(f"{stamp}: iSAM2 update failed ({msg}); dropped the factors of landmarks {owners}")
+            kept = [(f, o) for f, o in factors if o is None]
+            self._rebuild(kept, values, owners)
+            return False
+
+    def _rebuild(self, new_nav: list[tuple], values: gtsam.Values, dropped_owners: list[int]) -> None:
+        try:
+            estimate = self.isam.calculateEstimate()
+        except RuntimeError:
+            estimate = gtsam.Values(self._initial)
+        for lid in dropped_owners:  # landmarks created in the failed update disappear
+            lm = self.landmarks.get(lid)
+            if lm is not None and not any(o == lid for _, o in self._factors):
+                del self.landmarks[lid]
+                row = self._sphere_row.pop(lid, None)
+                if row is not None:
+                    self._sphere_c[row] = np.inf  # never near again
+        keep_keys = {X(i) for i in range(len(self.kf_stamps))} | {V(i) for i in range(len(self.kf_stamps))}
+        keep_keys |= {lm.key for lm in self.landmarks.values()}
+        full = gtsam.Values()
+        for src in (estimate, values, self._initial):
+            for key in src.keys():
+                if key in keep_keys and not full.exists(key):
+                    full.insert(key, src.atPose3(key) if gtsam.Symbol(key).chr() in (ord("x"), ord("s")) else _value(src, key))
+        self._factors.extend(new_nav)
+        graph = gtsam.NonlinearFactorGraph()
+        for f, _ in self._factors:
+            graph.add(f)
+        params = self.isam.params()
+        self.isam = gtsam.ISAM2(params)
+        try:
+            self.isam.update(graph, full)
+        except RuntimeError as exc:
+            # Last resort: a weak prior on the newest keyframe re-anchors the system.
+            k = len(self.kf_stamps) - 1
+            pose = full.atPose3(X(k))
+            prior = gtsam.PriorFactorPose3(X(k), pose, gtsam.noiseModel.Isotropic.Sigma(6, 10.0))
+            vprior = gtsam.PriorFactorVector(V(k), _value(full, V(k)), gtsam.noiseModel.Isotropic.Sigma(3, 10.0))
+            self._factors += [(prior, None), (vprior, None)]
+            graph.add(prior)
+            graph.add(vprior)
+            self.isam = gtsam.ISAM2(params)
+            self.isam.update(graph, full)
+            self.diagnostics.append(f"rebuild needed a weak re-anchoring prior on keyframe {k} ({str(exc).splitlines()[0]})")
+        self._initial = full
+
+    # ------------------------------------------------------------------ observations
+    def _sensor_T(self, sensor: str) -> np.ndarray:
+        info = self.metadata.sensors.get(sensor)
+        if info is None:
+            msg = f"observations from unknown sensor {sensor!r}: identity extrinsic assumed"
+            if msg not in self.diagnostics:
+                self.diagnostics.append(msg)
+            return np.eye(4)
+        return info.T_BS
+
+    def _keyframe_for(self, stamp: int) -> int:
+        if stamp == self.kf_stamps[-1]:
+            return len(self.kf_stamps) - 1
+        if stamp > self.kf_stamps[-1]:
+            return self._keyframe(stamp)
+        i = bisect.bisect_left(self.kf_stamps, stamp)
+        i = min(range(max(i - 1, 0), min(i + 1, len(self.kf_stamps))), key=lambda j: abs(self.kf_stamps[j] - stamp))
+        self.diagnostics.append(f"{stamp}: observations older than the newest keyframe, attached to keyframe {i}")
+        return i
+
+    def _valid(self, z) -> bool:
+        arrays = [np.asarray(getattr(z, a)) for a in ("position", "p", "q", "pose", "covariance", "relative_pose") if hasattr(z, a)]
+        if not all(np.all(np.isfinite(a)) for a in arrays):
+            return False
+        if isinstance(z, LineObservation) and np.linalg.norm(z.q - z.p) < 1e-3:
+            return False
+        return True
+
+    def _observations(self, stamp: int, observations: list) -> None:
+        k = self._keyframe_for(stamp)
+        if k != len(self.kf_stamps) - 1:
+            pose, pose_cov = self.isam.calculateEstimatePose3(X(k)), self.isam.marginalCovariance(X(k))
+        else:
+            pose, pose_cov = self._pose, self._pose_cov
+        bad = [z for z in observations if not self._valid(z)]
+        if bad:
+            self.diagnostics.append(f"{stamp}: {len(bad)} degenerate or non-finite observations dropped")
+        observations = [z for z in observations if self._valid(z)]
+        odom = [z for z in observations if isinstance(z, OdometryObservation)]
+        lines = merge_collinear(
+            [z for z in observations if isinstance(z, LineObservation)], self.assoc.merge_angle_rad, self.assoc.merge_distance_m
+        )
+        obs = [z for z in observations if isinstance(z, (PointObservation, StructureObservation))] + lines
+        factors: list[tuple] = [(f, None) for f in self._odometry_factors(odom, k)]
+        values = gtsam.Values()
+        if obs:
+            T_BS = [self._sensor_T(z.sensor) for z in obs]
+            self._current_obs = obs
+            pairing = self._associate(pose, pose_cov, obs, T_BS)
+            for i, z in enumerate(obs):
+                if pairing[i] is not None:
+                    lm = self.landmarks[pairing[i]]
+                    factors.append((self._landmark_factor(lm, k, z, T_BS[i], pose), lm.id))
+                    self._record(lm, stamp, k, z, pose, T_BS[i])
+                else:
+                    self._track(stamp, k, z, pose, pose_cov, T_BS[i], factors, values)
+        self._purge_tracks(stamp)
+        if factors or values.size():
+            self._commit(factors, values)
+            self._refresh_current()
+            if k == len(self.kf_stamps) - 1:  # the online pose of this keyframe is the one after its landmarks
+                R = self._pose.rotation().matrix()
+                self.online[-1] = (self.online[-1][0], self._pose, R @ self._pose_cov[3:, 3:] @ R.T)
+            self._refresh_landmarks({o for _, o in factors if o is not None})
+
+    def _odometry_factors(self, odom: list, k: int) -> list:
+        out = []
+        for z in odom:
+            if z.stamp_from in self.kf_stamps:
+                i = self.kf_stamps.index(z.stamp_from)
+                out.append(gtsam.BetweenFactorPose3(X(i), X(k), gtsam.Pose3(z.relative_pose), gtsam.noiseModel.Gaussian.Covariance(z.covariance)))
+            else:
+                self.diagnostics.append(f"{z.stamp}: odometry from {z.stamp_from} has no keyframe there, dropped")
+        return out
+
+    # ------------------------------------------------------------------ association
+    def _world_summary(self, z, pose: gtsam.Pose3, T_BS: np.ndarray) -> np.ndarray:
+        """A world point standing for the observation (object / segment midpoint / structure origin)."""
+        T_WS = pose.compose(gtsam.Pose3(T_BS))
+        if isinstance(z, PointObservation):
+            return T_WS.transformFrom(z.position)
+        if isinstance(z, LineObservation):
+            return T_WS.transformFrom(0.5 * (z.p + z.q))
+        return T_WS.transformFrom(z.pose[:3, 3])
+
+    def _associate(self, pose, pose_cov, obs, T_BS) -> list[int | None]:
+        """JCBB over the pre-gated landmarks; returns the landmark id of each observation or None.
+
+        Unpaired observations individually compatible with a landmark are left unpaired too, but
+        flagged: pipes attach to it (two segments of one pipe), others are discarded rather than
+        allowed to start a duplicate."""
+        self._ambiguous: set[int] = set()
+        if not self.landmarks:
+            return [None] * len(obs)
+        obs_pts = np.array([self._world_summary(z, pose, T) for z, T in zip(obs, T_BS)])
+        # Coarse pre-gate on the cached spheres (O(map) in numpy only, so the cost stays flat).
+        ids, centres, radii = self._spheres()
+        dist = np.linalg.norm(obs_pts[:, None, :] - centres[None, :, :], axis=2) - radii[None, :]
+        near = np.flatnonzero((dist <= self.cfg.pre_gate_m + 1.0).any(axis=0))
+        if near.size == 0:
+            return [None] * len(obs)
+        lms = [self.landmarks[ids[j]] for j in near if ids[j] in self.landmarks]
+        near = np.arange(len(lms))
+        self._refresh_landmarks({lms[j].id for j in near}, covariance=True)
+        cand_lms = [lms[j] for j in near]
+        anchor_pts = np.array([_landmark_point(lm) for lm in cand_lms])
+        dist = np.linalg.norm(obs_pts[:, None, :] - anchor_pts[None, :, :], axis=2)
+        for j, lm in enumerate(cand_lms):
+            if lm.kind == "pipe":
+                dist[:, j] = _point_segment_distance(obs_pts, *_pipe_ends(lm))
+        allowed = dist <= self.cfg.pre_gate_m
+        cands = [Candidate(lm, lm.covariance) for lm in cand_lms]
+        problem = GraphAssociationProblem(pose, pose_cov, obs, T_BS, cands, self.cfg.pipe_extent_gap_m, allowed)
+        result = jcbb(problem, confidence=self.assoc.confidence)
+        paired = {j for j in result if j is not None}
+        out: list[int | None] = []
+        from semslam.backend.association import individual_nis
+
+        for i, j in enumerate(result):
+            if j is not None:
+                out.append(cand_lms[j].id)
+                continue
+            # Left unpaired by JCBB: is it compatible with some landmark anyway?
+            best, best_j = np.inf, None
+            for jj in range(len(cands)):
+                if allowed[i, jj]:
+                    p = problem.pair(i, jj)
+                    if p is not None:
+                        nis = individual_nis(problem, i, jj)
+                        if nis < best:
+                            best, best_j = nis, jj
+            if best_j is not None and best < _chi2(self.assoc.confidence, len(problem.pair(i, best_j).innovation)):
+                if isinstance(obs[i], LineObservation) and best_j in paired:
+                    out.append(cand_lms[best_j].id)  # a second segment of a pipe already paired
+                    continue
+                self._ambiguous.add(i)
+            out.append(None)
+        return out
+
+    # ------------------------------------------------------------------ landmarks
+    def _landmark_factor(self, lm: Landmark, k: int, z, T_BS, pose: gtsam.Pose3):
+        if lm.kind == "object":
+            return point_factor(X(k), lm.key, z.position, z.covariance, T_BS, self.robust)
+        if lm.kind == "pipe":
+            cov4 = line_observation_covariance(pose, lm.estimate, lm.anchor, T_BS, z.covariance)
+            return line_factor(X(k), lm.key, lm.anchor, z.p, z.q, cov4, T_BS, self.robust)
+        return structure_factor(X(k), lm.key, z.pose, z.covariance, T_BS, self.robust)
+
+    def _record(self, lm: Landmark, stamp: int, k: int, z, pose: gtsam.Pose3, T_BS) -> None:
+        lm.history.append(ObservationRecord(stamp, k, z))
+        if isinstance(z, PointObservation) and z.class_likelihood:
+            lm.class_likelihoods.append(dict(z.class_likelihood))
+        if lm.kind == "pipe":
+            T_WS = pose.compose(gtsam.Pose3(T_BS))
+            s = lm.anchor.to_line_frame(lm.estimate, np.vstack([T_WS.transformFrom(z.p), T_WS.transformFrom(z.q)]))[:, 2]
+            lo, hi = lm.extent
+            lm.extent = (min(lo, float(s.min())), max(hi, float(s.max())))
+            # Along-axis σ of the endpoints (their covariance projected on the segment direction).
+            u = (z.q - z.p) / np.linalg.norm(z.q - z.p)
+            sig = float(np.sqrt(max(u @ z.covariance[:3, :3] @ u, u @ z.covariance[3:, 3:] @ u, 1e-8)))
+            lm.seen_ends.append((float(s.min()), float(s.max()), sig))
+
+    def _track(self, stamp, k, z, pose, pose_cov, T_BS, factors, values) -> None:
+        """Extend (or start) a tentative landmark; promote it to the graph once it has
+        ``min_observations`` consistent observations."""
+        kind = KIND_OF_OBS[type(z)]
+        T_WS = pose.compose(gtsam.Pose3(T_BS))
+        R = pose.rotation().matrix()
+        if isinstance(z, PointObservation):
+            w = T_WS.transformFrom(z.position)
+            e_B = T_BS[:3, :3] @ z.position + T_BS[:3, 3]
+            J = pose_point_jacobian(R, e_B)
+            cov = R @ T_BS[:3, :3] @ z.covariance @ T_BS[:3, :3].T @ R.T + J @ pose_cov @ J.T
+        elif isinstance(z, LineObservation):
+            w = np.vstack([T_WS.transformFrom(z.p), T_WS.transformFrom(z.q)])
+            cov = None
+        else:
+            w = T_WS.compose(gtsam.Pose3(z.pose)).matrix()
+            e_B = T_BS[:3, :3] @ z.pose[:3, 3] + T_BS[:3, 3]
+            J = pose_point_jacobian(R, e_B)
+            cov = R @ T_BS[:3, :3] @ z.covariance[3:, 3:] @ T_BS[:3, :3].T @ R.T + J @ pose_cov @ J.T
+        if self._is_ambiguous(z):
+            return
+        gate = _chi2(self.cfg.track_gate_confidence, 3)
+        best, best_d = None, np.inf
+        for tr in self.tracks:
+            if tr.kind != kind or tr.records[-1].keyframe == k:
+                continue
+            if kind == "pipe":
+                c, d = tr.line_fit()
+                if _segment_matches_line(w, c, d, np.vstack(tr.world), self.assoc.merge_angle_rad, self.assoc.merge_distance_m, self.cfg.pipe_extent_gap_m):
+                    dd = float(np.linalg.norm(np.cross(w.mean(axis=0) - c, d)))
+                    if dd < best_d:
+                        best, best_d = tr, dd
+                continue
+            if kind == "structure" and tr.model != z.model:
+                continue
+            mean, mcov = tr.mean_position()
+            pos = w if kind == "object" else w[:3, 3]
+            r = pos - mean
+            d2 = float(r @ np.linalg.solve(cov + mcov, r))
+            if d2 < gate and d2 < best_d:
+                best, best_d = tr, d2
+        if best is None:
+            best = Track(kind, model=getattr(z, "model", None))
+            self.tracks.append(best)
+        best.records.append(ObservationRecord(stamp, k, z))
+        best.world.append(w)
+        if cov is not None:
+            best.world_cov.append(cov)
+        best.last_stamp = stamp
+        if len(best.records) >= self.assoc.min_observations:
+            self.tracks.remove(best)
+            self._promote(best, factors, values)
+
+    def _is_ambiguous(self, z) -> bool:
+        return any(self._current_obs[i] is z for i in self._ambiguous)
+
+    def _promote(self, tr: Track, factors: list, values: gtsam.Values) -> None:
+        """A track becomes a landmark: initial value from its observations, re-expressed with the
+        current keyframe estimates, and one factor per observation."""
+        lid = self._next_id
+        self._next_id += 1
+        key = KEY_OF_KIND[tr.kind](lid)
+        lm = Landmark(lid, tr.kind, key, model=tr.model)
+        poses = {r.keyframe: self._kf_pose(r.keyframe) for r in tr.records}
+        Ts = [self._sensor_T(r.observation.sensor) for r in tr.records]
+        if tr.kind == "object":
+            pts = np.array([poses[r.keyframe].compose(gtsam.Pose3(T)).transformFrom(r.observation.position) for r, T in zip(tr.records, Ts)])
+            lm.estimate = pts.mean(axis=0)
+            values.insert(key, lm.estimate)
+        elif tr.kind == "pipe":
+            ends = np.vstack(
+                [
+                    [poses[r.keyframe].compose(gtsam.Pose3(T)).transformFrom(e) for e in (r.observation.p, r.observation.q)]
+                    for r, T in zip(tr.records, Ts)
+                ]
+            )
+            c = ends.mean(axis=0)
+            _, _, vt = np.linalg.svd(ends - c)
+            d = vt[0]
+            s = (ends - c) @ d
+            lm.anchor = LineAnchor.from_points(c - d, c + d)
+            lm.estimate = np.zeros(4)
+            lm.extent = (float(s.min()), float(s.max()))
+            values.insert(key, lm.estimate)
+        else:
+            r, T = tr.records[-1], Ts[-1]
+            lm.estimate = poses[r.keyframe].compose(gtsam.Pose3(T @ r.observation.pose))
+            values.insert(key, lm.estimate)
+        self.landmarks[lid] = lm
+        self._update_sphere(lm)
+        for r, T in zip(tr.records, Ts):
+            factors.append((self._landmark_factor(lm, r.keyframe, r.observation, T, poses[r.keyframe]), lid))
+            self._record(lm, r.stamp, r.keyframe, r.observation, poses[r.keyframe], T)
+
+    def _kf_pose(self, k: int) -> gtsam.Pose3:
+        if k == len(self.kf_stamps) - 1 and self._pose is not None:
+            return self._pose
+        return self.isam.calculateEstimatePose3(X(k))
+
+    def _purge_tracks(self, stamp: int) -> None:
+        horizon = stamp - int(self.cfg.track_timeout_s * 1e9)
+        self.tracks = [t for t in self.tracks if t.last_stamp >= horizon]
+
+    def _spheres(self) -> tuple[list[int], np.ndarray, np.ndarray]:
+        n = len(self._sphere_ids)
+        return self._sphere_ids, self._sphere_c[:n], self._sphere_r[:n]
+
+    def _update_sphere(self, lm: Landmark) -> None:
+        if lm.kind == "pipe":
+            a, b = _pipe_ends(lm)
+            c, r = 0.5 * (a + b), 0.5 * float(np.linalg.norm(b - a))
+        else:
+            c, r = _landmark_point(lm), 0.0
+        row = self._sphere_row.get(lm.id)
+        if row is None:
+            row = len(self._sphere_ids)
+            if row >= len(self._sphere_r):  # amortised growth
+                self._sphere_c = np.vstack([self._sphere_c, np.zeros((max(64, row), 3))])
+                self._sphere_r = np.concatenate([self._sphere_r, np.zeros(max(64, row))])
+            self._sphere_row[lm.id] = row
+            self._sphere_ids.append(lm.id)
+        self._sphere_c[row], self._sphere_r[row] = c, r
+
+    def _refresh_landmarks(self, ids, covariance: bool = False) -> None:
+        for lid in ids:
+            lm = self.landmarks.get(lid)
+            if lm is None:
+                continue
+            lm.estimate = _value(self.isam, lm.key, lm.kind)
+            self._update_sphere(lm)
+            stale = lm.cov_stamp is None or (self.kf_stamps[-1] - lm.cov_stamp) * 1e-9 >= self.cfg.landmark_cov_refresh_s
+            if covariance and stale:
+                lm.cov_stamp = self.kf_stamps[-1]
+                try:
+                    lm.covariance = self.isam.marginalCovariance(lm.key)
+                except RuntimeError:
+                    lm.covariance = np.eye({"object": 3, "pipe": 4, "structure": 6}[lm.kind]) * 1e2
+                ev = np.linalg.eigvalsh(lm.covariance)
+                self._volume.setdefault(lid, []).append((self.kf_stamps[-1], float(np.sum(np.log(np.maximum(ev, 1e-300))))))
+
+    # ------------------------------------------------------------------ views and results
+    def pose_at(self, stamp: int) -> gtsam.Pose3 | None:
+        """T_WB at ``stamp``: interpolated between keyframe estimates, or predicted from the
+        newest keyframe with the DVL/AHRS integrated since."""
+        if not self.kf_stamps:
+            return None
+        if stamp >= self.kf_stamps[-1]:
+            if stamp == self.kf_stamps[-1] or self.nav.preint is None:
+                return self._pose
+            t = stamp * 1e-9
+            R, _ = self.nav.attitude_at(t)
+            d = self.nav.preint.integrate(t, R)
+            p = self._pose.translation() + self._pose.rotation().matrix() @ (d.c + (d.A + d.B) @ self._vel)
+            return gtsam.Pose3(gtsam.Rot3(R), p)
+        i = bisect.bisect_right(self.kf_stamps, stamp)
+        if i == 0:
+            return None
+        a, b = self.isam.calculateEstimatePose3(X(i - 1)), self.isam.calculateEstimatePose3(X(i))
+        s = (stamp - self.kf_stamps[i - 1]) / (self.kf_stamps[i] - self.kf_stamps[i - 1])
+        return gtsam.Pose3(a.rotation().slerp(s, b.rotation()), (1 - s) * a.translation() + s * b.translation())
+
+    def landmark_estimates(self, covariance: bool = True, values: gtsam.Values | None = None, marginals=None) -> list[LandmarkEstimate]:
+        out = []
+        for lm in self.landmarks.values():
+            est = _value(values, lm.key, lm.kind) if values is not None else _value(self.isam, lm.key, lm.kind)
+            cov = None
+            if covariance:
+                try:
+                    cov = marginals.marginalCovariance(lm.key) if marginals is not None else self.isam.marginalCovariance(lm.key)
+                except RuntimeError:
+                    cov = None
+            le = LandmarkEstimate(id=lm.id, kind=lm.kind, n_observations=len(lm.history), model=lm.model)
+            if lm.kind == "object":
+                le.position, le.covariance = np.asarray(est, float), cov
+                le.class_posterior = lm.class_posterior()
+            elif lm.kind == "pipe":
+                c, d = lm.anchor.point(est), lm.anchor.direction(est)
+                # extent was measured in the line frame centred at c0: project onto the new line
+                lo, hi = lm.robust_extent()
+                foot = (lm.anchor.c0 - c) @ d
+                le.p, le.q = c + (foot + lo) * d, c + (foot + hi) * d
+                le.covariance = cov
+            else:
+                le.pose, le.covariance = est.matrix(), cov
+                le.position = est.translation()
+            le.connected = tuple(sorted(lm.connected))
+            out.append(le)
+        return out
+
+    def finish(self) -> EstimatorResult:
+        n = len(self.kf_stamps)
+        history: dict = {"update_kinds": list(self.update_kinds), "n_keyframes": n}
+        if n == 0:
+            self.diagnostics.append("no keyframe: the mission had no AHRS (or no start pose)")
+            empty = Trajectory(np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 4)))
+            return EstimatorResult(self.name, empty, diagnostics=list(self.diagnostics))
+        values, marginals = None, None
+        if self.batch:
+            t0 = time.perf_counter()
+            graph = gtsam.NonlinearFactorGraph()
+            for f, _ in self._factors:
+                graph.add(f)
+            params = gtsam.LevenbergMarquardtParams()
+            params.setMaxIterations(self.cfg.batch_max_iterations)
+            try:
+                values = gtsam.LevenbergMarquardtOptimizer(graph, self.isam.calculateEstimate(), params).optimize()
+                if self.cfg.covariance_in_result:
+                    marginals = gtsam.Marginals(graph, values)
+            except RuntimeError as exc:
+                self.diagnostics.append(f"batch optimisation failed ({str(exc).splitlines()[0]}); online estimate kept")
+                values = None
+            history["batch_time_s"] = time.perf_counter() - t0
+        if values is None:
+            values = self.isam.calculateEstimate()
+        poses = [values.atPose3(X(i)) for i in range(n)]
+        vels = np.array([values.atVector(V(i)) for i in range(n)])
+        pos_cov = vel_cov = None
+        if self.cfg.covariance_in_result:
+            pos_cov = np.zeros((n, 3, 3))
+            vel_cov = np.zeros((n, 3, 3))
+            for i, p in enumerate(poses):
+                src = marginals if marginals is not None else self.isam
+                R = p.rotation().matrix()
+                pos_cov[i] = R @ src.marginalCovariance(X(i))[3:, 3:] @ R.T
+                vel_cov[i] = src.marginalCovariance(V(i))
+        traj = Trajectory(
+            stamps=np.array(self.kf_stamps, np.int64),
+            positions=np.array([p.translation() for p in poses]),
+            orientations=np.array([Rotation.from_matrix(p.rotation().matrix()).as_quat() for p in poses]),
+            position_cov=pos_cov,
+            velocities=vels,
+            velocity_cov=vel_cov,
+        )
+        online = Trajectory(
+            stamps=np.array([s for s, _, _ in self.online], np.int64),
+            positions=np.array([p.translation() for _, p, _ in self.online]),
+            orientations=np.array([Rotation.from_matrix(p.rotation().matrix()).as_quat() for _, p, _ in self.online]),
+            position_cov=np.array([c for _, _, c in self.online]),
+        )
+        landmarks = self.landmark_estimates(self.cfg.covariance_in_result, values, marginals)
+        _connect(landmarks, self.landmarks, self.assoc.merge_distance_m)
+        history["landmark_kind"] = {lm.id: lm.kind for lm in self.landmarks.values()}
+        history["landmark_volume"] = {
+            lid: (np.array([s for s, _ in v], np.int64), np.array([x for _, x in v])) for lid, v in self._volume.items()
+        }
+        history["landmark_observations"] = {
+            lm.id: [(r.stamp, getattr(r.observation, "truth_id", None)) for r in lm.history] for lm in self.landmarks.values()
+        }
+        if self.nav.unknown_sensors:
+            self.diagnostics.append(f"measurements from sensors missing in the metadata: {sorted(self.nav.unknown_sensors)}")
+        return EstimatorResult(
+            name=self.name,
+            trajectory=traj,
+            landmarks=landmarks,
+            online_trajectory=online,
+            update_times_s=np.array(self.update_times),
+            update_n_landmarks=np.array(self.update_n_landmarks, int),
+            history=history,
+            diagnostics=list(self.diagnostics),
+        )
+
+
+# ---------------------------------------------------------------------------------------------
+
+
+@lru_cache(maxsize=256)
+def _chi2(confidence: float, dof: int) -> float:
+    """χ² quantile (scipy's ppf costs ~0.1 ms: cached)."""
+    return float(chi2.ppf(confidence, dof))
+
+
+def _value(src, key, kind: str | None = None):
+    """A variable's value from Values or ISAM2, by its symbol character."""
+    c = chr(gtsam.Symbol(key).chr())
+    is_values = isinstance(src, gtsam.Values)
+    if c in ("x", "s"):
+        return src.atPose3(key) if is_values else src.calculateEstimatePose3(key)
+    if c == "l":
+        return np.asarray(src.atPoint3(key) if is_values else src.calculateEstimatePoint3(key), float)
+    return np.asarray(src.atVector(key) if is_values else src.calculateEstimateVector(key), float)
+
+
+def _connect(estimates: list[LandmarkEstimate], landmarks: dict[int, Landmark], max_distance: float) -> None:
+    """Object ↔ pipe connectivity: an object whose views reported attached pipes is connected to
+    the pipe landmarks passing within ``max_distance`` of it (segment distance)."""
+    pipes = [e for e in estimates if e.kind == "pipe" and e.p is not None]
+    by_id = {e.id: e for e in estimates}
+    for e in estimates:
+        if e.kind != "object":
+            continue
+        seen_pipes = any(
+            getattr(r.observation, "connectivity", None) is not None and r.observation.connectivity.n_pipes > 0
+            for r in landmarks[e.id].history
+        )
+        if not seen_pipes:
+            continue
+        for pe in pipes:
+            if _point_segment_distance(e.position[None], pe.p, pe.q)[0] <= max_distance:
+                e.connected = tuple(sorted({*e.connected, pe.id}))
+                by_id[pe.id].connected = tuple(sorted({*by_id[pe.id].connected, e.id}))
+
+
+def _landmark_point(lm: Landmark) -> np.ndarray:
+    if lm.kind == "object":
+        return np.asarray(lm.estimate, float)
+    if lm.kind == "pipe":
+        return np.mean(_pipe_ends(lm), axis=0)
+    return lm.estimate.translation()
+
+
+def _pipe_ends(lm: Landmark) -> tuple[np.ndarray, np.ndarray]:
+    c, d = lm.anchor.point(lm.estimate), lm.anchor.direction(lm.estimate)
+    foot = (lm.anchor.c0 - c) @ d
+    lo, hi = lm.extent
+    return c + (foot + lo) * d, c + (foot + hi) * d
+
+
+def _point_segment_distance(pts: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    ab = b - a
+    s = np.clip((pts - a) @ ab / max(float(ab @ ab), 1e-12), 0.0, 1.0)
+    return np.linalg.norm(pts - (a + s[:, None] * ab), axis=1)
+
+
+def _segment_matches_line(seg: np.ndarray, c: np.ndarray, d: np.ndarray, seen: np.ndarray, max_angle, max_dist, gap) -> bool:
+    """A world segment (2,3) on the line (c, d): angle, perpendicular offsets and extent overlap."""
+    u = seg[1] - seg[0]
+    u /= np.linalg.norm(u)
+    if np.arccos(min(1.0, abs(float(u @ d)))) > max_angle:
+        return False
+    r = seg - c
+    perp = r - np.outer(r @ d, d)
+    if np.linalg.norm(perp, axis=1).max() > max_dist:
+        return False
+    s = r @ d
+    s_seen = (seen - c) @ d
+    return not (s.max() < s_seen.min() - gap or s.min() > s_seen.max() + gap)

@@ -1,0 +1,182 @@
+"""Landmark bookkeeping of the graph back-end: mapped landmarks, tentative tracks (not yet in the
+graph), class posteriors, and the merge of collinear pipe segments within one batch."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from factors.landmarks import LineAnchor
+from semslam.observations import LineObservation
+
+
+@dataclass
+class ObservationRecord:
+    """One observation of a landmark: when, at which keyframe, and the observation itself."""
+
+    stamp: int
+    keyframe: int
+    observation: object
+
+
+@dataclass
+class Landmark:
+    """A mapped landmark. ``key`` is its gtsam key; lines carry their fixed chart ``anchor`` and
+    the extent (s_min, s_max) of everything seen along the axis, in the line frame."""
+
+    id: int
+    kind: str  # object | pipe | structure
+    key: int
+    history: list[ObservationRecord] = field(default_factory=list)
+    class_likelihoods: list[Mapping[str, float]] = field(default_factory=list)
+    anchor: LineAnchor | None = None
+    extent: tuple[float, float] | None = None
+    model: str | None = None
+    estimate: object = None  # Point3 (3,), θ (4,), or gtsam.Pose3
+    covariance: np.ndarray | None = None
+    cov_stamp: int | None = None  # when ``covariance`` was last computed
+    seen_ends: list[tuple[float, float, float]] = field(default_factory=list)  # pipes: (s_lo, s_hi, σ_along) per view
+    connected: set[int] = field(default_factory=set)
+
+    def class_posterior(self) -> dict[str, float] | None:
+        return class_posterior(self.class_likelihoods)
+
+    def robust_extent(self) -> tuple[float, float]:
+        """The pipe's ends along its axis (line frame), robust to endpoint noise.
+
+        Every view sees a stretch inside the pipe, its ends noisy along the axis (σ); a view that
+        saw the real end puts its endpoint within a few σ of the extreme one, a clipped view lies
+        further in. Each end is the mean of the endpoints within 3σ of the extreme: the extreme
+        alone (``extent``) is biased outwards by the noise.
+        """
+        if not self.seen_ends:
+            return self.extent
+        e = np.array(self.seen_ends)
+        sig = float(np.median(e[:, 2]))
+        lo = e[:, 0][e[:, 0] <= e[:, 0].min() + 3 * sig].mean()
+        hi = e[:, 1][e[:, 1] >= e[:, 1].max() - 3 * sig].mean()
+        return (float(lo), float(hi)) if hi > lo else self.extent
+
+
+def class_posterior(likelihoods: Sequence[Mapping[str, float]]) -> dict[str, float] | None:
+    """Normalised product of the likelihood vectors P(Z|X) (uniform prior), computed in logs.
+    A class missing from a vector gets likelihood 0 for that view."""
+    likelihoods = [lk for lk in likelihoods if lk]
+    if not likelihoods:
+        return None
+    classes = sorted({c for lk in likelihoods for c in lk})
+    logp = np.zeros(len(classes))
+    for lk in likelihoods:
+        logp += np.log(np.maximum([float(lk.get(c, 0.0)) for c in classes], 1e-300))
+    p = np.exp(logp - logp.max())
+    p /= p.sum()
+    return dict(zip(classes, map(float, p)))
+
+
+@dataclass
+class Track:
+    """A tentative landmark: consistent observations not yet in the graph (world-frame summaries
+    at the time of observation, for gating)."""
+
+    kind: str
+    records: list[ObservationRecord] = field(default_factory=list)
+    world: list[np.ndarray] = field(default_factory=list)  # point: (3,), pipe: (2,3), structure: (4,4)
+    world_cov: list[np.ndarray] = field(default_factory=list)  # point/structure: 3×3 position covariance
+    model: str | None = None
+    last_stamp: int = 0
+
+    def mean_position(self) -> tuple[np.ndarray, np.ndarray]:
+        """Information-weighted mean of the world positions and its covariance."""
+        info = np.zeros((3, 3))
+        vec = np.zeros(3)
+        for w, c in zip(self.world, self.world_cov):
+            pos = w if w.shape == (3,) else w[:3, 3]
+            Ci = np.linalg.inv(c)
+            info += Ci
+            vec += Ci @ pos
+        cov = np.linalg.inv(info)
+        return cov @ vec, cov
+
+    def line_fit(self) -> tuple[np.ndarray, np.ndarray]:
+        """Principal axis of all world endpoints: (point, unit direction)."""
+        pts = np.vstack(self.world)
+        c = pts.mean(axis=0)
+        _, _, vt = np.linalg.svd(pts - c)
+        return c, vt[0]
+
+
+def segment_axis(p: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, float]:
+    d = q - p
+    n = float(np.linalg.norm(d))
+    return d / n, n
+
+
+def collinear(p1, q1, p2, q2, max_angle: float, max_distance: float) -> bool:
+    """Segments on one axis: directions within ``max_angle``, each one's endpoints within
+    ``max_distance`` of the other's line, and a gap along the axis below ``max_distance``."""
+    d1, l1 = segment_axis(p1, q1)
+    d2, l2 = segment_axis(p2, q2)
+    if np.arccos(min(1.0, abs(float(d1 @ d2)))) > max_angle:
+        return False
+    for a, d, pts in ((p1, d1, (p2, q2)), (p2, d2, (p1, q1))):
+        for x in pts:
+            r = x - a
+            if np.linalg.norm(r - (r @ d) * d) > max_distance:
+                return False
+    s = sorted([(p2 - p1) @ d1, (q2 - p1) @ d1])
+    gap = max(s[0] - l1, 0.0 - s[1], 0.0)
+    return gap <= max_distance
+
+
+def merge_collinear(observations: Sequence[LineObservation], max_angle: float, max_distance: float) -> list[LineObservation]:
+    """Merge pipe segments of one batch that lie on one axis (the paper's 0.175 rad / 0.3 m).
+
+    Union-find over collinear pairs; a merged segment spans the extreme projections of all its
+    endpoints on the longest member's axis, each end keeping the covariance of the endpoint that
+    produced it. Same sensor only (segments are in its frame).
+    """
+    n = len(observations)
+    parent = list(range(n))
+
+    def find(i):
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = parent[i]
+        return i
+
+    for i in range(n):
+        for j in range(i + 1, n):
+            a, b = observations[i], observations[j]
+            if a.sensor == b.sensor and collinear(a.p, a.q, b.p, b.q, max_angle, max_distance):
+                parent[find(i)] = find(j)
+    groups: dict[int, list[int]] = {}
+    for i in range(n):
+        groups.setdefault(find(i), []).append(i)
+    out = []
+    for members in groups.values():
+        if len(members) == 1:
+            out.append(observations[members[0]])
+            continue
+        obs = [observations[i] for i in members]
+        longest = max(obs, key=lambda o: np.linalg.norm(o.q - o.p))
+        d, _ = segment_axis(longest.p, longest.q)
+        ends = [(o.p, o.covariance[:3, :3], o) for o in obs] + [(o.q, o.covariance[3:, 3:], o) for o in obs]
+        s = [float((e - longest.p) @ d) for e, _, _ in ends]
+        lo, hi = ends[int(np.argmin(s))], ends[int(np.argmax(s))]
+        cov = np.zeros((6, 6))
+        cov[:3, :3], cov[3:, 3:] = lo[1], hi[1]
+        truth = {o.truth_id for o in obs}
+        out.append(
+            LineObservation(
+                stamp=longest.stamp,
+                sensor=longest.sensor,
+                p=lo[0],
+                q=hi[0],
+                covariance=cov,
+                radius=longest.radius,
+                truth_id=longest.truth_id if len(truth) == 1 else longest.truth_id,
+            )
+        )
+    return out

@@ -1,0 +1,103 @@
+"""Navigation measurement buffer of the graph back-end: the latest AHRS, depth and DVL readings,
+brought to a keyframe's time, and the DVL preintegrator running since the last keyframe."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from factors.geometry import so3_exp
+from factors.navigation import DvlPreintegrator, ahrs_body_rotation, dvl_to_body
+from semslam.mission.measurements import Attitude, Depth, DvlVelocity
+from semslam.mission.mission import MissionMetadata
+
+
+@dataclass
+class AttitudeSample:
+    t: float  # s
+    R_WB: np.ndarray
+    cov: np.ndarray  # right-tangent covariance of R_WB (3×3)
+    omega_B: np.ndarray | None  # body angular rate (rad/s), when known
+
+
+@dataclass
+class DvlSample:
+    t: float
+    v_S: np.ndarray
+    cov_S: np.ndarray
+    T_BS: np.ndarray
+    omega_B: np.ndarray
+    v_B: np.ndarray
+    cov_B: np.ndarray
+
+
+@dataclass
+class DepthSample:
+    t: float
+    depth: float
+    variance: float
+    t_BS: np.ndarray
+
+
+class NavigationBuffer:
+    """Keeps what the keyframes need from the navigation stream, in the body frame."""
+
+    def __init__(self, metadata: MissionMetadata, accel_sigma: float, rate_sigma: float):
+        self.metadata = metadata
+        self.accel_sigma = accel_sigma
+        self.rate_sigma = rate_sigma
+        self.attitude: AttitudeSample | None = None
+        self._prev_attitude: AttitudeSample | None = None
+        self.dvl: DvlSample | None = None
+        self.depth: DepthSample | None = None
+        self.preint: DvlPreintegrator | None = None
+        self.unknown_sensors: set[str] = set()
+
+    def _T_BS(self, sensor: str) -> np.ndarray:
+        info = self.metadata.sensors.get(sensor)
+        if info is None:
+            self.unknown_sensors.add(sensor)
+            return np.eye(4)
+        return info.T_BS
+
+    def add(self, m) -> None:
+        t = m.stamp * 1e-9
+        if isinstance(m, Attitude):
+            R_BS = self._T_BS(m.sensor)[:3, :3]
+            R_WS = Rotation.from_quat(m.orientation).as_matrix()
+            R_WB, cov = ahrs_body_rotation(R_WS, np.asarray(m.covariance), R_BS)
+            omega = None if m.angular_rate is None else R_BS @ np.asarray(m.angular_rate)
+            if omega is None and self.attitude is not None and t > self.attitude.t:
+                # Finite difference of consecutive attitudes when the AHRS gives no rate.
+                omega = Rotation.from_matrix(self.attitude.R_WB.T @ R_WB).as_rotvec() / (t - self.attitude.t)
+            self._prev_attitude, self.attitude = self.attitude, AttitudeSample(t, R_WB, cov, omega)
+        elif isinstance(m, Depth):
+            self.depth = DepthSample(t, m.depth, m.variance, self._T_BS(m.sensor)[:3, 3])
+        elif isinstance(m, DvlVelocity):
+            if not m.valid or not np.all(np.isfinite(m.velocity)):
+                return
+            T_BS = self._T_BS(m.sensor)
+            omega = self.omega()
+            v_B, cov_B = dvl_to_body(np.asarray(m.velocity), np.asarray(m.covariance), T_BS, omega)
+            self.dvl = DvlSample(t, np.asarray(m.velocity), np.asarray(m.covariance), T_BS, omega, v_B, cov_B)
+            if self.preint is not None and self.attitude is not None:
+                R, _ = self.attitude_at(t)
+                self.preint.add(t, R, v_B, cov_B)
+
+    def omega(self) -> np.ndarray:
+        if self.attitude is None or self.attitude.omega_B is None:
+            return np.zeros(3)
+        return self.attitude.omega_B
+
+    def attitude_at(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """R_WB at t from the latest AHRS reading, rotated on by the angular rate over its age;
+        the covariance grows with the age (rate noise)."""
+        a = self.attitude
+        age = t - a.t
+        R = a.R_WB if a.omega_B is None or age == 0 else a.R_WB @ so3_exp(a.omega_B * age)
+        return R, a.cov + np.eye(3) * (self.rate_sigma * abs(age)) ** 2
+
+    def start_interval(self, t: float, R_WB: np.ndarray, attitude_sigma: float) -> None:
+        self.preint = DvlPreintegrator(t, R_WB, self.accel_sigma, attitude_sigma)

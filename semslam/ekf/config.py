@@ -1,0 +1,56 @@
+"""Configuration of the EKF-SLAM and dead reckoning (the ``ekf`` section).
+
+Motion noise (``motion``) and association (``association``) are shared with the graph back-end and
+are not repeated here.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+
+class EkfConfig(BaseModel):
+    """EKF-SLAM of Vallicrosa et al. 2021 (Section 4) and dead reckoning."""
+
+    model_config = ConfigDict(extra="forbid")
+    initial_pose: Literal["first_ground_truth", "origin"] = Field(
+        "first_ground_truth",
+        description="start pose: the first GroundTruthPose of the stream (a surface fix), or the origin "
+        "(x = y = 0, the first depth, the AHRS attitude); missions without ground truth use the origin",
+    )
+    initial_position_sigma_m: float = Field(0.01, gt=0, description="initial σ of the position (per axis)")
+    initial_attitude_sigma_rad: float = Field(0.05, gt=0, description="initial σ of roll, pitch and yaw")
+    initial_velocity_sigma_m_s: float = Field(0.5, gt=0, description="initial σ of the body velocity (per axis)")
+    max_prediction_step_s: float = Field(
+        0.1, gt=0, description="longer gaps between measurements are predicted in steps of at most this"
+    )
+    rate_max_age_s: float = Field(
+        0.5, gt=0, description="the AHRS angular rate is the prediction input while younger than this; zero after"
+    )
+    line_min_length_m: float = Field(0.05, gt=0, description="shorter pipe segments are ignored (no direction)")
+    line_min_distance_m: float = Field(
+        0.05, gt=0, description="pipe observations whose line passes closer than this to the sensor are ignored (ρ ≈ 0)"
+    )
+    pipe_extent_gap_m: float = Field(
+        1.0, ge=0, description="an observed pipe segment pairs with a mapped pipe only if it comes within this "
+        "gap (m, along the line) of what was seen of it, and no object lies on the line in between"
+    )
+    pipe_object_radius_m: float = Field(
+        0.15, gt=0, description="an object this close to a pipe's line, between two collinear segments, "
+        "separates them (an in-line valve or socket joins two pipes)"
+    )
+    pre_gate_m: float = Field(
+        2.0, gt=0, description="Euclidean pre-gate (m, plus 3σ of the vehicle position) before the χ² tests: "
+        "saves work on large maps; must exceed the plausible landmark position error"
+    )
+    track_timeout_s: float = Field(
+        60.0, gt=0, description="a tentative feature not seen again within this time is forgotten (false positive)"
+    )
+    track_gate_confidence: float = Field(
+        0.999, gt=0, lt=1, description="χ² confidence for an observation to extend a tentative feature"
+    )
+    history_period_s: float = Field(
+        0.5, ge=0, description="vehicle covariance recorded in the history at most this often (0 = every update)"
+    )

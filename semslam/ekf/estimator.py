@@ -1,0 +1,761 @@
+"""EKF-SLAM (``ekf``) and dead reckoning (``dr``): the estimators of Vallicrosa et al. 2021, Section 4.
+
+The filter predicts with the constant-velocity model driven by the AHRS body rate, updates with the
+depth, AHRS and DVL readings (invalid DVL readings are skipped, so the uncertainty grows during
+dropouts), and — for ``ekf`` — with the objects (points) and pipes (lines) the front-ends extract:
+JCBB association (:func:`semslam.backend.association.jcbb`) against the mapped features, one joint
+EKF update (Joseph form) for the paired observations, and state augmentation with the
+cross-covariances for new features.
+
+Feature initialisation (a choice, stated): the paper adds an unpaired feature at once; here an
+unpaired observation first starts or extends a *tentative* feature (gated in {W} with the vehicle
+uncertainty), and enters the state once it has been seen ``association.min_observations`` times
+(Himri et al. 2018: "landmarks created only after consistent repeated observations"), initialised
+from its latest observation with the full cross-covariances (eqs. 39–45). With
+``min_observations = 1`` this is exactly the paper's flow.
+
+Pipes keep the endpoints of every view of them (in {W}); they are re-projected onto the current line
+estimate whenever used, so they follow every update, and the pipe's ends are a noise-robust extreme of
+them. A segment pairs with a pipe only if it comes within ``pipe_extent_gap_m`` of that extent and no
+object (mapped or tentative) lies on the line between them: collinear pipes on either side of an
+in-line valve stay distinct, partial views of one pipe do not split it.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+from scipy.stats import chi2
+
+from semslam.config import SemslamConfig
+from semslam.ekf import geometry as geo
+from semslam.ekf import models as mdl
+from semslam.ekf.config import EkfConfig
+from semslam.ekf.filter import EkfState
+from semslam.ekf.models import ATT, NX, POS, VEL
+from semslam.errors import ConfigError, MissionError
+from semslam.estimation import EstimatorResult, LandmarkEstimate, Trajectory
+from semslam.mission.measurements import Attitude, Depth, DvlVelocity, GroundTruthPose, Measurement
+from semslam.mission.mission import MissionMetadata
+from semslam.observations import LineObservation, Observation, PointObservation
+
+NS = 1e-9
+
+
+def ekf_config(config: SemslamConfig | None) -> EkfConfig:
+    """The ``ekf`` section as an :class:`EkfConfig` (a dict section is validated here)."""
+    section = getattr(config, "ekf", None) if config is not None else None
+    if isinstance(section, EkfConfig):
+        return section
+    try:
+        return EkfConfig.model_validate(section or {})
+    except Exception as exc:  # pydantic ValidationError → one clear line
+        errs = getattr(exc, "errors", lambda: [{"loc": (), "msg": str(exc)}])()
+        key = ".".join(str(x) for x in errs[0]["loc"])
+        raise ConfigError(f"ekf.{key}: {errs[0]['msg']}") from exc
+
+
+# ------------------------------------------------------------------------------ features
+@dataclass
+class _Feature:
+    """A mapped feature: its state block, and for pipes the saved endpoints in {W}."""
+
+    id: int
+    kind: str  # "object" | "pipe"
+    index: int  # first state index
+    size: int
+    n_obs: int = 1
+    extent: _Extent | None = None  # pipes: what was seen of them
+    class_log: dict[str, float] = field(default_factory=dict)
+    vol_stamps: list[int] = field(default_factory=list)
+    vol: list[float] = field(default_factory=list)
+
+    @property
+    def cols(self) -> np.ndarray:
+        return np.arange(self.index, self.index + self.size)
+
+
+@dataclass
+class _Track:
+    """A tentative feature: the latest observation in {W} and its covariance (line error coordinates
+    for pipes), how often it was seen, and the seen extent (pipes)."""
+
+    kind: str
+    mean: np.ndarray  # object: (3,) position; pipe: (6,) Plücker (m, d)
+    cov: np.ndarray
+    n: int
+    last_stamp: int
+    extent: _Extent | None = None
+    class_log: dict[str, float] = field(default_factory=dict)
+
+
+def _fuse_class(log: dict[str, float], likelihood) -> None:
+    """Bayesian class fusion with a uniform prior: log posterior += log likelihood."""
+    if not likelihood:
+        return
+    for cls, p in likelihood.items():
+        log[cls] = log.get(cls, 0.0) + math.log(max(float(p), 1e-12))
+
+
+def _posterior(log: dict[str, float]) -> dict[str, float] | None:
+    if not log:
+        return None
+    v = np.array(list(log.values()))
+    p = np.exp(v - v.max())
+    p /= p.sum()
+    return dict(zip(log.keys(), map(float, p)))
+
+
+class _Extent:
+    """What was seen of a pipe: every view's endpoints in {W} (saved as seen) with their along-axis σ.
+
+    The saved endpoints are re-projected onto the current line estimate whenever the extent is used,
+    so they follow every update. Each end is robust to endpoint noise: the median of the view ends
+    within 6σ of the extreme one (the extreme alone is biased outwards by the noise; views clipped
+    by the field of view lie further in and are left out)."""
+
+    def __init__(self):
+        self._pts: list[np.ndarray] = []  # (2, 3) per view
+        self._sig: list[float] = []
+
+    def add(self, ends_W: np.ndarray, sigma: float) -> None:
+        self._pts.append(np.asarray(ends_W, float))
+        self._sig.append(float(sigma))
+
+    def merge(self, other: "_Extent") -> None:
+        self._pts += other._pts
+        self._sig += other._sig
+
+    def interval(self, m: np.ndarray, d: np.ndarray) -> tuple[float, float]:
+        c = geo.closest_point(m, d)
+        s = (np.array(self._pts) - c) @ d  # (K, 2)
+        lo, hi = s.min(axis=1), s.max(axis=1)
+        w = 6.0 * float(np.median(self._sig))
+        a = float(np.median(lo[lo <= lo.min() + w]))
+        b = float(np.median(hi[hi >= hi.max() - w]))
+        return (a, b) if b > a else (float(lo.min()), float(hi.max()))
+
+    def ends(self, m: np.ndarray, d: np.ndarray) -> np.ndarray:
+        c = geo.closest_point(m, d)
+        a, b = self.interval(m, d)
+        return np.array([c + a * d, c + b * d])
+
+    def gap(self, ends_W: np.ndarray, m: np.ndarray, d: np.ndarray) -> float:
+        """Gap (m) along the line between the seen extent and a segment; 0 when they overlap."""
+        a, b = self.interval(m, d)
+        s = (ends_W - geo.closest_point(m, d)) @ d
+        return max(0.0, s.min() - b, a - s.max())
+
+    def separated(self, ends_W: np.ndarray, m: np.ndarray, d: np.ndarray, objects: np.ndarray,
+                  radius: float, margin: float = 0.1) -> bool:
+        """True when an object (N×3, in {W}) on the line lies between the seen extent and the segment:
+        collinear pipes joined by an in-line part (a valve, a socket) are different pipes."""
+        if len(objects) == 0:
+            return False
+        c = geo.closest_point(m, d)
+        r = objects - c
+        s_obj = r @ d
+        on_line = np.linalg.norm(r - s_obj[:, None] * d, axis=1) < radius
+        if not on_line.any():
+            return False
+        a, b = self.interval(m, d)
+        s = (ends_W - c) @ d
+        lo, hi = (b - margin, s.min() + margin) if s.mean() > 0.5 * (a + b) else (s.max() - margin, a + margin)
+        return bool(np.any(on_line & (s_obj > lo) & (s_obj < hi)))
+
+
+def _along_sigma(o: LineObservation) -> float:
+    """Endpoint σ along the segment, from its 6×6 covariance."""
+    d = (o.q - o.p) / np.linalg.norm(o.q - o.p)
+    C = np.asarray(o.covariance)
+    return float(np.sqrt(0.5 * (d @ C[:3, :3] @ d + d @ C[3:, 3:] @ d)))
+
+
+# --------------------------------------------------------------------------- observations
+@dataclass
+class _Obs:
+    """An observation prepared for the filter: its sensor extrinsic and model."""
+
+    obs: Observation
+    R_BS: np.ndarray
+    t_BS: np.ndarray
+    line: mdl.LineObservationModel | None = None
+    ends_W: np.ndarray | None = None  # observed segment in {W} with the current pose (pipes)
+
+    @property
+    def kind(self) -> str:
+        return "pipe" if isinstance(self.obs, LineObservation) else "object"
+
+
+class EkfAssociationProblem:
+    """The JCBB problem of one batch of observations against the mapped features (full joint
+    covariance: every cross block P_jk is the filter's own)."""
+
+    def __init__(self, est: "EkfEstimator", obs: list[_Obs]):
+        self.est = est
+        self.obs = obs
+        self.n_observations = len(obs)
+        self.n_landmarks = len(est._features)
+        self._cache: dict[tuple[int, int], object] = {}
+        self._near = est._pre_gate(obs)  # (n_obs, n_landmarks) bool
+
+    def pair(self, i: int, j: int):
+        if not self._near[i, j]:
+            return None
+        key = (i, j)
+        if key not in self._cache:
+            self._cache[key] = self.est._pair(self.obs[i], self.est._features[j])
+        return self._cache[key]
+
+    def covariance(self, a: int | None, b: int | None) -> np.ndarray:
+        P = self.est.state.P
+        ia = np.arange(NX) if a is None else self.est._features[a].cols
+        ib = np.arange(NX) if b is None else self.est._features[b].cols
+        return P[np.ix_(ia, ib)]
+
+
+def _default_associate():
+    from semslam.backend.association import jcbb
+
+    return jcbb
+
+
+# ------------------------------------------------------------------------------- the filter
+class EkfEstimator:
+    """The paper's EKF-SLAM. ``EkfEstimator(metadata, config)`` with the full :class:`SemslamConfig`
+    (sections ``motion``, ``association`` and ``ekf``)."""
+
+    name = "ekf"
+    feature_updates = True
+
+    def __init__(
+        self,
+        metadata: MissionMetadata,
+        config: SemslamConfig | None = None,
+        associate: Callable | None = None,
+    ):
+        config = config or SemslamConfig()
+        self.metadata = metadata
+        self.cfg = ekf_config(config)
+        self.motion = config.motion
+        self.assoc = config.association
+        self._associate = associate
+        self.state: EkfState | None = None
+        self.t: int | None = None  # stamp of the state (ns)
+        self._omega = np.zeros(3)  # latest body rate (input)
+        self._omega_stamp: int | None = None
+        self._last_att: tuple[int, np.ndarray] | None = None  # for a rate by differences
+        self._last_depth: float | None = None
+        self._features: list[_Feature] = []
+        self._tracks: list[_Track] = []
+        self._next_id = 0
+        has_gt = bool(metadata.sensors_of_kind("ground_truth"))
+        self._wait_gt = self.cfg.initial_pose == "first_ground_truth" and has_gt
+        # outputs
+        self._traj: dict[str, list] = {k: [] for k in ("t", "p", "e", "pc", "v", "vc")}
+        self._veh_hist: tuple[list, list] = ([], [])
+        self._update_times: list[float] = []
+        self._update_n: list[int] = []
+        self._diag: list[str] = []
+        self._warned: set[str] = set()
+        self._dr_map: list[LandmarkEstimate] = []
+
+    # ------------------------------------------------------------------- sensor metadata
+    def _extrinsic(self, sensor: str) -> tuple[np.ndarray, np.ndarray]:
+        info = self.metadata.sensors.get(sensor)
+        if info is None:
+            raise MissionError(f"sensor {sensor!r} is not in the mission metadata (no extrinsic T_BS)")
+        return info.T_BS[:3, :3], info.T_BS[:3, 3]
+
+    def _warn_once(self, key: str, msg: str) -> None:
+        if key not in self._warned:
+            self._warned.add(key)
+            self._diag.append(msg)
+
+    # ------------------------------------------------------------------- initialisation
+    def _initialise(self, stamp: int, position: np.ndarray, R_WB: np.ndarray, pos_sigma: np.ndarray) -> None:
+        x0 = np.zeros(NX)
+        x0[POS] = position
+        x0[ATT] = geo.euler(R_WB)
+        c = self.cfg
+        P0 = np.diag(
+            np.r_[pos_sigma**2, [c.initial_attitude_sigma_rad**2] * 3, [c.initial_velocity_sigma_m_s**2] * 3]
+        )
+        self.state = EkfState(x0, P0)
+        self.t = stamp
+        self._record(stamp)
+
+    # ---------------------------------------------------------------------- prediction
+    def _predict_to(self, stamp: int) -> None:
+        if stamp <= self.t:
+            return
+        omega = self._omega
+        if self._omega_stamp is None or (stamp - self._omega_stamp) * NS > self.cfg.rate_max_age_s:
+            omega = np.zeros(3)
+        total = (stamp - self.t) * NS
+        steps = max(1, int(math.ceil(total / self.cfg.max_prediction_step_s - 1e-9)))
+        dt = total / steps
+        for _ in range(steps):
+            xv, F, Q = mdl.predict(
+                self.state.xv.copy(), omega, dt, self.motion.accel_sigma_m_s2, self.motion.angular_rate_sigma_rad_s
+            )
+            self.state.predict_vehicle(xv, F, Q)
+        self.t = stamp
+
+    def _nav_update(self, u: mdl.NavUpdate) -> None:
+        self.state.update(u.innovation, np.arange(NX), u.H, u.R)
+        self._wrap_vehicle()
+
+    def _wrap_vehicle(self) -> None:
+        x = self.state.x
+        x[3] = geo.wrap(x[3])
+        x[5] = geo.wrap(x[5])
+
+    # ------------------------------------------------------------------ measurements
+    def process_measurement(self, measurement: Measurement) -> None:
+        m = measurement
+        if self.state is None:
+            self._try_initialise(m)
+            return
+        if isinstance(m, GroundTruthPose):
+            return
+        if m.stamp < self.t:
+            self._warn_once("late", f"measurement older than the filter state dropped ({m.sensor})")
+            return
+        self._predict_to(m.stamp)
+        if isinstance(m, Attitude):
+            self._attitude(m)
+        elif isinstance(m, DvlVelocity):
+            if m.valid and np.isfinite(m.velocity).all():
+                R_BS, t_BS = self._extrinsic(m.sensor)
+                self._nav_update(mdl.dvl_update(self.state.xv, m.velocity, m.covariance, R_BS, t_BS, self._omega))
+        elif isinstance(m, Depth):
+            _, t_BS = self._extrinsic(m.sensor)
+            self._nav_update(mdl.depth_update(self.state.xv, m.depth, m.variance, t_BS))
+        self._record(m.stamp)
+
+    def _try_initialise(self, m: Measurement) -> None:
+        if isinstance(m, Depth):
+            self._last_depth = m.depth
+        if isinstance(m, GroundTruthPose) and self._wait_gt:
+            R = Rotation.from_quat(m.orientation).as_matrix()
+            self._initialise(m.stamp, np.asarray(m.position), R, np.full(3, self.cfg.initial_position_sigma_m))
+        elif isinstance(m, Attitude) and not self._wait_gt:
+            R_BS, _ = self._extrinsic(m.sensor)
+            R_WB = Rotation.from_quat(m.orientation).as_matrix() @ R_BS.T
+            z = self._last_depth if self._last_depth is not None else 0.0
+            sig = np.array([self.cfg.initial_position_sigma_m] * 2 + [self.cfg.initial_position_sigma_m if
+                                                                      self._last_depth is not None else 10.0])
+            self._initialise(m.stamp, np.array([0.0, 0.0, z]), R_WB, sig)
+            self._attitude(m)
+
+    def _attitude(self, m: Attitude) -> None:
+        R_BS, _ = self._extrinsic(m.sensor)
+        R_WS = Rotation.from_quat(m.orientation).as_matrix()
+        if m.angular_rate is not None and np.isfinite(m.angular_rate).all():
+            self._omega = R_BS @ m.angular_rate
+            self._omega_stamp = m.stamp
+        elif self._last_att is not None and m.stamp > self._last_att[0]:
+            # no rate in the message: the body rate from consecutive attitudes
+            dt = (m.stamp - self._last_att[0]) * NS
+            R_prev = self._last_att[1] @ R_BS.T
+            self._omega = geo.so3_log(R_prev.T @ (R_WS @ R_BS.T)) / dt
+            self._omega_stamp = m.stamp
+        self._last_att = (m.stamp, R_WS)
+        e_B, cov_B = mdl.attitude_in_body(R_WS, m.covariance, R_BS)
+        self._nav_update(mdl.attitude_update(self.state.xv, e_B, cov_B))
+
+    # --------------------------------------------------------------------------- records
+    def _record(self, stamp: int) -> None:
+        x, P = self.state.x, self.state.P
+        tr = self._traj
+        if tr["t"] and tr["t"][-1] == stamp:
+            for k in tr:
+                tr[k].pop()
+        tr["t"].append(stamp)
+        tr["p"].append(x[POS].copy())
+        tr["e"].append(x[ATT].copy())
+        tr["pc"].append(P[POS, POS].copy())
+        tr["v"].append(x[VEL].copy())
+        tr["vc"].append(P[VEL, VEL].copy())
+        hs, hp = self._veh_hist
+        if not hs or (stamp - hs[-1]) * NS >= self.cfg.history_period_s:
+            hs.append(stamp)
+            hp.append(P[:NX, :NX].copy())
+
+    # ---------------------------------------------------------------------- observations
+    def _prepare(self, observations: Sequence[Observation]) -> list[_Obs]:
+        out = []
+        for o in observations:
+            if isinstance(o, PointObservation):
+                R_BS, t_BS = self._extrinsic(o.sensor)
+                if np.isfinite(o.position).all():
+                    out.append(_Obs(o, R_BS, t_BS))
+            elif isinstance(o, LineObservation):
+                R_BS, t_BS = self._extrinsic(o.sensor)
+                if not (np.isfinite(o.p).all() and np.isfinite(o.q).all()):
+                    continue
+                if np.linalg.norm(o.q - o.p) < self.cfg.line_min_length_m:
+                    continue
+                line = mdl.LineObservationModel.from_endpoints(o.p, o.q, o.covariance)
+                if line.rho < self.cfg.line_min_distance_m:
+                    self._warn_once("rho", "pipe observations through the sensor origin ignored (ρ ≈ 0)")
+                    continue
+                R, t, _, _ = mdl.sensor_pose(self.state.xv, R_BS, t_BS)
+                ends = np.array([o.p, o.q]) @ R.T + t
+                out.append(_Obs(o, R_BS, t_BS, line, ends))
+            else:
+                self._warn_once(type(o).__name__, f"{type(o).__name__} is not used by the {self.name} filter")
+        return out
+
+    def process_observations(self, stamp: int, observations: Sequence[Observation]) -> None:
+        if self.state is None:
+            return
+        t0 = time.perf_counter()
+        if stamp > self.t:
+            self._predict_to(stamp)
+        obs = self._prepare(observations)
+        if obs:
+            if self.feature_updates:
+                self._slam_update(stamp, obs)
+            else:
+                self._place(stamp, obs)
+            self._record(max(stamp, self.t))
+            self._record_volumes(stamp)
+        self._update_times.append(time.perf_counter() - t0)
+        self._update_n.append(len(self._features) if self.feature_updates else len(self._dr_map))
+
+    # ---------------------------------------------------------------- SLAM: association
+    def _pair(self, o: _Obs, f: _Feature):
+        """Linearisation of observation o against feature f, or None when they cannot pair."""
+        from semslam.backend.association import PairLinearization
+
+        if o.kind != f.kind:
+            return None
+        x = self.state.xv
+        l = self.state.x[f.index : f.index + f.size]
+        if f.kind == "object":
+            h, H_x, H_l = mdl.point_measurement(x, l, o.R_BS, o.t_BS)
+            return PairLinearization(o.obs.position - h, H_x, H_l, np.asarray(o.obs.covariance))
+        m_W, d_W = geo.line_plucker(l)
+        if f.extent.gap(o.ends_W, m_W, d_W) > self.cfg.pipe_extent_gap_m or f.extent.separated(
+            o.ends_W, m_W, d_W, self._object_positions(), self.cfg.pipe_object_radius_m
+        ):
+            return None
+        nu, H_x, H_l, R = mdl.line_innovation(x, l, o.line, o.R_BS, o.t_BS)
+        return PairLinearization(nu, H_x, H_l, R)
+
+    def _pre_gate(self, obs: list[_Obs]) -> np.ndarray:
+        """Euclidean pre-gate before the Mahalanobis tests, vectorised over the map: an observation
+        (in {W} with the current pose) farther than ``pre_gate_m`` + 3 σ of the vehicle position from a
+        feature (object: its position; pipe: its line) cannot pair with it. It only saves work: the
+        χ² gates would reject such pairs anyway."""
+        feats = self._features
+        near = np.zeros((len(obs), len(feats)), bool)
+        if not feats or not obs:
+            return near
+        x, P = self.state.x, self.state.P
+        gate = self.cfg.pre_gate_m + 3.0 * math.sqrt(max(np.trace(P[POS, POS]), 0.0))
+        kinds = np.array([f.kind for f in feats])
+        starts = np.array([f.index for f in feats])
+        obj, pip = np.flatnonzero(kinds == "object"), np.flatnonzero(kinds == "pipe")
+        pos_obj = x[starts[obj, None] + np.arange(3)] if len(obj) else np.zeros((0, 3))
+        if len(pip):
+            lp = x[starts[pip, None] + np.arange(4)]
+            U = geo.rot_batch(lp[:, :3])
+            d_l = U[:, :, 1]
+            c_l = np.cross(d_l, lp[:, 3:4] * U[:, :, 0])  # closest points d × m
+        for i, o in enumerate(obs):
+            if o.kind == "object" and len(obj):
+                R, t, _, _ = mdl.sensor_pose(self.state.xv, o.R_BS, o.t_BS)
+                w = t + R @ o.obs.position
+                near[i, obj] = np.linalg.norm(pos_obj - w, axis=1) < gate
+            elif o.kind == "pipe" and len(pip):
+                mid = o.ends_W.mean(axis=0)
+                r = mid - c_l
+                off = r - (r * d_l).sum(axis=1, keepdims=True) * d_l
+                near[i, pip] = np.linalg.norm(off, axis=1) < gate
+        return near
+
+    def _object_positions(self) -> np.ndarray:
+        """Mapped and tentative objects in {W} (N×3), the separators of collinear pipes."""
+        x = self.state.x
+        pts = [x[f.index : f.index + 3] for f in self._features if f.kind == "object"]
+        pts += [t.mean for t in self._tracks if t.kind == "object"]
+        return np.array(pts).reshape(-1, 3)
+
+    def _associate_batch(self, obs: list[_Obs]) -> list[int | None]:
+        if not self._features:
+            return [None] * len(obs)
+        assoc = self._associate or _default_associate()
+        return assoc(EkfAssociationProblem(self, obs), confidence=self.assoc.confidence)
+
+    def _slam_update(self, stamp: int, obs: list[_Obs]) -> None:
+        pairs = self._associate_batch(obs)
+        paired = [(o, self._features[j]) for o, j in zip(obs, pairs) if j is not None]
+        if paired:
+            self._joint_update(paired)
+        for o, f in paired:
+            f.n_obs += 1
+            _fuse_class(f.class_log, getattr(o.obs, "class_likelihood", None))
+            if f.kind == "pipe":  # save the segment seen now (placed with the updated pose)
+                R, t, _, _ = mdl.sensor_pose(self.state.xv, o.R_BS, o.t_BS)
+                f.extent.add(np.array([o.obs.p, o.obs.q]) @ R.T + t, _along_sigma(o.obs))
+        new = [o for o, j in zip(obs, pairs) if j is None and not self._near_mapped(o)]
+        self._tentative(stamp, new)
+
+    def _near_mapped(self, o: _Obs) -> bool:
+        """An unpaired observation still compatible with a mapped feature at the looser track gate is
+        ambiguous, not new: it is dropped rather than started as a duplicate feature."""
+        from semslam.backend.association import individual_nis
+
+        problem = EkfAssociationProblem(self, [o])
+        gate = chi2.ppf(self.cfg.track_gate_confidence, 3 if o.kind == "object" else 4)
+        return any(individual_nis(problem, 0, j) < gate for j in range(len(self._features)))
+
+    def _joint_update(self, paired: list[tuple[_Obs, _Feature]]) -> None:
+        """One EKF update with every paired observation stacked (H sparse: vehicle + those features)."""
+        lins = [self._pair(o, f) for o, f in paired]
+        cols = np.concatenate([np.arange(NX)] + [f.cols for _, f in paired])
+        D = sum(len(p.innovation) for p in lins)
+        H = np.zeros((D, len(cols)))
+        R = np.zeros((D, D))
+        nu = np.zeros(D)
+        r, c = 0, NX
+        for p, (_, f) in zip(lins, paired):
+            d = len(p.innovation)
+            H[r : r + d, :NX] = p.H_x
+            H[r : r + d, c : c + f.size] = p.H_l
+            R[r : r + d, r : r + d] = p.R
+            nu[r : r + d] = p.innovation
+            r, c = r + d, c + f.size
+        self.state.update(nu, cols, H, R)
+        self._wrap_vehicle()
+        x = self.state.x
+        for _, f in paired:
+            if f.kind == "pipe":  # keep the Euler angles of the line in range
+                x[f.index : f.index + 3] = geo.wrap(x[f.index : f.index + 3])
+
+    # ------------------------------------------------------------ SLAM: new features
+    def _world(self, o: _Obs):
+        """The observation in {W} with the current pose: (mean, covariance, Jacobians for augmentation)."""
+        x, Pvv = self.state.xv, self.state.P[:NX, :NX]
+        if o.kind == "object":
+            l, G_x, G_z = mdl.point_initialise(x, o.obs.position, o.R_BS, o.t_BS)
+            cov = G_x @ Pvv @ G_x.T + G_z @ o.obs.covariance @ G_z.T
+            return l, cov
+        m_W, d_W, Jx, Jpq = mdl.line_world(x, o.obs.p, o.obs.q, o.R_BS, o.t_BS)
+        U, rho = geo.orthonormal_from_plucker(m_W, d_W)
+        A = geo.line_error_map(U, rho)
+        Gx, Gz = A @ Jx, A @ Jpq
+        return np.r_[m_W, d_W], Gx @ Pvv @ Gx.T + Gz @ o.obs.covariance @ Gz.T
+
+    def _track_nis(self, tr: _Track, o: _Obs, mean: np.ndarray, cov: np.ndarray) -> float:
+        if tr.kind != o.kind:
+            return math.inf
+        if tr.kind == "object":
+            nu = mean - tr.mean
+        else:
+            m_t, d_t = tr.mean[:3], tr.mean[3:]
+            m_o, d_o = mean[:3], mean[3:]
+            if d_o @ d_t < 0:
+                m_o, d_o = -m_o, -d_o
+                D = np.array([-1.0, -1.0, 1.0, 1.0])
+                cov = cov * np.outer(D, D)
+            if tr.extent.gap(o.ends_W, m_t, d_t) > self.cfg.pipe_extent_gap_m or tr.extent.separated(
+                o.ends_W, m_t, d_t, self._object_positions(), self.cfg.pipe_object_radius_m
+            ):
+                return math.inf
+            U_t, rho_t = geo.orthonormal_from_plucker(m_t, d_t)
+            U_o, rho_o = geo.orthonormal_from_plucker(m_o, d_o)
+            nu = np.append(geo.so3_log(U_t.T @ U_o), rho_o - rho_t)
+        S = tr.cov + cov
+        try:
+            return float(nu @ np.linalg.solve(S, nu))
+        except np.linalg.LinAlgError:
+            return math.inf
+
+    def _tentative(self, stamp: int, new: list[_Obs]) -> None:
+        """Unpaired observations extend or start tentative features; confirmed ones join the state."""
+        horizon = self.cfg.track_timeout_s / NS
+        self._tracks = [t for t in self._tracks if stamp - t.last_stamp <= horizon]
+        used: set[int] = set()
+        for o in new:
+            mean, cov = self._world(o)
+            gate = chi2.ppf(self.cfg.track_gate_confidence, 3 if o.kind == "object" else 4)
+            best, best_nis = None, gate
+            for k, tr in enumerate(self._tracks):
+                if k in used:
+                    continue
+                nis = self._track_nis(tr, o, mean, cov)
+                if nis < best_nis:
+                    best, best_nis = k, nis
+            if best is None:
+                tr = _Track(o.kind, mean, cov, 1, stamp, _Extent() if o.kind == "pipe" else None)
+                self._tracks.append(tr)
+                used.add(len(self._tracks) - 1)
+            else:
+                tr = self._tracks[best]
+                used.add(best)
+                tr.mean, tr.cov, tr.n, tr.last_stamp = mean, cov, tr.n + 1, stamp
+            _fuse_class(tr.class_log, getattr(o.obs, "class_likelihood", None))
+            if tr.kind == "pipe":
+                tr.extent.add(o.ends_W, _along_sigma(o.obs))
+            if tr.n >= self.assoc.min_observations:
+                self._add_feature(o, tr)
+                tr.n = -1  # consumed
+        self._tracks = [t for t in self._tracks if t.n >= 0]
+
+    def _add_feature(self, o: _Obs, tr: _Track) -> None:
+        x = self.state.xv
+        if o.kind == "object":
+            l, G_x, G_z = mdl.point_initialise(x, o.obs.position, o.R_BS, o.t_BS)
+            idx = self.state.augment(l, G_x, G_z, np.asarray(o.obs.covariance))
+        else:
+            l, G_x, G_pq = mdl.line_initialise(x, o.obs.p, o.obs.q, o.R_BS, o.t_BS)
+            idx = self.state.augment(l, G_x, G_pq, np.asarray(o.obs.covariance))
+        self._features.append(
+            _Feature(self._next_id, o.kind, idx, len(l), n_obs=tr.n, extent=tr.extent, class_log=dict(tr.class_log))
+        )
+        self._next_id += 1
+
+    # --------------------------------------------------------------------- dead reckoning
+    def _place(self, stamp: int, obs: list[_Obs]) -> None:
+        """Dead reckoning: every observation becomes its own map entry, placed with the DR pose."""
+        x, Pvv = self.state.xv, self.state.P[:NX, :NX]
+        for o in obs:
+            if o.kind == "object":
+                l, G_x, G_z = mdl.point_initialise(x, o.obs.position, o.R_BS, o.t_BS)
+                cov = G_x @ Pvv @ G_x.T + G_z @ o.obs.covariance @ G_z.T
+                lm = LandmarkEstimate(self._next_id, "object", position=l, covariance=cov,
+                                      class_posterior=_posterior(_class_log(o.obs)), n_observations=1)
+            else:
+                l, G_x, G_pq = mdl.line_initialise(x, o.obs.p, o.obs.q, o.R_BS, o.t_BS)
+                cov = G_x @ Pvv @ G_x.T + G_pq @ o.obs.covariance @ G_pq.T
+                m_W, d_W = geo.line_plucker(l)
+                p, q = geo.project_on_line(o.ends_W, m_W, d_W)
+                lm = LandmarkEstimate(self._next_id, "pipe", p=p, q=q, covariance=cov, n_observations=1)
+            self._dr_map.append(lm)
+            self._volume(self._next_id, stamp, cov)
+            self._next_id += 1
+
+    # ------------------------------------------------------------------------- history
+    def _record_volumes(self, stamp: int) -> None:
+        """Uncertainty volume (Σ log eigenvalues = log det) of every feature block (Figs. 11–12)."""
+        if not self._features:
+            return
+        P = self.state.P
+        for size in (3, 4):
+            fs = [f for f in self._features if f.size == size]
+            if not fs:
+                continue
+            idx = np.array([f.cols for f in fs])
+            blocks = P[idx[:, :, None], idx[:, None, :]]
+            vols = np.log(np.clip(np.linalg.eigvalsh(blocks), 1e-300, None)).sum(axis=1)
+            for f, v in zip(fs, vols):
+                f.vol_stamps.append(stamp)
+                f.vol.append(float(v))
+
+    def _volume(self, lid: int, stamp: int, cov: np.ndarray) -> None:
+        ev = np.linalg.eigvalsh(cov)
+        self._dr_vol[lid] = (np.array([stamp], np.int64), np.array([np.log(np.clip(ev, 1e-300, None)).sum()]))
+
+    # ------------------------------------------------------------------------- outputs
+    def _landmark(self, f: _Feature) -> LandmarkEstimate:
+        x, P = self.state.x, self.state.P
+        l = x[f.index : f.index + f.size].copy()
+        cov = P[np.ix_(f.cols, f.cols)].copy()
+        if f.kind == "object":
+            return LandmarkEstimate(f.id, "object", position=l, covariance=cov,
+                                    class_posterior=_posterior(f.class_log), n_observations=f.n_obs)
+        p, q = f.extent.ends(*geo.line_plucker(l))
+        return LandmarkEstimate(f.id, "pipe", p=p, q=q, covariance=cov, n_observations=f.n_obs)
+
+    def landmarks(self) -> list[LandmarkEstimate]:
+        if not self.feature_updates:
+            return list(self._dr_map)
+        return [self._landmark(f) for f in self._features]
+
+    def pose_at(self, stamp: int) -> np.ndarray | None:
+        """T_WB at ``stamp``: predicted forward from the current state, or the recorded estimate nearest
+        in time for a past stamp."""
+        if self.state is None:
+            return None
+        if stamp >= self.t:
+            x = self.state.xv.copy()
+            dt = (stamp - self.t) * NS
+            if dt > 0:
+                x = mdl.predict(x, self._omega, dt, self.motion.accel_sigma_m_s2, self.motion.angular_rate_sigma_rad_s)[0]
+        else:
+            ts = np.asarray(self._traj["t"])
+            k = int(np.clip(np.searchsorted(ts, stamp), 0, len(ts) - 1))
+            if k > 0 and abs(ts[k - 1] - stamp) < abs(ts[k] - stamp):
+                k -= 1
+            x = np.r_[self._traj["p"][k], self._traj["e"][k]]
+        T = np.eye(4)
+        T[:3, :3] = geo.rot(*x[ATT])
+        T[:3, 3] = x[POS]
+        return T
+
+    def view(self) -> "EkfEstimator":
+        return self  # pose_at / landmarks: the EstimateView protocol
+
+    def finish(self) -> EstimatorResult:
+        tr = self._traj
+        if not tr["t"]:
+            empty = Trajectory(np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 4)))
+            return EstimatorResult(self.name, empty, diagnostics=self._diag + ["the filter was never initialised"])
+        e = np.array(tr["e"])
+        quats = Rotation.from_euler("ZYX", e[:, ::-1]).as_quat()
+        traj = Trajectory(
+            stamps=np.array(tr["t"], np.int64),
+            positions=np.array(tr["p"]),
+            orientations=quats,
+            position_cov=np.array(tr["pc"]),
+            velocities=np.array(tr["v"]),
+            velocity_cov=np.array(tr["vc"]),
+        )
+        if self.feature_updates:
+            volumes = {f.id: (np.array(f.vol_stamps, np.int64), np.array(f.vol)) for f in self._features}
+            kinds = {f.id: f.kind for f in self._features}
+        else:
+            volumes = dict(self._dr_vol)
+            kinds = {lm.id: lm.kind for lm in self._dr_map}
+        history = {
+            "landmark_volume": volumes,
+            "landmark_kind": kinds,
+            "vehicle_cov": (np.array(self._veh_hist[0], np.int64), np.array(self._veh_hist[1])),
+        }
+        return EstimatorResult(
+            name=self.name,
+            trajectory=traj,
+            landmarks=self.landmarks(),
+            online_trajectory=traj,  # a filter's estimate at each time is its online estimate
+            update_times_s=np.array(self._update_times),
+            update_n_landmarks=np.array(self._update_n, int),
+            history=history,
+            diagnostics=list(self._diag),
+        )
+
+
+def _class_log(o: Observation) -> dict[str, float]:
+    log: dict[str, float] = {}
+    _fuse_class(log, getattr(o, "class_likelihood", None))
+    return log
+
+
+class DeadReckoning(EkfEstimator):
+    """The same filter with the feature updates disabled; its map is every observation placed with the
+    dead-reckoning pose (the paper's Figure 10a)."""
+
+    name = "dr"
+    feature_updates = False
+
+    def __init__(self, metadata: MissionMetadata, config: SemslamConfig | None = None):
+        super().__init__(metadata, config)
+        self._dr_vol: dict[int, tuple[np.ndarray, np.ndarray]] = {}

@@ -1,0 +1,260 @@
+"""Motion and measurement models of the EKF (Vallicrosa et al. 2021, Section 4), with Jacobians.
+
+Vehicle state x = [x y z φ θ ψ u v w]: position of the body origin in {W} (NED, m), Euler attitude
+of {B} in {W} (rad, R_WB = Rz(ψ) Ry(θ) Rx(φ)), velocity of the body origin in {B} (m/s).
+Landmarks: objects as points [x y z] in {W}; pipes as lines [α β γ ρ] in {W} (see
+:mod:`semslam.ekf.geometry`). A sensor S has the extrinsic T_BS = (R_BS, t_BS).
+
+Every ``*_jacobians`` function returns Jacobians with respect to the 9-vector vehicle state (only the
+pose columns are non-zero for landmark measurements) and to the landmark block, so that the filter
+can assemble a sparse H.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from semslam.ekf.geometry import (
+    body_to_euler_rate,
+    cross3,
+    euler,
+    euler_rate_jacobian,
+    euler_rate_to_body,
+    line_error_map,
+    line_params,
+    line_params_from_error,
+    line_params_jacobian,
+    line_plucker,
+    orthonormal_from_plucker,
+    plucker_from_endpoints,
+    rot,
+    skew,
+    so3_left_jacobian_inv,
+    so3_log,
+    so3_right_jacobian_inv,
+    wrap,
+)
+
+NX = 9  # vehicle state size
+POS, ATT, VEL = slice(0, 3), slice(3, 6), slice(6, 9)
+
+
+# ------------------------------------------------------------------------------ prediction
+def predict(x: np.ndarray, omega_B: np.ndarray, dt: float, accel_sigma: float, rate_sigma: float):
+    """Constant-velocity model with the AHRS body rate ω_B as input (eqs. 20–22).
+
+    p' = p + R_WB v Δt, e' = e + E⁻¹(φ, θ) ω_B Δt, v' = v. Noise: white linear acceleration in
+    {B} and white angular rate, continuous densities ``accel_sigma`` (m/s²/√Hz) and ``rate_sigma``
+    (rad/s/√Hz), i.e. Var(Δv) = σ_a² Δt, discretised exactly for the p–v pair (Δt³/3, Δt²/2, Δt).
+
+    Returns (x', F, Q) with F = ∂x'/∂x and Q the discrete process noise (9×9).
+    """
+    R = rot(*x[ATT])
+    v = x[VEL]
+    Einv = body_to_euler_rate(x[3], x[4])
+    xn = x.copy()
+    xn[POS] = x[POS] + R @ v * dt
+    xn[ATT] = x[ATT] + Einv @ omega_B * dt
+    xn[3] = wrap(xn[3])
+    xn[5] = wrap(xn[5])
+    F = np.eye(NX)
+    F[POS, ATT] = -R @ skew(v) @ euler_rate_to_body(x[3], x[4]) * dt
+    F[POS, VEL] = R * dt
+    F[ATT, ATT] += euler_rate_jacobian(x[3], x[4], omega_B) * dt
+    qa, qw = accel_sigma**2, rate_sigma**2
+    Q = np.zeros((NX, NX))
+    Q[POS, POS] = np.eye(3) * qa * dt**3 / 3.0
+    Q[POS, VEL] = R * qa * dt**2 / 2.0
+    Q[VEL, POS] = Q[POS, VEL].T
+    Q[VEL, VEL] = np.eye(3) * qa * dt
+    Q[ATT, ATT] = Einv @ Einv.T * qw * dt
+    return xn, F, Q
+
+
+# ------------------------------------------------------------------------- linear updates
+@dataclass
+class NavUpdate:
+    """A navigation update z ≈ h(x) + H δx: innovation ν (angles wrapped), H over the vehicle, R."""
+
+    innovation: np.ndarray
+    H: np.ndarray
+    R: np.ndarray
+
+
+def depth_update(x: np.ndarray, depth: float, variance: float, t_BS: np.ndarray) -> NavUpdate:
+    """Pressure sensor at lever arm t_BS: z = p_z + (R_WB t_BS)_z (eq. 23, with the lever arm)."""
+    R = rot(*x[ATT])
+    h = x[2] + (R @ t_BS)[2]
+    H = np.zeros((1, NX))
+    H[0, 2] = 1.0
+    H[0, ATT] = (-R @ skew(t_BS) @ euler_rate_to_body(x[3], x[4]))[2]
+    return NavUpdate(np.array([depth - h]), H, np.array([[variance]]))
+
+
+def attitude_in_body(R_WS: np.ndarray, cov_S: np.ndarray, R_BS: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Euler angles of R_WB = R_WS R_BSᵀ and their covariance, from the AHRS's (φ, θ, ψ) covariance.
+
+    Perturbing the sensor angles rotates {S} by ω_S = E(e_S) δe_S, i.e. {B} by R_BS ω_S, so
+    δe_B = E⁻¹(e_B) R_BS E(e_S) δe_S.
+    """
+    R_WB = R_WS @ R_BS.T
+    e_B, e_S = euler(R_WB), euler(R_WS)
+    J = body_to_euler_rate(e_B[0], e_B[1]) @ R_BS @ euler_rate_to_body(e_S[0], e_S[1])
+    return e_B, J @ cov_S @ J.T
+
+
+def attitude_update(x: np.ndarray, e_B: np.ndarray, cov_B: np.ndarray) -> NavUpdate:
+    """AHRS: z = (φ, θ, ψ) of {B} (eq. 24), linear."""
+    H = np.zeros((3, NX))
+    H[:, ATT] = np.eye(3)
+    return NavUpdate(wrap(e_B - x[ATT]), H, cov_B)
+
+
+def dvl_update(
+    x: np.ndarray, v_S: np.ndarray, cov_S: np.ndarray, R_BS: np.ndarray, t_BS: np.ndarray, omega_B: np.ndarray
+) -> NavUpdate:
+    """DVL: z = R_BSᵀ (v_B + ω_B × t_BS) in the DVL frame (eqs. 25–29), linear in v_B (ω_B is the input)."""
+    H = np.zeros((3, NX))
+    H[:, VEL] = R_BS.T
+    h = R_BS.T @ (x[VEL] + cross3(omega_B, t_BS))
+    return NavUpdate(v_S - h, H, cov_S)
+
+
+# ------------------------------------------------------------------------ sensor pose
+def sensor_pose(x: np.ndarray, R_BS: np.ndarray, t_BS: np.ndarray):
+    """(R_WS, t_WS, R_WB, Ω) where Ω = ∂ω_S/∂e (3×3): a vehicle Euler perturbation δe rotates {S}
+    by ω_S = R_BSᵀ E(φ, θ) δe (right side)."""
+    R_WB = rot(*x[ATT])
+    E = euler_rate_to_body(x[3], x[4])
+    return R_WB @ R_BS, x[POS] + R_WB @ t_BS, R_WB, E
+
+
+def _dt_dx(R_WB: np.ndarray, E: np.ndarray, t_BS: np.ndarray) -> np.ndarray:
+    """∂t_WS/∂x (3×9)."""
+    J = np.zeros((3, NX))
+    J[:, POS] = np.eye(3)
+    J[:, ATT] = -R_WB @ skew(t_BS) @ E
+    return J
+
+
+# ------------------------------------------------------------------------------- points
+def point_measurement(x: np.ndarray, l: np.ndarray, R_BS: np.ndarray, t_BS: np.ndarray):
+    """Object l (in {W}) seen in {S}: h = R_WSᵀ (l - t_WS) (eqs. 30–32). Returns (h, H_x 3×9, H_l 3×3)."""
+    R, t, R_WB, E = sensor_pose(x, R_BS, t_BS)
+    h = R.T @ (l - t)
+    H_x = -R.T @ _dt_dx(R_WB, E, t_BS)
+    H_x[:, ATT] += skew(h) @ R_BS.T @ E
+    return h, H_x, R.T.copy()
+
+
+def point_initialise(x: np.ndarray, z: np.ndarray, R_BS: np.ndarray, t_BS: np.ndarray):
+    """New object from z in {S}: l = t_WS + R_WS z (eqs. 39–41). Returns (l, G_x 3×9, G_z 3×3)."""
+    R, t, R_WB, E = sensor_pose(x, R_BS, t_BS)
+    l = t + R @ z
+    G_x = _dt_dx(R_WB, E, t_BS)
+    G_x[:, ATT] += -R @ skew(z) @ R_BS.T @ E
+    return l, G_x, R.copy()
+
+
+# -------------------------------------------------------------------------------- lines
+def line_to_sensor(x: np.ndarray, l: np.ndarray, R_BS: np.ndarray, t_BS: np.ndarray):
+    """Pipe l = [α β γ ρ] in {W} as Plücker (m_S, d_S) in {S} (eqs. 13–16, 33–35):
+    d_S = R_WSᵀ d_W, m_S = R_WSᵀ (m_W - t_WS × d_W).
+
+    Returns (m_S, d_S, J_x 6×9, J_l 6×4), Jacobians of (m_S, d_S).
+    """
+    R, t, R_WB, E = sensor_pose(x, R_BS, t_BS)
+    m_W, d_W = line_plucker(l)
+    m_S = R.T @ (m_W - cross3(t, d_W))
+    d_S = R.T @ d_W
+    W = R_BS.T @ E  # ∂ω_S/∂e
+    J_x = np.zeros((6, NX))
+    J_x[:3] = R.T @ skew(d_W) @ _dt_dx(R_WB, E, t_BS)
+    J_x[:3, ATT] += skew(m_S) @ W
+    J_x[3:, ATT] = skew(d_S) @ W
+    J_md = np.zeros((6, 6))  # ∂(m_S, d_S)/∂(m_W, d_W)
+    J_md[:3, :3] = R.T
+    J_md[:3, 3:] = -R.T @ skew(t)
+    J_md[3:, 3:] = R.T
+    return m_S, d_S, J_x, J_md @ line_params_jacobian(l)
+
+
+@dataclass
+class LineObservationModel:
+    """An observed segment (p, q) in {S} as a line: Plücker (m, d), orthonormal (U, ρ), and the 4×4
+    covariance of its line error (ε, δρ) at U (from the 6×6 endpoint covariance)."""
+
+    m: np.ndarray
+    d: np.ndarray
+    U: np.ndarray
+    rho: float
+    cov: np.ndarray
+
+    @classmethod
+    def from_endpoints(cls, p: np.ndarray, q: np.ndarray, cov_pq: np.ndarray) -> "LineObservationModel":
+        m, d, J = plucker_from_endpoints(p, q)
+        U, rho = orthonormal_from_plucker(m, d)
+        A = line_error_map(U, rho) @ J
+        return cls(m, d, U, rho, A @ cov_pq @ A.T)
+
+    def flipped(self) -> "LineObservationModel":
+        """The same line with the opposite direction: (m, d) → (-m, -d), U → U diag(-1, -1, 1);
+        the error covariance changes sign in ε₁ and ε₂ (D Σ D, D = diag(-1, -1, 1, 1))."""
+        D = np.array([-1.0, -1.0, 1.0, 1.0])
+        return LineObservationModel(-self.m, -self.d, self.U * np.array([-1.0, -1.0, 1.0]), self.rho,
+                                    self.cov * np.outer(D, D))
+
+
+def line_innovation(x: np.ndarray, l: np.ndarray, obs: LineObservationModel, R_BS: np.ndarray, t_BS: np.ndarray):
+    """Innovation of an observed line against pipe l, on the manifold of the orthonormal representation.
+
+    ν = [Log(U_hᵀ U_z); ρ_z − ρ_h] where (U_h, ρ_h) is the pipe in {S} and the observed direction is
+    flipped to agree with the predicted one. This is the paper's comparison of orthonormal
+    parameters in the sensor frame (eqs. 30–37) without the Euler singularity of the sensor-frame
+    angles. Returns (ν, H_x 4×9, H_l 4×4, R 4×4) with ν ≈ ν₀ − H_x δx − H_l δl (H = ∂h/∂state).
+    """
+    m_S, d_S, J_x, J_l = line_to_sensor(x, l, R_BS, t_BS)
+    U_h, rho_h = orthonormal_from_plucker(m_S, d_S)
+    if obs.d @ d_S < 0:
+        obs = obs.flipped()
+    r = so3_log(U_h.T @ obs.U)
+    nu = np.append(r, obs.rho - rho_h)
+    A = line_error_map(U_h, rho_h)
+    G = np.eye(4)
+    G[:3, :3] = so3_left_jacobian_inv(r)
+    Gr = np.eye(4)
+    Gr[:3, :3] = so3_right_jacobian_inv(r)
+    H_x = G @ A @ J_x
+    H_l = G @ A @ J_l
+    return nu, H_x, H_l, Gr @ obs.cov @ Gr.T
+
+
+def line_world(x: np.ndarray, p: np.ndarray, q: np.ndarray, R_BS: np.ndarray, t_BS: np.ndarray):
+    """An observed segment (p, q) in {S} as Plücker (m_W, d_W) in {W}: d_W = R_WS d_S,
+    m_W = R_WS m_S + t_WS × d_W (eqs. 42–44). Returns (m_W, d_W, J_x 6×9, J_pq 6×6)."""
+    R, t, R_WB, E = sensor_pose(x, R_BS, t_BS)
+    m_S, d_S, J_pq = plucker_from_endpoints(p, q)
+    d_W = R @ d_S
+    m_W = R @ m_S + cross3(t, d_W)
+    W = R_BS.T @ E
+    Jx = np.zeros((6, NX))
+    Jx[3:, ATT] = -R @ skew(d_S) @ W
+    Jx[:3, ATT] = -R @ skew(m_S) @ W + skew(t) @ Jx[3:, ATT]
+    Jx[:3] += -skew(d_W) @ _dt_dx(R_WB, E, t_BS)
+    Jz = np.zeros((6, 6))  # ∂(m_W, d_W)/∂(m_S, d_S)
+    Jz[3:, 3:] = R
+    Jz[:3, :3] = R
+    Jz[:3, 3:] = skew(t) @ R
+    return m_W, d_W, Jx, Jz @ J_pq
+
+
+def line_initialise(x: np.ndarray, p: np.ndarray, q: np.ndarray, R_BS: np.ndarray, t_BS: np.ndarray):
+    """New pipe [α β γ ρ] from an observed segment (p, q) in {S} (eqs. 42–45).
+    Returns (l, G_x 4×9, G_pq 4×6)."""
+    m_W, d_W, Jx, Jpq = line_world(x, p, q, R_BS, t_BS)
+    l = line_params(m_W, d_W)
+    U_W = rot(l[0], l[1], l[2])
+    T = line_params_from_error(l) @ line_error_map(U_W, l[3])
+    return l, T @ Jx, T @ Jpq

@@ -1,0 +1,47 @@
+"""Landmark bookkeeping: collinear pipe-segment merge (0.175 rad / 0.3 m) and class posteriors."""
+
+import numpy as np
+import pytest
+
+from semslam.backend.landmarks import class_posterior, collinear, merge_collinear
+from semslam.observations import LineObservation
+
+
+def seg(p, q, tid=None, sensor="laser"):
+    return LineObservation(0, sensor, p=np.array(p, float), q=np.array(q, float), covariance=np.eye(6) * 1e-4, truth_id=tid)
+
+
+def test_collinear_thresholds():
+    a = ([0, 0, 0], [1, 0, 0])
+    assert collinear(*map(np.array, a), np.array([1.2, 0, 0]), np.array([2.0, 0, 0]), 0.175, 0.3)  # gap 0.2
+    assert not collinear(*map(np.array, a), np.array([1.4, 0, 0]), np.array([2.0, 0, 0]), 0.175, 0.3)  # gap 0.4
+    assert not collinear(*map(np.array, a), np.array([0.5, 0.35, 0]), np.array([2.0, 0.35, 0]), 0.175, 0.3)  # offset
+    tilt = 0.2  # > 0.175 rad
+    assert not collinear(*map(np.array, a), np.array([0.5, 0, 0]), np.array([0.5 + np.cos(tilt), np.sin(tilt), 0]), 0.175, 0.3)
+    # Order of the endpoints does not matter.
+    assert collinear(np.array([1.0, 0, 0]), np.zeros(3), np.array([2.0, 0, 0]), np.array([1.1, 0, 0]), 0.175, 0.3)
+
+
+def test_merge_collinear_spans_all_members():
+    out = merge_collinear(
+        [seg([0, 0, 0], [1, 0, 0], 1), seg([1.1, 0.01, 0], [2.5, 0.0, 0], 1), seg([0, 2, 0], [1, 2, 0], 2)], 0.175, 0.3
+    )
+    assert len(out) == 2
+    merged = max(out, key=lambda o: np.linalg.norm(o.q - o.p))
+    assert sorted([merged.p[0], merged.q[0]]) == pytest.approx([0.0, 2.5])
+    assert merged.truth_id == 1
+    # Chains merge transitively (union-find), other sensors are never merged.
+    out = merge_collinear([seg([0, 0, 0], [1, 0, 0]), seg([1.2, 0, 0], [2, 0, 0]), seg([2.2, 0, 0], [3, 0, 0])], 0.175, 0.3)
+    assert len(out) == 1
+    assert len(merge_collinear([seg([0, 0, 0], [1, 0, 0]), seg([1.1, 0, 0], [2, 0, 0], sensor="other")], 0.175, 0.3)) == 2
+
+
+def test_class_posterior_is_normalised_product():
+    lk = [{"a": 0.8, "b": 0.1, "c": 0.1}, {"a": 0.1, "b": 0.8, "c": 0.1}, {"a": 0.8, "b": 0.1, "c": 0.1}]
+    post = class_posterior(lk)
+    expected = np.array([0.8 * 0.1 * 0.8, 0.1 * 0.8 * 0.1, 0.1 * 0.1 * 0.1])
+    np.testing.assert_allclose([post["a"], post["b"], post["c"]], expected / expected.sum())
+    assert class_posterior([]) is None
+    # Many confident views do not underflow.
+    post = class_posterior([{"a": 1e-200, "b": 1.0}] * 50 + [{"a": 1.0, "b": 1e-300}])
+    assert np.isfinite(list(post.values())).all() and np.isclose(sum(post.values()), 1.0)

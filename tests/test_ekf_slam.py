@@ -1,0 +1,98 @@
+"""EKF-SLAM on a simulated mission with observations: dead reckoning drifts, the EKF bounds the error
+(ATE RMSE ≤ 0.5 × DR's), maps each seen pipe and object once, and returns the outputs of the contract."""
+
+import numpy as np
+import pytest
+
+from semslam.config import SemslamConfig
+from semslam.ekf import DeadReckoning, EkfEstimator
+from semslam.ekf.synthetic import simulate_circling
+from semslam.estimation import Estimator
+
+ACCEL, RATE = 0.03, 0.002
+
+
+def _ate(result, sim) -> float:
+    tr = result.trajectory
+    ts = sim.truth_stamps
+    idx = np.clip(np.searchsorted(ts, tr.stamps), 0, len(ts) - 1)
+    ok = ts[idx] == tr.stamps
+    err = tr.positions[ok] - sim.truth_states[idx[ok], :3]
+    return float(np.sqrt((err**2).sum(axis=1).mean()))
+
+
+@pytest.fixture(scope="module")
+def runs():
+    sim = simulate_circling(seed=1, duration_s=150.0, accel_sigma=ACCEL, rate_sigma=RATE,
+                            dropouts=((30.0, 20.0), (90.0, 20.0)))
+    cfg = SemslamConfig(motion={"accel_sigma_m_s2": ACCEL, "angular_rate_sigma_rad_s": RATE})
+    ests = [DeadReckoning(sim.metadata, cfg), EkfEstimator(sim.metadata, cfg)]
+    for m, obs in sim.stream():
+        for est in ests:
+            est.process_measurement(m)
+            if obs:
+                est.process_observations(m.stamp, obs)
+    return sim, {e.name: e.finish() for e in ests}
+
+
+def test_estimators_follow_the_protocol():
+    sim = simulate_circling(seed=0, duration_s=2.0, with_features=False)
+    for cls in (EkfEstimator, DeadReckoning):
+        assert isinstance(cls(sim.metadata, SemslamConfig()), Estimator)
+
+
+def test_dr_drifts_and_ekf_bounds_the_error(runs):
+    sim, res = runs
+    ate_dr, ate_ekf = _ate(res["dr"], sim), _ate(res["ekf"], sim)
+    assert ate_dr > 0.3, ate_dr  # dead reckoning drifts through the DVL dropouts
+    assert ate_ekf <= 0.5 * ate_dr, (ate_ekf, ate_dr)
+    assert ate_ekf < 0.1
+
+
+def test_ekf_maps_each_seen_feature_once(runs):
+    sim, res = runs
+    gt = sim.metadata.ground_truth
+    lms = res["ekf"].landmarks
+    objects = [lm for lm in lms if lm.kind == "object"]
+    pipes = [lm for lm in lms if lm.kind == "pipe"]
+    assert len(objects) == len(gt.seen_objects)
+    assert len(pipes) == len(gt.seen_pipes)
+    # each mapped object lies on a distinct true object, each pipe on a distinct true pipe axis
+    truth_obj = np.array([gt.objects[i].position for i in gt.seen_objects])
+    nearest = [int(np.argmin(np.linalg.norm(truth_obj - o.position, axis=1))) for o in objects]
+    assert len(set(nearest)) == len(objects)
+    assert all(np.linalg.norm(truth_obj[k] - o.position) < 0.1 for k, o in zip(nearest, objects))
+    for lm in pipes:
+        dists = []
+        for i in gt.seen_pipes:
+            a, b = np.array(gt.pipes[i].p), np.array(gt.pipes[i].q)
+            d = (b - a) / np.linalg.norm(b - a)
+            off = lambda x: np.linalg.norm((x - a) - ((x - a) @ d) * d)
+            dists.append(max(off(lm.p), off(lm.q)))
+        assert min(dists) < 0.1
+        assert np.linalg.norm(lm.q - lm.p) > 1.0  # the saved extent grew with the views
+    assert all(lm.covariance.shape == (4, 4) for lm in pipes)
+    assert all(lm.class_posterior and max(lm.class_posterior, key=lm.class_posterior.get) != "other"
+               for lm in objects)
+
+
+def test_outputs_and_histories(runs):
+    sim, res = runs
+    for name, r in res.items():
+        tr = r.trajectory
+        assert len(tr) > 1000 and np.all(np.diff(tr.stamps) > 0)
+        assert tr.position_cov.shape == (len(tr), 3, 3) and tr.velocity_cov.shape == (len(tr), 3, 3)
+        np.testing.assert_allclose(np.linalg.norm(tr.orientations, axis=1), 1.0)
+        assert len(r.update_times_s) == len(r.update_n_landmarks) == len(sim.observations)
+        stamps, cov = r.history["vehicle_cov"]
+        assert cov.shape == (len(stamps), 9, 9)
+        assert set(r.history["landmark_volume"]) == {lm.id for lm in r.landmarks}
+        assert len({lm.id for lm in r.landmarks}) == len(r.landmarks)
+    # uncertainty volumes of the EKF's features decrease as they are re-observed (Figs. 11–12)
+    for lid, (stamps, vol) in res["ekf"].history["landmark_volume"].items():
+        assert len(stamps) == len(vol)
+        if len(vol) > 5:
+            assert vol[-1] < vol[0]
+    # the EKF's position uncertainty stays bounded; dead reckoning's grows
+    sd = lambda r: np.sqrt(np.trace(r.trajectory.position_cov[-1]))
+    assert sd(res["ekf"]) < 0.5 * sd(res["dr"])
