@@ -226,3 +226,16 @@ def test_stateless_fuse_matches_the_incremental_fusion():
     assert fuse([None, {}]) is None
     # Classes are taken from the likelihoods' keys when not given.
     assert set(fuse([{"a": 0.9, "b": 0.1}])) == {"a", "b"}
+
+
+def test_semantic_map_entry_reports_posterior_and_map_class():
+    model = ConfusionModel(noisy_confusion(0.7), CLASSES)
+    fusion = ClassFusion(CLASSES)
+    for z in ["R-Tee", "Elbow", "R-Tee"]:
+        fusion.update(42, model.likelihood(z), configuration=2)
+    entry = fusion.summary(42)
+    assert entry["class"] == "R-Tee" == max(entry["posterior"], key=entry["posterior"].get)
+    assert entry["posterior"]["Elbow"] == 0.0  # two collinear pipes: not an elbow
+    assert entry["n_observations"] == 3 and entry["configuration"] == 2
+    assert entry["connectivity_conflict"] is False
+    assert sum(entry["posterior"].values()) == pytest.approx(1.0)
