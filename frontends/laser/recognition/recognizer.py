@@ -37,6 +37,7 @@ from frontends.laser.recognition.views import (
     default_cache_dir,
     random_directions,
     render_views,
+    write_atomic,
 )
 from frontends.laser.recognition.vfh import vfh
 from semslam.semantics.connectivity import ConnectivityTable, compatible_configurations
@@ -265,6 +266,5 @@ def default_recognizer(
             rec.set_confusion(np.array(data["confusion"]))
             return rec
     conf = rec.calibrate(models, held_out, params.angular_resolution_rad)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps({"classes": rec.classes, "confusion": conf.tolist()}))
+    write_atomic(path, json.dumps({"classes": rec.classes, "confusion": conf.tolist()}))
     return rec

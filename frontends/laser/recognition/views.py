@@ -198,7 +198,7 @@ class ModelViews:
         d = self.descriptors
         offsets = np.cumsum([0] + [len(c) for c in d.cvfh])
         path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_suffix(".tmp.npz")
+        tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp.npz")
         np.savez_compressed(
             tmp,
             meta=np.array(json.dumps({"name": self.name, "cls": self.cls, "key": self.key})),
@@ -360,6 +360,14 @@ def _registry_path(cache_dir: str | Path | None) -> Path:
     return Path(cache_dir or default_cache_dir()) / "models.json"
 
 
+def write_atomic(path: Path, text: str) -> None:
+    """Write ``text`` to ``path`` via a temporary file and a rename (no half-written file)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    tmp.write_text(text)
+    tmp.replace(path)
+
+
 def registered_models(cache_dir: str | Path | None = None) -> dict[str, dict]:
     """The user models added with :func:`add_model`: name → {path, cls, scale, sha256, ports}."""
     path = _registry_path(cache_dir)
@@ -405,9 +413,7 @@ def add_model(
         "sha256": hashlib.sha256(data).hexdigest(),
         "ports": [[list(map(float, p)), list(map(float, d))] for p, d in ports],
     }
-    rp = _registry_path(cache_dir)
-    rp.parent.mkdir(parents=True, exist_ok=True)
-    rp.write_text(json.dumps(reg, indent=2))
+    write_atomic(_registry_path(cache_dir), json.dumps(reg, indent=2))
     return mv
 
 
@@ -417,7 +423,7 @@ def remove_model(name: str, cache_dir: str | Path | None = None) -> bool:
     if name not in reg:
         return False
     del reg[name]
-    _registry_path(cache_dir).write_text(json.dumps(reg, indent=2))
+    write_atomic(_registry_path(cache_dir), json.dumps(reg, indent=2))
     return True
 
 
