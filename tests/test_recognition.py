@@ -51,7 +51,10 @@ def shapes() -> dict:
 def _view_cache(request):
     """A view cache kept across test runs (pytest's cache dir): views are keyed by model content and
     parameters, so reuse is exact; the cache itself is tested on fresh directories below."""
-    return request.config.cache.mkdir("semslam-views")
+    cache = getattr(request.config, "cache", None)  # absent under -p no:cacheprovider
+    if cache is None:
+        return request.getfixturevalue("tmp_path_factory").mktemp("semslam-views")
+    return cache.mkdir("semslam-views")
 
 
 @pytest.fixture(scope="module")
