@@ -44,7 +44,7 @@ def test_config_errors_name_the_key():
 
 def test_process_gives_lines_and_points():
     scan = cached_scan()
-    fe = LaserFrontend(_metadata(), {})
+    fe = LaserFrontend(_metadata(), {"recognition": {"enabled": False}})  # geometry only
     obs = fe.process(PointCloud(stamp=123, sensor="laser", points=scan.points), _View(np.eye(4)))
     lines = [o for o in obs if isinstance(o, LineObservation)]
     points = [o for o in obs if isinstance(o, PointObservation)]

@@ -10,6 +10,8 @@ from __future__ import annotations
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from frontends.laser.recognition.config import RecognitionConfig
+
 
 class _Section(BaseModel):
     model_config = ConfigDict(extra="forbid")
@@ -186,6 +188,7 @@ class LaserConfig(_Section):
     planes: PlaneConfig = Field(default_factory=PlaneConfig)
     pipes: PipeConfig = Field(default_factory=PipeConfig)
     objects: ObjectConfig = Field(default_factory=ObjectConfig)
+    recognition: RecognitionConfig = Field(default_factory=RecognitionConfig)
     full_resolution_clouds: bool = Field(
         True, description="object clouds from the raw points of the segmented voxels (denser for recognition)"
     )

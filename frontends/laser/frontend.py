@@ -129,8 +129,22 @@ class LaserFrontend:
             key = ".".join(str(x) for x in err["loc"])
             raise ConfigError(f"frontends.laser.{key}: {err['msg']}") from exc
         self.metadata = metadata
-        self.recognizer = recognizer
+        self._recognizer = recognizer
         self.last: ScanSegmentation | None = None  # the latest scan's stages, for inspection
+
+    @property
+    def recognizer(self) -> Recognizer | None:
+        """The configured recogniser, built on first use: the view database is rendered once and
+        cached on disk, so a run that never segments an object never pays for it."""
+        if self._recognizer is None and self.config.recognition.enabled:
+            from frontends.laser.recognition.config import recognizer_from_config
+
+            self._recognizer = recognizer_from_config(self.config.recognition, progress=True)
+        return self._recognizer
+
+    @recognizer.setter
+    def recognizer(self, value: Recognizer | None) -> None:
+        self._recognizer = value
 
     def _up(self, sensor: str, stamp: int, view) -> np.ndarray | None:
         """Up (against gravity) in {S}: R_WSᵀ·up_W, with R_WS from the current pose estimate, or from
