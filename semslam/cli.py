@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import functools
 import sys
 from pathlib import Path
 from typing import Optional
@@ -10,6 +9,7 @@ from typing import Optional
 import typer
 
 from semslam import __version__
+from semslam.cli_support import user_errors
 from semslam.errors import SemslamError
 
 app = typer.Typer(
@@ -21,23 +21,6 @@ app = typer.Typer(
 )
 config_app = typer.Typer(help="Inspect the configuration.", no_args_is_help=True)
 app.add_typer(config_app, name="config")
-
-
-def user_errors(fn):
-    """A user error becomes one line on stderr and exit code 1, never a traceback."""
-
-    @functools.wraps(fn)
-    def wrapper(*args, **kwargs):
-        try:
-            return fn(*args, **kwargs)
-        except SemslamError as exc:
-            typer.echo(f"semslam: error: {exc}", err=True)
-            raise typer.Exit(1) from None
-        except KeyboardInterrupt:
-            typer.echo("semslam: interrupted", err=True)
-            raise typer.Exit(130) from None
-
-    return wrapper
 
 
 def not_implemented(what: str, issue: str):
@@ -189,6 +172,22 @@ def demo(out: Optional[Path] = typer.Option(None, "--out", "-o", help="output di
     typer.echo(f"\nwhole comparison: {metrics['wall_time_s']:.0f} s for {metrics['mission']['duration_s']:.0f} s of mission")
     typer.echo(f"report: {report.resolve()}")
 
+
+def _plugin_commands() -> None:
+    """Command groups that packages contribute through the ``semslam.commands`` entry-point group
+    (e.g. ``models`` from the laser front-end's recognition), so the core imports no front-end."""
+    from importlib.metadata import entry_points
+
+    for ep in entry_points(group="semslam.commands"):
+        try:
+            sub = ep.load()
+        except Exception as exc:  # a broken plug-in must not break the whole command
+            typer.echo(f"semslam: warning: command group {ep.name!r} failed to load: {exc}", err=True)
+            continue
+        app.add_typer(sub, name=ep.name)
+
+
+_plugin_commands()
 
 if __name__ == "__main__":  # pragma: no cover
     app()
