@@ -43,11 +43,20 @@ def default_out_dir() -> Path:
     return Path("runs") / time.strftime("demo-%Y%m%d-%H%M%S")
 
 
+def demo_config() -> SemslamConfig:
+    """The defaults, plus what a user of the tank knows: its PVC pipes' radius (a prior for the
+    laser front-end's cylinder fit)."""
+    from semslam.sim.config import TankSimConfig
+
+    radius = TankSimConfig().structure.pipe_radius_m
+    return SemslamConfig(frontends={"laser": {"pipes": {"radius_prior": radius}}})
+
+
 def run_demo(out: Path | None = None, progress: bool = False):
     from semslam.compare import compare_to_dir
     from semslam.mission.bag import read_mission
 
-    cfg = SemslamConfig()
+    cfg = demo_config()
     path = demo_mission(progress)
     mission = read_mission(path, cfg.reader)
     out = out or default_out_dir()
