@@ -134,11 +134,14 @@ def _rot_z_to(d: np.ndarray) -> np.ndarray:
     return np.eye(3) + vx + vx @ vx * (1.0 / (1.0 + c))
 
 
-def cylinder(p0, p1, r: float) -> o3d.geometry.TriangleMesh:
-    """Closed cylinder of radius r from point p0 to point p1."""
+def cylinder(p0, p1, r: float, resolution: int = _RES) -> o3d.geometry.TriangleMesh:
+    """Closed cylinder of radius r from point p0 to point p1, ``resolution`` segments around
+    (4 × resolution triangles)."""
     p0, p1 = np.asarray(p0, float), np.asarray(p1, float)
     axis = p1 - p0
-    m = o3d.geometry.TriangleMesh.create_cylinder(radius=r, height=float(np.linalg.norm(axis)), resolution=_RES, split=1)
+    m = o3d.geometry.TriangleMesh.create_cylinder(
+        radius=r, height=float(np.linalg.norm(axis)), resolution=resolution, split=1
+    )
     m.rotate(_rot_z_to(axis), center=np.zeros(3))
     m.translate((p0 + p1) / 2)
     return m
@@ -150,7 +153,7 @@ def _sphere(c, r: float) -> o3d.geometry.TriangleMesh:
     return m
 
 
-def _box(lo, hi) -> o3d.geometry.TriangleMesh:
+def box(lo, hi) -> o3d.geometry.TriangleMesh:
     """Axis-aligned box between corners lo and hi."""
     lo, hi = np.asarray(lo, float), np.asarray(hi, float)
     m = o3d.geometry.TriangleMesh.create_box(*(hi - lo))
@@ -158,7 +161,7 @@ def _box(lo, hi) -> o3d.geometry.TriangleMesh:
     return m
 
 
-def _union(parts) -> o3d.geometry.TriangleMesh:
+def union(parts) -> o3d.geometry.TriangleMesh:
     out = o3d.geometry.TriangleMesh()
     for p in parts:
         out += p
@@ -186,9 +189,9 @@ def _ball_valve():
         cylinder((-x_port, 0, 0), (-0.085, 0, 0), 0.041),  # pipe tails
         cylinder((0.085, 0, 0), (x_port, 0, 0), 0.041),
         cylinder((0, 0, 0.04), (0, 0, 0.085), 0.013),  # stem
-        _box((-0.035, -0.016, 0.085), (0.095, 0.016, 0.100)),  # lever along the pipe (open)
+        box((-0.035, -0.016, 0.085), (0.095, 0.016, 0.100)),  # lever along the pipe (open)
     ]
-    return _union(parts), [_port(-x_port, 0, 0, -1, 0, 0), _port(x_port, 0, 0, 1, 0, 0)]
+    return union(parts), [_port(-x_port, 0, 0, -1, 0, 0), _port(x_port, 0, 0, 1, 0, 0)]
 
 
 def _elbow():
@@ -200,7 +203,7 @@ def _elbow():
         cylinder((0.044, 0, 0), (L, 0, 0), _SOCK),  # sockets
         cylinder((0, 0.044, 0), (0, L, 0), _SOCK),
     ]
-    return _union(parts), [_port(L, 0, 0, 1, 0, 0), _port(0, L, 0, 0, 1, 0)]
+    return union(parts), [_port(L, 0, 0, 1, 0, 0), _port(0, L, 0, 0, 1, 0)]
 
 
 def _r_tee():
@@ -213,7 +216,7 @@ def _r_tee():
         cylinder((0.050, 0, 0), (L, 0, 0), _SOCK * 0.95),
         _sphere((0, 0, 0), _BODY),
     ]
-    return _union(parts), [_port(0, -L, 0, 0, -1, 0), _port(0, L, 0, 0, 1, 0), _port(L, 0, 0, 1, 0, 0)]
+    return union(parts), [_port(0, -L, 0, 0, -1, 0), _port(0, L, 0, 0, 1, 0), _port(L, 0, 0, 1, 0, 0)]
 
 
 def _r_socket():
@@ -223,7 +226,7 @@ def _r_socket():
         cylinder((-0.006, 0, 0), (0.006, 0, 0), 0.0345),  # reducing step / central stop
         cylinder((0.006, 0, 0), (L, 0, 0), 0.0360),  # the reduced half
     ]
-    return _union(parts), [_port(-L, 0, 0, -1, 0, 0), _port(L, 0, 0, 1, 0, 0)]
+    return union(parts), [_port(-L, 0, 0, -1, 0, 0), _port(L, 0, 0, 1, 0, 0)]
 
 
 def _butterfly_valve():
@@ -232,12 +235,12 @@ def _butterfly_valve():
         cylinder((-0.025, 0, 0), (0.025, 0, 0), 0.0875),  # wafer body holding the disc
         cylinder((-x_port, 0, 0), (-0.025, 0, 0), 0.046),  # flange stubs
         cylinder((0.025, 0, 0), (x_port, 0, 0), 0.046),
-        _box((-0.018, -0.018, -0.092), (0.018, 0.018, -0.080)),  # bottom lug
+        box((-0.018, -0.018, -0.092), (0.018, 0.018, -0.080)),  # bottom lug
         cylinder((0, 0, 0.080), (0, 0, 0.165), 0.021),  # neck
-        _box((-0.035, -0.035, 0.165), (0.035, 0.035, 0.190)),  # gear/lock head
-        _box((-0.016, -0.075, 0.190), (0.016, 0.1555, 0.1955)),  # long lever across the pipe
+        box((-0.035, -0.035, 0.165), (0.035, 0.035, 0.190)),  # gear/lock head
+        box((-0.016, -0.075, 0.190), (0.016, 0.1555, 0.1955)),  # long lever across the pipe
     ]
-    return _union(parts), [_port(-x_port, 0, 0, -1, 0, 0), _port(x_port, 0, 0, 1, 0, 0)]
+    return union(parts), [_port(-x_port, 0, 0, -1, 0, 0), _port(x_port, 0, 0, 1, 0, 0)]
 
 
 def _three_way_ball_valve():
@@ -252,10 +255,10 @@ def _three_way_ball_valve():
         cylinder((0.095, 0, 0), (x_port, 0, 0), 0.041),
         cylinder((0, 0.085, 0), (0, y_port, 0), 0.041),
         cylinder((0, 0, 0.045), (0, 0, 0.095), 0.013),  # stem
-        _box((-0.070, -0.015, 0.095), (0.070, 0.015, 0.112)),  # T-handle: bar along the run ...
-        _box((-0.015, 0.0, 0.095), (0.015, 0.075, 0.112)),  # ... and a stub towards the branch
+        box((-0.070, -0.015, 0.095), (0.070, 0.015, 0.112)),  # T-handle: bar along the run ...
+        box((-0.015, 0.0, 0.095), (0.015, 0.075, 0.112)),  # ... and a stub towards the branch
     ]
-    return _union(parts), [
+    return union(parts), [
         _port(-x_port, 0, 0, -1, 0, 0),
         _port(x_port, 0, 0, 1, 0, 0),
         _port(0, y_port, 0, 0, 1, 0),

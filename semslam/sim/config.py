@@ -13,6 +13,7 @@ Z-Y-X, i.e. R_BS = Rz(yaw)·Ry(pitch)·Rx(roll)).
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TypeVar
 
 import numpy as np
 import yaml
@@ -25,6 +26,9 @@ Vec3 = tuple[float, float, float]
 
 class _Section(BaseModel):
     model_config = ConfigDict(extra="forbid")
+
+
+_M = TypeVar("_M", bound=BaseModel)
 
 
 class Mount(_Section):
@@ -200,6 +204,13 @@ class TankSimConfig(_Section):
 def load_tank_config(path: str | Path | None = None, **overrides) -> TankSimConfig:
     """The defaults, overridden by a YAML file (if given) and then by ``overrides`` given as dotted keys
     with ``__`` separators, e.g. ``load_tank_config(None, seed=3, trajectory__loops=2)``."""
+    return load_sim_config(TankSimConfig, path, **overrides)
+
+
+def load_sim_config(model: type[_M], path: str | Path | None = None, **overrides) -> _M:
+    """A simulator configuration of type ``model``: its defaults, overridden by a YAML file (if given)
+    and then by ``overrides`` (dotted keys with ``__`` separators). Every problem is a one-line
+    :class:`ConfigError` naming the file and the key."""
     data: dict = {}
     if path is not None:
         path = Path(path)
@@ -216,9 +227,11 @@ def load_tank_config(path: str | Path | None = None, **overrides) -> TankSimConf
         *parents, leaf = key.split("__")
         for k in parents:
             d = d.setdefault(k, {})
+            if not isinstance(d, dict):
+                raise ConfigError(f"{path or 'simulation config'}: {k}: expected a mapping")
         d[leaf] = value
     try:
-        return TankSimConfig.model_validate(data)
+        return model.model_validate(data)
     except ValidationError as exc:
         err = exc.errors()[0]
         key = ".".join(str(x) for x in err["loc"])

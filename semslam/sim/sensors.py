@@ -16,8 +16,9 @@ from scipy.spatial.transform import Rotation
 
 from semslam.mission.measurements import Attitude, Depth, DvlVelocity, GroundTruthPose, PointCloud
 from semslam.sim.config import AhrsConfig, DepthConfig, DvlConfig, LaserConfig
-from semslam.sim.tank import FLOOR, OBJECT, PIPE, WALL, TankScene
-from semslam.sim.trajectory import Trajectory
+from semslam.sim.raycast import NO_HIT, LabelledScene
+from semslam.sim.tank import OBJECT, PIPE, WALL, TankScene
+from semslam.sim.trajectory import MotionModel, Trajectory
 
 
 def sample_times(
@@ -99,21 +100,25 @@ def random_bursts(rate: float, burst_s: tuple[float, float], duration_s: float, 
 
 def simulate_dvl(
     cfg: DvlConfig,
-    traj: Trajectory,
-    scene: TankScene,
+    traj: MotionModel,
+    scene: LabelledScene,
     stamps: np.ndarray,
     t: np.ndarray,
     rng_noise: np.random.Generator,
     rng_dropout: np.random.Generator,
     sensor: str = "dvl",
+    *,
+    lost_kinds: tuple[int, ...] | None = None,
+    lost_cause: str = "walls",
 ) -> DvlResult:
     """Velocity of the DVL head over ground in {S}: v_S = R_BSᵀ (R_WBᵀ v_W + ω_B × t_BS) + noise.
 
-    Each beam is ray-cast into the tank; a beam is lost when it hits a sloped wall or has no return
-    within [min_range, max_range]. With fewer than ``min_valid_beams`` the bottom lock is lost;
-    re-acquiring it takes ``relock_s`` and a loss lasts at least ``burst_s[0]``. Random bursts
-    (``random_dropout_rate`` of the time) are placed ≥ 1 s clear of those. Invalid readings carry NaN
-    velocity and ``valid=False``.
+    Each beam is ray-cast into the scene; a beam is lost when it hits a surface of ``lost_kinds``
+    (default, the tank: its sloped walls if ``cfg.wall_beams_lost``) or has no return within
+    [min_range, max_range]. With fewer than ``min_valid_beams`` the bottom lock is lost (an
+    interval labelled ``lost_cause``); re-acquiring it takes ``relock_s`` and a loss lasts at least
+    ``burst_s[0]``. Random bursts (``random_dropout_rate`` of the time) are placed ≥ 1 s clear of
+    those. Invalid readings carry NaN velocity and ``valid=False``.
     """
     T_BS = cfg.mount.matrix()
     R_BS, t_BS = T_BS[:3, :3], T_BS[:3, 3]
@@ -130,8 +135,9 @@ def simulate_dvl(
     nb = len(beams_S)
     rng_t, kind, _ = scene.cast(np.repeat(origins, nb, axis=0), dirs.reshape(-1, 3))
     rng_t, kind = rng_t.reshape(-1, nb), kind.reshape(-1, nb)
-    surfaces = (FLOOR, PIPE, OBJECT) if cfg.wall_beams_lost else (FLOOR, WALL, PIPE, OBJECT)
-    beam_ok = np.isin(kind, surfaces) & (rng_t >= cfg.min_range_m) & (rng_t <= cfg.max_range_m)
+    if lost_kinds is None:
+        lost_kinds = (WALL,) if cfg.wall_beams_lost else ()
+    beam_ok = (kind != NO_HIT) & ~np.isin(kind, lost_kinds) & (rng_t >= cfg.min_range_m) & (rng_t <= cfg.max_range_m)
     lost = beam_ok.sum(1) < cfg.min_valid_beams
 
     duration = float(t[-1]) if len(t) else 0.0
@@ -144,7 +150,7 @@ def simulate_dvl(
             s = float(t[run[0]])
             e = float(t[run[-1]]) + dt + cfg.relock_s
             e = max(e, s + cfg.burst_s[0])
-            intervals.append((s, min(e, duration + dt), "walls"))
+            intervals.append((s, min(e, duration + dt), lost_cause))
     # random bursts keep ≥ 1 s clear of the wall dropouts so that bursts stay within burst_s (redraw
     # the placement until they do; after 200 tries, accept merged bursts)
     for _ in range(200):
@@ -190,7 +196,7 @@ def heading_bias(cfg: AhrsConfig, t: np.ndarray, duration_s: float, rng: np.rand
 
 def simulate_ahrs(
     cfg: AhrsConfig,
-    traj: Trajectory,
+    traj: MotionModel,
     stamps: np.ndarray,
     t: np.ndarray,
     rng: np.random.Generator,
@@ -217,7 +223,7 @@ def simulate_ahrs(
 
 
 def simulate_depth(
-    cfg: DepthConfig, traj: Trajectory, stamps: np.ndarray, t: np.ndarray, rng: np.random.Generator, sensor: str = "depth"
+    cfg: DepthConfig, traj: MotionModel, stamps: np.ndarray, t: np.ndarray, rng: np.random.Generator, sensor: str = "depth"
 ) -> list[Depth]:
     """Depth of the pressure sensor (z of p_WB + R_WB t_BS) plus white noise."""
     t_BS = cfg.mount.matrix()[:3, 3]
@@ -227,7 +233,7 @@ def simulate_depth(
     return [Depth(stamp=int(stamps[i]), sensor=sensor, depth=float(z[i]), variance=var) for i in range(len(t))]
 
 
-def ground_truth_poses(traj: Trajectory, stamps: np.ndarray, t: np.ndarray, sensor: str = "ground_truth"):
+def ground_truth_poses(traj: MotionModel, stamps: np.ndarray, t: np.ndarray, sensor: str = "ground_truth"):
     p, _ = traj.position_velocity(t)
     q = traj.rotation(t).as_quat()
     return [GroundTruthPose(stamp=int(stamps[i]), sensor=sensor, position=p[i], orientation=q[i]) for i in range(len(t))]

@@ -25,6 +25,7 @@ from semslam.errors import ConfigError
 from semslam.mission.ground_truth import GroundTruthMap, GtObject, GtPipe
 from semslam.sim import cad
 from semslam.sim.config import StructureConfig, TankConfig
+from semslam.sim.raycast import LabelledScene
 
 UP = np.array([0.0, 0.0, -1.0])  # NED: up is -z
 PORT_TOL_M = 0.01  # a pipe end within this distance of a port is connected to it
@@ -515,7 +516,7 @@ def tank_surface_corners(tank: TankConfig) -> np.ndarray:
     return np.array([[a, b], [-a, b], [-a, -b], [a, -b]])
 
 
-class TankScene:
+class TankScene(LabelledScene):
     """Tank + structure in an open3d ``RaycastingScene``, each hit labelled by (kind, id).
 
     ``cast(origins, dirs)`` returns the hit distance along each unit direction (inf: no hit) and, per
@@ -523,37 +524,10 @@ class TankScene:
     """
 
     def __init__(self, tank: TankConfig, layout: Layout):
-        self.scene = o3d.t.geometry.RaycastingScene()
-        labels = []
         tm = tank_meshes(tank)
-        for kind, mesh in ((FLOOR, tm["floor"]), (WALL, tm["walls"])):
-            gid = self.scene.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(mesh))
-            labels.append((gid, kind, -1))
-        for (kind, ident), mesh in layout.meshes().items():
-            gid = self.scene.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(mesh))
-            labels.append((gid, kind, ident))
-        n = max(g for g, _, _ in labels) + 2
-        self._kind = np.full(n, -1, np.int32)
-        self._ident = np.full(n, -1, np.int32)
-        for gid, kind, ident in labels:
-            self._kind[gid], self._ident[gid] = kind, ident
-
-    def cast(self, origins: np.ndarray, dirs: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Cast rays from ``origins`` (N×3, or one 3-vector for all) along unit ``dirs`` (N×3), in {W}."""
-        dirs = np.asarray(dirs, np.float32).reshape(-1, 3)
-        rays = np.empty((len(dirs), 6), np.float32)
-        rays[:, :3] = np.asarray(origins, np.float32).reshape(-1, 3)  # one origin broadcasts to all rays
-        rays[:, 3:] = dirs
-        ans = self.scene.cast_rays(o3d.core.Tensor(rays))
-        t = ans["t_hit"].numpy()
-        gid = ans["geometry_ids"].numpy().astype(np.int64)
-        hit = np.isfinite(t)
-        gid = np.where(hit, gid, len(self._kind) - 1)  # INVALID_ID → the trailing "-1" label
-        return t, self._kind[gid], self._ident[gid]
-
-    def distance(self, points: np.ndarray) -> np.ndarray:
-        """Unsigned distance (m) from each point to the nearest surface of the scene."""
-        return self.scene.compute_distance(o3d.core.Tensor(np.asarray(points, np.float32))).numpy()
+        parts = [(FLOOR, -1, tm["floor"]), (WALL, -1, tm["walls"])]
+        parts += [(kind, ident, mesh) for (kind, ident), mesh in layout.meshes().items()]
+        super().__init__(parts)
 
 
 def simulate_tank(config=None, *, progress: bool = False):

@@ -16,7 +16,7 @@ from scipy.spatial.transform import Rotation
 from semslam.sim.config import TrajectoryConfig
 
 
-def _smooth(u):
+def smoothstep(u):
     """Quintic smoothstep S(u) on [0, 1] (zero 1st/2nd derivatives at both ends), its derivative
     dS/du and its integral ∫₀ᵘ S (continued linearly past u = 1)."""
     u = np.asarray(u, float)
@@ -27,8 +27,40 @@ def _smooth(u):
     return S, dS, IS
 
 
-class Trajectory:
-    """T_WB(t) of the simulated mission; ``t`` in seconds from the mission start."""
+class MotionModel:
+    """A true vehicle motion T_WB(t), ``t`` in seconds from the mission start: what the sensor models
+    sample. Subclasses give ``position_velocity`` (analytic, the velocity the exact derivative of the
+    position), ``rotation`` and ``duration``; the body rate and 4×4 poses follow from them."""
+
+    @property
+    def duration(self) -> float:
+        raise NotImplementedError
+
+    def position_velocity(self, t) -> tuple[np.ndarray, np.ndarray]:
+        """Body origin in {W} (N×3, m) and its velocity in {W} (N×3, m/s)."""
+        raise NotImplementedError
+
+    def rotation(self, t) -> Rotation:
+        """R_WB(t)."""
+        raise NotImplementedError
+
+    def angular_rate(self, t, h: float = 1e-3) -> np.ndarray:
+        """Body angular rate ω_B (N×3, rad/s): R_WB(t)ᵀ·Ṙ_WB(t) = [ω_B]×."""
+        t = np.atleast_1d(np.asarray(t, float))
+        Rm, Rp = self.rotation(t - h), self.rotation(t + h)
+        return (Rm.inv() * Rp).as_rotvec() / (2 * h)
+
+    def poses(self, t) -> np.ndarray:
+        """T_WB(t) as N×4×4 matrices."""
+        t = np.atleast_1d(np.asarray(t, float))
+        T = np.tile(np.eye(4), (len(t), 1, 1))
+        T[:, :3, :3] = self.rotation(t).as_matrix()
+        T[:, :3, 3] = self.position_velocity(t)[0]
+        return T
+
+
+class Trajectory(MotionModel):
+    """T_WB(t) of the simulated tank mission; ``t`` in seconds from the mission start."""
 
     def __init__(self, cfg: TrajectoryConfig, center: np.ndarray):
         self.cfg = cfg
@@ -36,7 +68,7 @@ class Trajectory:
         self.t_move = cfg.rest_s
         self.T = cfg.duration_s
         # θ(t) = θ0 + Ω·ramp·∫S: Ω chosen so that the mission ends after exactly `loops` loops.
-        _, _, I_end = _smooth((self.T - self.t_move) / cfg.ramp_s)
+        _, _, I_end = smoothstep((self.T - self.t_move) / cfg.ramp_s)
         self.omega = 2 * np.pi * cfg.loops / max(cfg.ramp_s * float(I_end), 1e-9)
         self.theta0 = np.deg2rad(cfg.start_angle_deg)
 
@@ -48,11 +80,11 @@ class Trajectory:
 
     def _theta(self, t):
         u = (np.asarray(t, float) - self.t_move) / self.cfg.ramp_s
-        S, _, IS = _smooth(u)
+        S, _, IS = smoothstep(u)
         return self.theta0 + self.omega * self.cfg.ramp_s * IS, self.omega * S
 
     def _ramp(self, t):
-        S, dS, _ = _smooth((np.asarray(t, float) - self.t_move) / self.cfg.ramp_s)
+        S, dS, _ = smoothstep((np.asarray(t, float) - self.t_move) / self.cfg.ramp_s)
         return S, dS / self.cfg.ramp_s
 
     def position_velocity(self, t) -> tuple[np.ndarray, np.ndarray]:
@@ -84,17 +116,3 @@ class Trajectory:
         roll = A * S * np.sin(2 * np.pi * t / 7.3)
         pitch = A * S * np.sin(2 * np.pi * t / 11.1 + 0.7)
         return Rotation.from_euler("ZYX", np.stack([yaw, pitch, roll], 1))
-
-    def angular_rate(self, t, h: float = 1e-3) -> np.ndarray:
-        """Body angular rate ω_B (N×3, rad/s): R_WB(t)ᵀ·Ṙ_WB(t) = [ω_B]×."""
-        t = np.atleast_1d(np.asarray(t, float))
-        Rm, Rp = self.rotation(t - h), self.rotation(t + h)
-        return (Rm.inv() * Rp).as_rotvec() / (2 * h)
-
-    def poses(self, t) -> np.ndarray:
-        """T_WB(t) as N×4×4 matrices."""
-        t = np.atleast_1d(np.asarray(t, float))
-        T = np.tile(np.eye(4), (len(t), 1, 1))
-        T[:, :3, :3] = self.rotation(t).as_matrix()
-        T[:, :3, 3] = self.position_velocity(t)[0]
-        return T
