@@ -75,7 +75,7 @@ def simulate(
     seed: int = typer.Option(0, "--seed", help="random seed (seed 0 reproduces the default layout)"),
     loops: Optional[float] = typer.Option(None, "--loops", help="tank: loops around the structure (default 3)"),
     dvl_dropout_rate: Optional[float] = typer.Option(
-        None, "--dvl-dropout-rate", help="tank: fraction of the mission lost to random DVL dropout bursts"
+        None, "--dvl-dropout-rate", help="fraction of the mission lost to random DVL dropout bursts"
     ),
     layout: Optional[Path] = typer.Option(None, "--layout", help="tank: structure layout YAML instead of a seeded one"),
     preview: Optional[Path] = typer.Option(None, "--preview", help="also render the scene and trajectory to this PNG"),
@@ -93,11 +93,22 @@ def simulate(
             config=sim_config, layout=layout, overwrite=overwrite, progress=sys.stderr.isatty(),
         )
     elif scene == "field":
-        not_implemented("simulate field", "issue 8")
+        if loops is not None or layout is not None:
+            raise SemslamError("--loops and --layout are options of the tank scene, not of the field")
+        from semslam.sim.field_mission import simulate_field_to_bag
+
+        m = simulate_field_to_bag(
+            out, seed=seed, dvl_dropout_rate=dvl_dropout_rate, preview=preview, config=sim_config,
+            overwrite=overwrite, progress=sys.stderr.isatty(),
+        )
     else:
         raise SemslamError(f"unknown scene {scene!r} (choose tank or field)")
     gt = m.metadata.ground_truth
-    typer.echo(f"wrote {out}: {len(gt.objects)} objects, {len(gt.pipes)} pipes" + (f"; preview {preview}" if preview else ""))
+    if scene == "field":
+        what = f"{len(gt.structures)} structures, {len(gt.pipes)} pipelines, {m.metadata.extras['sonar']['swaths']} sonar swaths"
+    else:
+        what = f"{len(gt.objects)} objects, {len(gt.pipes)} pipes"
+    typer.echo(f"wrote {out}: {what}" + (f"; preview {preview}" if preview else ""))
 
 
 @app.command()

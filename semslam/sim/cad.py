@@ -134,13 +134,13 @@ def _rot_z_to(d: np.ndarray) -> np.ndarray:
     return np.eye(3) + vx + vx @ vx * (1.0 / (1.0 + c))
 
 
-def cylinder(p0, p1, r: float, resolution: int = _RES) -> o3d.geometry.TriangleMesh:
-    """Closed cylinder of radius r from point p0 to point p1, ``resolution`` segments around
-    (4 × resolution triangles)."""
+def cylinder(p0, p1, r: float, resolution: int = _RES, split: int = 1) -> o3d.geometry.TriangleMesh:
+    """Closed cylinder of radius r from point p0 to point p1, ``resolution`` segments around and
+    ``split`` along ((2 + 2 × split) × resolution triangles)."""
     p0, p1 = np.asarray(p0, float), np.asarray(p1, float)
     axis = p1 - p0
     m = o3d.geometry.TriangleMesh.create_cylinder(
-        radius=r, height=float(np.linalg.norm(axis)), resolution=resolution, split=1
+        radius=r, height=float(np.linalg.norm(axis)), resolution=resolution, split=split
     )
     m.rotate(_rot_z_to(axis), center=np.zeros(3))
     m.translate((p0 + p1) / 2)

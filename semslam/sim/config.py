@@ -235,4 +235,5 @@ def load_sim_config(model: type[_M], path: str | Path | None = None, **overrides
     except ValidationError as exc:
         err = exc.errors()[0]
         key = ".".join(str(x) for x in err["loc"])
-        raise ConfigError(f"{path or 'simulation config'}: {key}: {err['msg']}") from exc
+        msg = err["msg"].removeprefix("Value error, ")
+        raise ConfigError(f"{path or 'simulation config'}: {key + ': ' if key else ''}{msg}") from exc
