@@ -224,6 +224,10 @@ def make_field(cfg: FieldSimConfig) -> Field:
     hubs_b01 = _hubs_of_size(models[1], r01, "B")
     hubs_b12 = _hubs_of_size(models[1], r12, "B")
     hubs_c = _hubs_of_size(models[2], r12, "C")
+    room = min(cfg.seabed.area_m) - 2 * lay.edge_margin_m
+    if max(2 * m.footprint_radius for m in models) >= room:
+        raise ConfigError(f"seabed.area_m: {list(cfg.seabed.area_m)} m leaves no room for the structures "
+                          f"with layout.edge_margin_m {lay.edge_margin_m} m")
     rng = rng_stream(cfg.seed, "field_layout")
     alpha = np.deg2rad(lay.max_hub_angle_deg)
     for _ in range(MAX_DRAWS):
