@@ -9,7 +9,9 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-from matplotlib.colors import LightSource
+from matplotlib import colormaps
+from matplotlib.cm import ScalarMappable
+from matplotlib.colors import LightSource, Normalize
 from matplotlib.collections import PolyCollection
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
@@ -101,14 +103,13 @@ def render_field_preview(mission: Mission, png_path: str | Path) -> None:
     if seabed is not None:
         gn, ge = seabed.grid(0.25)
         Z = seabed.depth(*np.meshgrid(gn, ge, indexing="ij"))
-        ls = LightSource(azdeg=315, altdeg=35)
-        cmap = _depth_cmap()
-        norm_lo, norm_hi = float(Z.min()), float(Z.max())
-        rgb = ls.shade(-Z, cmap=cmap.reversed(), vert_exag=4, blend_mode="soft", dx=0.25, dy=0.25,
-                       vmin=-norm_hi, vmax=-norm_lo)
+        cmap, lo, hi = colormaps["YlGnBu"], float(Z.min()), float(Z.max())
+        # hill-shaded heights (−depth) so that the relief reads at a glance; the colours are depths
+        rgb = LightSource(azdeg=315, altdeg=35).shade(
+            -Z, cmap=cmap.reversed(), vert_exag=4, blend_mode="soft", dx=0.25, dy=0.25, vmin=-hi, vmax=-lo
+        )
         ax_top.imshow(rgb, origin="lower", extent=(ge[0], ge[-1], gn[0], gn[-1]), zorder=0, interpolation="bilinear")
-        sm = ax_top.scatter([], [], c=[], cmap=cmap, vmin=norm_lo, vmax=norm_hi)
-        cb = fig.colorbar(sm, ax=ax_top, fraction=0.025, pad=0.01)
+        cb = fig.colorbar(ScalarMappable(Normalize(lo, hi), cmap), ax=ax_top, fraction=0.025, pad=0.01)
         cb.set_label("seabed depth [m]")
         cb.ax.invert_yaxis()
     if area:
@@ -176,12 +177,6 @@ def _away_from_pipes(s, gt) -> np.ndarray:
             v -= (far - c) / max(np.linalg.norm(far - c), 1e-9)
     n = np.linalg.norm(v)
     return v / n if n > 0.3 else np.array([1.0, 0.0])
-
-
-def _depth_cmap():
-    from matplotlib import colormaps
-
-    return colormaps["YlGnBu"]
 
 
 def _cyl(p):
