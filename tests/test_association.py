@@ -123,3 +123,45 @@ def test_optional_candidate_pre_gate_limits_the_pairs_tested():
     prob.candidate_landmarks = lambda i: [0, 2]  # a pre-gate that (wrongly) left out landmark 1
     tested.clear()
     assert jcbb(prob) == [0] and 1 not in tested
+
+
+class UncorrelatedPointProblem(PointProblem):
+    """PointProblem whose joint covariance has no vehicle–landmark or landmark–landmark terms."""
+
+    uncorrelated_landmarks = True
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_low_rank_joint_nis_equals_the_direct_one(seed):
+    from semslam.backend.association import _Blocks, _LowRankJoint
+
+    rng = np.random.default_rng(seed)
+    m = 6
+    L = rng.uniform(-1, 1, (m, 3))
+    P = np.diag(np.r_[rng.uniform(0.01, 0.3, 3) ** 2, rng.uniform(0.005, 0.05, 3 * m) ** 2])
+    A = rng.normal(size=(3, 3))
+    P[:3, :3] = A @ A.T * 0.01 + np.eye(3) * 1e-4  # a full vehicle block
+    Z = L + rng.normal(0, 0.05, (m, 3))
+    prob = UncorrelatedPointProblem(np.zeros(3), L, P, Z, np.eye(3) * 0.02**2)
+    joint = _LowRankJoint(_Blocks(prob))
+    node = joint.root()
+    pairs = []
+    for i in rng.permutation(m):
+        j = int(i)
+        node = joint.extend(node, int(i), j, prob.pair(int(i), j))
+        pairs.append((int(i), j))
+        assert node.nis == pytest.approx(joint_nis(prob, pairs), rel=1e-9)
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_low_rank_path_finds_the_same_hypothesis(seed):
+    rng = np.random.default_rng(100 + seed)
+    m = 6
+    L = rng.uniform(-1, 1, (m, 3))
+    x_true = rng.normal(0, 0.2, 3)
+    Z = [L[j] - x_true + rng.normal(0, 0.02, 3) for j in rng.choice(m, 5, replace=False)]
+    Z.append(rng.uniform(-1, 1, 3))
+    P = _joint_cov(m, 0.2, 0.02)
+    general = PointProblem(np.zeros(3), L, P, Z, np.eye(3) * 0.02**2)
+    fast = UncorrelatedPointProblem(np.zeros(3), L, P, Z, np.eye(3) * 0.02**2)
+    assert jcbb(fast) == jcbb(general)

@@ -9,6 +9,14 @@ S_H = J P Jᵀ + R with J = [H_x | H_l] over the vehicle block and the paired la
 H is jointly compatible when ν_Hᵀ S_H⁻¹ ν_H < χ²(Σ d_i, confidence). The branch and bound keeps
 the hypothesis with the most pairings (ties: the smaller joint NIS). The joint NIS is grown one
 pair at a time by a Schur-complement update, so a node costs O(k²d) rather than a fresh inverse.
+
+When the problem declares ``uncorrelated_landmarks`` (no vehicle–landmark and no landmark–landmark
+covariance, as in the graph back-end, which gates with single-variable marginals), S_H is a block
+diagonal D plus the low-rank vehicle term U P Uᵀ, and by the Woodbury identity
+    ν_Hᵀ S_H⁻¹ ν_H = Σ_i ν_iᵀ D_i⁻¹ ν_i − bᵀ (I + P M)⁻¹ P b,
+    b = Σ_i U_iᵀ D_i⁻¹ ν_i,   M = Σ_i U_iᵀ D_i⁻¹ U_i,
+so a node only adds a scalar, a vector and a matrix of the vehicle block's size: its cost no
+longer grows with the depth of the hypothesis.
 """
 
 from __future__ import annotations
@@ -136,6 +144,102 @@ class _Node:
     dof: int
 
 
+class _SchurJoint:
+    """Joint NIS grown by Schur complements: any correlation structure, O(k²d) a node."""
+
+    def __init__(self, blocks: _Blocks):
+        self.blocks = blocks
+        self._cross: dict[tuple[int, int, int, int], np.ndarray] = {}
+
+    def root(self) -> _Node:
+        return _Node([], np.zeros(0), np.zeros((0, 0)), 0.0, 0)
+
+    def _pair_cross(self, ia, ja, pa, i, j, p) -> np.ndarray:
+        # The same pair-pair blocks recur across sibling hypotheses: compute each once.
+        key = (ia, ja, i, j)
+        if key not in self._cross:
+            self._cross[key] = self.blocks.cross(pa, ja, p, j)
+        return self._cross[key]
+
+    def extend(self, node: _Node, i: int, j: int, p: PairLinearization) -> _Node | None:
+        nu_new = np.asarray(p.innovation, dtype=float)
+        C = self.blocks.cross(p, j, p, j) + p.R
+        if not node.pairs:
+            try:
+                S_inv = np.linalg.inv(C)
+            except np.linalg.LinAlgError:
+                return None
+            nis = float(nu_new @ S_inv @ nu_new)
+            return _Node([(i, j, p)], nu_new, S_inv, nis, len(nu_new))
+        B = np.vstack([self._pair_cross(ia, ja, pa, i, j, p) for (ia, ja, pa) in node.pairs])  # (D, d_new)
+        K = node.S_inv @ B
+        schur = C - B.T @ K
+        try:
+            schur_inv = np.linalg.inv(schur)
+        except np.linalg.LinAlgError:
+            return None
+        r = nu_new - B.T @ (node.S_inv @ node.nu)
+        nis = node.nis + float(r @ schur_inv @ r)
+        D, d = len(node.nu), len(nu_new)
+        S_inv = np.empty((D + d, D + d))
+        S_inv[:D, :D] = node.S_inv + K @ schur_inv @ K.T
+        S_inv[:D, D:] = -K @ schur_inv
+        S_inv[D:, :D] = S_inv[:D, D:].T
+        S_inv[D:, D:] = schur_inv
+        return _Node(node.pairs + [(i, j, p)], np.concatenate([node.nu, nu_new]), S_inv, nis, node.dof + d)
+
+
+@dataclass
+class _LowRankNode:
+    """A hypothesis for uncorrelated landmarks: the Woodbury sums (see the module docstring)."""
+
+    pairs: list  # [(i, j, PairLinearization)]
+    a: float  # Σ ν_iᵀ D_i⁻¹ ν_i
+    b: np.ndarray  # Σ U_iᵀ D_i⁻¹ ν_i
+    M: np.ndarray  # Σ U_iᵀ D_i⁻¹ U_i
+    nis: float
+    dof: int
+
+
+class _LowRankJoint:
+    """Joint NIS for uncorrelated landmarks: O(n_x³) a node whatever the hypothesis' depth."""
+
+    def __init__(self, blocks: _Blocks):
+        self.blocks = blocks
+        self.P = blocks.cov(None, None)
+        self.n_x = self.P.shape[0]
+        self._terms: dict[tuple[int, int], tuple[float, np.ndarray, np.ndarray] | None] = {}
+
+    def root(self) -> _LowRankNode:
+        return _LowRankNode([], 0.0, np.zeros(self.n_x), np.zeros((self.n_x, self.n_x)), 0.0, 0)
+
+    def _term(self, i: int, j: int, p: PairLinearization):
+        key = (i, j)
+        if key not in self._terms:
+            D = p.H_l @ self.blocks.cov(j, j) @ p.H_l.T + p.R
+            nu = np.asarray(p.innovation, dtype=float)
+            try:
+                W = np.linalg.solve(D, np.column_stack([nu, p.H_x]))  # D⁻¹ [ν | U]
+            except np.linalg.LinAlgError:
+                self._terms[key] = None
+                return None
+            self._terms[key] = (float(nu @ W[:, 0]), p.H_x.T @ W[:, 0], p.H_x.T @ W[:, 1:])
+        return self._terms[key]
+
+    def extend(self, node: _LowRankNode, i: int, j: int, p: PairLinearization) -> _LowRankNode | None:
+        t = self._term(i, j, p)
+        if t is None:
+            return None
+        a, b, M = node.a + t[0], node.b + t[1], node.M + t[2]
+        Pb = self.P @ b
+        try:
+            y = np.linalg.solve(np.eye(self.n_x) + self.P @ M, Pb)
+        except np.linalg.LinAlgError:
+            return None
+        nis = a - float(b @ y)
+        return _LowRankNode(node.pairs + [(i, j, p)], a, b, M, nis, node.dof + len(p.innovation))
+
+
 def jcbb(problem: AssociationProblem, confidence: float = 0.99, max_hypotheses: int = 20_000) -> list[int | None]:
     """Joint Compatibility Branch and Bound.
 
@@ -150,6 +254,7 @@ def jcbb(problem: AssociationProblem, confidence: float = 0.99, max_hypotheses: 
         return [None] * n
     blocks = _Blocks(problem)
     gate = _Chi2Table(confidence)
+    joint = _LowRankJoint(blocks) if getattr(problem, "uncorrelated_landmarks", False) else _SchurJoint(blocks)
 
     # Individual compatibility, candidates sorted by NIS so that good hypotheses come first.
     candidates: list[list[tuple[float, int, PairLinearization]]] = []
@@ -172,42 +277,6 @@ def jcbb(problem: AssociationProblem, confidence: float = 0.99, max_hypotheses: 
     expanded = 0
     used: set[int] = set()
 
-    cross_cache: dict[tuple[int, int, int, int], np.ndarray] = {}
-
-    def pair_cross(ia, ja, pa, i, j, p) -> np.ndarray:
-        # The same pair-pair blocks recur across sibling hypotheses: compute each once.
-        key = (ia, ja, i, j)
-        if key not in cross_cache:
-            cross_cache[key] = blocks.cross(pa, ja, p, j)
-        return cross_cache[key]
-
-    def extend(node: _Node, i: int, j: int, p: PairLinearization) -> _Node | None:
-        nu_new = np.asarray(p.innovation, dtype=float)
-        C = blocks.cross(p, j, p, j) + p.R
-        if not node.pairs:
-            try:
-                S_inv = np.linalg.inv(C)
-            except np.linalg.LinAlgError:
-                return None
-            nis = float(nu_new @ S_inv @ nu_new)
-            return _Node([(i, j, p)], nu_new, S_inv, nis, len(nu_new))
-        B = np.vstack([pair_cross(ia, ja, pa, i, j, p) for (ia, ja, pa) in node.pairs])  # (D, d_new)
-        K = node.S_inv @ B
-        schur = C - B.T @ K
-        try:
-            schur_inv = np.linalg.inv(schur)
-        except np.linalg.LinAlgError:
-            return None
-        r = nu_new - B.T @ (node.S_inv @ node.nu)
-        nis = node.nis + float(r @ schur_inv @ r)
-        D, d = len(node.nu), len(nu_new)
-        S_inv = np.empty((D + d, D + d))
-        S_inv[:D, :D] = node.S_inv + K @ schur_inv @ K.T
-        S_inv[:D, D:] = -K @ schur_inv
-        S_inv[D:, :D] = S_inv[:D, D:].T
-        S_inv[D:, D:] = schur_inv
-        return _Node(node.pairs + [(i, j, p)], np.concatenate([node.nu, nu_new]), S_inv, nis, node.dof + d)
-
     def pairable_from(i: int) -> int:
         """Observations from i on that still have an individually compatible, unused landmark."""
         return sum(1 for k in range(i, n) if any(j not in used for _, j, _ in candidates[k]))
@@ -226,7 +295,7 @@ def jcbb(problem: AssociationProblem, confidence: float = 0.99, max_hypotheses: 
             if j in used:
                 continue
             expanded += 1
-            child = extend(node, i, j, p)
+            child = joint.extend(node, i, j, p)
             if child is None or child.nis >= gate(child.dof):
                 continue
             used.add(j)
@@ -236,7 +305,7 @@ def jcbb(problem: AssociationProblem, confidence: float = 0.99, max_hypotheses: 
         if k + pairable_from(i + 1) > len(best_pairs):
             search(node, i + 1)
 
-    search(_Node([], np.zeros(0), np.zeros((0, 0)), 0.0, 0), 0)
+    search(joint.root(), 0)
     result: list[int | None] = [None] * n
     for i, j, _ in best_pairs:
         result[i] = j

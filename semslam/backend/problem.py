@@ -30,6 +30,8 @@ class Candidate:
 class GraphAssociationProblem:
     """Observations of one batch against pre-gated candidate landmarks."""
 
+    uncorrelated_landmarks = True  # single-variable marginals: JCBB may use its low-rank joint NIS
+
     def __init__(
         self,
         pose: gtsam.Pose3,
