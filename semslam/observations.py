@@ -64,13 +64,18 @@ class PointObservation(Observation):
 
 @dataclass(frozen=True)
 class LineObservation(Observation):
-    """A pipe segment with endpoints ``p`` and ``q`` in the sensor frame; ``covariance`` is 6×6 over [p; q]."""
+    """A pipe segment with endpoints ``p`` and ``q`` in the sensor frame; ``covariance`` is 6×6 over [p; q].
+
+    ``connected_models`` names the CAD structures (by model) the segment was seen to end at, e.g. a
+    pipeline leaving a manifold: the semantic map links the pipe to those structure landmarks.
+    """
 
     p: np.ndarray = field(default_factory=lambda: np.zeros(3))
     q: np.ndarray = field(default_factory=lambda: np.array([1.0, 0.0, 0.0]))
     covariance: np.ndarray = field(default_factory=lambda: np.eye(6))
     radius: float | None = None
     truth_id: int | None = None
+    connected_models: tuple[str, ...] = ()
 
     def __post_init__(self):
         object.__setattr__(self, "p", _arr(self.p, (3,)))

@@ -14,7 +14,7 @@ from semslam.estimation import Estimator, EstimatorResult, Trajectory
 from semslam.mission.measurements import GroundTruthPose
 from semslam.mission.mission import Mission
 from semslam.observations import Observation
-from semslam.registry import Frontend
+from semslam.registry import Frontend, FrontendSummary
 
 
 @dataclass
@@ -34,6 +34,7 @@ class PipelineResult:
     timing_s: dict[str, float] = field(default_factory=dict)  # "read", "frontend:<name>", "estimator:<name>"
     n_measurements: int = 0
     duration_s: float = 0.0
+    frontend_summaries: dict[str, FrontendSummary] = field(default_factory=dict)
 
 
 def _truth_trajectory(poses: list[GroundTruthPose]) -> Trajectory | None:
@@ -110,6 +111,23 @@ def run_pipeline(
             bar.update(1)
             if n % 200 == 0:
                 bar.set_postfix_str(f"t={(m.stamp - first) * 1e-9:7.1f} s")
+    summaries = {}
+    for fe, _ in consumers:  # the front-ends' last word, before the estimators close
+        if not hasattr(fe, "finish"):
+            continue
+        t0 = time.perf_counter()
+        summary = fe.finish(view_source.view())
+        timing[f"frontend:{fe.name}"] += time.perf_counter() - t0
+        if summary is None:
+            continue
+        summaries[fe.name] = summary
+        if summary.observations and last is not None:
+            if keep_observations:
+                records.extend(ObservationRecord(fe.name, last, o) for o in summary.observations)
+            for est in estimators:
+                t0 = time.perf_counter()
+                est.process_observations(last, summary.observations)
+                timing[f"estimator:{est.name}"] += time.perf_counter() - t0
     results = {}
     for est in estimators:
         t0 = time.perf_counter()
@@ -118,4 +136,4 @@ def run_pipeline(
     if bar is not None:
         bar.close()
     duration = 0.0 if first is None else (last - first) * 1e-9
-    return PipelineResult(results, _truth_trajectory(truth), records, dict(timing), n, duration)
+    return PipelineResult(results, _truth_trajectory(truth), records, dict(timing), n, duration, summaries)

@@ -12,8 +12,10 @@ front-end.
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
 from importlib.metadata import entry_points
+from pathlib import Path
 from typing import Any, ClassVar, Protocol, runtime_checkable
 
 from semslam.errors import ConfigError
@@ -37,6 +39,24 @@ class Frontend(Protocol):
     consumes: ClassVar[tuple[type[Measurement], ...]]
 
     def process(self, measurement: Measurement, view: EstimateView) -> list[Observation]: ...
+
+    # Optional: ``finish(view) -> FrontendSummary`` at the end of the mission (see FrontendSummary).
+
+
+@dataclass
+class FrontendSummary:
+    """What a front-end hands over at the end of a mission (all optional).
+
+    ``observations``: last observations, fed to every estimator at the mission's last stamp (e.g. a
+    final recognition pass). ``metrics``: a block of metrics.json, under the key ``section``
+    (e.g. ``"sonar"``). ``files``: extra outputs, file name → writer(path) called inside the output
+    directory's staging folder (e.g. a world model mesh), so a failure leaves nothing half-written.
+    """
+
+    section: str | None = None
+    metrics: dict[str, Any] = field(default_factory=dict)
+    observations: list[Observation] = field(default_factory=list)
+    files: dict[str, Callable[[Path], None]] = field(default_factory=dict)
 
 
 def available_frontends() -> dict[str, Any]:

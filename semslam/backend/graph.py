@@ -356,14 +356,32 @@ class GraphEstimator:
             self._refresh_landmarks({o for _, o in factors if o is not None})
 
     def _odometry_factors(self, odom: list, k: int) -> list:
+        """Relative-pose constraints (e.g. swath registrations). An end that is not a keyframe is
+        carried to the nearest keyframe with the estimated motion in between (short: at most half
+        a keyframe interval of dead reckoning, whose error is far below the constraint's)."""
         out = []
         for z in odom:
-            if z.stamp_from in self.kf_stamps:
-                i = self.kf_stamps.index(z.stamp_from)
-                out.append(gtsam.BetweenFactorPose3(X(i), X(k), gtsam.Pose3(z.relative_pose), gtsam.noiseModel.Gaussian.Covariance(z.covariance)))
-            else:
-                self.diagnostics.append(f"{z.stamp}: odometry from {z.stamp_from} has no keyframe there, dropped")
+            i, T_i_from = self._nearest_keyframe(z.stamp_from)
+            j, T_j_to = self._nearest_keyframe(z.stamp)
+            if i is None or j is None or i == j:
+                self.diagnostics.append(f"{z.stamp}: odometry from {z.stamp_from} has no distinct keyframes to join, dropped")
+                continue
+            meas = T_i_from.compose(gtsam.Pose3(z.relative_pose)).compose(T_j_to.inverse())
+            out.append(gtsam.BetweenFactorPose3(X(i), X(j), meas, gtsam.noiseModel.Gaussian.Covariance(z.covariance)))
         return out
+
+    def _nearest_keyframe(self, stamp: int) -> tuple[int | None, gtsam.Pose3]:
+        """The keyframe nearest to ``stamp`` and T_B(keyframe),B(stamp) from the current estimate."""
+        if not self.kf_stamps:
+            return None, gtsam.Pose3()
+        i = bisect.bisect_left(self.kf_stamps, stamp)
+        i = min((c for c in (i - 1, i) if 0 <= c < len(self.kf_stamps)), key=lambda c: abs(self.kf_stamps[c] - stamp))
+        if self.kf_stamps[i] == stamp:
+            return i, gtsam.Pose3()
+        here = self.pose_at(stamp)
+        if here is None:
+            return None, gtsam.Pose3()
+        return i, self._kf_pose(i).between(here)
 
     # ------------------------------------------------------------------ association
     def _world_summary(self, z, pose: gtsam.Pose3, T_BS: np.ndarray) -> np.ndarray:
@@ -739,6 +757,7 @@ def _connect(estimates: list[LandmarkEstimate], landmarks: dict[int, Landmark], 
     the pipe landmarks passing within ``max_distance`` of it (segment distance)."""
     pipes = [e for e in estimates if e.kind == "pipe" and e.p is not None]
     by_id = {e.id: e for e in estimates}
+    _connect_structures(pipes, [e for e in estimates if e.kind == "structure" and e.pose is not None], landmarks)
     for e in estimates:
         if e.kind != "object":
             continue
@@ -752,6 +771,23 @@ def _connect(estimates: list[LandmarkEstimate], landmarks: dict[int, Landmark], 
             if _point_segment_distance(e.position[None], pe.p, pe.q)[0] <= max_distance:
                 e.connected = tuple(sorted({*e.connected, pe.id}))
                 by_id[pe.id].connected = tuple(sorted({*by_id[pe.id].connected, e.id}))
+
+
+def _link(a: LandmarkEstimate, b: LandmarkEstimate) -> None:
+    a.connected = tuple(sorted({*a.connected, b.id}))
+    b.connected = tuple(sorted({*b.connected, a.id}))
+
+
+def _connect_structures(pipes: list[LandmarkEstimate], structures: list[LandmarkEstimate], landmarks: dict[int, Landmark]) -> None:
+    """Pipe ↔ structure connectivity: a pipe whose views said it ends at a model (a pipeline leaving
+    a manifold) is linked to the structure landmark of that model nearest to its ends."""
+    for pe in pipes:
+        models = {m for r in landmarks[pe.id].history for m in getattr(r.observation, "connected_models", ())}
+        for model in models:
+            cands = [s for s in structures if s.model == model]
+            if cands:
+                ends = np.stack([pe.p, pe.q])
+                _link(pe, min(cands, key=lambda s: float(np.min(np.linalg.norm(ends - s.pose[:3, 3], axis=1)))))
 
 
 def _landmark_point(lm: Landmark) -> np.ndarray:

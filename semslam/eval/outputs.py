@@ -15,7 +15,7 @@ import numpy as np
 
 from semslam.config import SemslamConfig, dump_config
 from semslam.estimation import EstimatorResult, LandmarkEstimate
-from semslam.eval.metrics import estimator_metrics
+from semslam.eval.metrics import estimator_metrics, sonar_metrics
 from semslam.mission.mission import MissionMetadata
 from semslam.pipeline import PipelineResult
 
@@ -121,6 +121,11 @@ def build_metrics(pipeline: PipelineResult, metadata: MissionMetadata) -> dict:
             online = EstimatorResult(f"{name}_online", result.online_trajectory, result.landmarks, None,
                                      result.update_times_s, result.update_n_landmarks)
             metrics["estimators"][f"{name}_online"] = estimator_metrics(online, pipeline.truth, gt, runtime)
+    for summary in pipeline.frontend_summaries.values():
+        if summary.section == "sonar":
+            metrics["sonar"] = sonar_metrics(summary.metrics, gt)
+        elif summary.section:
+            metrics[summary.section] = summary.metrics
     return metrics
 
 
@@ -139,6 +144,9 @@ def write_outputs(out_dir: str | Path, config: SemslamConfig, pipeline: Pipeline
                 result.online_trajectory.to_tum(stage / f"trajectory_{name}_online.tum")
             (stage / f"map_{name}.json").write_text(json.dumps(map_to_dict(result), indent=1))
             o3d.io.write_triangle_mesh(str(stage / f"map_{name}.ply"), map_geometry(result.landmarks))
+        for summary in pipeline.frontend_summaries.values():
+            for name, writer in summary.files.items():
+                writer(stage / name)
         (stage / "metrics.json").write_text(json.dumps(metrics, indent=2, default=_json_default))
         out_dir.mkdir(exist_ok=True)
         for f in stage.iterdir():
