@@ -30,13 +30,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.spatial.transform import Rotation
-from scipy.stats import chi2
 
 from semslam.config import SemslamConfig
+from semslam.ekf import batch as bt
 from semslam.ekf import geometry as geo
 from semslam.ekf import models as mdl
 from semslam.ekf.config import EkfConfig
 from semslam.ekf.filter import EkfState
+from semslam.ekf.jcbb import Chi2Gate, jcbb_dense
 from semslam.ekf.models import ATT, NX, POS, VEL
 from semslam.errors import ConfigError, MissionError
 from semslam.estimation import EstimatorResult, LandmarkEstimate, Trajectory
@@ -117,28 +118,44 @@ class _Extent:
     The saved endpoints are re-projected onto the current line estimate whenever the extent is used,
     so they follow every update. Each end is robust to endpoint noise: the median of the view ends
     within 6σ of the extreme one (the extreme alone is biased outwards by the noise; views clipped
-    by the field of view lie further in and are left out)."""
+    by the field of view lie further in and are left out). The interval of the latest line asked
+    for is kept, so that the checks of one scan against one pipe compute it once."""
 
     def __init__(self):
-        self._pts: list[np.ndarray] = []  # (2, 3) per view
-        self._sig: list[float] = []
+        self._pts = np.zeros((8, 2, 3))  # (2, 3) per view, in a buffer that grows by doubling
+        self._sig = np.zeros(8)
+        self._k = 0
+        self._memo: tuple | None = None  # (m, d, view count, interval)
+
+    def __len__(self) -> int:
+        return self._k
 
     def add(self, ends_W: np.ndarray, sigma: float) -> None:
-        self._pts.append(np.asarray(ends_W, float))
-        self._sig.append(float(sigma))
+        if self._k == len(self._sig):
+            self._pts = np.concatenate([self._pts, np.zeros_like(self._pts)])
+            self._sig = np.concatenate([self._sig, np.zeros_like(self._sig)])
+        self._pts[self._k] = ends_W
+        self._sig[self._k] = sigma
+        self._k += 1
 
     def merge(self, other: "_Extent") -> None:
-        self._pts += other._pts
-        self._sig += other._sig
+        for k in range(other._k):
+            self.add(other._pts[k], other._sig[k])
 
     def interval(self, m: np.ndarray, d: np.ndarray) -> tuple[float, float]:
+        memo = self._memo
+        if memo is not None and memo[2] == self._k and np.array_equal(memo[0], m) and np.array_equal(memo[1], d):
+            return memo[3]
         c = geo.closest_point(m, d)
-        s = (np.array(self._pts) - c) @ d  # (K, 2)
+        s = (self._pts[: self._k] - c) @ d  # (K, 2)
         lo, hi = s.min(axis=1), s.max(axis=1)
-        w = 6.0 * float(np.median(self._sig))
-        a = float(np.median(lo[lo <= lo.min() + w]))
-        b = float(np.median(hi[hi >= hi.max() - w]))
-        return (a, b) if b > a else (float(lo.min()), float(hi.max()))
+        w = 6.0 * float(np.median(self._sig[: self._k]))
+        lo_min, hi_max = lo.min(), hi.max()
+        a = float(np.median(lo[lo <= lo_min + w]))
+        b = float(np.median(hi[hi >= hi_max - w]))
+        out = (a, b) if b > a else (float(lo_min), float(hi_max))
+        self._memo = (np.array(m, float), np.array(d, float), self._k, out)
+        return out
 
     def ends(self, m: np.ndarray, d: np.ndarray) -> np.ndarray:
         c = geo.closest_point(m, d)
@@ -219,10 +236,150 @@ class EkfAssociationProblem:
         return P[np.ix_(ia, ib)]
 
 
-def _default_associate():
-    from semslam.backend.association import jcbb
+class _ScanPairs:
+    """Every candidate pairing of one batch of observations with the mapped features, linearised at
+    the current state in one vectorised pass (the same numbers as :meth:`EkfEstimator._pair` and
+    :func:`semslam.backend.association.individual_nis`, pair by pair).
 
-    return jcbb
+    A pair is a candidate when the observation and the feature are of one kind, the Euclidean
+    pre-gate keeps it, and (pipes) the segment is within the seen extent's gap with no object in
+    between. For each candidate k: ``obs[k]``, ``feat[k]`` (feature index), innovation ``nu[k]``,
+    ``H_x[k]``, ``H_l[k]``, ``R[k]`` and its individual NIS ``nis[k]``. The pipe extent checks, the
+    costliest, are made only for pairs whose NIS passes ``check_gate`` (a confidence): the others
+    could not be paired or be "near" at any gate that is used.
+    """
+
+    def __init__(self, est: "EkfEstimator", obs: list[_Obs], check_confidence: float):
+        self.est = est
+        self.obs_list = obs
+        self.n_obs = len(obs)
+        feats = est._features
+        obs_i, feat_j, nus, Hxs, Hls, Rs, niss = [], [], [], [], [], [], []
+        if feats and obs:
+            near = est._pre_gate(obs)
+            x = est.state.x
+            P = est.state.P
+            Pvv = P[:NX, :NX]
+            gate = Chi2Gate(check_confidence)
+            objects = None
+            for kind in ("object", "pipe"):
+                fidx = np.array([j for j, f in enumerate(feats) if f.kind == kind], int)
+                if not len(fidx):
+                    continue
+                for sensor, group in _by_sensor(obs, kind):
+                    ii, jj = np.nonzero(near[np.ix_(group, fidx)])
+                    if not len(ii):
+                        continue
+                    oi = np.asarray(group)[ii]
+                    fj = fidx[jj]
+                    o0 = obs[oi[0]]
+                    starts = np.array([feats[j].index for j in fj])
+                    size = 3 if kind == "object" else 4
+                    cols = starts[:, None] + np.arange(size)
+                    if kind == "object":
+                        uj, inv = np.unique(fj, return_inverse=True)
+                        L = x[np.array([feats[j].index for j in uj])[:, None] + np.arange(3)]
+                        h, Hx_u, Hl = bt.point_measurements(x[:NX], L, o0.R_BS, o0.t_BS)
+                        z = np.array([obs[i].obs.position for i in oi])
+                        nu = z - h[inv]
+                        Hx = Hx_u[inv]
+                        HlK = np.broadcast_to(Hl, (len(oi), 3, 3))
+                        R = np.array([obs[i].obs.covariance for i in oi])
+                    else:
+                        L = x[cols]
+                        lines = [obs[i].line for i in oi]
+                        nu, Hx, HlK, R = bt.line_innovations(
+                            x[:NX], L, np.array([ln.U for ln in lines]), np.array([ln.rho for ln in lines]),
+                            np.array([ln.d for ln in lines]), np.array([ln.cov for ln in lines]), o0.R_BS, o0.t_BS)
+                    # S = H_x P_vv H_xᵀ + H_x P_vl H_lᵀ + H_l P_lv H_xᵀ + H_l P_ll H_lᵀ + R
+                    Pvl = P[:NX][:, cols].transpose(1, 0, 2)  # (K, 9, size)
+                    Pll = P[cols[:, :, None], cols[:, None, :]]  # (K, size, size)
+                    HxT, HlT = np.transpose(Hx, (0, 2, 1)), np.transpose(HlK, (0, 2, 1))
+                    cross = Hx @ Pvl @ HlT
+                    S = Hx @ Pvv @ HxT + cross + np.transpose(cross, (0, 2, 1)) + HlK @ Pll @ HlT + R
+                    nis = np.einsum("ki,ki->k", nu, np.linalg.solve(S, nu[..., None])[..., 0])
+                    keep = np.ones(len(oi), bool)
+                    if kind == "pipe":
+                        if objects is None:
+                            objects = est._object_positions()
+                        g = gate(4)
+                        for k in np.flatnonzero(nis < g):
+                            f = feats[fj[k]]
+                            m_W, d_W = geo.line_plucker(x[f.index : f.index + 4])
+                            keep[k] = not est._pipe_apart(f.extent, obs[oi[k]].ends_W, m_W, d_W, objects)
+                    obs_i.append(oi[keep])
+                    feat_j.append(fj[keep])
+                    nus += list(nu[keep])
+                    Hxs += list(Hx[keep])
+                    Hls += list(HlK[keep])
+                    Rs += list(R[keep])
+                    niss.append(nis[keep])
+        self.obs = np.concatenate(obs_i) if obs_i else np.zeros(0, int)
+        self.feat = np.concatenate(feat_j) if feat_j else np.zeros(0, int)
+        self.nu, self.H_x, self.H_l, self.R = nus, Hxs, Hls, Rs
+        self.nis = np.concatenate(niss) if niss else np.zeros(0)
+
+    def near(self, confidence: float) -> np.ndarray:
+        """Per observation: is some candidate feature individually compatible at ``confidence``?"""
+        gate = Chi2Gate(confidence)
+        out = np.zeros(self.n_obs, bool)
+        for k in range(len(self.obs)):
+            if self.nis[k] < gate(len(self.nu[k])):
+                out[self.obs[k]] = True
+        return out
+
+    def associate(self, confidence: float) -> list[int | None]:
+        """JCBB over the individually compatible candidates, with their full joint covariance."""
+        gate = Chi2Gate(confidence)
+        ks = [k for k in range(len(self.obs)) if self.nis[k] < gate(len(self.nu[k]))]
+        if not ks:
+            return [None] * self.n_obs
+        feats = self.est._features
+        # J (stacked rows of the candidate pairs) over the vehicle and the candidate features' columns
+        used = sorted({int(self.feat[k]) for k in ks})
+        col0 = {}
+        cols = [np.arange(NX)]
+        c = NX
+        for j in used:
+            col0[j] = c
+            cols.append(feats[j].cols)
+            c += feats[j].size
+        cols = np.concatenate(cols)
+        D = sum(len(self.nu[k]) for k in ks)
+        J = np.zeros((D, len(cols)))
+        Rb = np.zeros((D, D))
+        nu = np.zeros(D)
+        rows = []
+        r = 0
+        for k in ks:
+            d = len(self.nu[k])
+            j = int(self.feat[k])
+            J[r : r + d, :NX] = self.H_x[k]
+            J[r : r + d, col0[j] : col0[j] + feats[j].size] = self.H_l[k]
+            Rb[r : r + d, r : r + d] = self.R[k]
+            nu[r : r + d] = self.nu[k]
+            rows.append(np.arange(r, r + d))
+            r += d
+        P = self.est.state.P
+        S_all = J @ P[np.ix_(cols, cols)] @ J.T + Rb
+        return jcbb_dense(self.n_obs, self.obs[ks], self.feat[ks], rows, nu, S_all, confidence,
+                          individual_nis=self.nis[ks])
+
+    def linearisation(self, i: int, j: int):
+        """The pair (observation i, feature j) as a PairLinearization (it must be a candidate)."""
+        from semslam.backend.association import PairLinearization
+
+        k = int(np.flatnonzero((self.obs == i) & (self.feat == j))[0])
+        return PairLinearization(self.nu[k], self.H_x[k], self.H_l[k], self.R[k])
+
+
+def _by_sensor(obs: list[_Obs], kind: str):
+    """(sensor, [indices]) of the observations of one kind, grouped by sensor."""
+    groups: dict[str, list[int]] = {}
+    for i, o in enumerate(obs):
+        if o.kind == kind:
+            groups.setdefault(o.obs.sensor, []).append(i)
+    return list(groups.items())
 
 
 # ------------------------------------------------------------------------------- the filter
@@ -312,9 +469,9 @@ class EkfEstimator:
         self._wrap_vehicle()
 
     def _wrap_vehicle(self) -> None:
-        x = self.state.x
-        x[3] = geo.wrap(x[3])
-        x[5] = geo.wrap(x[5])
+        x = self.state.xv
+        x[3] = geo.wrap_angle(x[3])
+        x[5] = geo.wrap_angle(x[5])
 
     # ------------------------------------------------------------------ measurements
     def process_measurement(self, measurement: Measurement) -> None:
@@ -356,7 +513,7 @@ class EkfEstimator:
 
     def _attitude(self, m: Attitude) -> None:
         R_BS, _ = self._extrinsic(m.sensor)
-        R_WS = Rotation.from_quat(m.orientation).as_matrix()
+        R_WS = geo.quat_to_rot(m.orientation)
         if m.angular_rate is not None and np.isfinite(m.angular_rate).all():
             self._omega = R_BS @ m.angular_rate
             self._omega_stamp = m.stamp
@@ -372,7 +529,7 @@ class EkfEstimator:
 
     # --------------------------------------------------------------------------- records
     def _record(self, stamp: int) -> None:
-        x, P = self.state.x, self.state.P
+        x, P = self.state.xv, self.state.Pvv
         tr = self._traj
         if tr["t"] and tr["t"][-1] == stamp:
             for k in tr:
@@ -443,9 +600,7 @@ class EkfEstimator:
             h, H_x, H_l = mdl.point_measurement(x, l, o.R_BS, o.t_BS)
             return PairLinearization(o.obs.position - h, H_x, H_l, np.asarray(o.obs.covariance))
         m_W, d_W = geo.line_plucker(l)
-        if f.extent.gap(o.ends_W, m_W, d_W) > self.cfg.pipe_extent_gap_m or f.extent.separated(
-            o.ends_W, m_W, d_W, self._object_positions(), self.cfg.pipe_object_radius_m
-        ):
+        if self._pipe_apart(f.extent, o.ends_W, m_W, d_W, self._object_positions()):
             return None
         nu, H_x, H_l, R = mdl.line_innovation(x, l, o.line, o.R_BS, o.t_BS)
         return PairLinearization(nu, H_x, H_l, R)
@@ -489,38 +644,55 @@ class EkfEstimator:
         pts += [t.mean for t in self._tracks if t.kind == "object"]
         return np.array(pts).reshape(-1, 3)
 
+    def _pipe_apart(self, extent: _Extent, ends_W: np.ndarray, m: np.ndarray, d: np.ndarray,
+                    objects: np.ndarray) -> bool:
+        """A segment cannot be this pipe: beyond the gap from its seen extent, or across an object."""
+        return extent.gap(ends_W, m, d) > self.cfg.pipe_extent_gap_m or extent.separated(
+            ends_W, m, d, objects, self.cfg.pipe_object_radius_m)
+
     def _associate_batch(self, obs: list[_Obs]) -> list[int | None]:
+        """Custom association (``associate=``): the generic problem, pair by pair."""
         if not self._features:
             return [None] * len(obs)
-        assoc = self._associate or _default_associate()
-        return assoc(EkfAssociationProblem(self, obs), confidence=self.assoc.confidence)
+        return self._associate(EkfAssociationProblem(self, obs), confidence=self.assoc.confidence)
 
     def _slam_update(self, stamp: int, obs: list[_Obs]) -> None:
-        pairs = self._associate_batch(obs)
-        paired = [(o, self._features[j]) for o, j in zip(obs, pairs) if j is not None]
+        if self._associate is not None:
+            pairs = self._associate_batch(obs)
+            paired = [(o, self._features[j]) for o, j in zip(obs, pairs) if j is not None]
+            lins = [self._pair(o, f) for o, f in paired]
+        else:
+            scan = _ScanPairs(self, obs, max(self.assoc.confidence, self.cfg.track_gate_confidence))
+            pairs = scan.associate(self.assoc.confidence)
+            paired = [(o, self._features[j]) for o, j in zip(obs, pairs) if j is not None]
+            lins = [scan.linearisation(i, j) for i, j in enumerate(pairs) if j is not None]
         if paired:
-            self._joint_update(paired)
+            self._joint_update(paired, lins)
         for o, f in paired:
             f.n_obs += 1
             _fuse_class(f.class_log, getattr(o.obs, "class_likelihood", None))
             if f.kind == "pipe":  # save the segment seen now (placed with the updated pose)
                 R, t, _, _ = mdl.sensor_pose(self.state.xv, o.R_BS, o.t_BS)
                 f.extent.add(np.array([o.obs.p, o.obs.q]) @ R.T + t, _along_sigma(o.obs))
-        new = [o for o, j in zip(obs, pairs) if j is None and not self._near_mapped(o)]
-        self._tentative(stamp, new)
+        unpaired = [o for o, j in zip(obs, pairs) if j is None]
+        near = self._near_mapped_batch(unpaired)
+        self._tentative(stamp, [o for o, n in zip(unpaired, near) if not n])
 
     def _near_mapped(self, o: _Obs) -> bool:
         """An unpaired observation still compatible with a mapped feature at the looser track gate is
         ambiguous, not new: it is dropped rather than started as a duplicate feature."""
-        from semslam.backend.association import individual_nis
+        return bool(self._near_mapped_batch([o])[0])
 
-        problem = EkfAssociationProblem(self, [o])
-        gate = chi2.ppf(self.cfg.track_gate_confidence, 3 if o.kind == "object" else 4)
-        return any(individual_nis(problem, 0, j) < gate for j in range(len(self._features)))
+    def _near_mapped_batch(self, obs: list[_Obs]) -> np.ndarray:
+        """:meth:`_near_mapped` of each observation, at the current (updated) state, in one pass."""
+        if not obs or not self._features:
+            return np.zeros(len(obs), bool)
+        return _ScanPairs(self, obs, self.cfg.track_gate_confidence).near(self.cfg.track_gate_confidence)
 
-    def _joint_update(self, paired: list[tuple[_Obs, _Feature]]) -> None:
+    def _joint_update(self, paired: list[tuple[_Obs, _Feature]], lins: list | None = None) -> None:
         """One EKF update with every paired observation stacked (H sparse: vehicle + those features)."""
-        lins = [self._pair(o, f) for o, f in paired]
+        if lins is None:
+            lins = [self._pair(o, f) for o, f in paired]
         cols = np.concatenate([np.arange(NX)] + [f.cols for _, f in paired])
         D = sum(len(p.innovation) for p in lins)
         H = np.zeros((D, len(cols)))
@@ -555,7 +727,11 @@ class EkfEstimator:
         Gx, Gz = A @ Jx, A @ Jpq
         return np.r_[m_W, d_W], Gx @ Pvv @ Gx.T + Gz @ o.obs.covariance @ Gz.T
 
-    def _track_nis(self, tr: _Track, o: _Obs, mean: np.ndarray, cov: np.ndarray) -> float:
+    def _track_nis(self, tr: _Track, o: _Obs, mean: np.ndarray, cov: np.ndarray, objects=None,
+                   below: float = math.inf) -> float:
+        """NIS of observation o (in {W}: mean, cov) against tentative feature tr; inf when they cannot
+        be one (other kind; pipes: beyond the seen extent or across an object). ``objects`` (the
+        separators, or a callable giving them) is only needed for a pipe whose NIS is below ``below``."""
         if tr.kind != o.kind:
             return math.inf
         if tr.kind == "object":
@@ -567,32 +743,43 @@ class EkfEstimator:
                 m_o, d_o = -m_o, -d_o
                 D = np.array([-1.0, -1.0, 1.0, 1.0])
                 cov = cov * np.outer(D, D)
-            if tr.extent.gap(o.ends_W, m_t, d_t) > self.cfg.pipe_extent_gap_m or tr.extent.separated(
-                o.ends_W, m_t, d_t, self._object_positions(), self.cfg.pipe_object_radius_m
-            ):
-                return math.inf
             U_t, rho_t = geo.orthonormal_from_plucker(m_t, d_t)
             U_o, rho_o = geo.orthonormal_from_plucker(m_o, d_o)
             nu = np.append(geo.so3_log(U_t.T @ U_o), rho_o - rho_t)
         S = tr.cov + cov
         try:
-            return float(nu @ np.linalg.solve(S, nu))
+            nis = float(nu @ np.linalg.solve(S, nu))
         except np.linalg.LinAlgError:
             return math.inf
+        if tr.kind == "pipe" and nis < below:
+            if objects is None:
+                objects = self._object_positions()
+            elif callable(objects):
+                objects = objects()
+            if self._pipe_apart(tr.extent, o.ends_W, m_t, d_t, objects):
+                return math.inf
+        return nis
 
     def _tentative(self, stamp: int, new: list[_Obs]) -> None:
         """Unpaired observations extend or start tentative features; confirmed ones join the state."""
         horizon = self.cfg.track_timeout_s / NS
         self._tracks = [t for t in self._tracks if stamp - t.last_stamp <= horizon]
         used: set[int] = set()
+        gate = Chi2Gate(self.cfg.track_gate_confidence)
+        memo: list = [None]  # the separators, recomputed only after an object changed
+
+        def objects() -> np.ndarray:
+            if memo[0] is None:
+                memo[0] = self._object_positions()
+            return memo[0]
+
         for o in new:
             mean, cov = self._world(o)
-            gate = chi2.ppf(self.cfg.track_gate_confidence, 3 if o.kind == "object" else 4)
-            best, best_nis = None, gate
+            best, best_nis = None, gate(3 if o.kind == "object" else 4)
             for k, tr in enumerate(self._tracks):
-                if k in used:
+                if k in used or tr.kind != o.kind:
                     continue
-                nis = self._track_nis(tr, o, mean, cov)
+                nis = self._track_nis(tr, o, mean, cov, objects, below=best_nis)
                 if nis < best_nis:
                     best, best_nis = k, nis
             if best is None:
@@ -609,6 +796,8 @@ class EkfEstimator:
             if tr.n >= self.assoc.min_observations:
                 self._add_feature(o, tr)
                 tr.n = -1  # consumed
+            if o.kind == "object":
+                memo[0] = None
         self._tracks = [t for t in self._tracks if t.n >= 0]
 
     def _add_feature(self, o: _Obs, tr: _Track) -> None:

@@ -17,6 +17,8 @@ Conventions
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 
@@ -36,11 +38,16 @@ def wrap(a):
     return (np.asarray(a) + np.pi) % (2 * np.pi) - np.pi
 
 
+def wrap_angle(a: float) -> float:
+    """One angle wrapped to [-π, π) (a float: no array overhead)."""
+    return (float(a) + math.pi) % (2 * math.pi) - math.pi
+
+
 def rot(phi: float, theta: float, psi: float) -> np.ndarray:
     """R = Rz(ψ) Ry(θ) Rx(φ)."""
-    cf, sf = np.cos(phi), np.sin(phi)
-    ct, st = np.cos(theta), np.sin(theta)
-    cp, sp = np.cos(psi), np.sin(psi)
+    cf, sf = math.cos(phi), math.sin(phi)
+    ct, st = math.cos(theta), math.sin(theta)
+    cp, sp = math.cos(psi), math.sin(psi)
     return np.array(
         [
             [cp * ct, cp * st * sf - sp * cf, cp * st * cf + sp * sf],
@@ -67,25 +74,25 @@ def rot_batch(e: np.ndarray) -> np.ndarray:
 
 def euler(R: np.ndarray) -> np.ndarray:
     """(φ, θ, ψ) of R = Rz(ψ) Ry(θ) Rx(φ)."""
-    theta = -np.arcsin(np.clip(R[2, 0], -1.0, 1.0))
-    return np.array([np.arctan2(R[2, 1], R[2, 2]), theta, np.arctan2(R[1, 0], R[0, 0])])
+    theta = -math.asin(min(1.0, max(-1.0, float(R[2, 0]))))
+    return np.array([math.atan2(R[2, 1], R[2, 2]), theta, math.atan2(R[1, 0], R[0, 0])])
 
 
 def euler_rate_to_body(phi: float, theta: float) -> np.ndarray:
     """E with ω_body = E (φ̇, θ̇, ψ̇)."""
-    cf, sf, ct, st = np.cos(phi), np.sin(phi), np.cos(theta), np.sin(theta)
+    cf, sf, ct, st = math.cos(phi), math.sin(phi), math.cos(theta), math.sin(theta)
     return np.array([[1.0, 0.0, -st], [0.0, cf, sf * ct], [0.0, -sf, cf * ct]])
 
 
 def body_to_euler_rate(phi: float, theta: float) -> np.ndarray:
     """E⁻¹ with (φ̇, θ̇, ψ̇) = E⁻¹ ω_body (singular at θ = ±90°)."""
-    cf, sf, ct, tt = np.cos(phi), np.sin(phi), np.cos(theta), np.tan(theta)
+    cf, sf, ct, tt = math.cos(phi), math.sin(phi), math.cos(theta), math.tan(theta)
     return np.array([[1.0, sf * tt, cf * tt], [0.0, cf, -sf], [0.0, sf / ct, cf / ct]])
 
 
 def euler_rate_jacobian(phi: float, theta: float, w: np.ndarray) -> np.ndarray:
     """∂(E⁻¹(φ, θ) ω)/∂(φ, θ, ψ) at fixed ω (3×3)."""
-    cf, sf, ct, st = np.cos(phi), np.sin(phi), np.cos(theta), np.sin(theta)
+    cf, sf, ct, st = math.cos(phi), math.sin(phi), math.cos(theta), math.sin(theta)
     a = w[1] * sf + w[2] * cf
     b = w[1] * cf - w[2] * sf
     return np.array(
@@ -93,6 +100,19 @@ def euler_rate_jacobian(phi: float, theta: float, w: np.ndarray) -> np.ndarray:
             [b * st / ct, a / ct**2, 0.0],
             [-a, 0.0, 0.0],
             [b / ct, a * st / ct**2, 0.0],
+        ]
+    )
+
+
+def quat_to_rot(q) -> np.ndarray:
+    """Rotation matrix of a unit quaternion (x, y, z, w) (normalised here), as scipy's Rotation."""
+    x, y, z, w = (float(v) for v in q)
+    s = 2.0 / (x * x + y * y + z * z + w * w)
+    return np.array(
+        [
+            [1.0 - s * (y * y + z * z), s * (x * y - z * w), s * (x * z + y * w)],
+            [s * (x * y + z * w), 1.0 - s * (x * x + z * z), s * (y * z - x * w)],
+            [s * (x * z - y * w), s * (y * z + x * w), 1.0 - s * (x * x + y * y)],
         ]
     )
 

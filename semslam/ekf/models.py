@@ -12,6 +12,7 @@ can assemble a sparse H.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -35,9 +36,11 @@ from semslam.ekf.geometry import (
     so3_log,
     so3_right_jacobian_inv,
     wrap,
+    wrap_angle,
 )
 
 NX = 9  # vehicle state size
+_I3 = np.eye(3)
 POS, ATT, VEL = slice(0, 3), slice(3, 6), slice(6, 9)
 
 
@@ -49,8 +52,88 @@ def predict(x: np.ndarray, omega_B: np.ndarray, dt: float, accel_sigma: float, r
     {B} and white angular rate, continuous densities ``accel_sigma`` (m/s²/√Hz) and ``rate_sigma``
     (rad/s/√Hz), i.e. Var(Δv) = σ_a² Δt, discretised exactly for the p–v pair (Δt³/3, Δt²/2, Δt).
 
-    Returns (x', F, Q) with F = ∂x'/∂x and Q the discrete process noise (9×9).
+    Returns (x', F, Q) with F = ∂x'/∂x and Q the discrete process noise (9×9). (Written out in
+    scalars: it runs at every navigation measurement, where numpy's per-call cost dominates.)
     """
+    px, py, pz, phi, theta, psi, u, v, w = map(float, x)
+    wx, wy, wz = map(float, omega_B)
+    cf, sf = math.cos(phi), math.sin(phi)
+    ct, st = math.cos(theta), math.sin(theta)
+    cp, sp = math.cos(psi), math.sin(psi)
+    tt = st / ct
+    # R = Rz(ψ) Ry(θ) Rx(φ)
+    r00, r01, r02 = cp * ct, cp * st * sf - sp * cf, cp * st * cf + sp * sf
+    r10, r11, r12 = sp * ct, sp * st * sf + cp * cf, sp * st * cf - cp * sf
+    r20, r21, r22 = -st, ct * sf, ct * cf
+    # E⁻¹ (Euler rates from body rates) and the new state
+    e00, e01, e02 = 1.0, sf * tt, cf * tt
+    e10, e11, e12 = 0.0, cf, -sf
+    e20, e21, e22 = 0.0, sf / ct, cf / ct
+    xn = np.array([
+        px + (r00 * u + r01 * v + r02 * w) * dt,
+        py + (r10 * u + r11 * v + r12 * w) * dt,
+        pz + (r20 * u + r21 * v + r22 * w) * dt,
+        wrap_angle(phi + (e00 * wx + e01 * wy + e02 * wz) * dt),
+        theta + (e11 * wy + e12 * wz) * dt,
+        wrap_angle(psi + (e21 * wy + e22 * wz) * dt),
+        u, v, w,
+    ])
+    # ∂p'/∂e = -R [v]× E dt with E = [[1, 0, -st], [0, cf, sf ct], [0, -sf, cf ct]]
+    m00, m01, m02 = 0.0, -w * cf - v * sf, -w * sf * ct + v * cf * ct  # [v]× E, [v]× = [[0,-w,v],[w,0,-u],[-v,u,0]]
+    m10, m11, m12 = w, u * sf, -w * st - u * cf * ct
+    m20, m21, m22 = -v, u * cf, v * st + u * sf * ct
+    a00 = -(r00 * m00 + r01 * m10 + r02 * m20) * dt
+    a01 = -(r00 * m01 + r01 * m11 + r02 * m21) * dt
+    a02 = -(r00 * m02 + r01 * m12 + r02 * m22) * dt
+    a10 = -(r10 * m00 + r11 * m10 + r12 * m20) * dt
+    a11 = -(r10 * m01 + r11 * m11 + r12 * m21) * dt
+    a12 = -(r10 * m02 + r11 * m12 + r12 * m22) * dt
+    a20 = -(r20 * m00 + r21 * m10 + r22 * m20) * dt
+    a21 = -(r20 * m01 + r21 * m11 + r22 * m21) * dt
+    a22 = -(r20 * m02 + r21 * m12 + r22 * m22) * dt
+    # ∂(E⁻¹ ω)/∂(φ, θ) (euler_rate_jacobian)
+    a = wy * sf + wz * cf
+    b = wy * cf - wz * sf
+    j00, j01 = b * tt * dt, a / ct**2 * dt
+    j10 = -a * dt
+    j20, j21 = b / ct * dt, a * st / ct**2 * dt
+    F = np.array([
+        [1.0, 0.0, 0.0, a00, a01, a02, r00 * dt, r01 * dt, r02 * dt],
+        [0.0, 1.0, 0.0, a10, a11, a12, r10 * dt, r11 * dt, r12 * dt],
+        [0.0, 0.0, 1.0, a20, a21, a22, r20 * dt, r21 * dt, r22 * dt],
+        [0.0, 0.0, 0.0, 1.0 + j00, j01, 0.0, 0.0, 0.0, 0.0],
+        [0.0, 0.0, 0.0, j10, 1.0, 0.0, 0.0, 0.0, 0.0],
+        [0.0, 0.0, 0.0, j20, j21, 1.0, 0.0, 0.0, 0.0],
+        [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0],
+        [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0],
+        [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0],
+    ])
+    qa, qw = accel_sigma**2, rate_sigma**2
+    q3, q2, q1 = qa * dt**3 / 3.0, qa * dt**2 / 2.0, qa * dt
+    qe = qw * dt
+    # E⁻¹ E⁻ᵀ (rows of E⁻¹: (1, sf tt, cf tt), (0, cf, -sf), (0, sf/ct, cf/ct))
+    g00 = (1.0 + tt * tt) * qe
+    g01 = (sf * tt * cf - cf * tt * sf) * qe
+    g02 = (sf * tt * sf / ct + cf * tt * cf / ct) * qe
+    g11 = qe
+    g12 = (cf * sf / ct - sf * cf / ct) * qe
+    g22 = (1.0 / ct**2) * qe
+    Q = np.array([
+        [q3, 0.0, 0.0, 0.0, 0.0, 0.0, r00 * q2, r01 * q2, r02 * q2],
+        [0.0, q3, 0.0, 0.0, 0.0, 0.0, r10 * q2, r11 * q2, r12 * q2],
+        [0.0, 0.0, q3, 0.0, 0.0, 0.0, r20 * q2, r21 * q2, r22 * q2],
+        [0.0, 0.0, 0.0, g00, g01, g02, 0.0, 0.0, 0.0],
+        [0.0, 0.0, 0.0, g01, g11, g12, 0.0, 0.0, 0.0],
+        [0.0, 0.0, 0.0, g02, g12, g22, 0.0, 0.0, 0.0],
+        [r00 * q2, r10 * q2, r20 * q2, 0.0, 0.0, 0.0, q1, 0.0, 0.0],
+        [r01 * q2, r11 * q2, r21 * q2, 0.0, 0.0, 0.0, 0.0, q1, 0.0],
+        [r02 * q2, r12 * q2, r22 * q2, 0.0, 0.0, 0.0, 0.0, 0.0, q1],
+    ])
+    return xn, F, Q
+
+
+def predict_reference(x: np.ndarray, omega_B: np.ndarray, dt: float, accel_sigma: float, rate_sigma: float):
+    """:func:`predict` in matrix form (the reference the scalar version is tested against)."""
     R = rot(*x[ATT])
     v = x[VEL]
     Einv = body_to_euler_rate(x[3], x[4])

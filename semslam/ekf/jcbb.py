@@ -1,0 +1,166 @@
+"""Joint Compatibility Branch and Bound (Neira & Tardós 2001) on a dense joint innovation covariance.
+
+The same search, node for node, as :func:`semslam.backend.association.jcbb`: observations in order,
+candidates by increasing individual NIS, individual compatibility χ²(d) first, joint compatibility
+χ²(Σd) of every hypothesis on the path, one-to-one, the most pairings win (a branch that cannot
+reach more pairings than the best found is cut, so among equally many pairings the first found
+wins). It is for a caller that can give the covariance of *all* candidate pairs at once: the filter
+computes S = J P Jᵀ + R for every candidate pair in one product, so a node of the search is a
+Schur-complement step on slices of that matrix, with no per-pair callbacks; and a child's joint NIS
+is computed before its inverse covariance is built (rejected children never build it).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy.stats import chi2
+
+from semslam.ekf.filter import inv_small
+
+
+class Chi2Gate:
+    """χ² quantiles by degrees of freedom, computed once each (scipy's ppf is slow)."""
+
+    _cache: dict[tuple[float, int], float] = {}
+
+    def __init__(self, confidence: float):
+        self.confidence = float(confidence)
+
+    def __call__(self, dof: int) -> float:
+        key = (self.confidence, int(dof))
+        v = self._cache.get(key)
+        if v is None:
+            v = self._cache[key] = float(chi2.ppf(self.confidence, int(dof)))
+        return v
+
+
+class _Node:
+    __slots__ = ("pairs", "rows", "w", "S_inv", "nis", "dof")
+
+    def __init__(self, pairs, rows, w, S_inv, nis, dof):
+        self.pairs = pairs  # [(obs, landmark, pair index)]
+        self.rows = rows  # row indices of the stacked innovation in S_all
+        self.w = w  # S_H⁻¹ ν_H
+        self.S_inv = S_inv
+        self.nis = nis
+        self.dof = dof
+
+
+def jcbb_dense(
+    n_obs: int,
+    pair_obs: np.ndarray,
+    pair_lm: np.ndarray,
+    pair_rows: list[np.ndarray],
+    nu: np.ndarray,
+    S_all: np.ndarray,
+    confidence: float = 0.99,
+    max_hypotheses: int = 20_000,
+    individual_nis: np.ndarray | None = None,
+) -> list[int | None]:
+    """JCBB over candidate pairs k = (pair_obs[k], pair_lm[k]) whose innovations are ν[pair_rows[k]]
+    with joint covariance S_all (every pair's rows, R on each pair's own diagonal block).
+
+    Returns, for each of the ``n_obs`` observations, the landmark it pairs with, or None.
+    ``individual_nis`` (one per pair) saves recomputing the individual NIS when the caller has it.
+    """
+    result: list[int | None] = [None] * n_obs
+    K = len(pair_obs)
+    if n_obs == 0 or K == 0:
+        return result
+    gate = Chi2Gate(confidence)
+    if individual_nis is None:
+        individual_nis = np.array(
+            [float(nu[r] @ np.linalg.solve(S_all[np.ix_(r, r)], nu[r])) for r in pair_rows]
+        )
+    # Individual compatibility; candidates of each observation by increasing NIS.
+    cands: list[list[tuple[float, int, int]]] = [[] for _ in range(n_obs)]
+    for k in range(K):
+        d2 = float(individual_nis[k])
+        if d2 < gate(len(pair_rows[k])):
+            cands[int(pair_obs[k])].append((d2, int(pair_lm[k]), k))
+    for c in cands:
+        c.sort(key=lambda t: t[0])
+    # Only observations with a candidate take part (the others are never paired).
+    order = [i for i in range(n_obs) if cands[i]]
+    if not order:
+        return result
+    C = [cands[i] for i in order]
+    m = len(order)
+    masks = [sum(1 << j for _, j, _ in c) for c in C]
+    blocks = [S_all[np.ix_(r, r)] for r in pair_rows]
+
+    best_pairs: list = []
+    best_nis = math.inf
+    expanded = 0
+    used = 0  # bit mask of the landmarks used on the current path
+
+    def pairable_from(i: int) -> int:
+        free = ~used
+        return sum(1 for k in range(i, m) if masks[k] & free)
+
+    def child_nis(node: _Node, k: int):
+        """(nis, pieces) of the node extended with pair k, without building its inverse."""
+        r = pair_rows[k]
+        nu_k = nu[r]
+        Ck = blocks[k]
+        if not node.pairs:
+            Si = inv_small(Ck)
+            return float(nu_k @ Si @ nu_k), (None, Si, nu_k)
+        B = S_all[np.ix_(node.rows, r)]  # (D, d)
+        KB = node.S_inv @ B
+        schur = Ck - B.T @ KB
+        try:
+            Si = inv_small(schur)
+        except np.linalg.LinAlgError:
+            return math.inf, None
+        res = nu_k - B.T @ node.w
+        return node.nis + float(res @ Si @ res), (KB, Si, res)
+
+    def build(node: _Node, i: int, j: int, k: int, nis: float, pieces) -> _Node:
+        KB, Si, res = pieces
+        r = pair_rows[k]
+        if KB is None:
+            return _Node([(i, j, k)], np.asarray(r), Si @ res, Si, nis, len(r))
+        D, d = len(node.rows), len(r)
+        S_inv = np.empty((D + d, D + d))
+        KS = KB @ Si
+        S_inv[:D, :D] = node.S_inv + KS @ KB.T
+        S_inv[:D, D:] = -KS
+        S_inv[D:, :D] = -KS.T
+        S_inv[D:, D:] = Si
+        Sr = Si @ res
+        w = np.concatenate([node.w - KB @ Sr, Sr])
+        return _Node(node.pairs + [(i, j, k)], np.concatenate([node.rows, r]), w, S_inv, nis, node.dof + d)
+
+    def search(node: _Node, i: int) -> None:
+        nonlocal best_pairs, best_nis, expanded, used
+        npairs = len(node.pairs)
+        if i == m:
+            if npairs > len(best_pairs) or (npairs == len(best_pairs) and npairs > 0 and node.nis < best_nis):
+                best_pairs, best_nis = list(node.pairs), node.nis
+            return
+        if expanded >= max_hypotheses:
+            return
+        if best_pairs and npairs + pairable_from(i) <= len(best_pairs):
+            return
+        for _, j, k in C[i]:
+            if used >> j & 1:
+                continue
+            expanded += 1
+            nis, pieces = child_nis(node, k)
+            if not nis < gate(node.dof + len(pair_rows[k])):
+                continue
+            child = build(node, order[i], j, k, nis, pieces)
+            used |= 1 << j
+            search(child, i + 1)
+            used &= ~(1 << j)
+        # Star branch: observation i unpaired, worth it only if it can still beat the best.
+        if npairs + pairable_from(i + 1) > len(best_pairs):
+            search(node, i + 1)
+
+    search(_Node([], np.zeros(0, int), np.zeros(0), np.zeros((0, 0)), 0.0, 0), 0)
+    for i, j, _ in best_pairs:
+        result[i] = j
+    return result

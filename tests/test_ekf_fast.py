@@ -1,0 +1,206 @@
+"""The EKF's fast paths compute what the plain ones do: the scalar prediction, the compressed
+navigation updates, the batch measurement models, the scan linearisation and the dense JCBB."""
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+from scipy.stats import chi2
+
+from semslam.backend.association import PairLinearization, individual_nis, jcbb
+from semslam.config import SemslamConfig
+from semslam.ekf import EkfEstimator
+from semslam.ekf import batch as bt
+from semslam.ekf import geometry as g
+from semslam.ekf import models as mdl
+from semslam.ekf.estimator import EkfAssociationProblem, _ScanPairs
+from semslam.ekf.filter import EkfState, inv_small
+from semslam.ekf.jcbb import jcbb_dense
+from semslam.ekf.synthetic import simulate_circling
+
+RNG = np.random.default_rng(11)
+R_BS = g.rot(0.05, np.pi / 2 - 0.2, 0.3)
+T_BS = np.array([0.6, 0.1, 0.35])
+X = np.array([3.0, -2.0, 4.5, 0.1, -0.15, 2.4, 0.4, 0.05, -0.03])
+
+
+def test_scalar_prediction_is_the_matrix_model():
+    for _ in range(50):
+        x = RNG.normal(size=9)
+        x[4] = RNG.uniform(-1.2, 1.2)
+        w = RNG.normal(size=3)
+        for a, b in zip(mdl.predict(x, w, 0.07, 0.05, 0.01), mdl.predict_reference(x, w, 0.07, 0.05, 0.01)):
+            np.testing.assert_allclose(a, b, atol=1e-13)
+
+
+def test_small_inverse_and_quaternions():
+    for d in (1, 2, 3, 4):
+        A = RNG.normal(size=(d, d))
+        S = A @ A.T + 0.1 * np.eye(d)
+        np.testing.assert_allclose(inv_small(S) @ S, np.eye(d), atol=1e-10)
+    q = Rotation.random(5, random_state=3).as_quat()
+    for qi in q:
+        np.testing.assert_allclose(g.quat_to_rot(qi), Rotation.from_quat(qi).as_matrix(), atol=1e-14)
+
+
+def test_compressed_navigation_updates_equal_full_updates():
+    """Predictions and vehicle-only updates applied through the accumulators give the state and
+    covariance of updating the whole state at every step."""
+    n_l = 7
+    A = RNG.normal(size=(9 + n_l, 9 + n_l))
+    P0 = A @ A.T * 0.01 + np.eye(9 + n_l) * 1e-3
+    x0 = RNG.normal(size=9 + n_l)
+    fast = EkfState(x0[:9], P0[:9, :9])
+    fast.augment(x0[9:], np.zeros((n_l, 9)), np.eye(n_l), np.eye(n_l))  # then overwrite with P0
+    fast._P[: 9 + n_l, : 9 + n_l] = P0
+    x, P = x0.copy(), P0.copy()
+    for step in range(40):
+        F = np.eye(9) + 0.05 * RNG.normal(size=(9, 9))
+        Qn = np.diag(RNG.uniform(1e-6, 1e-4, 9))
+        xv = x[:9] + 0.01 * RNG.normal(size=9)
+        fast.predict_vehicle(xv.copy(), F, Qn)
+        x[:9] = xv
+        Fb = np.eye(9 + n_l)
+        Fb[:9, :9] = F
+        P = Fb @ P @ Fb.T
+        P[:9, :9] += Qn
+        d = int(RNG.integers(1, 4))
+        H = RNG.normal(size=(d, 9))
+        R = np.eye(d) * RNG.uniform(1e-4, 1e-2)
+        nu = RNG.normal(size=d) * 0.01
+        fast.update(nu, np.arange(9), H, R)
+        Hf = np.zeros((d, 9 + n_l))
+        Hf[:, :9] = H
+        S = Hf @ P @ Hf.T + R
+        K = P @ Hf.T @ np.linalg.inv(S)
+        x = x + K @ nu
+        IKH = np.eye(9 + n_l) - K @ Hf
+        P = IKH @ P @ IKH.T + K @ R @ K.T
+        if step % 13 == 5:  # reading the full state applies the pending steps
+            np.testing.assert_allclose(fast.x, x, atol=1e-10)
+            np.testing.assert_allclose(fast.P, P, atol=1e-10)
+    np.testing.assert_allclose(fast.P, P, atol=1e-10)
+    np.testing.assert_allclose(fast.x, x, atol=1e-10)
+
+
+def _line_obs(k):
+    R, t, _, _ = mdl.sensor_pose(X, R_BS, T_BS)
+    c = RNG.normal(size=3) + [3.0, -2.0, 7.0]
+    d = RNG.normal(size=3)
+    d /= np.linalg.norm(d)
+    pw, qw = c - 0.3 * d, c + 0.3 * d
+    l = g.line_params(g.cross3(pw, d), d)
+    e = RNG.normal(0, 0.02, 6)
+    p, q = (pw - t) @ R + e[:3], (qw - t) @ R + e[3:]
+    if k % 2:
+        p, q = q, p
+    A = RNG.normal(size=(6, 6))
+    return l, mdl.LineObservationModel.from_endpoints(p, q, A @ A.T * 1e-4)
+
+
+def test_batch_models_equal_the_scalar_ones():
+    L = RNG.normal(size=(12, 3)) + [3.0, -2.0, 7.0]
+    h, Hx, Hl = bt.point_measurements(X, L, R_BS, T_BS)
+    for k in range(len(L)):
+        for a, b in zip((h[k], Hx[k], Hl), mdl.point_measurement(X, L[k], R_BS, T_BS)):
+            np.testing.assert_allclose(a, b, atol=1e-12)
+    pairs = [_line_obs(k) for k in range(16)]
+    Ls = np.array([p[0] for p in pairs])
+    obs = [p[1] for p in pairs]
+    out = bt.line_innovations(X, Ls, np.array([o.U for o in obs]), np.array([o.rho for o in obs]),
+                              np.array([o.d for o in obs]), np.array([o.cov for o in obs]), R_BS, T_BS)
+    for k in range(len(Ls)):
+        for a, b in zip((v[k] for v in out), mdl.line_innovation(X, Ls[k], obs[k], R_BS, T_BS)):
+            np.testing.assert_allclose(a, b, atol=1e-10, rtol=1e-8)
+
+
+class _DenseView:
+    """A generic association problem with a given joint covariance (for jcbb against jcbb_dense)."""
+
+    def __init__(self, Z, L, P, R):
+        self.Z, self.L, self.P, self.R = Z, L, P, R
+        self.n_observations, self.n_landmarks = len(Z), len(L)
+
+    def pair(self, i, j):
+        return PairLinearization(self.Z[i] - (self.L[j] - np.zeros(3)), -np.eye(3), np.eye(3), self.R)
+
+    def covariance(self, a, b):
+        ia = slice(0, 3) if a is None else slice(3 + 3 * a, 6 + 3 * a)
+        ib = slice(0, 3) if b is None else slice(3 + 3 * b, 6 + 3 * b)
+        return self.P[ia, ib]
+
+
+def _dense_from_problem(prob):
+    """Every pair's innovation, rows and the full joint covariance of the generic problem."""
+    n, m = prob.n_observations, prob.n_landmarks
+    obs, lm, lins = [], [], []
+    for i in range(n):
+        for j in range(m):
+            p = prob.pair(i, j)
+            if p is not None:
+                obs.append(i), lm.append(j), lins.append(p)
+    rows, r = [], 0
+    for p in lins:
+        rows.append(np.arange(r, r + len(p.innovation)))
+        r += len(p.innovation)
+    nu = np.concatenate([p.innovation for p in lins])
+    S = np.zeros((r, r))
+    for a, (pa, ja) in enumerate(zip(lins, lm)):
+        for b, (pb, jb) in enumerate(zip(lins, lm)):
+            blk = pa.H_x @ prob.covariance(None, None) @ pb.H_x.T + pa.H_x @ prob.covariance(None, jb) @ pb.H_l.T
+            blk = blk + pa.H_l @ prob.covariance(ja, None) @ pb.H_x.T + pa.H_l @ prob.covariance(ja, jb) @ pb.H_l.T
+            if a == b:
+                blk = blk + pa.R
+            S[np.ix_(rows[a], rows[b])] = blk
+    return np.array(obs), np.array(lm), rows, nu, S
+
+
+@pytest.mark.parametrize("seed", range(25))
+def test_dense_jcbb_is_jcbb(seed):
+    rng = np.random.default_rng(seed)
+    m = int(rng.integers(3, 9))
+    L = rng.uniform(-1, 1, (m, 3)) * rng.uniform(0.1, 1.0)  # sometimes crowded
+    x_true = rng.normal(0, 0.1, 3)
+    seen = rng.choice(m, min(m, int(rng.integers(2, 7))), replace=False)
+    Z = [L[j] - x_true + rng.normal(0, 0.02, 3) for j in seen] + [rng.uniform(-1, 1, 3) for _ in range(2)]
+    rng.shuffle(Z)
+    A = rng.normal(size=(3 + 3 * m, 3 + 3 * m)) * 0.02
+    P = A @ A.T + np.diag([0.1**2] * 3 + [0.03**2] * (3 * m))  # correlated landmarks
+    prob = _DenseView(np.array(Z), L, P, np.eye(3) * 0.02**2)
+    obs, lm, rows, nu, S = _dense_from_problem(prob)
+    assert jcbb_dense(len(Z), obs, lm, rows, nu, S, 0.99) == jcbb(prob, 0.99)
+
+
+def _mapped_filter(seed=2):
+    sim = simulate_circling(seed=seed, duration_s=40.0)
+    est = EkfEstimator(sim.metadata, SemslamConfig())
+    last = None
+    for m, obs in sim.stream():
+        est.process_measurement(m)
+        if obs:
+            est.process_observations(m.stamp, obs)
+            last = (m.stamp, obs)
+    return est, last
+
+
+def test_scan_linearisation_equals_the_pairwise_problem():
+    est, (stamp, obs) = _mapped_filter()
+    assert len(est._features) > 5
+    prepared = est._prepare(obs)
+    scan = _ScanPairs(est, prepared, 0.999)
+    prob = EkfAssociationProblem(est, prepared)
+    assert len(scan.obs) > 0
+    for k, (i, j) in enumerate(zip(scan.obs, scan.feat)):
+        p = prob.pair(int(i), int(j))
+        assert p is not None
+        np.testing.assert_allclose(scan.nu[k], p.innovation, atol=1e-12)
+        np.testing.assert_allclose(scan.H_x[k], p.H_x, atol=1e-12)
+        np.testing.assert_allclose(scan.H_l[k], p.H_l, atol=1e-12)
+        assert scan.nis[k] == pytest.approx(individual_nis(prob, int(i), int(j)), rel=1e-9)
+    # every pair the generic problem accepts within the gate is in the scan (the extent checks of
+    # pipes are made only within it)
+    gate = {3: chi2.ppf(0.999, 3), 4: chi2.ppf(0.999, 4)}
+    generic = {(i, j) for i in range(len(prepared)) for j in range(prob.n_landmarks)
+               if prob.pair(i, j) is not None and individual_nis(prob, i, j) < gate[len(prob.pair(i, j).innovation)]}
+    assert generic == {(int(i), int(j)) for k, (i, j) in enumerate(zip(scan.obs, scan.feat))
+                       if scan.nis[k] < gate[len(scan.nu[k])]}
+    assert scan.associate(0.99) == jcbb(prob, 0.99)
