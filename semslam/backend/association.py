@@ -22,6 +22,7 @@ longer grows with the depth of the hypothesis.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 from typing import Protocol
 
 import numpy as np
@@ -120,17 +121,19 @@ def _nis(nu: np.ndarray, S: np.ndarray) -> float:
         return float("inf")
 
 
+@lru_cache(maxsize=1024)
+def _chi2_quantile(confidence: float, dof: int) -> float:
+    return float(chi2.ppf(confidence, dof))
+
+
 class _Chi2Table:
     """χ² quantiles by degrees of freedom, computed once each (scipy's ppf costs ~50 µs a call)."""
 
     def __init__(self, confidence: float):
         self.confidence = confidence
-        self._table: dict[int, float] = {}
 
     def __call__(self, dof: int) -> float:
-        if dof not in self._table:
-            self._table[dof] = float(chi2.ppf(self.confidence, dof))
-        return self._table[dof]
+        return _chi2_quantile(self.confidence, dof)
 
 
 @dataclass

@@ -37,7 +37,7 @@ from semslam.backend.association import jcbb
 from semslam.backend.config import GraphConfig
 from semslam.backend.landmarks import Landmark, ObservationRecord, Track, merge_collinear
 from semslam.backend.navigation import NavigationBuffer
-from semslam.backend.problem import Candidate, GraphAssociationProblem
+from semslam.backend.problem import Candidate, GraphAssociationProblem, possible_pairs
 from semslam.config import SemslamConfig
 from semslam.estimation import EstimatorResult, LandmarkEstimate, Trajectory
 from semslam.mission.measurements import GroundTruthPose, Measurement
@@ -153,7 +153,11 @@ class GraphEstimator:
             factors.append(attitude_factor(X(k), R, cov_R))
         v_prior = None
         dvl = self.nav.dvl
-        if dvl is not None and 0 <= t - dvl.t <= self.cfg.dvl_max_age_s:
+        # The newest DVL sample is the velocity factor when it is fresh, and also when it is the last
+        # knot of the interval that ends here (a dropout starting inside it): the displacement alone
+        # cannot pin V(k), and the σ_a²·age inflation is the motion model's growth over the gap.
+        in_interval = bool(self.kf_stamps) and dvl is not None and dvl.t > self.kf_stamps[-1] * 1e-9
+        if dvl is not None and 0 <= t - dvl.t and (t - dvl.t <= self.cfg.dvl_max_age_s or in_interval):
             age = t - dvl.t
             factors.append(dvl_velocity_factor(V(k), dvl.v_S, dvl.cov_S, dvl.T_BS, dvl.omega_B, self.motion.accel_sigma_m_s2**2 * age))
             v_prior = dvl.v_B
@@ -409,17 +413,24 @@ class GraphEstimator:
         near = np.flatnonzero((dist <= self.cfg.pre_gate_m + 1.0).any(axis=0))
         if near.size == 0:
             return [None] * len(obs)
-        lms = [self.landmarks[ids[j]] for j in near if ids[j] in self.landmarks]
-        near = np.arange(len(lms))
-        self._refresh_landmarks({lms[j].id for j in near}, covariance=True)
-        cand_lms = [lms[j] for j in near]
+        cand_lms = [self.landmarks[ids[j]] for j in near if ids[j] in self.landmarks]
+        # Estimates now; a marginal covariance (costly) only where none exists yet, and below only
+        # for the landmarks some observation may pair with (a stale one is larger: conservative).
+        self._refresh_landmarks({lm.id for lm in cand_lms})
+        self._refresh_landmarks({lm.id for lm in cand_lms if lm.covariance is None}, covariance=True)
         anchor_pts = np.array([_landmark_point(lm) for lm in cand_lms])
         dist = np.linalg.norm(obs_pts[:, None, :] - anchor_pts[None, :, :], axis=2)
         for j, lm in enumerate(cand_lms):
             if lm.kind == "pipe":
                 dist[:, j] = _point_segment_distance(obs_pts, *_pipe_ends(lm))
-        allowed = dist <= self.cfg.pre_gate_m
         cands = [Candidate(lm, lm.covariance) for lm in cand_lms]
+        gates = {d: _chi2(self.assoc.confidence, d) for d in (3, 4)}
+        allowed = (dist <= self.cfg.pre_gate_m) & possible_pairs(pose, pose_cov, obs, T_BS, cands, gates)
+        maybe = np.flatnonzero(allowed.any(axis=0))
+        self._refresh_landmarks({cand_lms[j].id for j in maybe}, covariance=True)
+        for j in maybe:
+            cands[j].covariance = cand_lms[j].covariance
+        allowed[:, maybe] &= possible_pairs(pose, pose_cov, obs, T_BS, [cands[j] for j in maybe], gates)
         problem = GraphAssociationProblem(pose, pose_cov, obs, T_BS, cands, self.cfg.pipe_extent_gap_m, allowed)
         result = jcbb(problem, confidence=self.assoc.confidence)
         paired = {j for j in result if j is not None}
@@ -715,6 +726,8 @@ class GraphEstimator:
         history["landmark_volume"] = {
             lid: (np.array([s for s, _ in v], np.int64), np.array([x for _, x in v])) for lid, v in self._volume.items()
         }
+        # which landmark each observation (by object identity) ended in, for the recognition tables
+        history["landmark_of_observation"] = {id(r.observation): lm.id for lm in self.landmarks.values() for r in lm.history}
         history["landmark_observations"] = {
             lm.id: [(r.stamp, getattr(r.observation, "truth_id", None)) for r in lm.history] for lm in self.landmarks.values()
         }

@@ -53,6 +53,9 @@ class GraphAssociationProblem:
         self.n_landmarks = len(candidates)
         self._cache: dict[tuple[int, int], PairLinearization | None] = {}
 
+    def candidate_landmarks(self, i: int) -> np.ndarray:
+        return np.flatnonzero(self.allowed[i])
+
     def pair(self, i: int, j: int) -> PairLinearization | None:
         key = (i, j)
         if key not in self._cache:
@@ -90,3 +93,77 @@ class GraphAssociationProblem:
         if a == b:
             return self.candidates[a].covariance
         return np.zeros((self.candidates[a].covariance.shape[0], self.candidates[b].covariance.shape[0]))
+
+
+def possible_pairs(
+    pose: gtsam.Pose3,
+    pose_cov: np.ndarray,
+    observations: list,
+    T_BS: list[np.ndarray],
+    candidates: list[Candidate],
+    gate: dict[int, float],
+) -> np.ndarray:
+    """(n_obs, n_cand) mask of the pairs that *could* pass the individual χ² gate, for all pairs
+    at once in numpy, so that the exact gate (one linearisation each) only runs on these.
+
+    A necessary condition: d² = νᵀS⁻¹ν ≥ |ν|² / λ_max(S) ≥ |ν|² / tr(S), with tr(S) bounded
+    above by sums of traces — for a block [A | B] of a Jacobian over a covariance with blocks
+    (C_a, C_b), tr(J C Jᵀ) ≤ (‖A‖₂ √tr C_a + ‖B‖₂ √tr C_b)² (Cauchy–Schwarz on the cross term).
+    The pose block's rotation lever arm is the point's distance to the body origin; a line's
+    angular lever arm is the endpoint's distance to the line's anchor c0 (‖J_r‖₂ ≤ 1). Only
+    conservative: a pair it keeps may still fail the exact gate. ``gate``: dof → χ² quantile.
+    """
+    n, m = len(observations), len(candidates)
+    allowed = np.zeros((n, m), bool)
+    if n == 0 or m == 0:
+        return allowed
+    R, t = pose.rotation().matrix(), pose.translation()
+    s_rot = float(np.sqrt(max(np.trace(pose_cov[:3, :3]), 0.0)))
+    s_tr = float(np.sqrt(max(np.trace(pose_cov[3:, 3:]), 0.0)))
+    kinds = np.array([c.landmark.kind for c in candidates])
+
+    def body(i, x_S):
+        return T_BS[i][:3, :3] @ x_S + T_BS[i][:3, 3]
+
+    # Objects: ν is the world distance of the observed point to the landmark (rotations keep norms).
+    oi = [i for i, z in enumerate(observations) if isinstance(z, PointObservation)]
+    oj = np.flatnonzero(kinds == "object")
+    if oi and len(oj):
+        e_B = np.array([body(i, observations[i].position) for i in oi])
+        w = t + e_B @ R.T
+        tr_obs = np.array([np.trace(observations[i].covariance) for i in oi])
+        pose_term = (np.linalg.norm(e_B, axis=1) * s_rot + s_tr) ** 2
+        L = np.array([np.asarray(candidates[j].landmark.estimate, float) for j in oj])
+        tr_lm = np.array([np.trace(candidates[j].covariance) for j in oj])
+        nu2 = ((w[:, None, :] - L[None, :, :]) ** 2).sum(axis=2)
+        bound = (pose_term + tr_obs)[:, None] + tr_lm[None, :]
+        allowed[np.ix_(oi, oj)] = nu2 <= gate[3] * bound
+
+    # Pipes: ν stacks the perpendicular offsets of both observed endpoints from the line.
+    li = [i for i, z in enumerate(observations) if isinstance(z, LineObservation)]
+    lj = np.flatnonzero(kinds == "pipe")
+    if li and len(lj):
+        e_B = np.array([[body(i, observations[i].p), body(i, observations[i].q)] for i in li])  # (a, 2, 3)
+        e_W = t + e_B @ R.T
+        tr_obs = np.array([np.trace(observations[i].covariance) for i in li])
+        pose_term = ((np.linalg.norm(e_B, axis=2) * s_rot + s_tr) ** 2).sum(axis=1)
+        lms = [candidates[j].landmark for j in lj]
+        c = np.array([lm.anchor.point(lm.estimate) for lm in lms])  # (b, 3)
+        d = np.array([lm.anchor.direction(lm.estimate) for lm in lms])
+        c0 = np.array([lm.anchor.c0 for lm in lms])
+        C = [candidates[j].covariance for j in lj]
+        s_ang = np.sqrt(np.maximum([Cj[0, 0] + Cj[1, 1] for Cj in C], 0.0))
+        s_ab = np.sqrt(np.maximum([Cj[2, 2] + Cj[3, 3] for Cj in C], 0.0))
+        r = e_W[:, None, :, :] - c[None, :, None, :]  # (a, b, 2, 3)
+        along = (r * d[None, :, None, :]).sum(axis=3, keepdims=True)
+        nu2 = ((r - along * d[None, :, None, :]) ** 2).sum(axis=(2, 3))
+        arm = np.linalg.norm(e_W[:, None, :, :] - c0[None, :, None, :], axis=3)  # (a, b, 2)
+        lm_term = ((arm * s_ang[None, :, None] + s_ab[None, :, None]) ** 2).sum(axis=2)
+        bound = (pose_term + tr_obs)[:, None] + lm_term
+        allowed[np.ix_(li, lj)] = nu2 <= gate[4] * bound
+
+    # Structures: few; the exact gate decides (same model only).
+    for i, z in enumerate(observations):
+        if isinstance(z, StructureObservation):
+            allowed[i] = [c.landmark.kind == "structure" and c.landmark.model == z.model for c in candidates]
+    return allowed

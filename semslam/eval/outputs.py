@@ -16,6 +16,7 @@ import numpy as np
 from semslam.config import SemslamConfig, dump_config
 from semslam.estimation import EstimatorResult, LandmarkEstimate
 from semslam.eval.metrics import estimator_metrics, sonar_metrics
+from semslam.eval.recognition import recognition_block
 from semslam.mission.mission import MissionMetadata
 from semslam.pipeline import PipelineResult
 
@@ -121,11 +122,15 @@ def build_metrics(pipeline: PipelineResult, metadata: MissionMetadata) -> dict:
             online = EstimatorResult(f"{name}_online", result.online_trajectory, result.landmarks, None,
                                      result.update_times_s, result.update_n_landmarks)
             metrics["estimators"][f"{name}_online"] = estimator_metrics(online, pipeline.truth, gt, runtime)
+    syn = None
     for summary in pipeline.frontend_summaries.values():
         if summary.section == "sonar":
             metrics["sonar"] = sonar_metrics(summary.metrics, gt)
+        elif summary.section == "recognition":
+            syn = summary.metrics.get("SYN")
         elif summary.section:
             metrics[summary.section] = summary.metrics
+    metrics["recognition"] = recognition_block(pipeline, metadata, syn)
     return metrics
 
 

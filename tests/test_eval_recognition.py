@@ -1,0 +1,56 @@
+"""Recognition tables of a run: observations labelled by the ground truth, fused by landmark id."""
+
+import numpy as np
+import pytest
+
+from semslam.estimation import EstimatorResult, Trajectory
+from semslam.eval.recognition import recognition_block
+from semslam.mission import GroundTruthMap, GtObject, MissionMetadata, SensorInfo
+from semslam.observations import Connectivity, PointObservation
+from semslam.pipeline import ObservationRecord, PipelineResult
+
+CLASSES = ("A", "B")
+
+
+def _setup():
+    T_BS = np.eye(4)
+    T_BS[:3, 3] = (0.5, 0, 0)
+    meta = MissionMetadata(
+        sensors={"laser": SensorInfo("laser", "laser", T_BS=T_BS)},
+        ground_truth=GroundTruthMap(classes=CLASSES, objects=(GtObject(1, "A", (3.5, 0, 0)), GtObject(2, "B", (0.5, 2, 0)))),
+    )
+    stamps = np.arange(0, 10) * 1_000_000_000
+    truth = Trajectory(stamps, np.column_stack([np.arange(10) * 0.0 + 1.0, np.zeros(10), np.zeros(10)]),
+                       np.tile([0, 0, 0, 1.0], (10, 1)))
+    lik_A, lik_B = {"A": 0.7, "B": 0.3}, {"A": 0.3, "B": 0.7}
+    obs = [
+        # body at (1,0,0), sensor 0.5 m ahead: object A at (3.5,0,0) is 2 m ahead of the sensor
+        PointObservation(stamps[1], "laser", position=[2.0, 0, 0], class_likelihood=lik_A),
+        PointObservation(stamps[2], "laser", position=[2.01, 0, 0], class_likelihood={"A": 0.4, "B": 0.6}),  # wrong alone
+        PointObservation(stamps[3], "laser", position=[1.99, 0, 0], class_likelihood=lik_A,
+                         connectivity=Connectivity(1, 1)),
+        PointObservation(stamps[4], "laser", position=[-1.0, 2, 0], class_likelihood=lik_B),  # object B
+        PointObservation(stamps[5], "laser", position=[0.0, -3, 0], class_likelihood=lik_A),  # no object there
+    ]
+    history = {"landmark_of_observation": {id(obs[0]): 7, id(obs[1]): 7, id(obs[2]): 7, id(obs[3]): 8}}
+    res = EstimatorResult("graph", truth, history=history)
+    pipe = PipelineResult({"graph": res}, truth, [ObservationRecord("laser", int(o.stamp), o) for o in obs])
+    return pipe, meta
+
+
+def test_stages_from_labelled_observations():
+    pipe, meta = _setup()
+    rec = recognition_block(pipe, meta, syn={"accuracy": 0.9})
+    assert rec["SYN"] == {"accuracy": 0.9}
+    # the observation far from every true object is not scored
+    assert rec["DESC"]["n"] == 4
+    # DESC: the second view of A looks like B on its own; fused with the first (same landmark) it is A
+    assert rec["DESC"]["accuracy"] == pytest.approx(3 / 4)
+    assert rec["BAYS"]["accuracy"] == pytest.approx(1.0)  # 0.7·0.4 for A beats 0.3·0.6 for B
+    assert rec["DESC"]["confusion"][0] == [2, 1]
+
+
+def test_no_ground_truth_no_tables():
+    pipe, meta = _setup()
+    meta.ground_truth = None
+    assert recognition_block(pipe, meta) == {}
