@@ -111,6 +111,17 @@ def test_batch_models_equal_the_scalar_ones():
     for k in range(len(Ls)):
         for a, b in zip((v[k] for v in out), mdl.line_innovation(X, Ls[k], obs[k], R_BS, T_BS)):
             np.testing.assert_allclose(a, b, atol=1e-10, rtol=1e-8)
+    # first-estimates Jacobians: H at L_lin, ν and R at L
+    L_lin = Ls + RNG.normal(0, 0.01, Ls.shape)
+    out = bt.line_innovations(X, Ls, np.array([o.U for o in obs]), np.array([o.rho for o in obs]),
+                              np.array([o.d for o in obs]), np.array([o.cov for o in obs]), R_BS, T_BS, L_lin=L_lin)
+    for k in range(len(Ls)):
+        ref = mdl.line_innovation(X, Ls[k], obs[k], R_BS, T_BS, l_lin=L_lin[k])
+        for a, b in zip((v[k] for v in out), ref):
+            np.testing.assert_allclose(a, b, atol=1e-10, rtol=1e-8)
+        at_lin = mdl.line_innovation(X, L_lin[k], obs[k], R_BS, T_BS)
+        np.testing.assert_allclose(ref[1], at_lin[1], atol=1e-10)
+        np.testing.assert_allclose(ref[0], mdl.line_innovation(X, Ls[k], obs[k], R_BS, T_BS)[0], atol=1e-12)
 
 
 class _DenseView:

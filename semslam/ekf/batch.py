@@ -85,10 +85,51 @@ def line_innovations(
     obs_cov: np.ndarray,
     R_BS: np.ndarray,
     t_BS: np.ndarray,
+    L_lin: np.ndarray | None = None,
 ):
     """:func:`models.line_innovation` for K pairs (pipe L[k] = [α β γ ρ] in {W}, observed line k in
     {S} with orthonormal U (K×3×3), ρ (K,), direction d (K×3) and error covariance (K×4×4)), all seen
-    from one sensor pose. Returns (ν K×4, H_x K×4×9, H_l K×4×4, R K×4×4)."""
+    from one sensor pose; the Jacobians at L_lin when given (first estimates). Returns (ν K×4,
+    H_x K×4×9, H_l K×4×4, R K×4×4)."""
+    nu, Rn, r, flip = _line_residuals(x, L, obs_U, obs_rho, obs_d, obs_cov, R_BS, t_BS)
+    if L_lin is not None:
+        _, _, r, _ = _line_residuals(x, L_lin, obs_U, obs_rho, obs_d, obs_cov, R_BS, t_BS, flip)
+    H_x, H_l = _line_jacobians(x, L if L_lin is None else L_lin, r, R_BS, t_BS)
+    return nu, H_x, H_l, Rn
+
+
+def _predicted_lines(x, L, R_BS, t_BS):
+    """The pipes L (K×4, in {W}) in {S} as orthonormal (U_h, ρ_h) and Plücker (m_S, d_S)."""
+    R, t, _, _ = sensor_pose(x, R_BS, t_BS)
+    U_W = geo.rot_batch(L[:, :3])
+    d_W = U_W[:, :, 1]
+    m_W = L[:, 3:4] * U_W[:, :, 0]
+    m_S = (m_W - np.cross(t, d_W)) @ R
+    d_S = d_W @ R
+    rho_h = np.linalg.norm(m_S, axis=1)
+    h1 = m_S / rho_h[:, None]
+    U_h = np.stack([h1, d_S, np.cross(h1, d_S)], axis=2)
+    return U_h, rho_h, m_S, d_S
+
+
+def _line_residuals(x, L, obs_U, obs_rho, obs_d, obs_cov, R_BS, t_BS, flip=None):
+    """(ν, R, r, flip): innovation, its noise in the innovation's chart, the rotation part r and
+    which observations were flipped to agree with the predicted direction."""
+    U_h, rho_h, _, d_S = _predicted_lines(x, L, R_BS, t_BS)
+    if flip is None:
+        flip = np.einsum("ki,ki->k", obs_d, d_S) < 0
+    U_z = np.where(flip[:, None, None], obs_U * _FLIP, obs_U)
+    cov = np.where(flip[:, None, None], obs_cov * np.outer(_FLIP4, _FLIP4), obs_cov)
+    r = so3_log_batch(np.transpose(U_h, (0, 2, 1)) @ U_z)
+    nu = np.concatenate([r, (obs_rho - rho_h)[:, None]], axis=1)
+    Gr = np.zeros((len(L), 4, 4))
+    Gr[:, :3, :3] = so3_right_jacobian_inv_batch(r)
+    Gr[:, 3, 3] = 1.0
+    return nu, Gr @ cov @ np.transpose(Gr, (0, 2, 1)), r, flip
+
+
+def _line_jacobians(x, L, r, R_BS, t_BS):
+    """(H_x, H_l) of the line innovation at pipes L with rotation residuals r."""
     K = len(L)
     R, t, R_WB, E = sensor_pose(x, R_BS, t_BS)
     W = R_BS.T @ E  # ∂ω_S/∂e
@@ -125,18 +166,10 @@ def line_innovations(
     G[:, 2, 2] = ca * cb
     G[:, 3, 3] = 1.0
     J_l = J_md @ (Binv @ G)
-    # predicted line in {S}: orthonormal (U_h, ρ_h)
+    # predicted line in {S}: orthonormal (U_h, ρ_h); A = line_error_map(U_h, ρ_h)
     rho_h = np.linalg.norm(m_S, axis=1)
     h1 = m_S / rho_h[:, None]
     h3 = np.cross(h1, d_S)
-    U_h = np.stack([h1, d_S, h3], axis=2)
-    # observed direction flipped to agree with the predicted one
-    flip = np.einsum("ki,ki->k", obs_d, d_S) < 0
-    U_z = np.where(flip[:, None, None], obs_U * _FLIP, obs_U)
-    cov = np.where(flip[:, None, None], obs_cov * np.outer(_FLIP4, _FLIP4), obs_cov)
-    r = so3_log_batch(np.transpose(U_h, (0, 2, 1)) @ U_z)
-    nu = np.concatenate([r, (obs_rho - rho_h)[:, None]], axis=1)
-    # A = line_error_map(U_h, ρ_h)
     A = np.zeros((K, 4, 6))
     A[:, 0, 3:] = h3
     A[:, 1, :3] = -h3 / rho_h[:, None]
@@ -145,11 +178,5 @@ def line_innovations(
     Gl = np.zeros((K, 4, 4))
     Gl[:, :3, :3] = so3_right_jacobian_inv_batch(-r)
     Gl[:, 3, 3] = 1.0
-    Gr = np.zeros((K, 4, 4))
-    Gr[:, :3, :3] = so3_right_jacobian_inv_batch(r)
-    Gr[:, 3, 3] = 1.0
     GA = Gl @ A
-    H_x = GA @ J_x
-    H_l = GA @ J_l
-    Rn = Gr @ cov @ np.transpose(Gr, (0, 2, 1))
-    return nu, H_x, H_l, Rn
+    return GA @ J_x, GA @ J_l

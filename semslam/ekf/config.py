@@ -29,6 +29,13 @@ class EkfConfig(BaseModel):
     rate_max_age_s: float = Field(
         0.5, gt=0, description="the AHRS angular rate is the prediction input while younger than this; zero after"
     )
+    line_jacobians: Literal["first_estimate", "current"] = Field(
+        "first_estimate",
+        description="where the pipe measurement Jacobians are evaluated: at the pipe's first estimate (FEJ, Huang, "
+        "Mourikis & Roumeliotis 2008; keeps a common translation of vehicle and map unobservable, as it is — the "
+        "world-origin line parameters make the current-estimate Jacobians gain spurious absolute-position "
+        "information) or at the current estimate (the textbook EKF)",
+    )
     line_min_length_m: float = Field(0.05, gt=0, description="shorter pipe segments are ignored (no direction)")
     line_min_distance_m: float = Field(
         0.05, gt=0, description="pipe observations whose line passes closer than this to the sensor are ignored (ρ ≈ 0)"

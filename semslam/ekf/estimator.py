@@ -75,6 +75,7 @@ class _Feature:
     class_log: dict[str, float] = field(default_factory=dict)
     vol_stamps: list[int] = field(default_factory=list)
     vol: list[float] = field(default_factory=list)
+    l_first: np.ndarray | None = None  # the estimate it entered the state with (first-estimates Jacobians)
 
     @property
     def cols(self) -> np.ndarray:
@@ -288,9 +289,10 @@ class _ScanPairs:
                     else:
                         L = x[cols]
                         lines = [obs[i].line for i in oi]
-                        nu, Hx, HlK, R = bt.line_innovations(
-                            x[:NX], L, np.array([ln.U for ln in lines]), np.array([ln.rho for ln in lines]),
-                            np.array([ln.d for ln in lines]), np.array([ln.cov for ln in lines]), o0.R_BS, o0.t_BS)
+                        args = (np.array([ln.U for ln in lines]), np.array([ln.rho for ln in lines]),
+                                np.array([ln.d for ln in lines]), np.array([ln.cov for ln in lines]), o0.R_BS, o0.t_BS)
+                        L_lin = np.array([feats[j].l_first for j in fj]) if est._fej else None
+                        nu, Hx, HlK, R = bt.line_innovations(x[:NX], L, *args, L_lin=L_lin)
                     # S = H_x P_vv H_xᵀ + H_x P_vl H_lᵀ + H_l P_lv H_xᵀ + H_l P_ll H_lᵀ + R
                     Pvl = P[:NX][:, cols].transpose(1, 0, 2)  # (K, 9, size)
                     Pll = P[cols[:, :, None], cols[:, None, :]]  # (K, size, size)
@@ -402,6 +404,7 @@ class EkfEstimator:
         self.motion = config.motion
         self.assoc = config.association
         self._associate = associate
+        self._fej = self.cfg.line_jacobians == "first_estimate"
         self.state: EkfState | None = None
         self.t: int | None = None  # stamp of the state (ns)
         self._omega = np.zeros(3)  # latest body rate (input)
@@ -602,7 +605,7 @@ class EkfEstimator:
         m_W, d_W = geo.line_plucker(l)
         if self._pipe_apart(f.extent, o.ends_W, m_W, d_W, self._object_positions()):
             return None
-        nu, H_x, H_l, R = mdl.line_innovation(x, l, o.line, o.R_BS, o.t_BS)
+        nu, H_x, H_l, R = mdl.line_innovation(x, l, o.line, o.R_BS, o.t_BS, f.l_first if self._fej else None)
         return PairLinearization(nu, H_x, H_l, R)
 
     def _pre_gate(self, obs: list[_Obs]) -> np.ndarray:
@@ -809,7 +812,8 @@ class EkfEstimator:
             l, G_x, G_pq = mdl.line_initialise(x, o.obs.p, o.obs.q, o.R_BS, o.t_BS)
             idx = self.state.augment(l, G_x, G_pq, np.asarray(o.obs.covariance))
         self._features.append(
-            _Feature(self._next_id, o.kind, idx, len(l), n_obs=tr.n, extent=tr.extent, class_log=dict(tr.class_log))
+            _Feature(self._next_id, o.kind, idx, len(l), n_obs=tr.n, extent=tr.extent, class_log=dict(tr.class_log),
+                     l_first=np.array(l, float))
         )
         self._next_id += 1
 

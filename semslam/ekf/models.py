@@ -290,13 +290,17 @@ class LineObservationModel:
                                     self.cov * np.outer(D, D))
 
 
-def line_innovation(x: np.ndarray, l: np.ndarray, obs: LineObservationModel, R_BS: np.ndarray, t_BS: np.ndarray):
+def line_innovation(x: np.ndarray, l: np.ndarray, obs: LineObservationModel, R_BS: np.ndarray, t_BS: np.ndarray,
+                    l_lin: np.ndarray | None = None):
     """Innovation of an observed line against pipe l, on the manifold of the orthonormal representation.
 
     ν = [Log(U_hᵀ U_z); ρ_z − ρ_h] where (U_h, ρ_h) is the pipe in {S} and the observed direction is
     flipped to agree with the predicted one. This is the paper's comparison of orthonormal
     parameters in the sensor frame (eqs. 30–37) without the Euler singularity of the sensor-frame
     angles. Returns (ν, H_x 4×9, H_l 4×4, R 4×4) with ν ≈ ν₀ − H_x δx − H_l δl (H = ∂h/∂state).
+
+    ``l_lin``: evaluate the Jacobians H_x, H_l at this pipe estimate instead of l (the first-estimates
+    Jacobian, see :class:`semslam.ekf.estimator.EkfEstimator`); ν and R are always at l.
     """
     m_S, d_S, J_x, J_l = line_to_sensor(x, l, R_BS, t_BS)
     U_h, rho_h = orthonormal_from_plucker(m_S, d_S)
@@ -304,14 +308,19 @@ def line_innovation(x: np.ndarray, l: np.ndarray, obs: LineObservationModel, R_B
         obs = obs.flipped()
     r = so3_log(U_h.T @ obs.U)
     nu = np.append(r, obs.rho - rho_h)
+    Gr = np.eye(4)
+    Gr[:3, :3] = so3_right_jacobian_inv(r)
+    R = Gr @ obs.cov @ Gr.T
+    if l_lin is not None:
+        m_S, d_S, J_x, J_l = line_to_sensor(x, l_lin, R_BS, t_BS)
+        U_h, rho_h = orthonormal_from_plucker(m_S, d_S)
+        r = so3_log(U_h.T @ obs.U)
     A = line_error_map(U_h, rho_h)
     G = np.eye(4)
     G[:3, :3] = so3_left_jacobian_inv(r)
-    Gr = np.eye(4)
-    Gr[:3, :3] = so3_right_jacobian_inv(r)
     H_x = G @ A @ J_x
     H_l = G @ A @ J_l
-    return nu, H_x, H_l, Gr @ obs.cov @ Gr.T
+    return nu, H_x, H_l, R
 
 
 def line_world(x: np.ndarray, p: np.ndarray, q: np.ndarray, R_BS: np.ndarray, t_BS: np.ndarray):
