@@ -45,9 +45,13 @@ class ScanScore:
     n_plane_removed: int = 0
     endpoint_errors: list[float] = field(default_factory=list)  # m, against the visible extent
     axis_errors_deg: list[float] = field(default_factory=list)
+    # Normalised errors with the reported covariances (consistency: their mean should be the dof).
+    endpoint_perp_nees: list[float] = field(default_factory=list)  # 2 dof: offset from the true axis
+    endpoint_along_nees: list[float] = field(default_factory=list)  # 1 dof: against the visible extent
     n_visible_objects: int = 0
     n_single_segment: int = 0  # visible objects with exactly one segment
     object_errors: list[float] = field(default_factory=list)  # m, of the single segments
+    object_nees: list[float] = field(default_factory=list)  # 3 dof, of the single segments
     n_config_correct: int = 0  # of the single segments, configuration = truth
     n_config_visible_correct: int = 0  # ... = configuration of the pipes seen
     n_config_visible_known: int = 0  # single segments whose seen-pipes configuration is known
@@ -57,6 +61,12 @@ class ScanScore:
 
 def _unit(v):
     return v / np.linalg.norm(v)
+
+
+def _perpendicular_basis(a: np.ndarray) -> np.ndarray:
+    """3×2 orthonormal basis of the plane orthogonal to the unit vector ``a``."""
+    e1 = _unit(np.cross(a, [1.0, 0, 0]) if abs(a[0]) < 0.9 else np.cross(a, [0, 1.0, 0]))
+    return np.column_stack([e1, np.cross(a, e1)])
 
 
 def pipe_visibility(points: np.ndarray, truth: ScanTruth, k: int, bin_size: float = 0.02):
@@ -138,9 +148,17 @@ def score_scan(
         det = seg.pipes[d]
         score.axis_errors_deg.append(float(np.degrees(np.arccos(min(abs(a @ det.axis), 1.0)))))
         t0, t1 = vis[k][1]
-        ends = (det.p, det.q) if (det.q - det.p) @ a > 0 else (det.q, det.p)
-        for e, t in zip(ends, (t0, t1)):
-            score.endpoint_errors.append(float(np.linalg.norm(e - (p + t * a))))
+        forward = (det.q - det.p) @ a > 0
+        ends = (det.p, det.q) if forward else (det.q, det.p)
+        covs = (det.covariance[:3, :3], det.covariance[3:, 3:])
+        covs = covs if forward else covs[::-1]
+        B = _perpendicular_basis(a)
+        for e, t, C in zip(ends, (t0, t1), covs):
+            err = e - (p + t * a)
+            score.endpoint_errors.append(float(np.linalg.norm(err)))
+            perp = B.T @ err  # the offset from the true axis (the along-axis part is the extent's)
+            score.endpoint_perp_nees.append(float(perp @ np.linalg.solve(B.T @ C @ B, perp)))
+            score.endpoint_along_nees.append(float((err @ a) ** 2 / max(a @ C @ a, 1e-300)))
 
     # Objects: visible = hit by enough rays; exactly one segment within the gate.
     seg_pos = np.array([o.position for o in seg.objects]).reshape(-1, 3)
@@ -158,6 +176,8 @@ def score_scan(
             score.n_single_segment += 1
             o = seg.objects[int(np.flatnonzero(near)[0])]
             score.object_errors.append(float(d[near][0]))
+            err = o.position - pos
+            score.object_nees.append(float(err @ np.linalg.solve(o.covariance, err)))
             score.n_config_correct += int(o.configuration == config)
             if truth.object_visible_configuration is not None:
                 score.n_config_visible_known += 1
@@ -174,6 +194,10 @@ def summarize(scores: list[ScanScore]) -> dict:
 
     def med(x):
         return float(np.median(x)) if len(x) else None
+
+    def mean(lists):  # mean over the concatenated per-scan lists (dof for a consistent covariance)
+        x = [e for lst in lists for e in lst]
+        return float(np.mean(x)) if x else None
 
     structure = [s.structure_kept for s in scores if np.isfinite(s.structure_kept)]
     plane = [s.plane_removed for s in scores if np.isfinite(s.plane_removed)]
@@ -199,9 +223,14 @@ def summarize(scores: list[ScanScore]) -> dict:
         "endpoint_error_p90_m": float(np.percentile(ep, 90)) if ep else None,
         "axis_error_median_deg": med(ax),
         "axis_error_p90_deg": float(np.percentile(ax, 90)) if ax else None,
+        "endpoint_perp_nees_mean": mean(s.endpoint_perp_nees for s in scores),
+        "endpoint_perp_nees_median": med([e for s in scores for e in s.endpoint_perp_nees]),
+        "endpoint_along_nees_mean": mean(s.endpoint_along_nees for s in scores),
         "objects_single_segment": ratio(single, vis_obj),
         "object_error_median_m": med(oe),
         "object_within_5cm": ratio(sum(e <= 0.05 for e in oe), len(oe)),
+        "object_nees_mean": mean(s.object_nees for s in scores),
+        "object_nees_median": med([e for s in scores for e in s.object_nees]),
         "configuration_correct": ratio(sum(s.n_config_correct for s in scores), single),
         "configuration_visible_correct": ratio(
             sum(s.n_config_visible_correct for s in scores), sum(s.n_config_visible_known for s in scores)
