@@ -3,13 +3,16 @@
 import numpy as np
 
 from frontends.laser.config import LaserConfig
+from frontends.laser.grid import VoxelGrid, adjacency_of, offsets
 from frontends.laser.preprocess import (
+    hop_covariances,
     knn_search,
     local_geometry,
     preprocess,
     eigen3,
+    shape_of,
+    small_clusters,
     smallest_eigen,
-    statistical_inliers,
     voxel_downsample,
 )
 
@@ -40,14 +43,33 @@ def test_voxel_downsample_centroids_and_inverse():
     assert np.all(np.floor(pts / 0.25) == np.floor(cent[inv] / 0.25))
 
 
-def test_statistical_outliers_found():
+def test_grid_neighbours_match_brute_force():
+    rng = np.random.default_rng(2)
+    # a sparse cloud spanning several 8³-cell blocks, with negative coordinates
+    pts = rng.uniform(-0.7, 0.5, (4000, 3)) * [1.0, 1.0, 0.3]
+    g = VoxelGrid(pts, 0.05)
+    keys = {tuple(k): i for i, k in enumerate(np.floor(g.points / 0.05).astype(int))}
+    assert len(keys) == len(g)
+    cells = np.array(list(keys))
+    for h in (1, 2):
+        nb = g.neighbours(h)
+        assert nb.shape == (len(g), (2 * h + 1) ** 3) and np.all(nb[:, 0] == np.arange(len(g)))
+        for i in rng.choice(len(g), 50, replace=False):
+            expected = [keys.get(tuple(cells[i] + o), -1) for o in offsets(h)]
+            assert nb[i].tolist() == expected
+    cols = rng.integers(0, 125, (len(g), 4))
+    assert np.array_equal(g.neighbours(2, columns=cols), np.take_along_axis(g.neighbours(2), cols, axis=1))
+
+
+def test_small_clusters_are_stray_returns():
     rng = np.random.default_rng(2)
     plane = np.column_stack([rng.uniform(0, 1, (3000, 2)), np.zeros(3000)])
-    far = rng.uniform(3, 4, (10, 3))
-    _, d2 = knn_search(np.vstack([plane, far]), 21)
-    good = statistical_inliers(d2, 20, 3.0)
-    assert not good[-10:].any()
-    assert good[:3000].mean() > 0.99
+    stem = np.column_stack([np.full(40, 0.5), np.full(40, 0.5), np.linspace(0.02, 0.3, 40)])  # a thin part
+    far = rng.uniform(3, 4, (10, 3))  # isolated returns
+    g = VoxelGrid(np.vstack([plane, stem, far]), 0.03)
+    stray = small_clusters(adjacency_of(g.neighbours(1)), 4)
+    assert stray[g.inverse[-10:]].all()
+    assert not stray[g.inverse[:-10]].any()
 
 
 def test_normals_and_curvature_plane_vs_pipe():
@@ -66,6 +88,15 @@ def test_normals_and_curvature_plane_vs_pipe():
     assert np.median(k) > 0.025
     knn, _ = knn_search(pipe, 10)
     n, _ = local_geometry(pipe, knn)
+    # the same from the voxel grid: a 3-step neighbourhood (~50 voxels of a plane) and one step
+    g = VoxelGrid(plane, 0.03)
+    A = adjacency_of(g.neighbours(1))
+    ng, kg, _ = shape_of(hop_covariances(g.points, A, 3), g.points)
+    inner_plane = np.all(np.abs(g.points[:, :2]) < 0.85, axis=1)
+    assert np.median(ng[inner_plane, 2]) < -0.999 and np.percentile(kg[inner_plane], 95) < 0.025
+    g = VoxelGrid(pipe, 0.02)
+    _, kg, _ = shape_of(hop_covariances(g.points, adjacency_of(g.neighbours(1)), 3), g.points)
+    assert np.median(kg) > 0.025
     radial = pipe - np.column_stack([pipe[:, 0], np.zeros(len(pipe)), np.full(len(pipe), 2.0)])
     radial /= np.linalg.norm(radial, axis=1, keepdims=True)
     inner = np.abs(pipe[:, 0] - 0.5) < 0.45  # away from the cut ends
@@ -82,6 +113,6 @@ def test_preprocess_crops_and_maps_raw_points():
     mapped = pre.raw_to_voxel[:-2]
     ok = mapped >= 0
     interior = np.all(np.abs(near[:, :2]) < 0.9, axis=1)
-    assert ok[interior].mean() > 0.999  # the statistical filter only trims the border of the patch
+    assert ok.all()  # one connected patch: no stray returns
     assert np.all(np.linalg.norm(pre.points[mapped[ok]] - near[ok], axis=1) <= 0.05 * np.sqrt(3))
-    assert np.all(pre.knn[:, 0] == np.arange(len(pre.points)))
+    assert np.all(pre.neighbours[:, 0] == np.arange(len(pre.points)))

@@ -32,22 +32,23 @@ class PreprocessConfig(_Section):
         description="the structure (what plane removal keeps, a few % of a scan) is re-sampled from the raw "
         "points at this finer grid for pipes and objects: a 3 cm-radius pipe needs ~1 cm",
     )
-    structure_neighbors: int = Field(24, ge=4, description="neighbours per point of the structure cloud")
-    outlier_neighbors: int = Field(20, ge=2, description="statistical outlier removal: neighbours per point")
-    outlier_std_ratio: float = Field(
-        3.0, gt=0, description="... a point goes if its mean neighbour distance exceeds mean + ratio × std"
-    )
-    outlier_min_distance: float = Field(
-        0.12,
-        ge=0,
-        description="... and this (m): on a scan dominated by dense planes the std is tiny, and thin parts "
-        "(a valve stem, a handle rim) would otherwise go; stray returns are farther from everything",
+    outlier_min_voxels: int = Field(
+        4,
+        ge=1,
+        description="outlier removal: voxels of 26-connected clusters of fewer voxels than this are stray returns "
+        "(bubbles, particles); surfaces, even thin parts like a valve stem, are larger connected clusters",
     )
 
 
 class PlaneConfig(_Section):
-    neighbors: int = Field(50, ge=5, description="neighbourhood of the normal and curvature estimate (paper: 50)")
-    graph_neighbors: int = Field(12, ge=2, description="nearest neighbours linked in the region-growing graph")
+    normal_hops: int = Field(
+        3,
+        ge=1,
+        le=8,
+        description="neighbourhood of the normal and curvature estimate: the voxels reached in this many steps "
+        "through occupied 26-neighbours (weighted by their number of paths); at 3 cm, 3 steps cover ~50 voxels "
+        "of a plane, the paper's 50-point neighbourhood. The region-growing graph links 26-neighbours",
+    )
     max_normal_angle_deg: float = Field(30.0, gt=0, lt=90, description="region growing: max angle between normals")
     growth_curvature: float = Field(
         0.05,
@@ -84,13 +85,18 @@ class PlaneConfig(_Section):
 
 
 class PipeConfig(_Section):
-    normal_neighbors: int = Field(
-        10, ge=4, description="neighbourhood of the normals used by the cylinder fit (smaller than a pipe's half-circumference)"
+    normal_hops: int = Field(
+        2,
+        ge=1,
+        le=8,
+        description="neighbourhood of the normals used by the cylinder fit: the structure voxels within this many "
+        "26-neighbour steps (2: ±2 cm at 1 cm, weighted towards the centre; smaller than a pipe's half-circumference; "
+        "1 step is too noisy under 5 mm range noise)",
     )
     max_radius: float = Field(0.064, gt=0, description="largest pipe radius (paper)")
     min_radius: float = Field(0.015, gt=0, description="smallest pipe radius accepted")
     radius_prior: float | None = Field(
-        None, gt=0, description="known pipe radius; when given, hypotheses must be within radius_tolerance of it"
+        None, gt=0, description="known pipe radius; when given, fits use it and the fitting test is finer"
     )
     radius_tolerance: float = Field(
         0.004, gt=0, description="allowed deviation from radius_prior (sockets are ≥ 6 mm wider than their pipe)"
@@ -105,11 +111,13 @@ class PipeConfig(_Section):
     min_points: int = Field(40, ge=5, description="fewest inliers of a pipe segment")
     distance_tolerance: float = Field(0.012, gt=0, description="inlier: |distance to axis − radius| below this")
     normal_tolerance_deg: float = Field(30.0, gt=0, lt=90, description="inlier: normal within this of radial")
-    hypotheses: int = Field(150, ge=10, description="RANSAC hypotheses per extracted pipe, scored together")
+    hypotheses: int = Field(
+        40, ge=5, description="RANSAC hypotheses per extracted pipe (one per seed patch), scored together"
+    )
     score_sample: int = Field(1000, ge=100, description="points on which hypotheses are scored (then all points)")
     refine_rounds: int = Field(5, ge=1, description="at most this many fit → inliers rounds per hypothesis")
     max_pipes: int = Field(40, ge=1, description="most pipe segments extracted from one scan")
-    max_failures: int = Field(12, ge=1, description="RANSAC stops after this many rounds in a row without a pipe")
+    max_failures: int = Field(4, ge=1, description="RANSAC stops after this many rounds in a row without a pipe")
     max_gap: float = Field(
         0.25,
         gt=0,

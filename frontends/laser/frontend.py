@@ -18,7 +18,8 @@ from frontends.laser.config import LaserConfig
 from frontends.laser.objects import SegmentedObject, segment_objects
 from frontends.laser.pipes import Pipe, detect_pipes
 from frontends.laser.planes import PlaneResult, remove_planes
-from frontends.laser.preprocess import Preprocessed, knn_search, local_geometry, preprocess, voxel_downsample
+from frontends.laser.grid import VoxelGrid, adjacency_of
+from frontends.laser.preprocess import Preprocessed, hop_covariances, preprocess, shape_of
 from semslam.errors import ConfigError
 from semslam.mission.measurements import PointCloud
 from semslam.observations import Connectivity, LineObservation, Observation, PointObservation
@@ -63,49 +64,66 @@ class ScanSegmentation:
 def structure_cloud(raw: np.ndarray, pre: Preprocessed, planes: PlaneResult, cfg: LaserConfig):
     """The structure at fine resolution: raw points of the kept coarse voxels, re-voxelised.
 
-    Returns (points M×3, raw_to_structure (N,), neighbours M×k, normals M×3).
+    Returns (grid :class:`VoxelGrid` or None when empty, raw_to_structure (N,), normals M×3); the
+    grid's ``points`` (M×3) are the structure points.
     """
-    v = pre.raw_to_voxel
     raw_to_structure = np.full(len(raw), -1, np.int64)
     kept_voxel = np.append(planes.structure, False)  # v = −1 (cropped, outlier) → the False slot
-    keep = np.flatnonzero(kept_voxel[v])
-    k = max(cfg.preprocess.structure_neighbors, cfg.pipes.normal_neighbors)
-    if len(keep) <= k:
-        return np.zeros((0, 3)), raw_to_structure, np.zeros((0, k), np.int64), np.zeros((0, 3))
-    pts, inv = voxel_downsample(raw[keep], cfg.preprocess.structure_voxel_size)
-    raw_to_structure[keep] = inv
-    if len(pts) <= k:
-        return pts, raw_to_structure, np.zeros((len(pts), 0), np.int64), np.zeros((len(pts), 3))
-    knn, _ = knn_search(pts, k)
-    normals, _ = local_geometry(pts, knn[:, : cfg.pipes.normal_neighbors])
-    return pts, raw_to_structure, knn, normals
+    keep = np.flatnonzero(kept_voxel[pre.raw_to_voxel])
+    if len(keep) == 0:
+        return None, raw_to_structure, np.zeros((0, 3))
+    grid = VoxelGrid(raw[keep], cfg.preprocess.structure_voxel_size)
+    raw_to_structure[keep] = grid.inverse
+    A = adjacency_of(grid.neighbours(1))
+    normals, _, _ = shape_of(hop_covariances(grid.points, A, cfg.pipes.normal_hops), grid.points)
+    return grid, raw_to_structure, normals
+
+
+class _StageClock:
+    """Wall and process-CPU time of consecutive stages: ``timings[name]`` (wall, s) and
+    ``timings["cpu_" + name]`` (CPU of the whole process: both cores when a library threads; on a
+    shared machine the wall time also counts waiting for a core, the CPU time does not)."""
+
+    def __init__(self, timings: dict[str, float]):
+        self.timings = timings
+        self.w0 = self.w = time.perf_counter()
+        self.c0 = self.c = time.process_time()
+
+    def lap(self, name: str) -> None:
+        w, c = time.perf_counter(), time.process_time()
+        self.timings[name] = self.timings.get(name, 0.0) + w - self.w
+        self.timings["cpu_" + name] = self.timings.get("cpu_" + name, 0.0) + c - self.c
+        self.w, self.c = w, c
+
+    def total(self, name: str = "total") -> None:
+        self.timings[name] = time.perf_counter() - self.w0
+        self.timings["cpu_" + name] = time.process_time() - self.c0
 
 
 def segment_scan(points: np.ndarray, cfg: LaserConfig, up: np.ndarray | None = None) -> ScanSegmentation:
     """Run all stages on a raw scan (N×3, {S}). ``up`` is the unit up direction in {S}; when None the
     direction towards the sensor is used (the scanner looks down at the structure)."""
     tm: dict[str, float] = {}
+    clock = _StageClock(tm)
     raw = np.asarray(points, dtype=np.float64)
-    c0 = time.process_time()
-    t0 = time.perf_counter()
     pre = preprocess(raw, cfg.preprocess, cfg.planes)
-    t1 = time.perf_counter()
+    clock.lap("preprocess")
     planes = remove_planes(pre, cfg.planes, cfg.preprocess.voxel_size)
     structure = np.flatnonzero(planes.structure)
-    t1b = time.perf_counter()
-    spts, raw_to_s, knn, normals = structure_cloud(raw, pre, planes, cfg)
-    t2 = time.perf_counter()
+    clock.lap("planes")
+    grid, raw_to_s, normals = structure_cloud(raw, pre, planes, cfg)
+    spts = grid.points if grid is not None else np.zeros((0, 3))
+    clock.lap("structure")
     if up is None:
         up = -spts.mean(axis=0) if len(spts) else -UP_NED
         up = up / max(np.linalg.norm(up), 1e-12)
     pipes: list[Pipe] = []
-    if len(spts) >= cfg.pipes.min_points and knn.shape[1] > 1:
-        pipes = detect_pipes(spts, normals, knn, cfg.pipes)
-    t3 = time.perf_counter()
+    if len(spts) >= cfg.pipes.min_points:
+        pipes = detect_pipes(spts, normals, grid, cfg.pipes)
+    clock.lap("pipes")
     objects = segment_objects(spts, pipes, up, cfg.objects, cfg.pipes.range_sigma_per_m)
-    t4 = time.perf_counter()
-    tm.update(preprocess=t1 - t0, planes=t1b - t1, structure=t2 - t1b, pipes=t3 - t2, objects=t4 - t3, total=t4 - t0)
-    tm["cpu_total"] = time.process_time() - c0  # process CPU time (both cores when a library threads)
+    clock.lap("objects")
+    clock.total()
     return ScanSegmentation(pre, planes, structure, spts, raw_to_s, normals, pipes, objects, up, tm)
 
 

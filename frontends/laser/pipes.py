@@ -1,25 +1,33 @@
 """Pipe detection: sequential cylinder RANSAC with normals, then duplicate merge (all in {S}, metres).
 
-A hypothesis is drawn, as in PCL's ``SACMODEL_CYLINDER``, from two points with their normals: the
-axis is n1 × n2, the axis point and radius come from where the two normal lines meet. Hypotheses are
-drawn in a batch (pairs of neighbours, where both points are likely on one pipe) and scored together
-on a sample of the remaining points: a point is an inlier when its distance to the axis is within
-``distance_tolerance`` of the radius *and* its normal is within ``normal_tolerance_deg`` of radial
-(which is what keeps a pipe's cylinder off the flat faces of objects). The best hypothesis is
-refined (axis from the inlier normals, circle fit across it), its inliers split into runs along the
-axis where they have gaps or fittings, and every run at least ``min_detect_length`` long is a pipe
-segment whose endpoints are its extreme projections on the axis (``reported`` when at least
-``min_length`` long: shorter ones only serve the object segmentation and connectivity).
+A hypothesis comes from a seed point's neighbourhood (a 5×5×5-voxel patch): the axis is the
+direction its normals are orthogonal to, the radius the rate at which they turn across it
+(``patch_hypotheses``; PCL's ``SACMODEL_CYLINDER`` draws two points with their normals instead,
+``hypotheses``, of which only ~15 % give a usable radius on 1 cm voxels). Hypotheses are drawn
+in a batch and scored together on a sample of the remaining points: a point is an inlier when its
+distance to the axis is within ``distance_tolerance`` of the radius *and* its normal is within
+``normal_tolerance_deg`` of radial (which is what keeps a pipe's cylinder off the flat faces of
+objects). The best hypothesis is refined (axis from the inlier normals, circle fit across it; on
+the points near its axis only), its inliers split into runs along the axis where they have gaps
+or fittings, and every run at least ``min_detect_length`` long is a pipe segment whose endpoints
+are its extreme projections on the axis (``reported`` when at least ``min_length`` long: shorter
+ones only serve the object segmentation and connectivity).
 """
 
 from __future__ import annotations
 
-import warnings
 from dataclasses import dataclass
 
 import numpy as np
 
 from frontends.laser.config import PipeConfig
+from frontends.laser.preprocess import eigen3
+
+_REFINE_REACH = 0.05  # m beyond a pipe's surface over which a refinement looks for its inliers
+# A patch's normals must turn (mean sin² of their spread across the axis, a pipe of radius r over
+# ±2 cm: ~0.1; a flat face: noise) about one axis (off-axis spread well below that).
+_MIN_TURN = 0.02
+_MAX_OFF_AXIS = 0.5
 
 
 @dataclass
@@ -41,10 +49,6 @@ class Pipe:
     def reported(self, cfg: PipeConfig) -> bool:
         """Long enough to be an observation (shorter ones only serve segmentation and connectivity)."""
         return self.length >= cfg.min_length
-
-
-def _unit(v: np.ndarray) -> np.ndarray:
-    return v / np.linalg.norm(v, axis=-1, keepdims=True)
 
 
 def hypotheses(p1, n1, p2, n2, cfg: PipeConfig):
@@ -74,19 +78,93 @@ def hypotheses(p1, n1, p2, n2, cfg: PipeConfig):
     return c, a, r, ok
 
 
-def inlier_mask(points, normals, c, a, r, cfg: PipeConfig) -> np.ndarray:
+def patch_hypotheses(points, normals, grid, seeds, usable, cfg: PipeConfig):
+    """Cylinders (axis point c, unit axis a, radius r) from the neighbourhoods of ``seeds``: the
+    ``usable`` structure cells within two voxels (a 5×5×5 patch, ±2 cm). Returns c, a, r and the
+    mask of valid hypotheses.
+
+    A cylinder's normals all lie in the plane across its axis, so the axis is the direction the
+    patch's normals are most orthogonal to (smallest eigenvector of Σ n nᵀ); the radius is the rate
+    at which the normal turns across the axis (p = c + r·n ⇒ Δp⊥ = r·Δn⊥, least squares); the axis
+    lies behind the seed at that radius. A patch fits some cylinder where its normals turn (a flat
+    face's do not) about one axis (a ball's turn about all). One patch of ~15 normals gives a far
+    steadier axis and radius than the two normals of PCL's point pairs (``hypotheses``), of which
+    only ~15 % give a radius near the tank's at this resolution: fewer, better hypotheses.
+    """
+    nb = grid.neighbours(2, rows=seeds)
+    s_of, col = np.nonzero(np.append(usable, False)[nb])  # (seed, neighbour) pairs, by seed; −1 reads False
+    j = nb[s_of, col]
+    cnt = np.bincount(s_of, minlength=len(seeds))
+    N = normals[j]
+    M = _sums_by_seed(N[:, [0, 0, 0, 1, 1, 2]] * N[:, [0, 1, 2, 1, 2, 2]], cnt)
+    lam0, lam1, _, a = eigen3(M[:, [[0, 1, 2], [1, 3, 4], [2, 4, 5]]])
+    # Offsets from the seed across the axis, of positions and of normals.
+    aj = a[s_of]
+    dp = points[j] - points[seeds][s_of]
+    dn = N - normals[seeds][s_of]
+    dp -= np.einsum("pj,pj->p", dp, aj)[:, None] * aj
+    dn -= np.einsum("pj,pj->p", dn, aj)[:, None] * aj
+    sums = _sums_by_seed(np.column_stack([np.einsum("pj,pj->p", dp, dn), np.einsum("pj,pj->p", dn, dn)]), cnt)
+    r = sums[:, 0] / np.maximum(sums[:, 1], 1e-300)
+    ok = (cnt >= 6) & (lam1 >= _MIN_TURN * cnt) & (lam0 <= _MAX_OFF_AXIS * lam1)
+    ok &= (r >= cfg.min_radius) & (r <= cfg.max_radius)
+    if cfg.radius_prior is not None:
+        r = np.full(len(seeds), cfg.radius_prior)
+    ns = normals[seeds] - np.einsum("sj,sj->s", normals[seeds], a)[:, None] * a
+    ns /= np.maximum(np.linalg.norm(ns, axis=1), 1e-12)[:, None]
+    c = points[seeds] - r[:, None] * ns
+    return c, a, r, ok
+
+
+def _sums_by_seed(x: np.ndarray, counts: np.ndarray) -> np.ndarray:
+    """Sums of consecutive row groups of ``x`` (P×k, grouped by seed, ``counts`` rows each; a
+    group may be empty), by differences of a cumulative sum."""
+    c = np.vstack([np.zeros((1, x.shape[1])), np.cumsum(x, axis=0)])
+    end = np.cumsum(counts)
+    return c[end] - c[end - counts]
+
+
+def inlier_mask(points, normals, c, a, r, cfg: PipeConfig, sq=None, pn=None) -> np.ndarray:
     """Inliers of cylinders (c, a, r) given as H×3, H×3, H; points N×3 → H×N mask (H may be 1).
 
     Written with H×N matrix products only (no H×N×3 temporaries): with v = p − c,
     |v|² = |p|² − 2c·p + |c|², along = a·p − a·c, radial distance² = |v|² − along², and
-    radial·n = p·n − c·n − along (a·n).
+    radial·n = p·n − c·n − along (a·n). ``sq`` = |p|² and ``pn`` = p·n per point may be passed
+    when already known (they do not depend on the cylinder).
     """
+    sq = (points * points).sum(axis=1) if sq is None else sq
+    pn = (points * normals).sum(axis=1) if pn is None else pn
     along = a @ points.T - np.einsum("hj,hj->h", a, c)[:, None]
-    v2 = (points * points).sum(axis=1)[None, :] - 2.0 * (c @ points.T) + (c * c).sum(axis=1)[:, None]
+    v2 = sq[None, :] - 2.0 * (c @ points.T) + (c * c).sum(axis=1)[:, None]
     dist = np.sqrt(np.maximum(v2 - along * along, 1e-18))
-    rn = (points * normals).sum(axis=1)[None, :] - c @ normals.T - along * (a @ normals.T)
+    rn = pn[None, :] - c @ normals.T - along * (a @ normals.T)
     close = np.abs(dist - r[:, None]) <= cfg.distance_tolerance
     return close & (rn >= np.cos(np.radians(cfg.normal_tolerance_deg)) * dist)
+
+
+class _Points:
+    """Points with outward normals (a subset of the structure cloud, ``index`` into it), with the
+    cylinder-independent products of the inlier test computed once."""
+
+    def __init__(self, points, normals, index):
+        self.index = index
+        self.p = points[index]
+        self.n = normals[index]
+        self.sq = (self.p * self.p).sum(axis=1)
+        self.pn = (self.p * self.n).sum(axis=1)
+
+    def subset(self, mask) -> _Points:
+        sub = object.__new__(_Points)
+        sub.index, sub.p, sub.n, sub.sq, sub.pn = self.index[mask], self.p[mask], self.n[mask], self.sq[mask], self.pn[mask]
+        return sub
+
+    def test(self, c, a, r, cfg: PipeConfig, reach: float = 0.0):
+        """(inlier mask, mask of the points within ``r + reach`` of the axis) for one cylinder."""
+        along = self.p @ a - a @ c
+        dist = np.sqrt(np.maximum(self.sq - 2.0 * (self.p @ c) + c @ c - along * along, 1e-18))
+        rn = self.pn - self.n @ c - along * (self.n @ a)
+        inl = (np.abs(dist - r) <= cfg.distance_tolerance) & (rn >= np.cos(np.radians(cfg.normal_tolerance_deg)) * dist)
+        return inl, dist <= r + reach
 
 
 def fit_cylinder(points: np.ndarray, normals: np.ndarray, a0: np.ndarray, cfg: PipeConfig):
@@ -98,48 +176,69 @@ def fit_cylinder(points: np.ndarray, normals: np.ndarray, a0: np.ndarray, cfg: P
     # Axis: along a long segment the points' principal direction is the axis (the visible
     # half-shell is the same all along it) and it is far better conditioned than the normals; on a
     # short, stubby set the normals decide (all normals of a cylinder are orthogonal to its axis).
-    pv, pvecs = np.linalg.eigh(np.cov(points.T))
-    if pv[2] > 9.0 * max(pv[1], 1e-12):
+    # (3×3 scatter matrices by direct products: np.cov's overhead dominates on a few hundred points.)
+    o = points.mean(axis=0)
+    d = points - o
+    pv, pvecs = np.linalg.eigh(d.T @ d)
+    if pv[2] > 9.0 * max(pv[1], 1e-12 * len(points)):
         a = pvecs[:, 2]
     else:
         _, vecs = np.linalg.eigh(normals.T @ normals)
         a = vecs[:, 0]
     a = a if a @ a0 >= 0 else -a
-    e1 = _unit(np.cross(a, [1.0, 0, 0]) if abs(a[0]) < 0.9 else np.cross(a, [0, 1.0, 0]))
-    e2 = np.cross(a, e1)
-    o = points.mean(axis=0)
-    x = np.column_stack([(points - o) @ e1, (points - o) @ e2])
+    E = _across(a)
+    x = d @ E
     if cfg.radius_prior is not None:
-        nx = _unit(np.column_stack([normals @ e1, normals @ e2]))
+        nx = normals @ E
+        nx /= np.linalg.norm(nx, axis=1, keepdims=True)
         r = cfg.radius_prior
         cx = (x - r * nx).mean(axis=0)
     else:
-        A = np.column_stack([2 * x, np.ones(len(x))])
-        sol, *_ = np.linalg.lstsq(A, (x**2).sum(axis=1), rcond=None)
-        cx = sol[:2]
-        r = float(np.sqrt(max(sol[2] + cx @ cx, 1e-12)))
-        # Geometric refinement (residual |x − c| − r) with trimming: a visible arc of a few voxels
-        # is easily pulled by the handful of object points where the pipe enters an object.
-        use = np.ones(len(x), bool)
-        for it in range(6):
-            dv = x[use] - cx
-            dn = np.maximum(np.sqrt((dv * dv).sum(axis=1)), 1e-12)
-            J = np.empty((len(dv), 3))
-            J[:, :2] = -dv / dn[:, None]
-            J[:, 2] = -1.0
-            try:
-                step = np.linalg.solve(J.T @ J, -(J.T @ (dn - r)))  # Gauss–Newton normal equations
-            except np.linalg.LinAlgError:
-                break
-            cx, r = cx + step[:2], r + step[2]
-            if it in (2, 4):
-                res = np.linalg.norm(x - cx, axis=1) - r
-                sigma = 1.4826 * np.median(np.abs(res[use]))
-                keep = np.abs(res) <= max(3.0 * sigma, 0.003)
-                if keep.sum() >= 6:
-                    use = keep
-    c = o + cx[0] * e1 + cx[1] * e2
+        cx, r = _circle_fit(x)
+    c = o + E @ cx
     return c, a, float(r)
+
+
+def _across(a: np.ndarray) -> np.ndarray:
+    """3×2 orthonormal basis of the plane orthogonal to the unit vector ``a`` (cross products
+    written out: ``np.cross`` costs more than the rest of a small fit)."""
+    ax, ay, az = a
+    if abs(ax) < 0.9:  # e1 = a × x̂
+        e1 = np.array([0.0, az, -ay])
+    else:  # e1 = a × ŷ
+        e1 = np.array([-az, 0.0, ax])
+    e1 /= np.sqrt(e1 @ e1)
+    e2 = np.array([ay * e1[2] - az * e1[1], az * e1[0] - ax * e1[2], ax * e1[1] - ay * e1[0]])
+    return np.column_stack([e1, e2])
+
+
+def _circle_fit(x: np.ndarray) -> tuple[np.ndarray, float]:
+    """Centre and radius of a circle through 2-D points: algebraic fit, then Gauss–Newton on the
+    geometric distance with trimming (a visible arc of a few voxels is easily pulled by the
+    handful of object points where the pipe enters an object)."""
+    A = np.column_stack([2 * x, np.ones(len(x))])
+    sol, *_ = np.linalg.lstsq(A, (x**2).sum(axis=1), rcond=None)
+    cx = sol[:2]
+    r = float(np.sqrt(max(sol[2] + cx @ cx, 1e-12)))
+    use = np.ones(len(x), bool)
+    for it in range(6):
+        dv = x[use] - cx
+        dn = np.maximum(np.sqrt((dv * dv).sum(axis=1)), 1e-12)
+        J = np.empty((len(dv), 3))
+        J[:, :2] = -dv / dn[:, None]
+        J[:, 2] = -1.0
+        try:
+            step = np.linalg.solve(J.T @ J, -(J.T @ (dn - r)))  # Gauss–Newton normal equations
+        except np.linalg.LinAlgError:
+            break
+        cx, r = cx + step[:2], r + step[2]
+        if it in (2, 4):
+            res = np.linalg.norm(x - cx, axis=1) - r
+            sigma = 1.4826 * np.median(np.abs(res[use]))
+            keep = np.abs(res) <= max(3.0 * sigma, 0.003)
+            if keep.sum() >= 6:
+                use = keep
+    return cx, r
 
 
 def _runs(t: np.ndarray, max_gap: float) -> list[np.ndarray]:
@@ -147,6 +246,17 @@ def _runs(t: np.ndarray, max_gap: float) -> list[np.ndarray]:
     order = np.argsort(t)
     cuts = np.flatnonzero(np.diff(t[order]) > max_gap) + 1
     return np.split(order, cuts)
+
+
+def _nanmedian_rows(a: np.ndarray) -> np.ndarray:
+    """``np.nanmedian(a, axis=1)`` (NaN for an all-NaN row) by one sort: NaNs sort last, so each
+    row's median is the middle of its first ``count`` elements (np.nanmedian loops in Python
+    over small arrays)."""
+    s = np.sort(a, axis=1)
+    n = (~np.isnan(a)).sum(axis=1)
+    rows = np.arange(len(a))
+    med = 0.5 * (s[rows, np.maximum((n - 1) // 2, 0)] + s[rows, np.maximum(n // 2, 0)])
+    return np.where(n > 0, med, np.nan)
 
 
 def split_at_fittings(
@@ -183,10 +293,7 @@ def split_at_fittings(
     # axis): the median of the bin medians over ±bump_window, longer than any socket.
     w = int(np.ceil(cfg.bump_window / cfg.bump_bin))
     padded = np.pad(med, w, constant_values=np.nan)
-    windows = np.lib.stride_tricks.sliding_window_view(padded, 2 * w + 1)
-    with warnings.catch_warnings():  # empty bins (occlusion) are NaN; an all-NaN window gives NaN
-        warnings.simplefilter("ignore", RuntimeWarning)
-        level = np.nanmedian(windows, axis=1)
+    level = _nanmedian_rows(np.lib.stride_tricks.sliding_window_view(padded, 2 * w + 1))
     height = cfg.bump_height if cfg.radius_prior is None else cfg.bump_height_known_radius
     bad = set(np.flatnonzero((med - level > height) & (cnt >= 3)).tolist())
     if len(t_foreign):
@@ -244,26 +351,66 @@ def _make_pipe(points, normals, idx, a0, cfg: PipeConfig) -> Pipe:
     return Pipe(p, q, a, r, idx, endpoint_covariance(p, q, a, len(idx), rng, cfg))
 
 
-def _refine(points, normals, cand, c, a, r, cfg: PipeConfig):
-    """Refit a hypothesis to its inliers among ``cand`` until they stop changing (at most
-    ``refine_rounds``); None if the fit leaves the radius range."""
-    idx = cand[inlier_mask(points[cand], normals[cand], c[None], a[None], np.array([r]), cfg)[0]]
-    for _ in range(cfg.refine_rounds):
-        prev = len(idx)
-        if len(idx) < cfg.min_points:
-            return None
-        c, a, r = fit_cylinder(points[idx], normals[idx], a, cfg)
-        if not (cfg.min_radius <= r <= cfg.max_radius):
-            return None
-        idx = cand[inlier_mask(points[cand], normals[cand], c[None], a[None], np.array([r]), cfg)[0]]
-        if abs(len(idx) - prev) <= 2:
-            break
-    return c, a, r, idx
+def _refine(free: _Points, c, a, r, cfg: PipeConfig):
+    """Refit a hypothesis to its inliers among the ``free`` points until they stop changing (at
+    most ``refine_rounds``); None if the fit leaves the radius range. Returns (c, a, r, indices).
+
+    The rounds run on the points near the axis only (a pipe's inliers are within its radius plus
+    the tolerance; ``_REFINE_REACH`` more allows the axis to move): a few hundred points instead of
+    the whole structure. The final inliers are then tested on all free points, and if the axis
+    moved far enough to gain more than two, the rounds go on from there.
+    """
+    reach = cfg.distance_tolerance + _REFINE_REACH
+    inl, near = free.test(c, a, r, cfg, reach)
+    rounds = 0
+    while True:
+        local = free.subset(near)
+        idx = np.flatnonzero(inl[near])
+        while rounds < cfg.refine_rounds:
+            rounds += 1
+            prev = len(idx)
+            if len(idx) < cfg.min_points:
+                return None
+            c, a, r = fit_cylinder(local.p[idx], local.n[idx], a, cfg)
+            if not (cfg.min_radius <= r <= cfg.max_radius):
+                return None
+            idx = np.flatnonzero(local.test(c, a, r, cfg)[0])
+            if abs(len(idx) - prev) <= 2:
+                break
+        inl, near = free.test(c, a, r, cfg, reach)
+        if inl.sum() - len(idx) <= 2 or rounds >= cfg.refine_rounds:
+            return c, a, r, free.index[inl]
 
 
-def detect_pipes(points: np.ndarray, normals: np.ndarray, neighbors: np.ndarray, cfg: PipeConfig) -> list[Pipe]:
-    """Pipes among ``points`` (N×3, {S}) with outward ``normals``; ``neighbors`` (N×k) index lists
-    used to draw point pairs (−1 = none). Returns merged pipe segments.
+def _cut_into_segments(points, normals, sq, cb, ab, rb, idx, cfg: PipeConfig) -> list[Pipe]:
+    """The pipe segments of a refined cylinder's inliers ``idx``: cut at fittings (foreign points
+    just outside its surface, wider sockets), keep the runs long enough."""
+    t = points[idx] @ ab
+    if len(idx) < cfg.min_points or t.max() - t.min() < cfg.min_detect_length:
+        return []  # no run of these inliers can be a segment
+    pc = points @ cb
+    t_all = points @ ab - ab @ cb
+    res_all = np.sqrt(np.maximum(sq - 2.0 * pc + cb @ cb - t_all * t_all, 0.0)) - rb
+    t, residual = t_all[idx], res_all[idx]
+    span = (t_all > t.min() - cfg.max_gap) & (t_all < t.max() + cfg.max_gap)
+    outside = (res_all > cfg.distance_tolerance) & span
+    near = outside & (res_all < cfg.fitting_reach)
+    around = outside & (res_all < cfg.gap_reach)
+    out = []
+    for run in split_at_fittings(t, residual, t_all[near], cfg, t_all[around]):
+        seg = idx[run]
+        if len(seg) < cfg.min_points:
+            continue
+        pipe = _make_pipe(points, normals, seg, ab, cfg)
+        if pipe.length >= cfg.min_detect_length and cfg.min_radius <= pipe.radius <= cfg.max_radius:
+            out.append(pipe)
+    return out
+
+
+def detect_pipes(points: np.ndarray, normals: np.ndarray, grid, cfg: PipeConfig) -> list[Pipe]:
+    """Pipes among ``points`` (N×3, {S}) with outward ``normals``; ``grid`` the
+    :class:`~frontends.laser.grid.VoxelGrid` whose cells they are, to draw point pairs. Returns
+    merged pipe segments.
 
     Two masks: ``free`` points may still be inliers; ``seedable`` points may still seed hypotheses.
     A model that yields a pipe consumes its inliers; one that does not (an object's curved part, a
@@ -273,35 +420,41 @@ def detect_pipes(points: np.ndarray, normals: np.ndarray, neighbors: np.ndarray,
     rng = np.random.default_rng(cfg.seed)
     free = np.ones(n, bool)
     seedable = np.ones(n, bool)
+    sq = (points * points).sum(axis=1)
     pipes: list[Pipe] = []
     failures = 0
+    cand = None  # the free points, rebuilt when a pipe takes some
     for _ in range(3 * cfg.max_pipes):
         if len(pipes) >= cfg.max_pipes or failures >= cfg.max_failures:
             break
         seeds = np.flatnonzero(seedable & free)
-        cand = np.flatnonzero(free)
         if len(seeds) < cfg.min_points:
             break
+        if cand is None:
+            cand = _Points(points, normals, np.flatnonzero(free))
         i = rng.choice(seeds, cfg.hypotheses)
-        j = neighbors[i, rng.integers(neighbors.shape[1] // 3, neighbors.shape[1], cfg.hypotheses)]
-        good = j >= 0
-        good[good] &= free[j[good]]
-        i, j = i[good], j[good]
-        c, a, r, ok = hypotheses(points[i], normals[i], points[j], normals[j], cfg)
+        c, a, r, ok = patch_hypotheses(points, normals, grid, i, free, cfg)
         if not ok.any():
             seedable[i] = False  # these seeds give no cylinder at all (flat or ragged surface)
             failures += 1
             continue
         i, c, a, r = i[ok], c[ok], a[ok], r[ok]
-        sample = cand if len(cand) <= cfg.score_sample else rng.choice(cand, cfg.score_sample, replace=False)
-        in_sample = inlier_mask(points[sample], normals[sample], c, a, r, cfg)
+        m = len(cand.index)
+        pick = slice(None) if m <= cfg.score_sample else rng.choice(m, cfg.score_sample, replace=False)
+        sample = cand.index[pick]
+        in_sample = inlier_mask(cand.p[pick], cand.n[pick], c, a, r, cfg, cand.sq[pick], cand.pn[pick])
         scores = in_sample.sum(axis=1)
+        # A seed whose cylinder the data do not support (fewer than min_points inliers expected)
+        # seeds no more: the pool shrinks to the points still worth trying, and the search ends
+        # when it is empty rather than after max_failures wasted rounds.
+        supported = scores * m / len(sample) >= cfg.min_points
+        seedable[i[~supported]] = False
         # Refine the best hypothesis; if its fit leaves the radius range, the next best (up to 3).
         refined = None
         tried = np.argsort(scores)[::-1][:3]
-        if scores[tried[0]] * len(cand) / len(sample) >= cfg.min_points:
+        if supported[tried[0]]:
             for h in tried:
-                refined = _refine(points, normals, cand, c[h], a[h], r[h], cfg)
+                refined = _refine(cand, c[h], a[h], r[h], cfg)
                 if refined is not None:
                     break
         if refined is None:
@@ -311,23 +464,11 @@ def detect_pipes(points: np.ndarray, normals: np.ndarray, neighbors: np.ndarray,
             failures += 1
             continue
         cb, ab, rb, idx = refined
-        found = False
-        v = points - cb
-        t_all = v @ ab
-        res_all = np.linalg.norm(v - np.outer(t_all, ab), axis=1) - rb
-        t, residual = t_all[idx], res_all[idx]
-        span = (t_all > t.min() - cfg.max_gap) & (t_all < t.max() + cfg.max_gap)
-        near = (res_all > cfg.distance_tolerance) & (res_all < cfg.fitting_reach) & span
-        around = (res_all > cfg.distance_tolerance) & (res_all < cfg.gap_reach) & span
-        for run in split_at_fittings(t, residual, t_all[near], cfg, t_all[around]):
-            seg = idx[run]
-            if len(seg) < cfg.min_points:
-                continue
-            pipe = _make_pipe(points, normals, seg, ab, cfg)
-            if pipe.length >= cfg.min_detect_length and cfg.min_radius <= pipe.radius <= cfg.max_radius:
-                pipes.append(pipe)
-                free[seg] = False
-                found = True
+        found = _cut_into_segments(points, normals, sq, cb, ab, rb, idx, cfg)
+        for pipe in found:
+            free[pipe.inliers] = False
+            cand = None
+        pipes += found
         seedable[idx] = False
         failures = 0 if found else failures + 1
     return merge_duplicates(pipes, points, normals, cfg)
@@ -336,29 +477,32 @@ def detect_pipes(points: np.ndarray, normals: np.ndarray, neighbors: np.ndarray,
 def merge_duplicates(pipes: list[Pipe], points, normals, cfg: PipeConfig) -> list[Pipe]:
     """Merge segments of one pipe found twice: near-parallel, coaxial, overlapping or nearly touching."""
     pipes = list(pipes)
-    cos_max = np.cos(np.radians(cfg.merge_angle_deg))
-    merged = True
-    while merged and len(pipes) > 1:
-        merged = False
-        for x in range(len(pipes)):
-            for y in range(x + 1, len(pipes)):
-                A, B = pipes[x], pipes[y]
-                if abs(A.axis @ B.axis) < cos_max:
-                    continue
-                mid_b = 0.5 * (B.p + B.q)
-                off = mid_b - A.p
-                lateral = np.linalg.norm(off - (off @ A.axis) * A.axis)
-                if lateral > cfg.merge_distance:
-                    continue
-                tb = sorted([(B.p - A.p) @ A.axis, (B.q - A.p) @ A.axis])
-                gap = max(tb[0] - A.length, -tb[1], 0.0)
-                if gap > cfg.merge_gap:
-                    continue
-                seg = np.union1d(A.inliers, B.inliers)
-                pipes[x] = _make_pipe(points, normals, seg, A.axis, cfg)
-                del pipes[y]
-                merged = True
-                break
-            if merged:
-                break
+    while len(pipes) > 1:
+        pair = _first_duplicate(pipes, cfg)
+        if pair is None:
+            break
+        x, y = pair
+        seg = np.union1d(pipes[x].inliers, pipes[y].inliers)
+        pipes[x] = _make_pipe(points, normals, seg, pipes[x].axis, cfg)
+        del pipes[y]
     return pipes
+
+
+def _first_duplicate(pipes: list[Pipe], cfg: PipeConfig) -> tuple[int, int] | None:
+    """The first pair x < y (row-major) of duplicates, all pairs tested at once: B's axis within
+    ``merge_angle_deg`` of A's, B's middle within ``merge_distance`` of A's axis, and B's interval
+    on A's axis overlapping A's or less than ``merge_gap`` away."""
+    A = np.array([p.axis for p in pipes])
+    P = np.array([p.p for p in pipes])
+    Q = np.array([p.q for p in pipes])
+    L = np.array([p.length for p in pipes])
+    parallel = np.abs(A @ A.T) >= np.cos(np.radians(cfg.merge_angle_deg))
+    off = 0.5 * (P + Q)[None, :, :] - P[:, None, :]  # [x, y]: B's middle from A's start
+    along = np.einsum("xyk,xk->xy", off, A)
+    lateral = np.linalg.norm(off - along[:, :, None] * A[:, None, :], axis=2)
+    tp = np.einsum("xyk,xk->xy", P[None, :, :] - P[:, None, :], A)
+    tq = np.einsum("xyk,xk->xy", Q[None, :, :] - P[:, None, :], A)
+    gap = np.maximum(np.maximum(np.minimum(tp, tq) - L[:, None], -np.maximum(tp, tq)), 0.0)
+    dup = np.triu(parallel & (lateral <= cfg.merge_distance) & (gap <= cfg.merge_gap), 1)
+    hits = np.argwhere(dup)
+    return (int(hits[0, 0]), int(hits[0, 1])) if len(hits) else None

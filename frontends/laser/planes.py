@@ -6,7 +6,7 @@ propagate a region, so growth starts from the least-curved points and stops at e
 Smooth must also mean surface-like (planarity λ1/λ2 ≥ ``min_planarity``): along a pipe thinner than
 the neighbourhood, the neighbourhood is a flat ribbon facing the sensor, and a lattice of such
 ribbons in one vertical plane would otherwise make a "wall".
-It is computed at once: the k-NN graph keeps the edges that pass both tests and
+It is computed at once: the graph of 26-neighbouring voxels keeps the edges that pass both tests and
 ``scipy.sparse.csgraph.connected_components`` labels the regions (no loop over points).
 
 Each region is then flat or structure by its mean curvature (threshold 0.025). Flat alone is not
@@ -51,13 +51,16 @@ class PlaneResult:
 def grow_regions(pre: Preprocessed, cfg: PlaneConfig) -> np.ndarray:
     """Region label of every point (connected components of the smooth, normal-consistent graph)."""
     m = len(pre.points)
-    g = min(cfg.graph_neighbors, pre.knn.shape[1] - 1)
-    i = np.repeat(np.arange(m), g)
-    j = pre.knn[:, 1 : g + 1].ravel()
+    nb = pre.neighbours[:, 1:]  # the 26-neighbours (−1: empty cell)
+    i = np.repeat(np.arange(m), nb.shape[1])
+    j = nb.ravel()
+    i, j = i[j >= 0], j[j >= 0]
     n, kappa = pre.normals, pre.curvature
     cos_min = np.cos(np.radians(cfg.max_normal_angle_deg))
     smooth = (kappa < cfg.growth_curvature) & (pre.planarity >= cfg.min_planarity)
-    ok = (np.einsum("ij,ij->i", n[i], n[j]) >= cos_min) & smooth[i] & smooth[j]
+    ok = smooth[i] & smooth[j]
+    i, j = i[ok], j[ok]
+    ok = np.einsum("ij,ij->i", n[i], n[j]) >= cos_min
     graph = coo_matrix((np.ones(ok.sum(), np.int8), (i[ok], j[ok])), shape=(m, m))
     _, labels = connected_components(graph, directed=False)
     return labels
@@ -153,16 +156,17 @@ def _keep_on_plane(points, plane_of, planes, max_offset: float):
 
 def _join_border(pre: Preprocessed, plane_of: np.ndarray, planes, cfg: PlaneConfig) -> np.ndarray:
     """Grow the tank planes, a hop at a time, over adjacent points that lie on them."""
-    g = min(cfg.graph_neighbors, pre.knn.shape[1] - 1)
-    nbr = pre.knn[:, 1 : g + 1]
+    nbr = pre.neighbours[:, 1:]
     P = np.array([p[0] for p in planes])
     D = np.array([p[1] for p in planes])
-    plane_of = plane_of.copy()
+    plane_of = np.append(plane_of, -1)  # the slot of an empty neighbour (index −1)
     for _ in range(cfg.border_hops):
-        free = np.flatnonzero(plane_of < 0)
+        free = np.flatnonzero(plane_of[:-1] < 0)
         if len(free) == 0:
             break
-        nb_plane = plane_of[nbr[free]]  # free × g
+        nb_plane = plane_of[nbr[free]]  # free × 26
+        touching = (nb_plane >= 0).any(axis=1)
+        free, nb_plane = free[touching], nb_plane[touching]  # only points next to a plane may join
         adjacent = (nb_plane[:, :, None] == np.arange(len(P))).any(axis=1)  # free × planes
         dist = np.abs(pre.points[free] @ P.T - D)
         dist = np.where(adjacent, dist, np.inf)  # at a corner, either adjacent plane may take it
@@ -171,4 +175,4 @@ def _join_border(pre: Preprocessed, plane_of: np.ndarray, planes, cfg: PlaneConf
         if not join.any():
             break
         plane_of[free[join]] = best[join]
-    return plane_of
+    return plane_of[:-1]
