@@ -37,14 +37,42 @@ def size_distances(query: np.ndarray, database: np.ndarray) -> np.ndarray:
     return out[0] if np.ndim(query) == 1 else out
 
 
+class Chi2Index:
+    """A database of histograms (V×D rows, non-negative) laid out for chi-square queries.
+
+    Where the query's bin is empty, (a − b)²/(a + b) is just the view's b; so a query costs one
+    pass over its own non-empty bins only (a few hundred of ESF's 640, read as contiguous rows of
+    the transposed database) plus the rest of each view's mass (its total minus those bins),
+    instead of a V×D pass with a division per element. The totals are summed in the same order as
+    the query's bins, so that a histogram's distance to itself is exactly 0.
+    """
+
+    def __init__(self, database: np.ndarray):
+        x = np.asarray(database, dtype=np.float64)
+        self.bins_by_view = np.ascontiguousarray(x.T)  # D×V
+        self.row_sums = self.bins_by_view.sum(axis=0)
+
+    def __len__(self) -> int:
+        return len(self.row_sums)
+
+    def distances(self, query: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
+        """Chi-square distances (Q×V, or V for one query) from the query rows to every database
+        row, or to the rows ``rows`` only."""
+        q = np.atleast_2d(np.asarray(query, dtype=np.float64))
+        sums = self.row_sums if rows is None else self.row_sums[rows]
+        out = np.empty((len(q), len(sums)))
+        for k, qk in enumerate(q):  # one query (object) at a time: its own non-empty bins
+            nz = np.flatnonzero(qk > 0)
+            xs = self.bins_by_view[nz] if rows is None else self.bins_by_view[np.ix_(nz, rows)]
+            qs = qk[nz][:, None]
+            out[k] = 0.5 * (((qs - xs) ** 2 / (qs + xs)).sum(axis=0) + (sums - xs.sum(axis=0)))
+        return out[0] if np.ndim(query) == 1 else out
+
+
 def chi2_distances(query: np.ndarray, database: np.ndarray) -> np.ndarray:
-    """Chi-square distances (Q×V, or V for one query) between query rows and database rows."""
-    q = np.atleast_2d(np.asarray(query, dtype=np.float64))
-    x = np.asarray(database, dtype=np.float64)
-    s = q[:, None, :] + x[None, :, :]
-    d = (q[:, None, :] - x[None, :, :]) ** 2
-    out = 0.5 * np.sum(np.divide(d, s, out=np.zeros_like(d), where=s > 0), axis=2)
-    return out[0] if np.ndim(query) == 1 else out
+    """Chi-square distances (Q×V, or V for one query) between query rows and database rows:
+    ½ Σ (a − b)² / (a + b) over the bins where a + b > 0 (see :class:`Chi2Index`)."""
+    return Chi2Index(database).distances(query)
 
 
 def set_distances(query: np.ndarray, database: Sequence[np.ndarray]) -> np.ndarray:
@@ -62,12 +90,13 @@ class ChiSquareNN:
 
     def fit(self, X: np.ndarray, y: Sequence[str]) -> ChiSquareNN:
         self.X_ = np.asarray(X, dtype=np.float64)
+        self.index_ = Chi2Index(self.X_)
         self.y_ = np.asarray(y)
         self.classes_ = np.unique(self.y_)
         return self
 
     def kneighbors(self, Q: np.ndarray, k: int = 1) -> tuple[np.ndarray, np.ndarray]:
-        d = chi2_distances(np.atleast_2d(Q), self.X_)
+        d = self.index_.distances(np.atleast_2d(Q))
         idx = np.argsort(d, axis=1)[:, :k]
         return np.take_along_axis(d, idx, axis=1), idx
 
@@ -77,7 +106,7 @@ class ChiSquareNN:
 
     def class_distances(self, q: np.ndarray) -> dict[str, float]:
         """Distance from one query to the nearest view of every class."""
-        d = chi2_distances(q, self.X_)
+        d = self.index_.distances(q)
         return {str(c): float(d[self.y_ == c].min()) for c in self.classes_}
 
 

@@ -22,6 +22,7 @@ import numpy as np
 from frontends.laser.recognition.cvfh import cvfh
 from frontends.laser.recognition.esf import esf
 from frontends.laser.recognition.matching import (
+    Chi2Index,
     chi2_distances,
     make_svm,
     principal_extents,
@@ -106,6 +107,7 @@ class Recognizer:
         default_accuracy: float = 0.8,
         apply_connectivity: bool = False,
         size_weight: float = 0.2,
+        esf_samples: int = 20000,
         seed: int = 0,
     ):
         if descriptor not in DESCRIPTORS:
@@ -118,11 +120,13 @@ class Recognizer:
         self.descriptor = descriptor
         self.method = method
         self.seed = seed
+        self.esf_samples = int(esf_samples)
         self.classes = database.classes
         self.apply_connectivity = apply_connectivity
         self.size_weight = float(size_weight)
         self._labels = database.labels
         self._features = database.features(descriptor)
+        self._index = Chi2Index(self._features) if descriptor != "cvfh" else None
         self._extents = database.features("extent")
         if method == "svm":
             ext = self._extents if self.size_weight > 0 else None
@@ -152,7 +156,7 @@ class Recognizer:
     def describe(self, cloud: np.ndarray) -> np.ndarray:
         """The configured descriptor of a segment in its sensor frame (viewpoint at the origin)."""
         if self.descriptor == "esf":
-            return esf(cloud, seed=self.seed)
+            return esf(cloud, n_samples=self.esf_samples, seed=self.seed)
         if self.descriptor == "vfh":
             return vfh(cloud)
         return cvfh(cloud)
@@ -163,8 +167,11 @@ class Recognizer:
         if pts.ndim != 2 or pts.shape[1] != 3 or len(pts) < 10:
             raise ValueError(f"a segment needs at least 10 points (N×3), got shape {pts.shape}")
         q = self.describe(pts)
-        d = set_distances(q, self._features) if self.descriptor == "cvfh" else chi2_distances(q, self._features)
         ext = principal_extents(pts)
+        if self.method == "nn" and self._index is not None and self.size_weight > 0:
+            view, dist = self._nearest_view(q, self.size_weight * size_distances(ext, self._extents))
+            return Recognition(str(self._labels[view]), view, dist)
+        d = set_distances(q, self._features) if self.descriptor == "cvfh" else self._index.distances(q)
         if self.size_weight > 0:
             d = d + self.size_weight * size_distances(ext, self._extents)
         view = int(np.argmin(d))
@@ -174,6 +181,24 @@ class Recognizer:
         in_cls = np.flatnonzero(self._labels == cls)
         view = int(in_cls[np.argmin(d[in_cls])])
         return Recognition(cls, view, float(d[view]))
+
+    def _nearest_view(self, q: np.ndarray, size_d: np.ndarray, head: int = 48) -> tuple[int, float]:
+        """The view minimising chi²(q, view) + ``size_d`` (its size term), exactly, computing chi²
+        only where it can win: first for the ``head`` views nearest in size, then for the views
+        whose size term alone is below the best total so far (chi² ≥ 0 bounds the others out)."""
+        order = np.argsort(size_d)
+        rows = order[:head]
+        d = self._index.distances(q, rows) + size_d[rows]
+        best = int(np.argmin(d))
+        view, dist = int(rows[best]), float(d[best])
+        rest = order[head:]
+        rest = rest[size_d[rest] < dist]
+        if len(rest):
+            d = self._index.distances(q, rest) + size_d[rest]
+            best = int(np.argmin(d))
+            if d[best] < dist:
+                view, dist = int(rest[best]), float(d[best])
+        return view, dist
 
     def classify(self, cloud: np.ndarray, connectivity=None) -> dict[str, float]:
         """P(Z | X): the likelihood of this segment's recognition under every class X.
@@ -238,6 +263,7 @@ def default_recognizer(
     descriptor: str = "esf",
     method: str = "nn",
     size_weight: float = 0.2,
+    esf_samples: int = 20000,
     params: ViewParams = ViewParams(),
     held_out: HeldOutParams = HeldOutParams(),
     cache_dir: str | Path | None = None,
@@ -254,11 +280,12 @@ def default_recognizer(
         mesh = _read_mesh(Path(entry["path"]), entry.get("scale", 1.0))
         models[name] = (entry["cls"], mesh, [(np.asarray(p), np.asarray(d)) for p, d in entry.get("ports", [])])
     db = load_database(models, params, cache_dir=cache_dir, include_user_models=False, progress=progress)
-    rec = Recognizer(db, descriptor=descriptor, method=method, size_weight=size_weight)
+    rec = Recognizer(db, descriptor=descriptor, method=method, size_weight=size_weight, esf_samples=esf_samples)
 
-    key = hashlib.sha256(
-        json.dumps([sorted(m.key for m in db.models), descriptor, method, size_weight, repr(held_out)]).encode()
-    ).hexdigest()[:16]
+    tag = [sorted(m.key for m in db.models), descriptor, method, size_weight, repr(held_out)]
+    if descriptor == "esf" and esf_samples != 20000:  # (keys of the 20000-sample default unchanged)
+        tag.append(esf_samples)
+    key = hashlib.sha256(json.dumps(tag).encode()).hexdigest()[:16]
     path = Path(cache_dir or default_cache_dir()) / "syn" / f"confusion-{key}.json"
     if path.is_file():
         data = json.loads(path.read_text())
