@@ -22,9 +22,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
-from scipy.spatial import cKDTree
 
 from frontends.laser.config import ObjectConfig
+from frontends.laser.grid import VoxelGrid, adjacency_of
 from frontends.laser.pipes import Pipe
 
 
@@ -74,13 +74,15 @@ def _line_intersection(points: np.ndarray, dirs: np.ndarray) -> np.ndarray:
 
 
 def _largest_cluster(points: np.ndarray, radius: float) -> np.ndarray:
-    """Indices of the largest Euclidean cluster (points linked when closer than ``radius``)."""
+    """Indices of the largest cluster of points linked through neighbouring cells of a grid of
+    ``radius``/2 (points in 26-adjacent cells are linked: they are 0–3.5 radius/2 apart, gaps up to
+    ~radius are bridged), a hashed grid rather than a k-d tree's pair search."""
     if len(points) < 2:
         return np.arange(len(points))
-    pairs = cKDTree(points).query_pairs(radius, output_type="ndarray")
-    g = coo_matrix((np.ones(len(pairs), np.int8), (pairs[:, 0], pairs[:, 1])), shape=(len(points),) * 2)
-    _, lab = connected_components(g, directed=False)
-    return np.flatnonzero(lab == np.bincount(lab).argmax())
+    grid = VoxelGrid(points, radius / 2)
+    _, lab = connected_components(adjacency_of(grid.neighbours(1)), directed=False)
+    cell = np.flatnonzero(lab == np.bincount(lab, weights=grid.counts).argmax())
+    return np.flatnonzero(np.isin(grid.inverse, cell))
 
 
 def join_ends(ends: np.ndarray, out: np.ndarray, owner: np.ndarray, cfg: ObjectConfig) -> np.ndarray:
@@ -117,6 +119,27 @@ def join_ends(ends: np.ndarray, out: np.ndarray, owner: np.ndarray, cfg: ObjectC
     return connected_components(graph, directed=False)[1]
 
 
+def _groups(group: np.ndarray) -> list[np.ndarray]:
+    """Members (pipe-end indices) of every group label."""
+    order = np.argsort(group, kind="stable")
+    return np.split(order, np.flatnonzero(np.diff(group[order])) + 1)
+
+
+def _site(members, ends, out, guess, up, cfg: ObjectConfig):
+    """Where the object at a group of pipe ends is looked for: (centre, box frame, members, pipe
+    directions leaving it, the ends, configuration)."""
+    dirs = -out[members]  # pipe axes leaving the object
+    e = ends[members]
+    config = configuration_of(dirs, cfg.collinear_angle_deg)
+    if config == 2:
+        center = e.mean(axis=0)
+    elif config in (3, 4):
+        center = _line_intersection(e, dirs)
+    else:
+        center = guess[members[0]]
+    return center, box_frame(dirs[0], up), members, dirs, e, config
+
+
 def segment_objects(
     points: np.ndarray, pipes: list[Pipe], up: np.ndarray, cfg: ObjectConfig, range_sigma_per_m: float = 0.002
 ) -> list[SegmentedObject]:
@@ -138,24 +161,19 @@ def segment_objects(
     guess = ends + out * body[0] / 2
     group = join_ends(ends, out, owner, cfg)
 
+    handle = np.asarray(cfg.handle_size)
+    sites = [_site(members, ends, out, guess, up, cfg) for members in _groups(group)]
+    # Points within reach of each site (all sites at once), then the exact boxes on those only.
+    reach = np.linalg.norm(np.maximum(body, handle) / 2 + [0, 0, body[2] / 2 + handle[2] / 2])
+    centres = np.array([site[0] for site in sites])
+    d2 = (X * X).sum(axis=1)[:, None] - 2.0 * X @ centres.T + (centres * centres).sum(axis=1)[None, :]
     objects: list[SegmentedObject] = []
-    for gi in range(group.max() + 1):
-        members = np.flatnonzero(group == gi)
-        dirs = -out[members]  # pipe axes leaving the object
-        e = ends[members]
-        config = configuration_of(dirs, cfg.collinear_angle_deg)
-        if config == 2:
-            center = e.mean(axis=0)
-        elif config in (3, 4):
-            center = _line_intersection(e, dirs)
-        else:
-            center = guess[members[0]]
-        R = box_frame(dirs[0], up)
-        mask = in_box(X, center, R, body)
+    for (center, R, members, dirs, e, config), d2_site in zip(sites, d2.T):
+        cand = np.flatnonzero(d2_site <= reach**2)
+        mask = in_box(X[cand], center, R, body)
         if config in (1, 2):  # mushroom: the handle box above the body
-            handle = np.asarray(cfg.handle_size)
-            mask |= in_box(X, center + R[:, 2] * (body[2] + handle[2]) / 2, R, handle)
-        crop = np.flatnonzero(mask)
+            mask |= in_box(X[cand], center + R[:, 2] * (body[2] + handle[2]) / 2, R, handle)
+        crop = cand[mask]
         if len(crop) < cfg.min_points:
             continue
         crop = crop[_largest_cluster(X[crop], cfg.cluster_distance)]

@@ -51,16 +51,15 @@ class PlaneResult:
 def grow_regions(pre: Preprocessed, cfg: PlaneConfig) -> np.ndarray:
     """Region label of every point (connected components of the smooth, normal-consistent graph)."""
     m = len(pre.points)
-    nb = pre.neighbours[:, 1:]  # the 26-neighbours (−1: empty cell)
-    i = np.repeat(np.arange(m), nb.shape[1])
-    j = nb.ravel()
-    i, j = i[j >= 0], j[j >= 0]
-    n, kappa = pre.normals, pre.curvature
+    smooth = (pre.curvature < cfg.growth_curvature) & (pre.planarity >= cfg.min_planarity)
+    rows = np.flatnonzero(smooth)
+    nb = pre.neighbours[rows, 1:]  # the 26-neighbours of smooth points (−1: empty cell)
+    # Each undirected edge once (j > i: also drops the −1s), between smooth points only.
+    keep = (nb > rows[:, None]) & np.append(smooth, False)[nb]
+    i = np.broadcast_to(rows[:, None], nb.shape)[keep]
+    j = nb[keep]
     cos_min = np.cos(np.radians(cfg.max_normal_angle_deg))
-    smooth = (kappa < cfg.growth_curvature) & (pre.planarity >= cfg.min_planarity)
-    ok = smooth[i] & smooth[j]
-    i, j = i[ok], j[ok]
-    ok = np.einsum("ij,ij->i", n[i], n[j]) >= cos_min
+    ok = np.einsum("ij,ij->i", pre.normals[i], pre.normals[j]) >= cos_min
     graph = coo_matrix((np.ones(ok.sum(), np.int8), (i[ok], j[ok])), shape=(m, m))
     _, labels = connected_components(graph, directed=False)
     return labels

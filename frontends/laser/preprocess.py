@@ -134,13 +134,20 @@ def eigen3(cov: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndar
 
 def _null_vector(cov, lam0):
     M = cov - lam0[:, None, None] * np.eye(3)
-    c = np.stack([np.cross(M[:, 0], M[:, 1]), np.cross(M[:, 0], M[:, 2]), np.cross(M[:, 1], M[:, 2])], axis=1)
-    norms = np.linalg.norm(c, axis=2)
+    c = np.stack([_cross(M[:, 0], M[:, 1]), _cross(M[:, 0], M[:, 2]), _cross(M[:, 1], M[:, 2])], axis=1)
+    norms = np.sqrt(np.einsum("nkj,nkj->nk", c, c))
     best = norms.argmax(axis=1)
     v = c[np.arange(len(cov)), best]
     nv = norms[np.arange(len(cov)), best]
     degenerate = nv < 1e-300  # isotropic or zero covariance: no preferred normal
     return np.where(degenerate[:, None], np.array([0.0, 0.0, 1.0]), v / np.where(degenerate, 1.0, nv)[:, None])
+
+
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise cross products of N×3 arrays (``np.cross`` costs several times more)."""
+    return np.column_stack(
+        [a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1], a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2], a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]]
+    )
 
 
 def local_geometry(
