@@ -211,6 +211,44 @@ def attitude_factor(key: int, R_WB: np.ndarray, cov_tangent: np.ndarray) -> gtsa
     return gtsam.PoseRotationPrior3D(key, gtsam.Rot3(R_WB), gtsam.noiseModel.Gaussian.Covariance(cov_tangent))
 
 
+def biased_attitude_residual(T_WB: gtsam.Pose3, b: float, R_meas: np.ndarray, jac: bool = False):
+    """r = Log(R_measᵀ Rz(b) R_WB): an AHRS whose heading reads the true one plus a bias b (rad)
+    about the world's vertical, R_meas = Rz(b) R_WB. Jacobians 3×6 wrt X (right perturbation,
+    rotation first) and 3×1 wrt b (Rz(b + δ) = Rz(b) Exp(δ e_z), carried to the right by R_WBᵀ)."""
+    R = T_WB.rotation().matrix()
+    c, s = np.cos(b), np.sin(b)
+    Rz = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    E = R_meas.T @ Rz @ R
+    H_log = np.zeros((3, 3), order="F")
+    r = np.asarray(gtsam.Rot3.Logmap(gtsam.Rot3(E), H_log), float)
+    if not jac:
+        return r
+    H_x = np.hstack([H_log, np.zeros((3, 3))])
+    H_b = (H_log @ R.T @ np.array([0.0, 0.0, 1.0])).reshape(3, 1)
+    return r, H_x, H_b
+
+
+def biased_attitude_factor(x: int, b: int, R_meas: np.ndarray, cov_tangent: np.ndarray) -> gtsam.CustomFactor:
+    """AHRS attitude on X(k) with the heading bias B(k) (a 1-vector) estimated beside it
+    (CustomFactor: no built-in rotation prior has a bias about a fixed world axis)."""
+    R_meas = np.asarray(R_meas, float)
+
+    def error(this, values, H):
+        T, bias = values.atPose3(x), float(values.atVector(b)[0])
+        if H is None:
+            return biased_attitude_residual(T, bias, R_meas)
+        r, H[0], H[1] = biased_attitude_residual(T, bias, R_meas, jac=True)
+        return r
+
+    return gtsam.CustomFactor(gtsam.noiseModel.Gaussian.Covariance(np.asarray(cov_tangent, float)), [x, b], error)
+
+
+def heading_bias_walk_factor(b_i: int, b_j: int, dt: float, walk_sigma: float) -> gtsam.NonlinearFactor:
+    """The heading bias as a random walk: b_j − b_i ~ N(0, σ_b² Δt) (built-in BetweenFactorVector)."""
+    sigma = walk_sigma * np.sqrt(max(dt, 1e-6))
+    return gtsam.BetweenFactorVector(b_i, b_j, np.zeros(1), gtsam.noiseModel.Isotropic.Sigma(1, max(sigma, 1e-9)))
+
+
 # --------------------------------------------------------------------------------------------
 # Depth
 

@@ -23,6 +23,33 @@ class MotionNoiseConfig(BaseModel):
     angular_rate_sigma_rad_s: float = Field(0.01, gt=0, description="white angular-rate noise")
 
 
+class SensorModelConfig(BaseModel):
+    """Sensor error models beyond the white noise that the bag's covariances give, shared by every
+    estimator that models them."""
+
+    model_config = ConfigDict(extra="forbid")
+    heading_bias_walk_rad_per_sqrt_s: float | None = Field(
+        None,
+        ge=0,
+        description="random-walk intensity of the AHRS heading bias (an AHRS heading drifts: magnetic "
+        "disturbances, gyro bias); None: from the mission's declared noise (simulated missions: the bias "
+        "drift over the mission's duration), else 0 = no bias state",
+    )
+    heading_bias_initial_sigma_rad: float = Field(
+        0.0175, gt=0, description="prior σ of the heading bias at the start of the mission (rad)"
+    )
+
+    def heading_bias_walk(self, metadata) -> float:
+        """The heading-bias random-walk intensity for ``metadata``'s mission (rad/√s)."""
+        if self.heading_bias_walk_rad_per_sqrt_s is not None:
+            return self.heading_bias_walk_rad_per_sqrt_s
+        ahrs = (getattr(metadata, "extras", None) or {}).get("noise", {}).get("ahrs", {})
+        drift, over = ahrs.get("heading_bias_drift_rad"), ahrs.get("heading_bias_drift_over_s")
+        if drift and over:
+            return float(drift) / float(over) ** 0.5  # a walk whose σ reaches the drift at the end
+        return 0.0
+
+
 class AssociationConfig(BaseModel):
     """Data association (JCBB) and landmark initialisation, shared by the graph and the EKF."""
 
@@ -31,12 +58,26 @@ class AssociationConfig(BaseModel):
     min_observations: int = Field(3, ge=1, description="consistent observations before a landmark enters the map")
     merge_angle_rad: float = Field(0.175, gt=0, description="collinear pipe segments merged below this angle")
     merge_distance_m: float = Field(0.3, gt=0, description="... and this distance between them")
+    min_separation_m: float = Field(
+        0.08,
+        gt=0,
+        description="two landmarks of a kind are never closer than this (objects: centres; pipes: axes, "
+        "parallel and overlapping): an unpaired observation that close to one is it seen badly and "
+        "starts no new landmark",
+    )
+    inline_object_radius_m: float = Field(
+        0.15,
+        gt=0,
+        description="an object this close to a pipe's axis, between two collinear segments, separates them "
+        "(an in-line valve or socket joins two pipes): they are neither merged nor associated",
+    )
 
 
 class SemslamConfig(BaseModel):
     model_config = ConfigDict(extra="forbid")
     reader: ReaderConfig = Field(default_factory=ReaderConfig)
     motion: MotionNoiseConfig = Field(default_factory=MotionNoiseConfig)
+    sensors: SensorModelConfig = Field(default_factory=SensorModelConfig)
     association: AssociationConfig = Field(default_factory=AssociationConfig)
     graph: GraphConfig = Field(default_factory=GraphConfig, description="graph back-end (semslam.backend)")
     ekf: EkfConfig = Field(default_factory=EkfConfig, description="EKF-SLAM and dead reckoning (semslam.ekf)")

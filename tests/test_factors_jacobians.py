@@ -268,3 +268,23 @@ def test_attitude_factor_from_ahrs():
     v2 = gtsam.Values()
     v2.insert(1, gtsam.Pose3(gtsam.Rot3(so3_exp(np.array([0, 0, 0.01])) @ R_WB), np.zeros(3)))
     assert np.isclose(2 * f.error(v2), 0.01**2 / 4e-4, rtol=0.05)
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_biased_attitude_factor_jacobians(seed):
+    from factors.navigation import biased_attitude_factor, biased_attitude_residual
+
+    rng = np.random.default_rng(seed)
+    T = random_pose(rng)
+    b = float(rng.normal(0, 0.05))
+    R_meas = so3_exp(np.array([0, 0, b + 0.01])) @ T.rotation().matrix() @ so3_exp(rng.normal(0, 0.01, 3))
+    f = biased_attitude_factor(1, 2, R_meas, random_cov(rng, 3, 0.01))
+    v = gtsam.Values()
+    v.insert(1, T)
+    v.insert(2, np.array([b]))
+    check_factor_jacobians(f, v)
+    # The residual vanishes when the measurement is the true attitude turned by the bias.
+    R_exact = so3_exp(np.array([0, 0, b])) @ T.rotation().matrix()
+    assert np.allclose(biased_attitude_residual(T, b, R_exact), 0, atol=1e-12)
+    # ... and a bias equal to the heading offset absorbs it exactly.
+    assert np.allclose(biased_attitude_residual(T, b + 0.3, so3_exp(np.array([0, 0, 0.3])) @ R_exact), 0, atol=1e-12)

@@ -27,15 +27,26 @@ from factors.landmarks import (
     LineAnchor,
     line_factor,
     line_observation_covariance,
+    line_residual,
     point_factor,
+    point_residual,
     robust_kernel,
     structure_factor,
+    structure_residual,
 )
-from factors.navigation import attitude_factor, depth_factor, displacement_factor, dvl_velocity_factor, velocity_random_walk_factor
+from factors.navigation import (
+    attitude_factor,
+    biased_attitude_factor,
+    depth_factor,
+    displacement_factor,
+    dvl_velocity_factor,
+    heading_bias_walk_factor,
+    velocity_random_walk_factor,
+)
 from factors.geometry import pose_point_jacobian
 from semslam.backend.association import jcbb
 from semslam.backend.config import GraphConfig
-from semslam.backend.landmarks import Landmark, ObservationRecord, Track, merge_collinear
+from semslam.backend.landmarks import Landmark, ObservationRecord, Track, merge_collinear, object_between
 from semslam.backend.navigation import NavigationBuffer
 from semslam.backend.problem import Candidate, GraphAssociationProblem, possible_pairs
 from semslam.config import SemslamConfig
@@ -46,6 +57,7 @@ from semslam.observations import LineObservation, OdometryObservation, PointObse
 
 X = gtsam.symbol_shorthand.X
 V = gtsam.symbol_shorthand.V
+B = gtsam.symbol_shorthand.B  # AHRS heading bias (1-vector), when modelled
 KEY_OF_KIND = {"object": gtsam.symbol_shorthand.L, "pipe": gtsam.symbol_shorthand.P, "structure": gtsam.symbol_shorthand.S}
 KIND_OF_OBS = {PointObservation: "object", LineObservation: "pipe", StructureObservation: "structure"}
 
@@ -93,6 +105,10 @@ class GraphEstimator:
         self._pose: gtsam.Pose3 | None = None  # latest keyframe pose estimate
         self._vel: np.ndarray | None = None
         self._pose_cov: np.ndarray | None = None
+        # AHRS heading bias as a random walk (0: not modelled, the AHRS heading taken as unbiased).
+        self._bias_walk = config.sensors.heading_bias_walk(metadata)
+        self._bias_sigma0 = config.sensors.heading_bias_initial_sigma_rad
+        self._bias = 0.0  # latest keyframe's bias estimate (rad)
         self.online: list[tuple[int, gtsam.Pose3, np.ndarray]] = []
         self.landmarks: dict[int, Landmark] = {}
         self.tracks: list[Track] = []
@@ -150,7 +166,7 @@ class GraphEstimator:
         factors = []
         R, cov_R = self.nav.attitude_at(t)
         if t - self.nav.attitude.t <= self.cfg.ahrs_max_age_s:
-            factors.append(attitude_factor(X(k), R, cov_R))
+            factors.append(biased_attitude_factor(X(k), B(k), R, cov_R) if self._bias_walk > 0 else attitude_factor(X(k), R, cov_R))
         v_prior = None
         dvl = self.nav.dvl
         # The newest DVL sample is the velocity factor when it is fresh, and also when it is the last
@@ -177,7 +193,7 @@ class GraphEstimator:
             pos = np.asarray(self._initial_gt.position, float)
             R0 = Rotation.from_quat(self._initial_gt.orientation).as_matrix()
         else:
-            pos, R0 = np.zeros(3), R
+            pos, R0 = np.zeros(3), self._unbiased(R)
         pose0 = gtsam.Pose3(gtsam.Rot3(R0), pos)
         sig = np.r_[[self.cfg.initial_rotation_sigma_rad] * 3, [self.cfg.initial_position_sigma_m] * 3]
         factors.append(gtsam.PriorFactorPose3(X(0), pose0, gtsam.noiseModel.Diagonal.Sigmas(sig)))
@@ -186,6 +202,9 @@ class GraphEstimator:
         values = gtsam.Values()
         values.insert(X(0), pose0)
         values.insert(V(0), v0)
+        if self._bias_walk > 0:
+            factors.append(gtsam.PriorFactorVector(B(0), np.zeros(1), gtsam.noiseModel.Isotropic.Sigma(1, self._bias_sigma0)))
+            values.insert(B(0), np.zeros(1))
         self.kf_stamps.append(stamp)
         self._commit([(f, None) for f in factors], values)
         self._after_keyframe(t)
@@ -206,8 +225,11 @@ class GraphEstimator:
         v_init = v_prior if v_prior is not None else self._vel
         p_init = self._pose.translation() + self._pose.rotation().matrix() @ (d.c + d.A @ self._vel + d.B @ v_init)
         values = gtsam.Values()
-        values.insert(X(k), gtsam.Pose3(gtsam.Rot3(R), p_init))
+        values.insert(X(k), gtsam.Pose3(gtsam.Rot3(self._unbiased(R)), p_init))
         values.insert(V(k), np.asarray(v_init, float))
+        if self._bias_walk > 0:
+            factors.append(heading_bias_walk_factor(B(k - 1), B(k), d.dt, self._bias_walk))
+            values.insert(B(k), np.array([self._bias]))
         self.kf_stamps.append(stamp)
         self._commit([(f, None) for f in factors], values)
         self._after_keyframe(t)
@@ -222,10 +244,19 @@ class GraphEstimator:
         R_pose = self._pose.rotation().matrix()
         self.online.append((self.kf_stamps[k], self._pose, R_pose @ self._pose_cov[3:, 3:] @ R_pose.T))
 
+    def _unbiased(self, R_ahrs: np.ndarray) -> np.ndarray:
+        """An AHRS attitude with the current heading-bias estimate taken out: Rz(−b) R."""
+        if self._bias == 0.0:
+            return R_ahrs
+        c, s_ = np.cos(self._bias), np.sin(self._bias)
+        return np.array([[c, s_, 0.0], [-s_, c, 0.0], [0.0, 0.0, 1.0]]) @ R_ahrs
+
     def _refresh_current(self) -> None:
         k = len(self.kf_stamps) - 1
         self._pose = self.isam.calculateEstimatePose3(X(k))
         self._vel = np.asarray(self.isam.calculateEstimateVector(V(k)))
+        if self._bias_walk > 0:
+            self._bias = float(self.isam.calculateEstimateVector(B(k))[0])
         try:
             self._pose_cov = self.isam.marginalCovariance(X(k))
         except RuntimeError:
@@ -267,6 +298,8 @@ class GraphEstimator:
                     self._sphere_c[row] = np.inf  # never near again
         keep_keys = {X(i) for i in range(len(self.kf_stamps))} | {V(i) for i in range(len(self.kf_stamps))}
         keep_keys |= {lm.key for lm in self.landmarks.values()}
+        if self._bias_walk > 0:
+            keep_keys |= {B(i) for i in range(len(self.kf_stamps))}
         full = gtsam.Values()
         for src in (estimate, values, self._initial):
             for key in src.keys():
@@ -334,7 +367,11 @@ class GraphEstimator:
         observations = [z for z in observations if self._valid(z)]
         odom = [z for z in observations if isinstance(z, OdometryObservation)]
         lines = merge_collinear(
-            [z for z in observations if isinstance(z, LineObservation)], self.assoc.merge_angle_rad, self.assoc.merge_distance_m
+            [z for z in observations if isinstance(z, LineObservation)],
+            self.assoc.merge_angle_rad,
+            self.assoc.merge_distance_m,
+            separators=np.array([z.position for z in observations if isinstance(z, PointObservation)]).reshape(-1, 3),
+            separator_radius=self.assoc.inline_object_radius_m,
         )
         obs = [z for z in observations if isinstance(z, (PointObservation, StructureObservation))] + lines
         factors: list[tuple] = [(f, None) for f in self._odometry_factors(odom, k)]
@@ -347,7 +384,7 @@ class GraphEstimator:
                 if pairing[i] is not None:
                     lm = self.landmarks[pairing[i]]
                     factors.append((self._landmark_factor(lm, k, z, T_BS[i], pose), lm.id))
-                    self._record(lm, stamp, k, z, pose, T_BS[i])
+                    self._record(lm, stamp, k, z, pose, T_BS[i], pose_cov)
                 else:
                     self._track(stamp, k, z, pose, pose_cov, T_BS[i], factors, values)
         self._purge_tracks(stamp)
@@ -414,10 +451,7 @@ class GraphEstimator:
         if near.size == 0:
             return [None] * len(obs)
         cand_lms = [self.landmarks[ids[j]] for j in near if ids[j] in self.landmarks]
-        # Estimates now; a marginal covariance (costly) only where none exists yet, and below only
-        # for the landmarks some observation may pair with (a stale one is larger: conservative).
-        self._refresh_landmarks({lm.id for lm in cand_lms})
-        self._refresh_landmarks({lm.id for lm in cand_lms if lm.covariance is None}, covariance=True)
+        self._refresh_landmarks({lm.id for lm in cand_lms}, covariance=True)
         anchor_pts = np.array([_landmark_point(lm) for lm in cand_lms])
         dist = np.linalg.norm(obs_pts[:, None, :] - anchor_pts[None, :, :], axis=2)
         for j, lm in enumerate(cand_lms):
@@ -426,12 +460,10 @@ class GraphEstimator:
         cands = [Candidate(lm, lm.covariance) for lm in cand_lms]
         gates = {d: _chi2(self.assoc.confidence, d) for d in (3, 4)}
         allowed = (dist <= self.cfg.pre_gate_m) & possible_pairs(pose, pose_cov, obs, T_BS, cands, gates)
-        maybe = np.flatnonzero(allowed.any(axis=0))
-        self._refresh_landmarks({cand_lms[j].id for j in maybe}, covariance=True)
-        for j in maybe:
-            cands[j].covariance = cand_lms[j].covariance
-        allowed[:, maybe] &= possible_pairs(pose, pose_cov, obs, T_BS, [cands[j] for j in maybe], gates)
-        problem = GraphAssociationProblem(pose, pose_cov, obs, T_BS, cands, self.cfg.pipe_extent_gap_m, allowed)
+        problem = GraphAssociationProblem(
+            pose, pose_cov, obs, T_BS, cands, self.cfg.pipe_extent_gap_m, allowed,
+            separators=self._object_points(), separator_radius=self.assoc.inline_object_radius_m,
+        )
         result = jcbb(problem, confidence=self.assoc.confidence)
         paired = {j for j in result if j is not None}
         out: list[int | None] = []
@@ -455,6 +487,8 @@ class GraphEstimator:
                     out.append(cand_lms[best_j].id)  # a second segment of a pipe already paired
                     continue
                 self._ambiguous.add(i)
+            elif self._overlaps_mapped(obs[i], pose, T_BS[i], cand_lms):
+                self._ambiguous.add(i)
             out.append(None)
         return out
 
@@ -467,8 +501,9 @@ class GraphEstimator:
             return line_factor(X(k), lm.key, lm.anchor, z.p, z.q, cov4, T_BS, self.robust)
         return structure_factor(X(k), lm.key, z.pose, z.covariance, T_BS, self.robust)
 
-    def _record(self, lm: Landmark, stamp: int, k: int, z, pose: gtsam.Pose3, T_BS) -> None:
+    def _record(self, lm: Landmark, stamp: int, k: int, z, pose: gtsam.Pose3, T_BS, pose_cov: np.ndarray) -> None:
         lm.history.append(ObservationRecord(stamp, k, z))
+        lm.add_information(_observation_information(lm, z, pose, pose_cov, T_BS))
         if isinstance(z, PointObservation) and z.class_likelihood:
             lm.class_likelihoods.append(dict(z.class_likelihood))
         if lm.kind == "pipe":
@@ -509,7 +544,11 @@ class GraphEstimator:
                 continue
             if kind == "pipe":
                 c, d = tr.line_fit()
-                if _segment_matches_line(w, c, d, np.vstack(tr.world), self.assoc.merge_angle_rad, self.assoc.merge_distance_m, self.cfg.pipe_extent_gap_m):
+                seen = np.vstack(tr.world)
+                s_seen = (seen - c) @ d
+                if _segment_matches_line(
+                    w, c, d, seen, self.assoc.merge_angle_rad, self.assoc.merge_distance_m, self.cfg.pipe_extent_gap_m
+                ) and not object_between((s_seen.min(), s_seen.max()), w, c, d, self._object_points(), self.assoc.inline_object_radius_m):
                     dd = float(np.linalg.norm(np.cross(w.mean(axis=0) - c, d)))
                     if dd < best_d:
                         best, best_d = tr, dd
@@ -532,12 +571,50 @@ class GraphEstimator:
         best.last_stamp = stamp
         if len(best.records) >= self.assoc.min_observations:
             self.tracks.remove(best)
-            self._promote(best, factors, values)
+            self._promote(best, factors, values, pose_cov)
+
+    def _overlaps_mapped(self, z, pose: gtsam.Pose3, T_BS: np.ndarray, landmarks: list[Landmark]) -> bool:
+        """An observation that failed the χ² gates but lies where a mapped landmark of its kind
+        physically is (objects: closer than ``min_separation_m``; pipes: both ends that close to the
+        line, nearly parallel, half of it within what was seen of it) is that
+        landmark seen badly: it must not start a second one."""
+        sep = self.assoc.min_separation_m
+        T_WS = pose.compose(gtsam.Pose3(T_BS))
+        if isinstance(z, PointObservation):
+            w = T_WS.transformFrom(z.position)
+            return any(lm.kind == "object" and np.linalg.norm(w - lm.estimate) < sep for lm in landmarks)
+        if not isinstance(z, LineObservation):
+            return False
+        seg = np.vstack([T_WS.transformFrom(z.p), T_WS.transformFrom(z.q)])
+        u = (seg[1] - seg[0]) / np.linalg.norm(seg[1] - seg[0])
+        objects = self._object_points()
+        for lm in landmarks:
+            if lm.kind != "pipe":
+                continue
+            c0, d = lm.anchor.c0, lm.anchor.direction(lm.estimate)
+            r = seg - lm.anchor.point(lm.estimate)
+            if np.arccos(min(1.0, abs(float(u @ d)))) > self.assoc.merge_angle_rad:
+                continue
+            if np.linalg.norm(r - np.outer(r @ d, d), axis=1).max() >= sep:
+                continue
+            s_ = (seg - c0) @ d
+            lo, hi = lm.extent
+            if min(s_.max(), hi) - max(s_.min(), lo) < 0.5 * (s_.max() - s_.min()):
+                continue  # mostly beyond what was seen: possibly the next pipe in line
+            if not object_between(lm.extent, seg, c0, d, objects, self.assoc.inline_object_radius_m):
+                return True
+        return False
+
+    def _object_points(self) -> np.ndarray:
+        """Mapped and tentative objects in {W} (N×3): the in-line parts that separate collinear pipes."""
+        pts = [np.asarray(lm.estimate, float) for lm in self.landmarks.values() if lm.kind == "object"]
+        pts += [tr.world[-1] for tr in self.tracks if tr.kind == "object" and tr.world]
+        return np.array(pts).reshape(-1, 3)
 
     def _is_ambiguous(self, z) -> bool:
         return any(self._current_obs[i] is z for i in self._ambiguous)
 
-    def _promote(self, tr: Track, factors: list, values: gtsam.Values) -> None:
+    def _promote(self, tr: Track, factors: list, values: gtsam.Values, pose_cov: np.ndarray) -> None:
         """A track becomes a landmark: initial value from its observations, re-expressed with the
         current keyframe estimates, and one factor per observation."""
         lid = self._next_id
@@ -573,7 +650,7 @@ class GraphEstimator:
         self._update_sphere(lm)
         for r, T in zip(tr.records, Ts):
             factors.append((self._landmark_factor(lm, r.keyframe, r.observation, T, poses[r.keyframe]), lid))
-            self._record(lm, r.stamp, r.keyframe, r.observation, poses[r.keyframe], T)
+            self._record(lm, r.stamp, r.keyframe, r.observation, poses[r.keyframe], T, pose_cov)
 
     def _kf_pose(self, k: int) -> gtsam.Pose3:
         if k == len(self.kf_stamps) - 1 and self._pose is not None:
@@ -605,19 +682,23 @@ class GraphEstimator:
         self._sphere_c[row], self._sphere_r[row] = c, r
 
     def _refresh_landmarks(self, ids, covariance: bool = False) -> None:
+        """Current estimates of the landmarks and, with ``covariance``, their gating covariances.
+
+        A landmark's gating covariance is the inverse of the information its own observations
+        carry, each with the pose uncertainty of its keyframe folded into the noise (no iSAM2
+        marginal: in a map seen from everywhere those cost up to a fraction of a second each).
+        It ignores the pose–landmark correlation, like the association problem does; both make the
+        innovation covariance larger, never smaller, than the joint one in practice.
+        """
         for lid in ids:
             lm = self.landmarks.get(lid)
             if lm is None:
                 continue
             lm.estimate = _value(self.isam, lm.key, lm.kind)
             self._update_sphere(lm)
-            stale = lm.cov_stamp is None or (self.kf_stamps[-1] - lm.cov_stamp) * 1e-9 >= self.cfg.landmark_cov_refresh_s
-            if covariance and stale:
+            if covariance and lm.cov_stamp is None:
                 lm.cov_stamp = self.kf_stamps[-1]
-                try:
-                    lm.covariance = self.isam.marginalCovariance(lm.key)
-                except RuntimeError:
-                    lm.covariance = np.eye({"object": 3, "pipe": 4, "structure": 6}[lm.kind]) * 1e2
+                lm.covariance = lm.information_covariance()
                 ev = np.linalg.eigvalsh(lm.covariance)
                 self._volume.setdefault(lid, []).append((self.kf_stamps[-1], float(np.sum(np.log(np.maximum(ev, 1e-300))))))
 
@@ -634,7 +715,7 @@ class GraphEstimator:
             R, _ = self.nav.attitude_at(t)
             d = self.nav.preint.integrate(t, R)
             p = self._pose.translation() + self._pose.rotation().matrix() @ (d.c + (d.A + d.B) @ self._vel)
-            return gtsam.Pose3(gtsam.Rot3(R), p)
+            return gtsam.Pose3(gtsam.Rot3(self._unbiased(R)), p)
         i = bisect.bisect_right(self.kf_stamps, stamp)
         if i == 0:
             return None
@@ -644,14 +725,10 @@ class GraphEstimator:
 
     def landmark_estimates(self, covariance: bool = True, values: gtsam.Values | None = None, marginals=None) -> list[LandmarkEstimate]:
         out = []
+        covs = self._landmark_marginals(marginals) if covariance else {}
         for lm in self.landmarks.values():
             est = _value(values, lm.key, lm.kind) if values is not None else _value(self.isam, lm.key, lm.kind)
-            cov = None
-            if covariance:
-                try:
-                    cov = marginals.marginalCovariance(lm.key) if marginals is not None else self.isam.marginalCovariance(lm.key)
-                except RuntimeError:
-                    cov = None
+            cov = covs.get(lm.id)
             le = LandmarkEstimate(id=lm.id, kind=lm.kind, n_observations=len(lm.history), model=lm.model)
             if lm.kind == "object":
                 le.position, le.covariance = np.asarray(est, float), cov
@@ -670,6 +747,45 @@ class GraphEstimator:
             out.append(le)
         return out
 
+    def _joint_blocks(self, marginals, keys: list[int], chunk: int = 60) -> dict[int, np.ndarray]:
+        """Marginal covariances of ``keys``: from joint marginals over chunks of them (in a graph
+        where every landmark links to every pose, one joint marginal of 60 variables costs about as
+        much as one or two single ones), else iSAM2's one by one. A key that fails is left out."""
+        out: dict[int, np.ndarray] = {}
+        if marginals is not None:
+            for a in range(0, len(keys), chunk):
+                part = keys[a : a + chunk]
+                try:
+                    J = marginals.jointMarginalCovariance(gtsam.KeyVector(part))
+                    out.update({k: np.asarray(J.at(k, k)) for k in part})
+                except RuntimeError:
+                    pass
+        for k in keys:
+            if k not in out:
+                try:
+                    out[k] = self.isam.marginalCovariance(k)
+                except RuntimeError:
+                    pass
+        return out
+
+    def _landmark_marginals(self, marginals) -> dict[int, np.ndarray]:
+        """Marginal covariance of every landmark, by id."""
+        covs = self._joint_blocks(marginals, [lm.key for lm in self.landmarks.values()])
+        return {lm.id: covs[lm.key] for lm in self.landmarks.values() if lm.key in covs}
+
+    def _marginals(self, values: gtsam.Values):
+        """Marginals of the final estimate from one batch factorisation of the whole graph (iSAM2's
+        per-variable marginals cost a partial re-elimination each: minutes for a mission's
+        keyframes); iSAM2 itself (``None``) if the batch system is indeterminate."""
+        graph = gtsam.NonlinearFactorGraph()
+        for f, _ in self._factors:
+            graph.add(f)
+        try:
+            return gtsam.Marginals(graph, values)
+        except RuntimeError as exc:
+            self.diagnostics.append(f"batch marginals failed ({str(exc).splitlines()[0]}); iSAM2 marginals used")
+            return None
+
     def finish(self) -> EstimatorResult:
         n = len(self.kf_stamps)
         history: dict = {"update_kinds": list(self.update_kinds), "n_keyframes": n}
@@ -687,25 +803,27 @@ class GraphEstimator:
             params.setMaxIterations(self.cfg.batch_max_iterations)
             try:
                 values = gtsam.LevenbergMarquardtOptimizer(graph, self.isam.calculateEstimate(), params).optimize()
-                if self.cfg.covariance_in_result:
-                    marginals = gtsam.Marginals(graph, values)
             except RuntimeError as exc:
                 self.diagnostics.append(f"batch optimisation failed ({str(exc).splitlines()[0]}); online estimate kept")
                 values = None
             history["batch_time_s"] = time.perf_counter() - t0
         if values is None:
             values = self.isam.calculateEstimate()
+        if self.cfg.covariance_in_result and marginals is None:
+            marginals = self._marginals(values)
         poses = [values.atPose3(X(i)) for i in range(n)]
         vels = np.array([values.atVector(V(i)) for i in range(n)])
         pos_cov = vel_cov = None
         if self.cfg.covariance_in_result:
-            pos_cov = np.zeros((n, 3, 3))
-            vel_cov = np.zeros((n, 3, 3))
-            for i, p in enumerate(poses):
-                src = marginals if marginals is not None else self.isam
-                R = p.rotation().matrix()
-                pos_cov[i] = R @ src.marginalCovariance(X(i))[3:, 3:] @ R.T
-                vel_cov[i] = src.marginalCovariance(V(i))
+            pos_cov = np.full((n, 3, 3), np.nan)
+            vel_cov = np.full((n, 3, 3), np.nan)
+            sample = np.unique(np.linspace(0, n - 1, min(n, self.cfg.result_covariance_keyframes)).round().astype(int))
+            covs = self._joint_blocks(marginals, [k for i in sample for k in (X(i), V(i))])
+            for i in sample:
+                if X(i) in covs and V(i) in covs:
+                    R = poses[i].rotation().matrix()
+                    pos_cov[i] = R @ covs[X(i)][3:, 3:] @ R.T
+                    vel_cov[i] = covs[V(i)]
         traj = Trajectory(
             stamps=np.array(self.kf_stamps, np.int64),
             positions=np.array([p.translation() for p in poses]),
@@ -784,6 +902,22 @@ def _connect(estimates: list[LandmarkEstimate], landmarks: dict[int, Landmark], 
             if _point_segment_distance(e.position[None], pe.p, pe.q)[0] <= max_distance:
                 e.connected = tuple(sorted({*e.connected, pe.id}))
                 by_id[pe.id].connected = tuple(sorted({*by_id[pe.id].connected, e.id}))
+
+
+def _observation_information(lm: Landmark, z, pose: gtsam.Pose3, pose_cov: np.ndarray, T_BS: np.ndarray) -> np.ndarray:
+    """Information H_lᵀ (R + H_x P H_xᵀ)⁻¹ H_l that one observation carries on the landmark's
+    parameters, with the keyframe pose uncertainty P folded into the noise."""
+    if lm.kind == "object":
+        _, H_x, H_l = point_residual(pose, lm.estimate, T_BS, z.position, jac=True)
+        R = z.covariance
+    elif lm.kind == "pipe":
+        _, H_x, H_l = line_residual(pose, lm.estimate, lm.anchor, T_BS, z.p, z.q, jac=True)
+        R = line_observation_covariance(pose, lm.estimate, lm.anchor, T_BS, z.covariance)
+    else:
+        _, H_x, H_l = structure_residual(pose, lm.estimate, T_BS, z.pose, jac=True)
+        R = z.covariance
+    S = R + H_x @ pose_cov @ H_x.T
+    return H_l.T @ np.linalg.solve(S, H_l)
 
 
 def _link(a: LandmarkEstimate, b: LandmarkEstimate) -> None:

@@ -35,10 +35,21 @@ class Landmark:
     extent: tuple[float, float] | None = None
     model: str | None = None
     estimate: object = None  # Point3 (3,), θ (4,), or gtsam.Pose3
-    covariance: np.ndarray | None = None
-    cov_stamp: int | None = None  # when ``covariance`` was last computed
+    covariance: np.ndarray | None = None  # gating covariance (see ``information_covariance``)
+    cov_stamp: int | None = None  # when ``covariance`` was last computed (None: new information since)
+    information: np.ndarray | None = None  # Σ information of its observations on its parameters
     seen_ends: list[tuple[float, float, float]] = field(default_factory=list)  # pipes: (s_lo, s_hi, σ_along) per view
     connected: set[int] = field(default_factory=set)
+
+    def add_information(self, info: np.ndarray) -> None:
+        self.information = info if self.information is None else self.information + info
+        self.cov_stamp = None
+
+    def information_covariance(self) -> np.ndarray:
+        """Inverse of the accumulated information (a tiny ridge keeps it finite)."""
+        n = {"object": 3, "pipe": 4, "structure": 6}[self.kind]
+        info = np.zeros((n, n)) if self.information is None else self.information
+        return np.linalg.inv(info + np.eye(n) * 1e-9)
 
     def class_posterior(self) -> dict[str, float] | None:
         return class_posterior(self.class_likelihoods)
@@ -130,14 +141,47 @@ def collinear(p1, q1, p2, q2, max_angle: float, max_distance: float) -> bool:
     return gap <= max_distance
 
 
-def merge_collinear(observations: Sequence[LineObservation], max_angle: float, max_distance: float) -> list[LineObservation]:
+def object_between(
+    seen: tuple[float, float], seg: np.ndarray, c: np.ndarray, d: np.ndarray, objects: np.ndarray, radius: float, margin: float = 0.1
+) -> bool:
+    """True when an object lies on the line (c, d) between the stretch ``seen`` (axial interval)
+    and the segment ``seg`` (2×3): collinear pipes joined by an in-line part (a valve, a socket)
+    are different pipes. ``objects`` N×3 in the frame of c, d; ``radius`` how close to the line an
+    object must be; ``margin`` how far into either stretch the object may reach."""
+    if len(objects) == 0:
+        return False
+    r = np.asarray(objects, float).reshape(-1, 3) - c
+    s_obj = r @ d
+    on_line = np.linalg.norm(r - s_obj[:, None] * d, axis=1) < radius
+    if not on_line.any():
+        return False
+    a, b = seen
+    s = (np.asarray(seg) - c) @ d
+    if s.max() < a:  # the segment lies before the seen stretch
+        lo, hi = s.max() - margin, a + margin
+    elif s.min() > b:  # ... or after it
+        lo, hi = b - margin, s.min() + margin
+    else:  # overlapping: nothing can lie between
+        return False
+    return bool(np.any(on_line & (s_obj > lo) & (s_obj < hi)))
+
+
+def merge_collinear(
+    observations: Sequence[LineObservation],
+    max_angle: float,
+    max_distance: float,
+    separators: np.ndarray | None = None,
+    separator_radius: float = 0.15,
+) -> list[LineObservation]:
     """Merge pipe segments of one batch that lie on one axis (the paper's 0.175 rad / 0.3 m).
 
     Union-find over collinear pairs; a merged segment spans the extreme projections of all its
     endpoints on the longest member's axis, each end keeping the covariance of the endpoint that
-    produced it. Same sensor only (segments are in its frame).
+    produced it. Same sensor only (segments are in its frame). Two segments with an object of the
+    batch (``separators``, N×3 in the sensor frame) on the axis between them stay apart.
     """
     n = len(observations)
+    seps = np.zeros((0, 3)) if separators is None else np.asarray(separators, float).reshape(-1, 3)
     parent = list(range(n))
 
     def find(i):
@@ -150,7 +194,9 @@ def merge_collinear(observations: Sequence[LineObservation], max_angle: float, m
         for j in range(i + 1, n):
             a, b = observations[i], observations[j]
             if a.sensor == b.sensor and collinear(a.p, a.q, b.p, b.q, max_angle, max_distance):
-                parent[find(i)] = find(j)
+                d, length = segment_axis(a.p, a.q)
+                if not object_between((0.0, length), np.stack([b.p, b.q]), a.p, d, seps, separator_radius):
+                    parent[find(i)] = find(j)
     groups: dict[int, list[int]] = {}
     for i in range(n):
         groups.setdefault(find(i), []).append(i)

@@ -17,7 +17,7 @@ import numpy as np
 
 from factors.landmarks import line_observation_covariance, line_residual, point_residual, structure_residual
 from semslam.backend.association import PairLinearization
-from semslam.backend.landmarks import Landmark
+from semslam.backend.landmarks import Landmark, object_between
 from semslam.observations import LineObservation, PointObservation, StructureObservation
 
 
@@ -41,6 +41,8 @@ class GraphAssociationProblem:
         candidates: list[Candidate],
         pipe_extent_gap_m: float,
         allowed: np.ndarray,
+        separators: np.ndarray | None = None,
+        separator_radius: float = 0.15,
     ):
         self.pose = pose
         self.pose_cov = pose_cov
@@ -49,6 +51,8 @@ class GraphAssociationProblem:
         self.candidates = candidates
         self.gap = pipe_extent_gap_m
         self.allowed = allowed  # (n_obs, n_cand) bool: the Euclidean pre-gate
+        self.separators = np.zeros((0, 3)) if separators is None else separators  # objects in {W}
+        self.separator_radius = separator_radius
         self.n_observations = len(observations)
         self.n_landmarks = len(candidates)
         self._cache: dict[tuple[int, int], PairLinearization | None] = {}
@@ -72,9 +76,13 @@ class GraphAssociationProblem:
             # The segment must overlap what has been seen of the pipe (collinear pipes on either
             # side of a valve share one infinite line).
             T_WS = self.pose.compose(gtsam.Pose3(T_BS))
-            s = lm.anchor.to_line_frame(theta, np.vstack([T_WS.transformFrom(z.p), T_WS.transformFrom(z.q)]))[:, 2]
+            seg = np.vstack([T_WS.transformFrom(z.p), T_WS.transformFrom(z.q)])
+            s = lm.anchor.to_line_frame(theta, seg)[:, 2]
             lo, hi = lm.extent
             if s.max() < lo - self.gap or s.min() > hi + self.gap:
+                return None
+            # ... and no in-line part (valve, socket) may lie between them: that is the next pipe
+            if object_between(lm.extent, seg, lm.anchor.c0, lm.anchor.direction(theta), self.separators, self.separator_radius):
                 return None
             r, H_x, H_l = line_residual(self.pose, theta, lm.anchor, T_BS, z.p, z.q, jac=True)
             R = line_observation_covariance(self.pose, theta, lm.anchor, T_BS, z.covariance)

@@ -94,6 +94,7 @@ def position_nees(estimate: Trajectory, truth: Trajectory, max_dt_s: float = 0.0
     left_closer = (estimate.stamps - truth.stamps[idx - 1]) < (truth.stamps[idx] - estimate.stamps)
     idx = np.where(left_closer, idx - 1, idx)
     ok = np.abs(truth.stamps[idx] - estimate.stamps) <= max_dt_s * 1e9
+    ok &= np.isfinite(estimate.position_cov).all(axis=(1, 2))  # poses without a covariance are skipped
     if not ok.any():
         return None
     e = estimate.positions[ok] - truth.positions[idx[ok]]
