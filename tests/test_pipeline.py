@@ -139,3 +139,51 @@ def test_report_embeds_every_figure_it_lists(tmp_path):
     md = (tmp_path / "report.md").read_text()
     assert all(f"figures/{f}" in md for f in figs)
     assert "0.300" in md and "0.050" in md  # the ATE of each estimator is in the table
+
+
+class FinishingFrontend(CountingFrontend):
+    """A front-end with a last word: a sonar-like metrics block and a figure file."""
+
+    name = "finishing"
+
+    def finish(self, view):
+        from semslam.registry import FrontendSummary
+
+        def figure(path):
+            import matplotlib.pyplot as plt
+
+            fig, ax = plt.subplots()
+            ax.plot([0, 1], [0, 1])
+            path.parent.mkdir(parents=True, exist_ok=True)
+            fig.savefig(path)
+            plt.close(fig)
+
+        pose = np.eye(4)
+        pose[:3, 3] = (1.0, 2.0, 3.0)
+        return FrontendSummary(
+            section="sonar",
+            metrics={"structures": [{"model": "manifold", "pose": pose.tolist(), "median_error_m": 0.02, "symmetry": 2}],
+                     "runtime_s": 1.5, "world_model_bytes": 1000, "raw_cloud_bytes": 200_000},
+            files={"figures/sonar_elevation.png": figure},
+        )
+
+
+def test_frontend_summary_reaches_metrics_outputs_and_report(tmp_path):
+    from semslam.eval.report import write_report
+    from semslam.mission import GtStructure
+
+    mission = _mission()
+    mission.metadata.ground_truth = GroundTruthMap(
+        structures=(GtStructure(3, "manifold", (1.0, 2.5, 3.0), (0, 0, np.sin(np.pi / 2 + 0.01), np.cos(np.pi / 2 + 0.01))),),
+    )
+    res = run_pipeline(mission, [Recorder("dr", 0.3), Recorder("graph", 0.05)], [FinishingFrontend()])
+    metrics = build_metrics(res, mission.metadata)
+    (row,) = metrics["sonar"]["structures"]
+    assert row["found"] and row["truth_id"] == 3 and row["position_error_m"] == pytest.approx(0.5)
+    # the true yaw is 180° + 1.15°; the model is 2-fold symmetric, so the error is 1.15°
+    assert row["yaw_error_deg"] == pytest.approx(np.degrees(0.02), abs=1e-6)
+    out = write_outputs(tmp_path / "run", SemslamConfig(), res, metrics)
+    assert (out / "figures" / "sonar_elevation.png").is_file()
+    write_report(out, res, mission.metadata, metrics)
+    md = (out / "report.md").read_text()
+    assert "figures/sonar_elevation.png" in md and "Sonar structures" in md and "Run time" in md

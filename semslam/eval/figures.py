@@ -123,19 +123,25 @@ def velocities(results: Mapping[str, EstimatorResult]):
     return fig
 
 
-def uncertainty_volumes(results: Mapping[str, EstimatorResult]):
-    """Uncertainty volume (sum of log eigenvalues) of each landmark over time (Figures 11–12)."""
-    have = {n: r for n, r in results.items() if r.history.get("landmark_volume")}
+def uncertainty_volumes(results: Mapping[str, EstimatorResult], t0: int | None = None):
+    """Uncertainty volume (sum of log eigenvalues) of each landmark over time (Figures 11–12).
+    Estimators that keep no landmark covariances (dead reckoning) are left out."""
+    have = {
+        n: r for n, r in results.items()
+        if any(len(np.atleast_1d(st)) >= 2 for st, _ in (r.history.get("landmark_volume") or {}).values())
+    }
     if not have:
         return None
+    if t0 is None:
+        t0 = min(int(np.min(st)) for r in have.values() for st, _ in r.history["landmark_volume"].values() if len(st))
     fig, axes = plt.subplots(len(have), 2, figsize=(12, 3.8 * len(have)), squeeze=False)
     for row, (name, r) in zip(axes, have.items()):
         kinds = r.history.get("landmark_kind", {})
         for lid, (stamps, vol) in r.history["landmark_volume"].items():
             ax = row[0] if kinds.get(lid, "object") == "pipe" else row[1]
-            ax.plot(np.asarray(stamps) * 1e-9, vol, lw=0.8)
-        row[0].set(title=f"{name}: pipes", ylabel="Σ log λ", xlabel="time [s]")
-        row[1].set(title=f"{name}: objects", ylabel="Σ log λ", xlabel="time [s]")
+            ax.plot((np.asarray(stamps) - t0) * 1e-9, vol, lw=0.8)
+        row[0].set(title=f"{name}: pipes", ylabel="Σ log λ", xlabel="mission time [s]")
+        row[1].set(title=f"{name}: objects", ylabel="Σ log λ", xlabel="mission time [s]")
         for ax in row:
             ax.grid(alpha=0.3)
     fig.tight_layout()
@@ -143,16 +149,19 @@ def uncertainty_volumes(results: Mapping[str, EstimatorResult]):
 
 
 def update_cost(results: Mapping[str, EstimatorResult]):
-    """Per-update wall time against the number of landmarks in the map."""
+    """Per-update wall time against the number of landmarks in the map, for the estimators that
+    keep landmarks in their state (dead reckoning's map is placed observations: not shown)."""
     fig, ax = plt.subplots(figsize=(7, 4.5))
     for name, r in results.items():
+        if name == "dr":
+            continue
         if len(r.update_times_s) and len(r.update_n_landmarks) == len(r.update_times_s):
             ax.scatter(r.update_n_landmarks, np.asarray(r.update_times_s) * 1e3, s=4, alpha=0.5,
                        color=_color(name), label=name)
     ax.set(xlabel="landmarks in the map", ylabel="update time [ms]", yscale="log", title="per-update cost")
     ax.grid(alpha=0.3)
     if ax.get_legend_handles_labels()[0]:
-        ax.legend(fontsize=8)
+        ax.legend(fontsize=8, markerscale=3)
     fig.tight_layout()
     return fig
 

@@ -28,6 +28,39 @@ ROWS = [
 ]
 
 
+FRONTEND_FIGURE_CAPTIONS = {
+    "sonar_elevation": "Sonar: elevation map with the recognised structures and pipelines",
+    "sonar_world_model": "Sonar: world model (registered CAD structures and seabed surface)",
+}
+
+
+def timing_table(metrics: dict) -> list[list[str]]:
+    """Where the time went: reading, each front-end, each estimator, and the real-time factor."""
+    timing = metrics.get("timing_s") or {}
+    if not timing:
+        return []
+    duration = (metrics.get("mission") or {}).get("duration_s") or 0.0
+    rows = [["stage", "time [s]", "× real time"]]
+    total = 0.0
+    for key in sorted(timing, key=lambda k: (k.split(":")[0] != "read", k)):
+        t = float(timing[key])
+        total += t
+        rows.append([key.replace(":", " "), f"{t:.1f}", f"{duration / t:.0f}" if t > 0 and duration else "–"])
+    rows.append(["total", f"{total:.1f}", f"{duration / total:.1f}" if total > 0 and duration else "–"])
+    return rows
+
+
+def sonar_table(metrics: dict) -> list[list[str]]:
+    sonar = metrics.get("sonar") or {}
+    rows = [["structure", "found", "median point-to-model [m]", "yaw error [°]", "position error [m]"]]
+    for st in sonar.get("structures") or []:
+        rows.append([
+            str(st.get("model")), "yes" if st.get("found") else "no", _fmt(st.get("median_error_m"), "{:.3f}"),
+            _fmt(st.get("yaw_error_deg"), "{:.2f}"), _fmt(st.get("position_error_m"), "{:.3f}"),
+        ])
+    return rows if len(rows) > 1 else []
+
+
 def _fmt(value, fmt) -> str:
     return "–" if value is None else fmt.format(value)
 
@@ -86,12 +119,13 @@ def make_figures(out_dir: Path, pipeline: PipelineResult, metadata: MissionMetad
          lambda: figures.position_errors(pipeline.truth, results) if pipeline.truth is not None else None),
         ("Body velocity with ±2σ over time", "velocity.png", lambda: figures.velocities(results)),
         ("Uncertainty volume of each pipe and object over time", "uncertainty_volume.png",
-         lambda: figures.uncertainty_volumes(results)),
+         lambda: figures.uncertainty_volumes(results, pipeline.truth.stamps[0] if pipeline.truth is not None else None)),
         ("Recognition confusion matrices per stage", "confusion.png",
          lambda: figures.confusion_matrices(metrics.get("recognition") or {}, classes)),
         ("Per-update time against the number of landmarks", "update_cost.png", lambda: figures.update_cost(results)),
     ]
     made = []
+    known = {name for _, name, _ in candidates}
     for caption, name, build in candidates:
         fig = build()
         if fig is None:
@@ -100,6 +134,10 @@ def make_figures(out_dir: Path, pipeline: PipelineResult, metadata: MissionMetad
         fig.savefig(path, dpi=110)
         plt.close(fig)
         made.append((caption, path))
+    # Figures the front-ends wrote themselves (e.g. the sonar elevation map and world model).
+    for path in sorted(fig_dir.glob("*.png")):
+        if path.name not in known:
+            made.append((FRONTEND_FIGURE_CAPTIONS.get(path.stem, path.stem.replace("_", " ")), path))
     return made
 
 
@@ -115,9 +153,20 @@ def write_report(out_dir: str | Path, pipeline: PipelineResult, metadata: Missio
         f"Mission duration {m['duration_s']:.0f} s; ground-truth landmarks seen: "
         f"{m['gt_objects']} objects, {m['gt_pipes']} pipes, {m['gt_structures']} structures."
     )
+    time_rows = timing_table(metrics)
+    sonar_rows = sonar_table(metrics)
+    sonar = metrics.get("sonar") or {}
+    sonar_line = ""
+    if sonar_rows and sonar.get("world_model_bytes") and sonar.get("raw_cloud_bytes"):
+        sonar_line = (f"World model {sonar['world_model_bytes'] / 1e3:.0f} kB for a raw cloud of "
+                      f"{sonar['raw_cloud_bytes'] / 1e6:.1f} MB ({100 * sonar['world_model_bytes'] / sonar['raw_cloud_bytes']:.2f} %).")
     md = [f"# {title}", "", mission_line, "", "## Estimators", "", _md_table(est_rows), ""]
     if rec_rows:
         md += ["## Recognition", "", _md_table(rec_rows), ""]
+    if sonar_rows:
+        md += ["## Sonar structures", "", _md_table(sonar_rows), "", sonar_line, ""]
+    if time_rows:
+        md += ["## Run time", "", _md_table(time_rows), ""]
     md += ["## Figures", ""]
     md += [f"### {cap}\n\n![{cap}](figures/{p.name})\n" for cap, p in figs]
     (out_dir / "report.md").write_text("\n".join(md))
@@ -135,6 +184,8 @@ figcaption{{color:#555;font-size:90%}}</style></head><body>
 <h1>{html.escape(title)}</h1><p>{html.escape(mission_line)}</p>
 <h2>Estimators</h2>{_html_table(est_rows)}
 {"<h2>Recognition</h2>" + _html_table(rec_rows) if rec_rows else ""}
+{"<h2>Sonar structures</h2>" + _html_table(sonar_rows) + f"<p>{html.escape(sonar_line)}</p>" if sonar_rows else ""}
+{"<h2>Run time</h2>" + _html_table(time_rows) if time_rows else ""}
 <h2>Figures</h2>{imgs}</body></html>"""
     (out_dir / "report.html").write_text(page)
     return out_dir / "report.html"
