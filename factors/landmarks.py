@@ -93,6 +93,31 @@ class LineAnchor:
         return (np.atleast_2d(e_W) - self.c0) @ self.rotation(theta)
 
 
+def line_frame(anchor: LineAnchor, theta) -> tuple[np.ndarray, np.ndarray]:
+    """R_L(θ) and the two used columns of the right Jacobian of Exp at (α, β, 0)."""
+    phi = np.array([theta[0], theta[1], 0.0])
+    return anchor.R0 @ so3_exp(phi), so3_right_jacobian(phi)[:, :2]
+
+
+def line_residual_at(R: np.ndarray, t: np.ndarray, RL: np.ndarray, Jr2: np.ndarray, c0: np.ndarray, ab, e_B: np.ndarray, jac: bool = False):
+    """:func:`line_residual` from its pieces: the pose (R, t), the line frame (R_L, J_r columns,
+    anchor c0, offsets ab) and the endpoints in the body frame e_B (2×3). Both endpoints at once."""
+    e_W = t + e_B @ R.T
+    e_L = (e_W - c0) @ RL  # rows: R_Lᵀ (e_W − c0)
+    r = (e_L[:, :2] - np.asarray(ab)).reshape(4)
+    if not jac:
+        return r
+    A = RL.T @ R  # 3×3
+    H_x = np.zeros((4, 6))
+    H_l = np.zeros((4, 4))
+    for k in range(2):
+        H_x[2 * k : 2 * k + 2, :3] = -(A @ skew(e_B[k]))[:2]
+        H_x[2 * k : 2 * k + 2, 3:] = A[:2]
+        H_l[2 * k : 2 * k + 2, :2] = (skew(e_L[k]) @ Jr2)[:2]
+        H_l[2 * k : 2 * k + 2, 2:] = -np.eye(2)
+    return r, H_x, H_l
+
+
 def line_residual(
     T_WB: gtsam.Pose3, theta: np.ndarray, anchor: LineAnchor, T_BS: np.ndarray, p_S, q_S, jac: bool = False
 ):
@@ -103,35 +128,19 @@ def line_residual(
     (a segment's ends are arbitrary along the pipe axis).
     """
     R_BS, t_BS = T_BS[:3, :3], T_BS[:3, 3]
-    R = T_WB.rotation().matrix()
-    t = T_WB.translation()
-    phi = np.array([theta[0], theta[1], 0.0])
-    RL = anchor.R0 @ so3_exp(phi)
-    ab = np.asarray(theta[2:4])
-    r = np.zeros(4)
-    H_x = np.zeros((4, 6))
-    H_l = np.zeros((4, 4))
-    Jr = so3_right_jacobian(phi)[:, :2] if jac else None
-    for k, e_S in enumerate((p_S, q_S)):
-        e_B = R_BS @ e_S + t_BS
-        e_W = t + R @ e_B
-        e_L = RL.T @ (e_W - anchor.c0)
-        r[2 * k : 2 * k + 2] = e_L[:2] - ab
-        if jac:
-            H_x[2 * k : 2 * k + 2] = (RL.T @ pose_point_jacobian(R, e_B))[:2]
-            H_l[2 * k : 2 * k + 2, :2] = (skew(e_L) @ Jr)[:2]
-            H_l[2 * k : 2 * k + 2, 2:] = -np.eye(2)
-    if not jac:
-        return r
-    return r, H_x, H_l
+    e_B = np.stack([R_BS @ np.asarray(p_S, float) + t_BS, R_BS @ np.asarray(q_S, float) + t_BS])
+    RL, Jr2 = line_frame(anchor, theta) if jac else (anchor.rotation(theta), None)
+    return line_residual_at(T_WB.rotation().matrix(), T_WB.translation(), RL, Jr2, anchor.c0, theta[2:4], e_B, jac)
 
 
 def line_observation_covariance(
-    T_WB: gtsam.Pose3, theta, anchor: LineAnchor, T_BS: np.ndarray, cov_pq_S: np.ndarray
+    T_WB: gtsam.Pose3, theta, anchor: LineAnchor, T_BS: np.ndarray, cov_pq_S: np.ndarray, RL: np.ndarray | None = None
 ) -> np.ndarray:
     """Covariance (4×4) of the line residual from the 6×6 endpoint covariance (sensor frame):
-    each endpoint's covariance rotated into the line frame and projected perpendicular to it."""
-    M = (anchor.rotation(theta).T @ T_WB.rotation().matrix() @ T_BS[:3, :3])[:2]  # 2×3
+    each endpoint's covariance rotated into the line frame and projected perpendicular to it.
+    ``RL``: R_L(θ) when the caller has it already."""
+    RL = anchor.rotation(theta) if RL is None else RL
+    M = (RL.T @ T_WB.rotation().matrix() @ T_BS[:3, :3])[:2]  # 2×3
     J = np.zeros((4, 6))
     J[:2, :3] = M
     J[2:, 3:] = M

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import gtsam
 import numpy as np
 
-from factors.landmarks import line_observation_covariance, line_residual, point_residual, structure_residual
+from factors.landmarks import line_frame, line_observation_covariance, line_residual_at, point_residual, structure_residual
 from semslam.backend.association import PairLinearization
 from semslam.backend.landmarks import Landmark, object_between
 from semslam.observations import LineObservation, PointObservation, StructureObservation
@@ -56,6 +56,25 @@ class GraphAssociationProblem:
         self.n_observations = len(observations)
         self.n_landmarks = len(candidates)
         self._cache: dict[tuple[int, int], PairLinearization | None] = {}
+        self._R, self._t = pose.rotation().matrix(), pose.translation()
+        self._frames: dict[int, tuple] = {}
+        self._segments: dict[int, tuple] = {}
+
+    def _line_frame(self, j: int):
+        """R_L, J_r columns and direction of pipe candidate j (once per problem)."""
+        if j not in self._frames:
+            lm = self.candidates[j].landmark
+            RL, Jr2 = line_frame(lm.anchor, lm.estimate)
+            self._frames[j] = (RL, Jr2, RL[:, 2])
+        return self._frames[j]
+
+    def _segment(self, i: int):
+        """Endpoints of line observation i in {B} (2×3) and in {W} (once per problem)."""
+        if i not in self._segments:
+            z, T_BS = self.observations[i], self.T_BS[i]
+            e_B = np.stack([T_BS[:3, :3] @ z.p + T_BS[:3, 3], T_BS[:3, :3] @ z.q + T_BS[:3, 3]])
+            self._segments[i] = (e_B, self._t + e_B @ self._R.T)
+        return self._segments[i]
 
     def candidate_landmarks(self, i: int) -> np.ndarray:
         return np.flatnonzero(self.allowed[i])
@@ -73,19 +92,19 @@ class GraphAssociationProblem:
             return PairLinearization(-r, H_x, H_l, z.covariance)
         if isinstance(z, LineObservation) and lm.kind == "pipe":
             theta = lm.estimate
+            RL, Jr2, d = self._line_frame(j)
+            e_B, seg = self._segment(i)
             # The segment must overlap what has been seen of the pipe (collinear pipes on either
-            # side of a valve share one infinite line).
-            T_WS = self.pose.compose(gtsam.Pose3(T_BS))
-            seg = np.vstack([T_WS.transformFrom(z.p), T_WS.transformFrom(z.q)])
-            s = lm.anchor.to_line_frame(theta, seg)[:, 2]
+            # side of a valve share one infinite line) ...
+            s = (seg - lm.anchor.c0) @ d
             lo, hi = lm.extent
             if s.max() < lo - self.gap or s.min() > hi + self.gap:
                 return None
             # ... and no in-line part (valve, socket) may lie between them: that is the next pipe
-            if object_between(lm.extent, seg, lm.anchor.c0, lm.anchor.direction(theta), self.separators, self.separator_radius):
+            if object_between(lm.extent, seg, lm.anchor.c0, d, self.separators, self.separator_radius):
                 return None
-            r, H_x, H_l = line_residual(self.pose, theta, lm.anchor, T_BS, z.p, z.q, jac=True)
-            R = line_observation_covariance(self.pose, theta, lm.anchor, T_BS, z.covariance)
+            r, H_x, H_l = line_residual_at(self._R, self._t, RL, Jr2, lm.anchor.c0, theta[2:4], e_B, jac=True)
+            R = line_observation_covariance(self.pose, theta, lm.anchor, T_BS, z.covariance, RL=RL)
             return PairLinearization(-r, H_x, H_l, R)
         if isinstance(z, StructureObservation) and lm.kind == "structure" and z.model == lm.model:
             r, H_x, H_l = structure_residual(self.pose, lm.estimate, T_BS, z.pose, jac=True)
