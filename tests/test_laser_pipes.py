@@ -72,10 +72,16 @@ def test_endpoint_covariance_structure():
     for c in (c1, c2, c3):
         assert np.allclose(c, c.T) and np.linalg.eigvalsh(c).min() > 0
     lat = np.array([1.0, 0, 0])
-    assert np.isclose(lat @ c1[:3, :3] @ lat, 4 * lat @ c2[:3, :3] @ lat)  # ∝ 1/n across the axis
+    floor = cfg.axis_shift_sigma**2 + cfg.axis_tilt_sigma**2
+    # across the axis: the fit's floor plus 4σ²/n of the point noise
+    assert np.isclose(lat @ c1[:3, :3] @ lat - floor, 4 * (lat @ c2[:3, :3] @ lat - floor))
     assert lat @ c3[:3, :3] @ lat > lat @ c1[:3, :3] @ lat  # grows with range
     assert np.isclose(a @ c1[:3, :3] @ a, a @ c2[:3, :3] @ a)  # along: sampling, not count
     assert lat @ c1[:3, 3:] @ lat < 0  # the two ends of a fitted line swing oppositely
+    # the floor alone: shift and tilt make the ends' offsets correlate (σs² − σt²) / (σs² + σt²)
+    big = endpoint_covariance(np.zeros(3), a, a, 10**9, 2.0, cfg)
+    expected = (cfg.axis_shift_sigma**2 - cfg.axis_tilt_sigma**2) / floor
+    assert np.isclose((lat @ big[:3, 3:] @ lat) / (lat @ big[:3, :3] @ lat), expected, rtol=1e-4)
 
 
 def test_pipes_found_on_ray_cast_scene():

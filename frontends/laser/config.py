@@ -158,6 +158,18 @@ class PipeConfig(_Section):
     )
     range_sigma: float = Field(0.005, gt=0, description="range noise σ of one point at 1 m (endpoint covariance)")
     range_sigma_per_m: float = Field(0.002, ge=0, description="growth of the point σ per metre of range")
+    axis_shift_sigma: float = Field(
+        0.002,
+        ge=0,
+        description="σ per axis of a common sideways shift of both endpoints beyond the point noise's σ²/n: the "
+        "fit's systematic error (normals, sockets, the visible half-shell), measured on the simulated tank, m",
+    )
+    axis_tilt_sigma: float = Field(
+        0.003,
+        ge=0,
+        description="σ per axis of opposite sideways offsets of the two endpoints (a tilted axis) beyond the point "
+        "noise's 3σ²/n, likewise measured; the two make the endpoints' offset across the axis ~3.6 mm (m)",
+    )
     endpoint_sigma: float = Field(
         0.02, gt=0, description="along-axis σ of an endpoint (extreme projection; ≈ voxel size + ray spacing)"
     )
@@ -186,7 +198,22 @@ class ObjectConfig(_Section):
     collinear_angle_deg: float = Field(30.0, gt=0, lt=90, description="two pipes within this of opposite are collinear")
     min_points: int = Field(30, ge=1, description="fewest (non-pipe) points in the crop for an object")
     cluster_distance: float = Field(0.05, gt=0, description="Euclidean clustering radius inside the crop")
-    position_sigma: float = Field(0.02, gt=0, description="σ floor of an object position (shape / model error)")
+    # σ of an object position in its box frame (along the pipe, across, up), by how it was found;
+    # measured (RMS error) on the simulated tank mission at 2-4 m, which includes the fits' systematic
+    # errors: a gating estimator needs them honest, neither tighter nor looser.
+    junction_sigma: float = Field(
+        0.005, gt=0, description="σ per axis of a position where pipe axes cross (configurations 3 and 4), m"
+    )
+    inline_sigma: tuple[float, float] = Field(
+        (0.017, 0.003),
+        description="σ (along the pipes, across) of the middle of the gap between two collinear pipe ends "
+        "(configuration 2): a valve is not symmetric about its ports, m",
+    )
+    end_sigma: tuple[float, float] = Field(
+        (0.026, 0.007),
+        description="σ (along the pipe, across) of the position beyond a lone pipe end (configuration 1): the "
+        "middle of the visible extent, m",
+    )
 
 
 class LaserConfig(_Section):

@@ -121,7 +121,7 @@ def segment_scan(points: np.ndarray, cfg: LaserConfig, up: np.ndarray | None = N
     if len(spts) >= cfg.pipes.min_points:
         pipes = detect_pipes(spts, normals, grid, cfg.pipes)
     clock.lap("pipes")
-    objects = segment_objects(spts, pipes, up, cfg.objects, cfg.pipes.range_sigma_per_m)
+    objects = segment_objects(spts, pipes, up, cfg.objects)
     clock.lap("objects")
     clock.total()
     return ScanSegmentation(pre, planes, structure, spts, raw_to_s, normals, pipes, objects, up, tm)

@@ -12,7 +12,9 @@ body box alone otherwise. The largest Euclidean cluster of the crop is the objec
 Its position is taken from the pipe geometry, which is more accurate than the centroid of a
 one-sided view of the surface: the intersection of the pipe axes (two orthogonal or three pipes),
 the middle of the gap between two collinear pipes, or for one pipe the point on its axis midway
-along the object's extent. Everything is in the sensor frame {S}, metres.
+along the object's extent. Its covariance follows from which of these it is (a crossing of axes is
+good to a few mm, the middle of a gap or of an extent along the pipe to 2-3 cm), as measured on the
+simulated tank (``ObjectConfig``). Everything is in the sensor frame {S}, metres.
 """
 
 from __future__ import annotations
@@ -140,9 +142,18 @@ def _site(members, ends, out, guess, up, cfg: ObjectConfig):
     return center, box_frame(dirs[0], up), members, dirs, e, config
 
 
-def segment_objects(
-    points: np.ndarray, pipes: list[Pipe], up: np.ndarray, cfg: ObjectConfig, range_sigma_per_m: float = 0.002
-) -> list[SegmentedObject]:
+def position_covariance(config: int, R: np.ndarray, cfg: ObjectConfig) -> np.ndarray:
+    """3×3 covariance of an object position found with connectivity ``config``, in {S}: the σ of
+    ``cfg`` in the box frame ``R`` (along the pipe, across, up), rotated."""
+    if config in (3, 4):
+        sig = np.full(3, cfg.junction_sigma)
+    else:
+        along, across = cfg.inline_sigma if config == 2 else cfg.end_sigma
+        sig = np.array([along, across, across])
+    return (R * sig**2) @ R.T
+
+
+def segment_objects(points: np.ndarray, pipes: list[Pipe], up: np.ndarray, cfg: ObjectConfig) -> list[SegmentedObject]:
     """Objects at the ends of ``pipes`` among the structure ``points`` (N×3, {S}); ``up`` is the
     unit up direction (against gravity) in {S}."""
     if not pipes:
@@ -184,9 +195,7 @@ def segment_objects(
             t = (pts - e[0]) @ (-dirs[0])
             lo, hi = np.percentile(t, [2, 98])
             center = e[0] - dirs[0] * 0.5 * (max(lo, 0.0) + hi)
-        scatter = np.cov(pts.T) if len(pts) > 3 else np.eye(3) * 1e-2
-        rng = float(np.linalg.norm(center))
-        cov = (cfg.position_sigma**2 + (range_sigma_per_m * rng) ** 2) * np.eye(3) + scatter / len(pts)
+        cov = position_covariance(config, R, cfg)
         pipe_ids = tuple(int(m // 2) for m in members)
         objects.append(SegmentedObject(center, cov, rest[crop], dirs, config, pipe_ids))
     return objects

@@ -329,17 +329,22 @@ def split_at_fittings(
 def endpoint_covariance(p, q, axis, n_points, mean_range, cfg: PipeConfig) -> np.ndarray:
     """6×6 covariance of [p; q].
 
-    Across the axis: a line fitted to n points spread evenly along it has, at its ends, variance
-    4σ²/n and correlation −1/2 between the two ends (σ the point noise, growing with range).
+    Across the axis, an endpoint's offset is a common shift of the axis plus, with opposite signs
+    at the two ends, a tilt. For a line fitted to n points spread evenly along it, with point
+    noise σ (growing with range), the shift has variance σ²/n and the tilt 3σ²/n at the ends
+    (so each end 4σ²/n, correlation −1/2); the fit's systematic errors add ``axis_shift_sigma``²
+    and ``axis_tilt_sigma``² (measured: they dominate σ²/n by far at these densities).
     Along the axis: the extreme projection is uncertain by ``endpoint_sigma`` (sampling) and σ.
     """
     sigma = cfg.range_sigma + cfg.range_sigma_per_m * mean_range
     lat = np.eye(3) - np.outer(axis, axis)
     s = sigma**2 / max(n_points, 1)
+    shift = s + cfg.axis_shift_sigma**2
+    tilt = 3 * s + cfg.axis_tilt_sigma**2
     along = (cfg.endpoint_sigma**2 + sigma**2) * np.outer(axis, axis)
     cov = np.zeros((6, 6))
-    cov[:3, :3] = cov[3:, 3:] = 4 * s * lat + along
-    cov[:3, 3:] = cov[3:, :3] = -2 * s * lat
+    cov[:3, :3] = cov[3:, 3:] = (shift + tilt) * lat + along
+    cov[:3, 3:] = cov[3:, :3] = (shift - tilt) * lat
     return cov
 
 
