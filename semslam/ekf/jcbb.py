@@ -58,12 +58,15 @@ def jcbb_dense(
     confidence: float = 0.99,
     max_hypotheses: int = 20_000,
     individual_nis: np.ndarray | None = None,
+    stats: dict | None = None,
 ) -> list[int | None]:
     """JCBB over candidate pairs k = (pair_obs[k], pair_lm[k]) whose innovations are ν[pair_rows[k]]
     with joint covariance S_all (every pair's rows, R on each pair's own diagonal block).
 
     Returns, for each of the ``n_obs`` observations, the landmark it pairs with, or None.
     ``individual_nis`` (one per pair) saves recomputing the individual NIS when the caller has it.
+    ``stats``, when given, receives the number of nodes expanded (``"nodes"``) and whether the search
+    was cut by ``max_hypotheses`` (``"capped"``).
     """
     result: list[int | None] = [None] * n_obs
     K = len(pair_obs)
@@ -99,6 +102,34 @@ def jcbb_dense(
     def pairable_from(i: int) -> int:
         free = ~used
         return sum(1 for k in range(i, m) if masks[k] & free)
+
+    def matchable_from(i: int) -> int:
+        """Most observations from i on that can be paired at once with distinct unused landmarks
+        (a maximum bipartite matching, Kuhn's augmenting paths): a tighter exact bound than
+        :func:`pairable_from` when observations compete for a landmark."""
+        free = ~used
+        owner: dict[int, int] = {}
+
+        def augment(o: int, seen: list) -> bool:
+            cand = masks[o] & free & ~seen[0]
+            while cand:
+                low = cand & -cand
+                cand ^= low
+                if seen[0] & low:
+                    continue
+                seen[0] |= low
+                j = low.bit_length() - 1
+                if j not in owner or augment(owner[j], seen):
+                    owner[j] = o
+                    return True
+            return False
+
+        return sum(1 for o in range(i, m) if masks[o] & free and augment(o, [0]))
+
+    def cannot_beat(npairs: int, i: int) -> bool:
+        """No extension of a node with ``npairs`` pairs at observation i beats the best found."""
+        best = len(best_pairs)
+        return npairs + pairable_from(i) <= best or npairs + matchable_from(i) <= best
 
     def child_nis(node: _Node, k: int):
         """(nis, pieces) of the node extended with pair k, without building its inverse."""
@@ -143,7 +174,7 @@ def jcbb_dense(
             return
         if expanded >= max_hypotheses:
             return
-        if best_pairs and npairs + pairable_from(i) <= len(best_pairs):
+        if best_pairs and cannot_beat(npairs, i):
             return
         for _, j, k in C[i]:
             if used >> j & 1:
@@ -157,10 +188,13 @@ def jcbb_dense(
             search(child, i + 1)
             used &= ~(1 << j)
         # Star branch: observation i unpaired, worth it only if it can still beat the best.
-        if npairs + pairable_from(i + 1) > len(best_pairs):
+        if not cannot_beat(npairs, i + 1):
             search(node, i + 1)
 
     search(_Node([], np.zeros(0, int), np.zeros(0), np.zeros((0, 0)), 0.0, 0), 0)
+    if stats is not None:
+        stats["nodes"] = expanded
+        stats["capped"] = expanded >= max_hypotheses
     for i, j, _ in best_pairs:
         result[i] = j
     return result
