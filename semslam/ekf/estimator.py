@@ -682,15 +682,39 @@ class EkfEstimator:
         self._tentative(stamp, [o for o, n in zip(unpaired, near) if not n])
 
     def _near_mapped(self, o: _Obs) -> bool:
-        """An unpaired observation still compatible with a mapped feature at the looser track gate is
-        ambiguous, not new: it is dropped rather than started as a duplicate feature."""
+        """An unpaired observation that is still compatible with a mapped feature at the looser track
+        gate, or (pipes) lies on a mapped pipe by the paper's collinearity criterion, is ambiguous, not
+        new: it is dropped rather than started as a duplicate feature."""
         return bool(self._near_mapped_batch([o])[0])
 
     def _near_mapped_batch(self, obs: list[_Obs]) -> np.ndarray:
         """:meth:`_near_mapped` of each observation, at the current (updated) state, in one pass."""
         if not obs or not self._features:
             return np.zeros(len(obs), bool)
-        return _ScanPairs(self, obs, self.cfg.track_gate_confidence).near(self.cfg.track_gate_confidence)
+        near = _ScanPairs(self, obs, self.cfg.track_gate_confidence).near(self.cfg.track_gate_confidence)
+        pipes = [f for f in self._features if f.kind == "pipe"]
+        todo = [i for i, o in enumerate(obs) if o.kind == "pipe" and not near[i]]
+        if pipes and todo:
+            x = self.state.x
+            lines = [geo.line_plucker(x[f.index : f.index + 4]) for f in pipes]
+            objects = self._object_positions()
+            for i in todo:
+                near[i] = any(self._on_pipe(obs[i].ends_W, f.extent, m, d, objects) for f, (m, d) in zip(pipes, lines))
+        return near
+
+    def _on_pipe(self, ends_W: np.ndarray, extent: _Extent, m: np.ndarray, d: np.ndarray, objects: np.ndarray) -> bool:
+        """The paper's collinear merge (shared ``association.merge_angle_rad`` / ``merge_distance_m``): the
+        segment is within that angle of the pipe's axis, both its ends within that distance of it, within
+        the extent gap and not across an object."""
+        u = ends_W[1] - ends_W[0]
+        u = u / np.linalg.norm(u)
+        if abs(float(u @ d)) < math.cos(self.assoc.merge_angle_rad):
+            return False
+        r = ends_W - geo.closest_point(m, d)
+        perp = r - np.outer(r @ d, d)
+        if np.linalg.norm(perp, axis=1).max() > self.assoc.merge_distance_m:
+            return False
+        return not self._pipe_apart(extent, ends_W, m, d, objects)
 
     def _joint_update(self, paired: list[tuple[_Obs, _Feature]], lins: list | None = None) -> None:
         """One EKF update with every paired observation stacked (H sparse: vehicle + those features)."""
