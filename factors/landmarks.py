@@ -79,7 +79,15 @@ class LineAnchor:
         return LineAnchor(np.column_stack([x, y, d]), 0.5 * (p + q))
 
     def rotation(self, theta: np.ndarray) -> np.ndarray:
-        return self.R0 @ so3_exp(np.array([theta[0], theta[1], 0.0]))
+        # The same θ is asked for many times between updates (direction, point, extents): keep the last.
+        key = (float(theta[0]), float(theta[1]))
+        last = self.__dict__.get("_last")
+        if last is not None and last[0] == key:
+            return last[1]
+        R = self.R0 @ so3_exp(np.array([key[0], key[1], 0.0]))
+        R.flags.writeable = False
+        object.__setattr__(self, "_last", (key, R))
+        return R
 
     def direction(self, theta) -> np.ndarray:
         return self.rotation(theta)[:, 2]
