@@ -37,7 +37,7 @@ from semslam.config import SemslamConfig
 
 def default_mission():
     try:
-        from semslam.sim.tank import TankSimConfig, simulate_tank
+        from semslam.sim import TankSimConfig, simulate_tank
 
         return simulate_tank(TankSimConfig()), "tank"
     except ImportError:
