@@ -103,10 +103,11 @@ class PipeConfig(_Section):
     )
     min_length: float = Field(0.30, gt=0, description="shortest pipe segment reported as an observation (paper)")
     min_detect_length: float = Field(
-        0.10,
+        0.07,
         gt=0,
         description="shortest pipe segment detected: shorter pipes than min_length are not reported, but they "
-        "still separate objects and count in their connectivity (the tank has 13 cm pipes between fittings)",
+        "still separate objects and count in their connectivity (the tank has 13 cm pipes between fittings, "
+        "of which the sockets leave ~7-9 cm in view)",
     )
     min_points: int = Field(40, ge=5, description="fewest inliers of a pipe segment")
     distance_tolerance: float = Field(0.012, gt=0, description="inlier: |distance to axis − radius| below this")

@@ -7,7 +7,10 @@ orthogonal pipes, 4 = three or more. A lone pipe end is an object only if someth
 The object is cropped from the structure points (pipe inliers excluded) with an oriented box in a
 frame (pipe direction, across, up): the "mushroom" (body box plus a handle box above it) when the
 object has one connection or two collinear ones — a valve's handle stands above its body — and the
-body box alone otherwise. The largest Euclidean cluster of the crop is the object's cloud.
+body box alone otherwise. The largest Euclidean cluster of the crop is the object's cloud. Where
+pipes cross but their fits took in the fitting's surface (an elbow continues its pipes'
+cylinders), the crop keeps the pipe points; two lone ends whose crops overlap and whose axes meet
+a little farther away than ``max_port_distance`` are one object.
 
 Its position is taken from the pipe geometry, which is more accurate than the centroid of a
 one-sided view of the surface: the intersection of the pipe axes (two orthogonal or three pipes),
@@ -20,6 +23,7 @@ simulated tank (``ObjectConfig``). Everything is in the sensor frame {S}, metres
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from scipy.sparse import coo_matrix
@@ -127,10 +131,19 @@ def _groups(group: np.ndarray) -> list[np.ndarray]:
     return np.split(order, np.flatnonzero(np.diff(group[order])) + 1)
 
 
-def _site(members, ends, out, guess, up, cfg: ObjectConfig):
-    """Where the object at a group of pipe ends is looked for: (centre, box frame, members, pipe
-    directions leaving it, the ends, configuration)."""
-    dirs = -out[members]  # pipe axes leaving the object
+class _Site(NamedTuple):
+    """Where the object at a group of pipe ends is looked for."""
+
+    center: np.ndarray
+    R: np.ndarray  # box frame: along the first pipe, across, up
+    members: np.ndarray  # pipe-end indices
+    dirs: np.ndarray  # pipe axes leaving the object
+    ends: np.ndarray
+    config: int
+
+
+def _site(members, ends, out, guess, up, cfg: ObjectConfig) -> _Site:
+    dirs = -out[members]
     e = ends[members]
     config = configuration_of(dirs, cfg.collinear_angle_deg)
     if config == 2:
@@ -139,7 +152,41 @@ def _site(members, ends, out, guess, up, cfg: ObjectConfig):
         center = _line_intersection(e, dirs)
     else:
         center = guess[members[0]]
-    return center, box_frame(dirs[0], up), members, dirs, e, config
+    return _Site(center, box_frame(dirs[0], up), members, dirs, e, config)
+
+
+def _crop(X: np.ndarray, rows: np.ndarray, site: _Site, cfg: ObjectConfig) -> np.ndarray:
+    """The rows of ``X`` (among ``rows``) in the site's box, and for one connection or two collinear
+    ones in the handle box above it (the mushroom: a valve's handle stands above its body)."""
+    body, handle = np.asarray(cfg.body_size), np.asarray(cfg.handle_size)
+    mask = in_box(X[rows], site.center, site.R, body)
+    if site.config in (1, 2):
+        mask |= in_box(X[rows], site.center + site.R[:, 2] * (body[2] + handle[2]) / 2, site.R, handle)
+    return rows[mask]
+
+
+def _merge_overlapping(sites: list[_Site], crops: list[np.ndarray], out, n_points: int, cfg: ObjectConfig) -> list[list[int]]:
+    """Groups of sites that are one object seen from two lone pipe ends that did not join (a pipe
+    cut short before its fitting, so its end lies farther than ``max_port_distance``): both
+    config 1, their crops sharing at least half of the smaller one's points, and their ends
+    meeting by the test of :func:`join_ends` with twice the port distance."""
+    sizes = np.array([len(c) for c in crops])
+    rows = np.repeat(np.arange(len(crops)), sizes)
+    cols = np.concatenate(crops) if len(rows) else rows
+    C = coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(len(crops), n_points)).tocsr()
+    shared = (C @ C.T).tocoo()
+    lone = np.array([site.config == 1 for site in sites])
+    small = np.minimum(sizes[shared.row], sizes[shared.col])
+    cand = (shared.row < shared.col) & lone[shared.row] & lone[shared.col] & (shared.data >= 0.5 * np.maximum(small, 1))
+    relaxed = cfg.model_copy(update={"max_port_distance": 2 * cfg.max_port_distance})
+    link = [
+        (a, b)
+        for a, b in zip(shared.row[cand], shared.col[cand])
+        if join_ends(np.array([sites[a].ends[0], sites[b].ends[0]]), out[[sites[a].members[0], sites[b].members[0]]], np.arange(2), relaxed)[1] == 0
+    ]
+    g = coo_matrix((np.ones(len(link)), tuple(np.array(link, int).reshape(-1, 2).T)), shape=(len(crops),) * 2)
+    _, label = connected_components(g, directed=False)
+    return [list(m) for m in _groups(label)]
 
 
 def position_covariance(config: int, R: np.ndarray, cfg: ObjectConfig) -> np.ndarray:
@@ -176,26 +223,34 @@ def segment_objects(points: np.ndarray, pipes: list[Pipe], up: np.ndarray, cfg: 
     sites = [_site(members, ends, out, guess, up, cfg) for members in _groups(group)]
     # Points within reach of each site (all sites at once), then the exact boxes on those only.
     reach = np.linalg.norm(np.maximum(body, handle) / 2 + [0, 0, body[2] / 2 + handle[2] / 2])
-    centres = np.array([site[0] for site in sites])
+    centres = np.array([site.center for site in sites])
     d2 = (X * X).sum(axis=1)[:, None] - 2.0 * X @ centres.T + (centres * centres).sum(axis=1)[None, :]
+    crops = []
+    for site, d2_site in zip(sites, d2.T):
+        crop = rest[_crop(X, np.flatnonzero(d2_site <= reach**2), site, cfg)]
+        if len(crop) < cfg.min_points and site.config >= 3:
+            # Pipes meet here, so something joins them: a fitting whose surface the pipes' fits
+            # took in (an elbow continues its pipes' cylinders). Crop it with the pipe points.
+            crop = _crop(points, np.arange(len(points)), site, cfg)
+        crops.append(crop)
     objects: list[SegmentedObject] = []
-    for (center, R, members, dirs, e, config), d2_site in zip(sites, d2.T):
-        cand = np.flatnonzero(d2_site <= reach**2)
-        mask = in_box(X[cand], center, R, body)
-        if config in (1, 2):  # mushroom: the handle box above the body
-            mask |= in_box(X[cand], center + R[:, 2] * (body[2] + handle[2]) / 2, R, handle)
-        crop = cand[mask]
+    for group in _merge_overlapping(sites, crops, out, len(points), cfg):
+        site = sites[group[0]]
+        crop = crops[group[0]]
+        if len(group) > 1:
+            site = _site(np.concatenate([sites[k].members for k in group]), ends, out, guess, up, cfg)
+            crop = np.unique(np.concatenate([crops[k] for k in group]))
         if len(crop) < cfg.min_points:
             continue
-        crop = crop[_largest_cluster(X[crop], cfg.cluster_distance)]
+        crop = crop[_largest_cluster(points[crop], cfg.cluster_distance)]
         if len(crop) < cfg.min_points:
             continue
-        pts = X[crop]
-        if config == 1:  # on the pipe's axis, midway along the object's extent
-            t = (pts - e[0]) @ (-dirs[0])
+        center, dirs, e = site.center, site.dirs, site.ends
+        if site.config == 1:  # on the pipe's axis, midway along the object's extent
+            t = (points[crop] - e[0]) @ (-dirs[0])
             lo, hi = np.percentile(t, [2, 98])
             center = e[0] - dirs[0] * 0.5 * (max(lo, 0.0) + hi)
-        cov = position_covariance(config, R, cfg)
-        pipe_ids = tuple(int(m // 2) for m in members)
-        objects.append(SegmentedObject(center, cov, rest[crop], dirs, config, pipe_ids))
+        cov = position_covariance(site.config, site.R, cfg)
+        pipe_ids = tuple(int(m // 2) for m in site.members)
+        objects.append(SegmentedObject(center, cov, crop, dirs, site.config, pipe_ids))
     return objects
