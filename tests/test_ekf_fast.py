@@ -6,7 +6,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
-from semslam.backend.association import PairLinearization, individual_nis, jcbb
+from semslam.backend.association import PairLinearization, individual_nis, jcbb, joint_nis
 from semslam.config import SemslamConfig
 from semslam.ekf import EkfEstimator
 from semslam.ekf import batch as bt
@@ -178,7 +178,63 @@ def test_dense_jcbb_is_jcbb(seed):
     P = A @ A.T + np.diag([0.1**2] * 3 + [0.03**2] * (3 * m))  # correlated landmarks
     prob = _DenseView(np.array(Z), L, P, np.eye(3) * 0.02**2)
     obs, lm, rows, nu, S = _dense_from_problem(prob)
-    assert jcbb_dense(len(Z), obs, lm, rows, nu, S, 0.99) == jcbb(prob, 0.99)
+    out = jcbb_dense(len(Z), obs, lm, rows, nu, S, 0.99)
+    assert out == jcbb(prob, 0.99)
+    # restarted from a greedy hypothesis at once: as many pairings, jointly compatible
+    stats = {}
+    seeded = jcbb_dense(len(Z), obs, lm, rows, nu, S, 0.99, seed_after=1, stats=stats)
+    pairs = [(i, j) for i, j in enumerate(seeded) if j is not None]
+    assert len(pairs) == sum(j is not None for j in out)
+    assert len({j for _, j in pairs}) == len(pairs)
+    if pairs:
+        assert stats["seeded"] and joint_nis(prob, pairs) < chi2.ppf(0.99, 3 * len(pairs))
+
+
+class _Reordered:
+    """A generic problem with its observations permuted (for the shared jcbb in another order)."""
+
+    def __init__(self, prob, perm):
+        self.prob, self.perm = prob, perm
+        self.n_observations, self.n_landmarks = prob.n_observations, prob.n_landmarks
+
+    def pair(self, i, j):
+        return self.prob.pair(self.perm[i], j)
+
+    def covariance(self, a, b):
+        return self.prob.covariance(a, b)
+
+
+def _jcbb_most_certain_first(prob, confidence):
+    """The shared jcbb with the observations in order of increasing best individual NIS."""
+    gate = {d: chi2.ppf(confidence, d) for d in (3, 4)}
+
+    def best(i):
+        v = [individual_nis(prob, i, j) for j in range(prob.n_landmarks) if prob.pair(i, j) is not None]
+        v = [x for x, j in zip(v, [j for j in range(prob.n_landmarks) if prob.pair(i, j) is not None])
+             if x < gate[len(prob.pair(i, j).innovation)]]
+        return min(v) if v else np.inf
+
+    perm = sorted(range(prob.n_observations), key=best)
+    out = jcbb(_Reordered(prob, perm), confidence)
+    result = [None] * prob.n_observations
+    for k, j in enumerate(out):
+        result[perm[k]] = j
+    return result
+
+
+@pytest.mark.parametrize("seed", range(15))
+def test_dense_jcbb_most_certain_first_is_jcbb_in_that_order(seed):
+    rng = np.random.default_rng(100 + seed)
+    m = int(rng.integers(3, 8))
+    L = rng.uniform(-1, 1, (m, 3)) * rng.uniform(0.1, 1.0)
+    x_true = rng.normal(0, 0.1, 3)
+    Z = [L[j] - x_true + rng.normal(0, 0.02, 3) for j in rng.choice(m, min(m, 5), replace=False)]
+    Z += [rng.uniform(-1, 1, 3) for _ in range(2)]
+    A = rng.normal(size=(3 + 3 * m, 3 + 3 * m)) * 0.02
+    P = A @ A.T + np.diag([0.1**2] * 3 + [0.03**2] * (3 * m))
+    prob = _DenseView(np.array(Z), L, P, np.eye(3) * 0.02**2)
+    obs, lm, rows, nu, S = _dense_from_problem(prob)
+    assert jcbb_dense(len(Z), obs, lm, rows, nu, S, 0.99, by_nis=True) == _jcbb_most_certain_first(prob, 0.99)
 
 
 def _mapped_filter(seed=2):
@@ -214,7 +270,7 @@ def test_scan_linearisation_equals_the_pairwise_problem():
                if prob.pair(i, j) is not None and individual_nis(prob, i, j) < gate[len(prob.pair(i, j).innovation)]}
     assert generic == {(int(i), int(j)) for k, (i, j) in enumerate(zip(scan.obs, scan.feat))
                        if scan.nis[k] < gate[len(scan.nu[k])]}
-    assert scan.associate(0.99) == jcbb(prob, 0.99)
+    assert scan.associate(0.99) == _jcbb_most_certain_first(prob, 0.99)
 
 
 def test_matching_bound_cuts_competing_observations():

@@ -113,6 +113,13 @@ def _posterior(log: dict[str, float]) -> dict[str, float] | None:
     return dict(zip(log.keys(), map(float, p)))
 
 
+def _median(v: np.ndarray) -> float:
+    """np.median of a small 1-D array, without its per-call overhead."""
+    v = np.sort(v)
+    n = len(v)
+    return float(v[n // 2]) if n % 2 else 0.5 * float(v[n // 2 - 1] + v[n // 2])
+
+
 class _Extent:
     """What was seen of a pipe: every view's endpoints in {W} (saved as seen) with their along-axis σ.
 
@@ -127,6 +134,7 @@ class _Extent:
         self._sig = np.zeros(8)
         self._k = 0
         self._memo: tuple | None = None  # (m, d, view count, interval)
+        self._w: tuple | None = None  # (view count, 6 × median σ)
 
     def __len__(self) -> int:
         return self._k
@@ -150,10 +158,12 @@ class _Extent:
         c = geo.closest_point(m, d)
         s = (self._pts[: self._k] - c) @ d  # (K, 2)
         lo, hi = s.min(axis=1), s.max(axis=1)
-        w = 6.0 * float(np.median(self._sig[: self._k]))
+        if self._w is None or self._w[0] != self._k:
+            self._w = (self._k, 6.0 * _median(self._sig[: self._k]))
+        w = self._w[1]
         lo_min, hi_max = lo.min(), hi.max()
-        a = float(np.median(lo[lo <= lo_min + w]))
-        b = float(np.median(hi[hi >= hi_max - w]))
+        a = _median(lo[lo <= lo_min + w])
+        b = _median(hi[hi >= hi_max - w])
         out = (a, b) if b > a else (float(lo_min), float(hi_max))
         self._memo = (np.array(m, float), np.array(d, float), self._k, out)
         return out
@@ -331,7 +341,8 @@ class _ScanPairs:
         return out
 
     def associate(self, confidence: float) -> list[int | None]:
-        """JCBB over the individually compatible candidates, with their full joint covariance."""
+        """JCBB over the individually compatible candidates, with their full joint covariance, the
+        observations searched most certain first (:func:`semslam.ekf.jcbb.jcbb_dense`)."""
         gate = Chi2Gate(confidence)
         ks = [k for k in range(len(self.obs)) if self.nis[k] < gate(len(self.nu[k]))]
         if not ks:
@@ -365,7 +376,7 @@ class _ScanPairs:
         P = self.est.state.P
         S_all = J @ P[np.ix_(cols, cols)] @ J.T + Rb
         return jcbb_dense(self.n_obs, self.obs[ks], self.feat[ks], rows, nu, S_all, confidence,
-                          individual_nis=self.nis[ks])
+                          individual_nis=self.nis[ks], by_nis=True)
 
     def linearisation(self, i: int, j: int):
         """The pair (observation i, feature j) as a PairLinearization (it must be a candidate)."""
@@ -551,6 +562,7 @@ class EkfEstimator:
     # ---------------------------------------------------------------------- observations
     def _prepare(self, observations: Sequence[Observation]) -> list[_Obs]:
         out = []
+        poses: dict[str, tuple] = {}
         for o in observations:
             if isinstance(o, PointObservation):
                 R_BS, t_BS = self._extrinsic(o.sensor)
@@ -566,7 +578,9 @@ class EkfEstimator:
                 if line.rho < self.cfg.line_min_distance_m:
                     self._warn_once("rho", "pipe observations through the sensor origin ignored (ρ ≈ 0)")
                     continue
-                R, t, _, _ = mdl.sensor_pose(self.state.xv, R_BS, t_BS)
+                if o.sensor not in poses:
+                    poses[o.sensor] = mdl.sensor_pose(self.state.xv, R_BS, t_BS)[:2]
+                R, t = poses[o.sensor]
                 ends = np.array([o.p, o.q]) @ R.T + t
                 out.append(_Obs(o, R_BS, t_BS, line, ends))
             else:
@@ -622,22 +636,30 @@ class EkfEstimator:
         kinds = np.array([f.kind for f in feats])
         starts = np.array([f.index for f in feats])
         obj, pip = np.flatnonzero(kinds == "object"), np.flatnonzero(kinds == "pipe")
-        pos_obj = x[starts[obj, None] + np.arange(3)] if len(obj) else np.zeros((0, 3))
-        if len(pip):
+        o_obj = [i for i, o in enumerate(obs) if o.kind == "object"]
+        o_pip = [i for i, o in enumerate(obs) if o.kind == "pipe"]
+        if len(obj) and o_obj:
+            pos_obj = x[starts[obj, None] + np.arange(3)]
+            poses = {}
+            w = np.empty((len(o_obj), 3))
+            for k, i in enumerate(o_obj):
+                o = obs[i]
+                key = o.obs.sensor
+                if key not in poses:
+                    poses[key] = mdl.sensor_pose(self.state.xv, o.R_BS, o.t_BS)[:2]
+                R, t = poses[key]
+                w[k] = t + R @ o.obs.position
+            dist = np.linalg.norm(w[:, None, :] - pos_obj[None, :, :], axis=2)
+            near[np.ix_(o_obj, obj)] = dist < gate
+        if len(pip) and o_pip:
             lp = x[starts[pip, None] + np.arange(4)]
             U = geo.rot_batch(lp[:, :3])
             d_l = U[:, :, 1]
             c_l = np.cross(d_l, lp[:, 3:4] * U[:, :, 0])  # closest points d × m
-        for i, o in enumerate(obs):
-            if o.kind == "object" and len(obj):
-                R, t, _, _ = mdl.sensor_pose(self.state.xv, o.R_BS, o.t_BS)
-                w = t + R @ o.obs.position
-                near[i, obj] = np.linalg.norm(pos_obj - w, axis=1) < gate
-            elif o.kind == "pipe" and len(pip):
-                mid = o.ends_W.mean(axis=0)
-                r = mid - c_l
-                off = r - (r * d_l).sum(axis=1, keepdims=True) * d_l
-                near[i, pip] = np.linalg.norm(off, axis=1) < gate
+            mid = np.array([obs[i].ends_W.mean(axis=0) for i in o_pip])
+            r = mid[:, None, :] - c_l[None, :, :]  # (n_obs, n_pipes, 3)
+            off = r - np.einsum("opk,pk->op", r, d_l)[:, :, None] * d_l[None, :, :]
+            near[np.ix_(o_pip, pip)] = np.linalg.norm(off, axis=2) < gate
         return near
 
     def _object_positions(self) -> np.ndarray:

@@ -5,15 +5,16 @@ not copy it each time. Updates exploit the sparsity of H (the vehicle block plus
 landmarks): the Joseph form costs O(n² d) instead of O(n³).
 
 Navigation steps (predictions and DVL / AHRS / depth updates) touch only the vehicle block, and are
-applied to the rest of the state in compressed form (Guivant & Nebot 2001, the "compressed EKF"):
-with L₀ = P_lv at the last full update, every such step keeps
+applied to the rest of the state in compressed form (Guivant & Nebot 2001, the "compressed EKF").
+At the last full update the landmarks are l = A y + e with y the vehicle state then, A = P_lv P_vv⁻¹
+and e independent of y; vehicle-only steps involve only y, process and measurement noise, never e.
+So they run on the 18-state [x_v; y] (y a clone of the vehicle at that time), and reach the
+landmarks in one O(n² · 9) pass whenever the full state is read (:attr:`x`, :attr:`P`):
 
-    P_lv = L₀ Φᵀ,   P_ll = P_ll⁰ − L₀ Ψ L₀ᵀ,   x_l = x_l⁰ + L₀ a
+    x_l += A (ŷ − ŷ₀),   P_ll −= A (P_yy⁰ − P_yy) Aᵀ,   P_lv = A P_yv
 
-for 9×9 accumulators Φ (product of the (I − K_v H_v) and F factors), Ψ (Σ Φᵀ H_vᵀ S⁻¹ H_v Φ) and a
-9-vector a (Σ Φᵀ H_vᵀ S⁻¹ ν). A navigation step therefore costs O(9³) whatever the map size, and the
-accumulated steps reach the landmarks in one O(n² · 9) pass whenever the full state is read
-(:attr:`x`, :attr:`P`) — the same estimate as updating the whole state at every step, up to rounding.
+— the same estimate as updating the whole state at every step, up to rounding, at a cost per step
+independent of the map size.
 """
 
 from __future__ import annotations
@@ -23,7 +24,6 @@ import numpy as np
 from semslam.ekf.models import NX
 
 _ROW_CHUNK = 512  # rows of P updated per gemm (bounds the temporaries for large maps)
-_I = np.eye(NX)
 
 
 def inv_small(S: np.ndarray) -> np.ndarray:
@@ -52,11 +52,10 @@ class EkfState:
         self.n = len(x0)
         self._x[: self.n] = x0
         self._P[: self.n, : self.n] = P0
-        # compressed navigation steps not yet applied to the landmarks
-        self._pending = False
-        self._Phi = np.eye(NX)
-        self._Psi = np.zeros((NX, NX))
-        self._a = np.zeros(NX)
+        # compressed navigation steps: the 18-state [x_v; y] (None when nothing is pending)
+        self._C: np.ndarray | None = None  # its covariance (the vehicle block P_vv lives here meanwhile)
+        self._y = np.zeros(NX)  # the clone's estimate
+        self._y0 = np.zeros(NX)  # ... and its value when the compression started
 
     # -------------------------------------------------------------------------- access
     @property
@@ -79,58 +78,73 @@ class EkfState:
     @property
     def Pvv(self) -> np.ndarray:
         """The vehicle covariance block (a view; always current)."""
-        return self._P[:NX, :NX]
+        return self._P[:NX, :NX] if self._C is None else self._C[:NX, :NX]
+
+    def _compress(self) -> None:
+        """Start a compression: the clone y = x_v, fully correlated with it."""
+        Pvv = self._P[:NX, :NX]
+        C = np.empty((2 * NX, 2 * NX))
+        C[:NX, :NX] = C[:NX, NX:] = C[NX:, :NX] = C[NX:, NX:] = Pvv
+        self._C = C
+        self._y[:] = self._x[:NX]
+        self._y0[:] = self._x[:NX]
 
     def flush(self) -> None:
-        """Apply the accumulated navigation steps to the landmark part of the state (exact)."""
-        if not self._pending:
+        """Apply the pending navigation steps to the landmark part of the state (exact)."""
+        C = self._C
+        if C is None:
             return
+        self._C = None
         n, P = self.n, self._P
-        L0 = P[NX:n, :NX].copy()  # P_lv at the last full update
-        self._x[NX:n] += L0 @ self._a
-        LPsi = L0 @ self._Psi
+        Pyy0 = P[:NX, :NX]  # the vehicle block when the compression started
+        A = np.linalg.solve(Pyy0, P[:NX, NX:n]).T  # P_lv P_vv⁻¹ (n_l × 9)
+        self._x[NX:n] += A @ (self._y - self._y0)
+        AD = A @ (Pyy0 - C[NX:, NX:])
         for r0 in range(NX, n, _ROW_CHUNK):
             r1 = min(n, r0 + _ROW_CHUNK)
-            P[r0:r1, NX:n] -= LPsi[r0 - NX : r1 - NX] @ L0.T
-        Plv = L0 @ self._Phi.T
+            P[r0:r1, NX:n] -= AD[r0 - NX : r1 - NX] @ A.T
+        Plv = A @ C[NX:, :NX]
         P[NX:n, :NX] = Plv
         P[:NX, NX:n] = Plv.T
-        self._Phi = np.eye(NX)
-        self._Psi = np.zeros((NX, NX))
-        self._a = np.zeros(NX)
-        self._pending = False
+        P[:NX, :NX] = C[:NX, :NX]
 
     # ----------------------------------------------------------------------- prediction
     def predict_vehicle(self, xv_new: np.ndarray, F: np.ndarray, Q: np.ndarray) -> None:
         """x_v ← f(x_v), P_vv ← F P_vv Fᵀ + Q, P_vl ← F P_vl (landmarks are static)."""
-        P = self._P
         self._x[:NX] = xv_new
-        P[:NX, :NX] = F @ P[:NX, :NX] @ F.T + Q
-        if self.n > NX:
-            self._Phi = F @ self._Phi
-            self._pending = True
+        if self.n == NX:
+            P = self._P
+            P[:NX, :NX] = F @ P[:NX, :NX] @ F.T + Q
+            return
+        if self._C is None:
+            self._compress()
+        C = self._C
+        C[:NX, :NX] = F @ C[:NX, :NX] @ F.T + Q
+        C[:NX, NX:] = F @ C[:NX, NX:]
+        C[NX:, :NX] = C[:NX, NX:].T
 
     # --------------------------------------------------------------------------- update
     def update_vehicle(self, innovation: np.ndarray, H: np.ndarray, R: np.ndarray) -> float:
-        """EKF update with H non-zero only on the vehicle block (H is d×9): Joseph form on P_vv, the
-        landmarks through the compressed accumulators. Returns the NIS νᵀ S⁻¹ ν."""
-        Pvv = self._P[:NX, :NX]
-        PHt = Pvv @ H.T
-        S = H @ PHt + R
+        """EKF update with H non-zero only on the vehicle block (H is d×9), in Joseph form
+        P − K(HP) − (HP)ᵀKᵀ + K S Kᵀ; with a map, on [x_v; y] (the landmarks follow at the next
+        :meth:`flush`). Returns the NIS νᵀ S⁻¹ ν."""
+        if self.n == NX:
+            P = self._P[:NX, :NX]
+        else:
+            if self._C is None:
+                self._compress()
+            P = self._C
+        HP = H @ P[:NX]  # d × (9 or 18)
+        S = HP[:, :NX] @ H.T + R
         S_inv = inv_small(0.5 * (S + S.T))
-        K = PHt @ S_inv
-        self._x[:NX] += K @ innovation
-        # Joseph form P − K(HP) − (HP)ᵀKᵀ + K S Kᵀ
-        KHP = K @ PHt.T
-        Pn = Pvv - KHP - KHP.T + (K @ S) @ K.T
-        self._P[:NX, :NX] = 0.5 * (Pn + Pn.T)
-        if self.n > NX:
-            HPhi = H @ self._Phi
-            W = S_inv @ HPhi
-            self._a += innovation @ W
-            self._Psi += HPhi.T @ W
-            self._Phi -= K @ HPhi
-            self._pending = True
+        K = HP.T @ S_inv
+        dx = K @ innovation
+        self._x[:NX] += dx[:NX]
+        if len(dx) > NX:
+            self._y += dx[NX:]
+        KHP = K @ HP
+        Pn = P - KHP - KHP.T + (K @ S) @ K.T
+        P[:] = 0.5 * (Pn + Pn.T)
         return float(innovation @ S_inv @ innovation)
 
     def update(self, innovation: np.ndarray, cols: np.ndarray, H: np.ndarray, R: np.ndarray) -> float:

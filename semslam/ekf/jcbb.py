@@ -59,14 +59,26 @@ def jcbb_dense(
     max_hypotheses: int = 20_000,
     individual_nis: np.ndarray | None = None,
     stats: dict | None = None,
+    seed_after: int = 300,
+    by_nis: bool = False,
 ) -> list[int | None]:
     """JCBB over candidate pairs k = (pair_obs[k], pair_lm[k]) whose innovations are ν[pair_rows[k]]
     with joint covariance S_all (every pair's rows, R on each pair's own diagonal block).
 
     Returns, for each of the ``n_obs`` observations, the landmark it pairs with, or None.
     ``individual_nis`` (one per pair) saves recomputing the individual NIS when the caller has it.
-    ``stats``, when given, receives the number of nodes expanded (``"nodes"``) and whether the search
-    was cut by ``max_hypotheses`` (``"capped"``).
+    ``stats``, when given, receives the number of nodes expanded (``"nodes"``), whether the search
+    was cut by ``max_hypotheses`` (``"capped"``) and whether it was seeded (``"seeded"``).
+
+    ``by_nis``: search the observations in order of increasing individual NIS (best candidate), not in
+    the given order. Every node of the search must be jointly compatible (Neira & Tardós test each
+    hypothesis as it grows), so the order decides which of two conflicting observations stays out:
+    most certain first keeps the well-predicted ones and leaves the doubtful ones for the end of the
+    branch, where dropping them is cheap (a front-end's output order is arbitrary).
+
+    A search that has not finished after ``seed_after`` nodes is started again with a greedy jointly
+    compatible hypothesis as the best so far (see below). It still returns a hypothesis with the
+    most pairings, but among equally many ones not necessarily the one the plain search finds first.
     """
     result: list[int | None] = [None] * n_obs
     K = len(pair_obs)
@@ -87,6 +99,8 @@ def jcbb_dense(
         c.sort(key=lambda t: t[0])
     # Only observations with a candidate take part (the others are never paired).
     order = [i for i in range(n_obs) if cands[i]]
+    if by_nis:
+        order.sort(key=lambda i: cands[i][0][0])
     if not order:
         return result
     C = [cands[i] for i in order]
@@ -97,6 +111,7 @@ def jcbb_dense(
     best_pairs: list = []
     best_nis = math.inf
     expanded = 0
+    limit = min(max_hypotheses, seed_after)
     used = 0  # bit mask of the landmarks used on the current path
 
     def pairable_from(i: int) -> int:
@@ -172,7 +187,7 @@ def jcbb_dense(
             if npairs > len(best_pairs) or (npairs == len(best_pairs) and npairs > 0 and node.nis < best_nis):
                 best_pairs, best_nis = list(node.pairs), node.nis
             return
-        if expanded >= max_hypotheses:
+        if expanded >= limit:
             return
         if best_pairs and cannot_beat(npairs, i):
             return
@@ -191,10 +206,46 @@ def jcbb_dense(
         if not cannot_beat(npairs, i + 1):
             search(node, i + 1)
 
-    search(_Node([], np.zeros(0, int), np.zeros(0), np.zeros((0, 0)), 0.0, 0), 0)
+    def seed() -> tuple[list, float]:
+        """A jointly compatible hypothesis built greedily (pairs by increasing individual NIS), then
+        kept prefix-compatible in observation order (a leaf the search itself could reach)."""
+        node = root
+        taken_obs: set[int] = set()
+        taken_lm: set[int] = set()
+        chosen = []
+        for _, li, j, k in sorted((d2, li, j, k) for li, c in enumerate(C) for d2, j, k in c):
+            if li in taken_obs or j in taken_lm:
+                continue
+            nis, pieces = child_nis(node, k)
+            if nis < gate(node.dof + len(pair_rows[k])):
+                node = build(node, order[li], j, k, nis, pieces)
+                taken_obs.add(li)
+                taken_lm.add(j)
+                chosen.append((li, j, k))
+        node = root
+        for li, j, k in sorted(chosen):
+            nis, pieces = child_nis(node, k)
+            if nis < gate(node.dof + len(pair_rows[k])):
+                node = build(node, order[li], j, k, nis, pieces)
+        return node.pairs, node.nis
+
+    root = _Node([], np.zeros(0, int), np.zeros(0), np.zeros((0, 0)), 0.0, 0)
+    search(root, 0)
+    seeded = False
+    if expanded >= limit and limit < max_hypotheses:
+        # A hard search (a pairing early in the order that only later observations contradict):
+        # start again from a greedy hypothesis as the best, so that every branch that cannot beat
+        # it is cut from the start.
+        seeded = True
+        pairs, nis = seed()
+        if len(pairs) > len(best_pairs):
+            best_pairs, best_nis = list(pairs), nis
+        limit = max_hypotheses
+        search(root, 0)
     if stats is not None:
         stats["nodes"] = expanded
         stats["capped"] = expanded >= max_hypotheses
+        stats["seeded"] = seeded
     for i, j, _ in best_pairs:
         result[i] = j
     return result

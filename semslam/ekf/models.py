@@ -168,11 +168,14 @@ class NavUpdate:
 
 def depth_update(x: np.ndarray, depth: float, variance: float, t_BS: np.ndarray) -> NavUpdate:
     """Pressure sensor at lever arm t_BS: z = p_z + (R_WB t_BS)_z (eq. 23, with the lever arm)."""
-    R = rot(*x[ATT])
-    h = x[2] + (R @ t_BS)[2]
+    phi, theta = float(x[3]), float(x[4])
+    cf, sf, ct, st = math.cos(phi), math.sin(phi), math.cos(theta), math.sin(theta)
+    tx, ty, tz = float(t_BS[0]), float(t_BS[1]), float(t_BS[2])
+    h = float(x[2]) - st * tx + ct * sf * ty + ct * cf * tz  # z + (R_WB t_BS)_z, row 2 of R = (-sθ, cθ sφ, cθ cφ)
     H = np.zeros((1, NX))
     H[0, 2] = 1.0
-    H[0, ATT] = (-R @ skew(t_BS) @ euler_rate_to_body(x[3], x[4]))[2]
+    H[0, 3] = ct * cf * ty - ct * sf * tz
+    H[0, 4] = -ct * tx - st * sf * ty - st * cf * tz
     return NavUpdate(np.array([depth - h]), H, np.array([[variance]]))
 
 
@@ -188,11 +191,14 @@ def attitude_in_body(R_WS: np.ndarray, cov_S: np.ndarray, R_BS: np.ndarray) -> t
     return e_B, J @ cov_S @ J.T
 
 
+_H_ATT = np.zeros((3, NX))
+_H_ATT[:, ATT] = np.eye(3)
+_H_ATT.flags.writeable = False
+
+
 def attitude_update(x: np.ndarray, e_B: np.ndarray, cov_B: np.ndarray) -> NavUpdate:
     """AHRS: z = (φ, θ, ψ) of {B} (eq. 24), linear."""
-    H = np.zeros((3, NX))
-    H[:, ATT] = np.eye(3)
-    return NavUpdate(wrap(e_B - x[ATT]), H, cov_B)
+    return NavUpdate(wrap(e_B - x[ATT]), _H_ATT, cov_B)
 
 
 def dvl_update(
