@@ -55,10 +55,19 @@ class ScanSegmentation:
     timings: dict[str, float] = field(default_factory=dict)
 
     def raw_indices(self, structure_indices: np.ndarray) -> np.ndarray:
-        """Raw scan points that fell in the given fine structure voxels."""
-        sel = np.zeros(len(self.structure_points) + 1, bool)
-        sel[structure_indices] = True
-        return np.flatnonzero(sel[self.raw_to_structure])  # −1 → the extra False slot
+        """Raw scan points that fell in the given fine structure voxels (sorted)."""
+        if not hasattr(self, "_raw_by_voxel"):
+            # Raw points grouped by structure voxel, once per scan (not a pass over the raw scan
+            # per object): voxel v's raw points are order[start[v]:start[v + 1]].
+            inside = np.flatnonzero(self.raw_to_structure >= 0)
+            order = inside[np.argsort(self.raw_to_structure[inside], kind="stable")]
+            start = np.r_[0, np.cumsum(np.bincount(self.raw_to_structure[inside], minlength=len(self.structure_points)))]
+            self._raw_by_voxel = (order, start)
+        order, start = self._raw_by_voxel
+        v = np.unique(structure_indices)
+        counts = start[v + 1] - start[v]
+        offsets = np.repeat(start[v] - np.r_[0, np.cumsum(counts)[:-1]], counts)
+        return np.sort(order[np.arange(counts.sum()) + offsets])
 
 
 def structure_cloud(raw: np.ndarray, pre: Preprocessed, planes: PlaneResult, cfg: LaserConfig):

@@ -49,7 +49,8 @@ class Chi2Index:
 
     def __init__(self, database: np.ndarray):
         x = np.asarray(database, dtype=np.float64)
-        self.bins_by_view = np.ascontiguousarray(x.T)  # D×V
+        self.bins_by_view = np.ascontiguousarray(x.T)  # D×V: all views
+        self.views = np.ascontiguousarray(x)  # V×D: a few views (their rows, then the query's bins)
         self.row_sums = self.bins_by_view.sum(axis=0)
 
     def __len__(self) -> int:
@@ -63,7 +64,7 @@ class Chi2Index:
         out = np.empty((len(q), len(sums)))
         for k, qk in enumerate(q):  # one query (object) at a time: its own non-empty bins
             nz = np.flatnonzero(qk > 0)
-            xs = self.bins_by_view[nz] if rows is None else self.bins_by_view[np.ix_(nz, rows)]
+            xs = self.bins_by_view[nz] if rows is None else self.views[rows][:, nz].T
             qs = qk[nz][:, None]
             out[k] = 0.5 * (((qs - xs) ** 2 / (qs + xs)).sum(axis=0) + (sums - xs.sum(axis=0)))
         return out[0] if np.ndim(query) == 1 else out

@@ -128,6 +128,7 @@ class Recognizer:
         self._features = database.features(descriptor)
         self._index = Chi2Index(self._features) if descriptor != "cvfh" else None
         self._extents = database.features("extent")
+        self._log_extents = np.log(self._extents)
         if method == "svm":
             ext = self._extents if self.size_weight > 0 else None
             self._svm = make_svm(n_size=0 if ext is None else 3).fit(svm_features(self._features, ext), self._labels)
@@ -169,7 +170,8 @@ class Recognizer:
         q = self.describe(pts)
         ext = principal_extents(pts)
         if self.method == "nn" and self._index is not None and self.size_weight > 0:
-            view, dist = self._nearest_view(q, self.size_weight * size_distances(ext, self._extents))
+            size_d = np.abs(np.log(ext) - self._log_extents).sum(axis=1)  # size_distances, logs kept
+            view, dist = self._nearest_view(q, self.size_weight * size_d)
             return Recognition(str(self._labels[view]), view, dist)
         d = set_distances(q, self._features) if self.descriptor == "cvfh" else self._index.distances(q)
         if self.size_weight > 0:
