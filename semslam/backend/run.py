@@ -1,5 +1,5 @@
-"""A minimal driver for the graph back-end (tests, benchmarks): feeds a mission to front-ends and
-the estimator in stamp order. The full pipeline with outputs is ``semslam.pipeline``."""
+"""The graph back-end alone over a mission (tests, benchmarks), through the one driver,
+``semslam.pipeline.run_pipeline``."""
 
 from __future__ import annotations
 
@@ -12,16 +12,8 @@ from semslam.mission.mission import Mission
 
 
 def run_graph(mission: Mission, config: SemslamConfig | None = None, frontends: Sequence = (), batch: bool | None = None) -> EstimatorResult:
-    """Run :class:`GraphEstimator` over ``mission``; each front-end sees the measurement types it
-    consumes (after the estimator has taken the measurement) and its observations go to the
-    estimator as one batch per measurement."""
+    """Run :class:`GraphEstimator` over ``mission`` with ``frontends`` (which see its view)."""
+    from semslam.pipeline import run_pipeline
+
     est = GraphEstimator(mission.metadata, config, batch=batch)
-    view = est.view()
-    for m in mission:
-        est.process_measurement(m)
-        for fe in frontends:
-            if isinstance(m, fe.consumes):
-                obs = fe.process(m, view)
-                if obs:
-                    est.process_observations(m.stamp, obs)
-    return est.finish()
+    return run_pipeline(mission, [est], frontends, keep_observations=False).results[est.name]
