@@ -73,7 +73,9 @@ def run_pipeline(
     if progress:
         from tqdm import tqdm
 
-        bar = tqdm(unit=" msg", desc="mission", dynamic_ncols=True, mininterval=0.5)
+        bar = tqdm(total=getattr(mission, "message_count", None), unit=" msg", desc="mission", dynamic_ncols=True,
+                   mininterval=0.5)
+        wall0 = time.perf_counter()
     first = last = None
     n = 0
     it = iter(mission)
@@ -110,7 +112,8 @@ def run_pipeline(
         if bar is not None:
             bar.update(1)
             if n % 200 == 0:
-                bar.set_postfix_str(f"t={(m.stamp - first) * 1e-9:7.1f} s")
+                mission_s = (m.stamp - first) * 1e-9
+                bar.set_postfix_str(f"mission t={mission_s:6.1f} s, {mission_s / max(time.perf_counter() - wall0, 1e-9):5.1f}× real time")
     summaries = {}
     for fe, _ in consumers:  # the front-ends' last word, before the estimators close
         if not hasattr(fe, "finish"):
