@@ -50,6 +50,18 @@ _STEPS: dict[int, tuple[np.ndarray, np.ndarray]] = {}
 _ROW_MAJOR_27 = np.stack(np.meshgrid(*[np.arange(-1, 2)] * 3, indexing="ij"), -1).reshape(-1, 3)
 
 
+def _unique(keys: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``np.unique(keys, return_inverse=True, return_counts=True)`` by a stable sort: a scan's
+    points come ray by ray, so their cells come in runs, which a merge sort takes in one pass
+    (about half the time of the default quicksort here)."""
+    order = np.argsort(keys, kind="stable")
+    s = keys[order]
+    first = np.r_[True, s[1:] != s[:-1]]
+    inverse = np.empty(len(keys), np.int64)
+    inverse[order] = np.cumsum(first) - 1
+    return s[first], inverse, np.diff(np.r_[np.flatnonzero(first), len(keys)])
+
+
 class VoxelGrid:
     """Occupied cells of a voxel size ``size`` (m) of a cloud: ``points`` (M×3) the centroids of
     the input points in each, ``counts`` (M,) their numbers, ``inverse`` the cell of every input
@@ -72,7 +84,7 @@ class VoxelGrid:
         bflat = (blk[:, 0] * bdims[1] + blk[:, 1]) * bdims[2] + blk[:, 2]
         loc = keys & (_L - 1)
         flat = (bflat << 3 * _B) | (loc[:, 0] << 2 * _B) | (loc[:, 1] << _B) | loc[:, 2]
-        uniq, self.inverse, self.counts = np.unique(flat, return_inverse=True, return_counts=True)
+        uniq, self.inverse, self.counts = _unique(flat)
         n = len(uniq)
         sums = np.stack([np.bincount(self.inverse, weights=pts[:, j], minlength=n) for j in range(3)], axis=1)
         self.points = sums / np.maximum(self.counts, 1)[:, None]
