@@ -92,9 +92,10 @@ def line_innovations(
     from one sensor pose; the Jacobians at L_lin when given (first estimates). Returns (ν K×4,
     H_x K×4×9, H_l K×4×4, R K×4×4)."""
     nu, Rn, r, flip = _line_residuals(x, L, obs_U, obs_rho, obs_d, obs_cov, R_BS, t_BS)
-    if L_lin is not None:
-        _, _, r, _ = _line_residuals(x, L_lin, obs_U, obs_rho, obs_d, obs_cov, R_BS, t_BS, flip)
-    H_x, H_l = _line_jacobians(x, L if L_lin is None else L_lin, r, R_BS, t_BS)
+    if L_lin is None:
+        H_x, H_l = _line_jacobians(x, L, r, R_BS, t_BS)
+    else:  # r at the first estimates, with the observations flipped as at L
+        H_x, H_l = _line_jacobians(x, L_lin, None, R_BS, t_BS, obs_U=obs_U, flip=flip)
     return nu, H_x, H_l, Rn
 
 
@@ -128,8 +129,9 @@ def _line_residuals(x, L, obs_U, obs_rho, obs_d, obs_cov, R_BS, t_BS, flip=None)
     return nu, Gr @ cov @ np.transpose(Gr, (0, 2, 1)), r, flip
 
 
-def _line_jacobians(x, L, r, R_BS, t_BS):
-    """(H_x, H_l) of the line innovation at pipes L with rotation residuals r."""
+def _line_jacobians(x, L, r, R_BS, t_BS, obs_U=None, flip=None):
+    """(H_x, H_l) of the line innovation at pipes L with rotation residuals r (or, when r is None,
+    those of the observations obs_U, flipped where ``flip``, against L)."""
     K = len(L)
     R, t, R_WB, E = sensor_pose(x, R_BS, t_BS)
     W = R_BS.T @ E  # ∂ω_S/∂e
@@ -170,6 +172,10 @@ def _line_jacobians(x, L, r, R_BS, t_BS):
     rho_h = np.linalg.norm(m_S, axis=1)
     h1 = m_S / rho_h[:, None]
     h3 = np.cross(h1, d_S)
+    if r is None:
+        U_h = np.stack([h1, d_S, h3], axis=2)
+        U_z = np.where(flip[:, None, None], obs_U * _FLIP, obs_U)
+        r = so3_log_batch(np.transpose(U_h, (0, 2, 1)) @ U_z)
     A = np.zeros((K, 4, 6))
     A[:, 0, 3:] = h3
     A[:, 1, :3] = -h3 / rho_h[:, None]

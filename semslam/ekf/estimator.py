@@ -135,6 +135,7 @@ class _Extent:
         self._k = 0
         self._memo: tuple | None = None  # (m, d, view count, interval)
         self._w: tuple | None = None  # (view count, 6 × median σ)
+        self._sep_memo: tuple | None = None  # (objects key, m, d, on-line objects' positions along it)
 
     def __len__(self) -> int:
         return self._k
@@ -186,15 +187,21 @@ class _Extent:
         if len(objects) == 0:
             return False
         c = geo.closest_point(m, d)
-        r = objects - c
-        s_obj = r @ d
-        on_line = np.linalg.norm(r - s_obj[:, None] * d, axis=1) < radius
-        if not on_line.any():
+        key = (objects.shape, float(objects.sum()), radius)
+        memo = self._sep_memo
+        if memo is not None and memo[0] == key and np.array_equal(memo[1], m) and np.array_equal(memo[2], d):
+            s_on = memo[3]
+        else:  # the objects on the line, by their position along it (once per line and object set)
+            r = objects - c
+            s_obj = r @ d
+            s_on = s_obj[np.linalg.norm(r - s_obj[:, None] * d, axis=1) < radius]
+            self._sep_memo = (key, np.array(m, float), np.array(d, float), s_on)
+        if not len(s_on):
             return False
         a, b = self.interval(m, d)
         s = (ends_W - c) @ d
         lo, hi = (b - margin, s.min() + margin) if s.mean() > 0.5 * (a + b) else (s.max() - margin, a + margin)
-        return bool(np.any(on_line & (s_obj > lo) & (s_obj < hi)))
+        return bool(np.any((s_on > lo) & (s_on < hi)))
 
 
 def _along_sigma(o: LineObservation) -> float:
@@ -428,7 +435,7 @@ class EkfEstimator:
         has_gt = bool(metadata.sensors_of_kind("ground_truth"))
         self._wait_gt = self.cfg.initial_pose == "first_ground_truth" and has_gt
         # outputs
-        self._traj: dict[str, list] = {k: [] for k in ("t", "p", "e", "pc", "v", "vc")}
+        self._traj: dict[str, list] = {k: [] for k in ("t", "x", "P")}  # vehicle state and covariance
         self._veh_hist: tuple[list, list] = ([], [])
         self._update_times: list[float] = []
         self._update_n: list[int] = []
@@ -479,7 +486,7 @@ class EkfEstimator:
         self.t = stamp
 
     def _nav_update(self, u: mdl.NavUpdate) -> None:
-        self.state.update(u.innovation, np.arange(NX), u.H, u.R)
+        self.state.update_vehicle(u.innovation, u.H, u.R, nis=False)
         self._wrap_vehicle()
 
     def _wrap_vehicle(self) -> None:
@@ -543,21 +550,18 @@ class EkfEstimator:
 
     # --------------------------------------------------------------------------- records
     def _record(self, stamp: int) -> None:
-        x, P = self.state.xv, self.state.Pvv
+        x, P = self.state.xv.copy(), self.state.Pvv.copy()
         tr = self._traj
         if tr["t"] and tr["t"][-1] == stamp:
             for k in tr:
                 tr[k].pop()
         tr["t"].append(stamp)
-        tr["p"].append(x[POS].copy())
-        tr["e"].append(x[ATT].copy())
-        tr["pc"].append(P[POS, POS].copy())
-        tr["v"].append(x[VEL].copy())
-        tr["vc"].append(P[VEL, VEL].copy())
+        tr["x"].append(x)
+        tr["P"].append(P)
         hs, hp = self._veh_hist
         if not hs or (stamp - hs[-1]) * NS >= self.cfg.history_period_s:
             hs.append(stamp)
-            hp.append(P[:NX, :NX].copy())
+            hp.append(P)
 
     # ---------------------------------------------------------------------- observations
     def _prepare(self, observations: Sequence[Observation]) -> list[_Obs]:
@@ -682,15 +686,18 @@ class EkfEstimator:
         return self._associate(EkfAssociationProblem(self, obs), confidence=self.assoc.confidence)
 
     def _slam_update(self, stamp: int, obs: list[_Obs]) -> None:
+        scan = _ScanPairs(self, obs, max(self.assoc.confidence, self.cfg.track_gate_confidence))
         if self._associate is not None:
             pairs = self._associate_batch(obs)
             paired = [(o, self._features[j]) for o, j in zip(obs, pairs) if j is not None]
             lins = [self._pair(o, f) for o, f in paired]
         else:
-            scan = _ScanPairs(self, obs, max(self.assoc.confidence, self.cfg.track_gate_confidence))
             pairs = scan.associate(self.assoc.confidence)
             paired = [(o, self._features[j]) for o, j in zip(obs, pairs) if j is not None]
             lins = [scan.linearisation(i, j) for i, j in enumerate(pairs) if j is not None]
+        # ambiguous rather than new: compatible with a mapped feature at the looser track gate, on
+        # the linearisation the pairings were decided on
+        near = scan.near(self.cfg.track_gate_confidence)
         if paired:
             self._joint_update(paired, lins)
         for o, f in paired:
@@ -699,30 +706,32 @@ class EkfEstimator:
             if f.kind == "pipe":  # save the segment seen now (placed with the updated pose)
                 R, t, _, _ = mdl.sensor_pose(self.state.xv, o.R_BS, o.t_BS)
                 f.extent.add(np.array([o.obs.p, o.obs.q]) @ R.T + t, _along_sigma(o.obs))
-        unpaired = [o for o, j in zip(obs, pairs) if j is None]
-        near = self._near_mapped_batch(unpaired)
-        self._tentative(stamp, [o for o, n in zip(unpaired, near) if not n])
+        unpaired = [i for i, j in enumerate(pairs) if j is None and not near[i]]
+        on_pipe = self._on_mapped_pipe([obs[i] for i in unpaired])
+        self._tentative(stamp, [obs[i] for i, on in zip(unpaired, on_pipe) if not on])
 
     def _near_mapped(self, o: _Obs) -> bool:
         """An unpaired observation that is still compatible with a mapped feature at the looser track
         gate, or (pipes) lies on a mapped pipe by the paper's collinearity criterion, is ambiguous, not
         new: it is dropped rather than started as a duplicate feature."""
-        return bool(self._near_mapped_batch([o])[0])
+        if not self._features:
+            return False
+        if _ScanPairs(self, [o], self.cfg.track_gate_confidence).near(self.cfg.track_gate_confidence)[0]:
+            return True
+        return bool(self._on_mapped_pipe([o])[0])
 
-    def _near_mapped_batch(self, obs: list[_Obs]) -> np.ndarray:
-        """:meth:`_near_mapped` of each observation, at the current (updated) state, in one pass."""
-        if not obs or not self._features:
-            return np.zeros(len(obs), bool)
-        near = _ScanPairs(self, obs, self.cfg.track_gate_confidence).near(self.cfg.track_gate_confidence)
+    def _on_mapped_pipe(self, obs: list[_Obs]) -> np.ndarray:
+        """Per observation: a pipe view on a mapped pipe by :meth:`_on_pipe`."""
+        out = np.zeros(len(obs), bool)
         pipes = [f for f in self._features if f.kind == "pipe"]
-        todo = [i for i, o in enumerate(obs) if o.kind == "pipe" and not near[i]]
+        todo = [i for i, o in enumerate(obs) if o.kind == "pipe"]
         if pipes and todo:
             x = self.state.x
             lines = [geo.line_plucker(x[f.index : f.index + 4]) for f in pipes]
             objects = self._object_positions()
             for i in todo:
-                near[i] = any(self._on_pipe(obs[i].ends_W, f.extent, m, d, objects) for f, (m, d) in zip(pipes, lines))
-        return near
+                out[i] = any(self._on_pipe(obs[i].ends_W, f.extent, m, d, objects) for f, (m, d) in zip(pipes, lines))
+        return out
 
     def _on_pipe(self, ends_W: np.ndarray, extent: _Extent, m: np.ndarray, d: np.ndarray, objects: np.ndarray) -> bool:
         """The paper's collinear merge (shared ``association.merge_angle_rad`` / ``merge_distance_m``): the
@@ -935,7 +944,7 @@ class EkfEstimator:
             k = int(np.clip(np.searchsorted(ts, stamp), 0, len(ts) - 1))
             if k > 0 and abs(ts[k - 1] - stamp) < abs(ts[k] - stamp):
                 k -= 1
-            x = np.r_[self._traj["p"][k], self._traj["e"][k]]
+            x = self._traj["x"][k]
         T = np.eye(4)
         T[:3, :3] = geo.rot(*x[ATT])
         T[:3, 3] = x[POS]
@@ -949,15 +958,15 @@ class EkfEstimator:
         if not tr["t"]:
             empty = Trajectory(np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 4)))
             return EstimatorResult(self.name, empty, diagnostics=self._diag + ["the filter was never initialised"])
-        e = np.array(tr["e"])
-        quats = Rotation.from_euler("ZYX", e[:, ::-1]).as_quat()
+        X, P = np.array(tr["x"]), np.array(tr["P"])
+        quats = Rotation.from_euler("ZYX", X[:, ATT][:, ::-1]).as_quat()
         traj = Trajectory(
             stamps=np.array(tr["t"], np.int64),
-            positions=np.array(tr["p"]),
+            positions=X[:, POS].copy(),
             orientations=quats,
-            position_cov=np.array(tr["pc"]),
-            velocities=np.array(tr["v"]),
-            velocity_cov=np.array(tr["vc"]),
+            position_cov=P[:, POS, POS].copy(),
+            velocities=X[:, VEL].copy(),
+            velocity_cov=P[:, VEL, VEL].copy(),
         )
         if self.feature_updates:
             volumes = {f.id: (np.array(f.vol_stamps, np.int64), np.array(f.vol)) for f in self._features}

@@ -27,8 +27,8 @@ _ROW_CHUNK = 512  # rows of P updated per gemm (bounds the temporaries for large
 
 
 def inv_small(S: np.ndarray) -> np.ndarray:
-    """Inverse of a small symmetric positive-definite matrix (closed form up to 3×3: numpy's per-call
-    cost dominates at this size)."""
+    """Inverse of a small symmetric positive-definite matrix (closed form up to 3×3 from its upper
+    triangle: numpy's per-call cost dominates at this size)."""
     d = S.shape[0]
     if d == 1:
         return np.array([[1.0 / S[0, 0]]])
@@ -124,10 +124,11 @@ class EkfState:
         C[NX:, :NX] = C[:NX, NX:].T
 
     # --------------------------------------------------------------------------- update
-    def update_vehicle(self, innovation: np.ndarray, H: np.ndarray, R: np.ndarray) -> float:
-        """EKF update with H non-zero only on the vehicle block (H is d×9), in Joseph form
-        P − K(HP) − (HP)ᵀKᵀ + K S Kᵀ; with a map, on [x_v; y] (the landmarks follow at the next
-        :meth:`flush`). Returns the NIS νᵀ S⁻¹ ν."""
+    def update_vehicle(self, innovation: np.ndarray, H: np.ndarray, R: np.ndarray, nis: bool = True) -> float | None:
+        """EKF update with H non-zero only on the vehicle block (H is d×9); with a map, on [x_v; y]
+        (the landmarks follow at the next :meth:`flush`). P⁺ = P − K(HP), symmetrised: with the optimal
+        gain the Joseph form's K S Kᵀ − (HP)ᵀKᵀ terms cancel, and S here is a well-conditioned d ≤ 3
+        navigation residual. Returns the NIS νᵀ S⁻¹ ν (None unless ``nis``)."""
         if self.n == NX:
             P = self._P[:NX, :NX]
         else:
@@ -136,16 +137,16 @@ class EkfState:
             P = self._C
         HP = H @ P[:NX]  # d × (9 or 18)
         S = HP[:, :NX] @ H.T + R
-        S_inv = inv_small(0.5 * (S + S.T))
+        S_inv = inv_small(S)  # reads the upper triangle: symmetric by construction
         K = HP.T @ S_inv
         dx = K @ innovation
         self._x[:NX] += dx[:NX]
         if len(dx) > NX:
             self._y += dx[NX:]
-        KHP = K @ HP
-        Pn = P - KHP - KHP.T + (K @ S) @ K.T
-        P[:] = 0.5 * (Pn + Pn.T)
-        return float(innovation @ S_inv @ innovation)
+        Pn = P - K @ HP
+        P[:] = Pn + Pn.T
+        P *= 0.5
+        return float(innovation @ S_inv @ innovation) if nis else None
 
     def update(self, innovation: np.ndarray, cols: np.ndarray, H: np.ndarray, R: np.ndarray) -> float:
         """EKF update with ν = z − h(x) and H non-zero only on the state indices ``cols`` (H is d×len(cols)).
