@@ -338,21 +338,23 @@ class _ScanPairs:
         self.nu, self.H_x, self.H_l, self.R = nus, Hxs, Hls, Rs
         self.nis = np.concatenate(niss) if niss else np.zeros(0)
 
+    def _passing(self, confidence: float) -> np.ndarray:
+        """Indices of the candidates individually compatible at ``confidence``."""
+        gate = Chi2Gate(confidence)
+        dims = np.fromiter((len(v) for v in self.nu), int, len(self.nu))
+        return np.flatnonzero(self.nis < np.where(dims == 3, gate(3), gate(4)))
+
     def near(self, confidence: float) -> np.ndarray:
         """Per observation: is some candidate feature individually compatible at ``confidence``?"""
-        gate = Chi2Gate(confidence)
         out = np.zeros(self.n_obs, bool)
-        for k in range(len(self.obs)):
-            if self.nis[k] < gate(len(self.nu[k])):
-                out[self.obs[k]] = True
+        out[self.obs[self._passing(confidence)]] = True
         return out
 
     def associate(self, confidence: float) -> list[int | None]:
         """JCBB over the individually compatible candidates, with their full joint covariance, the
         observations searched most certain first (:func:`semslam.ekf.jcbb.jcbb_dense`)."""
-        gate = Chi2Gate(confidence)
-        ks = [k for k in range(len(self.obs)) if self.nis[k] < gate(len(self.nu[k]))]
-        if not ks:
+        ks = self._passing(confidence)
+        if not len(ks):
             return [None] * self.n_obs
         feats = self.est._features
         # J (stacked rows of the candidate pairs) over the vehicle and the candidate features' columns

@@ -21,19 +21,19 @@ from semslam.ekf.filter import inv_small
 
 
 class Chi2Gate:
-    """χ² quantiles by degrees of freedom, computed once each (scipy's ppf is slow)."""
+    """χ² quantiles by degrees of freedom, computed once each per confidence (scipy's ppf is slow)."""
 
-    _cache: dict[tuple[float, int], float] = {}
+    _tables: dict[float, list[float]] = {}
 
     def __init__(self, confidence: float):
         self.confidence = float(confidence)
+        self._t = self._tables.setdefault(self.confidence, [])
 
     def __call__(self, dof: int) -> float:
-        key = (self.confidence, int(dof))
-        v = self._cache.get(key)
-        if v is None:
-            v = self._cache[key] = float(chi2.ppf(self.confidence, int(dof)))
-        return v
+        t = self._t
+        if dof >= len(t):
+            t.extend(float(chi2.ppf(self.confidence, k)) for k in range(len(t), max(dof + 1, 2 * len(t), 64)))
+        return t[dof]
 
 
 class _Node:
