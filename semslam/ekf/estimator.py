@@ -877,21 +877,40 @@ class EkfEstimator:
     # --------------------------------------------------------------------- dead reckoning
     def _place(self, stamp: int, obs: list[_Obs]) -> None:
         """Dead reckoning: every observation becomes its own map entry, placed with the DR pose."""
-        x, Pvv = self.state.xv, self.state.P[:NX, :NX]
-        for o in obs:
-            if o.kind == "object":
-                l, G_x, G_z = mdl.point_initialise(x, o.obs.position, o.R_BS, o.t_BS)
-                cov = G_x @ Pvv @ G_x.T + G_z @ o.obs.covariance @ G_z.T
-                lm = LandmarkEstimate(self._next_id, "object", position=l, covariance=cov,
-                                      class_posterior=_posterior(_class_log(o.obs)), n_observations=1)
-            else:
+        x, Pvv = self.state.xv, self.state.Pvv
+        entries: list[tuple] = []  # (index, kind, l or (p, q), cov, observation)
+        for sensor, group in _by_sensor(obs, "object"):  # objects: one batch per sensor
+            o0 = obs[group[0]]
+            Z = np.array([obs[i].obs.position for i in group])
+            R, t, R_WB, E = bt.sensor_pose(x, o0.R_BS, o0.t_BS)
+            L = Z @ R.T + t
+            G_x = np.empty((len(group), 3, NX))
+            G_x[:] = bt._dt_dx(R_WB, E, o0.t_BS)
+            G_x[:, :, ATT] -= R @ bt.skew_batch(Z) @ (o0.R_BS.T @ E)
+            C = np.array([obs[i].obs.covariance for i in group])
+            cov = G_x @ Pvv @ np.transpose(G_x, (0, 2, 1)) + R @ C @ R.T
+            entries += [(i, "object", l, c, obs[i]) for i, l, c in zip(group, L, cov)]
+        for i, o in enumerate(obs):
+            if o.kind == "pipe":
                 l, G_x, G_pq = mdl.line_initialise(x, o.obs.p, o.obs.q, o.R_BS, o.t_BS)
                 cov = G_x @ Pvv @ G_x.T + G_pq @ o.obs.covariance @ G_pq.T
                 m_W, d_W = geo.line_plucker(l)
-                p, q = geo.project_on_line(o.ends_W, m_W, d_W)
-                lm = LandmarkEstimate(self._next_id, "pipe", p=p, q=q, covariance=cov, n_observations=1)
+                entries.append((i, "pipe", geo.project_on_line(o.ends_W, m_W, d_W), cov, o))
+        entries.sort(key=lambda e: e[0])  # ids in observation order
+        vols = {3: None, 4: None}
+        for size in (3, 4):
+            covs = [e[3] for e in entries if len(e[3]) == size]
+            if covs:
+                vols[size] = iter(np.linalg.slogdet(np.array(covs))[1])
+        stamps = np.array([stamp], np.int64)
+        for _, kind, val, cov, o in entries:
+            if kind == "object":
+                lm = LandmarkEstimate(self._next_id, "object", position=val, covariance=cov,
+                                      class_posterior=_posterior(_class_log(o.obs)), n_observations=1)
+            else:
+                lm = LandmarkEstimate(self._next_id, "pipe", p=val[0], q=val[1], covariance=cov, n_observations=1)
             self._dr_map.append(lm)
-            self._volume(self._next_id, stamp, cov)
+            self._dr_vol[self._next_id] = (stamps, np.array([next(vols[len(cov)])]))
             self._next_id += 1
 
     # ------------------------------------------------------------------------- history
@@ -910,10 +929,6 @@ class EkfEstimator:
             for f, v in zip(fs, vols):
                 f.vol_stamps.append(stamp)
                 f.vol.append(float(v))
-
-    def _volume(self, lid: int, stamp: int, cov: np.ndarray) -> None:
-        ev = np.linalg.eigvalsh(cov)
-        self._dr_vol[lid] = (np.array([stamp], np.int64), np.array([np.log(np.clip(ev, 1e-300, None)).sum()]))
 
     # ------------------------------------------------------------------------- outputs
     def _landmark(self, f: _Feature) -> LandmarkEstimate:
