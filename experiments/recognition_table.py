@@ -97,7 +97,7 @@ def syn_stage(args) -> dict:
             for method in ("nn", "svm"):
                 if desc == "cvfh" and method == "svm":
                     continue
-                rec = Recognizer(db, descriptor=desc, method=method, size_weight=size)
+                rec = Recognizer(db, descriptor=desc, method=method, size_weight=size, esf_samples=args.esf_samples)
                 conf = rec.evaluate(clouds, labels)
                 acc = float(np.trace(conf) / conf.sum())
                 rows.append({"descriptor": desc, "method": method, "size_cue": size > 0,
@@ -141,7 +141,7 @@ def synthetic_records(syn: dict, n_landmarks: int, seed: int) -> list[Observatio
 
 def tank_records(args) -> tuple[list[ObservationRecord], dict]:
     """Observation records of the simulated tank mission with oracle segmentation and ids."""
-    from frontends.laser.recognition.recognizer import default_recognizer
+    from frontends.laser.recognition.config import RecognitionConfig, recognizer_from_config
     from semslam.semantics.connectivity import configuration_of
     from semslam.sim import sensors as S
     from semslam.sim.config import TankSimConfig
@@ -156,7 +156,8 @@ def tank_records(args) -> tuple[list[ObservationRecord], dict]:
     _, t = S.sample_times(0, cfg.laser.rate_hz, cfg.trajectory.duration_s, first=1)
     if args.max_scans:
         t = t[:: max(1, len(t) // args.max_scans)]
-    rec = default_recognizer(cache_dir=args.cache_dir)
+    # The recogniser as the laser front-end configures it (its ESF sample count included).
+    rec = recognizer_from_config(RecognitionConfig(cache_dir=args.cache_dir, esf_samples=args.esf_samples))
     syn = {"classes": rec.classes, "confusion": rec.confusion.tolist()}
     T_BS = cfg.laser.mount.matrix()
     d_S = S.laser_ray_dirs(cfg.laser)
@@ -204,9 +205,17 @@ def main() -> None:
     ap.add_argument("--views", type=int, default=24, help="database viewing directions per model (each at every distance)")
     ap.add_argument("--held-out", type=int, default=30, help="held-out views per model")
     ap.add_argument("--cache-dir", type=Path, default=None)
+    ap.add_argument(
+        "--esf-samples", type=int, default=None,
+        help="ESF triplets of a query segment (default: the front-end's, frontends.laser.recognition.esf_samples)",
+    )  # fmt: skip
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", type=Path, default=Path("runs/recognition"))
     args = ap.parse_args()
+    if args.esf_samples is None:
+        from frontends.laser.recognition.config import RecognitionConfig
+
+        args.esf_samples = RecognitionConfig().esf_samples
 
     syn = syn_stage(args) if args.syn else None
     if args.syn_confusion:

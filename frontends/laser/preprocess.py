@@ -15,7 +15,7 @@ Normals and curvature come from the covariance of a neighbourhood grown ``normal
 through occupied neighbours: the moments of every voxel summed by ``normal_hops`` products with the
 26-neighbourhood adjacency matrix. That is a cube of (2h+1)³ cells weighted towards its centre (the
 number of paths of h steps), restricted to cells connected to the centre: at 3 cm and 3 steps, ~50
-voxels of a plane — the paper's 50-point neighbourhood — for ~2 % of the cost of the k-NN search.
+voxels of a plane — the paper's 50-point neighbourhood — for ~10 % of the cost of the 50-NN search.
 """
 
 from __future__ import annotations
