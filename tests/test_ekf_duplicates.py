@@ -60,3 +60,13 @@ def test_new_pipes_beside_or_beyond_an_in_line_object_are_still_mapped():
     beyond_valve = (np.array([1.1, 0.0, 4.5]), np.array([1.8, 0.0, 4.5]))  # collinear with A, past the valve
     est = _scene_run(extra_after_s=30.0, extra=[parallel, beyond_valve])
     assert _kinds(est) == ["object", "object", "pipe", "pipe", "pipe", "pipe"]
+
+
+def test_object_tracks_keep_the_weighted_mean_of_their_views():
+    from semslam.ekf.estimator import _Track
+
+    tr = _Track("object", np.zeros(3), np.eye(3), 0, 0)
+    tr.fuse(np.array([0.0, 0.0, 0.0]), np.eye(3) * 0.01)
+    tr.fuse(np.array([0.3, 0.0, 0.0]), np.eye(3) * 0.02)
+    np.testing.assert_allclose(tr.mean, [0.1, 0.0, 0.0])
+    np.testing.assert_allclose(tr.cov, np.eye(3) * (1 / (100 + 50)))

@@ -84,8 +84,9 @@ class _Feature:
 
 @dataclass
 class _Track:
-    """A tentative feature: the latest observation in {W} and its covariance (line error coordinates
-    for pipes), how often it was seen, and the seen extent (pipes)."""
+    """A tentative feature: for objects the information-weighted mean of its observations in {W} and
+    its covariance (as the graph's tracks), for pipes the latest observation (Plücker, covariance in
+    line error coordinates) and the seen extent; how often it was seen."""
 
     kind: str
     mean: np.ndarray  # object: (3,) position; pipe: (6,) Plücker (m, d)
@@ -94,6 +95,21 @@ class _Track:
     last_stamp: int
     extent: _Extent | None = None
     class_log: dict[str, float] = field(default_factory=dict)
+    info: np.ndarray | None = None  # objects: Σ C⁻¹ and Σ C⁻¹ w of the observations
+    info_vec: np.ndarray | None = None
+
+    def fuse(self, mean: np.ndarray, cov: np.ndarray) -> None:
+        """Objects: add an observation to the weighted mean; pipes: keep the latest."""
+        if self.kind != "object":
+            self.mean, self.cov = mean, cov
+            return
+        Ci = np.linalg.inv(cov)
+        if self.info is None:
+            self.info, self.info_vec = np.zeros((3, 3)), np.zeros(3)
+        self.info = self.info + Ci
+        self.info_vec = self.info_vec + Ci @ mean
+        self.cov = np.linalg.inv(self.info)
+        self.mean = self.cov @ self.info_vec
 
 
 def _fuse_class(log: dict[str, float], likelihood) -> None:
@@ -844,12 +860,14 @@ class EkfEstimator:
                     best, best_nis = k, nis
             if best is None:
                 tr = _Track(o.kind, mean, cov, 1, stamp, _Extent() if o.kind == "pipe" else None)
+                tr.fuse(mean, cov)
                 self._tracks.append(tr)
                 used.add(len(self._tracks) - 1)
             else:
                 tr = self._tracks[best]
                 used.add(best)
-                tr.mean, tr.cov, tr.n, tr.last_stamp = mean, cov, tr.n + 1, stamp
+                tr.fuse(mean, cov)
+                tr.n, tr.last_stamp = tr.n + 1, stamp
             _fuse_class(tr.class_log, getattr(o.obs, "class_likelihood", None))
             if tr.kind == "pipe":
                 tr.extent.add(o.ends_W, _along_sigma(o.obs))
