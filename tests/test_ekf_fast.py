@@ -268,8 +268,8 @@ def test_scan_linearisation_equals_the_pairwise_problem():
     gate = {3: chi2.ppf(0.999, 3), 4: chi2.ppf(0.999, 4)}
     generic = {(i, j) for i in range(len(prepared)) for j in range(prob.n_landmarks)
                if prob.pair(i, j) is not None and individual_nis(prob, i, j) < gate[len(prob.pair(i, j).innovation)]}
-    assert generic == {(int(i), int(j)) for k, (i, j) in enumerate(zip(scan.obs, scan.feat))
-                       if scan.nis[k] < gate[len(scan.nu[k])]}
+    assert generic == {(int(i), int(j)) for i, j in zip(scan.obs, scan.feat)}
+    assert all(scan.nis[k] < gate[len(scan.nu[k])] for k in range(len(scan.obs)))
     assert scan.associate(0.99) == _jcbb_most_certain_first(prob, 0.99)
 
 

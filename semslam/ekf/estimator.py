@@ -276,11 +276,11 @@ class _ScanPairs:
     :func:`semslam.backend.association.individual_nis`, pair by pair).
 
     A pair is a candidate when the observation and the feature are of one kind, the Euclidean
-    pre-gate keeps it, and (pipes) the segment is within the seen extent's gap with no object in
-    between. For each candidate k: ``obs[k]``, ``feat[k]`` (feature index), innovation ``nu[k]``,
-    ``H_x[k]``, ``H_l[k]``, ``R[k]`` and its individual NIS ``nis[k]``. The pipe extent checks, the
-    costliest, are made only for pairs whose NIS passes ``check_gate`` (a confidence): the others
-    could not be paired or be "near" at any gate that is used.
+    pre-gate keeps it, its individual NIS passes the χ² gate at ``check_confidence`` (the loosest
+    gate any use of the pairs applies: the others could never be paired or be "near") and (pipes)
+    the segment is within the seen extent's gap with no object in between. For each candidate k:
+    ``obs[k]``, ``feat[k]`` (feature index), innovation ``nu[k]``, ``H_x[k]``, ``H_l[k]``, ``R[k]`` and
+    its individual NIS ``nis[k]``.
     """
 
     def __init__(self, est: "EkfEstimator", obs: list[_Obs], check_confidence: float):
@@ -333,12 +333,11 @@ class _ScanPairs:
                     cross = Hx @ Pvl @ HlT
                     S = Hx @ Pvv @ HxT + cross + np.transpose(cross, (0, 2, 1)) + HlK @ Pll @ HlT + R
                     nis = np.einsum("ki,ki->k", nu, np.linalg.solve(S, nu[..., None])[..., 0])
-                    keep = np.ones(len(oi), bool)
+                    keep = nis < gate(size)
                     if kind == "pipe":
                         if objects is None:
                             objects = est._object_positions()
-                        g = gate(4)
-                        for k in np.flatnonzero(nis < g):
+                        for k in np.flatnonzero(keep):
                             f = feats[fj[k]]
                             m_W, d_W = geo.line_plucker(x[f.index : f.index + 4])
                             keep[k] = not est._pipe_apart(f.extent, obs[oi[k]].ends_W, m_W, d_W, objects)
