@@ -288,3 +288,14 @@ def test_matching_bound_cuts_competing_observations():
     assert out == jcbb(prob, 0.99)
     assert sum(j is not None for j in out) == 3
     assert stats["nodes"] < 20 and not stats["capped"]
+
+
+def test_batch_line_observation_models():
+    P = RNG.normal(size=(9, 3)) + [0, 0, 3]
+    Q = P + RNG.normal(size=(9, 3)) * 0.4
+    C = np.array([(lambda A: A @ A.T * 1e-4)(RNG.normal(size=(6, 6))) for _ in range(9)])
+    m, d, U, rho, cov = bt.line_observation_models(P, Q, C)
+    for k in range(9):
+        ref = mdl.LineObservationModel.from_endpoints(P[k], Q[k], C[k])
+        for a, b in zip((m[k], d[k], U[k], rho[k], cov[k]), (ref.m, ref.d, ref.U, ref.rho, ref.cov)):
+            np.testing.assert_allclose(a, b, atol=1e-12, rtol=1e-10)

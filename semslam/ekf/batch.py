@@ -186,3 +186,30 @@ def _line_jacobians(x, L, r, R_BS, t_BS, obs_U=None, flip=None):
     Gl[:, 3, 3] = 1.0
     GA = Gl @ A
     return GA @ J_x, GA @ J_l
+
+
+def line_observation_models(p: np.ndarray, q: np.ndarray, cov_pq: np.ndarray):
+    """:meth:`models.LineObservationModel.from_endpoints` for K segments (p, q: K×3, covariances
+    K×6×6). Returns (m K×3, d K×3, U K×3×3, ρ K, line-error covariance K×4×4)."""
+    diff = q - p
+    L = np.linalg.norm(diff, axis=1)
+    d = diff / L[:, None]
+    m = np.cross(p, d)
+    Pd = (np.eye(3) - d[:, :, None] * d[:, None, :]) / L[:, None, None]
+    Sp = skew_batch(p)
+    J = np.empty((len(p), 6, 6))
+    J[:, 3:, :3] = -Pd
+    J[:, 3:, 3:] = Pd
+    J[:, :3, :3] = -skew_batch(d) - Sp @ Pd
+    J[:, :3, 3:] = Sp @ Pd
+    rho = np.linalg.norm(m, axis=1)
+    u1 = m / rho[:, None]
+    u3 = np.cross(u1, d)
+    U = np.stack([u1, d, u3], axis=2)
+    A = np.zeros((len(p), 4, 6))
+    A[:, 0, 3:] = u3
+    A[:, 1, :3] = -u3 / rho[:, None]
+    A[:, 2, :3] = d / rho[:, None]
+    A[:, 3, :3] = u1
+    AJ = A @ J
+    return m, d, U, rho, AJ @ cov_pq @ np.transpose(AJ, (0, 2, 1))

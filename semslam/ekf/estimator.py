@@ -582,31 +582,39 @@ class EkfEstimator:
 
     # ---------------------------------------------------------------------- observations
     def _prepare(self, observations: Sequence[Observation]) -> list[_Obs]:
-        out = []
-        poses: dict[str, tuple] = {}
+        out: list[_Obs | None] = []
+        lines: list[tuple[int, LineObservation]] = []  # (slot in out, observation): modelled in one batch
         for o in observations:
             if isinstance(o, PointObservation):
                 R_BS, t_BS = self._extrinsic(o.sensor)
                 if np.isfinite(o.position).all():
                     out.append(_Obs(o, R_BS, t_BS))
             elif isinstance(o, LineObservation):
-                R_BS, t_BS = self._extrinsic(o.sensor)
+                self._extrinsic(o.sensor)  # an unknown sensor is a user error
                 if not (np.isfinite(o.p).all() and np.isfinite(o.q).all()):
                     continue
                 if np.linalg.norm(o.q - o.p) < self.cfg.line_min_length_m:
                     continue
-                line = mdl.LineObservationModel.from_endpoints(o.p, o.q, o.covariance)
-                if line.rho < self.cfg.line_min_distance_m:
+                lines.append((len(out), o))
+                out.append(None)
+            else:
+                self._warn_once(type(o).__name__, f"{type(o).__name__} is not used by the {self.name} filter")
+        if lines:
+            ls = [o for _, o in lines]
+            m, d, U, rho, cov = bt.line_observation_models(
+                np.array([o.p for o in ls]), np.array([o.q for o in ls]), np.array([o.covariance for o in ls]))
+            poses: dict[str, tuple] = {}
+            for k, (slot, o) in enumerate(lines):
+                if rho[k] < self.cfg.line_min_distance_m:
                     self._warn_once("rho", "pipe observations through the sensor origin ignored (ρ ≈ 0)")
                     continue
+                R_BS, t_BS = self._extrinsic(o.sensor)
                 if o.sensor not in poses:
                     poses[o.sensor] = mdl.sensor_pose(self.state.xv, R_BS, t_BS)[:2]
                 R, t = poses[o.sensor]
-                ends = np.array([o.p, o.q]) @ R.T + t
-                out.append(_Obs(o, R_BS, t_BS, line, ends))
-            else:
-                self._warn_once(type(o).__name__, f"{type(o).__name__} is not used by the {self.name} filter")
-        return out
+                line = mdl.LineObservationModel(m[k], d[k], U[k], float(rho[k]), cov[k])
+                out[slot] = _Obs(o, R_BS, t_BS, line, np.array([o.p, o.q]) @ R.T + t)
+        return [o for o in out if o is not None]
 
     def process_observations(self, stamp: int, observations: Sequence[Observation]) -> None:
         if self.state is None:
