@@ -3,13 +3,16 @@
 The normal of a point is the eigenvector of the smallest eigenvalue of the covariance of its
 neighbourhood, flipped to face the viewpoint; the curvature (surface variation) is
 λ0 / (λ0 + λ1 + λ2). Neighbourhoods come from Open3D's KD-tree (k nearest, optionally capped by a
-radius); the eigen-decomposition is one batched ``numpy.linalg.eigh``.
+radius); the eigen-decomposition is the closed-form 3×3 solver of the laser front-end
+(:func:`frontends.laser.preprocess.eigen3`, ~20× faster than a batched ``numpy.linalg.eigh``).
 """
 
 from __future__ import annotations
 
 import numpy as np
 import open3d as o3d
+
+from frontends.laser.preprocess import eigen3
 
 
 def normals_and_curvature(
@@ -35,10 +38,9 @@ def normals_and_curvature(
     )
     pcd.estimate_covariances(param)
     cov = np.asarray(pcd.covariances)
-    evals, evecs = np.linalg.eigh(cov)  # ascending eigenvalues
-    normals = evecs[:, :, 0]
+    lam0, lam1, lam2, normals = eigen3(cov)
     flip = np.einsum("ij,ij->i", normals, np.asarray(viewpoint, dtype=np.float64) - pts) < 0
     normals[flip] *= -1.0
-    total = evals.sum(axis=1)
-    curvature = np.divide(evals[:, 0], total, out=np.zeros(len(pts)), where=total > 0)
+    total = lam0 + lam1 + lam2
+    curvature = np.divide(lam0, total, out=np.zeros(len(pts)), where=total > 0)
     return normals, np.abs(curvature)
