@@ -70,3 +70,28 @@ def test_object_tracks_keep_the_weighted_mean_of_their_views():
     tr.fuse(np.array([0.3, 0.0, 0.0]), np.eye(3) * 0.02)
     np.testing.assert_allclose(tr.mean, [0.1, 0.0, 0.0])
     np.testing.assert_allclose(tr.cov, np.eye(3) * (1 / (100 + 50)))
+
+
+def test_two_features_of_one_object_are_fused_and_the_younger_dropped():
+    from semslam.ekf.estimator import _Track
+
+    est = _scene_run()
+    n_state = est.state.n
+    objects = [f for f in est._features if f.kind == "object"]
+    valve = objects[0]
+    R, t, _, _ = mdl.sensor_pose(est.state.xv, *(lambda T: (T[:3, :3], T[:3, 3]))(est.metadata.sensors["laser"].T_BS))
+    # a second feature 1 cm from the valve, as outlying views can start (it enters with their covariance)
+    z = (est.state.x[valve.cols] + [0.01, 0.0, 0.0] - t) @ R
+    (ob,) = est._prepare([PointObservation(0, "laser", position=z, covariance=np.eye(3) * 0.02**2)])
+    est._add_feature(ob, _Track("object", np.zeros(3), np.eye(3), 3, 0))
+    assert len([f for f in est._features if f.kind == "object"]) == 3
+    n_before = valve.n_obs
+    est._merge_duplicate_objects()
+    objects = [f for f in est._features if f.kind == "object"]
+    assert len(objects) == 2 and objects[0] is valve and valve.n_obs == n_before + 3
+    assert est.state.n == n_state
+    assert np.linalg.eigvalsh(est.state.P).min() > -1e-12
+    # the elbow, 1.8 m away, is another object: nothing more to fuse
+    est._merge_duplicate_objects()
+    assert len([f for f in est._features if f.kind == "object"]) == 2
+    assert [f.index for f in est._features] == sorted(f.index for f in est._features)

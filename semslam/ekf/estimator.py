@@ -475,6 +475,7 @@ class EkfEstimator:
         self._diag: list[str] = []
         self._warned: set[str] = set()
         self._dr_map: list[LandmarkEstimate] = []
+        self._merged = 0  # duplicate objects fused
 
     # ------------------------------------------------------------------- sensor metadata
     def _extrinsic(self, sensor: str) -> tuple[np.ndarray, np.ndarray]:
@@ -750,6 +751,45 @@ class EkfEstimator:
         unpaired = [i for i, j in enumerate(pairs) if j is None and not near[i]]
         on_pipe = self._on_mapped_pipe([obs[i] for i in unpaired])
         self._tentative(stamp, [obs[i] for i, on in zip(unpaired, on_pipe) if not on])
+        self._merge_duplicate_objects()
+
+    def _merge_duplicate_objects(self) -> None:
+        """Two mapped objects whose difference is compatible with zero (χ² at the association
+        confidence, with their full joint covariance) are one object seen twice: fuse them with the
+        constraint l_a = l_b and drop the younger block. Map management for the duplicates that
+        outlying views can start (views that failed every gate against the object they were of)."""
+        objs = [k for k, f in enumerate(self._features) if f.kind == "object"]
+        if len(objs) < 2:
+            return
+        x, P = self.state.x, self.state.P
+        idx = np.array([self._features[k].index for k in objs])[:, None] + np.arange(3)
+        pos = x[idx]
+        close = np.linalg.norm(pos[:, None] - pos[None], axis=2) < self.cfg.pre_gate_m
+        a, b = np.nonzero(np.triu(close, 1))
+        if not len(a):
+            return
+        D = pos[a] - pos[b]
+        S = P[idx[a][:, :, None], idx[a][:, None, :]] + P[idx[b][:, :, None], idx[b][:, None, :]]
+        Pab = P[idx[a][:, :, None], idx[b][:, None, :]]
+        S = S - Pab - np.transpose(Pab, (0, 2, 1))
+        nis = np.einsum("ki,ki->k", D, np.linalg.solve(S, D[..., None])[..., 0])
+        k = int(np.argmin(nis))
+        if not nis[k] < Chi2Gate(self.assoc.confidence)(3):
+            return
+        fa, fb = self._features[objs[a[k]]], self._features[objs[b[k]]]
+        keep, drop = (fa, fb) if fa.id < fb.id else (fb, fa)
+        cols = np.r_[keep.cols, drop.cols]
+        H = np.hstack([np.eye(3), -np.eye(3)])
+        self.state.update(-(x[keep.cols] - x[drop.cols]), cols, H, np.eye(3) * 1e-12)
+        self.state.remove(drop.index, drop.size)
+        self._features.remove(drop)
+        for f in self._features:
+            if f.index > drop.index:
+                f.index -= drop.size
+        keep.n_obs += drop.n_obs
+        for cls, v in drop.class_log.items():
+            keep.class_log[cls] = keep.class_log.get(cls, 0.0) + v
+        self._merged += 1
 
     def _near_mapped(self, o: _Obs) -> bool:
         """An unpaired observation that is still compatible with a mapped feature at the looser track

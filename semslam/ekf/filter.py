@@ -193,6 +193,15 @@ class EkfState:
         self.n = n + k
         return n
 
+    def remove(self, start: int, size: int) -> None:
+        """Drop the block [start, start + size) from the state (marginalise it out)."""
+        self.flush()
+        n = self.n
+        keep = np.r_[np.arange(start), np.arange(start + size, n)]
+        self._x[: n - size] = self._x[keep]
+        self._P[: n - size, : n - size] = self._P[np.ix_(keep, keep)]
+        self.n = n - size
+
     def _reserve(self, size: int) -> None:
         cap = len(self._x)
         if size <= cap:
