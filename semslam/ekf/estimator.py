@@ -750,22 +750,33 @@ class EkfEstimator:
                 f.extent.add(np.array([o.obs.p, o.obs.q]) @ R.T + t, _along_sigma(o.obs))
         unpaired = [i for i, j in enumerate(pairs) if j is None and not near[i]]
         on_pipe = self._on_mapped_pipe([obs[i] for i in unpaired])
+        n_before = len(self._features)
         self._tentative(stamp, [obs[i] for i, on in zip(unpaired, on_pipe) if not on])
-        self._merge_duplicate_objects()
+        touched = {f.id for _, f in paired} | {f.id for f in self._features[n_before:]}
+        self._merge_duplicate_objects(touched)
 
-    def _merge_duplicate_objects(self) -> None:
+    def _merge_duplicate_objects(self, touched: set[int] | None = None) -> None:
         """Two mapped objects whose difference is compatible with zero (χ² at the association
         confidence, with their full joint covariance) are one object seen twice: fuse them with the
         constraint l_a = l_b and drop the younger block. Map management for the duplicates that
-        outlying views can start (views that failed every gate against the object they were of)."""
+        outlying views can start (views that failed every gate against the object they were of).
+        ``touched``: ids of the objects updated or added now (only pairs with one of them are tested)."""
         objs = [k for k, f in enumerate(self._features) if f.kind == "object"]
         if len(objs) < 2:
+            return
+        rows = np.arange(len(objs)) if touched is None else np.array(
+            [r for r, k in enumerate(objs) if self._features[k].id in touched], int)
+        if not len(rows):
             return
         x, P = self.state.x, self.state.P
         idx = np.array([self._features[k].index for k in objs])[:, None] + np.arange(3)
         pos = x[idx]
-        close = np.linalg.norm(pos[:, None] - pos[None], axis=2) < self.cfg.pre_gate_m
-        a, b = np.nonzero(np.triu(close, 1))
+        close = np.linalg.norm(pos[rows][:, None] - pos[None], axis=2) < self.cfg.pre_gate_m
+        close &= rows[:, None] != np.arange(len(objs))[None, :]
+        ra, b = np.nonzero(close)
+        a = rows[ra]
+        keep_pair = (a < b) | ~np.isin(b, rows)  # each pair once
+        a, b = a[keep_pair], b[keep_pair]
         if not len(a):
             return
         D = pos[a] - pos[b]
