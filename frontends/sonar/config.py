@@ -149,6 +149,9 @@ class StructureRegistrationConfig(_Section):
     coarse_cell_m: float = Field(
         0.16, gt=0, description="cell (and north/east step) of the coarse level; each refinement halves cell, step and yaw step"
     )
+    coarse_max_cells: int = Field(
+        1500, ge=50, description="the coarse level compares at most this many field cells (an even subsample)"
+    )
     refine_levels: int = Field(2, ge=0, description="refinements around the best coarse hypotheses (0.16 → 0.08 → 0.04 m)")
     fine_seeds: int = Field(3, ge=1, description="best distinct coarse yaws refined")
     shift_range_m: float = Field(
@@ -178,10 +181,10 @@ class StructureRegistrationConfig(_Section):
         8.0, ge=1, description="ICP covariance inflation: the linearised information is divided by this (calibrated: NEES)"
     )
     sigma_floor_m: float = Field(
-        0.03, gt=0, description="σ floor of a structure observation's translation (m): a 1 m strip sees part of the "
+        0.025, gt=0, description="σ floor of a structure observation's translation (m): a 1 m strip sees part of the "
         "structure, from one side; the point-to-plane information alone is far too confident (calibrated: NEES)"
     )
-    sigma_floor_rad: float = Field(0.012, gt=0, description="σ floor of its rotation (rad; calibrated likewise)")
+    sigma_floor_rad: float = Field(0.010, gt=0, description="σ floor of its rotation (rad; calibrated likewise)")
     max_sigma_m: float = Field(
         0.3, gt=0, description="an observation whose largest translation σ exceeds this is not emitted (too partial a view)"
     )

@@ -156,6 +156,7 @@ class SearchResult:
     coverage: float
     evaluated_rings: int  # ring evaluations done (candidates × rings), for the benchmark
     candidates: int
+    survivors: np.ndarray | None = None  # candidates (indices into the input) under ``bound`` after the first ring
 
 
 def search(bins: np.ndarray, template: Template, candidates: np.ndarray, bound: float,
@@ -207,13 +208,17 @@ def search(bins: np.ndarray, template: Template, candidates: np.ndarray, bound: 
             out_c[s : s + step] = cnt
         return out_e, out_c
 
-    # rings in decreasing order of how much the model differs from a flat seabed there: the
-    # seabed, most of the field, is then pruned after the fewest rings (any order is exact)
-    order = np.argsort(-template.ring_contrast) if template.ring_contrast is not None else np.arange(N)
+    # rings in decreasing order of pruning power per cell evaluated (the model's squared distance
+    # to a flat seabed in that ring over the ring's size): the seabed, most of the field, is then
+    # pruned after the fewest cells gathered (any order is exact)
+    sizes0 = np.array([len(o) for o in flat_off])
+    order = (np.argsort(-template.ring_contrast**2 / sizes0) if template.ring_contrast is not None
+             else np.arange(N))
     flat_off = [flat_off[n] for n in order]
     ring_size = ring_size[order]
     tcdf = template.cdf[order]
     n_cand = len(centres)
+    survivors = np.zeros(0, np.int64)
     partial = np.zeros(n_cand)
     filled = np.zeros(n_cand, np.int64)
     used = np.zeros(n_cand, np.int64)
@@ -248,6 +253,8 @@ def search(bins: np.ndarray, template: Template, candidates: np.ndarray, bound: 
         # the disc coverage must still be reachable with the remaining rings
         keep = (partial[alive] < b2) & (filled[alive] + ring_size[n + 1 :].sum() >= min_coverage * total)
         alive = alive[keep]
+        if n == 0:
+            survivors = alive.copy()
         if n == 0 and len(alive) and N > 1:
             # bootstrap the bound: complete the best few after the first ring
             top = alive[np.argsort(partial[alive])[:bootstrap]]
@@ -264,10 +271,11 @@ def search(bins: np.ndarray, template: Template, candidates: np.ndarray, bound: 
             j = int(np.argmin(np.where(good, final, np.inf)))
             if final[j] < min(best_score, bound):
                 best_score, best_idx = float(final[j]), int(finish_idx[j])
+    kept = np.flatnonzero(ok)[survivors]  # back to the caller's candidate indices
     if best_idx is None:
-        return SearchResult(None, float("inf"), 0.0, evals, n_cand)
+        return SearchResult(None, float("inf"), 0.0, evals, n_cand, kept)
     return SearchResult((int(cand[best_idx, 0]), int(cand[best_idx, 1])), best_score,
-                        float(filled[best_idx] / total), evals, n_cand)
+                        float(filled[best_idx] / total), evals, n_cand, kept)
 
 
 def exhaustive_scores(bins: np.ndarray, template: Template, candidates: np.ndarray,

@@ -151,13 +151,16 @@ def disagreement_figure(fe, path) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     pairs = fe.final["pairs"]
     cell = 0.1
-    fig, axes = plt.subplots(1, 3, figsize=(16, 5.5), dpi=fe.config.figures.dpi,
-                             gridspec_kw={"width_ratios": [1, 1, 0.8]})
+    fig = plt.figure(figsize=(15, 8.5), dpi=fe.config.figures.dpi)
+    gs = fig.add_gridspec(2, 2, width_ratios=[2.6, 1], hspace=0.35, wspace=0.15)
+    map_axes = [fig.add_subplot(gs[0, 0]), fig.add_subplot(gs[1, 0])]
+    hax = fig.add_subplot(gs[:, 1])
     hists = []
-    for ax, (label, pose_fn) in zip(axes[:2], (("as navigated", lambda p: p.T_nav),
-                                               ("final estimate", lambda p: fe._pose(p.anchor_stamp)))):
+    sc = None
+    placements = (("as navigated (each patch as placed when it closed)", lambda p: p.T_nav),
+                  ("re-placed with the final estimate", lambda p: fe._pose(p.anchor_stamp)))
+    for ax, (label, pose_fn) in zip(map_axes, placements):
         pts, vals = [], []
-        allv = []
         for a, b in pairs:
             A = transform(pose_fn(fe.patches[a]), fe.patches[a].points)
             B = transform(pose_fn(fe.patches[b]), fe.patches[b].points)
@@ -172,28 +175,30 @@ def disagreement_figure(fe, path) -> None:
             N, E = spec.centres()
             nn, ee = np.meshgrid(N, E, indexing="ij")
             pts.append(np.column_stack([nn[both], ee[both]]))
-            v = np.abs(ea.depth[both] - eb.depth[both])
-            vals.append(v)
+            vals.append(np.abs(ea.depth[both] - eb.depth[both]))
         if pts:
             X = np.concatenate(pts)
             v = np.concatenate(vals)
-            sc = ax.scatter(X[:, 1], X[:, 0], c=v, s=1.0, cmap="magma_r", vmin=0, vmax=0.3, marker="s", linewidths=0)
-            hists.append((label, v))
-            ax.set_title(f"|depth difference| between passes, {label}\nmedian {100 * np.median(v):.1f} cm, "
-                         f"90th percentile {100 * np.percentile(v, 90):.1f} cm", fontsize=10)
+            order = np.argsort(v)  # large differences drawn last, on top
+            sc = ax.scatter(X[order, 1], X[order, 0], c=v[order], s=1.5, cmap="magma_r", vmin=0, vmax=0.10,
+                            marker="s", linewidths=0)
+            hists.append((label.split(" (")[0], v))
+            ax.set_title(f"|Δ depth| between overlapping passes, {label}: median {100 * np.median(v):.2f} cm, "
+                         f"90th percentile {100 * np.percentile(v, 90):.2f} cm", fontsize=10)
         ax.set_aspect("equal")
         ax.set_xlabel("east (m)")
         ax.set_ylabel("north (m)")
+    if sc is not None:
+        fig.colorbar(sc, ax=map_axes, shrink=0.9, pad=0.01, label="|Δ depth| (m), 10 cm cells")
     if hists:
-        fig.colorbar(sc, ax=axes[:2], shrink=0.8, label="|Δ depth| (m), 10 cm cells")
         bins = np.linspace(0, 0.4, 81)
         for label, v in hists:
-            axes[2].hist(v, bins=bins, histtype="step", lw=1.6, label=label, density=True)
-        axes[2].set_yscale("log")
-        axes[2].set_xlabel("|Δ depth| (m)")
-        axes[2].set_ylabel("density")
-        axes[2].legend()
-        acc = len(fe.swath_registrations)
-        axes[2].set_title(f"{acc} swath registrations accepted", fontsize=10)
+            hax.hist(v, bins=bins, histtype="step", lw=1.6, label=label, density=True)
+        hax.set_yscale("log")
+        hax.set_xlabel("|Δ depth| (m)")
+        hax.set_ylabel("density")
+        hax.legend()
+        hax.set_title(f"{len(fe.swath_registrations)} swath registrations accepted, "
+                      f"{len(fe.structures)} structures registered", fontsize=10)
     fig.savefig(path, bbox_inches="tight")
     plt.close(fig)

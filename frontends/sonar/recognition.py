@@ -93,16 +93,26 @@ class Recogniser:
             for name, c in skip:
                 if name == model.name:
                     tried |= np.hypot(N[:, None] - c[0], E[None, :] - c[1]) <= 0.5 * model.footprint_radius
+            ii, jj = np.meshgrid(rows, cols, indexing="ij")
+            cand = np.column_stack([ii.ravel(), jj.ravel()])
+            cand = cand[np.isfinite(h[cand[:, 0], cand[:, 1]])]
+            reach = int(np.ceil(2 * model.footprint_radius / self.delta)) + 1
             while True:
                 t1 = time.process_time()
                 blocked = mask | tried
                 hh = np.where(mask, np.nan, h)
                 bins = tpl.spec.bin_of(hh)
-                ii, jj = np.meshgrid(rows, cols, indexing="ij")
-                cand = np.column_stack([ii.ravel(), jj.ravel()])
-                cand = cand[~blocked[cand[:, 0], cand[:, 1]] & np.isfinite(h[cand[:, 0], cand[:, 1]])]
+                cand = cand[~blocked[cand[:, 0], cand[:, 1]]]
                 res = search(bins, tpl, cand, cfg.threshold * tpl.flat_score, cfg.min_coverage,
                              cfg.min_ring_coverage, cfg.bootstrap, cfg.chunk)
+                if res.centre is not None:
+                    # the next search of this model needs only the candidates that passed the first
+                    # ring under the threshold, and those whose disc the removed area changes
+                    ci, cj = res.centre
+                    changed = (np.abs(cand[:, 0] - ci) <= reach) & (np.abs(cand[:, 1] - cj) <= reach)
+                    keep = np.zeros(len(cand), bool)
+                    keep[res.survivors] = True
+                    cand = cand[keep | changed]
                 t_search = time.process_time() - t1
                 if res.centre is None:
                     break

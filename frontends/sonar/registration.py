@@ -221,6 +221,9 @@ def search_4d(md: ModelData, pts_h: np.ndarray, centre: np.ndarray, cfg: Structu
     cells, hf = _field_grid(pts_h, centre, R + rng, cell)
     if len(cells) < 20:
         raise ValueError("too few field cells for the 4-D search")
+    if len(cells) > cfg.coarse_max_cells:  # the coarse level on an even subsample of its cells
+        keep = np.linspace(0, len(cells) - 1, cfg.coarse_max_cells).round().astype(int)
+        cells, hf = cells[keep], hf[keep]
     yaws = np.arange(0.0, period - 1e-9, ystep)
     g = np.arange(-np.floor(rng / cell), np.floor(rng / cell) + 1) * cell
     shifts = np.stack(np.meshgrid(g, g, indexing="ij"), -1).reshape(-1, 2)
@@ -268,7 +271,7 @@ def icp(md: ModelData, pts: np.ndarray, T0: np.ndarray, cfg: StructureRegistrati
     for dist in distances or cfg.icp_distances_m:
         k = max(cfg.tukey_k_m, dist / 2)
         est = o3d.pipelines.registration.TransformationEstimationPointToPlane(o3d.pipelines.registration.TukeyLoss(k=k))
-        crit = o3d.pipelines.registration.ICPConvergenceCriteria(1e-7, 1e-7, cfg.icp_iterations)
+        crit = o3d.pipelines.registration.ICPConvergenceCriteria(1e-6, 1e-6, cfg.icp_iterations)
         res = o3d.pipelines.registration.registration_icp(src, md.target, dist, T_corr, est, crit)
         T_corr = np.asarray(res.transformation)
     T = T0 @ inv(T_corr)

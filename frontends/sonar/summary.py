@@ -11,6 +11,7 @@ import numpy as np
 from frontends.sonar.grid import ElevationMap, GridSpec, cell_medians, estimate_ground
 from frontends.sonar.patches import overlap_area, transform
 from frontends.sonar.registration import icp
+from frontends.sonar.swath_registration import _smoothed_gradient
 from semslam.registry import FrontendSummary
 
 
@@ -47,10 +48,19 @@ def overlapping_pairs(fe, max_pairs: int = 400) -> list[tuple[int, int]]:
     return pairs
 
 
+TEXTURE_SLOPE = 0.25
+
+
 def swath_disagreement(fe, pose_fn, pairs, cell: float = 0.05) -> dict:
     """Median |depth difference| between overlapping patches of different passes, pooled over the
-    cells both fill (each patch gridded alone at ``cell``, median per cell), placed by ``pose_fn``."""
+    cells both fill (each patch gridded alone at ``cell``, median per cell), placed by ``pose_fn``.
+
+    ``median_m`` is over every common cell: on a smooth seabed a misplacement of decimetres changes
+    the depth by millimetres, so it is dominated by the range noise; ``textured_median_m`` is over
+    the cells where either map slopes more than 1 in 4 (pipes, structures' edges, boulders), where
+    a misplacement shows."""
     diffs = []
+    tex = []
     world = {}
 
     def pts(pid):
@@ -76,12 +86,20 @@ def swath_disagreement(fe, pose_fn, pairs, cell: float = 0.05) -> dict:
         if both.sum() < 20:
             continue
         diffs.append(np.abs(ea.depth[both] - eb.depth[both]))
+        steep = np.zeros_like(both)
+        for em in (ea, eb):
+            gn, ge = _smoothed_gradient(em, 0.05)  # one-cell smoothing: range noise is no slope
+            steep |= np.nan_to_num(np.hypot(gn.depth, ge.depth)) > TEXTURE_SLOPE
+        tex.append(np.abs(ea.depth - eb.depth)[both & steep])
         n_pairs += 1
     if not diffs:
-        return {"median_m": None, "p90_m": None, "mean_m": None, "n_cells": 0, "n_pairs": 0}
+        return {"median_m": None, "p90_m": None, "mean_m": None, "n_cells": 0, "n_pairs": 0,
+                "textured_median_m": None, "textured_cells": 0}
     d = np.concatenate(diffs)
+    t = np.concatenate(tex)
     return {"median_m": float(np.median(d)), "p90_m": float(np.percentile(d, 90)), "mean_m": float(d.mean()),
-            "n_cells": int(len(d)), "n_pairs": n_pairs}
+            "n_cells": int(len(d)), "n_pairs": n_pairs,
+            "textured_median_m": float(np.median(t)) if len(t) else None, "textured_cells": int(len(t))}
 
 
 def final_registrations(fe, pts_W: np.ndarray) -> None:

@@ -1,0 +1,232 @@
+"""Evaluation of the sonar front-end on the simulated field (issue 8's acceptance), per seed and overall.
+
+For each seed (default 0, 1, 2 — the recognition threshold was calibrated on 3–5, see
+sonar_calibrate.py) the default field mission is simulated in memory (or read from
+``--bag-dir/field<seed>.bag``) and run through dead reckoning and the graph with the sonar
+front-end (the front-end sees the graph). Reported:
+
+* structures: found (right model within 1 m of the truth), position error (the registered pose in
+  the final map against the truth: it includes the navigation error where the structure was
+  seen), median point-to-model distance after the final ICP, yaw error (modulo the symmetry);
+* swath disagreement (median |Δ depth| between overlapping patches of different passes, all common
+  cells and textured cells): placed by dead reckoning (no registration at all), as navigated
+  online, with the final graph estimate, and with the ground truth (the floor set by noise);
+* consistency of the constraints against the truth: NEES of the swath registrations (in their
+  informative directions) and of the structure observations (6 dof);
+* world model bytes against the raw cloud; graph and dead-reckoning ATE; structures mapped as
+  graph landmarks; front-end CPU time (recognition + registration, and in total).
+
+    python experiments/sonar_eval.py [--seeds 0 1 2] [--bag-dir DIR] [--out experiments/out/sonar_eval]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial.transform import Rotation, Slerp
+
+from frontends.sonar import SonarFrontend
+from frontends.sonar.summary import overlapping_pairs, swath_disagreement
+from frontends.sonar.synthetic import true_structure_pose
+from semslam.config import SemslamConfig
+from semslam.estimators import create_estimator
+from semslam.eval.outputs import build_metrics, write_outputs
+from semslam.mission.measurements import GroundTruthPose
+from semslam.pipeline import run_pipeline
+
+
+def pose_interpolator(stamps, positions, quats):
+    stamps = np.asarray(stamps, np.int64)
+    slerp = Slerp(stamps.astype(float), Rotation.from_quat(quats))
+
+    def at(stamp: int) -> np.ndarray:
+        s = float(np.clip(stamp, stamps[0], stamps[-1]))
+        T = np.eye(4)
+        T[:3, :3] = slerp([s]).as_matrix()[0]
+        T[:3, 3] = [np.interp(s, stamps, positions[:, k]) for k in range(3)]
+        return T
+
+    return at
+
+
+def load(seed: int, bag_dir: Path | None):
+    if bag_dir is not None and (bag_dir / f"field{seed}.bag").exists():
+        from semslam.mission.bag import read_mission
+
+        return read_mission(bag_dir / f"field{seed}.bag")
+    from semslam.sim.field_config import FieldSimConfig
+    from semslam.sim.field_mission import simulate_field
+
+    return simulate_field(FieldSimConfig(seed=seed))
+
+
+def constraint_consistency(fe, mission) -> dict:
+    gt = {m.stamp: m.matrix() for m in mission if isinstance(m, GroundTruthPose)}
+    keys = np.array(sorted(gt))
+
+    def true_pose(s):
+        return gt[keys[min(np.searchsorted(keys, s), len(keys) - 1)]]
+
+    swath, swath_dof, errs = [], 0, []
+    for r in fe.swath_registrations:
+        Ti, Tj = np.array(r["T_from"]), np.array(r["T_to"])
+        need = (Ti @ np.linalg.inv(true_pose(r["stamp_from"])) @ true_pose(r["stamp"]))[:3, 3] - Tj[:3, 3]
+        e = np.r_[r["shift"], r["depth"]] - need
+        C = np.array(r["cov_W"])
+        w, V = np.linalg.eigh(C[:2, :2])
+        keep = w < 1.0
+        e2 = V.T @ e[:2]
+        swath.append(float(np.sum(e2[keep] ** 2 / w[keep])))
+        swath_dof += int(keep.sum())
+        errs.append(float(np.sqrt(np.sum(e2[keep] ** 2))))
+    T_BS = mission.metadata.sensors["sonar"].T_BS
+    struct = []
+    for ks in fe.structures:
+        T_true = true_structure_pose(mission, ks.model)
+        sym = fe.library[ks.model].symmetry
+        for stamp, _, T_SM, cov, _ in ks.history:
+            T_t = np.linalg.inv(true_pose(stamp) @ T_BS) @ T_true
+            best = None
+            for k in range(sym):
+                Rz = np.eye(4)
+                a = 2 * np.pi * k / sym
+                Rz[:2, :2] = [[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]]
+                d = np.linalg.inv(T_SM) @ T_t @ Rz
+                xi = np.r_[Rotation.from_matrix(d[:3, :3]).as_rotvec(), d[:3, 3]]
+                if best is None or np.linalg.norm(xi[:3]) < np.linalg.norm(best[:3]):
+                    best = xi
+            struct.append(float(best @ np.linalg.solve(cov, best)))
+    return {
+        "swath_registrations": len(swath),
+        "swath_nees_per_dof": float(np.sum(swath) / swath_dof) if swath_dof else None,
+        "swath_error_median_m": float(np.median(errs)) if errs else None,
+        "structure_observations": len(struct),
+        "structure_nees_mean_6dof": float(np.mean(struct)) if struct else None,
+        "structure_nees_median_6dof": float(np.median(struct)) if struct else None,
+    }
+
+
+def evaluate(seed: int, bag_dir: Path | None, out_dir: Path, fe_config: dict | None = None) -> dict:
+    t0 = time.time()
+    mission = load(seed, bag_dir)
+    cfg = SemslamConfig()
+    ests = [create_estimator("dr", mission.metadata, cfg), create_estimator("graph", mission.metadata, cfg)]
+    fe = SonarFrontend(mission.metadata, fe_config or {})
+    c0 = time.process_time()
+    res = run_pipeline(mission, ests, [fe], view_estimator="graph")
+    cpu = time.process_time() - c0
+    metrics = build_metrics(res, mission.metadata)
+    write_outputs(out_dir / f"seed{seed}", cfg, res, metrics)
+    sonar = metrics["sonar"]
+    # swath disagreement under four placements of the same patches
+    dr = res.results["dr"].trajectory
+    dr_at = pose_interpolator(dr.stamps, dr.positions, dr.orientations)
+    gt = {m.stamp: m.matrix() for m in mission if isinstance(m, GroundTruthPose)}
+    keys = np.array(sorted(gt))
+    pairs = overlapping_pairs(fe)
+    fe._begin(ests[1].view())  # the final graph estimate
+    placements = {
+        "dead_reckoning": lambda p: dr_at(p.anchor_stamp),
+        "as_navigated": lambda p: p.T_nav,
+        "final_graph": lambda p: fe._pose(p.anchor_stamp),
+        "ground_truth": lambda p: gt[keys[min(np.searchsorted(keys, p.anchor_stamp), len(keys) - 1)]],
+    }
+    disagreement = {k: swath_disagreement(fe, f, pairs) for k, f in placements.items()}
+    e = metrics["estimators"]
+    row = {
+        "seed": seed,
+        "structures": sonar["structures"],
+        "all_found": all(s["found"] for s in sonar["structures"] if s["truth_id"] is not None),
+        "false_structures": sum(1 for s in sonar["structures"] if s["truth_id"] is None),
+        "disagreement": disagreement,
+        "consistency": constraint_consistency(fe, mission),
+        "swath_registration": sonar["swath_registration"],
+        "world_model_bytes": sonar["world_model_bytes"],
+        "raw_cloud_bytes": sonar["raw_cloud_bytes"],
+        "world_model_fraction": sonar["world_model_fraction"],
+        "ate_graph_m": e["graph"]["ate_rmse_m"],
+        "ate_graph_online_m": e.get("graph_online", {}).get("ate_rmse_m"),
+        "ate_dr_m": e["dr"]["ate_rmse_m"],
+        "graph_structures": e["graph"]["n_structures"],
+        "graph_pipes": e["graph"]["n_pipes"],
+        "structure_landmark_error_m": e["graph"].get("structure_median_error_m"),
+        "frontend_recognition_registration_cpu_s": sonar["runtime_s"],
+        "frontend_cpu_s": float(sum(v for k, v in sonar["timing_s"].items() if k.endswith("_s"))),
+        "pipeline_cpu_s": cpu,
+        "wall_s": time.time() - t0,
+        "timing_s": sonar["timing_s"],
+    }
+    return row
+
+
+def table(rows: list[dict]) -> str:
+    lines = ["| seed | structure | found | position err (m) | median pt-model (cm) | yaw err (°) |",
+             "|---:|---|:---:|---:|---:|---:|"]
+    for r in rows:
+        for s in r["structures"]:
+            pe = "–" if s["position_error_m"] is None else f"{s['position_error_m']:.3f}"
+            me = "–" if s["median_error_m"] is None else f"{100 * s['median_error_m']:.2f}"
+            ye = "–" if s["yaw_error_deg"] is None else f"{s['yaw_error_deg']:.2f}"
+            lines.append(f"| {r['seed']} | {s['model']} | {'yes' if s['found'] else 'NO'} | {pe} | {me} | {ye} |")
+    lines += ["", "| seed | disagreement DR / online / final / truth (cm) | textured DR / final / truth (cm) | "
+              "swath regs | NEES swath/dof, structure (6) | world model | ATE dr → graph (m) | landmarks | CPU rec+reg / front-end (s) |",
+              "|---:|---|---|---:|---|---|---|---:|---|"]
+    for r in rows:
+        d = r["disagreement"]
+        f = lambda k, key="median_m": "–" if d[k][key] is None else f"{100 * d[k][key]:.2f}"  # noqa: E731
+        c = r["consistency"]
+        ns = "–" if c["swath_nees_per_dof"] is None else f"{c['swath_nees_per_dof']:.2f}"
+        nt = "–" if c["structure_nees_mean_6dof"] is None else f"{c['structure_nees_mean_6dof']:.1f}"
+        lines.append(
+            f"| {r['seed']} | {f('dead_reckoning')} / {f('as_navigated')} / {f('final_graph')} / {f('ground_truth')} | "
+            f"{f('dead_reckoning', 'textured_median_m')} / {f('final_graph', 'textured_median_m')} / "
+            f"{f('ground_truth', 'textured_median_m')} | {r['swath_registration']['accepted']} | {ns}, {nt} | "
+            f"{r['world_model_bytes'] / 1e3:.0f} kB = {100 * r['world_model_fraction']:.2f} % | "
+            f"{r['ate_dr_m']:.3f} → {r['ate_graph_m']:.3f} | {r['graph_structures']} | "
+            f"{r['frontend_recognition_registration_cpu_s']:.1f} / {r['frontend_cpu_s']:.1f} |")
+    return "\n".join(lines)
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
+    ap.add_argument("--bag-dir", type=Path, default=None)
+    ap.add_argument("--out", type=Path, default=Path("experiments/out/sonar_eval"))
+    args = ap.parse_args(argv)
+    args.out.mkdir(parents=True, exist_ok=True)
+    rows = []
+    for seed in args.seeds:
+        row = evaluate(seed, args.bag_dir, args.out)
+        rows.append(row)
+        (args.out / f"seed{seed}.json").write_text(json.dumps(row, indent=1, default=float))
+        print(f"seed {seed}: {row['wall_s']:.0f} s", flush=True)
+    found = [s for r in rows for s in r["structures"] if s["truth_id"] is not None]
+    ok = [s for s in found if s["found"]]
+    overall = {
+        "seeds": args.seeds,
+        "structures_found": f"{len(ok)}/{len(found)}",
+        "false_structures": sum(r["false_structures"] for r in rows),
+        "median_point_to_model_cm_max": 100 * max(s["median_error_m"] for s in ok) if ok else None,
+        "yaw_error_deg_max": max(s["yaw_error_deg"] for s in ok) if ok else None,
+        "position_error_m_median": float(np.median([s["position_error_m"] for s in ok])) if ok else None,
+        "disagreement_median_cm": {k: float(np.median([100 * r["disagreement"][k]["median_m"] for r in rows]))
+                                   for k in rows[0]["disagreement"]},
+        "textured_disagreement_median_cm": {
+            k: float(np.median([100 * r["disagreement"][k]["textured_median_m"] for r in rows]))
+            for k in rows[0]["disagreement"]},
+        "world_model_fraction_max": max(r["world_model_fraction"] for r in rows),
+        "recognition_registration_cpu_s_median": float(np.median([r["frontend_recognition_registration_cpu_s"] for r in rows])),
+    }
+    (args.out / "summary.json").write_text(json.dumps({"overall": overall, "seeds": rows}, indent=1, default=float))
+    md = table(rows)
+    (args.out / "table.md").write_text(md + "\n\n" + json.dumps(overall, indent=1) + "\n")
+    print(md)
+    print(json.dumps(overall, indent=1))
+
+
+if __name__ == "__main__":
+    main()
