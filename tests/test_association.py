@@ -165,3 +165,13 @@ def test_low_rank_path_finds_the_same_hypothesis(seed):
     general = PointProblem(np.zeros(3), L, P, Z, np.eye(3) * 0.02**2)
     fast = UncorrelatedPointProblem(np.zeros(3), L, P, Z, np.eye(3) * 0.02**2)
     assert jcbb(fast) == jcbb(general)
+
+
+def test_many_landmarks_and_numpy_candidate_indices():
+    """Landmark sets are bit masks: more than 64 landmarks, candidates given as numpy integers."""
+    m = 100
+    L = np.column_stack([np.arange(m) * 1.0, np.zeros(m), np.zeros(m)])
+    Z = [L[j] + [0.001, 0, 0] for j in (3, 70, 99)]
+    prob = UncorrelatedPointProblem(np.zeros(3), L, _joint_cov(m, 0.01, 0.01), Z, np.eye(3) * 0.01**2)
+    prob.candidate_landmarks = lambda i: np.arange(m, dtype=np.int64)
+    assert jcbb(prob) == [3, 70, 99]

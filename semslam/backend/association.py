@@ -7,7 +7,8 @@ state), and :func:`jcbb` returns, for each observation, the landmark it pairs wi
 For a hypothesis H = {(i, j_i)}, the joint innovation ν_H stacks the pair innovations and
 S_H = J P Jᵀ + R with J = [H_x | H_l] over the vehicle block and the paired landmark blocks.
 H is jointly compatible when ν_Hᵀ S_H⁻¹ ν_H < χ²(Σ d_i, confidence). The branch and bound keeps
-the hypothesis with the most pairings (ties: the smaller joint NIS). The joint NIS is grown one
+the hypothesis with the most pairings (among hypotheses of equal size reached before the bound
+prunes, the smaller joint NIS); observations are searched most certain first. The joint NIS is grown one
 pair at a time by a Schur-complement update, so a node costs O(k²d) rather than a fresh inverse.
 
 When the problem declares ``uncorrelated_landmarks`` (no vehicle–landmark and no landmark–landmark
@@ -265,6 +266,7 @@ def jcbb(problem: AssociationProblem, confidence: float = 0.99, max_hypotheses: 
     for i in range(n):
         row = []
         for j in (candidates_of(i) if candidates_of is not None else range(m)):
+            j = int(j)  # Python ints: landmark sets are bit masks of any width
             p = problem.pair(i, j)
             if p is None:
                 continue
@@ -275,38 +277,73 @@ def jcbb(problem: AssociationProblem, confidence: float = 0.99, max_hypotheses: 
                 row.append((d2, j, p))
         candidates.append(sorted(row, key=lambda t: t[0]))
 
+    # Search the observations most certain first (smallest best NIS): every node must be jointly
+    # compatible, so the order decides which of two conflicting observations stays out, and the
+    # well-predicted ones should not be the ones dropped (a front-end's output order is arbitrary).
+    order = sorted((i for i in range(n) if candidates[i]), key=lambda i: candidates[i][0][0])
+    cand = [candidates[i] for i in order]
+    masks = [sum(1 << j for _, j, _ in row) for row in cand]  # landmark sets as bit masks
+    n_search = len(order)
+
     best_pairs: list = []
     best_nis = np.inf
     expanded = 0
-    used: set[int] = set()
+    used = 0  # bit mask of the landmarks paired on the current path
 
-    def pairable_from(i: int) -> int:
-        """Observations from i on that still have an individually compatible, unused landmark."""
-        return sum(1 for k in range(i, n) if any(j not in used for _, j, _ in candidates[k]))
+    def pairable_from(k: int) -> int:
+        """Observations from position k on that still have an individually compatible, unused landmark."""
+        free = ~used
+        return sum(1 for o in range(k, n_search) if masks[o] & free)
 
-    def search(node: _Node, i: int):
-        nonlocal best_pairs, best_nis, expanded
-        k = len(node.pairs)
-        if i == n:
-            if k > len(best_pairs) or (k == len(best_pairs) and k > 0 and node.nis < best_nis):
+    def matchable_from(k: int) -> int:
+        """Most observations from position k on that can pair at once with distinct unused landmarks
+        (a maximum bipartite matching by augmenting paths): exact where observations compete for a
+        landmark, where :func:`pairable_from` overcounts."""
+        free = ~used
+        owner: dict[int, int] = {}
+
+        def augment(o: int, seen: list[int]) -> bool:
+            options = masks[o] & free & ~seen[0]
+            while options:
+                low = options & -options
+                options ^= low
+                seen[0] |= low
+                j = low.bit_length() - 1
+                if j not in owner or augment(owner[j], seen):
+                    owner[j] = o
+                    return True
+            return False
+
+        return sum(1 for o in range(k, n_search) if masks[o] & free and augment(o, [0]))
+
+    def cannot_beat(npairs: int, k: int) -> bool:
+        best = len(best_pairs)
+        return npairs + pairable_from(k) <= best or npairs + matchable_from(k) <= best
+
+    def search(node, k: int):
+        nonlocal best_pairs, best_nis, expanded, used
+        npairs = len(node.pairs)
+        if k == n_search:
+            if npairs > len(best_pairs) or (npairs == len(best_pairs) and npairs > 0 and node.nis < best_nis):
                 best_pairs, best_nis = list(node.pairs), node.nis
             return
         # Bound: a branch that cannot reach more pairings than the best is not worth expanding.
-        if expanded >= max_hypotheses or (best_pairs and k + pairable_from(i) <= len(best_pairs)):
+        if expanded >= max_hypotheses or (best_pairs and cannot_beat(npairs, k)):
             return
-        for _, j, p in candidates[i]:
-            if j in used:
+        i = order[k]
+        for _, j, p in cand[k]:
+            if used >> j & 1:
                 continue
             expanded += 1
             child = joint.extend(node, i, j, p)
             if child is None or child.nis >= gate(child.dof):
                 continue
-            used.add(j)
-            search(child, i + 1)
-            used.discard(j)
+            used |= 1 << j
+            search(child, k + 1)
+            used &= ~(1 << j)
         # Star branch: observation i unpaired, worth it only if it can still beat the best.
-        if k + pairable_from(i + 1) > len(best_pairs):
-            search(node, i + 1)
+        if not best_pairs or not cannot_beat(npairs, k + 1):
+            search(node, k + 1)
 
     search(joint.root(), 0)
     result: list[int | None] = [None] * n
