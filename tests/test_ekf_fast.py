@@ -178,11 +178,11 @@ def test_dense_jcbb_is_jcbb(seed):
     P = A @ A.T + np.diag([0.1**2] * 3 + [0.03**2] * (3 * m))  # correlated landmarks
     prob = _DenseView(np.array(Z), L, P, np.eye(3) * 0.02**2)
     obs, lm, rows, nu, S = _dense_from_problem(prob)
-    out = jcbb_dense(len(Z), obs, lm, rows, nu, S, 0.99)
+    out = jcbb_dense(len(Z), obs, lm, rows, nu, S, 0.99, by_nis=True)  # the shared jcbb's order
     assert out == jcbb(prob, 0.99)
     # restarted from a greedy hypothesis at once: as many pairings, jointly compatible
     stats = {}
-    seeded = jcbb_dense(len(Z), obs, lm, rows, nu, S, 0.99, seed_after=1, stats=stats)
+    seeded = jcbb_dense(len(Z), obs, lm, rows, nu, S, 0.99, seed_after=1, stats=stats, by_nis=True)
     pairs = [(i, j) for i, j in enumerate(seeded) if j is not None]
     assert len(pairs) == sum(j is not None for j in out)
     assert len({j for _, j in pairs}) == len(pairs)
@@ -284,7 +284,7 @@ def test_matching_bound_cuts_competing_observations():
     prob = _DenseView(np.array(Z), L, P, np.eye(3) * 0.02**2)
     obs, lm, rows, nu, S = _dense_from_problem(prob)
     stats = {}
-    out = jcbb_dense(len(Z), obs, lm, rows, nu, S, 0.99, stats=stats)
+    out = jcbb_dense(len(Z), obs, lm, rows, nu, S, 0.99, stats=stats, by_nis=True)
     assert out == jcbb(prob, 0.99)
     assert sum(j is not None for j in out) == 3
     assert stats["nodes"] < 20 and not stats["capped"]

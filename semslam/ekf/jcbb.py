@@ -1,8 +1,9 @@
 """Joint Compatibility Branch and Bound (Neira & Tardós 2001) on a dense joint innovation covariance.
 
-The same search, node for node, as :func:`semslam.backend.association.jcbb`: observations in order,
-candidates by increasing individual NIS, individual compatibility χ²(d) first, joint compatibility
-χ²(Σd) of every hypothesis on the path, one-to-one, the most pairings win (a branch that cannot
+The same search, node for node, as :func:`semslam.backend.association.jcbb` (with ``by_nis``, in
+the order that one uses: observations most certain first, by increasing best individual NIS;
+without it, in the given order): candidates by increasing individual NIS, individual compatibility
+χ²(d) first, joint compatibility χ²(Σd) of every hypothesis on the path, one-to-one, the most pairings win (a branch that cannot
 reach more pairings than the best found is cut, so among equally many pairings the first found
 wins). It is for a caller that can give the covariance of *all* candidate pairs at once: the filter
 computes S = J P Jᵀ + R for every candidate pair in one product, so a node of the search is a
