@@ -154,11 +154,22 @@ def write_outputs(out_dir: str | Path, config: SemslamConfig, pipeline: Pipeline
                 writer(stage / name)
         (stage / "metrics.json").write_text(json.dumps(metrics, indent=2, default=_json_default))
         out_dir.mkdir(exist_ok=True)
-        for f in stage.iterdir():
-            f.replace(out_dir / f.name)
+        _move_into(stage, out_dir)
     finally:
         shutil.rmtree(stage, ignore_errors=True)
     return out_dir
+
+
+def _move_into(src: Path, dst: Path) -> None:
+    """Move every entry of ``src`` into ``dst``, replacing files of the same name; a subdirectory
+    (a front-end's ``figures/...``) is merged into an existing one rather than replacing it, so a
+    run into an existing output directory works."""
+    for f in src.iterdir():
+        target = dst / f.name
+        if f.is_dir() and target.is_dir():
+            _move_into(f, target)
+        else:
+            f.replace(target)
 
 
 def _json_default(x):
