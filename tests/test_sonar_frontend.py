@@ -70,7 +70,7 @@ def test_swath_registration_reduces_the_navigation_error(mission, baseline):
     assert s["swath_disagreement"]["after"]["median_m"] <= s["swath_disagreement"]["before"]["median_m"]
 
 
-def test_structure_becomes_a_graph_landmark(mission, baseline):
+def test_structure_becomes_a_graph_landmark(mission, baseline, tmp_path):
     res, fe = _run(mission, {"recognition": {"final_pass": False}})
     lms = [lm for lm in res.results["graph"].landmarks if lm.kind == "structure"]
     assert lms and {lm.model for lm in lms} <= {"manifold", "plet"}
@@ -88,3 +88,20 @@ def test_structure_becomes_a_graph_landmark(mission, baseline):
     assert summary.metrics["world_model_bytes"] <= 0.01 * summary.metrics["raw_cloud_bytes"]
     assert {"world_model.ply", "figures/sonar_elevation_map.png"} <= set(summary.files)
     assert obs and all(np.all(np.isfinite(o.covariance)) for o in obs)
+    # written into an output directory, twice (a rerun merges into figures/ rather than failing)
+    from semslam.eval.outputs import build_metrics, write_outputs
+
+    metrics = build_metrics(res, mission.metadata)
+    assert [s["found"] for s in metrics["sonar"]["structures"] if s["model"] in {lm.model for lm in lms}]
+    out = write_outputs(tmp_path / "out", SemslamConfig(), res, metrics)
+    assert (out / "world_model.ply").stat().st_size == summary.metrics["world_model_bytes"]
+    figures = {"sonar_elevation_map.png", "sonar_world_model.png", "sonar_swath_registration.png"}
+    assert {p.name for p in (out / "figures").iterdir()} == figures
+    # a second run into the same directory (quick stand-in writers for the same files)
+    import dataclasses
+
+    rerun = dataclasses.replace(summary, files={n: (lambda p: (p.parent.mkdir(parents=True, exist_ok=True),
+                                                               p.write_bytes(b"x"))) for n in summary.files})
+    write_outputs(out, SemslamConfig(), dataclasses.replace(res, frontend_summaries={"sonar": rerun}), metrics)
+    assert {p.name for p in (out / "figures").iterdir()} == figures
+    assert (out / "figures" / "sonar_world_model.png").read_bytes() == b"x"
