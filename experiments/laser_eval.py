@@ -96,7 +96,7 @@ def tank_truth(scene, T_WS: np.ndarray, points: np.ndarray, gt, min_pipe_hits: i
                 vis_dirs.append(u)
         objects.append((pos, configuration_of(np.array(dirs), 30.0) if dirs else None))
         visible_conf.append(configuration_of(np.array(vis_dirs), 30.0) if vis_dirs else None)
-    return ScanTruth(ours, index, pipes, objects, visible_conf)
+    return ScanTruth(ours, index, pipes, objects, visible_conf, [ob.cls for ob in gt.objects])
 
 
 def tank_scans(every: int, seed: int):

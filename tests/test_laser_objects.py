@@ -76,3 +76,40 @@ def test_pipe_ends_join_by_geometry():
     # facing ends farther apart than any in-line object stay apart
     g = join_ends(np.array([[-0.2, 0, 0], [0.2, 0, 0]]), np.array([x, -x]), np.arange(2), cfg)
     assert g[0] != g[1]
+
+
+def _pipe_with_end(cap: bool, body: bool):
+    """A pipe along +x ending at x = 0 (radius 31.5 mm, sensor above at −z), with its end cap
+    seen and/or a 12 cm body beyond the end. Returns (points, pipes)."""
+    from frontends.laser.config import PipeConfig
+    from frontends.laser.pipes import _make_pipe
+
+    rng = np.random.default_rng(7)
+    r = 0.0315
+    th = rng.uniform(-1.3, 1.3, 600)
+    x = rng.uniform(-0.5, 0.0, 600)
+    shell = np.column_stack([x, r * np.sin(th), 2.0 - r * np.cos(th)])
+    normals = np.column_stack([np.zeros(600), np.sin(th), -np.cos(th)])
+    parts = [shell]
+    if cap:  # the end disc, facing +x
+        rr, ph = r * np.sqrt(rng.uniform(0, 1, 40)), rng.uniform(-np.pi, 0, 40)
+        parts.append(np.column_stack([np.zeros(40), rr * np.cos(ph), 2.0 + rr * np.sin(ph)]))
+    if body:  # the top of a 12 cm box body, 10 cm wide, its top 6 cm above the axis
+        parts.append(np.column_stack([rng.uniform(0.0, 0.12, 150), rng.uniform(-0.05, 0.05, 150), np.full(150, 1.94)]))
+    pts = np.vstack(parts)
+    pipe = _make_pipe(pts, np.vstack([normals, np.zeros((len(pts) - 600, 3))]), np.arange(600), np.array([1.0, 0, 0]), PipeConfig(radius_prior=r))
+    return pts, [pipe]
+
+
+def test_a_lone_pipe_end_needs_an_object_of_its_own():
+    from frontends.laser.config import ObjectConfig
+    from frontends.laser.objects import segment_objects
+
+    up = np.array([0.0, 0.0, -1.0])
+    cfg = ObjectConfig()
+    pts, pipes = _pipe_with_end(cap=True, body=False)
+    assert len(segment_objects(pts, pipes, up, cfg.model_copy(update={"min_own_points": 0, "min_points": 20}))) == 1
+    assert segment_objects(pts, pipes, up, cfg.model_copy(update={"min_points": 20})) == []  # an end cap is no object
+    pts, pipes = _pipe_with_end(cap=True, body=True)
+    (o,) = segment_objects(pts, pipes, up, cfg)
+    assert o.configuration == 1 and abs(o.position[0] - 0.06) < 0.02

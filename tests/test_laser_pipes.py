@@ -150,3 +150,52 @@ def test_lone_bin_does_not_cut_but_a_body_in_a_gap_does():
     around = rng.uniform(0.5, 0.62, 30)
     assert len(split_at_fittings(t[keep], residual[keep], np.zeros(0), cfg)) == 1
     assert len(split_at_fittings(t[keep], residual[keep], np.zeros(0), cfg, around)) == 2
+
+
+def test_a_fitting_found_as_a_short_pipe_is_not_merged_across():
+    """A socket (6 mm wider than its pipe) found as a segment of its own between the two pipes it
+    joins: merging must not bridge it (the union is cut again at its bump)."""
+    rng = np.random.default_rng(5)
+    a = np.array([1.0, 0.0, 0.0])
+    parts = [
+        _cylinder(np.array([-0.5, 0.0, 2.0]), a, 0.0315, 500, rng, length=0.45, noise=0.001),
+        _cylinder(np.array([-0.05, 0.0, 2.0]), a, 0.0375, 120, rng, length=0.10, noise=0.001),
+        _cylinder(np.array([0.05, 0.0, 2.0]), a, 0.0315, 500, rng, length=0.45, noise=0.001),
+    ]
+    pts, nrm = np.vstack([p for p, _ in parts]), np.vstack([n for _, n in parts])
+    cfg = PipeConfig(radius_prior=0.0315)
+    left = _make_pipe(pts, nrm, np.arange(0, 500), a, cfg)
+    socket = _make_pipe(pts, nrm, np.arange(500, 620), a, cfg)
+    right = _make_pipe(pts, nrm, np.arange(620, 1120), a, cfg)
+    merged = merge_duplicates([left, socket, right], pts, nrm, cfg)
+    extents = sorted(sorted((p.p[0], p.q[0])) for p in merged)
+    assert len(merged) == 2
+    assert extents[0][1] < -0.02 and extents[1][0] > 0.02  # nothing runs through the socket
+
+
+def test_a_strip_as_wide_as_the_pipe_is_not_a_pipe():
+    """A valve lever (a 32 mm strip) on its gear head fits the visible half of a 31.5 mm pipe; the
+    rays through the rest of that cylinder reach the body behind it, so it is no pipe."""
+    from frontends.laser.synthetic import SynthObject, SynthPipe, SynthScene, raycast
+
+    fz = 2.0
+    scene = SynthScene(
+        floor_z=fz,
+        wall_x=None,
+        pipes=[SynthPipe((-0.6, 0.3, fz - 0.1), (0.4, 0.3, fz - 0.1), radius=0.0315)],
+        objects=[
+            SynthObject((0.0, -0.2, fz - 0.1), (0.12, 0.17, 0.17)),  # valve body
+            SynthObject((0.0, -0.2, fz - 0.29), (0.07, 0.07, 0.025)),  # gear head
+            SynthObject((0.0, -0.17, fz - 0.305), (0.032, 0.23, 0.006)),  # lever across the pipe
+        ],
+    )
+    scan = raycast(scene, seed=1)
+
+    def lever_pipes(**over):
+        cfg = LaserConfig.model_validate({"pipes": {"radius_prior": 0.0315, **over}})
+        seg = segment_scan(scan.points, cfg)
+        assert any(abs(p.p[1] - 0.3) < 0.02 and p.length > 0.9 for p in seg.pipes)  # the real pipe
+        return [p for p in seg.pipes if abs(0.5 * (p.p[1] + p.q[1]) - 0.3) > 0.1]
+
+    assert lever_pipes(max_see_through=1.0)  # the strip fits a cylinder ...
+    assert not lever_pipes()  # ... but the sensor sees through it

@@ -149,6 +149,21 @@ class PipeConfig(_Section):
         gt=0,
         description="the same when radius_prior is given: the fit then has no radius bias, so the test can be finer",
     )
+    max_see_through: float = Field(
+        0.15,
+        ge=0,
+        le=1,
+        description="a segment is dropped when more than this fraction of the rays crossing its cylinder return "
+        "behind it (a pipe is solid; a flat strip as wide as the pipe, like a valve lever, fits its visible "
+        "half). Measured on the tank: ≤ 0.08 for 99 % of true pipes, 0.48 median for butterfly-valve levers; "
+        "0.22 for a lever seen from straight above (its gear head below fills part of the cylinder)",
+    )
+    see_through_chord: float = Field(
+        0.03, gt=0, description="rays crossing the cylinder with a chord at least this long are tested (m)"
+    )
+    see_through_margin: float = Field(
+        0.02, gt=0, description="a ray returning this far beyond its exit from the cylinder saw through it (m)"
+    )
     merge_angle_deg: float = Field(10.0, gt=0, description="duplicates: axes within this angle ...")
     merge_distance: float = Field(0.03, gt=0, description="... axes this close (lateral) ...")
     merge_gap: float = Field(
@@ -199,6 +214,25 @@ class ObjectConfig(_Section):
     collinear_angle_deg: float = Field(30.0, gt=0, lt=90, description="two pipes within this of opposite are collinear")
     min_points: int = Field(30, ge=1, description="fewest (non-pipe) points in the crop for an object")
     cluster_distance: float = Field(0.05, gt=0, description="Euclidean clustering radius inside the crop")
+    attach_distance: float = Field(
+        0.15,
+        gt=0,
+        description="an object at a lone pipe end is the largest crop cluster reaching back to within this of the "
+        "end along the pipe (m; a fitting starts at the end, or a few cm beyond it where the end is seen short): "
+        "a cluster only farther away belongs to something else (a neighbour's handle, another fitting)",
+    )
+    own_margin: float = Field(
+        0.015, gt=0, description="a lone end's object point is its own when this far outside the pipe's cylinder (m)"
+    )
+    own_beyond: float = Field(
+        0.03, gt=0, description="... or this far beyond the pipe's end along its axis (m); its end cap is not"
+    )
+    min_own_points: int = Field(
+        10,
+        ge=0,
+        description="fewest own points of an object at a lone pipe end: on the tank, free pipe ends (end caps) have "
+        "0-1, the fittings seen from one pipe ≥ 14",
+    )
     # σ of an object position in its box frame (along the pipe, across, up), by how it was found;
     # measured (RMS error) on the simulated tank mission at 2-4 m, which includes the fits' systematic
     # errors: a gating estimator needs them honest, neither tighter nor looser.

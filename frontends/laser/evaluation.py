@@ -27,6 +27,7 @@ class ScanTruth:
     pipes: list[tuple[np.ndarray, np.ndarray, float]]
     objects: list[tuple[np.ndarray, int | None]]
     object_visible_configuration: list[int | None] | None = None
+    object_classes: list[str] | None = None  # class name per object, when known
 
 
 @dataclass
@@ -57,6 +58,17 @@ class ScanScore:
     n_config_visible_known: int = 0  # single segments whose seen-pipes configuration is known
     n_object_segments: int = 0
     n_spurious_objects: int = 0  # segments near no visible object
+    # What repeats across views and so becomes a false landmark in the back-end:
+    n_spurious_at_free_end: int = 0  # spurious segments at a pipe end that enters no object
+    # segments per true object (each segment to its nearest object within split_gate), for the
+    # visible objects with at least one: class → [objects with one segment, objects with more]
+    segments_by_class: dict = field(default_factory=dict)
+    bridged_by_class: dict = field(default_factory=dict)  # class → reported pipe segments running through it
+    # signed error of single segments towards the sensor (m), by configuration found (1-4)
+    toward_sensor_by_config: dict = field(default_factory=dict)
+    # fraction of an object's own hits in its single segment, by class
+    coverage_by_class: dict = field(default_factory=dict)
+    configuration_pairs: dict = field(default_factory=dict)  # "found-true" → single segments
 
 
 def _unit(v):
@@ -179,11 +191,68 @@ def score_scan(
             err = o.position - pos
             score.object_nees.append(float(err @ np.linalg.solve(o.covariance, err)))
             score.n_config_correct += int(o.configuration == config)
+            key = f"{o.configuration}-{config}"
+            score.configuration_pairs[key] = score.configuration_pairs.get(key, 0) + 1
             if truth.object_visible_configuration is not None:
                 score.n_config_visible_known += 1
                 score.n_config_visible_correct += int(o.configuration == truth.object_visible_configuration[j])
     score.n_spurious_objects = int((~near_any).sum())
+    _score_map_errors(points, seg, truth, score, seg_pos, near_any, min_object_hits, min_pipe_length)
     return score
+
+
+def _score_map_errors(points, seg, truth, score, seg_pos, near_any, min_object_hits, min_pipe_length,
+                      split_gate=0.25, free_end_gate=0.2, bridge_margin=0.03, bridge_lateral=0.04):
+    """The errors that repeat across consecutive views (so the back-end maps them): spurious
+    segments at free pipe ends, objects segmented more than once, pipe segments running through an
+    object, a position bias towards the sensor, and how much of each object its segment holds."""
+    obj_pos = np.array([pos for pos, _ in truth.objects]).reshape(-1, 3)
+    classes = truth.object_classes or ["object"] * len(obj_pos)
+    # pipe ends that enter no object: lone ends where nothing is to be found
+    ends = np.array([e for p, q, _ in truth.pipes for e in (p, q)]).reshape(-1, 3)
+    if len(ends) and len(obj_pos):
+        free = ends[np.linalg.norm(ends[:, None] - obj_pos[None], axis=2).min(axis=1) > free_end_gate]
+    else:
+        free = ends
+    for j in np.flatnonzero(~near_any):
+        if len(free) and np.linalg.norm(free - seg_pos[j], axis=1).min() <= free_end_gate:
+            score.n_spurious_at_free_end += 1
+    hits = np.bincount(truth.index[truth.kind == OBJECT], minlength=len(obj_pos)) if len(obj_pos) else np.zeros(0, int)
+    if len(seg_pos) and len(obj_pos):
+        d = np.linalg.norm(seg_pos[:, None] - obj_pos[None], axis=2)
+        nearest = d.argmin(axis=1)
+        owned = np.bincount(nearest[d.min(axis=1) <= split_gate], minlength=len(obj_pos))
+    else:
+        owned = np.zeros(len(obj_pos), int)
+    for j in range(len(obj_pos)):
+        if hits[j] >= min_object_hits and owned[j] >= 1:
+            c = score.segments_by_class.setdefault(classes[j], [0, 0])
+            c[0 if owned[j] == 1 else 1] += 1
+    # reported pipe segments through an object (on their axis, strictly between their ends)
+    for det in seg.pipes:
+        if det.length < min_pipe_length or not len(obj_pos):
+            continue
+        v = obj_pos - det.p
+        t = v @ det.axis
+        lateral = np.linalg.norm(v - t[:, None] * det.axis, axis=1)
+        for j in np.flatnonzero((lateral <= bridge_lateral) & (t > bridge_margin) & (t < det.length - bridge_margin)):
+            score.bridged_by_class[classes[j]] = score.bridged_by_class.get(classes[j], 0) + 1
+    # bias towards the sensor and coverage, for the objects with a single segment
+    raw_obj = (truth.kind == OBJECT)
+    for j, (pos, _) in enumerate(truth.objects):
+        if hits[j] < min_object_hits or not len(seg_pos):
+            continue
+        dj = np.linalg.norm(seg_pos - pos, axis=1)
+        near = np.flatnonzero(dj <= 0.15)
+        if len(near) != 1:
+            continue
+        o = seg.objects[near[0]]
+        u = -pos / max(np.linalg.norm(pos), 1e-12)
+        score.toward_sensor_by_config.setdefault(int(o.configuration), []).append(float((o.position - pos) @ u))
+        if hasattr(seg, "raw_indices"):
+            raw = seg.raw_indices(o.indices)
+            mine = raw_obj[raw] & (truth.index[raw] == j)
+            score.coverage_by_class.setdefault(classes[j], []).append(float(mine.sum() / max(hits[j], 1)))
 
 
 def summarize(scores: list[ScanScore]) -> dict:
@@ -236,7 +305,42 @@ def summarize(scores: list[ScanScore]) -> dict:
             sum(s.n_config_visible_correct for s in scores), sum(s.n_config_visible_known for s in scores)
         ),
         "spurious_objects": sum(s.n_spurious_objects for s in scores),
+        "spurious_objects_per_scan": ratio(sum(s.n_spurious_objects for s in scores), len(scores)),
+        "scans_with_spurious": sum(s.n_spurious_objects > 0 for s in scores),
+        "spurious_at_free_end": sum(s.n_spurious_at_free_end for s in scores),
+        "objects_split_by_class": _merge_counts(s.segments_by_class for s in scores),
+        "scans_with_split": sum(any(c[1] for c in s.segments_by_class.values()) for s in scores),
+        "bridged_by_class": _merge_counts(s.bridged_by_class for s in scores),
+        "scans_with_bridged": sum(bool(s.bridged_by_class) for s in scores),
+        "configuration_pairs": _merge_counts(s.configuration_pairs for s in scores),
+        "toward_sensor_by_config": _stats_by_key(s.toward_sensor_by_config for s in scores),
+        "coverage_by_class": _stats_by_key(s.coverage_by_class for s in scores),
         "visible_objects": vis_obj,
         "visible_pipes": sum(s.n_visible_pipes for s in scores),
         "visible_long_pipes": sum(s.n_visible_long_pipes for s in scores),
+    }
+
+
+def _merge_counts(dicts) -> dict:
+    """Sum of count dictionaries (values int or [one segment, more] lists)."""
+    out: dict = {}
+    for d in dicts:
+        for k, v in d.items():
+            if isinstance(v, list):
+                acc = out.setdefault(k, [0] * len(v))
+                out[k] = [a + b for a, b in zip(acc, v)]
+            else:
+                out[k] = out.get(k, 0) + v
+    return dict(sorted(out.items(), key=lambda kv: str(kv[0])))
+
+
+def _stats_by_key(dicts) -> dict:
+    """Mean, median and count of the values gathered under each key."""
+    acc: dict = {}
+    for d in dicts:
+        for k, v in d.items():
+            acc.setdefault(k, []).extend(v)
+    return {
+        str(k): {"mean": round(float(np.mean(v)), 4), "median": round(float(np.median(v)), 4), "n": len(v)}
+        for k, v in sorted(acc.items(), key=lambda kv: str(kv[0]))
     }

@@ -16,7 +16,7 @@ from pydantic import ValidationError
 
 from frontends.laser.config import LaserConfig
 from frontends.laser.objects import SegmentedObject, segment_objects
-from frontends.laser.pipes import Pipe, detect_pipes
+from frontends.laser.pipes import Pipe, Rays, detect_pipes
 from frontends.laser.planes import PlaneResult, remove_planes
 from frontends.laser.grid import VoxelGrid, adjacency_of
 from frontends.laser.preprocess import Preprocessed, hop_covariances, preprocess, shape_of
@@ -128,7 +128,7 @@ def segment_scan(points: np.ndarray, cfg: LaserConfig, up: np.ndarray | None = N
         up = up / max(np.linalg.norm(up), 1e-12)
     pipes: list[Pipe] = []
     if len(spts) >= cfg.pipes.min_points:
-        pipes = detect_pipes(spts, normals, grid, cfg.pipes)
+        pipes = detect_pipes(spts, normals, grid, cfg.pipes, Rays(raw))
     clock.lap("pipes")
     objects = segment_objects(spts, pipes, up, cfg.objects)
     clock.lap("objects")

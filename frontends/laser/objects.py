@@ -79,16 +79,38 @@ def _line_intersection(points: np.ndarray, dirs: np.ndarray) -> np.ndarray:
     return np.linalg.solve(P.sum(axis=0), np.einsum("kij,kj->i", P, points))
 
 
-def _largest_cluster(points: np.ndarray, radius: float) -> np.ndarray:
+def _largest_cluster(points: np.ndarray, radius: float, anchored: np.ndarray | None = None) -> np.ndarray:
     """Indices of the largest cluster of points linked through neighbouring cells of a grid of
     ``radius``/2 (points in 26-adjacent cells are linked: they are 0–3.5 radius/2 apart, gaps up to
-    ~radius are bridged), a hashed grid rather than a k-d tree's pair search."""
-    if len(points) < 2:
+    ~radius are bridged), a hashed grid rather than a k-d tree's pair search. With ``anchored``
+    (a mask of the points), the largest of the clusters holding one of those points (none: empty)."""
+    if len(points) < 2 and anchored is None:
         return np.arange(len(points))
+    if len(points) == 0:
+        return np.arange(0)
     grid = VoxelGrid(points, radius / 2)
     _, lab = connected_components(adjacency_of(grid.neighbours(1)), directed=False)
-    cell = np.flatnonzero(lab == np.bincount(lab, weights=grid.counts).argmax())
+    size = np.bincount(lab, weights=grid.counts)
+    if anchored is not None:
+        allowed = np.zeros(len(size), bool)
+        allowed[lab[grid.inverse[anchored]]] = True
+        if not allowed.any():
+            return np.arange(0)
+        size = np.where(allowed, size, -1.0)
+    cell = np.flatnonzero(lab == size.argmax())
     return np.flatnonzero(np.isin(grid.inverse, cell))
+
+
+def own_points(points: np.ndarray, end: np.ndarray, out: np.ndarray, radius: float, cfg: ObjectConfig) -> int:
+    """How many of an object's ``points`` are its own rather than the pipe's that ends at ``end``
+    (outward unit ``out``, pipe ``radius``): off the pipe's cylinder by more than ``own_margin``
+    (a body, a branch or a handle wider than the pipe) or beyond its end by more than
+    ``own_beyond`` (a socket, a part in line). A pipe's end cap, or a pipe leaving the view,
+    has none."""
+    x = points - end
+    t = x @ out
+    rad = np.sqrt(np.maximum((x * x).sum(axis=1) - t * t, 0.0))
+    return int(((rad > radius + cfg.own_margin) | (t > cfg.own_beyond)).sum())
 
 
 def join_ends(ends: np.ndarray, out: np.ndarray, owner: np.ndarray, cfg: ObjectConfig) -> np.ndarray:
@@ -165,11 +187,11 @@ def _crop(X: np.ndarray, rows: np.ndarray, site: _Site, cfg: ObjectConfig) -> np
     return rows[mask]
 
 
-def _merge_overlapping(sites: list[_Site], crops: list[np.ndarray], out, n_points: int, cfg: ObjectConfig) -> list[list[int]]:
-    """Groups of sites that are one object seen from two lone pipe ends that did not join (a pipe
-    cut short before its fitting, so its end lies farther than ``max_port_distance``): both
-    config 1, their crops sharing at least half of the smaller one's points, and their ends
-    meeting by the test of :func:`join_ends` with twice the port distance."""
+def _merge_overlapping(sites: list[_Site], crops: list[np.ndarray], out, owner, n_points: int, cfg: ObjectConfig) -> list[list[int]]:
+    """Groups of sites that are one object: a lone pipe end that did not join the others (a pipe
+    cut short before its fitting, so its end lies farther than ``max_port_distance``) and another
+    site (lone or not) whose crops share at least half of the smaller one's points, and whose
+    ends meet by the test of :func:`join_ends` with twice the port distance."""
     sizes = np.array([len(c) for c in crops])
     rows = np.repeat(np.arange(len(crops)), sizes)
     cols = np.concatenate(crops) if len(rows) else rows
@@ -177,13 +199,15 @@ def _merge_overlapping(sites: list[_Site], crops: list[np.ndarray], out, n_point
     shared = (C @ C.T).tocoo()
     lone = np.array([site.config == 1 for site in sites])
     small = np.minimum(sizes[shared.row], sizes[shared.col])
-    cand = (shared.row < shared.col) & lone[shared.row] & lone[shared.col] & (shared.data >= 0.5 * np.maximum(small, 1))
+    cand = (shared.row < shared.col) & (lone[shared.row] | lone[shared.col]) & (shared.data >= 0.5 * np.maximum(small, 1))
     relaxed = cfg.model_copy(update={"max_port_distance": 2 * cfg.max_port_distance})
-    link = [
-        (a, b)
-        for a, b in zip(shared.row[cand], shared.col[cand])
-        if join_ends(np.array([sites[a].ends[0], sites[b].ends[0]]), out[[sites[a].members[0], sites[b].members[0]]], np.arange(2), relaxed)[1] == 0
-    ]
+
+    def meet(a: int, b: int) -> bool:
+        m = np.concatenate([sites[a].members, sites[b].members])
+        lab = join_ends(np.concatenate([sites[a].ends, sites[b].ends]), out[m], owner[m], relaxed)
+        return bool(np.isin(lab[: len(sites[a].members)], lab[len(sites[a].members) :]).any())
+
+    link = [(a, b) for a, b in zip(shared.row[cand], shared.col[cand]) if meet(a, b)]
     g = coo_matrix((np.ones(len(link)), tuple(np.array(link, int).reshape(-1, 2).T)), shape=(len(crops),) * 2)
     _, label = connected_components(g, directed=False)
     return [list(m) for m in _groups(label)]
@@ -234,7 +258,7 @@ def segment_objects(points: np.ndarray, pipes: list[Pipe], up: np.ndarray, cfg: 
             crop = _crop(points, np.arange(len(points)), site, cfg)
         crops.append(crop)
     objects: list[SegmentedObject] = []
-    for group in _merge_overlapping(sites, crops, out, len(points), cfg):
+    for group in _merge_overlapping(sites, crops, out, owner, len(points), cfg):
         site = sites[group[0]]
         crop = crops[group[0]]
         if len(group) > 1:
@@ -242,10 +266,19 @@ def segment_objects(points: np.ndarray, pipes: list[Pipe], up: np.ndarray, cfg: 
             crop = np.unique(np.concatenate([crops[k] for k in group]))
         if len(crop) < cfg.min_points:
             continue
-        crop = crop[_largest_cluster(points[crop], cfg.cluster_distance)]
+        center, dirs, e = site.center, site.dirs, site.ends
+        if site.config == 1:
+            # A lone pipe end is no evidence by itself (the pipe may leave the view or be hidden):
+            # the object must touch the end and have points of its own beyond the pipe's surface.
+            near_end = (points[crop] - e[0]) @ -dirs[0] <= cfg.attach_distance
+            crop = crop[_largest_cluster(points[crop], cfg.cluster_distance, near_end)]
+            radius = pipes[site.members[0] // 2].radius
+            if own_points(points[crop], e[0], -dirs[0], radius, cfg) < cfg.min_own_points:
+                continue
+        else:
+            crop = crop[_largest_cluster(points[crop], cfg.cluster_distance)]
         if len(crop) < cfg.min_points:
             continue
-        center, dirs, e = site.center, site.dirs, site.ends
         if site.config == 1:  # on the pipe's axis, midway along the object's extent
             t = (points[crop] - e[0]) @ (-dirs[0])
             lo, hi = np.percentile(t, [2, 98])

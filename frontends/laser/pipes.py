@@ -12,6 +12,13 @@ the points near its axis only), its inliers split into runs along the axis where
 or fittings, and every run at least ``min_detect_length`` long is a pipe segment whose endpoints
 are its extreme projections on the axis (``reported`` when at least ``min_length`` long: shorter
 ones only serve the object segmentation and connectivity).
+
+A pipe is a solid: the sensor cannot see through it. A segment is kept only if the scan's rays
+that cross its cylinder (well inside its silhouette) end on it, not behind it (``Rays``,
+``max_see_through``): a flat strip about as wide as the pipe, such as a butterfly valve's lever
+with its gear head, fits the cylinder's visible half as well as a pipe does (a 32 mm face lies
+within the distance and normal tolerances of a 31.5 mm cylinder), but the rays through the rest of
+that cylinder reach the valve body and the floor behind it.
 """
 
 from __future__ import annotations
@@ -27,6 +34,7 @@ _REFINE_REACH = 0.05  # m beyond a pipe's surface over which a refinement looks 
 # A patch's normals must turn (mean sin² of their spread across the axis, a pipe of radius r over
 # ±2 cm: ~0.1; a flat face: noise) about one axis (off-axis spread well below that).
 _MIN_TURN = 0.02
+_MAX_FITTING = 0.25  # m: a segment no longer than this may be a fitting found as a pipe (sockets, tee runs)
 _MAX_OFF_AXIS = 0.5
 
 
@@ -165,6 +173,50 @@ class _Points:
         rn = self.pn - self.n @ c - along * (self.n @ a)
         inl = (np.abs(dist - r) <= cfg.distance_tolerance) & (rn >= np.cos(np.radians(cfg.normal_tolerance_deg)) * dist)
         return inl, dist <= r + reach
+
+
+class Rays:
+    """The scan's rays from the sensor (at the origin of {S}): unit ``directions`` (N×3) and the
+    ``ranges`` (N,) at which they returned, for the see-through test of a pipe segment."""
+
+    def __init__(self, points: np.ndarray):
+        pts = np.asarray(points, dtype=np.float64)
+        self.ranges = np.sqrt((pts * pts).sum(axis=1))
+        keep = self.ranges > 0
+        self.ranges = self.ranges[keep]
+        self.directions = pts[keep] / self.ranges[:, None]
+
+    def see_through(self, c, a, r, t0, t1, cfg: PipeConfig) -> tuple[int, int]:
+        """(rays returning behind the cylinder (c, a, r) between t0 and t1 along a, rays crossing
+        it): a ray crosses it when its chord through the cylinder is at least ``see_through_chord``
+        (well inside the silhouette, where a slightly tilted fit cannot matter) within the segment
+        (1 cm in from both ends); it returns behind when its range exceeds the exit by
+        ``see_through_margin``."""
+        m = c + a * 0.5 * (t0 + t1)
+        dist = np.sqrt(m @ m)
+        half = np.hypot(0.5 * (t1 - t0), r)
+        if dist <= half:
+            return 0, 0
+        # Rays in the cone around the segment's bounding sphere, then the exact ray-cylinder test.
+        sel = np.flatnonzero(self.directions @ (m / dist) >= np.sqrt(1.0 - (half / dist) ** 2))
+        d, rng = self.directions[sel], self.ranges[sel]
+        da = d @ a
+        w = d - da[:, None] * a
+        cp = c - (c @ a) * a
+        A = np.maximum((w * w).sum(axis=1), 1e-12)
+        B = -2.0 * (w @ cp)
+        disc = B * B - 4.0 * A * (cp @ cp - r * r)
+        root = np.sqrt(np.maximum(disc, 0.0))
+        s1, s2 = (-B - root) / (2 * A), (-B + root) / (2 * A)
+        t_mid = 0.5 * (s1 + s2) * da - c @ a
+        crossing = (disc > 0) & (s1 > 0) & (s2 - s1 >= cfg.see_through_chord) & (t_mid > t0 + 0.01) & (t_mid < t1 - 0.01)
+        behind = crossing & (rng > s2 + cfg.see_through_margin)
+        return int(behind.sum()), int(crossing.sum())
+
+    def solid(self, pipe: "Pipe", cfg: PipeConfig) -> bool:
+        """Whether the rays crossing the segment's cylinder end on it (see ``see_through``)."""
+        behind, crossing = self.see_through(pipe.p, pipe.axis, pipe.radius, 0.0, pipe.length, cfg)
+        return behind <= cfg.max_see_through * crossing
 
 
 def fit_cylinder(points: np.ndarray, normals: np.ndarray, a0: np.ndarray, cfg: PipeConfig):
@@ -387,9 +439,9 @@ def _refine(free: _Points, c, a, r, cfg: PipeConfig):
             return c, a, r, free.index[inl]
 
 
-def _cut_into_segments(points, normals, sq, cb, ab, rb, idx, cfg: PipeConfig) -> list[Pipe]:
+def _cut_into_segments(points, normals, sq, cb, ab, rb, idx, cfg: PipeConfig, rays: Rays | None = None) -> list[Pipe]:
     """The pipe segments of a refined cylinder's inliers ``idx``: cut at fittings (foreign points
-    just outside its surface, wider sockets), keep the runs long enough."""
+    just outside its surface, wider sockets), keep the runs long enough and solid (``rays``)."""
     t = points[idx] @ ab
     if len(idx) < cfg.min_points or t.max() - t.min() < cfg.min_detect_length:
         return []  # no run of these inliers can be a segment
@@ -408,14 +460,15 @@ def _cut_into_segments(points, normals, sq, cb, ab, rb, idx, cfg: PipeConfig) ->
             continue
         pipe = _make_pipe(points, normals, seg, ab, cfg)
         if pipe.length >= cfg.min_detect_length and cfg.min_radius <= pipe.radius <= cfg.max_radius:
-            out.append(pipe)
+            if rays is None or rays.solid(pipe, cfg):
+                out.append(pipe)
     return out
 
 
-def detect_pipes(points: np.ndarray, normals: np.ndarray, grid, cfg: PipeConfig) -> list[Pipe]:
+def detect_pipes(points: np.ndarray, normals: np.ndarray, grid, cfg: PipeConfig, rays: Rays | None = None) -> list[Pipe]:
     """Pipes among ``points`` (N×3, {S}) with outward ``normals``; ``grid`` the
-    :class:`~frontends.laser.grid.VoxelGrid` whose cells they are, to draw point pairs. Returns
-    merged pipe segments.
+    :class:`~frontends.laser.grid.VoxelGrid` whose cells they are, to draw point pairs; ``rays``
+    the scan's rays for the see-through test (none when None). Returns merged pipe segments.
 
     Two masks: ``free`` points may still be inliers; ``seedable`` points may still seed hypotheses.
     A model that yields a pipe consumes its inliers; one that does not (an object's curved part, a
@@ -469,7 +522,7 @@ def detect_pipes(points: np.ndarray, normals: np.ndarray, grid, cfg: PipeConfig)
             failures += 1
             continue
         cb, ab, rb, idx = refined
-        found = _cut_into_segments(points, normals, sq, cb, ab, rb, idx, cfg)
+        found = _cut_into_segments(points, normals, sq, cb, ab, rb, idx, cfg, rays)
         for pipe in found:
             free[pipe.inliers] = False
             cand = None
@@ -480,16 +533,41 @@ def detect_pipes(points: np.ndarray, normals: np.ndarray, grid, cfg: PipeConfig)
 
 
 def merge_duplicates(pipes: list[Pipe], points, normals, cfg: PipeConfig) -> list[Pipe]:
-    """Merge segments of one pipe found twice: near-parallel, coaxial, overlapping or nearly touching."""
+    """Merge segments of one pipe found twice: near-parallel, coaxial, overlapping or nearly touching.
+
+    A fitting a little wider than its pipe (a socket, a tee's run) can be found as a short segment
+    of its own, coaxial with the pipes it joins and touching them: merged, it would bridge the
+    fitting. So the union is cut again at the fittings its own profile shows (the bumps of
+    :func:`split_at_fittings`, now seen against the pipe on both sides) when one of the two is
+    short enough to be a fitting: the runs replace the pair, the fitting's points are left to the
+    objects.
+    """
     pipes = list(pipes)
-    while len(pipes) > 1:
+    for _ in range(4 * len(pipes) + 8):  # every step removes a segment or a fitting's points
+        if len(pipes) < 2:
+            break
         pair = _first_duplicate(pipes, cfg)
         if pair is None:
             break
         x, y = pair
         seg = np.union1d(pipes[x].inliers, pipes[y].inliers)
-        pipes[x] = _make_pipe(points, normals, seg, pipes[x].axis, cfg)
-        del pipes[y]
+        merged = _make_pipe(points, normals, seg, pipes[x].axis, cfg)
+        v = points[seg] - merged.p
+        t = v @ merged.axis
+        residual = np.sqrt(np.maximum((v * v).sum(axis=1) - t * t, 0.0)) - merged.radius
+        runs = split_at_fittings(t, residual, np.zeros(0), cfg)
+        dropped = np.ones(len(seg), bool)
+        for run in runs:
+            dropped[run] = False
+        # Cut again only when one of the two may be a fitting (short): two long detections of one
+        # pipe merge as they are.
+        if not dropped.any() or min(pipes[x].length, pipes[y].length) > _MAX_FITTING:
+            pipes[x] = merged
+            del pipes[y]
+            continue
+        pieces = [_make_pipe(points, normals, seg[run], merged.axis, cfg) for run in runs if len(run) >= cfg.min_points]
+        pieces = [pp for pp in pieces if pp.length >= cfg.min_detect_length]
+        pipes = [pp for k, pp in enumerate(pipes) if k not in (x, y)] + pieces
     return pipes
 
 
