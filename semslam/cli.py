@@ -23,11 +23,6 @@ config_app = typer.Typer(help="Inspect the configuration.", no_args_is_help=True
 app.add_typer(config_app, name="config")
 
 
-def not_implemented(what: str, issue: str):
-    typer.echo(f"semslam: {what} is not implemented yet ({issue})", err=True)
-    raise typer.Exit(2)
-
-
 def _version(value: bool):
     if value:
         typer.echo(f"semslam {__version__}")
