@@ -3,6 +3,7 @@
 A larger study is ``experiments/ekf_nees_study.py``."""
 
 import numpy as np
+import pytest
 from scipy.stats import chi2
 
 from semslam.config import SemslamConfig
@@ -14,12 +15,16 @@ ACCEL, RATE = 0.01, 0.002
 N_RUNS = 6
 
 
-def nees_run(seed: int, duration_s: float = 50.0, sample_every_s: float = 1.0):
-    """NEES (9 dof) of one run sampled every ``sample_every_s``, and the position σ over time."""
+def nees_run(seed: int, duration_s: float = 50.0, sample_every_s: float = 1.0, bias_walk: float = 0.0):
+    """NEES of the vehicle state (9 dof; 10 with the AHRS heading bias of a mission that has one) of one
+    run sampled every ``sample_every_s``, and the position σ over time."""
     sim = simulate_circling(seed=seed, duration_s=duration_s, accel_sigma=ACCEL, rate_sigma=RATE,
-                            dropouts=((20.0, 12.0),), with_features=False, velocity_tau_s=None, track_gain=0.0)
+                            dropouts=((20.0, 12.0),), with_features=False, velocity_tau_s=None, track_gain=0.0,
+                            heading_bias_walk=bias_walk)
     cfg = SemslamConfig(motion={"accel_sigma_m_s2": ACCEL, "angular_rate_sigma_rad_s": RATE})
     est = EkfEstimator(sim.metadata, cfg)
+    nv = 10 if bias_walk > 0 else 9
+    assert est.nv == nv
     ts = sim.truth_stamps
     period = int(sample_every_s * 1e9)
     nees, sd, times = [], [], []
@@ -27,24 +32,28 @@ def nees_run(seed: int, duration_s: float = 50.0, sample_every_s: float = 1.0):
         est.process_measurement(m)
         if m.sensor == "ahrs" and m.stamp % period == 0 and m.stamp > 0:
             i = np.searchsorted(ts, m.stamp)
-            e = est.state.x[:9] - sim.truth_states[i]
+            truth = sim.truth_states[i] if nv == 9 else np.r_[sim.truth_states[i], sim.extras["heading_bias"][i]]
+            e = est.state.x[:nv] - truth
             e[3:6] = geo.wrap(e[3:6])
-            P = est.state.P[:9, :9]
+            P = est.state.P[:nv, :nv]
             nees.append(e @ np.linalg.solve(P, e))
             sd.append(np.sqrt(np.trace(P[:2, :2])))
             times.append(m.stamp * 1e-9)
     return np.array(times), np.array(nees), np.array(sd)
 
 
-def test_navigation_filter_is_consistent():
-    runs = [nees_run(seed) for seed in range(N_RUNS)]
+@pytest.mark.parametrize("bias_walk", [0.0, 0.003])
+def test_navigation_filter_is_consistent(bias_walk):
+    """Also with an AHRS heading bias (a random walk; the filter's 10th state, unobservable here)."""
+    dim = 10 if bias_walk > 0 else 9
+    runs = [nees_run(seed, bias_walk=bias_walk) for seed in range(N_RUNS)]
     times = runs[0][0]
     anees = np.mean([r[1] for r in runs], axis=0)  # average over runs at each time
-    lo, hi = chi2.ppf([0.025, 0.975], 9 * N_RUNS) / N_RUNS
+    lo, hi = chi2.ppf([0.025, 0.975], dim * N_RUNS) / N_RUNS
     inside = np.mean((anees > lo) & (anees < hi))
     assert inside >= 0.85, f"ANEES inside [{lo:.2f}, {hi:.2f}] only {inside:.0%} of the time: {anees.round(1)}"
-    # over the whole mission the mean NEES is close to the dimension (9)
-    assert 9 * 0.75 < anees.mean() < 9 * 1.25
+    # over the whole mission the mean NEES is close to the dimension
+    assert dim * 0.75 < anees.mean() < dim * 1.25
     # the DVL dropout (20–32 s) makes the horizontal uncertainty grow, and it stops growing after it
     sd = runs[0][2]
     before, after_drop, end = sd[times == 19][0], sd[times == 32][0], sd[-1]
@@ -112,3 +121,77 @@ def test_pipes_give_no_absolute_position_information():
     assert smallest < 0.7 * first
     first, smallest = _pipes_only_run("first_estimate")
     assert smallest > 0.99 * first
+
+
+def _yaw_null_space(est, nv):
+    """The rotation of vehicle and map about the world's vertical (the bias taking the opposite turn), in
+    first estimates: vehicle at the propagated position, each feature at its first estimate."""
+    from semslam.ekf.geometry import line_params, line_plucker
+
+    ez = np.array([0.0, 0.0, 1.0])
+    N_x = np.zeros(nv)
+    N_x[:3] = np.cross(ez, est._p_fe)
+    N_x[5] = 1.0
+    N_x[9] = -1.0
+    N_l = {}
+    for f in est._features:
+        if f.kind == "object":
+            N_l[f.id] = np.cross(ez, f.l_first)
+        else:  # the line rotated by δ about the vertical through the origin, numerically
+            m, d = line_plucker(f.l_first)
+            h = 1e-6
+            Rz = lambda a: geo.rot(0.0, 0.0, a)
+            lp, lm = line_params(Rz(h) @ m, Rz(h) @ d), line_params(Rz(-h) @ m, Rz(-h) @ d)
+            N_l[f.id] = np.r_[geo.wrap(lp[:3] - lm[:3]), lp[3] - lm[3]] / (2 * h)
+    return N_x, N_l
+
+
+@pytest.mark.parametrize("mode", ["first_estimate", "current"])
+def test_heading_first_estimates_keep_the_rotation_about_the_vertical_unobservable(mode):
+    """With the AHRS heading bias modelled, only the map observes the heading; a common rotation of
+    vehicle and map about the vertical (the bias turning back) changes no measurement. The filter's
+    linearisation must not observe it: the prediction Jacobians carry the null space of one step to the
+    next (F N_k = N_k+1) and every landmark Jacobian annihilates it (H N = 0), in first estimates — with
+    heading_jacobians = first_estimate exactly, with the textbook Jacobians not."""
+    from semslam.ekf.estimator import _ScanPairs
+
+    sim = simulate_circling(seed=4, duration_s=40.0, accel_sigma=ACCEL, rate_sigma=RATE, heading_bias_walk=0.003)
+    cfg = SemslamConfig(motion={"accel_sigma_m_s2": ACCEL, "angular_rate_sigma_rad_s": RATE},
+                        ekf={"heading_jacobians": mode})
+    est = EkfEstimator(sim.metadata, cfg)
+    steps, worst_H, kinds, n_pairs = [], 0.0, set(), 0
+    for m, obs in sim.stream():
+        est.process_measurement(m)
+        if est.state is not None and not steps:
+            predict = est.state.predict_vehicle
+
+            def spy(xv, F, Q, _predict=predict):
+                steps.append((xv[:3].copy(), F.copy()))  # the propagated position, the step's Jacobian
+                _predict(xv, F, Q)
+
+            est.state.predict_vehicle = spy
+            steps.append((est._p_fe.copy(), None))
+        if obs and est._features:  # the scan's landmark Jacobians against the null space in first estimates
+            scan = _ScanPairs(est, est._prepare(obs), 0.999)
+            N_x, N_l = _yaw_null_space(est, 10)
+            for k, j in enumerate(scan.feat):
+                f = est._features[j]
+                worst_H = max(worst_H, np.abs(scan.H_x[k] @ N_x[:9] + scan.H_l[k] @ N_l[f.id]).max())
+                kinds.add(f.kind)
+                n_pairs += 1
+        if obs:
+            est.process_observations(m.stamp, obs)
+    # propagation: F N(p_k) = N(p_k+1), N at the positions the Jacobians are taken at
+    ez = np.array([0.0, 0.0, 1.0])
+    worst_F = 0.0
+    for (p0, _), (p1, F) in zip(steps[:-1], steps[1:]):
+        N0, N1 = np.zeros(10), np.zeros(10)
+        N0[:3], N1[:3] = np.cross(ez, p0), np.cross(ez, p1)
+        N0[5] = N1[5] = 1.0
+        N0[9] = N1[9] = -1.0
+        worst_F = max(worst_F, np.abs(F @ N0 - N1).max())
+    assert n_pairs > 20 and kinds == {"object", "pipe"}
+    if mode == "first_estimate":
+        assert worst_F < 1e-12 and worst_H < 1e-5, (worst_F, worst_H)
+    else:  # each step starts from the updated position, each Jacobian at the updated estimates
+        assert worst_F > 1e-3 and worst_H > 1e-3, (worst_F, worst_H)

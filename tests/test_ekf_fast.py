@@ -42,42 +42,71 @@ def test_small_inverse_and_quaternions():
         np.testing.assert_allclose(g.quat_to_rot(qi), Rotation.from_quat(qi).as_matrix(), atol=1e-14)
 
 
-def test_compressed_navigation_updates_equal_full_updates():
+@pytest.mark.parametrize("nv", [9, 10])
+def test_compressed_navigation_updates_equal_full_updates(nv):
     """Predictions and vehicle-only updates applied through the accumulators give the state and
-    covariance of updating the whole state at every step."""
+    covariance of updating the whole state at every step; with nv = 10 (the AHRS heading bias in the
+    vehicle block) also updates whose H covers only the first 9 entries (DVL, depth), landmark
+    updates and augmentations with 9-column vehicle Jacobians (zero on the bias)."""
     n_l = 7
-    A = RNG.normal(size=(9 + n_l, 9 + n_l))
-    P0 = A @ A.T * 0.01 + np.eye(9 + n_l) * 1e-3
-    x0 = RNG.normal(size=9 + n_l)
-    fast = EkfState(x0[:9], P0[:9, :9])
-    fast.augment(x0[9:], np.zeros((n_l, 9)), np.eye(n_l), np.eye(n_l))  # then overwrite with P0
-    fast._P[: 9 + n_l, : 9 + n_l] = P0
+    A = RNG.normal(size=(nv + n_l, nv + n_l))
+    P0 = A @ A.T * 0.01 + np.eye(nv + n_l) * 1e-3
+    x0 = RNG.normal(size=nv + n_l)
+    fast = EkfState(x0[:nv], P0[:nv, :nv])
+    assert fast.nv == nv
+    fast.augment(x0[nv:], np.zeros((n_l, 9)), np.eye(n_l), np.eye(n_l))  # then overwrite with P0
+    fast._P[: nv + n_l, : nv + n_l] = P0
     x, P = x0.copy(), P0.copy()
-    for step in range(40):
-        F = np.eye(9) + 0.05 * RNG.normal(size=(9, 9))
-        Qn = np.diag(RNG.uniform(1e-6, 1e-4, 9))
-        xv = x[:9] + 0.01 * RNG.normal(size=9)
-        fast.predict_vehicle(xv.copy(), F, Qn)
-        x[:9] = xv
-        Fb = np.eye(9 + n_l)
-        Fb[:9, :9] = F
-        P = Fb @ P @ Fb.T
-        P[:9, :9] += Qn
-        d = int(RNG.integers(1, 4))
-        H = RNG.normal(size=(d, 9))
-        R = np.eye(d) * RNG.uniform(1e-4, 1e-2)
-        nu = RNG.normal(size=d) * 0.01
-        fast.update(nu, np.arange(9), H, R)
-        Hf = np.zeros((d, 9 + n_l))
-        Hf[:, :9] = H
+
+    def plain_update(nu, Hf, R):
+        nonlocal x, P
         S = Hf @ P @ Hf.T + R
         K = P @ Hf.T @ np.linalg.inv(S)
         x = x + K @ nu
-        IKH = np.eye(9 + n_l) - K @ Hf
+        IKH = np.eye(len(x)) - K @ Hf
         P = IKH @ P @ IKH.T + K @ R @ K.T
+
+    for step in range(40):
+        F = np.eye(nv) + 0.05 * RNG.normal(size=(nv, nv))
+        Qn = np.diag(RNG.uniform(1e-6, 1e-4, nv))
+        xv = x[:nv] + 0.01 * RNG.normal(size=nv)
+        fast.predict_vehicle(xv.copy(), F, Qn)
+        x[:nv] = xv
+        Fb = np.eye(len(x))
+        Fb[:nv, :nv] = F
+        P = Fb @ P @ Fb.T
+        P[:nv, :nv] += Qn
+        d = int(RNG.integers(1, 4))
+        k = nv if step % 2 else 9  # H over the whole vehicle block, or over its first 9 entries
+        H = RNG.normal(size=(d, k))
+        R = np.eye(d) * RNG.uniform(1e-4, 1e-2)
+        nu = RNG.normal(size=d) * 0.01
+        fast.update(nu, np.arange(k), H, R)
+        Hf = np.zeros((d, len(x)))
+        Hf[:, :k] = H
+        plain_update(nu, Hf, R)
         if step % 13 == 5:  # reading the full state applies the pending steps
             np.testing.assert_allclose(fast.x, x, atol=1e-10)
             np.testing.assert_allclose(fast.P, P, atol=1e-10)
+        if step % 11 == 3:  # a landmark update: the pose columns and one landmark block
+            j = nv + int(RNG.integers(0, n_l - 2))
+            cols = np.r_[np.arange(9), np.arange(j, j + 3)]
+            H = RNG.normal(size=(3, 12))
+            nu = RNG.normal(size=3) * 0.01
+            R = np.eye(3) * 1e-3
+            fast.update(nu, cols, H, R)
+            Hf = np.zeros((3, len(x)))
+            Hf[:, cols] = H
+            plain_update(nu, Hf, R)
+        if step % 17 == 8:  # a new landmark from the pose (9-column G_x)
+            G_x, G_z, R_z = RNG.normal(size=(3, 9)), RNG.normal(size=(3, 3)), np.eye(3) * 1e-3
+            l = RNG.normal(size=3)
+            fast.augment(l, G_x, G_z, R_z)
+            Gf = np.zeros((3, len(x)))
+            Gf[:, :9] = G_x
+            cross = Gf @ P
+            P = np.block([[P, cross.T], [cross, cross @ Gf.T + G_z @ R_z @ G_z.T]])
+            x = np.r_[x, l]
     np.testing.assert_allclose(fast.P, P, atol=1e-10)
     np.testing.assert_allclose(fast.x, x, atol=1e-10)
 

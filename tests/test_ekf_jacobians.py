@@ -172,3 +172,37 @@ def test_line_initialisation_jacobians(beta):
 def test_rot_batch_matches_rot():
     e = RNG.uniform(-1.5, 1.5, size=(10, 3))
     np.testing.assert_allclose(g.rot_batch(e), np.array([g.rot(*r) for r in e]), atol=1e-14)
+
+
+XB = np.r_[X, 0.03]  # with an AHRS heading bias (rad)
+
+
+def test_biased_prediction_jacobian():
+    """The heading bias is a random walk beside the paper's model: F = diag(F₉, 1), Q_bb = σ_b² Δt."""
+    w = np.array([0.05, -0.1, 0.2])
+    xn, F, Q = mdl.predict_biased(XB, w, 0.1, 0.05, 0.01, 0.002)
+    xn9, F9, Q9 = mdl.predict(X, w, 0.1, 0.05, 0.01)
+    np.testing.assert_allclose(xn[:9], xn9)
+    assert xn[mdl.BIAS] == XB[mdl.BIAS]
+    assert_jac(F, numjac(lambda x: mdl.predict_biased(x, w, 0.1, 0.05, 0.01, 0.002)[0], XB))
+    np.testing.assert_allclose(Q[:9, :9], Q9)
+    assert Q[9, 9] == pytest.approx(0.002**2 * 0.1) and not Q[9, :9].any()
+
+
+def test_biased_attitude_jacobian_and_the_graph_model():
+    """The AHRS reading R_meas = Rz(b) R_WB (factors.navigation.biased_attitude_residual): its Euler
+    angles are (φ, θ, ψ + b), so the innovation is zero at the truth, and H is the numerical Jacobian
+    of the rotation-form model."""
+    Rz = lambda b: g.rot(0.0, 0.0, b)
+    h = lambda x: g.euler(Rz(x[mdl.BIAS]) @ g.rot(*x[3:6]))
+    z = h(XB)
+    u = mdl.biased_attitude_update(XB, z, np.eye(3))
+    np.testing.assert_allclose(u.innovation, 0.0, atol=1e-12)
+    assert u.H.shape == (3, 10)
+    assert_jac(u.H, numjac(h, XB))
+    assert_jac(u.H, -numjac(lambda x: mdl.biased_attitude_update(x, z, np.eye(3)).innovation, XB))
+    # near ψ + b = ±π the innovation is wrapped
+    xb = XB.copy()
+    xb[5], xb[mdl.BIAS] = np.pi - 0.01, 0.03
+    u = mdl.biased_attitude_update(xb, h(xb), np.eye(3))
+    np.testing.assert_allclose(u.innovation, 0.0, atol=1e-12)

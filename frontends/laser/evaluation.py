@@ -63,7 +63,7 @@ class ScanScore:
     # segments per true object (each segment to its nearest object within split_gate), for the
     # visible objects with at least one: class → [objects with one segment, objects with more]
     segments_by_class: dict = field(default_factory=dict)
-    bridged_by_class: dict = field(default_factory=dict)  # class → reported pipe segments running through it
+    bridged_by_class: dict = field(default_factory=dict)  # class → reported pipe segments running through it (> 0.1 m each side)
     # signed error of single segments towards the sensor (m), by configuration found (1-4)
     toward_sensor_by_config: dict = field(default_factory=dict)
     # fraction of an object's own hits in its single segment, by class
@@ -202,7 +202,7 @@ def score_scan(
 
 
 def _score_map_errors(points, seg, truth, score, seg_pos, near_any, min_object_hits, min_pipe_length,
-                      split_gate=0.25, free_end_gate=0.2, bridge_margin=0.03, bridge_lateral=0.04):
+                      split_gate=0.25, free_end_gate=0.2, bridge_margin=0.10, bridge_lateral=0.04):
     """The errors that repeat across consecutive views (so the back-end maps them): spurious
     segments at free pipe ends, objects segmented more than once, pipe segments running through an
     object, a position bias towards the sensor, and how much of each object its segment holds."""
@@ -228,7 +228,9 @@ def _score_map_errors(points, seg, truth, score, seg_pos, near_any, min_object_h
         if hits[j] >= min_object_hits and owned[j] >= 1:
             c = score.segments_by_class.setdefault(classes[j], [0, 0])
             c[0 if owned[j] == 1 else 1] += 1
-    # reported pipe segments through an object (on their axis, strictly between their ends)
+    # reported pipe segments through an object (on their axis, more than bridge_margin inside both
+    # ends: the back-end keeps collinear segments apart when an object lies between them, reaching
+    # at most 0.1 m into either)
     for det in seg.pipes:
         if det.length < min_pipe_length or not len(obj_pos):
             continue

@@ -244,7 +244,7 @@ def fit_cylinder(points: np.ndarray, normals: np.ndarray, a0: np.ndarray, cfg: P
         nx = normals @ E
         nx /= np.linalg.norm(nx, axis=1, keepdims=True)
         r = cfg.radius_prior
-        cx = (x - r * nx).mean(axis=0)
+        cx = (x - (r - cfg.surface_offset) * nx).mean(axis=0)
     else:
         cx, r = _circle_fit(x)
     c = o + E @ cx

@@ -86,16 +86,18 @@ def line_innovations(
     R_BS: np.ndarray,
     t_BS: np.ndarray,
     L_lin: np.ndarray | None = None,
+    x_lin: np.ndarray | None = None,
 ):
     """:func:`models.line_innovation` for K pairs (pipe L[k] = [α β γ ρ] in {W}, observed line k in
     {S} with orthonormal U (K×3×3), ρ (K,), direction d (K×3) and error covariance (K×4×4)), all seen
-    from one sensor pose; the Jacobians at L_lin when given (first estimates). Returns (ν K×4,
-    H_x K×4×9, H_l K×4×4, R K×4×4)."""
+    from one sensor pose; the Jacobians at L_lin and the vehicle state x_lin when given (first
+    estimates). Returns (ν K×4, H_x K×4×9, H_l K×4×4, R K×4×4)."""
     nu, Rn, r, flip = _line_residuals(x, L, obs_U, obs_rho, obs_d, obs_cov, R_BS, t_BS)
-    if L_lin is None:
+    if L_lin is None and x_lin is None:
         H_x, H_l = _line_jacobians(x, L, r, R_BS, t_BS)
     else:  # r at the first estimates, with the observations flipped as at L
-        H_x, H_l = _line_jacobians(x, L_lin, None, R_BS, t_BS, obs_U=obs_U, flip=flip)
+        H_x, H_l = _line_jacobians(x if x_lin is None else x_lin, L if L_lin is None else L_lin, None, R_BS, t_BS,
+                                   obs_U=obs_U, flip=flip)
     return nu, H_x, H_l, Rn
 
 

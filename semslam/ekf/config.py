@@ -1,7 +1,7 @@
 """Configuration of the EKF-SLAM and dead reckoning (the ``ekf`` section).
 
-Motion noise (``motion``) and association (``association``) are shared with the graph back-end and
-are not repeated here.
+Motion noise (``motion``), the sensor error models beyond white noise (``sensors``: the AHRS heading
+bias) and association (``association``) are shared with the graph back-end and are not repeated here.
 """
 
 from __future__ import annotations
@@ -35,6 +35,15 @@ class EkfConfig(BaseModel):
         "Mourikis & Roumeliotis 2008; keeps a common translation of vehicle and map unobservable, as it is — the "
         "world-origin line parameters make the current-estimate Jacobians gain spurious absolute-position "
         "information) or at the current estimate (the textbook EKF)",
+    )
+    heading_jacobians: Literal["first_estimate", "current"] = Field(
+        "first_estimate",
+        description="with the AHRS heading bias modelled (section sensors), only the map observes the heading, "
+        "and a rotation of vehicle and map about the vertical is unobservable: first_estimate evaluates the "
+        "prediction's ∂p/∂ψ with the propagated positions and every landmark Jacobian (objects, pipes, new "
+        "features) at the propagated position and the landmarks' first estimates (FEJ-EKF, Huang, Mourikis & "
+        "Roumeliotis 2009), which keeps it unobservable; current: the textbook EKF, whose Jacobians at the "
+        "updated estimates observe it spuriously (the heading wanders and the bias with it)",
     )
     line_min_length_m: float = Field(0.05, gt=0, description="shorter pipe segments are ignored (no direction)")
     line_min_distance_m: float = Field(

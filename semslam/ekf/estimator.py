@@ -7,6 +7,32 @@ JCBB association against the mapped features, one joint EKF update (Joseph form)
 observations, and state augmentation with the cross-covariances for new features. Navigation steps
 reach the map in compressed form (:mod:`semslam.ekf.filter`), so they cost the same whatever its size.
 
+AHRS heading bias (an extension: the paper's filter has none). An AHRS heading drifts (magnetic
+disturbances, gyro bias; the simulated tank's by ~2° over the mission) while its message declares only
+white noise. The graph back-end models the drift as a random-walk state, so for a fair comparison the
+filter models it the same way, from the same shared sensor model (``config.sensors``): whenever
+``heading_bias_walk(metadata)`` > 0 the vehicle state is [x y z φ θ ψ u v w b] (10 entries, b at
+:data:`semslam.ekf.models.BIAS`), b starts at 0 with σ ``heading_bias_initial_sigma_rad``, the
+prediction adds σ_b² Δt to its variance (:func:`~semslam.ekf.models.predict_biased`), and the AHRS
+update measures (φ, θ, ψ + b), i.e. R_meas = Rz(b) R_WB as the graph's ``biased_attitude_residual``
+(:func:`~semslam.ekf.models.biased_attitude_update`). Nothing else sees b: landmark, DVL and depth
+Jacobians have a zero column for it, and it rides in the vehicle block of the compressed steps. Only
+the map (a heading relative to features seen earlier) makes b observable: dead reckoning carries it
+with its uncertainty growing as the walk's, and so does its heading's. With no bias modelled (walk 0)
+the filter is exactly the paper's 9-state one. ``finish()`` reports b and its σ over time in
+``history["heading_bias"]`` (stamps, b, σ_b).
+
+With b in the state the AHRS observes ψ + b only, so a rotation of vehicle and map about the vertical
+(b turning back by as much) is unobservable — as a common translation already is. The textbook EKF
+observes it spuriously (Huang, Mourikis & Roumeliotis 2008/2009): Jacobians at the updated estimates
+let the heading, and the bias with it, wander with the map's linearisation errors (simulated tank, oracle
+observations, the true bias taken out of the AHRS: the 9-state filter's ATE is 0.020 m; modelling a bias
+anyway, 0.043 m with the textbook Jacobians, 0.031 m with these). So, with the bias modelled,
+``ekf.heading_jacobians = "first_estimate"`` (the FEJ-EKF): the prediction's ∂p'/∂ψ = e_z × (p' − p) takes
+p as propagated, not as updated, and every landmark Jacobian (association, update, new features) is
+evaluated at the propagated position and the landmark's first estimate; then F N_k = N_k+1 and H N = 0
+hold exactly for that null space N (tested). The innovations stay at the current estimate.
+
 Association: every pair of a scan is linearised in one vectorised pass (:class:`_ScanPairs`), and
 JCBB (Neira & Tardós; :func:`semslam.ekf.jcbb.jcbb_dense`, node for node the shared
 :func:`semslam.backend.association.jcbb` on the same order) runs on their joint covariance, with the
@@ -54,7 +80,7 @@ from semslam.ekf import models as mdl
 from semslam.ekf.config import EkfConfig
 from semslam.ekf.filter import EkfState
 from semslam.ekf.jcbb import Chi2Gate, jcbb_dense
-from semslam.ekf.models import ATT, NX, POS, VEL
+from semslam.ekf.models import ATT, BIAS, NX, POS, VEL
 from semslam.errors import ConfigError, MissionError
 from semslam.estimation import EstimatorResult, LandmarkEstimate, Trajectory
 from semslam.mission.measurements import Attitude, Depth, DvlVelocity, GroundTruthPose, Measurement
@@ -330,6 +356,9 @@ class _ScanPairs:
                         uj, inv = np.unique(fj, return_inverse=True)
                         L = x[np.array([feats[j].index for j in uj])[:, None] + np.arange(3)]
                         h, Hx_u, Hl = bt.point_measurements(x[:NX], L, o0.R_BS, o0.t_BS)
+                        if est._fej_yaw:  # Jacobians at the first estimates (ν at the current ones)
+                            L_f = np.array([feats[j].l_first for j in uj])
+                            Hx_u = bt.point_measurements(est._x_lin(), L_f, o0.R_BS, o0.t_BS)[1]
                         z = np.array([obs[i].obs.position for i in oi])
                         nu = z - h[inv]
                         Hx = Hx_u[inv]
@@ -340,8 +369,9 @@ class _ScanPairs:
                         lines = [obs[i].line for i in oi]
                         args = (np.array([ln.U for ln in lines]), np.array([ln.rho for ln in lines]),
                                 np.array([ln.d for ln in lines]), np.array([ln.cov for ln in lines]), o0.R_BS, o0.t_BS)
-                        L_lin = np.array([feats[j].l_first for j in fj]) if est._fej else None
-                        nu, Hx, HlK, R = bt.line_innovations(x[:NX], L, *args, L_lin=L_lin)
+                        L_lin = np.array([feats[j].l_first for j in fj]) if est._fej or est._fej_yaw else None
+                        nu, Hx, HlK, R = bt.line_innovations(x[:NX], L, *args, L_lin=L_lin,
+                                                             x_lin=est._x_lin() if est._fej_yaw else None)
                     # S = H_x P_vv H_xᵀ + H_x P_vl H_lᵀ + H_l P_lv H_xᵀ + H_l P_ll H_lᵀ + R
                     Pvl = P[:NX][:, cols].transpose(1, 0, 2)  # (K, 9, size)
                     Pll = P[cols[:, :, None], cols[:, None, :]]  # (K, size, size)
@@ -438,7 +468,7 @@ def _by_sensor(obs: list[_Obs], kind: str):
 # ------------------------------------------------------------------------------- the filter
 class EkfEstimator:
     """The paper's EKF-SLAM. ``EkfEstimator(metadata, config)`` with the full :class:`SemslamConfig`
-    (sections ``motion``, ``association`` and ``ekf``)."""
+    (sections ``motion``, ``sensors``, ``association`` and ``ekf``)."""
 
     name = "ekf"
     feature_updates = True
@@ -456,6 +486,12 @@ class EkfEstimator:
         self.assoc = config.association
         self._associate = associate
         self._fej = self.cfg.line_jacobians == "first_estimate"
+        # AHRS heading bias (the shared sensor model; 0 = not modelled): a 10th vehicle state
+        self._bias_walk = config.sensors.heading_bias_walk(metadata)
+        self._bias_sigma0 = config.sensors.heading_bias_initial_sigma_rad
+        self.nv = NX + 1 if self._bias_walk > 0 else NX
+        self._fej_yaw = self.nv > NX and self.cfg.heading_jacobians == "first_estimate"
+        self._p_fe = np.zeros(3)  # the propagated (first) estimate of the position at the current time
         self.state: EkfState | None = None
         self.t: int | None = None  # stamp of the state (ns)
         self._omega = np.zeros(3)  # latest body rate (input)
@@ -491,14 +527,16 @@ class EkfEstimator:
 
     # ------------------------------------------------------------------- initialisation
     def _initialise(self, stamp: int, position: np.ndarray, R_WB: np.ndarray, pos_sigma: np.ndarray) -> None:
-        x0 = np.zeros(NX)
+        x0 = np.zeros(self.nv)  # the heading bias (if modelled) starts at 0
         x0[POS] = position
         x0[ATT] = geo.euler(R_WB)
         c = self.cfg
         P0 = np.diag(
-            np.r_[pos_sigma**2, [c.initial_attitude_sigma_rad**2] * 3, [c.initial_velocity_sigma_m_s**2] * 3]
+            np.r_[pos_sigma**2, [c.initial_attitude_sigma_rad**2] * 3, [c.initial_velocity_sigma_m_s**2] * 3,
+                  [self._bias_sigma0**2] * (self.nv - NX)]
         )
         self.state = EkfState(x0, P0)
+        self._p_fe = x0[POS].copy()
         self.t = stamp
         self._record(stamp)
 
@@ -512,12 +550,25 @@ class EkfEstimator:
         total = (stamp - self.t) * NS
         steps = max(1, int(math.ceil(total / self.cfg.max_prediction_step_s - 1e-9)))
         dt = total / steps
+        sa, sw = self.motion.accel_sigma_m_s2, self.motion.angular_rate_sigma_rad_s
         for _ in range(steps):
-            xv, F, Q = mdl.predict(
-                self.state.xv.copy(), omega, dt, self.motion.accel_sigma_m_s2, self.motion.angular_rate_sigma_rad_s
-            )
+            if self.nv > NX:
+                xv, F, Q = mdl.predict_biased(self.state.xv, omega, dt, sa, sw, self._bias_walk)
+            else:
+                xv, F, Q = mdl.predict(self.state.xv.copy(), omega, dt, sa, sw)
+            if self._fej_yaw:  # ∂p'/∂ψ = e_z × (p' − p) with p the propagated, not the updated, position
+                F[0, 5] = -(xv[1] - self._p_fe[1])
+                F[1, 5] = xv[0] - self._p_fe[0]
+            self._p_fe = xv[:3].copy()
             self.state.predict_vehicle(xv, F, Q)
         self.t = stamp
+
+    def _x_lin(self) -> np.ndarray:
+        """The vehicle state where landmark Jacobians are evaluated: the current one with the position
+        of the propagation (first-estimates Jacobians for the heading, see the module docstring)."""
+        x = self.state.xv[:NX].copy()
+        x[POS] = self._p_fe
+        return x
 
     def _nav_update(self, u: mdl.NavUpdate) -> None:
         self.state.update_vehicle(u.innovation, u.H, u.R, nis=False)
@@ -580,7 +631,10 @@ class EkfEstimator:
             self._omega_stamp = m.stamp
         self._last_att = (m.stamp, R_WS)
         e_B, cov_B = mdl.attitude_in_body(R_WS, m.covariance, R_BS)
-        self._nav_update(mdl.attitude_update(self.state.xv, e_B, cov_B))
+        if self.nv > NX:
+            self._nav_update(mdl.biased_attitude_update(self.state.xv, e_B, cov_B))
+        else:
+            self._nav_update(mdl.attitude_update(self.state.xv, e_B, cov_B))
 
     # --------------------------------------------------------------------------- records
     def _record(self, stamp: int) -> None:
@@ -661,11 +715,15 @@ class EkfEstimator:
         l = self.state.x[f.index : f.index + f.size]
         if f.kind == "object":
             h, H_x, H_l = mdl.point_measurement(x, l, o.R_BS, o.t_BS)
+            if self._fej_yaw:
+                H_x = mdl.point_measurement(self._x_lin(), f.l_first, o.R_BS, o.t_BS)[1]
             return PairLinearization(o.obs.position - h, H_x, H_l, np.asarray(o.obs.covariance))
         m_W, d_W = geo.line_plucker(l)
         if self._pipe_apart(f.extent, o.ends_W, m_W, d_W, self._object_positions()):
             return None
-        nu, H_x, H_l, R = mdl.line_innovation(x, l, o.line, o.R_BS, o.t_BS, f.l_first if self._fej else None)
+        nu, H_x, H_l, R = mdl.line_innovation(x, l, o.line, o.R_BS, o.t_BS,
+                                              f.l_first if self._fej or self._fej_yaw else None,
+                                              self._x_lin() if self._fej_yaw else None)
         return PairLinearization(nu, H_x, H_l, R)
 
     def _pre_gate(self, obs: list[_Obs]) -> np.ndarray:
@@ -954,22 +1012,23 @@ class EkfEstimator:
 
     def _add_feature(self, o: _Obs, tr: _Track) -> None:
         x = self.state.xv
-        if o.kind == "object":
-            l, G_x, G_z = mdl.point_initialise(x, o.obs.position, o.R_BS, o.t_BS)
-            idx = self.state.augment(l, G_x, G_z, np.asarray(o.obs.covariance))
-        else:
-            l, G_x, G_pq = mdl.line_initialise(x, o.obs.p, o.obs.q, o.R_BS, o.t_BS)
-            idx = self.state.augment(l, G_x, G_pq, np.asarray(o.obs.covariance))
+        init = mdl.point_initialise if o.kind == "object" else mdl.line_initialise
+        z = (o.obs.position,) if o.kind == "object" else (o.obs.p, o.obs.q)
+        l, G_x, G_z = init(x, *z, o.R_BS, o.t_BS)
+        l_first = l
+        if self._fej_yaw:  # Jacobians at the propagated pose, the first estimate as it places the feature
+            l_first, G_x, G_z = init(self._x_lin(), *z, o.R_BS, o.t_BS)
+        idx = self.state.augment(l, G_x, G_z, np.asarray(o.obs.covariance))
         self._features.append(
             _Feature(self._next_id, o.kind, idx, len(l), n_obs=tr.n, extent=tr.extent, class_log=dict(tr.class_log),
-                     l_first=np.array(l, float))
+                     l_first=np.array(l_first, float))
         )
         self._next_id += 1
 
     # --------------------------------------------------------------------- dead reckoning
     def _place(self, stamp: int, obs: list[_Obs]) -> None:
         """Dead reckoning: every observation becomes its own map entry, placed with the DR pose."""
-        x, Pvv = self.state.xv, self.state.Pvv
+        x, Pvv = self.state.xv, self.state.Pvv[:NX, :NX]  # the Jacobians' bias column is zero
         entries: list[tuple] = []  # (index, kind, l or (p, q), cov, observation)
         for sensor, group in _by_sensor(obs, "object"):  # objects: one batch per sensor
             o0 = obs[group[0]]
@@ -1044,7 +1103,7 @@ class EkfEstimator:
         if self.state is None:
             return None
         if stamp >= self.t:
-            x = self.state.xv.copy()
+            x = self.state.xv[:NX].copy()
             dt = (stamp - self.t) * NS
             if dt > 0:
                 x = mdl.predict(x, self._omega, dt, self.motion.accel_sigma_m_s2, self.motion.angular_rate_sigma_rad_s)[0]
@@ -1088,6 +1147,8 @@ class EkfEstimator:
             "landmark_kind": kinds,
             "vehicle_cov": (np.array(self._veh_hist[0], np.int64), np.array(self._veh_hist[1])),
         }
+        if self.nv > NX:  # the AHRS heading bias estimate and its σ (rad) over time
+            history["heading_bias"] = (traj.stamps, X[:, BIAS].copy(), np.sqrt(P[:, BIAS, BIAS]))
         return EstimatorResult(
             name=self.name,
             trajectory=traj,

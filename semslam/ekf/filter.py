@@ -8,20 +8,25 @@ Navigation steps (predictions and DVL / AHRS / depth updates) touch only the veh
 applied to the rest of the state in compressed form (Guivant & Nebot 2001, the "compressed EKF").
 At the last full update the landmarks are l = A y + e with y the vehicle state then, A = P_lv P_vv⁻¹
 and e independent of y; vehicle-only steps involve only y, process and measurement noise, never e.
-So they run on the 18-state [x_v; y] (y a clone of the vehicle at that time), and reach the
-landmarks in one O(n² · 9) pass whenever the full state is read (:attr:`x`, :attr:`P`):
+So they run on the 2·n_v-state [x_v; y] (y a clone of the vehicle at that time), and reach the
+landmarks in one O(n² · n_v) pass whenever the full state is read (:attr:`x`, :attr:`P`):
 
     x_l += A (ŷ − ŷ₀),   P_ll −= A (P_yy⁰ − P_yy) Aᵀ,   P_lv = A P_yv
 
 — the same estimate as updating the whole state at every step, up to rounding, at a cost per step
 independent of the map size.
+
+The vehicle block is the first ``nv`` entries: the 9 of :mod:`semslam.ekf.models` (pose, body
+velocity), plus the AHRS heading bias when it is modelled (``nv`` = 10). Every navigation step
+(including the bias's random walk and the AHRS update that sees it) is vehicle-only, so the
+compression holds unchanged. Landmark measurements and augmentations may give their vehicle
+Jacobians over the first 9 entries only (their column for the bias is zero).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from semslam.ekf.models import NX
 
 _ROW_CHUNK = 512  # rows of P updated per gemm (bounds the temporaries for large maps)
 
@@ -45,17 +50,20 @@ def inv_small(S: np.ndarray) -> np.ndarray:
 
 
 class EkfState:
+    """``x0``, ``P0``: the vehicle state (its size is the vehicle block's, ``nv``) and covariance."""
+
     def __init__(self, x0: np.ndarray, P0: np.ndarray, capacity: int = 64):
         cap = max(capacity, len(x0))
         self._x = np.zeros(cap)
         self._P = np.zeros((cap, cap))
         self.n = len(x0)
+        self.nv = len(x0)  # the vehicle block
         self._x[: self.n] = x0
         self._P[: self.n, : self.n] = P0
-        # compressed navigation steps: the 18-state [x_v; y] (None when nothing is pending)
+        # compressed navigation steps: the 2·nv-state [x_v; y] (None when nothing is pending)
         self._C: np.ndarray | None = None  # its covariance (the vehicle block P_vv lives here meanwhile)
-        self._y = np.zeros(NX)  # the clone's estimate
-        self._y0 = np.zeros(NX)  # ... and its value when the compression started
+        self._y = np.zeros(self.nv)  # the clone's estimate
+        self._y0 = np.zeros(self.nv)  # ... and its value when the compression started
 
     # -------------------------------------------------------------------------- access
     @property
@@ -73,21 +81,23 @@ class EkfState:
     @property
     def xv(self) -> np.ndarray:
         """The vehicle state (a view; always current)."""
-        return self._x[:NX]
+        return self._x[: self.nv]
 
     @property
     def Pvv(self) -> np.ndarray:
         """The vehicle covariance block (a view; always current)."""
-        return self._P[:NX, :NX] if self._C is None else self._C[:NX, :NX]
+        nv = self.nv
+        return self._P[:nv, :nv] if self._C is None else self._C[:nv, :nv]
 
     def _compress(self) -> None:
         """Start a compression: the clone y = x_v, fully correlated with it."""
-        Pvv = self._P[:NX, :NX]
-        C = np.empty((2 * NX, 2 * NX))
-        C[:NX, :NX] = C[:NX, NX:] = C[NX:, :NX] = C[NX:, NX:] = Pvv
+        nv = self.nv
+        Pvv = self._P[:nv, :nv]
+        C = np.empty((2 * nv, 2 * nv))
+        C[:nv, :nv] = C[:nv, nv:] = C[nv:, :nv] = C[nv:, nv:] = Pvv
         self._C = C
-        self._y[:] = self._x[:NX]
-        self._y0[:] = self._x[:NX]
+        self._y[:] = self._x[:nv]
+        self._y0[:] = self._x[:nv]
 
     def flush(self) -> None:
         """Apply the pending navigation steps to the landmark part of the state (exact)."""
@@ -95,54 +105,58 @@ class EkfState:
         if C is None:
             return
         self._C = None
-        n, P = self.n, self._P
-        Pyy0 = P[:NX, :NX]  # the vehicle block when the compression started
-        A = np.linalg.solve(Pyy0, P[:NX, NX:n]).T  # P_lv P_vv⁻¹ (n_l × 9)
-        self._x[NX:n] += A @ (self._y - self._y0)
-        AD = A @ (Pyy0 - C[NX:, NX:])
-        for r0 in range(NX, n, _ROW_CHUNK):
+        n, P, nv = self.n, self._P, self.nv
+        Pyy0 = P[:nv, :nv]  # the vehicle block when the compression started
+        A = np.linalg.solve(Pyy0, P[:nv, nv:n]).T  # P_lv P_vv⁻¹ (n_l × nv)
+        self._x[nv:n] += A @ (self._y - self._y0)
+        AD = A @ (Pyy0 - C[nv:, nv:])
+        for r0 in range(nv, n, _ROW_CHUNK):
             r1 = min(n, r0 + _ROW_CHUNK)
-            P[r0:r1, NX:n] -= AD[r0 - NX : r1 - NX] @ A.T
-        Plv = A @ C[NX:, :NX]
-        P[NX:n, :NX] = Plv
-        P[:NX, NX:n] = Plv.T
-        P[:NX, :NX] = C[:NX, :NX]
+            P[r0:r1, nv:n] -= AD[r0 - nv : r1 - nv] @ A.T
+        Plv = A @ C[nv:, :nv]
+        P[nv:n, :nv] = Plv
+        P[:nv, nv:n] = Plv.T
+        P[:nv, :nv] = C[:nv, :nv]
 
     # ----------------------------------------------------------------------- prediction
     def predict_vehicle(self, xv_new: np.ndarray, F: np.ndarray, Q: np.ndarray) -> None:
-        """x_v ← f(x_v), P_vv ← F P_vv Fᵀ + Q, P_vl ← F P_vl (landmarks are static)."""
-        self._x[:NX] = xv_new
-        if self.n == NX:
+        """x_v ← f(x_v), P_vv ← F P_vv Fᵀ + Q, P_vl ← F P_vl (landmarks are static); F, Q are nv×nv."""
+        nv = self.nv
+        self._x[:nv] = xv_new
+        if self.n == nv:
             P = self._P
-            P[:NX, :NX] = F @ P[:NX, :NX] @ F.T + Q
+            P[:nv, :nv] = F @ P[:nv, :nv] @ F.T + Q
             return
         if self._C is None:
             self._compress()
         C = self._C
-        C[:NX, :NX] = F @ C[:NX, :NX] @ F.T + Q
-        C[:NX, NX:] = F @ C[:NX, NX:]
-        C[NX:, :NX] = C[:NX, NX:].T
+        C[:nv, :nv] = F @ C[:nv, :nv] @ F.T + Q
+        C[:nv, nv:] = F @ C[:nv, nv:]
+        C[nv:, :nv] = C[:nv, nv:].T
 
     # --------------------------------------------------------------------------- update
     def update_vehicle(self, innovation: np.ndarray, H: np.ndarray, R: np.ndarray, nis: bool = True) -> float | None:
-        """EKF update with H non-zero only on the vehicle block (H is d×9); with a map, on [x_v; y]
-        (the landmarks follow at the next :meth:`flush`). P⁺ = P − K(HP), symmetrised: with the optimal
-        gain the Joseph form's K S Kᵀ − (HP)ᵀKᵀ terms cancel, and S here is a well-conditioned d ≤ 3
-        navigation residual. Returns the NIS νᵀ S⁻¹ ν (None unless ``nis``)."""
-        if self.n == NX:
-            P = self._P[:NX, :NX]
+        """EKF update with H non-zero only on the vehicle block (H is d×nv, or d×9 when zero on the
+        entries after the 9th); with a map, on [x_v; y] (the landmarks follow at the next :meth:`flush`).
+        P⁺ = P − K(HP), symmetrised: with the optimal gain the Joseph form's K S Kᵀ − (HP)ᵀKᵀ terms
+        cancel, and S here is a well-conditioned d ≤ 3 navigation residual. Returns the NIS νᵀ S⁻¹ ν
+        (None unless ``nis``)."""
+        nv = self.nv
+        if self.n == nv:
+            P = self._P[:nv, :nv]
         else:
             if self._C is None:
                 self._compress()
             P = self._C
-        HP = H @ P[:NX]  # d × (9 or 18)
-        S = HP[:, :NX] @ H.T + R
+        k = H.shape[1]  # H's columns: the first k vehicle entries
+        HP = H @ P[:k]  # d × (nv or 2 nv)
+        S = HP[:, :k] @ H.T + R
         S_inv = inv_small(S)  # reads the upper triangle: symmetric by construction
         K = HP.T @ S_inv
         dx = K @ innovation
-        self._x[:NX] += dx[:NX]
-        if len(dx) > NX:
-            self._y += dx[NX:]
+        self._x[:nv] += dx[:nv]
+        if len(dx) > nv:
+            self._y += dx[nv:]
         Pn = P - K @ HP
         P[:] = Pn + Pn.T
         P *= 0.5
@@ -155,7 +169,7 @@ class EkfState:
         (valid for any gain). Returns the NIS νᵀ S⁻¹ ν.
         """
         cols = np.asarray(cols)
-        if len(cols) == NX and cols[0] == 0 and cols[-1] == NX - 1:
+        if len(cols) <= self.nv and np.array_equal(cols, np.arange(len(cols))):
             return self.update_vehicle(innovation, H, R)
         self.flush()
         n = self.n
@@ -177,17 +191,19 @@ class EkfState:
     def augment(self, l: np.ndarray, G_x: np.ndarray, G_z: np.ndarray, R_z: np.ndarray) -> int:
         """Append landmark l = g(x_v, z) with ∂g/∂x_v = G_x, ∂g/∂z = G_z, Cov(z) = R_z (eqs. 39–45).
 
-        P_ll = G_x P_vv G_xᵀ + G_z R_z G_zᵀ, P_l,· = G_x P_v,·. Returns the index of the new block.
+        P_ll = G_x P_vv G_xᵀ + G_z R_z G_zᵀ, P_l,· = G_x P_v,·. G_x may cover only the first vehicle
+        entries (the rest of its columns zero). Returns the index of the new block.
         """
         self.flush()
         k = len(l)
         n = self.n
+        kx = G_x.shape[1]
         self._reserve(n + k)
         P = self._P
-        cross = G_x @ P[:NX, :n]  # k×n
+        cross = G_x @ P[:kx, :n]  # k×n
         P[n : n + k, :n] = cross
         P[:n, n : n + k] = cross.T
-        block = cross[:, :NX] @ G_x.T + G_z @ R_z @ G_z.T
+        block = cross[:, :kx] @ G_x.T + G_z @ R_z @ G_z.T
         P[n : n + k, n : n + k] = 0.5 * (block + block.T)
         self._x[n : n + k] = l
         self.n = n + k

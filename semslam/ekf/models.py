@@ -8,6 +8,13 @@ Landmarks: objects as points [x y z] in {W}; pipes as lines [α β γ ρ] in {W}
 Every ``*_jacobians`` function returns Jacobians with respect to the 9-vector vehicle state (only the
 pose columns are non-zero for landmark measurements) and to the landmark block, so that the filter
 can assemble a sparse H.
+
+AHRS heading bias (an extension; the paper has none): when the mission's sensor model declares one
+(``SensorModelConfig.heading_bias_walk``), the vehicle state gains a 10th entry b (rad, index
+:data:`BIAS`), a random walk (:func:`predict_biased`), and the AHRS reads the heading plus b
+(:func:`biased_attitude_update`): R_meas = Rz(b) R_WB, the graph back-end's
+``factors.navigation.biased_attitude_residual``. Every other model sees only the first 9 entries; its
+Jacobian column for b is zero.
 """
 
 from __future__ import annotations
@@ -39,7 +46,8 @@ from semslam.ekf.geometry import (
     wrap_angle,
 )
 
-NX = 9  # vehicle state size
+NX = 9  # vehicle state size (the paper's: pose and body velocity)
+BIAS = NX  # index of the AHRS heading bias, when the vehicle state carries one (10 entries)
 _I3 = np.eye(3)
 POS, ATT, VEL = slice(0, 3), slice(3, 6), slice(6, 9)
 
@@ -156,6 +164,24 @@ def predict_reference(x: np.ndarray, omega_B: np.ndarray, dt: float, accel_sigma
     return xn, F, Q
 
 
+def predict_biased(x: np.ndarray, omega_B: np.ndarray, dt: float, accel_sigma: float, rate_sigma: float,
+                   bias_walk: float):
+    """:func:`predict` for the 10-state [x_v; b] with the AHRS heading bias b a random walk of intensity
+    ``bias_walk`` (rad/√s): b' = b, Var(b' − b) = σ_b² Δt (the graph's ``heading_bias_walk_factor``).
+    The bias does not enter the motion (the body rate input is the gyro's, not the biased heading's)."""
+    xn9, F9, Q9 = predict(x[:NX], omega_B, dt, accel_sigma, rate_sigma)
+    xn = np.empty(NX + 1)
+    xn[:NX] = xn9
+    xn[BIAS] = x[BIAS]
+    F = np.zeros((NX + 1, NX + 1))
+    F[:NX, :NX] = F9
+    F[BIAS, BIAS] = 1.0
+    Q = np.zeros((NX + 1, NX + 1))
+    Q[:NX, :NX] = Q9
+    Q[BIAS, BIAS] = bias_walk**2 * dt
+    return xn, F, Q
+
+
 # ------------------------------------------------------------------------- linear updates
 @dataclass
 class NavUpdate:
@@ -199,6 +225,19 @@ _H_ATT.flags.writeable = False
 def attitude_update(x: np.ndarray, e_B: np.ndarray, cov_B: np.ndarray) -> NavUpdate:
     """AHRS: z = (φ, θ, ψ) of {B} (eq. 24), linear."""
     return NavUpdate(wrap(e_B - x[ATT]), _H_ATT, cov_B)
+
+
+_H_ATT_B = np.zeros((3, NX + 1))
+_H_ATT_B[:, ATT] = np.eye(3)
+_H_ATT_B[2, BIAS] = 1.0
+_H_ATT_B.flags.writeable = False
+
+
+def biased_attitude_update(x: np.ndarray, e_B: np.ndarray, cov_B: np.ndarray) -> NavUpdate:
+    """AHRS with a heading bias, x = [x_v; b]: the reading is R_meas = Rz(b) R_WB, whose Euler angles
+    are exactly (φ, θ, ψ + b) (Rz(b) Rz(ψ) = Rz(ψ + b)), so z = (φ, θ, ψ + b), linear; H is 3×10."""
+    h = np.array([x[3], x[4], x[5] + x[BIAS]])
+    return NavUpdate(wrap(e_B - h), _H_ATT_B, cov_B)
 
 
 def dvl_update(
@@ -297,7 +336,7 @@ class LineObservationModel:
 
 
 def line_innovation(x: np.ndarray, l: np.ndarray, obs: LineObservationModel, R_BS: np.ndarray, t_BS: np.ndarray,
-                    l_lin: np.ndarray | None = None):
+                    l_lin: np.ndarray | None = None, x_lin: np.ndarray | None = None):
     """Innovation of an observed line against pipe l, on the manifold of the orthonormal representation.
 
     ν = [Log(U_hᵀ U_z); ρ_z − ρ_h] where (U_h, ρ_h) is the pipe in {S} and the observed direction is
@@ -305,8 +344,9 @@ def line_innovation(x: np.ndarray, l: np.ndarray, obs: LineObservationModel, R_B
     parameters in the sensor frame (eqs. 30–37) without the Euler singularity of the sensor-frame
     angles. Returns (ν, H_x 4×9, H_l 4×4, R 4×4) with ν ≈ ν₀ − H_x δx − H_l δl (H = ∂h/∂state).
 
-    ``l_lin``: evaluate the Jacobians H_x, H_l at this pipe estimate instead of l (the first-estimates
-    Jacobian, see :class:`semslam.ekf.estimator.EkfEstimator`); ν and R are always at l.
+    ``l_lin``, ``x_lin``: evaluate the Jacobians H_x, H_l at this pipe and vehicle estimate instead of
+    l and x (the first-estimates Jacobian, see :mod:`semslam.ekf.estimator`); ν and R are always at
+    (x, l).
     """
     m_S, d_S, J_x, J_l = line_to_sensor(x, l, R_BS, t_BS)
     U_h, rho_h = orthonormal_from_plucker(m_S, d_S)
@@ -317,8 +357,8 @@ def line_innovation(x: np.ndarray, l: np.ndarray, obs: LineObservationModel, R_B
     Gr = np.eye(4)
     Gr[:3, :3] = so3_right_jacobian_inv(r)
     R = Gr @ obs.cov @ Gr.T
-    if l_lin is not None:
-        m_S, d_S, J_x, J_l = line_to_sensor(x, l_lin, R_BS, t_BS)
+    if l_lin is not None or x_lin is not None:
+        m_S, d_S, J_x, J_l = line_to_sensor(x if x_lin is None else x_lin, l if l_lin is None else l_lin, R_BS, t_BS)
         U_h, rho_h = orthonormal_from_plucker(m_S, d_S)
         r = so3_log(U_h.T @ obs.U)
     A = line_error_map(U_h, rho_h)

@@ -5,6 +5,9 @@ point/line observations in a down-looking sensor's frame.
 The truth follows the filter's own motion model (body velocity = nominal + random walk of density
 ``accel_sigma``; attitude driven by the true body rate), and the AHRS rate noise is drawn so that its
 integral has density ``rate_sigma``, so that a consistent filter must show NEES ≈ its dimension.
+With ``heading_bias_walk`` > 0 the AHRS heading carries a bias drawn from the filter's model too
+(b₀ ~ N(0, ``heading_bias_sigma0``²), then a random walk of that intensity), declared in the
+metadata as the tank simulator declares its drift (``extras["noise"]["ahrs"]``).
 """
 
 from __future__ import annotations
@@ -35,7 +38,7 @@ class SyntheticMission:
     observations: dict[int, list[Observation]]  # stamp → observations of that scan
     truth_stamps: np.ndarray  # (K,) ns
     truth_states: np.ndarray  # (K, 9) [x y z φ θ ψ u v w] at truth_stamps
-    extras: dict = field(default_factory=dict)
+    extras: dict = field(default_factory=dict)  # "heading_bias": (K,) the AHRS heading bias at truth_stamps
 
     def stream(self):
         """(measurement, observations or None) in stamp order, as the pipeline would feed them."""
@@ -64,6 +67,8 @@ def simulate_circling(
     dt_sim: float = 0.01,
     velocity_tau_s: float | None = 30.0,
     track_gain: float = 0.1,
+    heading_bias_walk: float = 0.0,
+    heading_bias_sigma0: float = 0.0175,
 ) -> SyntheticMission:
     """Circle of ``radius_m`` at ``depth_m`` starting at the origin heading north; AHRS 20 Hz, DVL 5 Hz,
     depth 8 Hz, ground truth 10 Hz, scans every ``scan_period_s``; DVL invalid during ``dropouts``
@@ -122,11 +127,20 @@ def simulate_circling(
     for i in every(0.1):
         q = Rotation.from_euler("ZYX", eul[i, ::-1]).as_quat()
         meas.append(GroundTruthPose(ns(i), "gt", position=pos[i], orientation=q))
-    # AHRS: orientation of {S} with Euler noise, body rate in {S} with noise of density rate_sigma
+    # AHRS heading bias (its own generator: the other streams stay those of the seed without it)
+    bias = np.zeros(n)
+    if heading_bias_walk > 0:
+        brng = np.random.default_rng([seed, 7])
+        steps = brng.normal(scale=heading_bias_walk * np.sqrt(dt_sim), size=n)
+        steps[0] = brng.normal(scale=heading_bias_sigma0)
+        bias = np.cumsum(steps)
+    # AHRS: orientation of {S} with Euler noise (and the bias on the heading: Rz(b) R_WS), body rate
+    # in {S} with noise of density rate_sigma
     dt_ahrs = 0.05
     for i in every(dt_ahrs):
         R_WS = geo.rot(*eul[i]) @ T_ahrs[:3, :3]
         e_S = geo.euler(R_WS) + rng.normal(scale=att_sigma, size=3)
+        e_S[2] += bias[i]
         rate = T_ahrs[:3, :3].T @ (w_true[i] + rng.normal(scale=rate_sigma / np.sqrt(dt_ahrs), size=3))
         q = Rotation.from_euler("ZYX", e_S[::-1]).as_quat()
         meas.append(Attitude(ns(i), "ahrs", orientation=q, covariance=np.eye(3) * att_sigma**2, angular_rate=rate))
@@ -198,7 +212,12 @@ def simulate_circling(
     meas.sort(key=lambda m: m.stamp)
     gt_map = GroundTruthMap(classes=("valve", "elbow", "tee", "flange"), objects=tuple(objects), pipes=tuple(pipes),
                             seen_objects=tuple(sorted(seen_o)), seen_pipes=tuple(sorted(seen_p)))
-    meta = MissionMetadata("synthetic-circling", sensors, ground_truth=gt_map)
+    extras = {}
+    if heading_bias_walk > 0:  # declared as the tank simulator does: a drift over the mission
+        extras["noise"] = {"ahrs": {"heading_bias_drift_rad": heading_bias_walk * np.sqrt(duration_s),
+                                    "heading_bias_drift_over_s": duration_s}}
+    meta = MissionMetadata("synthetic-circling", sensors, ground_truth=gt_map, extras=extras)
     truth = np.column_stack([pos, eul, v_true])
     idx = every(0.05)
-    return SyntheticMission(meta, meas, obs, np.array([ns(i) for i in range(n)], np.int64)[idx], truth[idx])
+    return SyntheticMission(meta, meas, obs, np.array([ns(i) for i in range(n)], np.int64)[idx], truth[idx],
+                            extras={"heading_bias": bias[idx]})
