@@ -152,6 +152,9 @@ class PipeConfig(_Section):
         description="a bin whose median distance to the axis exceeds the pipe's by this is a fitting (sockets are "
         "≥ 6 mm wider than their pipe) and cuts the pipe",
     )
+    bump_smooth: bool = Field(
+        True, description="a bin also stands out when the mean residual over it and its two neighbours does"
+    )
     bump_height_known_radius: float = Field(
         0.003,
         gt=0,

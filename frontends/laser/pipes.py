@@ -176,30 +176,28 @@ class _Points:
 
 
 class Rays:
-    """The scan's rays from the sensor (at the origin of {S}): unit ``directions`` (N×3) and the
-    ``ranges`` (N,) at which they returned, for the see-through test of a pipe segment."""
+    """The scan's rays from the sensor (at the origin of {S}): unit ``directions`` (N×3, float32)
+    and the ``ranges`` (N,) at which they returned, for the see-through test of pipe segments."""
 
     def __init__(self, points: np.ndarray):
         pts = np.asarray(points, dtype=np.float64)
         self.ranges = np.sqrt((pts * pts).sum(axis=1))
         keep = self.ranges > 0
         self.ranges = self.ranges[keep]
-        self.directions = pts[keep] / self.ranges[:, None]
+        self.directions = (pts[keep] / self.ranges[:, None]).astype(np.float32)
 
-    def see_through(self, c, a, r, t0, t1, cfg: PipeConfig) -> tuple[int, int]:
-        """(rays returning behind the cylinder (c, a, r) between t0 and t1 along a, rays crossing
-        it): a ray crosses it when its chord through the cylinder is at least ``see_through_chord``
-        (well inside the silhouette, where a slightly tilted fit cannot matter) within the segment
-        (1 cm in from both ends); it returns behind when its range exceeds the exit by
-        ``see_through_margin``."""
-        m = c + a * 0.5 * (t0 + t1)
-        dist = np.sqrt(m @ m)
-        half = np.hypot(0.5 * (t1 - t0), r)
-        if dist <= half:
-            return 0, 0
-        # Rays in the cone around the segment's bounding sphere, then the exact ray-cylinder test.
-        sel = np.flatnonzero(self.directions @ (m / dist) >= np.sqrt(1.0 - (half / dist) ** 2))
-        d, rng = self.directions[sel], self.ranges[sel]
+    def _cones(self, centres: np.ndarray, halves: np.ndarray) -> list[np.ndarray]:
+        """Indices of the rays inside the cone around each bounding sphere (centre, radius), all
+        spheres in one matrix product (a sphere around the sensor gets no rays)."""
+        dist = np.sqrt((centres * centres).sum(axis=1))
+        ok = dist > halves
+        cos = np.sqrt(1.0 - np.minimum(halves / np.maximum(dist, 1e-12), 1.0) ** 2)
+        unit = (centres / np.maximum(dist, 1e-12)[:, None]).astype(np.float32)
+        C = unit @ self.directions.T
+        return [np.flatnonzero(C[j] >= cos[j]) if ok[j] else np.zeros(0, np.int64) for j in range(len(centres))]
+
+    def _count(self, sel, c, a, r, t0, t1, cfg: PipeConfig) -> tuple[int, int]:
+        d, rng = self.directions[sel].astype(np.float64), self.ranges[sel]
         da = d @ a
         w = d - da[:, None] * a
         cp = c - (c @ a) * a
@@ -213,10 +211,26 @@ class Rays:
         behind = crossing & (rng > s2 + cfg.see_through_margin)
         return int(behind.sum()), int(crossing.sum())
 
-    def solid(self, pipe: "Pipe", cfg: PipeConfig) -> bool:
-        """Whether the rays crossing the segment's cylinder end on it (see ``see_through``)."""
-        behind, crossing = self.see_through(pipe.p, pipe.axis, pipe.radius, 0.0, pipe.length, cfg)
-        return behind <= cfg.max_see_through * crossing
+    def see_through(self, c, a, r, t0, t1, cfg: PipeConfig) -> tuple[int, int]:
+        """(rays returning behind the cylinder (c, a, r) between t0 and t1 along a, rays crossing
+        it): a ray crosses it when its chord through the cylinder is at least ``see_through_chord``
+        (well inside the silhouette, where a slightly tilted fit cannot matter) within the segment
+        (1 cm in from both ends); it returns behind when its range exceeds the exit by
+        ``see_through_margin``."""
+        (sel,) = self._cones((c + a * 0.5 * (t0 + t1))[None], np.array([np.hypot(0.5 * (t1 - t0), r)]))
+        return self._count(sel, c, a, r, t0, t1, cfg)
+
+    def solid(self, pipes: list["Pipe"], cfg: PipeConfig) -> np.ndarray:
+        """Per pipe segment: whether the rays crossing its cylinder end on it (``see_through``)."""
+        if not pipes:
+            return np.zeros(0, bool)
+        centres = np.array([0.5 * (p.p + p.q) for p in pipes])
+        halves = np.array([np.hypot(0.5 * p.length, p.radius) for p in pipes])
+        out = np.ones(len(pipes), bool)
+        for k, (p, sel) in enumerate(zip(pipes, self._cones(centres, halves))):
+            behind, crossing = self._count(sel, p.p, p.axis, p.radius, 0.0, p.length, cfg)
+            out[k] = behind <= cfg.max_see_through * crossing
+        return out
 
 
 def fit_cylinder(points: np.ndarray, normals: np.ndarray, a0: np.ndarray, cfg: PipeConfig):
@@ -347,7 +361,17 @@ def split_at_fittings(
     padded = np.pad(med, w, constant_values=np.nan)
     level = _nanmedian_rows(np.lib.stride_tricks.sliding_window_view(padded, 2 * w + 1))
     height = cfg.bump_height if cfg.radius_prior is None else cfg.bump_height_known_radius
-    bad = set(np.flatnonzero((med - level > height) & (cnt >= 3)).tolist())
+    bad_bin = (med - level > height) & (cnt >= 3)
+    if cfg.bump_smooth:
+        # ... or its neighbourhood does: the mean residual over the bin and its two neighbours (a
+        # socket's profile is not flat — larger half, central stop, reduced half — and on a sparse
+        # view its bins alternate around the height).
+        sums = np.bincount(b, weights=residual, minlength=n_bins)
+        s3 = np.convolve(sums, np.ones(3), "same")
+        c3 = np.convolve(cnt, np.ones(3), "same")
+        smooth = np.where(c3 >= 6, s3 / np.maximum(c3, 1), np.nan)
+        bad_bin |= (smooth - level > height) & (cnt >= 2)
+    bad = set(np.flatnonzero(bad_bin).tolist())
     if len(t_foreign):
         fb = np.floor((t_foreign - t0) / cfg.bump_bin).astype(np.int64)
         u, c = np.unique(fb, return_counts=True)
@@ -439,9 +463,9 @@ def _refine(free: _Points, c, a, r, cfg: PipeConfig):
             return c, a, r, free.index[inl]
 
 
-def _cut_into_segments(points, normals, sq, cb, ab, rb, idx, cfg: PipeConfig, rays: Rays | None = None) -> list[Pipe]:
+def _cut_into_segments(points, normals, sq, cb, ab, rb, idx, cfg: PipeConfig) -> list[Pipe]:
     """The pipe segments of a refined cylinder's inliers ``idx``: cut at fittings (foreign points
-    just outside its surface, wider sockets), keep the runs long enough and solid (``rays``)."""
+    just outside its surface, wider sockets), keep the runs long enough."""
     t = points[idx] @ ab
     if len(idx) < cfg.min_points or t.max() - t.min() < cfg.min_detect_length:
         return []  # no run of these inliers can be a segment
@@ -460,8 +484,7 @@ def _cut_into_segments(points, normals, sq, cb, ab, rb, idx, cfg: PipeConfig, ra
             continue
         pipe = _make_pipe(points, normals, seg, ab, cfg)
         if pipe.length >= cfg.min_detect_length and cfg.min_radius <= pipe.radius <= cfg.max_radius:
-            if rays is None or rays.solid(pipe, cfg):
-                out.append(pipe)
+            out.append(pipe)
     return out
 
 
@@ -522,13 +545,15 @@ def detect_pipes(points: np.ndarray, normals: np.ndarray, grid, cfg: PipeConfig,
             failures += 1
             continue
         cb, ab, rb, idx = refined
-        found = _cut_into_segments(points, normals, sq, cb, ab, rb, idx, cfg, rays)
+        found = _cut_into_segments(points, normals, sq, cb, ab, rb, idx, cfg)
         for pipe in found:
             free[pipe.inliers] = False
             cand = None
         pipes += found
         seedable[idx] = False
         failures = 0 if found else failures + 1
+    if rays is not None:  # no segment the sensor sees through (all tested at once)
+        pipes = [p for p, ok in zip(pipes, rays.solid(pipes, cfg)) if ok]
     return merge_duplicates(pipes, points, normals, cfg)
 
 
