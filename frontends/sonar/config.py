@@ -11,6 +11,8 @@ every 4 cm along track, σ 1.5 cm range noise) and say why in their description.
 
 from __future__ import annotations
 
+from typing import Literal
+
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 
@@ -19,10 +21,12 @@ class _Section(BaseModel):
 
 
 class MapConfig(_Section):
-    resolution_m: float = Field(
-        0.01, gt=0, le=1.0, description="cell of the elevation map product (north/east grid; robust median depth per cell, "
-        "empty cells stay empty)"
-    )
+    """Elevation maps (:mod:`frontends.sonar.grid`: median depth per cell, empty cells stay empty)
+    are built at the cell each stage's data supports — ``swath_registration.cell_m`` (5 cm),
+    ``recognition.delta_m`` (8 cm), ``recognition.map_cell_m`` and ``pipes.cell_m`` (4 cm),
+    ``figures.cell_m`` (8 cm): beams 1.6–2.8 cm apart across track and swaths 4 cm apart leave a
+    1 cm grid (the class's default) mostly empty. The patches keep every return."""
+
     min_range_m: float = Field(0.5, ge=0, description="sonar returns closer than this are dropped (m)")
     max_range_m: float = Field(30.0, gt=0, description="... and farther than this (m)")
     ground_block_m: float = Field(
@@ -236,7 +240,10 @@ class WorldModelConfig(_Section):
     max_fraction: float = Field(
         0.01, gt=0, le=1, description="the world model is simplified further until it is at most this share of the raw cloud's bytes"
     )
-    cut_structures: bool = Field(True, description="seabed cells under the registered structures' footprints are cut out")
+    seabed_under_structures: Literal["filled", "cut"] = Field(
+        "filled", description="under the registered structures' footprints the seabed surface is the level interpolated "
+        "around them (filled: the CAD meshes stand on it) or left out (cut)"
+    )
     pipe_facets: int = Field(12, ge=3, description="facets around a pipeline cylinder")
 
 

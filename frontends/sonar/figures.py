@@ -81,7 +81,7 @@ def elevation_figure(fe, path) -> None:
     if fe.final["pipes"]:
         handles.append(Line2D([], [], color="red", lw=2, label="pipeline (detected axis)"))
     # the track as finally estimated
-    anchors = np.array([fe._pose(p.anchor_stamp)[:3, 3] for p in fe.patches if fe._pose(p.anchor_stamp) is not None])
+    anchors = np.array([fe.place(p)[:3, 3] for p in fe.patches if fe.place(p) is not None])
     if len(anchors):
         ax.plot(anchors[:, 1], anchors[:, 0], "-", color="k", lw=0.6, alpha=0.6)
         handles.append(Line2D([], [], color="k", lw=0.8, label="track (final estimate)"))
@@ -158,7 +158,7 @@ def disagreement_figure(fe, path) -> None:
     hists = []
     sc = None
     placements = (("as navigated (each patch as placed when it closed)", lambda p: p.T_nav),
-                  ("re-placed with the final estimate", lambda p: fe._pose(p.anchor_stamp)))
+                  ("re-placed with the final estimate", fe.place))
     for ax, (label, pose_fn) in zip(map_axes, placements):
         pts, vals = [], []
         for a, b in pairs:

@@ -116,7 +116,7 @@ class SonarFrontend:
         self._rng = np.random.default_rng(self.config.swath_registration.seed)
         self._sensor = None
         self.final: dict | None = None
-        self.debug: list = []
+        self.rejection_log: list = []  # why re-observations were not emitted (model, patch, reason, ...)
         self.swath_log: list = []  # (window anchor patch, reference patch, outcome) of every registration tried
 
     # ------------------------------------------------------------------------------------------
@@ -140,6 +140,10 @@ class SonarFrontend:
                 T = T.matrix()
             self._pose_cache[stamp] = None if T is None else np.asarray(T, float)
         return self._pose_cache[stamp]
+
+    def place(self, patch: Patch) -> np.ndarray | None:
+        """T_W,anchor of a patch with the current estimate."""
+        return self._pose(patch.anchor_stamp)
 
     def _begin(self, view) -> None:
         self._view = view
@@ -256,7 +260,7 @@ class SonarFrontend:
         if len(self.patches) - self._window_start >= W:
             window = self.patches[self._window_start : self._window_start + W]
             self._window_start += W
-            pts_W = np.concatenate([p.world(self._pose(p.anchor_stamp)) for p in window])
+            pts_W = np.concatenate([p.world(self.place(p)) for p in window])
             if cfg.swath_registration.enabled:
                 t0 = time.process_time()
                 out += self._register_window(window, pts_W, m)
@@ -288,7 +292,7 @@ class SonarFrontend:
         R = rec.max_radius
         lo_c, hi_c = lo - R, hi + R  # candidate centres whose disc meets the new data
         data = [p for p in self.patches if overlap_area(p.lo, p.hi, lo_c - R - 0.5, hi_c + R + 0.5) > 0]
-        pts = np.concatenate([transform(self._pose(p.anchor_stamp), p.top) for p in data])
+        pts = np.concatenate([transform(self.place(p), p.top) for p in data])
         removed = [(self._current_T(ks)[:2, 3], self.library[ks.model].footprint_radius + 0.3) for ks in self.structures]
         # candidates whose registration failed before are tried again only once their disc holds
         # a quarter more data (a structure first seen in part)
@@ -319,7 +323,7 @@ class SonarFrontend:
         out = []
         for p in self.patches:
             if overlap_area(p.lo, p.hi, lo, hi) > 0:
-                W = p.world(self._pose(p.anchor_stamp))
+                W = p.world(self.place(p))
                 out.append(W[np.hypot(W[:, 0] - centre[0], W[:, 1] - centre[1]) <= radius])
         return np.concatenate(out) if out else np.zeros((0, 3))
 
@@ -333,7 +337,7 @@ class SonarFrontend:
         rc = self.config.registration
         if not self._covers(patch, ks):
             return None
-        T_WA = self._pose(patch.anchor_stamp)
+        T_WA = self.place(patch)
         T_now = self._pose(m.stamp)
         if T_WA is None or T_now is None:
             return None
@@ -344,7 +348,7 @@ class SonarFrontend:
         c = T_AM0[:3, 3]
         near = np.hypot(patch.points[:, 0] - c[0], patch.points[:, 1] - c[1]) <= R
         if near.sum() < rc.min_points:
-            self.debug.append((ks.model, patch.id, "few points near", int(near.sum())))
+            self.rejection_log.append((ks.model, patch.id, "few points near", int(near.sum())))
             return None
         t0 = time.process_time()
         reg = icp(md, patch.points[near].astype(float), T_AM0, rc, distances=rc.icp_distances_m[-1:])
@@ -361,7 +365,7 @@ class SonarFrontend:
                    else "jump" if jump > rc.max_jump_m or turn > np.radians(rc.max_turn_deg)
                    else "sigma")
             self.rejected[f"structure_observation_{why}"] += 1
-            self.debug.append((ks.model, patch.id, why, reg.n_structure, reg.fitness, reg.median_m, jump, np.degrees(turn), sig_t))
+            self.rejection_log.append((ks.model, patch.id, why, reg.n_structure, reg.fitness, reg.median_m, jump, np.degrees(turn), sig_t))
             return None
         T_SW = inv(T_now @ self._T_BS(m.sensor))
         T_SM = T_SW @ T_WA @ reg.T
@@ -399,7 +403,7 @@ class SonarFrontend:
                  if q.heading_change <= np.radians(self.config.patches.max_turn_deg)
                  and abs(_wrap(yaw_of(q.T_nav) - yaw_ref)) < np.radians(20)
                  and (j.anchor_stamp - q.anchor_stamp) * 1e-9 >= cfg.min_age_s]
-        ref_pts = np.concatenate([q.world(self._pose(q.anchor_stamp)) for q in group])
+        ref_pts = np.concatenate([q.world(self.place(q)) for q in group])
         spec = GridSpec.around(lo, hi, cfg.cell_m, pad=cfg.max_shift_m + 0.2)
         ref = ElevationMap.from_points(ref_pts, spec=spec).fill_small_holes()
         why: dict = {}

@@ -119,7 +119,7 @@ def final_registrations(fe, pts_W: np.ndarray) -> None:
 def summarise(fe) -> FrontendSummary:
     cfg = fe.config
     t_start = time.process_time()
-    final_pose = lambda p: fe._pose(p.anchor_stamp)  # noqa: E731
+    final_pose = fe.place
     nav_pose = lambda p: p.T_nav  # noqa: E731
     pts_W, _ = place_all(fe, final_pose)
     # a last recognition pass over the whole map for structures the online search missed
@@ -155,6 +155,7 @@ def summarise(fe) -> FrontendSummary:
         spec, bare = bare_seabed(fe, map_em, pipes)
         structs = [(fe.library[ks.model], ks.final.T if ks.final is not None else ks.T_WM) for ks in fe.structures]
         world, world_info = build_world_model(structs, pipes, bare, spec, cfg.world_model, raw)
+        world_info["seabed_under_structures"] = cfg.world_model.seabed_under_structures
     structures = []
     for ks in fe.structures:
         reg = ks.final or ks.detection.registration
@@ -236,6 +237,8 @@ def bare_seabed(fe, map_em: ElevationMap, pipes) -> tuple[GridSpec, np.ndarray]:
     # anything standing clearly above the seabed (an unrecognised object) is not seabed either
     mask |= (ground - map_em.depth) > 0.15
     depth = np.where(mask & map_em.filled, ground, map_em.depth)
+    if cfg.world_model.seabed_under_structures == "cut":
+        depth[fe._structure_mask(map_em.spec, 0.0)] = np.nan
     f = max(int(round(cfg.world_model.seabed_cell_m / c)), 1)
     H, W = depth.shape
     Hc, Wc = -(-H // f), -(-W // f)

@@ -161,7 +161,7 @@ def build_world_model(structures, pipes, seabed_depth: np.ndarray, seabed_spec: 
         "pipes": len(pipes),
         "triangles": len(world.triangles),
         "vertices": len(world.vertices),
-        "structures_pipes_removed_from_seabed": True,
+        "seabed": "bare: the structures' and pipes' footprints replaced by the seabed level around them",
     }
     info["bytes"] = ply_size(world)
     info["fixed_bytes"] = fixed_bytes
