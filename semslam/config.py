@@ -71,6 +71,12 @@ class AssociationConfig(BaseModel):
         description="an object this close to a pipe's axis, between two collinear segments, separates them "
         "(an in-line valve or socket joins two pipes): they are neither merged nor associated",
     )
+    pipe_extent_gap_m: float = Field(
+        0.3,
+        ge=0,
+        description="an observed pipe segment pairs with a mapped pipe only if it comes within this gap (m, "
+        "along the axis) of what has been seen of that pipe",
+    )
 
 
 class SemslamConfig(BaseModel):

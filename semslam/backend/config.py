@@ -45,9 +45,6 @@ class GraphConfig(BaseModel):
     track_gate_confidence: float = Field(
         0.999, gt=0, lt=1, description="χ² confidence for an observation to extend a tentative landmark"
     )
-    pipe_extent_gap_m: float = Field(
-        0.3, ge=0, description="a pipe observation must overlap a pipe landmark's extent within this gap to pair with it"
-    )
     batch_max_iterations: int = Field(100, ge=1, description="Levenberg–Marquardt iterations in batch mode")
     covariance_in_result: bool = Field(True, description="marginal covariances of keyframes and landmarks in the result")
     result_covariance_keyframes: int = Field(

@@ -461,7 +461,7 @@ class GraphEstimator:
         gates = {d: _chi2(self.assoc.confidence, d) for d in (3, 4)}
         allowed = (dist <= self.cfg.pre_gate_m) & possible_pairs(pose, pose_cov, obs, T_BS, cands, gates)
         problem = GraphAssociationProblem(
-            pose, pose_cov, obs, T_BS, cands, self.cfg.pipe_extent_gap_m, allowed,
+            pose, pose_cov, obs, T_BS, cands, self.assoc.pipe_extent_gap_m, allowed,
             separators=self._object_points(), separator_radius=self.assoc.inline_object_radius_m,
         )
         result = jcbb(problem, confidence=self.assoc.confidence)
@@ -547,7 +547,7 @@ class GraphEstimator:
                 seen = np.vstack(tr.world)
                 s_seen = (seen - c) @ d
                 if _segment_matches_line(
-                    w, c, d, seen, self.assoc.merge_angle_rad, self.assoc.merge_distance_m, self.cfg.pipe_extent_gap_m
+                    w, c, d, seen, self.assoc.merge_angle_rad, self.assoc.merge_distance_m, self.assoc.pipe_extent_gap_m
                 ) and not object_between((s_seen.min(), s_seen.max()), w, c, d, self._object_points(), self.assoc.inline_object_radius_m):
                     dd = float(np.linalg.norm(np.cross(w.mean(axis=0) - c, d)))
                     if dd < best_d:

@@ -49,14 +49,6 @@ class EkfConfig(BaseModel):
     line_min_distance_m: float = Field(
         0.05, gt=0, description="pipe observations whose line passes closer than this to the sensor are ignored (ρ ≈ 0)"
     )
-    pipe_extent_gap_m: float = Field(
-        1.0, ge=0, description="an observed pipe segment pairs with a mapped pipe only if it comes within this "
-        "gap (m, along the line) of what was seen of it, and no object lies on the line in between"
-    )
-    pipe_object_radius_m: float = Field(
-        0.15, gt=0, description="an object this close to a pipe's line, between two collinear segments, "
-        "separates them (an in-line valve or socket joins two pipes)"
-    )
     pre_gate_m: float = Field(
         2.0, gt=0, description="Euclidean pre-gate (m, plus 3σ of the vehicle position) before the χ² tests: "
         "saves work on large maps; must exceed the plausible landmark position error"

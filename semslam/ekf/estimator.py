@@ -58,9 +58,10 @@ that lies on a mapped pipe by the paper's collinear-merge criterion (``associati
 
 Pipes keep the endpoints of every view of them (in {W}); they are re-projected onto the current line
 estimate whenever used, so they follow every update, and the pipe's ends are a noise-robust extreme of
-them. A segment pairs with a pipe only if it comes within ``pipe_extent_gap_m`` of that extent and no
-object (mapped or tentative) lies on the line between them: collinear pipes on either side of an
-in-line valve stay distinct, partial views of one pipe do not split it.
+them. A segment pairs with a pipe only if it comes within ``association.pipe_extent_gap_m`` of that
+extent and no object (mapped or tentative) lies on the line between them, within
+``association.inline_object_radius_m`` of it (both shared with the graph): collinear pipes on either
+side of an in-line valve stay distinct, partial views of one pipe do not split it.
 """
 
 from __future__ import annotations
@@ -776,8 +777,8 @@ class EkfEstimator:
     def _pipe_apart(self, extent: _Extent, ends_W: np.ndarray, m: np.ndarray, d: np.ndarray,
                     objects: np.ndarray) -> bool:
         """A segment cannot be this pipe: beyond the gap from its seen extent, or across an object."""
-        return extent.gap(ends_W, m, d) > self.cfg.pipe_extent_gap_m or extent.separated(
-            ends_W, m, d, objects, self.cfg.pipe_object_radius_m)
+        return extent.gap(ends_W, m, d) > self.assoc.pipe_extent_gap_m or extent.separated(
+            ends_W, m, d, objects, self.assoc.inline_object_radius_m)
 
     def _associate_batch(self, obs: list[_Obs]) -> list[int | None]:
         """Custom association (``associate=``): the generic problem, pair by pair."""
