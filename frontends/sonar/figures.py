@@ -48,7 +48,13 @@ def elevation_figure(fe, path) -> None:
     em: ElevationMap = fe.final["map"]
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig, ax = plt.subplots(figsize=(13, 9), dpi=fe.config.figures.dpi)
+    n_zoom = min(len(fe.structures), 4)
+    e0, e1, n0, n1 = em.spec.extent()
+    main_h = min(max(12.0 * (n1 - n0) / max(e1 - e0, 1e-6), 3.0), 12.0) + 1.0
+    fig = plt.figure(figsize=(13.5, main_h + (4.2 if n_zoom else 0)), dpi=fe.config.figures.dpi,
+                     layout="constrained")
+    gs = fig.add_gridspec(2 if n_zoom else 1, max(n_zoom, 1), height_ratios=[main_h, 4.2] if n_zoom else [1])
+    ax = fig.add_subplot(gs[0, :])
     D = em.depth
     ext = em.spec.extent()
     shade = _hillshade(D, em.spec.cell)
@@ -56,7 +62,7 @@ def elevation_figure(fe, path) -> None:
                    vmin=np.nanpercentile(D, 1), vmax=np.nanpercentile(D, 99.5))
     ax.imshow(np.where(np.isfinite(D), shade, np.nan), origin="lower", extent=ext, cmap="gray", alpha=0.35,
               interpolation="nearest")
-    cb = fig.colorbar(im, ax=ax, shrink=0.75, pad=0.01)
+    cb = fig.colorbar(im, ax=ax, shrink=0.9, pad=0.01, fraction=0.03)
     cb.set_label("depth (m, NED)")
     handles = []
     from matplotlib.lines import Line2D
@@ -76,8 +82,9 @@ def elevation_figure(fe, path) -> None:
         ax.plot([s.p[1], s.q[1]], [s.p[0], s.q[0]], "-", color="red", lw=2.2, alpha=0.9)
         mid = 0.5 * (s.p + s.q)
         conn = f" → {', '.join(s.connected)}" if s.connected else ""
-        ax.annotate(f"pipe r {s.radius:.2f} m{conn}", (mid[1], mid[0]), fontsize=8, color="darkred",
-                    xytext=(5, -12), textcoords="offset points")
+        ax.annotate(f"pipe r {s.radius:.2f} m{conn}", (mid[1], mid[0]), fontsize=7, color="darkred",
+                    xytext=(8, -16), textcoords="offset points",
+                    bbox=dict(boxstyle="round,pad=0.2", fc="white", ec="none", alpha=0.75))
     if fe.final["pipes"]:
         handles.append(Line2D([], [], color="red", lw=2, label="pipeline (detected axis)"))
     # the track as finally estimated
@@ -91,7 +98,31 @@ def elevation_figure(fe, path) -> None:
     ax.set_title(f"Sonar elevation map ({100 * em.spec.cell:.0f} cm cells, median depth, final estimate): "
                  f"{len(fe.structures)} structures recognised, {len(fe.final['pipes'])} pipelines")
     ax.legend(handles=handles, loc="upper left", fontsize=8, framealpha=0.9)
-    fig.tight_layout()
+    # close-ups: each structure's returns (4 cm cells, height above the seabed) under its CAD outline
+    pts = fe.final.get("pts_W")
+    for k, ks in enumerate(fe.structures[:n_zoom]):
+        zax = fig.add_subplot(gs[1, k])
+        reg = ks.final or ks.detection.registration
+        T = reg.T if reg is not None else ks.T_WM
+        R = fe.library[ks.model].footprint_radius + 0.8
+        c = T[:2, 3]
+        near = pts[(np.abs(pts[:, 0] - c[0]) < R) & (np.abs(pts[:, 1] - c[1]) < R)] if pts is not None else pts
+        if near is None or not len(near):
+            continue
+        zm = ElevationMap.from_points(near, 0.04)
+        h = T[2, 3] - zm.depth  # height above the structure's base
+        im2 = zax.imshow(h, origin="lower", extent=zm.spec.extent(), cmap="viridis", vmin=-0.2,
+                         vmax=fe.library[ks.model].height, interpolation="nearest")
+        col = STRUCTURE_COLORS.get(ks.model, (1.0, 0.2, 0.2))
+        _outline(zax, fe.recogniser.model_data[ks.model], T, "white", lw=2.6)
+        _outline(zax, fe.recogniser.model_data[ks.model], T, col, lw=1.4)
+        zax.set_aspect("equal")
+        zax.set_xlim(c[1] - R, c[1] + R)
+        zax.set_ylim(c[0] - R, c[0] + R)
+        med = f"{100 * reg.median_m:.1f} cm" if reg is not None else "n/a"
+        zax.set_title(f"{ks.model}: median point-to-model {med}", fontsize=9)
+        zax.tick_params(labelsize=7)
+        fig.colorbar(im2, ax=zax, shrink=0.8, pad=0.02).set_label("height above base (m)", fontsize=7)
     fig.savefig(path)
     plt.close(fig)
 
