@@ -99,3 +99,25 @@ def test_empty_and_tiny_scans():
     assert fe.process(PointCloud(stamp=1, sensor="laser", points=np.zeros((0, 3))), _View()) == []
     few = np.random.default_rng(0).normal(size=(30, 3)).astype(np.float32) + [0, 0, 2]
     assert fe.process(PointCloud(stamp=1, sensor="laser", points=few), _View()) == []
+
+
+def test_finish_hands_over_the_measured_syn_confusion_only():
+    class Recognizer:
+        classes = ["elbow", "valve"]
+        confusion = np.array([[9.0, 1.0], [2.0, 8.0]])
+        confusion_measured = True
+
+        def classify(self, cloud, connectivity):
+            return {"elbow": 0.5, "valve": 0.5}
+
+    rec = Recognizer()
+    summary = LaserFrontend(_metadata(), {}, recognizer=rec).finish(_View())
+    assert summary.section == "recognition"
+    syn = summary.metrics["SYN"]
+    assert syn["accuracy"] == pytest.approx(17 / 20)
+    assert syn["confusion"] == [[9, 1], [2, 8]] and syn["classes"] == ["elbow", "valve"]
+    rec.confusion_measured = False  # the generic assumption is no SYN measurement
+    assert LaserFrontend(_metadata(), {}, recognizer=rec).finish(_View()).section is None
+    # no recogniser built during the mission (no object seen): nothing, and none built now
+    fe = LaserFrontend(_metadata(), {"recognition": {"enabled": True}})
+    assert fe.finish(_View()).section is None and fe._recognizer is None

@@ -23,6 +23,7 @@ from frontends.laser.preprocess import Preprocessed, hop_covariances, preprocess
 from semslam.errors import ConfigError
 from semslam.mission.measurements import PointCloud
 from semslam.observations import Connectivity, LineObservation, Observation, PointObservation
+from semslam.registry import FrontendSummary
 
 UP_NED = np.array([0.0, 0.0, -1.0])  # against gravity in the world frame (NED: z down)
 
@@ -216,3 +217,14 @@ class LaserFrontend:
                 )
             )
         return obs
+
+    def finish(self, view=None) -> FrontendSummary:
+        """The recogniser's SYN stage (its confusion on held-out synthetic views, the P(Z | X) it
+        used) for metrics.json's "recognition" block; nothing when no object was ever recognised
+        or the confusion is the generic assumption rather than a measurement."""
+        rec = self._recognizer
+        if rec is None or not getattr(rec, "confusion_measured", False):
+            return FrontendSummary()
+        from semslam.semantics.metrics import classification_metrics
+
+        return FrontendSummary(section="recognition", metrics={"SYN": classification_metrics(rec.confusion, rec.classes)})

@@ -134,6 +134,8 @@ class Recognizer:
             self._svm = make_svm(n_size=0 if ext is None else 3).fit(svm_features(self._features, ext), self._labels)
         self.connectivity = ConnectivityTable(self._compatibility())
         k = len(self.classes)
+        # Whether ``confusion`` was measured (SYN) rather than the generic assumption below.
+        self.confusion_measured = confusion is not None
         if confusion is None:
             confusion = np.full((k, k), (1 - default_accuracy) / max(k - 1, 1)) * 100
             np.fill_diagonal(confusion, default_accuracy * 100)
@@ -257,6 +259,7 @@ class Recognizer:
         clouds, labels = held_out_views(models, params, res)
         conf = self.evaluate(clouds, labels)
         self.set_confusion(conf)
+        self.confusion_measured = True
         return conf
 
 
@@ -293,6 +296,7 @@ def default_recognizer(
         data = json.loads(path.read_text())
         if data.get("classes") == rec.classes:
             rec.set_confusion(np.array(data["confusion"]))
+            rec.confusion_measured = True
             return rec
     conf = rec.calibrate(models, held_out, params.angular_resolution_rad)
     write_atomic(path, json.dumps({"classes": rec.classes, "confusion": conf.tolist()}))
