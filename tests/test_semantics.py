@@ -239,3 +239,23 @@ def test_semantic_map_entry_reports_posterior_and_map_class():
     assert entry["n_observations"] == 3 and entry["configuration"] == 2
     assert entry["connectivity_conflict"] is False
     assert sum(entry["posterior"].values()) == pytest.approx(1.0)
+
+
+def test_a_rare_wrong_configuration_does_not_rule_out_the_true_class():
+    """An elbow seen 60 times with two orthogonal pipes and twice with three (a passing pipe taken
+    for its third) stays an elbow; the same three-pipe views, a fifth of them, do count."""
+    flat = {c: 1.0 for c in CLASSES}
+    elbowish = {c: (0.5 if c == "Elbow" else 0.4 if c == "R-Tee" else 0.02) for c in CLASSES}
+    fusion = ClassFusion(CLASSES)
+    for k in range(62):
+        fusion.update(7, elbowish, configuration=4 if k in (3, 40) else 3)
+    assert fusion.map_class(7) == "Elbow" and fusion.configuration(7) == 3
+    strict = ClassFusion(CLASSES, min_configuration_fraction=0.0)  # the paper's rule: every view counts
+    for k in range(62):
+        strict.update(7, elbowish, configuration=4 if k in (3, 40) else 3)
+    assert strict.posterior(7)["Elbow"] == 0.0 and strict.configuration(7) == 4
+    for _ in range(15):  # now 17 of 77 views show three pipes: a real third pipe
+        fusion.update(7, flat, configuration=4)
+    assert fusion.posterior(7)["Elbow"] == 0.0 and fusion.configuration(7) == 4
+    with pytest.raises(ValueError):
+        ClassFusion(CLASSES, min_configuration_fraction=1.5)

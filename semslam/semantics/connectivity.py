@@ -27,7 +27,8 @@ rebuilt for any model from its port directions (:func:`compatible_configurations
 own CAD model with ports gets its row automatically.
 
 Over a landmark's life the constraint is the intersection of the compatible sets of every
-configuration seen. Because 1 ⊃ 2 ⊃ 4 and 1 ⊃ 3 ⊃ 4, that is the paper's "most restrictive
+configuration seen (seen: recurring in at least a tenth of the landmark's views, see
+:mod:`semslam.semantics.fusion`). Because 1 ⊃ 2 ⊃ 4 and 1 ⊃ 3 ⊃ 4, that is the paper's "most restrictive
 configuration seen so far"; it also settles the case the paper's rule leaves open (2 and 3 both
 seen: only a three-port class fits).
 """

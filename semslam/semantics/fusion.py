@@ -8,6 +8,12 @@ and with the pipe configurations seen at it (Table 2),
 
     P(X | Z_1..T, C) ∝ P(X | Z_1..T) · [X compatible with every C seen]   (SEM stage)
 
+A configuration counts as seen once it makes up at least ``min_configuration_fraction`` (10 %) of
+the configurations reported for the landmark. The paper's rule takes every configuration at face
+value, so one wrong view (a pipe passing near an elbow counted as its third; on the tank mission
+1–4 % of an object's views) would rule out the true class for good; a rare configuration is noise,
+a real one recurs. With few views a single one still counts (1 of 1 is 100 %), as in the paper.
+
 Accumulated in log space so that long sequences neither underflow nor lose resolution. If the
 connectivity rules out every class the observations support (a wrong pipe association, an
 unknown fitting), the constraint is dropped for that landmark rather than returning a zero
@@ -16,6 +22,7 @@ posterior, and :meth:`ClassFusion.conflict` reports it.
 
 from __future__ import annotations
 
+from collections import Counter
 from collections.abc import Hashable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 
@@ -41,7 +48,11 @@ class ClassFusion:
         classes: Sequence[str],
         prior: Mapping[str, float] | None = None,
         connectivity: ConnectivityTable | None = None,
+        min_configuration_fraction: float = 0.1,
     ):
+        if not 0.0 <= min_configuration_fraction <= 1.0:
+            raise ValueError("min_configuration_fraction must lie in [0, 1]")
+        self.min_configuration_fraction = float(min_configuration_fraction)
         self.classes = list(classes)
         p = np.ones(len(self.classes)) if prior is None else np.array([prior.get(c, 0.0) for c in self.classes])
         if np.any(p < 0) or p.sum() <= 0:
@@ -79,6 +90,12 @@ class ClassFusion:
         tr.n_obs += d.n_obs
         tr.configurations += d.configurations
 
+    def _seen_configurations(self, tr: _Track) -> list[int]:
+        """The configurations reported often enough to count (see the module)."""
+        counts = Counter(tr.configurations)
+        need = self.min_configuration_fraction * len(tr.configurations)
+        return [c for c, n in counts.items() if n >= need]
+
     def _posterior(self, landmark_id: Hashable, use_connectivity: bool) -> tuple[np.ndarray, bool]:
         tr = self._tracks.get(landmark_id)
         log_post = self._log_prior + (tr.log_lik if tr else 0.0)
@@ -86,7 +103,7 @@ class ClassFusion:
         post /= post.sum()
         conflict = False
         if use_connectivity and tr and tr.configurations:
-            masked = post * self.table.mask(self.classes, tr.configurations)
+            masked = post * self.table.mask(self.classes, self._seen_configurations(tr))
             if masked.sum() > 0:
                 post = masked / masked.sum()
             else:
@@ -109,7 +126,7 @@ class ClassFusion:
 
     def configuration(self, landmark_id: Hashable) -> int | None:
         tr = self._tracks.get(landmark_id)
-        return most_restrictive(tr.configurations) if tr else None
+        return most_restrictive(self._seen_configurations(tr)) if tr else None
 
     def n_observations(self, landmark_id: Hashable) -> int:
         tr = self._tracks.get(landmark_id)
