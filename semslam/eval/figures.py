@@ -77,11 +77,13 @@ def position_errors(truth: Trajectory, results: Mapping[str, EstimatorResult]):
     """Position error per axis over time with the estimator's ±2σ (the paper's Figures 13–14)."""
     fig, axes = plt.subplots(3, 1, figsize=(12, 8), sharex=True)
     t0 = truth.stamps[0]
+    reach = np.zeros(3)  # per axis: the largest error worth showing
     for name, r in results.items():
         tr = r.trajectory
         if len(tr) == 0:
             continue
         err = tr.positions - _interp_truth(truth, tr.stamps)
+        reach = np.maximum(reach, np.nanpercentile(np.abs(err), 99.5, axis=0))
         t = (tr.stamps - t0) * 1e-9
         for k, ax in enumerate(axes):
             ax.plot(t, err[:, k], color=_color(name), lw=0.9, label=name)
@@ -91,8 +93,11 @@ def position_errors(truth: Trajectory, results: Mapping[str, EstimatorResult]):
     for k, (ax, lab) in enumerate(zip(axes, ("north", "east", "depth"))):
         ax.set_ylabel(f"{lab} error [m]")
         ax.grid(alpha=0.3)
+        # Scaled to the errors, not to the widest band (dead reckoning's σ would flatten the rest).
+        if reach[k] > 0:
+            ax.set_ylim(-2.5 * reach[k], 2.5 * reach[k])
     axes[0].legend(loc="upper left", fontsize=8, ncol=4)
-    axes[0].set_title("position error and ±2σ")
+    axes[0].set_title("position error and ±2σ (axes scaled to the errors: wider bands run off the plot)")
     axes[-1].set_xlabel("mission time [s]")
     fig.tight_layout()
     return fig
