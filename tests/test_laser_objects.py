@@ -113,3 +113,26 @@ def test_a_lone_pipe_end_needs_an_object_of_its_own():
     pts, pipes = _pipe_with_end(cap=True, body=True)
     (o,) = segment_objects(pts, pipes, up, cfg)
     assert o.configuration == 1 and abs(o.position[0] - 0.06) < 0.02
+
+
+def test_a_collinear_pipe_stub_beyond_a_lone_end_gives_two_connections():
+    """A second pipe in line beyond the object, too short to be detected, still counts (config 2);
+    the open bore of a valve's port just beyond the end does not."""
+    from frontends.laser.config import ObjectConfig
+    from frontends.laser.objects import collinear_stub, segment_objects
+
+    rng = np.random.default_rng(3)
+    cfg, r = ObjectConfig(), 0.0315
+    end, out = np.array([0.0, 0, 2.0]), np.array([1.0, 0, 0])
+
+    def shell(t0, t1, n):  # the upper half of a pipe's surface seen from above (axis along x at z = 2)
+        ph = rng.uniform(-np.pi, 0, n)
+        return np.column_stack([rng.uniform(t0, t1, n), r * np.cos(ph), 2.0 + r * np.sin(ph)])
+
+    assert collinear_stub(shell(0.24, 0.34, 40), end, out, r, cfg)
+    assert not collinear_stub(shell(0.03, 0.12, 40), end, out, r, cfg)  # a port's bore, not a pipe
+    assert not collinear_stub(shell(0.24, 0.26, 40), end, out, r, cfg)  # one bin: a face, not a pipe
+    up = np.array([0.0, 0.0, -1.0])
+    pts, pipes = _pipe_with_end(cap=True, body=True)
+    (o,) = segment_objects(np.vstack([pts, shell(0.22, 0.34, 60)]), pipes, up, cfg)
+    assert o.configuration == 2 and len(o.directions) == 2 and o.directions[0] @ o.directions[1] < -0.99

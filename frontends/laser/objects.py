@@ -113,6 +113,26 @@ def own_points(points: np.ndarray, end: np.ndarray, out: np.ndarray, radius: flo
     return int(((rad > radius + cfg.own_margin) | (t > cfg.own_beyond)).sum())
 
 
+def collinear_stub(points: np.ndarray, end: np.ndarray, out: np.ndarray, radius: float, cfg: ObjectConfig) -> bool:
+    """Whether a second pipe leaves the object at a lone pipe end on the far side, in line with the
+    first: ``points`` (not pipe inliers) on that pipe's cylinder (``radius``) continued beyond the
+    object (between ``stub_start`` and ``stub_reach`` from ``end``, outward unit ``out``), at least
+    ``stub_points`` of them over at least ``stub_bins`` bins of 2 cm along the axis. A pipe too
+    short to be detected (or partly hidden) still shows as such a stub; an object at the end of a
+    single pipe has nothing there (its open port is a bore just beyond the end, nearer than
+    ``stub_start``)."""
+    x = points - end
+    t = x @ out
+    sel = (t >= cfg.stub_start) & (t <= cfg.stub_reach)
+    x, t = x[sel], t[sel]
+    rad = np.sqrt(np.maximum((x * x).sum(axis=1) - t * t, 0.0))
+    t = t[np.abs(rad - radius) <= cfg.stub_tolerance]
+    if len(t) < cfg.stub_points:
+        return False
+    per_bin = np.bincount(((t - cfg.stub_start) / 0.02).astype(np.int64))
+    return int((per_bin >= 2).sum()) >= cfg.stub_bins
+
+
 def join_ends(ends: np.ndarray, out: np.ndarray, owner: np.ndarray, cfg: ObjectConfig) -> np.ndarray:
     """Group pipe ends that meet at one object (label per end).
 
@@ -279,11 +299,16 @@ def segment_objects(points: np.ndarray, pipes: list[Pipe], up: np.ndarray, cfg: 
             crop = crop[_largest_cluster(points[crop], cfg.cluster_distance)]
         if len(crop) < cfg.min_points:
             continue
+        config = site.config
         if site.config == 1:  # on the pipe's axis, midway along the object's extent
             t = (points[crop] - e[0]) @ (-dirs[0])
             lo, hi = np.percentile(t, [2, 98])
             center = e[0] - dirs[0] * 0.5 * (max(lo, 0.0) + hi)
+            if collinear_stub(X, e[0], -dirs[0], pipes[site.members[0] // 2].radius, cfg):
+                # a second pipe in line (not detected): two collinear connections; the position
+                # is still the one found from the first pipe (and has its covariance)
+                dirs, config = np.vstack([dirs, -dirs]), 2
         cov = position_covariance(site.config, site.R, cfg)
         pipe_ids = tuple(int(m // 2) for m in site.members)
-        objects.append(SegmentedObject(center, cov, crop, dirs, site.config, pipe_ids))
+        objects.append(SegmentedObject(center, cov, crop, dirs, config, pipe_ids))
     return objects
