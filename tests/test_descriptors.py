@@ -81,6 +81,24 @@ def test_vectorised_voxel_walk_matches_pcl_loop():
     np.testing.assert_array_equal(inside, ref[:, 0])
 
 
+def test_esf_walk_skipping_the_voxels_known_on_the_surface_matches_pcl_loop():
+    # In ESF the lines join voxels of points and the grid is their 3×3×3 dilation: the first two
+    # and the last visited voxels are on it, and the walk counts them without looking them up.
+    rng = np.random.default_rng(4)
+    vox = rng.integers(0, 64, size=(300, 3)).astype(np.int32)
+    vox[:20, 1:] = vox[20:40, 1:]  # some axis-aligned and short lines
+    vox[40:60] = np.clip(vox[60:80] + rng.integers(-3, 4, size=(20, 3)), 0, 63)
+    lut = esf_mod._surface_lut(vox)
+    p, q = rng.integers(0, 300, 6000), rng.integers(0, 300, 6000)
+    p[:200], q[:200] = np.arange(200), np.arange(20, 220)
+    lut3 = lut.reshape(66, 66, 66)[1:-1, 1:-1, 1:-1]
+    ref = np.array([lci_reference(lut3, s, t) for s, t in zip(vox[p], vox[q])])
+    for band in (None, 4, 16):
+        inside, count = esf_mod._walk(lut, tuple(vox[p].T), tuple(vox[q].T), band=band, head=2, tail=1)
+        np.testing.assert_array_equal(count, ref[:, 1])
+        np.testing.assert_array_equal(inside, ref[:, 0])
+
+
 def test_esf_is_a_normalised_640_histogram_and_seedable():
     rng = np.random.default_rng(0)
     cloud = box(2000, rng)

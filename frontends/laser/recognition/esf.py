@@ -27,6 +27,16 @@ Follows PCL ``features/impl/esf.hpp`` (read, re-implemented vectorised in numpy)
   extent), which is what PCL's error-accumulator loop produces (checked against a scalar port in
   the tests). Like PCL, the walk visits ``max(l, 1)`` voxels, from the start voxel up to but not
   including the end voxel.
+- Three voxels of every walk are known to be on the surface without looking: the start voxel (a
+  point's), the next one and the last one (both within one voxel of a point's, so set by the 3×3×3
+  dilation). ``esf`` counts them and walks only the others (exact, checked in the tests); the
+  general :func:`trace_lines` walks everything.
+
+Speed (vectorisation): the 3·20000 lines are grouped by length into bands of 4 voxels (one stable
+sort of a byte), each band is walked as one padded block per ~64k voxels: three rows gathered from
+a per-band offset table, the start voxel's flat index added, one look-up in the (bordered) grid,
+row sums of the 0/1 bytes four or eight at a time (summed as machine words, then folded). No
+Python loop runs over samples, lines or voxels; the loops run over bands and blocks (~20 per call).
 
 Frames and units: the input cloud is N×3 in any metric frame (metres); the descriptor is
 invariant to translation (the cloud is centred on its centroid) and scale (scaled so that the
@@ -42,8 +52,18 @@ GRID = 64
 HALF = GRID // 2
 _NB = 64  # bins per sub-histogram
 
+# The look-up grid has a one-voxel border: the dilation may spill into it (PCL drops those voxels;
+# no walk ever visits them, since a walk stays between two voxels of the 64³ grid).
+_PG = GRID + 2
+_STRIDES = np.array([_PG * _PG, _PG, 1], dtype=np.int64)
+_ORIGIN = _PG * _PG + _PG + 1  # flat index of voxel (0, 0, 0) in the bordered grid
+
 # Offsets of the 27 voxels of a 3×3×3 neighbourhood.
 _NEIGHBOURS = np.stack(np.meshgrid([-1, 0, 1], [-1, 0, 1], [-1, 0, 1], indexing="ij"), -1).reshape(-1, 3)
+_NEIGHBOUR_OFFSETS = (_NEIGHBOURS[:, 0] * _PG + _NEIGHBOURS[:, 1]) * _PG + _NEIGHBOURS[:, 2]
+
+# Voxels of a walk known to be on the surface in ``esf`` (see the module doc): the first two, the last.
+_KNOWN_HEAD, _KNOWN_TAIL = 2, 1
 
 
 def _voxel_index(p: np.ndarray) -> np.ndarray:
@@ -52,133 +72,193 @@ def _voxel_index(p: np.ndarray) -> np.ndarray:
 
 
 def _surface_lut(vox: np.ndarray) -> np.ndarray:
-    """Flat boolean 64³ grid: the voxels of the points, dilated by one voxel (PCL ``voxelize9``).
-
-    Marked in a grid padded by one voxel on every side (no bounds checks), then cropped: PCL drops
-    the neighbours that fall outside the grid, which is what the crop does."""
-    P = GRID + 2
-    occ = np.zeros(P**3, dtype=bool)
-    occ[((vox[:, 0] + 1) * P + vox[:, 1] + 1) * P + vox[:, 2] + 1] = True
-    base = np.flatnonzero(occ)
-    offs = (_NEIGHBOURS[:, 0] * P + _NEIGHBOURS[:, 1]) * P + _NEIGHBOURS[:, 2]
-    dil = np.zeros(P**3, dtype=bool)
-    dil[(base[:, None] + offs[None, :]).ravel()] = True
-    return np.ascontiguousarray(dil.reshape(P, P, P)[1:-1, 1:-1, 1:-1]).ravel()
+    """The voxels of the points dilated by one voxel (PCL ``voxelize9``), as a flat uint8 0/1 grid
+    of (64 + 2)³ voxels: the 64³ grid with a one-voxel border (voxel (x, y, z) at
+    ``_ORIGIN + x·66² + y·66 + z``)."""
+    occ = (vox[:, 0].astype(np.int64) * _PG + vox[:, 1]) * _PG + vox[:, 2] + _ORIGIN
+    lut = np.zeros(_PG**3, dtype=np.uint8)
+    lut[(occ[:, None] + _NEIGHBOUR_OFFSETS[None, :]).ravel()] = 1
+    return lut
 
 
-_OFFSETS: np.ndarray | None = None
-_SIGNED_STRIDES = np.array([GRID * GRID, GRID, 1, -GRID * GRID, -GRID, -1], dtype=np.int32)
+_TABLES: dict[tuple[int, int], np.ndarray] = {}
+_BAND_TABLES: dict[tuple[int, ...], np.ndarray] = {}
 
 
-def _offset_table() -> np.ndarray:
-    """Flat-index offsets of the Bresenham walk, ``T[l, m, s, k]`` (built once, 6 MB).
+def _offset_table(head: int = 0, tail: int = 0) -> np.ndarray:
+    """Flat-index offsets of the Bresenham walk, ``T[l, m, s, j]`` (64×64×6×64 int32, built once).
 
     For a segment whose major extent is ``l`` voxels, an axis of extent ``m`` with signed stride
-    ``_SIGNED_STRIDES[s]`` has advanced ``floor((2·m·k + l − 1) / (2·l))`` voxels after ``k`` major
-    steps — the closed form of PCL's error-accumulator loop. ``k`` is clamped to the last visited
-    voxel ``max(l, 1) − 1`` so that a padded row repeats its last voxel.
+    ``±_STRIDES[s % 3]`` (negative for ``s ≥ 3``) has advanced ``floor((2·m·k + l − 1) / (2·l))``
+    voxels after ``k`` major steps — the closed form of PCL's error-accumulator loop (with ``m = l``
+    it is just ``k``, so the major axis needs no special case). Entry ``j`` is step ``k = j + head``;
+    entries past the walk's last counted voxel (``j ≥ max(l, 1) − head − tail``) are 0, i.e. they
+    revisit the start voxel, which the caller takes off again.
     """
-    global _OFFSETS
-    if _OFFSETS is None:
+    key = (head, tail)
+    if key not in _TABLES:
         l = np.arange(GRID)[:, None, None]
         m = np.arange(GRID)[None, :, None]
         l1 = np.maximum(l, 1)
-        k = np.minimum(np.arange(GRID)[None, None, :], l1 - 1)
-        step = (2 * m * k + l1 - 1) // (2 * l1)
-        _OFFSETS = np.ascontiguousarray((step[:, :, None, :] * _SIGNED_STRIDES[None, None, :, None]).astype(np.int32))
-    return _OFFSETS
+        j = np.arange(GRID)[None, None, :]
+        step = (2 * m * (j + head) + l1 - 1) // (2 * l1)
+        signed = np.concatenate([_STRIDES, -_STRIDES])
+        off = step[:, :, None, :] * signed[None, None, :, None]
+        valid = (j < l1 - head - tail)[:, :, None, :]
+        _TABLES[key] = np.ascontiguousarray(np.where(valid, off, 0).astype(np.int32))
+    return _TABLES[key]
+
+
+def _band_table(l_lo: int, l_hi: int, width: int, head: int, tail: int) -> np.ndarray:
+    """Rows ``l_lo ≤ l ≤ l_hi`` of the offset table, first ``width`` entries, as a contiguous
+    (rows × width) array: the gathers of a band then copy short contiguous rows."""
+    key = (l_lo, l_hi, width, head, tail)
+    t = _BAND_TABLES.get(key)
+    if t is None:
+        full = _offset_table(head, tail)
+        t = _BAND_TABLES[key] = np.ascontiguousarray(full[l_lo : l_hi + 1, :, :, :width]).reshape(-1, width)
+    return t
+
+
+# Row offset of an axis by its signed extent d (index d + 63): |d|·6 + 3·(d < 0) + axis.
+_D = np.arange(-(GRID - 1), GRID)
+_EXTENT_ROW = ((np.abs(_D) * 6 + 3 * (_D < 0))[None, :] + np.arange(3)[:, None]).astype(np.int32)
+
+
+def _row_sums(hit: np.ndarray) -> np.ndarray:
+    """Row sums of an n×W array of 0/1 bytes (W a multiple of 4, ≤ 64): the rows are added as
+    8- or 4-byte words (no byte can carry: at most 16 ones per byte), then the bytes of the sum
+    are folded by one multiplication."""
+    if hit.shape[1] % 8 == 0:
+        v, mult, shift = hit.view(np.uint64), np.uint64(0x0101010101010101), np.uint64(56)
+    else:
+        v, mult, shift = hit.view(np.uint32), np.uint32(0x01010101), np.uint32(24)
+    acc = v[:, 0].copy()
+    for k in range(1, v.shape[1]):  # ≤ 16 word columns
+        acc += v[:, k]
+    return ((acc * mult) >> shift).astype(np.int64)
+
+
+def _walk(
+    lut: np.ndarray, start: tuple[np.ndarray, ...], end: tuple[np.ndarray, ...], *,
+    chunk: int = 65536, band: int | None = None, head: int = 0, tail: int = 0,
+) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """PCL's ``lci`` for every segment ``start → end`` (per-axis integer voxel coordinates in
+    [0, 64)) in the bordered grid ``lut`` (see :func:`_surface_lut`): ``(inside, count)``.
+
+    The first ``head`` and the last ``tail`` voxels of every walk are counted as inside without a
+    look-up (only valid when they are known to be, as in :func:`esf`).
+    """
+    sx, sy, sz = start
+    dx, dy, dz = end[0] - sx, end[1] - sy, end[2] - sz
+    l = np.maximum(np.maximum(np.abs(dx), np.abs(dy)), np.abs(dz))
+    count = np.maximum(l, 1)
+    if band is None:
+        # Wider bands pad more, narrower ones loop more: ~sqrt(8e5 / lines) balances the two
+        # (4 voxels for PCL's 60000 lines, 16 for the 3000 of a 1000-triplet segment).
+        band = int(np.clip(np.sqrt(8e5 / max(len(sx), 1)), 4, 32))
+    band = max(4, band - band % 4)  # widths multiple of 4: the row sums add 4-byte words
+    n_bands = -(-(GRID - head - tail) // band)
+    mid = count - (head + tail)  # voxels to look up
+    band_of = np.where(mid > 0, (mid - 1) // band, n_bands).astype(np.uint8)
+    order = np.argsort(band_of, kind="stable")  # radix sort of bytes
+    edges = np.cumsum(np.bincount(band_of, minlength=n_bands + 1))[:n_bands]
+    o = order[: int(edges[-1])]  # the lines with voxels to look up, by band
+    # Per line (in band order): the offset-table rows of its three axes, its start voxel, its length.
+    l_rows = np.take(l, o) * (GRID * 6)
+    rows = np.empty((3, len(o)), dtype=np.int32)
+    for ax, d in enumerate((dx, dy, dz)):
+        np.add(l_rows, np.take(_EXTENT_ROW[ax], np.take(d, o) + (GRID - 1)), out=rows[ax])
+    base = (np.take(sx, o) * _PG + np.take(sy, o)) * _PG + np.take(sz, o) + _ORIGIN
+    pad = np.take(mid, o)
+    walked = np.empty(len(o), dtype=np.int64)
+    lo = 0
+    for b, hi in enumerate(edges.tolist()):
+        if hi == lo:
+            continue
+        width = min((b + 1) * band, GRID)
+        # Lines of band b look up mid ∈ (b·band, (b+1)·band] voxels: l = mid + head + tail
+        # (l = 0 or 1 when count is 1).
+        l_lo = 0 if b == 0 else b * band + 1 + head + tail
+        table = _band_table(l_lo, min((b + 1) * band + head + tail, GRID - 1), width, head, tail)
+        step = max(1, chunk // width)
+        for i in range(lo, hi, step):
+            j = min(i + step, hi)
+            r = rows[:, i:j] - l_lo * (GRID * 6) if l_lo else rows[:, i:j]
+            flat = np.take(table, r, axis=0).sum(axis=0, dtype=np.int32)
+            flat += base[i:j, None]
+            # The padding (offset 0) revisited the start voxel width − mid times: take it off.
+            walked[i:j] = _row_sums(np.take(lut, flat)) - (width - pad[i:j]) * np.take(lut, base[i:j])
+        lo = hi
+    inside = np.minimum(count, head + tail).astype(np.int64)
+    inside[o] += walked
+    return inside, count
 
 
 def trace_lines(
     lut: np.ndarray, start: np.ndarray, end: np.ndarray, chunk: int = 65536, band: int | None = None
 ) -> tuple[np.ndarray, np.ndarray]:
     """Walk every segment ``start[i] → end[i]`` (integer voxel coordinates in [0, 64), L×3) through
-    the grid, as PCL's ``lci``.
+    the flat boolean 64³ grid ``lut``, as PCL's ``lci``.
 
-    Returns ``(inside, count)``: per segment, how many visited voxels are set in the flat boolean
-    grid ``lut`` and how many voxels were visited. Vectorised: segments are sorted by length, grouped
-    in bands of ``band`` voxels of length and processed in padded blocks of about ``chunk`` voxels
-    (cache-sized); each row of a block is the
-    sum of three rows gathered from the offset table; the padding repeats the last voxel, whose
-    repeats are subtracted after.
+    Returns ``(inside, count)``: per segment, how many visited voxels are set in ``lut`` and how
+    many voxels were visited. Vectorised: see the module doc (every voxel is looked up here).
     """
-    table = _offset_table().reshape(-1, GRID)
-    d = end - start
-    ext = np.abs(d)
-    sidx = np.arange(3, dtype=np.int32)[None, :] + 3 * (d < 0).astype(np.int32)
-    # No need to single out the major axis: with m = l the closed form gives exactly k.
-    l = ext.max(axis=1)
-    count = np.maximum(l, 1)
-    # Row of the (flattened) offset table for each segment and axis: one index array per gather.
-    rows_of = (l[:, None] * GRID + ext) * len(_SIGNED_STRIDES) + sidx
-    base = ((start[:, 0] * GRID + start[:, 1]) * GRID + start[:, 2]).astype(np.int32)
-    lut8 = lut.view(np.uint8)
-
-    if band is None:
-        # Wider bands pad more, narrower ones loop more: ~sqrt(8e5 / lines) balances the two
-        # (4 voxels for PCL's 60000 lines, 16 for the 3000 of a 1000-triplet segment).
-        band = int(np.clip(np.sqrt(8e5 / max(len(start), 1)), 4, 32))
-    inside = np.empty(len(start), dtype=np.int64)
-    order = np.argsort(count.astype(np.int16), kind="stable")
-    sorted_count = count[order]
-    # Bands of similar length (little padding), each cut into blocks of about ``chunk`` voxels.
-    bands = np.searchsorted(sorted_count, np.arange(band, GRID + band, band), side="right")
-    lo = 0
-    for hi in bands:
-        if hi == lo:
-            continue
-        step = max(1, chunk // int(sorted_count[hi - 1]))
-        for i in range(lo, hi, step):
-            j = min(i + step, hi)
-            sel = order[i:j]
-            kmax = int(sorted_count[j - 1])
-            rs = rows_of[sel]
-            flat = table[rs[:, 0], :kmax]
-            flat += table[rs[:, 1], :kmax]
-            flat += table[rs[:, 2], :kmax]
-            flat += base[sel, None]
-            hit = np.take(lut8, flat)
-            inside[sel] = hit.sum(axis=1, dtype=np.int32) - (kmax - count[sel]) * hit[:, -1]
-        lo = hi
-    return inside, count
+    grid = np.pad(np.asarray(lut).reshape(GRID, GRID, GRID).astype(np.uint8), 1).ravel()
+    s = np.asarray(start, dtype=np.int32)
+    e = np.asarray(end, dtype=np.int32)
+    return _walk(grid, tuple(s.T.copy()), tuple(e.T.copy()), chunk=chunk, band=band)
 
 
-def _classify_lines(inside: np.ndarray, count: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """PCL's line class (0 in, 1 out, 2 mixed) and in-ratio."""
-    cls = np.full(len(inside), 2, dtype=np.int8)
+def _classify_lines(inside: np.ndarray, count: np.ndarray) -> np.ndarray:
+    """PCL's line class: 0 in, 1 out, 2 mixed."""
+    cls = np.full(len(inside), 2, dtype=np.int64)
     cls[inside <= 7] = 1
     cls[inside >= count - 1] = 0  # tested first in PCL, so it wins
-    ratio = inside / count
-    return cls, ratio
-
-
-def _norm(v: np.ndarray) -> np.ndarray:
-    return np.sqrt(np.einsum("ij,ij->i", v, v))
+    return cls
 
 
 def _sample_triplets(pts: np.ndarray, n: int, rng: np.random.Generator) -> tuple[np.ndarray, ...]:
-    """``n`` random index triplets (n×3) of distinct points spanning a non-degenerate triangle,
-    with their side vectors v21, v31, v23, side lengths a, b, c and Heron product."""
+    """``n`` random index triplets of distinct points spanning a non-degenerate triangle (Heron
+    product > 0.001), as ``(i1, i2, i3, a, b, c, heron, cos)``: side lengths a = |p2 − p1|,
+    b = |p3 − p1|, c = |p2 − p3|, and the three |cos| of PCL's angles (3×n: at p1 between v21 and
+    v31, at p3 between v23 and v31, at p2 between v23 and v21). Computed per coordinate on the
+    candidate triplets, rejected ones dropped before the angles."""
     N = len(pts)
-    chosen: list[tuple[np.ndarray, ...]] = []
+    px, py, pz = (np.ascontiguousarray(pts[:, k]) for k in range(3))
+    parts: list[tuple[np.ndarray, ...]] = []
     have = 0
     for _ in range(50):
         m = int((n - have) * 1.25) + 64
         idx = rng.integers(0, N, size=(m, 3))
-        idx = idx[(idx[:, 0] != idx[:, 1]) & (idx[:, 0] != idx[:, 2]) & (idx[:, 1] != idx[:, 2])]
-        p1, p2, p3 = pts[idx[:, 0]], pts[idx[:, 1]], pts[idx[:, 2]]
-        v21, v31, v23 = p2 - p1, p3 - p1, p2 - p3
-        a, b, c = _norm(v21), _norm(v31), _norm(v23)
+        i1, i2, i3 = idx[:, 0], idx[:, 1], idx[:, 2]
+        distinct = (i1 != i2) & (i1 != i3) & (i2 != i3)
+        i1, i2, i3 = i1[distinct], i2[distinct], i3[distinct]
+        x1, y1, z1 = px[i1], py[i1], pz[i1]
+        ux, uy, uz = px[i2] - x1, py[i2] - y1, pz[i2] - z1  # v21
+        vx, vy, vz = px[i3] - x1, py[i3] - y1, pz[i3] - z1  # v31
+        wx, wy, wz = ux - vx, uy - vy, uz - vz  # v23 = p2 − p3
+        a = np.sqrt(ux * ux + uy * uy + uz * uz)
+        b = np.sqrt(vx * vx + vy * vy + vz * vz)
+        c = np.sqrt(wx * wx + wy * wy + wz * wz)
         s = 0.5 * (a + b + c)
         heron = s * (s - a) * (s - b) * (s - c)
-        ok = np.flatnonzero(heron > 0.001)[: n - have]
-        chosen.append(tuple(x[ok] for x in (idx, v21, v31, v23, a, b, c, heron)))
-        have += len(ok)
+        keep = np.flatnonzero(heron > 0.001)[: n - have]
+        ux, uy, uz, vx, vy, vz, wx, wy, wz, a, b, c = (x[keep] for x in (ux, uy, uz, vx, vy, vz, wx, wy, wz, a, b, c))
+        cos = np.empty((3, len(keep)))
+        np.abs(ux * vx + uy * vy + uz * vz, out=cos[0])
+        np.abs(wx * vx + wy * vy + wz * vz, out=cos[1])
+        np.abs(wx * ux + wy * uy + wz * uz, out=cos[2])
+        cos /= np.stack([a * b, c * b, c * a])
+        parts.append((i1[keep], i2[keep], i3[keep], a, b, c, heron[keep], cos))
+        have += len(keep)
         if have >= n:
             break
     else:
         raise ValueError("ESF: the cloud is degenerate (no non-collinear point triplets)")
-    return chosen[0] if len(chosen) == 1 else tuple(np.concatenate(parts) for parts in zip(*chosen))
+    if len(parts) == 1:
+        return parts[0]
+    return tuple(np.concatenate(p, axis=-1) for p in zip(*parts))
 
 
 def _hist(values: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
@@ -204,27 +284,23 @@ def esf(cloud: np.ndarray, *, n_samples: int = 20000, seed: int | np.random.Gene
     vox = _voxel_index(pts)
     lut = _surface_lut(vox)
 
-    idx, v21, v31, v23, a, b, c, heron = _sample_triplets(pts, n_samples, rng)
-    i1, i2, i3 = idx[:, 0], idx[:, 1], idx[:, 2]
-
-    def angle_bin(u, un, v, vn):
-        cosang = np.abs(np.einsum("ij,ij->i", u, v)) / (un * vn)
-        return np.rint(np.arccos(np.clip(cosang, 0.0, 1.0)) / (np.pi / 2) * (_NB - 1)).astype(np.int64)
-
-    th1 = angle_bin(v21, a, v31, b)  # at p1
-    th2 = angle_bin(v23, c, v31, b)  # at p3
-    th3 = angle_bin(v23, c, v21, a)  # at p2
+    i1, i2, i3, a, b, c, heron, cos = _sample_triplets(pts, n_samples, rng)
+    n = len(i1)
+    # A3 bins of the angles at p1, p3, p2 (rows of ``th``).
+    th = np.rint(np.arccos(np.clip(cos, 0.0, 1.0)) / (np.pi / 2) * (_NB - 1)).astype(np.int64)
 
     # Lines 1→2, 1→3, 2→3 (PCL's order), traced between the voxels of their endpoints.
-    v1, v2, v3 = vox[i1], vox[i2], vox[i3]
-    inside, count = trace_lines(lut, np.concatenate([v1, v1, v2]), np.concatenate([v2, v3, v3]))
-    line_cls, ratio = _classify_lines(inside, count)
+    p, q = np.concatenate([i1, i1, i2]), np.concatenate([i2, i3, i3])
+    axes = [np.ascontiguousarray(vox[:, k]) for k in range(3)]
+    inside, count = _walk(
+        lut, tuple(v[p] for v in axes), tuple(v[q] for v in axes), head=_KNOWN_HEAD, tail=_KNOWN_TAIL
+    )
+    line_cls = _classify_lines(inside, count)
     d2 = np.concatenate([a, b, c])
 
-    n = len(idx)
-    in3 = inside.reshape(3, n).sum(axis=0)
-    cnt3 = count.reshape(3, n).sum(axis=0)
+    in3 = inside[:n] + inside[n : 2 * n] + inside[2 * n :]
     pc12, pc13, pc23 = count[:n], count[n : 2 * n], count[2 * n :]
+    cnt3 = pc12 + pc13 + pc23
 
     # Triangle class: 0 out, 1 in, 2 mixed (PCL tests "out" first).
     tri = np.where(in3 <= 21, 0, np.where(cnt3 - in3 < 4, 1, 2))
@@ -233,9 +309,7 @@ def esf(cloud: np.ndarray, *, n_samples: int = 20000, seed: int | np.random.Gene
     # A3: each angle weighted by the voxel length of the side opposite to it, / 32; one histogram
     # per triangle class (rows: out, in, mixed).
     a3 = np.bincount(
-        np.concatenate([tri * _NB + th1, tri * _NB + th2, tri * _NB + th3]),
-        weights=np.concatenate([pc23, pc12, pc13]) / 32.0,
-        minlength=3 * _NB,
+        (th + tri * _NB).ravel(), weights=np.concatenate([pc23, pc12, pc13]) / 32.0, minlength=3 * _NB
     ).reshape(3, _NB)
     a3_out, a3_in, a3_mix = a3
 
@@ -245,8 +319,9 @@ def esf(cloud: np.ndarray, *, n_samples: int = 20000, seed: int | np.random.Gene
     d3_in, d3_out, d3_mix = np.bincount(d3_cls * _NB + d3_bin, minlength=3 * _NB).reshape(3, _NB).astype(np.float64)
 
     d2_bin = np.rint(d2 / d2.max() * (_NB - 1)).astype(np.int64)
-    h_in, h_out, h_mix = np.bincount(line_cls.astype(np.int64) * _NB + d2_bin, minlength=3 * _NB).reshape(3, _NB).astype(np.float64)
-    h_ratio = _hist(np.rint(ratio[line_cls == 2] * (_NB - 1)).astype(np.int64))
+    h_in, h_out, h_mix = np.bincount(line_cls * _NB + d2_bin, minlength=3 * _NB).reshape(3, _NB).astype(np.float64)
+    mixed = line_cls == 2
+    h_ratio = _hist(np.rint(inside[mixed] / count[mixed] * (_NB - 1)).astype(np.int64))
 
     hist = np.concatenate(
         [
