@@ -45,3 +45,25 @@ def test_class_posterior_is_normalised_product():
     # Many confident views do not underflow.
     post = class_posterior([{"a": 1e-200, "b": 1.0}] * 50 + [{"a": 1.0, "b": 1e-300}])
     assert np.isfinite(list(post.values())).all() and np.isclose(sum(post.values()), 1.0)
+
+
+def test_landmark_report_keys_truth_ids_by_kind():
+    """Object 3 and pipe 3 are different things: one landmark each is no duplicate; two object
+    landmarks of object 3 are."""
+    import numpy as np
+
+    from semslam.backend.synthetic import landmark_report
+    from semslam.estimation import EstimatorResult, LandmarkEstimate, Trajectory
+    from semslam.mission.ground_truth import GroundTruthMap, GtObject, GtPipe
+
+    gt = GroundTruthMap(objects=(GtObject(3, "Elbow", (0.0, 0.0, 1.0)),), pipes=(GtPipe(3, (1.0, 0, 1), (2.0, 0, 1), 0.03),))
+    obj = LandmarkEstimate(0, "object", position=np.array([0.0, 0.0, 1.0]))
+    pipe = LandmarkEstimate(1, "pipe", p=np.array([1.0, 0, 1]), q=np.array([2.0, 0, 1]))
+    hist = {"landmark_observations": {0: [(0, 3)], 1: [(0, 3)]}}
+    none = Trajectory(np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 4)))
+    res = EstimatorResult("graph", none, [obj, pipe], history=hist)
+    assert landmark_report(res, gt).duplicated == []
+    twin = LandmarkEstimate(2, "object", position=np.array([0.01, 0.0, 1.0]))
+    hist["landmark_observations"][2] = [(1, 3)]
+    res = EstimatorResult("graph", res.trajectory, [obj, pipe, twin], history=hist)
+    assert landmark_report(res, gt).duplicated == [("object", 3)]

@@ -309,7 +309,7 @@ class LandmarkReport:
 
     errors_m: dict  # landmark id → error (object/structure: position; pipe: mean distance of the GT axis ends to the line)
     truth_of: dict  # landmark id → majority truth id (None: a false positive)
-    duplicated: list  # truth ids mapped by more than one landmark
+    duplicated: list  # (kind, truth id) mapped by more than one landmark
     wrongly_merged: list  # landmark ids whose observations come from more than one truth id (or mix in false positives)
     missed: list  # truth ids observed at least min_obs times but not mapped
 
@@ -343,5 +343,7 @@ def landmark_report(result, gt: GroundTruthMap) -> LandmarkReport:
             errors[lm.id] = float(np.mean(np.linalg.norm(ends - np.outer(ends @ d, d), axis=1)))
         elif lm.kind == "structure" and tid in structures:
             errors[lm.id] = float(np.linalg.norm(lm.pose[:3, 3] - np.asarray(structures[tid].position)))
-    c = Counter(t for t in truth_of.values() if t is not None)
+    # Truth ids are unique per kind only (the tank's object 14 and pipe 14 are different things).
+    kind_of = {lm.id: lm.kind for lm in result.landmarks}
+    c = Counter((kind_of[i], t) for i, t in truth_of.items() if t is not None)
     return LandmarkReport(errors, truth_of, sorted(t for t, n in c.items() if n > 1), merged, [])
