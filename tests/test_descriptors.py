@@ -115,6 +115,15 @@ def test_esf_voxel_index_follows_pcl_convention():
     np.testing.assert_array_equal(esf_mod._voxel_index(x), [0, 31, 31, 32, 32, 63])
 
 
+def test_esf_bins_round_as_pcl():
+    # pcl_round is floor(x + 0.5) (half away from zero); the D2 ratio is float32 as in PCL.
+    assert esf_mod._RATIO_BIN[10, 12] == 53  # 10/12·63 = 52.5 (half to even would give 52)
+    assert esf_mod._RATIO_BIN[11, 18] == 39  # 38.5
+    assert esf_mod._RATIO_BIN[9, 18] == 32  # 31.5
+    assert esf_mod._RATIO_BIN[12, 12] == 63
+    np.testing.assert_array_equal(esf_mod._pcl_round(np.array([0.49, 0.5, 1.5, 2.5, 62.5])), [0, 1, 2, 3, 63])
+
+
 def test_esf_invariant_to_translation_and_rotation_and_separates_shapes():
     rng = np.random.default_rng(1)
     shapes = {"sphere": sphere(2000, rng), "cylinder": cylinder(2000, rng), "box": box(2000, rng)}

@@ -22,6 +22,12 @@ Follows PCL ``features/impl/esf.hpp`` (read, re-implemented vectorised in numpy)
   thresholds (in: ≥ count−1 voxels on the surface, out: ≤ 7, else mixed), the triangle
   classification (out: ≤ 21 surface voxels on its three sides, in: fewer than 4 off the surface,
   else mixed) or the bin weights.
+- Bins are rounded as PCL's ``pcl_round`` (half away from zero, ``floor(x + 0.5)``), not half to
+  even. The D2-ratio bin is PCL's float32 arithmetic exactly (a table over (inside, count)): the
+  ratio inside/count is rational, so ties are common (31 of the 1540 mixed (inside, count) pairs,
+  e.g. 10 of 12 voxels → bin 52.5, which PCL puts in 53; before descriptor version 3 they went to
+  the even bin). The other bins are computed in float64 (PCL: float32), which moves a value only
+  when it lies within float32 precision of a bin edge.
 - The Bresenham walk is evaluated in closed form: after ``k`` steps along the major axis, a minor
   axis of extent ``m`` has advanced ``floor((2·m·k + l − 1) / (2·l))`` voxels (``l`` the major
   extent), which is what PCL's error-accumulator loop produces (checked against a scalar port in
@@ -125,6 +131,36 @@ _D = np.arange(-(GRID - 1), GRID)
 _EXTENT_ROW = ((np.abs(_D) * 6 + 3 * (_D < 0))[None, :] + np.arange(3)[:, None]).astype(np.int32)
 
 
+def _pcl_round(x: np.ndarray) -> np.ndarray:
+    """PCL's ``pcl_round`` of non-negative values (half away from zero), as bin indices."""
+    return np.floor(x + 0.5).astype(np.int64)
+
+
+def _ratio_bins() -> np.ndarray:
+    """D2-ratio bin of a mixed line by (inside, count), in PCL's float32 arithmetic:
+    ``pcl_round(float(inside) / float(count) * 63)``."""
+    i = np.arange(GRID + 1, dtype=np.float32)[:, None]
+    c = np.maximum(np.arange(GRID + 1, dtype=np.float32), 1)[None, :]
+    x = (i / c) * np.float32(_NB - 1)
+    return np.floor(x + np.float32(0.5)).astype(np.int64)
+
+
+_RATIO_BIN = _ratio_bins()
+
+
+def _line_tables() -> tuple[np.ndarray, np.ndarray]:
+    """By ``inside·65 + count`` of a walk: PCL's line class (0 in, 1 out, 2 mixed; "in" tested
+    first) and the D2-ratio bin of a mixed line (64, past the histogram, for the others)."""
+    i = np.arange(GRID + 1)[:, None]
+    c = np.arange(GRID + 1)[None, :]
+    cls = np.where(i >= c - 1, 0, np.where(i <= 7, 1, 2))
+    ratio = np.where(cls == 2, _RATIO_BIN, _NB)
+    return cls.ravel().astype(np.int64), ratio.ravel().astype(np.int64)
+
+
+_LINE_CLASS, _LINE_RATIO_BIN = _line_tables()
+
+
 def _row_sums(hit: np.ndarray) -> np.ndarray:
     """Row sums of an n×W array of 0/1 bytes (W a multiple of 4, ≤ 64): the rows are added as
     8- or 4-byte words (no byte can carry: at most 16 ones per byte), then the bytes of the sum
@@ -210,14 +246,6 @@ def trace_lines(
     return _walk(grid, tuple(s.T.copy()), tuple(e.T.copy()), chunk=chunk, band=band)
 
 
-def _classify_lines(inside: np.ndarray, count: np.ndarray) -> np.ndarray:
-    """PCL's line class: 0 in, 1 out, 2 mixed."""
-    cls = np.full(len(inside), 2, dtype=np.int64)
-    cls[inside <= 7] = 1
-    cls[inside >= count - 1] = 0  # tested first in PCL, so it wins
-    return cls
-
-
 def _sample_triplets(pts: np.ndarray, n: int, rng: np.random.Generator) -> tuple[np.ndarray, ...]:
     """``n`` random index triplets of distinct points spanning a non-degenerate triangle (Heron
     product > 0.001), as ``(i1, i2, i3, a, b, c, heron, cos)``: side lengths a = |p2 − p1|,
@@ -287,7 +315,7 @@ def esf(cloud: np.ndarray, *, n_samples: int = 20000, seed: int | np.random.Gene
     i1, i2, i3, a, b, c, heron, cos = _sample_triplets(pts, n_samples, rng)
     n = len(i1)
     # A3 bins of the angles at p1, p3, p2 (rows of ``th``).
-    th = np.rint(np.arccos(np.clip(cos, 0.0, 1.0)) / (np.pi / 2) * (_NB - 1)).astype(np.int64)
+    th = _pcl_round(np.arccos(np.clip(cos, 0.0, 1.0)) / (np.pi / 2) * (_NB - 1))
 
     # Lines 1→2, 1→3, 2→3 (PCL's order), traced between the voxels of their endpoints.
     p, q = np.concatenate([i1, i1, i2]), np.concatenate([i2, i3, i3])
@@ -295,16 +323,18 @@ def esf(cloud: np.ndarray, *, n_samples: int = 20000, seed: int | np.random.Gene
     inside, count = _walk(
         lut, tuple(v[p] for v in axes), tuple(v[q] for v in axes), head=_KNOWN_HEAD, tail=_KNOWN_TAIL
     )
-    line_cls = _classify_lines(inside, count)
+    key = inside * (GRID + 1) + count
+    line_cls = np.take(_LINE_CLASS, key)
     d2 = np.concatenate([a, b, c])
 
     in3 = inside[:n] + inside[n : 2 * n] + inside[2 * n :]
     pc12, pc13, pc23 = count[:n], count[n : 2 * n], count[2 * n :]
     cnt3 = pc12 + pc13 + pc23
 
-    # Triangle class: 0 out, 1 in, 2 mixed (PCL tests "out" first).
+    # Triangle class: 0 out, 1 in, 2 mixed (PCL tests "out" first). PCL's D3 class follows from
+    # its weight (1 in, 0 out, else in3 / cnt3: above 21/192 and at most 1 − 4/192 for a mixed
+    # triangle), so it is the triangle class itself.
     tri = np.where(in3 <= 21, 0, np.where(cnt3 - in3 < 4, 1, 2))
-    wt_d3 = np.where(tri == 0, 0.0, np.where(tri == 1, 1.0, in3 / cnt3))
 
     # A3: each angle weighted by the voxel length of the side opposite to it, / 32; one histogram
     # per triangle class (rows: out, in, mixed).
@@ -314,14 +344,12 @@ def esf(cloud: np.ndarray, *, n_samples: int = 20000, seed: int | np.random.Gene
     a3_out, a3_in, a3_mix = a3
 
     d3 = np.sqrt(np.sqrt(heron))
-    d3_bin = np.rint(d3 / d3.max() * (_NB - 1)).astype(np.int64)
-    d3_cls = np.where(wt_d3 >= 0.999, 0, np.where(wt_d3 <= 0.001, 1, 2))  # in, out, mixed
-    d3_in, d3_out, d3_mix = np.bincount(d3_cls * _NB + d3_bin, minlength=3 * _NB).reshape(3, _NB).astype(np.float64)
+    d3_bin = _pcl_round(d3 / d3.max() * (_NB - 1))
+    d3_out, d3_in, d3_mix = np.bincount(tri * _NB + d3_bin, minlength=3 * _NB).reshape(3, _NB).astype(np.float64)
 
-    d2_bin = np.rint(d2 / d2.max() * (_NB - 1)).astype(np.int64)
+    d2_bin = _pcl_round(d2 / d2.max() * (_NB - 1))
     h_in, h_out, h_mix = np.bincount(line_cls * _NB + d2_bin, minlength=3 * _NB).reshape(3, _NB).astype(np.float64)
-    mixed = line_cls == 2
-    h_ratio = _hist(np.rint(inside[mixed] / count[mixed] * (_NB - 1)).astype(np.int64))
+    h_ratio = _hist(np.take(_LINE_RATIO_BIN, key))
 
     hist = np.concatenate(
         [

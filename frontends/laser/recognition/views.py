@@ -38,7 +38,7 @@ from frontends.laser.recognition.matching import principal_extents
 from frontends.laser.recognition.vfh import vfh
 from semslam.errors import SemslamError
 
-DESCRIPTOR_VERSION = "2"  # bump when a descriptor's definition changes: invalidates the cache
+DESCRIPTOR_VERSION = "3"  # bump when a descriptor's definition changes: invalidates the cache (3: ESF bins rounded as PCL)
 CAD_SUFFIXES = (".stl", ".obj", ".ply")
 
 
