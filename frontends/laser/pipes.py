@@ -28,6 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from frontends.laser.config import PipeConfig
+from frontends.laser.grid import single_threaded_blas
 from frontends.laser.preprocess import eigen3
 
 _REFINE_REACH = 0.05  # m beyond a pipe's surface over which a refinement looks for its inliers
@@ -488,6 +489,7 @@ def _cut_into_segments(points, normals, sq, cb, ab, rb, idx, cfg: PipeConfig) ->
     return out
 
 
+@single_threaded_blas
 def detect_pipes(points: np.ndarray, normals: np.ndarray, grid, cfg: PipeConfig, rays: Rays | None = None) -> list[Pipe]:
     """Pipes among ``points`` (N×3, {S}) with outward ``normals``; ``grid`` the
     :class:`~frontends.laser.grid.VoxelGrid` whose cells they are, to draw point pairs; ``rays``

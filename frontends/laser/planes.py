@@ -33,6 +33,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 from frontends.laser.config import PlaneConfig
+from frontends.laser.grid import single_threaded_blas
 from frontends.laser.preprocess import Preprocessed
 
 
@@ -81,6 +82,7 @@ def _region_moments(points: np.ndarray, labels: np.ndarray, n_labels: int):
     return cnt, mean + origin, cov
 
 
+@single_threaded_blas
 def remove_planes(pre: Preprocessed, cfg: PlaneConfig, voxel_size: float) -> PlaneResult:
     """Label regions, find the tank planes among them and mark every point kept as structure."""
     m = len(pre.points)

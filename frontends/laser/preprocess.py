@@ -28,7 +28,7 @@ from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import connected_components
 
 from frontends.laser.config import PlaneConfig, PreprocessConfig
-from frontends.laser.grid import VoxelGrid, adjacency_of
+from frontends.laser.grid import VoxelGrid, adjacency_of, single_threaded_blas
 
 
 @dataclass
@@ -94,6 +94,7 @@ def _covariances_from_sums(S: np.ndarray) -> np.ndarray:
     return cov
 
 
+@single_threaded_blas
 def hop_covariances(points: np.ndarray, adjacency: csr_matrix, hops: int) -> np.ndarray:
     """Covariance (M×3×3) of each point's neighbourhood grown ``hops`` steps over ``adjacency``
     (M×M, self-links included), every point weighted by its number of paths from the centre."""
@@ -169,6 +170,7 @@ def local_shape(points, knn, rows=None, viewpoint=(0.0, 0.0, 0.0)):
     return shape_of(neighbourhood_covariances(points, knn), centre, viewpoint)
 
 
+@single_threaded_blas
 def shape_of(cov: np.ndarray, centre: np.ndarray, viewpoint=(0.0, 0.0, 0.0)):
     """Normals (towards ``viewpoint``), curvature and planarity of neighbourhood covariances."""
     lam0, lam1, lam2, normals = eigen3(cov)
@@ -186,6 +188,7 @@ def small_clusters(adjacency: csr_matrix, min_voxels: int) -> np.ndarray:
     return np.bincount(label)[label] < min_voxels
 
 
+@single_threaded_blas
 def preprocess(points: np.ndarray, pre: PreprocessConfig, planes: PlaneConfig) -> Preprocessed:
     """Crop, downsample, remove outliers and compute the local geometry of a raw scan (N×3, {S})."""
     raw = np.asarray(points, dtype=np.float64)
