@@ -200,13 +200,15 @@ def _walk(
     order = np.argsort(band_of, kind="stable")  # radix sort of bytes
     edges = np.cumsum(np.bincount(band_of, minlength=n_bands + 1))[:n_bands]
     o = order[: int(edges[-1])]  # the lines with voxels to look up, by band
-    # Per line (in band order): the offset-table rows of its three axes, its start voxel, its length.
-    l_rows = np.take(l, o) * (GRID * 6)
+    # Per line (in band order): the offset-table rows of its three axes and its start voxel.
+    l_rows = (l * (GRID * 6)).astype(np.int32)
     rows = np.empty((3, len(o)), dtype=np.int32)
     for ax, d in enumerate((dx, dy, dz)):
-        np.add(l_rows, np.take(_EXTENT_ROW[ax], np.take(d, o) + (GRID - 1)), out=rows[ax])
-    base = (np.take(sx, o) * _PG + np.take(sy, o)) * _PG + np.take(sz, o) + _ORIGIN
-    pad = np.take(mid, o)
+        np.take(l_rows + np.take(_EXTENT_ROW[ax], d + (GRID - 1)), o, out=rows[ax])
+    base = np.take((sx * _PG + sy) * _PG + sz + _ORIGIN, o).astype(np.int32)
+    # The padding (offset 0) revisits the start voxel (width − mid) times: taken off at the end.
+    width_of = np.minimum((band_of[o].astype(np.int32) + 1) * band, GRID)
+    padding = (width_of - np.take(mid, o)) * np.take(lut, base)
     walked = np.empty(len(o), dtype=np.int64)
     lo = 0
     for b, hi in enumerate(edges.tolist()):
@@ -223,11 +225,10 @@ def _walk(
             r = rows[:, i:j] - l_lo * (GRID * 6) if l_lo else rows[:, i:j]
             flat = np.take(table, r, axis=0).sum(axis=0, dtype=np.int32)
             flat += base[i:j, None]
-            # The padding (offset 0) revisited the start voxel width − mid times: take it off.
-            walked[i:j] = _row_sums(np.take(lut, flat)) - (width - pad[i:j]) * np.take(lut, base[i:j])
+            walked[i:j] = _row_sums(np.take(lut, flat))
         lo = hi
     inside = np.minimum(count, head + tail).astype(np.int64)
-    inside[o] += walked
+    inside[o] += walked - padding
     return inside, count
 
 
