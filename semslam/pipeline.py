@@ -59,7 +59,18 @@ def run_pipeline(
 
     Front-ends see the estimate of ``view_estimator`` (default: "graph" if present, else the first
     estimator) — the semantic feedback of the paper (global ids for class fusion).
+
+    BLAS runs single-threaded meanwhile: the matrices here are small (an EKF of a few hundred
+    states, 3×3 to 100×100 blocks), and OpenBLAS's threads spinning against GTSAM's and each other
+    on a busy machine made the EKF 4.8× and the graph 1.6× slower (tank mission, 2 cores).
     """
+    from threadpoolctl import threadpool_limits
+
+    with threadpool_limits(limits=1, user_api="blas"):
+        return _run_pipeline(mission, estimators, frontends, view_estimator, progress, keep_observations)
+
+
+def _run_pipeline(mission, estimators, frontends, view_estimator, progress, keep_observations) -> PipelineResult:
     if not estimators:
         raise ValueError("at least one estimator is needed")
     by_name = {e.name: e for e in estimators}
