@@ -116,3 +116,18 @@ def test_preprocess_crops_and_maps_raw_points():
     assert ok.all()  # one connected patch: no stray returns
     assert np.all(np.linalg.norm(pre.points[mapped[ok]] - near[ok], axis=1) <= 0.05 * np.sqrt(3))
     assert np.all(pre.neighbours[:, 0] == np.arange(len(pre.points)))
+
+
+def test_single_threaded_blas_restores_the_thread_count():
+    import pytest
+
+    threadpoolctl = pytest.importorskip("threadpoolctl")
+    from frontends.laser.grid import single_threaded_blas
+
+    def blas_threads():
+        return [p["num_threads"] for p in threadpoolctl.threadpool_info() if p["user_api"] == "blas"]
+
+    before = blas_threads()
+    inside = single_threaded_blas(blas_threads)()
+    assert all(n == 1 for n in inside)
+    assert blas_threads() == before

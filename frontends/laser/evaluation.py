@@ -303,6 +303,9 @@ def summarize(scores: list[ScanScore]) -> dict:
         "object_nees_mean": mean(s.object_nees for s in scores),
         "object_nees_median": med([e for s in scores for e in s.object_nees]),
         "configuration_correct": ratio(sum(s.n_config_correct for s in scores), single),
+        # the same over all visible objects (an object without exactly one segment counts as wrong):
+        # the stricter reading of "configuration correct for >= 90 % of them"
+        "configuration_correct_of_visible": ratio(sum(s.n_config_correct for s in scores), vis_obj),
         "configuration_visible_correct": ratio(
             sum(s.n_config_visible_correct for s in scores), sum(s.n_config_visible_known for s in scores)
         ),
