@@ -67,3 +67,33 @@ def test_landmark_report_keys_truth_ids_by_kind():
     hist["landmark_observations"][2] = [(1, 3)]
     res = EstimatorResult("graph", res.trajectory, [obj, pipe, twin], history=hist)
     assert landmark_report(res, gt).duplicated == [("object", 3)]
+
+
+def test_a_mapped_in_line_object_keeps_two_collinear_pipe_views_apart(monkeypatch):
+    """Two collinear segments 0.2 m apart (closer than the paper's 0.3 m merge distance) merge into
+    one pipe view, unless an object lies between them: one seen in the same scan or, when the
+    scan missed it, one already mapped there."""
+    import gtsam
+    import numpy as np
+
+    from semslam.backend.graph import GraphEstimator
+    from semslam.backend.synthetic import SyntheticConfig, simulate
+    from semslam.config import SemslamConfig
+    from semslam.observations import LineObservation, PointObservation
+
+    mission = simulate(SyntheticConfig(duration_s=5.0, seed=0))
+    est = GraphEstimator(mission.metadata, SemslamConfig())
+    pose = gtsam.Pose3(gtsam.Rot3.Yaw(0.3), gtsam.Point3(1.0, 2.0, 3.0))
+    cov = np.eye(3) * 1e-4
+    a = LineObservation(0, "laser", p=np.array([-0.6, 0.0, 2.0]), q=np.array([-0.1, 0.0, 2.0]), covariance=np.eye(6) * 1e-4)
+    b = LineObservation(0, "laser", p=np.array([0.1, 0.0, 2.0]), q=np.array([0.6, 0.0, 2.0]), covariance=np.eye(6) * 1e-4)
+    assert len(est._merged_lines([a, b], pose)) == 1
+    valve_S = np.array([0.0, 0.02, 2.0])
+    seen = PointObservation(0, "laser", position=valve_S, covariance=cov)
+    assert len(est._merged_lines([a, b, seen], pose)) == 2
+    T_WS = pose.compose(gtsam.Pose3(est._sensor_T("laser"))).matrix()
+    valve_W = T_WS[:3, :3] @ valve_S + T_WS[:3, 3]
+    monkeypatch.setattr(est, "_object_points", lambda: valve_W[None])
+    assert len(est._merged_lines([a, b], pose)) == 2
+    monkeypatch.setattr(est, "_object_points", lambda: valve_W[None] + 0.5)  # mapped elsewhere
+    assert len(est._merged_lines([a, b], pose)) == 1

@@ -366,13 +366,7 @@ class GraphEstimator:
             self.diagnostics.append(f"{stamp}: {len(bad)} degenerate or non-finite observations dropped")
         observations = [z for z in observations if self._valid(z)]
         odom = [z for z in observations if isinstance(z, OdometryObservation)]
-        lines = merge_collinear(
-            [z for z in observations if isinstance(z, LineObservation)],
-            self.assoc.merge_angle_rad,
-            self.assoc.merge_distance_m,
-            separators=np.array([z.position for z in observations if isinstance(z, PointObservation)]).reshape(-1, 3),
-            separator_radius=self.assoc.inline_object_radius_m,
-        )
+        lines = self._merged_lines(observations, pose)
         obs = [z for z in observations if isinstance(z, (PointObservation, StructureObservation))] + lines
         factors: list[tuple] = [(f, None) for f in self._odometry_factors(odom, k)]
         values = gtsam.Values()
@@ -604,6 +598,25 @@ class GraphEstimator:
             if not object_between(lm.extent, seg, c0, d, objects, self.assoc.inline_object_radius_m):
                 return True
         return False
+
+    def _merged_lines(self, observations: list, pose: gtsam.Pose3) -> list[LineObservation]:
+        """The batch's pipe segments merged along shared axes, sensor by sensor. Objects of the batch
+        and objects already mapped (placed in the sensor frame with the current pose) keep the
+        segments on either side of them apart: a missed in-line valve must not join its two pipes."""
+        out: list[LineObservation] = []
+        mapped_W = self._object_points()
+        for sensor in dict.fromkeys(z.sensor for z in observations if isinstance(z, LineObservation)):
+            T_SW = pose.compose(gtsam.Pose3(self._sensor_T(sensor))).inverse().matrix()
+            seps = [z.position for z in observations if isinstance(z, PointObservation) and z.sensor == sensor]
+            seps = np.vstack([np.array(seps).reshape(-1, 3), mapped_W @ T_SW[:3, :3].T + T_SW[:3, 3]])
+            out += merge_collinear(
+                [z for z in observations if isinstance(z, LineObservation) and z.sensor == sensor],
+                self.assoc.merge_angle_rad,
+                self.assoc.merge_distance_m,
+                separators=seps,
+                separator_radius=self.assoc.inline_object_radius_m,
+            )
+        return out
 
     def _object_points(self) -> np.ndarray:
         """Mapped and tentative objects in {W} (N×3): the in-line parts that separate collinear pipes."""
