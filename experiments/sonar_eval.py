@@ -17,6 +17,7 @@ front-end (the front-end sees the graph). Reported:
   graph landmarks; front-end CPU time (recognition + registration, and in total).
 
     python experiments/sonar_eval.py [--seeds 0 1 2] [--bag-dir DIR] [--out experiments/out/sonar_eval]
+                                     [--frontend-config JSON]
 """
 
 from __future__ import annotations
@@ -219,14 +220,15 @@ def table(rows: list[dict]) -> str:
             ye = "–" if s["yaw_error_deg"] is None else f"{s['yaw_error_deg']:.2f}"
             lines.append(f"| {r['seed']} | {s['model']} | {'yes' if s['found'] else 'NO'} | {pe} | {me} | {ye} |")
     lines += ["", "Swath disagreement: median |Δ depth| between overlapping passes (cm), patches placed by dead "
-              "reckoning / the graph without the sonar's constraints / the final graph / the truth; between-line "
+              "reckoning / the graph without the sonar's constraints / as navigated online (metrics.json's "
+              "'before') / the final graph ('after') / the truth; between-line "
               "misalignment (cm) and ATE (m) of dead reckoning / graph without sonar / graph.", "",
               "| seed | all cells | textured cells | between-line misalignment | swath regs | NEES swath/dof, "
               "structure (6) | world model | ATE | landmarks | CPU rec+reg / front-end (s) |",
               "|---:|---|---|---|---:|---|---|---|---:|---|"]
     for r in rows:
         d = r["disagreement"]
-        order = ("dead_reckoning", "graph_without_sonar", "final_graph", "ground_truth")
+        order = ("dead_reckoning", "graph_without_sonar", "as_navigated", "final_graph", "ground_truth")
         f = lambda key: " / ".join("–" if d[k][key] is None else f"{100 * d[k][key]:.2f}" for k in order)  # noqa: E731
         c = r["consistency"]
         ns = "–" if c["swath_nees_per_dof"] is None else f"{c['swath_nees_per_dof']:.2f}"
@@ -248,11 +250,14 @@ def main(argv=None):
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     ap.add_argument("--bag-dir", type=Path, default=None)
     ap.add_argument("--out", type=Path, default=Path("experiments/out/sonar_eval"))
+    ap.add_argument("--frontend-config", type=json.loads, default=None,
+                    help='JSON overrides of frontends.sonar, e.g. \'{"recognition": {"enabled": false}}\' '
+                         "(swath registration alone: what it does to the disagreement without structures)")
     args = ap.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
     rows = []
     for seed in args.seeds:
-        row = evaluate(seed, args.bag_dir, args.out)
+        row = evaluate(seed, args.bag_dir, args.out, args.frontend_config)
         rows.append(row)
         (args.out / f"seed{seed}.json").write_text(json.dumps(row, indent=1, default=float))
         print(f"seed {seed}: {row['wall_s']:.0f} s", flush=True)

@@ -98,8 +98,10 @@ def elevation_figure(fe, path) -> None:
     ax.set_title(f"Sonar elevation map ({100 * em.spec.cell:.0f} cm cells, median depth, final estimate): "
                  f"{len(fe.structures)} structures recognised, {len(fe.final['pipes'])} pipelines")
     ax.legend(handles=handles, loc="upper left", fontsize=8, framealpha=0.9)
-    # close-ups: each structure's returns (4 cm cells, height above the seabed) under its CAD outline
+    # close-ups: each structure's returns (5 cm cells: the swaths are 4 cm apart, so every cell holds
+    # some; height above the structure's base) under its CAD outline; cells without a return in pink
     pts = fe.final.get("pts_W")
+    cmap = plt.get_cmap("bone").with_extremes(bad="#f2b6b6")
     for k, ks in enumerate(fe.structures[:n_zoom]):
         zax = fig.add_subplot(gs[1, k])
         reg = ks.final or ks.detection.registration
@@ -109,28 +111,73 @@ def elevation_figure(fe, path) -> None:
         near = pts[(np.abs(pts[:, 0] - c[0]) < R) & (np.abs(pts[:, 1] - c[1]) < R)] if pts is not None else pts
         if near is None or not len(near):
             continue
-        zm = ElevationMap.from_points(near, 0.04)
+        zm = ElevationMap.from_points(near, 0.05)
         h = T[2, 3] - zm.depth  # height above the structure's base
-        im2 = zax.imshow(h, origin="lower", extent=zm.spec.extent(), cmap="viridis", vmin=-0.2,
+        im2 = zax.imshow(h, origin="lower", extent=zm.spec.extent(), cmap=cmap, vmin=-0.2,
                          vmax=fe.library[ks.model].height, interpolation="nearest")
         col = STRUCTURE_COLORS.get(ks.model, (1.0, 0.2, 0.2))
-        _outline(zax, fe.recogniser.model_data[ks.model], T, "white", lw=2.6)
-        _outline(zax, fe.recogniser.model_data[ks.model], T, col, lw=1.4)
+        _outline(zax, fe.recogniser.model_data[ks.model], T, "black", lw=2.8)
+        _outline(zax, fe.recogniser.model_data[ks.model], T, col, lw=1.5)
         zax.set_aspect("equal")
         zax.set_xlim(c[1] - R, c[1] + R)
         zax.set_ylim(c[0] - R, c[0] + R)
         med = f"{100 * reg.median_m:.1f} cm" if reg is not None else "n/a"
-        zax.set_title(f"{ks.model}: median point-to-model {med}", fontsize=9)
+        zax.set_title(f"{ks.model}: median point-to-model {med}\n(5 cm cells; pink: no return)", fontsize=9)
+        zax.set_xlabel("east (m)", fontsize=8)
+        zax.set_ylabel("north (m)", fontsize=8)
         zax.tick_params(labelsize=7)
         fig.colorbar(im2, ax=zax, shrink=0.8, pad=0.02).set_label("height above base (m)", fontsize=7)
     fig.savefig(path)
     plt.close(fig)
 
 
-def world_model_figure(fe, path) -> None:
-    plt = _plt()
+def _clip_box(tri: np.ndarray, lo, hi) -> list[np.ndarray]:
+    """Triangles (n, 3, 3) clipped to lo ≤ x, y ≤ hi (Sutherland–Hodgman on the two horizontal
+    axes; z interpolated on the facet's plane): the polygons that remain."""
+    out = []
+    for poly in tri:
+        P = list(poly)
+        for axis, bound, keep_less in ((0, lo[0], False), (0, hi[0], True), (1, lo[1], False), (1, hi[1], True)):
+            if not P:
+                break
+            inside = [(p[axis] <= bound) if keep_less else (p[axis] >= bound) for p in P]
+            Q = []
+            for i in range(len(P)):
+                a, b = P[i - 1], P[i]
+                ia, ib = inside[i - 1], inside[i]
+                if ib != ia:
+                    t = (bound - a[axis]) / (b[axis] - a[axis])
+                    Q.append(a + t * (b - a))
+                if ib:
+                    Q.append(b)
+            P = Q
+        if len(P) >= 3:
+            out.append(np.array(P))
+    return out
+
+
+def _render(ax, polys, colors, light=np.array([-0.4, 0.5, 0.77])):
     from mpl_toolkits.mplot3d.art3d import Poly3DCollection
 
+    if not polys:
+        return
+    light = light / np.linalg.norm(light)
+    shade = []
+    for P in polys:
+        n = np.cross(P[1] - P[0], P[2] - P[0])
+        n /= max(np.linalg.norm(n), 1e-12)
+        shade.append(0.45 + 0.55 * abs(n @ light))
+    col = np.clip(np.asarray(colors) * np.asarray(shade)[:, None], 0, 1)
+    # edges in the face colour hide the hairline seams between adjacent facets
+    ax.add_collection3d(Poly3DCollection(polys, facecolors=col, edgecolors=col, linewidths=0.2))
+
+
+def world_model_figure(fe, path) -> None:
+    """The world model: the whole field (top) and a close-up of each registered structure on its
+    surroundings (bottom); east, north, up with a true vertical scale unless stated."""
+    from matplotlib.ticker import MaxNLocator
+
+    plt = _plt()
     world = fe.final["world"]
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -140,28 +187,56 @@ def world_model_figure(fe, path) -> None:
     # {W} is NED: plot east, north, up
     P = np.column_stack([V[:, 1], V[:, 0], -V[:, 2]])
     tri = P[F]
-    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
-    light = np.array([-0.4, 0.5, 0.77])
-    light /= np.linalg.norm(light)
-    shade = 0.45 + 0.55 * np.abs(n @ light)
-    col = np.clip(C[F].mean(1) * shade[:, None], 0, 1)
-    fig = plt.figure(figsize=(13, 8), dpi=fe.config.figures.dpi)
-    ax = fig.add_subplot(111, projection="3d")
-    ax.add_collection3d(Poly3DCollection(tri, facecolors=col, edgecolors="none", linewidths=0))
+    col = C[F].mean(1)
+    n_zoom = min(len(fe.structures), 4)
+    fig = plt.figure(figsize=(14, 7 + (5 if n_zoom else 0)), dpi=fe.config.figures.dpi)
+    gs = fig.add_gridspec(2 if n_zoom else 1, max(n_zoom, 1), height_ratios=[7, 5] if n_zoom else [1],
+                          hspace=0.0, wspace=0.05, left=0.01, right=0.97, top=0.96, bottom=0.01)
+    ax = fig.add_subplot(gs[0, :], projection="3d")
+    _render(ax, list(tri), col)
     lo, hi = P.min(0), P.max(0)
+    exag = 3.0  # the seabed's relief (about a metre over 60 m) would not show at a true scale
+    span = hi - lo
     ax.set_xlim(lo[0], hi[0])
     ax.set_ylim(lo[1], hi[1])
-    ax.set_zlim(lo[2], lo[2] + 0.35 * max(hi[0] - lo[0], hi[1] - lo[1]) * 0.3)
-    ax.set_box_aspect((hi[0] - lo[0], hi[1] - lo[1], 0.35 * max(hi[0] - lo[0], hi[1] - lo[1]) * 0.3))
-    ax.view_init(elev=38, azim=-60)
+    ax.set_zlim(lo[2], hi[2])
+    ax.set_box_aspect((span[0], span[1], exag * span[2]))
+    ax.view_init(elev=35, azim=-62)
     ax.set_xlabel("east (m)")
     ax.set_ylabel("north (m)")
-    ax.set_zlabel("up (m)")
-    m = fe.final.get("world_info") or {}
+    ax.set_zlabel("up (m)", labelpad=8)
+    ax.zaxis.set_major_locator(MaxNLocator(4))
     info = fe_metrics_line(fe)
-    ax.set_title(f"World model: registered CAD meshes, pipelines and the bare seabed\n{info}", fontsize=10)
-    fig.tight_layout()
+    ax.set_title(f"World model: registered CAD meshes, pipelines and the bare seabed (vertical scale ×{exag:.0f})"
+                 f"\n{info}", fontsize=11)
+    for k, ks in enumerate(fe.structures[:n_zoom]):
+        zax = fig.add_subplot(gs[1, k], projection="3d")
+        reg = ks.final or ks.detection.registration
+        T = reg.T if reg is not None else ks.T_WM
+        R = fe.library[ks.model].footprint_radius + 1.0
+        c = np.array([T[1, 3], T[0, 3]])
+        near = np.any(np.all(np.abs(tri[:, :, :2] - c) < R + 1e-9, axis=2), axis=1)
+        big = ~near & (tri[:, :, :2].min(1) < c + R).all(1) & (tri[:, :, :2].max(1) > c - R).all(1)
+        polys, cols = [], []
+        for i in np.flatnonzero(near | big):
+            clipped = _clip_box(tri[i:i + 1], c - R, c + R)
+            polys += clipped
+            cols += [col[i]] * len(clipped)
+        if not polys:
+            continue
+        _render(zax, polys, cols)
+        allp = np.concatenate(polys)
+        zlo, zhi = allp[:, 2].min(), allp[:, 2].max()
+        zax.set_xlim(c[0] - R, c[0] + R)
+        zax.set_ylim(c[1] - R, c[1] + R)
+        zax.set_zlim(zlo, zhi)
+        zax.set_box_aspect((2 * R, 2 * R, zhi - zlo))
+        zax.view_init(elev=30, azim=-62)
+        zax.set_axis_off()  # ticks on a small 3-D box are unreadable: the sizes are in the title
+        med = f"{100 * reg.median_m:.1f} cm" if reg is not None else "n/a"
+        sx, sy, sz = fe.library[ks.model].size
+        zax.set_title(f"{ks.model}: {sx:.1f} × {sy:.1f} × {sz:.1f} m on a {2 * R:.1f} m square of seabed\n"
+                      f"(true scale), median point-to-model {med}", fontsize=9)
     fig.savefig(path)
     plt.close(fig)
 
@@ -181,16 +256,16 @@ def disagreement_figure(fe, path) -> None:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     pairs = fe.final["pairs"]
-    cell = 0.1
-    fig = plt.figure(figsize=(15, 8.5), dpi=fe.config.figures.dpi)
-    gs = fig.add_gridspec(2, 2, width_ratios=[2.6, 1], hspace=0.35, wspace=0.15)
+    cell = 0.05  # as the metrics (summary.swath_disagreement)
+    fig = plt.figure(figsize=(15, 9), dpi=fe.config.figures.dpi, layout="constrained")
+    gs = fig.add_gridspec(2, 2, width_ratios=[2.6, 1])
     map_axes = [fig.add_subplot(gs[0, 0]), fig.add_subplot(gs[1, 0])]
     hax = fig.add_subplot(gs[:, 1])
     hists = []
     sc = None
-    placements = (("as navigated (each patch as placed when it closed)", lambda p: p.T_nav),
-                  ("re-placed with the final estimate", fe.place))
-    for ax, (label, pose_fn) in zip(map_axes, placements):
+    placements = (("as navigated (each patch as placed when it closed)", lambda p: p.T_nav, fe.final.get("before")),
+                  ("re-placed with the final estimate", fe.place, fe.final.get("after")))
+    for ax, (label, pose_fn, stats) in zip(map_axes, placements):
         pts, vals = [], []
         for a, b in pairs:
             A = transform(pose_fn(fe.patches[a]), fe.patches[a].points)
@@ -211,16 +286,18 @@ def disagreement_figure(fe, path) -> None:
             X = np.concatenate(pts)
             v = np.concatenate(vals)
             order = np.argsort(v)  # large differences drawn last, on top
-            sc = ax.scatter(X[order, 1], X[order, 0], c=v[order], s=1.5, cmap="magma_r", vmin=0, vmax=0.10,
+            sc = ax.scatter(X[order, 1], X[order, 0], c=v[order], s=0.6, cmap="magma_r", vmin=0, vmax=0.10,
                             marker="s", linewidths=0)
             hists.append((label.split(" (")[0], v))
-            ax.set_title(f"|Δ depth| between overlapping passes, {label}: median {100 * np.median(v):.2f} cm, "
-                         f"90th percentile {100 * np.percentile(v, 90):.2f} cm", fontsize=10)
+            tex = (f"; on sloped cells (pipes, structures' edges) {100 * stats['textured_median_m']:.2f} cm"
+                   if stats and stats.get("textured_median_m") is not None else "")
+            ax.set_title(f"|Δ depth| between overlapping passes, {label}\nmedian {100 * np.median(v):.2f} cm, "
+                         f"90th percentile {100 * np.percentile(v, 90):.2f} cm{tex}", fontsize=10)
         ax.set_aspect("equal")
         ax.set_xlabel("east (m)")
         ax.set_ylabel("north (m)")
     if sc is not None:
-        fig.colorbar(sc, ax=map_axes, shrink=0.9, pad=0.01, label="|Δ depth| (m), 10 cm cells")
+        fig.colorbar(sc, ax=map_axes, shrink=0.9, label="|Δ depth| (m), 5 cm cells")
     if hists:
         bins = np.linspace(0, 0.4, 81)
         for label, v in hists:
@@ -229,7 +306,7 @@ def disagreement_figure(fe, path) -> None:
         hax.set_xlabel("|Δ depth| (m)")
         hax.set_ylabel("density")
         hax.legend()
-        hax.set_title(f"{len(fe.swath_registrations)} swath registrations accepted, "
+        hax.set_title(f"{len(fe.swath_registrations)} swath registrations accepted,\n"
                       f"{len(fe.structures)} structures registered", fontsize=10)
-    fig.savefig(path, bbox_inches="tight")
+    fig.savefig(path)
     plt.close(fig)
