@@ -88,10 +88,10 @@ def _unique(keys: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     (about half the time of the default quicksort here)."""
     order = np.argsort(keys, kind="stable")
     s = keys[order]
-    first = np.r_[True, s[1:] != s[:-1]]
+    first = np.concatenate(([True], s[1:] != s[:-1]))
     inverse = np.empty(len(keys), np.int64)
     inverse[order] = np.cumsum(first) - 1
-    return s[first], inverse, np.diff(np.r_[np.flatnonzero(first), len(keys)])
+    return s[first], inverse, np.diff(np.append(np.flatnonzero(first), len(keys)))
 
 
 class VoxelGrid:
@@ -128,7 +128,7 @@ class VoxelGrid:
         bk = np.column_stack([ub // (bdims[1] * bdims[2]), ub // bdims[2] % bdims[1], ub % bdims[2]])
         around = bk[:, None, :] + _ROW_MAJOR_27[None, :, :]
         around = table[(around[..., 0] * bdims[1] + around[..., 1]) * bdims[2] + around[..., 2]]
-        self._around = np.r_[around.ravel(), np.full(27, len(ub))].astype(np.int32)
+        self._around = np.concatenate([around.ravel(), np.full(27, len(ub))]).astype(np.int32)
         self._cells = np.full((len(ub) + 1) << 3 * _B, -1, np.int32)
         self._cells[(self._block << 3 * _B) + self._slot] = np.arange(n, dtype=np.int32)
         self._block = self._block.astype(np.int32)
@@ -161,5 +161,5 @@ def adjacency_of(nb: np.ndarray) -> csr_matrix:
     none), as given by :meth:`VoxelGrid.neighbours` (``h = 1``: itself and its 26-neighbours)."""
     m = len(nb)
     ok = nb >= 0
-    indptr = np.r_[0, np.cumsum(ok.sum(axis=1))]
+    indptr = np.concatenate(([0], np.cumsum(ok.sum(axis=1))))
     return csr_matrix((np.ones(int(indptr[-1]), np.float64), nb[ok], indptr), shape=(m, m))

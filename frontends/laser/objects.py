@@ -97,8 +97,7 @@ def _largest_cluster(points: np.ndarray, radius: float, anchored: np.ndarray | N
         if not allowed.any():
             return np.arange(0)
         size = np.where(allowed, size, -1.0)
-    cell = np.flatnonzero(lab == size.argmax())
-    return np.flatnonzero(np.isin(grid.inverse, cell))
+    return np.flatnonzero((lab == size.argmax())[grid.inverse])
 
 
 def own_points(points: np.ndarray, end: np.ndarray, out: np.ndarray, radius: float, cfg: ObjectConfig) -> int:

@@ -350,8 +350,10 @@ def split_at_fittings(
     # Median residual per bin, vectorised: sort by (bin, residual), take each bin's middle element.
     order = np.lexsort((residual, b))
     bs, rs = b[order], residual[order]
-    starts = np.flatnonzero(np.r_[True, bs[1:] != bs[:-1]])
-    counts = np.diff(np.r_[starts, len(bs)])
+    # (np.concatenate rather than np.r_, np.pad, np.isin, np.unique below: their Python overhead,
+    # ~20-70 µs a call, was most of this function's time on a pipe's few hundred inliers)
+    starts = np.flatnonzero(np.concatenate(([True], bs[1:] != bs[:-1])))
+    counts = np.diff(np.append(starts, len(bs)))
     med = np.full(n_bins, np.nan)
     med[bs[starts]] = 0.5 * (rs[starts + (counts - 1) // 2] + rs[starts + counts // 2])
     cnt = np.zeros(n_bins, np.int64)
@@ -359,8 +361,9 @@ def split_at_fittings(
     # Against the pipe's own level nearby (a slightly tilted fit makes the level drift along the
     # axis): the median of the bin medians over ±bump_window, longer than any socket.
     w = int(np.ceil(cfg.bump_window / cfg.bump_bin))
-    padded = np.pad(med, w, constant_values=np.nan)
-    level = _nanmedian_rows(np.lib.stride_tricks.sliding_window_view(padded, 2 * w + 1))
+    padded = np.full(n_bins + 2 * w, np.nan)
+    padded[w : w + n_bins] = med
+    level = _nanmedian_rows(np.lib.stride_tricks.as_strided(padded, (n_bins, 2 * w + 1), padded.strides * 2, writeable=False))
     height = cfg.bump_height if cfg.radius_prior is None else cfg.bump_height_known_radius
     bad_bin = (med - level > height) & (cnt >= 3)
     if cfg.bump_smooth:
@@ -375,18 +378,20 @@ def split_at_fittings(
     bad = set(np.flatnonzero(bad_bin).tolist())
     if len(t_foreign):
         fb = np.floor((t_foreign - t0) / cfg.bump_bin).astype(np.int64)
-        u, c = np.unique(fb, return_counts=True)
-        bad |= set(u[c >= cfg.fitting_points].tolist())
+        c = np.bincount(fb - fb.min())
+        bad |= set((np.flatnonzero(c >= cfg.fitting_points) + fb.min()).tolist())
     bad_bins = np.sort(np.fromiter(bad, np.int64, len(bad)))
     # A fitting is at least min_fitting_length long (the shortest socket is 8.8 cm): a lone bin is
     # noise or a pipe passing close by, not a fitting.
     if len(bad_bins):
-        run_start = np.r_[True, np.diff(bad_bins) > 1]
+        run_start = np.concatenate(([True], np.diff(bad_bins) > 1))
         run_id = np.cumsum(run_start) - 1
         run_len = np.bincount(run_id)
         need = max(int(round(cfg.min_fitting_length / cfg.bump_bin)), 1)
         bad_bins = bad_bins[run_len[run_id] >= need]
-    kept = np.flatnonzero(~np.isin(b, bad_bins))
+    is_bad = np.zeros(n_bins, bool)
+    is_bad[bad_bins[(bad_bins >= 0) & (bad_bins < n_bins)]] = True
+    kept = np.flatnonzero(~is_bad[b])
     if len(kept) == 0:
         return []
     kept = kept[np.argsort(t[kept])]
