@@ -182,10 +182,12 @@ class Rays:
 
     def __init__(self, points: np.ndarray):
         pts = np.asarray(points, dtype=np.float64)
-        self.ranges = np.sqrt((pts * pts).sum(axis=1))
-        keep = self.ranges > 0
-        self.ranges = self.ranges[keep]
-        self.directions = (pts[keep] / self.ranges[:, None]).astype(np.float32)
+        ranges = np.sqrt((pts * pts).sum(axis=1))
+        keep = ranges > 0
+        if not keep.all():  # (a copy of the scan only when some point is at the origin)
+            pts, ranges = pts[keep], ranges[keep]
+        self.ranges = ranges
+        self.directions = (pts / ranges[:, None]).astype(np.float32)
 
     def _cones(self, centres: np.ndarray, halves: np.ndarray) -> list[np.ndarray]:
         """Indices of the rays inside the cone around each bounding sphere (centre, radius), all
@@ -511,7 +513,8 @@ def detect_pipes(points: np.ndarray, normals: np.ndarray, grid, cfg: PipeConfig,
     sq = (points * points).sum(axis=1)
     pipes: list[Pipe] = []
     failures = 0
-    cand = None  # the free points, rebuilt when a pipe takes some
+    cand = None  # the free points, narrowed when a pipe takes some
+    stale = False
     for _ in range(3 * cfg.max_pipes):
         if len(pipes) >= cfg.max_pipes or failures >= cfg.max_failures:
             break
@@ -520,6 +523,8 @@ def detect_pipes(points: np.ndarray, normals: np.ndarray, grid, cfg: PipeConfig,
             break
         if cand is None:
             cand = _Points(points, normals, np.flatnonzero(free))
+        elif stale:  # free points only ever leave: keep the rest (and their products)
+            cand, stale = cand.subset(free[cand.index]), False
         i = rng.choice(seeds, cfg.hypotheses)
         c, a, r, ok = patch_hypotheses(points, normals, grid, i, free, cfg)
         if not ok.any():
@@ -555,7 +560,7 @@ def detect_pipes(points: np.ndarray, normals: np.ndarray, grid, cfg: PipeConfig,
         found = _cut_into_segments(points, normals, sq, cb, ab, rb, idx, cfg)
         for pipe in found:
             free[pipe.inliers] = False
-            cand = None
+            stale = True
         pipes += found
         seedable[idx] = False
         failures = 0 if found else failures + 1
