@@ -157,8 +157,8 @@ class _Points:
 
     def __init__(self, points, normals, index):
         self.index = index
-        self.p = points[index]
-        self.n = normals[index]
+        self.p = np.take(points, index, axis=0)  # (rows by np.take: several times faster than points[index])
+        self.n = np.take(normals, index, axis=0)
         self.sq = (self.p * self.p).sum(axis=1)
         self.pn = (self.p * self.n).sum(axis=1)
 
