@@ -104,13 +104,15 @@ def patch_hypotheses(points, normals, grid, seeds, usable, cfg: PipeConfig):
     s_of, col = np.nonzero(np.append(usable, False)[nb])  # (seed, neighbour) pairs, by seed; −1 reads False
     j = nb[s_of, col]
     cnt = np.bincount(s_of, minlength=len(seeds))
-    N = normals[j]
-    M = _sums_by_seed(N[:, [0, 0, 0, 1, 1, 2]] * N[:, [0, 1, 2, 1, 2, 2]], cnt)
+    # (rows gathered by np.take: several times faster than fancy indexing on N×3 arrays)
+    N = np.take(normals, j, axis=0)
+    M = _sums_by_seed(np.take(N, [0, 0, 0, 1, 1, 2], axis=1) * np.take(N, [0, 1, 2, 1, 2, 2], axis=1), cnt)
     lam0, lam1, _, a = eigen3(M[:, [[0, 1, 2], [1, 3, 4], [2, 4, 5]]])
     # Offsets from the seed across the axis, of positions and of normals.
-    aj = a[s_of]
-    dp = points[j] - points[seeds][s_of]
-    dn = N - normals[seeds][s_of]
+    aj = np.take(a, s_of, axis=0)
+    ps, ns = np.take(points, seeds, axis=0), np.take(normals, seeds, axis=0)
+    dp = np.take(points, j, axis=0) - np.take(ps, s_of, axis=0)
+    dn = N - np.take(ns, s_of, axis=0)
     dp -= np.einsum("pj,pj->p", dp, aj)[:, None] * aj
     dn -= np.einsum("pj,pj->p", dn, aj)[:, None] * aj
     sums = _sums_by_seed(np.column_stack([np.einsum("pj,pj->p", dp, dn), np.einsum("pj,pj->p", dn, dn)]), cnt)
@@ -119,9 +121,9 @@ def patch_hypotheses(points, normals, grid, seeds, usable, cfg: PipeConfig):
     ok &= (r >= cfg.min_radius) & (r <= cfg.max_radius)
     if cfg.radius_prior is not None:
         r = np.full(len(seeds), cfg.radius_prior)
-    ns = normals[seeds] - np.einsum("sj,sj->s", normals[seeds], a)[:, None] * a
+    ns = ns - np.einsum("sj,sj->s", ns, a)[:, None] * a
     ns /= np.maximum(np.linalg.norm(ns, axis=1), 1e-12)[:, None]
-    c = points[seeds] - r[:, None] * ns
+    c = ps - r[:, None] * ns
     return c, a, r, ok
 
 
@@ -164,7 +166,9 @@ class _Points:
 
     def subset(self, mask) -> _Points:
         sub = object.__new__(_Points)
-        sub.index, sub.p, sub.n, sub.sq, sub.pn = self.index[mask], self.p[mask], self.n[mask], self.sq[mask], self.pn[mask]
+        k = np.flatnonzero(mask)
+        sub.index, sub.sq, sub.pn = self.index[k], self.sq[k], self.pn[k]
+        sub.p, sub.n = np.take(self.p, k, axis=0), np.take(self.n, k, axis=0)
         return sub
 
     def test(self, c, a, r, cfg: PipeConfig, reach: float = 0.0):
