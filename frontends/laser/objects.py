@@ -200,9 +200,10 @@ def _crop(X: np.ndarray, rows: np.ndarray, site: _Site, cfg: ObjectConfig) -> np
     """The rows of ``X`` (among ``rows``) in the site's box, and for one connection or two collinear
     ones in the handle box above it (the mushroom: a valve's handle stands above its body)."""
     body, handle = np.asarray(cfg.body_size), np.asarray(cfg.handle_size)
-    mask = in_box(X[rows], site.center, site.R, body)
+    Xr = np.take(X, rows, axis=0)
+    mask = in_box(Xr, site.center, site.R, body)
     if site.config in (1, 2):
-        mask |= in_box(X[rows], site.center + site.R[:, 2] * (body[2] + handle[2]) / 2, site.R, handle)
+        mask |= in_box(Xr, site.center + site.R[:, 2] * (body[2] + handle[2]) / 2, site.R, handle)
     return rows[mask]
 
 
@@ -253,7 +254,7 @@ def segment_objects(points: np.ndarray, pipes: list[Pipe], up: np.ndarray, cfg: 
     for p in pipes:
         is_pipe[p.inliers] = True
     rest = np.flatnonzero(~is_pipe)
-    X = points[rest]
+    X = np.take(points, rest, axis=0)
     body = np.asarray(cfg.body_size)
 
     # Pipe ends: position, outward direction (away from the pipe), guessed object centre.

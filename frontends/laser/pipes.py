@@ -204,7 +204,7 @@ class Rays:
         return [np.flatnonzero(C[j] >= cos[j]) if ok[j] else np.zeros(0, np.int64) for j in range(len(centres))]
 
     def _count(self, sel, c, a, r, t0, t1, cfg: PipeConfig) -> tuple[int, int]:
-        d, rng = self.directions[sel].astype(np.float64), self.ranges[sel]
+        d, rng = np.take(self.directions, sel, axis=0).astype(np.float64), self.ranges[sel]
         da = d @ a
         w = d - da[:, None] * a
         cp = c - (c @ a) * a
@@ -437,10 +437,11 @@ def endpoint_covariance(p, q, axis, n_points, mean_range, cfg: PipeConfig) -> np
 
 
 def _make_pipe(points, normals, idx, a0, cfg: PipeConfig) -> Pipe:
-    c, a, r = fit_cylinder(points[idx], normals[idx], a0, cfg)
-    t = (points[idx] - c) @ a
+    pts = np.take(points, idx, axis=0)
+    c, a, r = fit_cylinder(pts, np.take(normals, idx, axis=0), a0, cfg)
+    t = (pts - c) @ a
     p, q = c + t.min() * a, c + t.max() * a
-    rng = float(np.linalg.norm(points[idx], axis=1).mean())
+    rng = float(np.linalg.norm(pts, axis=1).mean())
     return Pipe(p, q, a, r, idx, endpoint_covariance(p, q, a, len(idx), rng, cfg))
 
 
@@ -539,7 +540,10 @@ def detect_pipes(points: np.ndarray, normals: np.ndarray, grid, cfg: PipeConfig,
         m = len(cand.index)
         pick = slice(None) if m <= cfg.score_sample else rng.choice(m, cfg.score_sample, replace=False)
         sample = cand.index[pick]
-        in_sample = inlier_mask(cand.p[pick], cand.n[pick], c, a, r, cfg, cand.sq[pick], cand.pn[pick])
+        if isinstance(pick, slice):
+            in_sample = inlier_mask(cand.p, cand.n, c, a, r, cfg, cand.sq, cand.pn)
+        else:
+            in_sample = inlier_mask(np.take(cand.p, pick, axis=0), np.take(cand.n, pick, axis=0), c, a, r, cfg, cand.sq[pick], cand.pn[pick])
         scores = in_sample.sum(axis=1)
         # A seed whose cylinder the data do not support (fewer than min_points inliers expected)
         # seeds no more: the pool shrinks to the points still worth trying, and the search ends

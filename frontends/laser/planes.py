@@ -54,13 +54,14 @@ def grow_regions(pre: Preprocessed, cfg: PlaneConfig) -> np.ndarray:
     m = len(pre.points)
     smooth = (pre.curvature < cfg.growth_curvature) & (pre.planarity >= cfg.min_planarity)
     rows = np.flatnonzero(smooth)
-    nb = pre.neighbours[rows, 1:]  # the 26-neighbours of smooth points (−1: empty cell)
+    nb = np.take(pre.neighbours, rows, axis=0)[:, 1:]  # the 26-neighbours of smooth points (−1: empty cell)
     # Each undirected edge once (j > i: also drops the −1s), between smooth points only.
     keep = (nb > rows[:, None]) & np.append(smooth, False)[nb]
     i = np.broadcast_to(rows[:, None], nb.shape)[keep]
     j = nb[keep]
     cos_min = np.cos(np.radians(cfg.max_normal_angle_deg))
-    ok = np.einsum("ij,ij->i", pre.normals[i], pre.normals[j]) >= cos_min
+    # (rows gathered by np.take: several times faster than fancy indexing of N×3 arrays)
+    ok = np.einsum("ij,ij->i", np.take(pre.normals, i, axis=0), np.take(pre.normals, j, axis=0)) >= cos_min
     graph = coo_matrix((np.ones(ok.sum(), np.int8), (i[ok], j[ok])), shape=(m, m))
     _, labels = connected_components(graph, directed=False)
     return labels
