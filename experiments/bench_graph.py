@@ -185,6 +185,9 @@ def main():
     ap.add_argument("--skip-default", action="store_true")
     ap.add_argument("--out", default=None, help="write the numbers as JSON here")
     a = ap.parse_args()
+    from threadpoolctl import threadpool_limits
+
+    threadpool_limits(limits=1, user_api="blas")  # as run_pipeline does: small matrices, no thread contention
     report = {}
     print("factor cost ...", flush=True)
     report["factor_cost"] = bench_factor_cost()
