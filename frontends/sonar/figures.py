@@ -95,8 +95,8 @@ def elevation_figure(fe, path) -> None:
     ax.set_xlabel("east (m)")
     ax.set_ylabel("north (m)")
     ax.set_aspect("equal")
-    ax.set_title(f"Sonar elevation map ({100 * em.spec.cell:.0f} cm cells, median depth, final estimate): "
-                 f"{len(fe.structures)} structures recognised, {len(fe.final['pipes'])} pipelines")
+    ax.set_title(f"Sonar elevation map ({100 * em.spec.cell:.0f} cm cells, median depth, final estimate; "
+                 f"white: no return): {len(fe.structures)} structures recognised, {len(fe.final['pipes'])} pipelines")
     ax.legend(handles=handles, loc="upper left", fontsize=8, framealpha=0.9)
     # close-ups: each structure's returns (5 cm cells: the swaths are 4 cm apart, so every cell holds
     # some; height above the structure's base) under its CAD outline; cells without a return in pink
