@@ -8,7 +8,15 @@ counts both cores when a library runs two threads). Target (issue 6): ≤ 0.2 s 
 With ``--process``, also ``LaserFrontend.process`` (the geometry and the recognition of every object
 of the scan, what a mission pays per scan; issue 9 aims at ≤ 0.12 s).
 
+With ``--against DIR`` (another checkout of the repository, e.g. a ``git worktree`` of the commit
+before a change), a paired comparison instead: one worker process per checkout, the two taking the
+same scans alternately (so a change of the machine's load falls on both), each result hashed (pipes,
+their inliers and covariances, objects, plane mask) to check that the outputs are identical; reports
+both medians and the median of the per-scan ratios. On the loaded 2-core machine, an A/A run of the
+same checkout gives a ratio within ~2 % of 1.
+
     python experiments/bench_laser.py [--source tank] [--scans 8] [--repeat 3] [--process] [--config '{...}']
+    python experiments/bench_laser.py --against /tmp/before --every 3 --scans 82 --repeat 1
 """
 
 from __future__ import annotations
@@ -22,7 +30,8 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+# (a paired comparison's worker imports the front-end of the checkout it is given)
+sys.path.insert(0, os.environ.get("BENCH_LASER_ROOT") or str(Path(__file__).resolve().parents[1]))
 
 from frontends.laser import LaserConfig, segment_scan  # noqa: E402
 from frontends.laser.synthetic import default_scene, raycast, viewpoint  # noqa: E402
@@ -51,6 +60,86 @@ def _bench_process(scans, overrides: dict, repeat: int) -> dict:
     }
 
 
+def _worker(path: Path, overrides: dict) -> int:
+    """Worker of the paired comparison: reads scan indices on stdin, answers (cpu, wall, stage CPU
+    times, hash of the result) pickled and length-prefixed on stdout."""
+    import hashlib
+    import pickle
+
+    scans = list(np.load(path).values())
+    cfg = LaserConfig.model_validate(overrides)
+    segment_scan(scans[0], cfg)  # warm-up
+    out = sys.stdout.buffer
+    for line in sys.stdin:
+        pts = scans[int(line)]
+        c0, w0 = time.process_time(), time.perf_counter()
+        seg = segment_scan(pts, cfg)
+        cpu, wall = time.process_time() - c0, time.perf_counter() - w0
+        h = hashlib.sha1(seg.planes.structure.tobytes())
+        for p in seg.pipes:
+            h.update(np.concatenate([p.p, p.q, p.covariance.ravel()]).tobytes() + p.inliers.tobytes())
+        for o in seg.objects:
+            h.update(o.position.tobytes() + o.covariance.tobytes() + o.indices.tobytes() + bytes([o.configuration]))
+        stages = {k[4:]: v for k, v in seg.timings.items() if k.startswith("cpu_")}
+        msg = pickle.dumps((cpu, wall, stages, h.hexdigest()))
+        out.write(len(msg).to_bytes(8, "little") + msg)
+        out.flush()
+    return 0
+
+
+def _paired(scans: list, overrides: dict, against: Path, repeat: int) -> dict:
+    """Paired A/B: this checkout (B) and ``against`` (A) in two workers, taking the scans alternately."""
+    import pickle
+    import subprocess
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "scans.npz"
+        np.savez(path, *scans)
+        here = Path(__file__).resolve().parents[1]
+        workers = {}
+        for name, root in (("A", Path(against).resolve()), ("B", here)):
+            cmd = [sys.executable, str(Path(__file__).resolve()), "--worker", str(path), "--config", json.dumps(overrides)]
+            env = dict(os.environ, BENCH_LASER_ROOT=str(root))
+            workers[name] = subprocess.Popen(cmd, cwd=root, env=env, stdin=subprocess.PIPE, stdout=subprocess.PIPE)
+
+        def ask(name: str, k: int):
+            w = workers[name]
+            w.stdin.write(f"{k}\n".encode())
+            w.stdin.flush()
+            n = int.from_bytes(w.stdout.read(8), "little")
+            return pickle.loads(w.stdout.read(n))
+
+        res: dict[str, list] = {"A": [], "B": []}
+        identical = True
+        for k in range(len(scans) * repeat):
+            i = k % len(scans)
+            got = {name: ask(name, i) for name in (("A", "B") if k % 2 == 0 else ("B", "A"))}
+            for name in got:
+                res[name].append(got[name])
+            identical &= got["A"][3] == got["B"][3]
+        for w in workers.values():
+            w.stdin.close()
+            w.wait()
+
+    def med(name, j):
+        return round(float(np.median([r[j] for r in res[name]])), 4)
+
+    ratio = {j: round(float(np.median([b[j] / a[j] for a, b in zip(res["A"], res["B"])])), 3) for j in (0, 1)}
+    stages = sorted(res["A"][0][2])
+    return {
+        "against": str(against),
+        "runs": len(res["A"]),
+        "identical_results": bool(identical),
+        "cpu_median_s": {"A": med("A", 0), "B": med("B", 0), "median_ratio_B_A": ratio[0]},
+        "wall_median_s": {"A": med("A", 1), "B": med("B", 1), "median_ratio_B_A": ratio[1]},
+        "stage_cpu_median_s": {
+            st: {n: round(float(np.median([r[2][st] for r in res[n]])), 4) for n in ("A", "B")} for st in stages
+        },
+        "load_average_1min": round(os.getloadavg()[0], 2),
+    }
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scans", type=int, default=8)
@@ -61,7 +150,11 @@ def main(argv=None) -> int:
     ap.add_argument("--source", choices=("tank", "synthetic"), default="tank")
     ap.add_argument("--every", type=int, default=25, help="tank: every n-th scan")
     ap.add_argument("--process", action="store_true", help="also time LaserFrontend.process (with recognition)")
+    ap.add_argument("--against", type=Path, default=None, help="paired A/B against this checkout (see above)")
+    ap.add_argument("--worker", type=Path, default=None, help=argparse.SUPPRESS)  # internal: scans file
     args = ap.parse_args(argv)
+    if args.worker is not None:
+        return _worker(args.worker, json.loads(args.config))
     overrides = json.loads(args.config)
     scans = []
     if args.source == "tank":
@@ -77,6 +170,9 @@ def main(argv=None) -> int:
         for i in range(args.scans):
             T = viewpoint(rng.uniform(0, 360), rng.uniform(-0.3, 0.3, 2), rng.uniform(-10, 10), rng.uniform(-0.5, 0.3))
             scans.append(raycast(default_scene(), n_rays=args.rays, T_scene=T, seed=i).points)
+    if args.against is not None:
+        print(json.dumps(_paired(scans, overrides, args.against, args.repeat), indent=2))
+        return 0
     cfg = LaserConfig.model_validate(overrides)
     segment_scan(scans[0], cfg)  # warm-up (imports, open3d initialisation)
     wall, cpu, stages, voxels = [], [], {}, []
