@@ -138,7 +138,9 @@ def main(argv=None) -> int:
     ap.add_argument("--every", type=int, default=1, help="tank: evaluate every n-th scan")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--config", type=str, default="{}", help="frontends.laser section as JSON")
-    ap.add_argument("--figure-scan", type=int, default=0, help="index of the scan drawn stage by stage")
+    ap.add_argument(
+        "--figure-scan", type=int, default=-1, help="index of the scan drawn stage by stage (−1: the one with most visible objects)"
+    )
     args = ap.parse_args(argv)
 
     overrides = json.loads(args.config)
@@ -150,6 +152,7 @@ def main(argv=None) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     source = synthetic_scans(args.scans, args.seed) if args.source == "synthetic" else tank_scans(args.every, args.seed)
     rows, scores = [], []
+    best = None  # (visible objects, name, points, seg, truth) of the scan to draw when --figure-scan is −1
     for k, (name, points, truth, up) in enumerate(source):
         seg = segment_scan(points, cfg, up)
         s = score_scan(points, seg, truth)
@@ -180,6 +183,10 @@ def main(argv=None) -> int:
         print(", ".join(f"{k_}={v}" for k_, v in row.items()), flush=True)
         if k == args.figure_scan:
             stage_figure(points, seg, args.out / "stages.png", f"{name}: laser front-end stages", truth)
+        elif args.figure_scan < 0 and (best is None or s.n_visible_objects > best[0]):
+            best = (s.n_visible_objects, name, points, seg, truth)
+    if best is not None:
+        stage_figure(best[2], best[3], args.out / "stages.png", f"{best[1]}: laser front-end stages", best[4])
     if not rows:
         print("no scans")
         return 1
