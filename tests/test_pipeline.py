@@ -187,3 +187,19 @@ def test_frontend_summary_reaches_metrics_outputs_and_report(tmp_path):
     write_report(out, res, mission.metadata, metrics)
     md = (out / "report.md").read_text()
     assert "figures/sonar_elevation.png" in md and "Sonar structures" in md and "Run time" in md
+
+
+def test_semantic_map_lists_every_link_once():
+    """map_*.json's connectivity: object ↔ pipe and pipe ↔ structure links, each once."""
+    from semslam.estimation import EstimatorResult, LandmarkEstimate, Trajectory
+    from semslam.eval.outputs import map_to_dict
+
+    lms = [
+        LandmarkEstimate(1, "object", position=np.zeros(3), connected=(2,)),
+        LandmarkEstimate(2, "pipe", p=np.zeros(3), q=np.ones(3), connected=(1, 3)),
+        LandmarkEstimate(3, "structure", pose=np.eye(4), connected=(2,)),
+    ]
+    none = Trajectory(np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 4)))
+    m = map_to_dict(EstimatorResult("graph", none, lms))
+    assert m["connectivity"] == [[1, 2], [2, 3]]
+    assert m["structures"][0]["connected"] == [2] and m["objects"][0]["connected_pipes"] == [2]

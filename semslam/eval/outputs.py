@@ -27,7 +27,7 @@ def _tolist(x):
 
 def map_to_dict(result: EstimatorResult) -> dict:
     """The semantic map: objects (with class posterior and MAP class), pipes, structures, connectivity."""
-    objects, pipes, structures, links = [], [], [], []
+    objects, pipes, structures = [], [], []
     for lm in result.landmarks:
         base = {"id": lm.id, "n_observations": lm.n_observations, "covariance": _tolist(lm.covariance)}
         if lm.kind == "object":
@@ -41,12 +41,14 @@ def map_to_dict(result: EstimatorResult) -> dict:
                     "connected_pipes": list(lm.connected),
                 }
             )
-            links.extend([lm.id, c] for c in lm.connected)
         elif lm.kind == "pipe":
             pipes.append(base | {"p": _tolist(lm.p), "q": _tolist(lm.q), "connected": list(lm.connected)})
         elif lm.kind == "structure":
             structures.append(base | {"model": lm.model, "pose": _tolist(lm.pose), "connected": list(lm.connected)})
-    return {"estimator": result.name, "objects": objects, "pipes": pipes, "structures": structures, "connectivity": links}
+    # Every link once (object ↔ pipe, pipe ↔ structure), as [smaller id, larger id].
+    links = sorted({tuple(sorted((lm.id, c))) for lm in result.landmarks for c in lm.connected})
+    return {"estimator": result.name, "objects": objects, "pipes": pipes, "structures": structures,
+            "connectivity": [list(pair) for pair in links]}
 
 
 def map_geometry(landmarks: list[LandmarkEstimate]):
