@@ -227,6 +227,14 @@ class PipeDetectionConfig(_Section):
     lateral_sigma_m: float = Field(0.03, gt=0, description="σ of an endpoint perpendicular to the axis")
     along_sigma_m: float = Field(0.3, gt=0, description="σ of an endpoint along the axis (windows cut the pipe)")
     hub_distance_m: float = Field(1.2, gt=0, description="a segment end this close to a recognised hub connects to it")
+    window_patches: int = Field(
+        6, ge=1,
+        description="pipes are detected, every swath-registration window, on this many of the latest patches. "
+        "More than the window's own makes consecutive views of a pipe overlap (the graph associates a view "
+        "with a pipe track only where it meets what was seen of it: with the window's own 3, the graph mapped "
+        "1, 2 and 0 of the 2 pipelines on seeds 0-2; with 6, 2, 2 and 2); each cell is then used "
+        "window_patches / swath_registration.window_patches times and the covariance is inflated by that factor",
+    )
     seed: int = Field(0, description="RANSAC seed")
 
 

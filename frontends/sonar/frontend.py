@@ -267,7 +267,10 @@ class SonarFrontend:
                 self.timing["swath_registration_s"] += time.process_time() - t0
             if cfg.pipes.enabled:
                 t0 = time.process_time()
-                out += self._pipes(pts_W, m)
+                end = self._window_start
+                extra = self.patches[max(0, end - cfg.pipes.window_patches) : end - W]
+                pts_P = np.concatenate([pts_W] + [p.world(self.place(p)) for p in extra]) if extra else pts_W
+                out += self._pipes(pts_P, m, reuse=max(1.0, (len(extra) + W) / W))
                 self.timing["pipes_s"] += time.process_time() - t0
         return out
 
@@ -469,7 +472,9 @@ class SonarFrontend:
                     out.append(ks.model)
         return tuple(dict.fromkeys(out))
 
-    def _pipes(self, pts_W: np.ndarray, m: SonarSwath) -> list[Observation]:
+    def _pipes(self, pts_W: np.ndarray, m: SonarSwath, reuse: float = 1.0) -> list[Observation]:
+        """Pipe observations on ``pts_W``; ``reuse``: how many observations each cell goes into
+        (overlapping windows), by which the covariance is inflated."""
         pc = self.config.pipes
         T_now = self._pose(m.stamp)
         if T_now is None or len(pts_W) < 100:
@@ -480,7 +485,7 @@ class SonarFrontend:
         for s in segs:
             d = s.q - s.p
             d = d / max(np.linalg.norm(d), 1e-9)
-            c1 = (np.eye(3) - np.outer(d, d)) * pc.lateral_sigma_m**2 + np.outer(d, d) * pc.along_sigma_m**2
+            c1 = reuse * ((np.eye(3) - np.outer(d, d)) * pc.lateral_sigma_m**2 + np.outer(d, d) * pc.along_sigma_m**2)
             R = T_SW[:3, :3]
             cS = R @ c1 @ R.T
             cov = np.zeros((6, 6))
