@@ -5,7 +5,7 @@
    per-update wall time median / p95 over several runs, and the whole-mission batch (LM) time.
 2. A long synthetic lawnmower mission (≥ 2 h, ≥ 2000 landmarks): per-update cost against map size,
    to show it stays flat as the map grows.
-3. CustomFactor vs built-in cost: linearisation of the object-point CustomFactor against built-in
+3. Factor cost: linearisation of the object-point factor (a CustomFactor until stop 12) against built-in
    factors of the same size.
 
 Run: ``python experiments/bench_graph.py [--runs 3] [--long-hours 2] [--skip-long]``.
@@ -161,7 +161,7 @@ def bench_factor_cost(n: int = 20000) -> dict:
     x, l, y = gtsam.symbol("x", 0), gtsam.symbol("l", 0), gtsam.symbol("y", 0)
     noise3 = gtsam.noiseModel.Isotropic.Sigma(3, 0.02)
     factors = {
-        "CustomFactor point (3)": point_factor(x, l, np.ones(3), np.eye(3) * 4e-4, np.eye(4)),
+        "point_factor (built-in bearing-range since stop 12) (3)": point_factor(x, l, np.ones(3), np.eye(3) * 4e-4, np.eye(4)),
         "BearingRangeFactor3D (3)": gtsam.BearingRangeFactor3D(x, l, gtsam.Unit3(np.array([1.0, 0, 0])), 2.0, noise3),
         "BetweenFactorPose3 (6)": gtsam.BetweenFactorPose3(x, y, gtsam.Pose3(), gtsam.noiseModel.Isotropic.Sigma(6, 0.1)),
     }

@@ -30,19 +30,25 @@ def point_residual(T_WB: gtsam.Pose3, l_W: np.ndarray, T_BS: np.ndarray, z_S: np
     return r, H_x, H_l
 
 
-def point_factor(x: int, l: int, z_S, cov_S, T_BS, robust=None) -> gtsam.CustomFactor:
-    """Object position z_S seen from the sensor (CustomFactor on X, L: GTSAM's Python API has no
-    pose-to-point factor with a sensor offset and a Cartesian covariance)."""
-    z_S, T_BS = np.asarray(z_S, float), np.asarray(T_BS, float)
+def point_factor(x: int, l: int, z_S, cov_S, T_BS, robust=None) -> gtsam.NonlinearFactor:
+    """Object position z_S seen from the sensor: built-in BearingRangeFactor3D on X, L.
 
-    def error(this, values, H):
-        T, lw = values.atPose3(x), values.atPoint3(l)
-        if H is None:
-            return point_residual(T, lw, T_BS, z_S)
-        r, H[0], H[1] = point_residual(T, lw, T_BS, z_S, jac=True)
-        return r
-
-    return gtsam.CustomFactor(_noise(np.asarray(cov_S, float), robust), [x, l], error)
+    The point is moved into {B} (z_B = R_BS z_S + t_BS, Σ_B = R_BS Σ_S R_BSᵀ, exact: T_BS is
+    fixed) and its Cartesian covariance carried to (bearing, range) by J = [Bᵀ / r; uᵀ], with u
+    the measured bearing and B its tangent basis (GTSAM's Unit3 local coordinates). To first order
+    in σ / r the whitened error equals that of :func:`point_residual` (tested); the laser's 5 mm at
+    ≥ 0.2 m is far inside that. A built-in, because the CustomFactor it replaces cost 284 µs per
+    linearisation against 13 µs, and relinearisation after a loop closure calls it thousands of
+    times."""
+    T_BS = np.asarray(T_BS, float)
+    R_BS = T_BS[:3, :3]
+    z_B = R_BS @ np.asarray(z_S, float) + T_BS[:3, 3]
+    r = float(np.linalg.norm(z_B))
+    bearing = gtsam.Unit3(z_B)
+    basis = np.asarray(bearing.basis())  # 3×2
+    J = np.vstack([basis.T / r, (z_B / r)[None]])
+    cov = J @ (R_BS @ np.asarray(cov_S, float) @ R_BS.T) @ J.T
+    return gtsam.BearingRangeFactor3D(x, l, bearing, r, _noise(0.5 * (cov + cov.T), robust))
 
 
 # --------------------------------------------------------------------------------------------
