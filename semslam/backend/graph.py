@@ -122,6 +122,7 @@ class GraphEstimator:
         self._volume: dict[int, list[tuple[int, float]]] = {}  # landmark id → [(stamp, log det cov)]
         # Bounding sphere (centre, radius) of every landmark, refreshed with its estimate.
         self._sphere_row: dict[int, int] = {}
+        self._merged_keys: list[int] = []  # keys of landmarks merged into another (still in the graph)
         self._sphere_ids: list[int] = []
         self._sphere_c = np.zeros((0, 3))
         self._sphere_r = np.zeros(0)
@@ -297,7 +298,7 @@ class GraphEstimator:
                 if row is not None:
                     self._sphere_c[row] = np.inf  # never near again
         keep_keys = {X(i) for i in range(len(self.kf_stamps))} | {V(i) for i in range(len(self.kf_stamps))}
-        keep_keys |= {lm.key for lm in self.landmarks.values()}
+        keep_keys |= {lm.key for lm in self.landmarks.values()} | set(self._merged_keys)
         if self._bias_walk > 0:
             keep_keys |= {B(i) for i in range(len(self.kf_stamps))}
         full = gtsam.Values()
@@ -388,7 +389,47 @@ class GraphEstimator:
             if k == len(self.kf_stamps) - 1:  # the online pose of this keyframe is the one after its landmarks
                 R = self._pose.rotation().matrix()
                 self.online[-1] = (self.online[-1][0], self._pose, R @ self._pose_cov[3:, 3:] @ R.T)
-            self._refresh_landmarks({o for _, o in factors if o is not None})
+            updated = {o for _, o in factors if o is not None}
+            self._refresh_landmarks(updated)
+            self._merge_twins(updated)
+
+    def _merge_twins(self, ids) -> None:
+        """Two object landmarks that have converged on one place (closer than
+        ``association.min_separation_m`` and compatible at the association's χ² confidence) are one
+        object mapped twice, e.g. from a first track whose views were off: the younger is tied to
+        the older by a stiff zero-offset factor and leaves the map, its views and class evidence
+        going to the older one."""
+        sep2 = self.assoc.min_separation_m**2
+        gate = _chi2(self.assoc.confidence, 3)
+        for lid in sorted(ids):
+            a = self.landmarks.get(lid)
+            if a is None or a.kind != "object":
+                continue
+            for b in [lm for lm in self.landmarks.values() if lm.kind == "object" and lm.id != a.id]:
+                d = np.asarray(a.estimate, float) - np.asarray(b.estimate, float)
+                if d @ d >= sep2:
+                    continue
+                S = a.information_covariance() + b.information_covariance()
+                if d @ np.linalg.solve(S, d) > gate:
+                    continue
+                keep, drop = (a, b) if a.id < b.id else (b, a)
+                tie = gtsam.BetweenFactorPoint3(keep.key, drop.key, np.zeros(3), gtsam.noiseModel.Isotropic.Sigma(3, 1e-3))
+                keep.history += drop.history
+                keep.class_likelihoods += drop.class_likelihoods
+                if drop.information is not None:
+                    keep.add_information(drop.information)
+                keep.connected |= drop.connected
+                del self.landmarks[drop.id]
+                self._merged_keys.append(drop.key)
+                row = self._sphere_row.pop(drop.id, None)
+                if row is not None:
+                    self._sphere_c[row] = np.inf  # never near again
+                self._volume.pop(drop.id, None)
+                self.diagnostics.append(f"{self.kf_stamps[-1]}: objects {keep.id} and {drop.id} converged on one place, merged into {keep.id}")
+                self._commit([(tie, keep.id)], gtsam.Values())
+                self._refresh_landmarks({keep.id})
+                if drop is a:
+                    break
 
     def _odometry_factors(self, odom: list, k: int) -> list:
         """Relative-pose constraints (e.g. swath registrations). An end that is not a keyframe is
