@@ -244,6 +244,37 @@ class _LowRankJoint:
         return _LowRankNode(node.pairs + [(i, j, p)], a, b, M, nis, node.dof + len(p.innovation))
 
 
+def cannot_beat_best(masks: list[int], start: int, used: int, npairs: int, best: int) -> bool:
+    """Branch-and-bound test shared by the JCBB searches: can no extension of a node with ``npairs``
+    pairs, at search position ``start``, pair more observations than ``best``?
+
+    ``masks[o]`` is the set of landmarks observation o is individually compatible with, as a bit
+    mask (Python ints: any width); ``used`` the landmarks paired on the current path. First the
+    cheap count of observations that still have an unused candidate, then the exact bound: the
+    maximum bipartite matching of the remaining observations to distinct unused landmarks (Kuhn's
+    augmenting paths), tighter where observations compete for a landmark."""
+    free = ~used
+    if npairs + sum(1 for o in range(start, len(masks)) if masks[o] & free) <= best:
+        return True
+    owner: dict[int, int] = {}
+
+    def augment(o: int, seen: list[int]) -> bool:
+        options = masks[o] & free & ~seen[0]
+        while options:
+            low = options & -options
+            options ^= low
+            if seen[0] & low:  # visited by a deeper augmenting path meanwhile
+                continue
+            seen[0] |= low
+            j = low.bit_length() - 1
+            if j not in owner or augment(owner[j], seen):
+                owner[j] = o
+                return True
+        return False
+
+    return npairs + sum(1 for o in range(start, len(masks)) if masks[o] & free and augment(o, [0])) <= best
+
+
 def jcbb(problem: AssociationProblem, confidence: float = 0.99, max_hypotheses: int = 20_000) -> list[int | None]:
     """Joint Compatibility Branch and Bound.
 
@@ -290,35 +321,8 @@ def jcbb(problem: AssociationProblem, confidence: float = 0.99, max_hypotheses: 
     expanded = 0
     used = 0  # bit mask of the landmarks paired on the current path
 
-    def pairable_from(k: int) -> int:
-        """Observations from position k on that still have an individually compatible, unused landmark."""
-        free = ~used
-        return sum(1 for o in range(k, n_search) if masks[o] & free)
-
-    def matchable_from(k: int) -> int:
-        """Most observations from position k on that can pair at once with distinct unused landmarks
-        (a maximum bipartite matching by augmenting paths): exact where observations compete for a
-        landmark, where :func:`pairable_from` overcounts."""
-        free = ~used
-        owner: dict[int, int] = {}
-
-        def augment(o: int, seen: list[int]) -> bool:
-            options = masks[o] & free & ~seen[0]
-            while options:
-                low = options & -options
-                options ^= low
-                seen[0] |= low
-                j = low.bit_length() - 1
-                if j not in owner or augment(owner[j], seen):
-                    owner[j] = o
-                    return True
-            return False
-
-        return sum(1 for o in range(k, n_search) if masks[o] & free and augment(o, [0]))
-
     def cannot_beat(npairs: int, k: int) -> bool:
-        best = len(best_pairs)
-        return npairs + pairable_from(k) <= best or npairs + matchable_from(k) <= best
+        return cannot_beat_best(masks, k, used, npairs, len(best_pairs))
 
     def search(node, k: int):
         nonlocal best_pairs, best_nis, expanded, used

@@ -18,6 +18,7 @@ import math
 import numpy as np
 from scipy.stats import chi2
 
+from semslam.backend.association import cannot_beat_best
 from semslam.ekf.filter import inv_small
 
 
@@ -115,37 +116,9 @@ def jcbb_dense(
     limit = min(max_hypotheses, seed_after)
     used = 0  # bit mask of the landmarks used on the current path
 
-    def pairable_from(i: int) -> int:
-        free = ~used
-        return sum(1 for k in range(i, m) if masks[k] & free)
-
-    def matchable_from(i: int) -> int:
-        """Most observations from i on that can be paired at once with distinct unused landmarks
-        (a maximum bipartite matching, Kuhn's augmenting paths): a tighter exact bound than
-        :func:`pairable_from` when observations compete for a landmark."""
-        free = ~used
-        owner: dict[int, int] = {}
-
-        def augment(o: int, seen: list) -> bool:
-            cand = masks[o] & free & ~seen[0]
-            while cand:
-                low = cand & -cand
-                cand ^= low
-                if seen[0] & low:
-                    continue
-                seen[0] |= low
-                j = low.bit_length() - 1
-                if j not in owner or augment(owner[j], seen):
-                    owner[j] = o
-                    return True
-            return False
-
-        return sum(1 for o in range(i, m) if masks[o] & free and augment(o, [0]))
-
     def cannot_beat(npairs: int, i: int) -> bool:
         """No extension of a node with ``npairs`` pairs at observation i beats the best found."""
-        best = len(best_pairs)
-        return npairs + pairable_from(i) <= best or npairs + matchable_from(i) <= best
+        return cannot_beat_best(masks, i, used, npairs, len(best_pairs))
 
     def child_nis(node: _Node, k: int):
         """(nis, pieces) of the node extended with pair k, without building its inverse."""
