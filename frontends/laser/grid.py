@@ -35,20 +35,15 @@ def single_threaded_blas(fn):
     spin while they wait for work, so on a machine whose cores are shared they cost CPU (measured
     on the tank scans: the see-through test's ray cones 16 ms → 1 ms, the whole scan's CPU time −18 %)
     and wall time. Results are identical (no product is split along its inner dimension). The
-    previous thread count is restored on return; without threadpoolctl, ``fn`` runs as it is.
+    previous thread count is restored on return.
     """
 
     @functools.wraps(fn)
     def run(*args, **kwargs):
         if not _POOLS:
-            try:
-                from threadpoolctl import ThreadpoolController
+            from threadpoolctl import ThreadpoolController  # a dependency (semslam's run_pipeline uses it too)
 
-                _POOLS.append(ThreadpoolController())
-            except ImportError:
-                _POOLS.append(None)
-        if _POOLS[0] is None:
-            return fn(*args, **kwargs)
+            _POOLS.append(ThreadpoolController())
         with _POOLS[0].limit(limits=1, user_api="blas"):
             return fn(*args, **kwargs)
 
