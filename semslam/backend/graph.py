@@ -399,16 +399,19 @@ class GraphEstimator:
         object mapped twice, e.g. from a first track whose views were off: the younger is tied to
         the older by a stiff zero-offset factor and leaves the map, its views and class evidence
         going to the older one."""
-        sep2 = self.assoc.min_separation_m**2
         gate = _chi2(self.assoc.confidence, 3)
         for lid in sorted(ids):
             a = self.landmarks.get(lid)
             if a is None or a.kind != "object":
                 continue
-            for b in [lm for lm in self.landmarks.values() if lm.kind == "object" and lm.id != a.id]:
-                d = np.asarray(a.estimate, float) - np.asarray(b.estimate, float)
-                if d @ d >= sep2:
+            # Neighbours from the landmarks' cached bounding spheres (an object's is its point):
+            # numpy over the map, not a Python loop, as this runs after every update.
+            sphere_ids, centres, _ = self._spheres()
+            near = np.flatnonzero(np.linalg.norm(centres - np.asarray(a.estimate, float), axis=1) < self.assoc.min_separation_m)
+            for b in [self.landmarks.get(sphere_ids[r]) for r in near]:
+                if b is None or b.kind != "object" or b.id == a.id:
                     continue
+                d = np.asarray(a.estimate, float) - np.asarray(b.estimate, float)
                 S = a.information_covariance() + b.information_covariance()
                 if d @ np.linalg.solve(S, d) > gate:
                     continue
