@@ -35,6 +35,8 @@ class PipelineResult:
     n_measurements: int = 0
     duration_s: float = 0.0
     frontend_summaries: dict[str, FrontendSummary] = field(default_factory=dict)
+    # Each front-end's configuration as it ran (its defaults filled in), for config.yaml.
+    frontend_configs: dict[str, dict] = field(default_factory=dict)
 
 
 def _truth_trajectory(poses: list[GroundTruthPose]) -> Trajectory | None:
@@ -150,4 +152,5 @@ def _run_pipeline(mission, estimators, frontends, view_estimator, progress, keep
     if bar is not None:
         bar.close()
     duration = 0.0 if first is None else (last - first) * 1e-9
-    return PipelineResult(results, _truth_trajectory(truth), records, dict(timing), n, duration, summaries)
+    resolved = {fe.name: fe.config.model_dump(mode="json") for fe in frontends if hasattr(getattr(fe, "config", None), "model_dump")}
+    return PipelineResult(results, _truth_trajectory(truth), records, dict(timing), n, duration, summaries, resolved)

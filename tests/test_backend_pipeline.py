@@ -43,3 +43,10 @@ def test_graph_run_writes_outputs_with_metric_keys_filled(tmp_path):
     assert (out / "map_graph.json").is_file() and (out / "map_graph.ply").is_file()
     tum = np.loadtxt(out / "trajectory_graph.tum")
     assert tum.shape[1] == 8 and len(tum) >= 100
+    # config.yaml is the resolved configuration: the front-end's section with its defaults filled in
+    import yaml
+
+    written = yaml.safe_load((out / "config.yaml").read_text())
+    assert cfg.frontends.get("oracle") is None
+    assert written["frontends"]["oracle"] == fes[0].config.model_dump(mode="json")
+    assert "miss_rate" in written["frontends"]["oracle"]

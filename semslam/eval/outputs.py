@@ -144,7 +144,9 @@ def write_outputs(out_dir: str | Path, config: SemslamConfig, pipeline: Pipeline
     out_dir.parent.mkdir(parents=True, exist_ok=True)
     stage = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", dir=out_dir.parent))
     try:
-        (stage / "config.yaml").write_text(dump_config(config))
+        # the resolved configuration: the front-ends' own sections with their defaults filled in
+        resolved = config.model_copy(update={"frontends": {**config.frontends, **pipeline.frontend_configs}})
+        (stage / "config.yaml").write_text(dump_config(resolved))
         for name, result in pipeline.results.items():
             result.trajectory.to_tum(stage / f"trajectory_{name}.tum")
             if _has_distinct_online(result):
