@@ -76,10 +76,10 @@ def neighbourhood_covariances(points: np.ndarray, knn: np.ndarray, rows: np.ndar
     return _covariances_from_sums(A @ _moments(points))
 
 
-def _moments(points: np.ndarray) -> np.ndarray:
-    """Per point (1, x, y, z, xx, xy, xz, yy, yz, zz) of coordinates centred on the cloud (float64,
-    so E[xxᵀ] − E[x]E[x]ᵀ loses nothing at these scales)."""
-    x = points - points.mean(axis=0)
+def _moments(points: np.ndarray, centre: np.ndarray | None = None) -> np.ndarray:
+    """Per point (1, x, y, z, xx, xy, xz, yy, yz, zz) of coordinates centred on the cloud, or on
+    ``centre`` when given (float64, so E[xxᵀ] − E[x]E[x]ᵀ loses nothing at these scales)."""
+    x = points - (points.mean(axis=0) if centre is None else centre)
     return np.column_stack([np.ones(len(x)), x, x[:, [0, 0, 0, 1, 1, 2]] * x[:, [0, 1, 2, 1, 2, 2]]])
 
 
@@ -95,13 +95,16 @@ def _covariances_from_sums(S: np.ndarray) -> np.ndarray:
 
 
 @single_threaded_blas
-def hop_covariances(points: np.ndarray, adjacency: csr_matrix, hops: int) -> np.ndarray:
-    """Covariance (M×3×3) of each point's neighbourhood grown ``hops`` steps over ``adjacency``
-    (M×M, self-links included), every point weighted by its number of paths from the centre."""
-    S = _moments(points)
+def hop_covariances(
+    points: np.ndarray, adjacency: csr_matrix, hops: int, rows: np.ndarray | None = None, centre: np.ndarray | None = None
+) -> np.ndarray:
+    """Covariance (R×3×3) of each point's neighbourhood grown ``hops`` steps over ``adjacency``
+    (M×M, self-links included), every point weighted by its number of paths from the centre; for
+    the points ``rows`` (all when None). ``centre``: see :func:`_moments`."""
+    S = _moments(points, centre)
     for _ in range(hops):
         S = adjacency @ S
-    return _covariances_from_sums(S)
+    return _covariances_from_sums(S if rows is None else np.take(S, rows, axis=0))
 
 
 def smallest_eigen(cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -134,21 +137,31 @@ def eigen3(cov: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndar
 
 
 def _null_vector(cov, lam0):
+    """Unit eigenvector of λ0: the longest of the cross products of the rows of C − λ0·I."""
+    n = len(cov)
     M = cov - lam0[:, None, None] * np.eye(3)
-    c = np.stack([_cross(M[:, 0], M[:, 1]), _cross(M[:, 0], M[:, 2]), _cross(M[:, 1], M[:, 2])], axis=1)
+    r0, r1, r2 = M[:, 0], M[:, 1], M[:, 2]
+    c = np.empty((n, 3, 3))  # [matrix, pair of rows, component], written in place (no stacking)
+    _cross_into(r0, r1, c[:, 0])
+    _cross_into(r0, r2, c[:, 1])
+    _cross_into(r1, r2, c[:, 2])
     norms = np.sqrt(np.einsum("nkj,nkj->nk", c, c))
-    best = norms.argmax(axis=1)
-    v = c[np.arange(len(cov)), best]
-    nv = norms[np.arange(len(cov)), best]
+    # The longest of each matrix's three, by flat row gathers (2-D fancy indexing costs more).
+    pick = np.arange(0, 3 * n, 3) + norms.argmax(axis=1)
+    v = np.take(c.reshape(-1, 3), pick, axis=0)
+    nv = np.take(norms.reshape(-1), pick)
     degenerate = nv < 1e-300  # isotropic or zero covariance: no preferred normal
-    return np.where(degenerate[:, None], np.array([0.0, 0.0, 1.0]), v / np.where(degenerate, 1.0, nv)[:, None])
+    v /= np.where(degenerate, 1.0, nv)[:, None]
+    if degenerate.any():
+        v[degenerate] = (0.0, 0.0, 1.0)
+    return v
 
 
-def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Row-wise cross products of N×3 arrays (``np.cross`` costs several times more)."""
-    return np.column_stack(
-        [a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1], a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2], a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]]
-    )
+def _cross_into(a: np.ndarray, b: np.ndarray, out: np.ndarray) -> None:
+    """Row-wise cross products of N×3 arrays into ``out`` (``np.cross`` costs several times more)."""
+    np.subtract(a[:, 1] * b[:, 2], a[:, 2] * b[:, 1], out=out[:, 0])
+    np.subtract(a[:, 2] * b[:, 0], a[:, 0] * b[:, 2], out=out[:, 1])
+    np.subtract(a[:, 0] * b[:, 1], a[:, 1] * b[:, 0], out=out[:, 2])
 
 
 def local_geometry(
@@ -201,18 +214,21 @@ def preprocess(points: np.ndarray, pre: PreprocessConfig, planes: PlaneConfig) -
     vox, inv, nb = grid.points, grid.inverse, grid.neighbours(1)
     A = adjacency_of(nb)
     stray = small_clusters(A, pre.outlier_min_voxels)
+    all_vox, kept = vox, None
     if stray.any():
         # A whole cluster goes, so no kept voxel had a removed one as neighbour: re-index only.
+        # The adjacency stays as it is: the neighbourhoods of kept voxels never reach a stray one.
         good = ~stray
+        kept = np.flatnonzero(good)
         remap = np.where(good, np.cumsum(good) - 1, -1)
         inv = remap[inv]
         vox, nb = vox[good], nb[good]
         nb = np.where(nb >= 0, remap[nb], -1)
-        A = adjacency_of(nb)
     if len(vox) == 0:
         return _empty(raw_to_voxel)
     raw_to_voxel[keep] = inv
-    cov = hop_covariances(vox, A, planes.normal_hops)
+    # (moments centred on the kept voxels' mean, as if the strays had never been there)
+    cov = hop_covariances(all_vox, A, planes.normal_hops, rows=kept, centre=vox.mean(axis=0))
     normals, curvature, planarity = shape_of(cov, vox)
     return Preprocessed(vox, raw_to_voxel, nb, normals, curvature, planarity)
 
