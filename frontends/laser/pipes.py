@@ -250,10 +250,13 @@ def fit_cylinder(points: np.ndarray, normals: np.ndarray, a0: np.ndarray, cfg: P
     # half-shell is the same all along it) and it is far better conditioned than the normals; on a
     # short, stubby set the normals decide (all normals of a cylinder are orthogonal to its axis).
     # (3×3 scatter matrices by direct products: np.cov's overhead dominates on a few hundred points.)
-    o = points.mean(axis=0)
+    # (np.add.reduce(·, 0) / n is what ndarray.mean computes, without its Python overhead: this
+    # runs ~100 times a scan on a few hundred points)
+    n = len(points)
+    o = np.add.reduce(points, 0) / n
     d = points - o
     pv, pvecs = np.linalg.eigh(d.T @ d)
-    if pv[2] > 9.0 * max(pv[1], 1e-12 * len(points)):
+    if pv[2] > 9.0 * max(pv[1], 1e-12 * n):
         a = pvecs[:, 2]
     else:
         _, vecs = np.linalg.eigh(normals.T @ normals)
@@ -263,9 +266,9 @@ def fit_cylinder(points: np.ndarray, normals: np.ndarray, a0: np.ndarray, cfg: P
     x = d @ E
     if cfg.radius_prior is not None:
         nx = normals @ E
-        nx /= np.linalg.norm(nx, axis=1, keepdims=True)
+        nx /= np.sqrt(np.add.reduce(nx * nx, 1))[:, None]
         r = cfg.radius_prior
-        cx = (x - (r - cfg.surface_offset) * nx).mean(axis=0)
+        cx = np.add.reduce(x - (r - cfg.surface_offset) * nx, 0) / n
     else:
         cx, r = _circle_fit(x)
     c = o + E @ cx
@@ -275,14 +278,16 @@ def fit_cylinder(points: np.ndarray, normals: np.ndarray, a0: np.ndarray, cfg: P
 def _across(a: np.ndarray) -> np.ndarray:
     """3×2 orthonormal basis of the plane orthogonal to the unit vector ``a`` (cross products
     written out: ``np.cross`` costs more than the rest of a small fit)."""
-    ax, ay, az = a
+    ax, ay, az = a.tolist()
     if abs(ax) < 0.9:  # e1 = a × x̂
         e1 = np.array([0.0, az, -ay])
     else:  # e1 = a × ŷ
         e1 = np.array([-az, 0.0, ax])
-    e1 /= np.sqrt(e1 @ e1)
-    e2 = np.array([ay * e1[2] - az * e1[1], az * e1[0] - ax * e1[2], ax * e1[1] - ay * e1[0]])
-    return np.column_stack([e1, e2])
+    # (the norm by numpy's dot as before, so the basis is the same to the last bit; the rest in
+    # Python floats, which round alike)
+    e1x, e1y, e1z = (e1 / np.sqrt(e1 @ e1)).tolist()
+    e2x, e2y, e2z = ay * e1z - az * e1y, az * e1x - ax * e1z, ax * e1y - ay * e1x
+    return np.array([[e1x, e2x], [e1y, e2y], [e1z, e2z]])
 
 
 def _circle_fit(x: np.ndarray) -> tuple[np.ndarray, float]:
@@ -441,7 +446,7 @@ def _make_pipe(points, normals, idx, a0, cfg: PipeConfig) -> Pipe:
     c, a, r = fit_cylinder(pts, np.take(normals, idx, axis=0), a0, cfg)
     t = (pts - c) @ a
     p, q = c + t.min() * a, c + t.max() * a
-    rng = float(np.linalg.norm(pts, axis=1).mean())
+    rng = float(np.add.reduce(np.sqrt(np.add.reduce(pts * pts, 1))) / len(pts))  # mean range (np.linalg.norm(·).mean())
     return Pipe(p, q, a, r, idx, endpoint_covariance(p, q, a, len(idx), rng, cfg))
 
 
