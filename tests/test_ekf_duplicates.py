@@ -5,6 +5,7 @@ import numpy as np
 
 from semslam.config import SemslamConfig
 from semslam.ekf import EkfEstimator
+from semslam.ekf import geometry as geo
 from semslam.ekf import models as mdl
 from semslam.ekf.synthetic import simulate_circling
 from semslam.observations import LineObservation, PointObservation
@@ -95,3 +96,61 @@ def test_two_features_of_one_object_are_fused_and_the_younger_dropped():
     est._merge_duplicate_objects()
     assert len([f for f in est._features if f.kind == "object"]) == 2
     assert [f.index for f in est._features] == sorted(f.index for f in est._features)
+
+
+def _add_pipe(est, a_W, b_W, sigma=0.01):
+    """Map a second pipe feature directly, seen once from the current pose (as a track would enter)."""
+    from semslam.ekf.estimator import _Extent, _Track
+
+    T = est.metadata.sensors["laser"].T_BS
+    R, t, _, _ = mdl.sensor_pose(est.state.xv, T[:3, :3], T[:3, 3])
+    (ob,) = est._prepare([LineObservation(0, "laser", p=(a_W - t) @ R, q=(b_W - t) @ R, covariance=np.eye(6) * sigma**2)])
+    extent = _Extent()
+    extent.add(ob.ends_W, sigma)
+    est._add_feature(ob, _Track("pipe", np.zeros(6), np.eye(4), 3, 0, extent))
+    return est._features[-1]
+
+
+def test_two_features_of_one_pipe_are_fused_and_the_younger_dropped():
+    est = _scene_run()
+    n_state = est.state.n
+    pipe_a = next(f for f in est._features if f.kind == "pipe")
+    n_views, n_ends = pipe_a.n_obs, len(pipe_a.extent)
+    # a second feature on the right half of pipe A, 1 cm off and reversed, as a track started on a
+    # part of the pipe not yet seen can enter
+    twin = _add_pipe(est, np.array([0.8, 0.01, 4.5]), np.array([0.2, 0.01, 4.5]))
+    assert _kinds(est).count("pipe") == 3
+    est._merge_duplicate_pipes({twin.id})
+    assert _kinds(est) == ["object", "object", "pipe", "pipe"]
+    assert pipe_a in est._features and pipe_a.n_obs == n_views + 3 and len(pipe_a.extent) == n_ends + 1
+    assert est.state.n == n_state
+    assert np.linalg.eigvalsh(est.state.P).min() > -1e-12
+    # the kept line is still pipe A: its seen ends lie on the true axis within a centimetre
+    m, d = geo.line_plucker(est.state.x[pipe_a.cols])
+    ends = pipe_a.extent.ends(m, d)
+    assert np.abs(ends[:, 1:] - [0.0, 4.5]).max() < 0.01
+    assert np.abs(np.sort(ends[:, 0]) - [-0.8, 0.8]).max() < 0.05
+
+
+def test_pipes_beside_or_beyond_an_in_line_object_are_not_fused():
+    est = _scene_run()
+    beside = _add_pipe(est, np.array([-0.8, 0.3, 4.5]), np.array([0.8, 0.3, 4.5]))  # parallel, 0.3 m off
+    beyond = _add_pipe(est, np.array([1.1, 0.0, 4.5]), np.array([1.8, 0.0, 4.5]))  # past the valve at x = 1
+    est._merge_duplicate_pipes({beside.id, beyond.id})
+    assert _kinds(est).count("pipe") == 4
+
+
+def test_an_incompatible_twin_sharing_the_stretch_of_a_pipe_is_dropped_not_fused():
+    est = _scene_run()
+    pipe_a = next(f for f in est._features if f.kind == "pipe")
+    l_before = est.state.x[pipe_a.cols].copy()
+    # the middle of pipe A seen 6° turned with 1 mm covariances: χ²-incompatible with A, but the two
+    # share a stretch within a pipe diameter
+    twin = _add_pipe(est, np.array([-0.4, -0.02, 4.5]), np.array([0.4, 0.064, 4.5]), sigma=0.001)
+    nu, H_a, H_b = geo.line_difference(est.state.x[pipe_a.cols], est.state.x[twin.cols])
+    cols = np.r_[pipe_a.cols, twin.cols]
+    H = np.hstack([H_a, H_b])
+    assert nu @ np.linalg.solve(H @ est.state.P[np.ix_(cols, cols)] @ H.T, nu) > 100
+    est._merge_duplicate_pipes({twin.id})
+    assert _kinds(est) == ["object", "object", "pipe", "pipe"] and pipe_a in est._features
+    np.testing.assert_allclose(est.state.x[pipe_a.cols], l_before, atol=1e-12)  # not pulled by the twin

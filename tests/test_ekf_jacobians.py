@@ -169,6 +169,22 @@ def test_line_initialisation_jacobians(beta):
     assert_jac(G_pq, numjac(f, np.r_[ps, qs], h=1e-8), rtol=1e-4, atol=1e-5)
 
 
+@pytest.mark.parametrize("beta", BETAS)
+@pytest.mark.parametrize("reverse", [False, True])
+def test_line_difference_is_zero_on_one_line_and_its_jacobians(beta, reverse):
+    l, pw, qw = _world_line(beta)
+    # the same line with its direction reversed has other parameters but no difference
+    same = g.line_params(*(-np.array(g.line_plucker(l)))) if reverse else l
+    nu0, _, _ = g.line_difference(l, same)
+    np.testing.assert_allclose(nu0, 0.0, atol=1e-9)
+    # a nearby line: 2 cm off, 1° turned
+    lb = same + np.array([0.01, -0.012, 0.015, 0.02])
+    nu, H_a, H_b = g.line_difference(l, lb)
+    assert 0.01 < np.linalg.norm(nu) < 0.1
+    assert_jac(H_a, numjac(lambda la: g.line_difference(la, lb)[0], l, h=1e-7), rtol=1e-4, atol=1e-5)
+    assert_jac(H_b, numjac(lambda x: g.line_difference(l, x)[0], lb, h=1e-7), rtol=1e-4, atol=1e-5)
+
+
 def test_rot_batch_matches_rot():
     e = RNG.uniform(-1.5, 1.5, size=(10, 3))
     np.testing.assert_allclose(g.rot_batch(e), np.array([g.rot(*r) for r in e]), atol=1e-14)

@@ -228,6 +228,10 @@ class _Extent:
         self._memo = (np.array(m, float), np.array(d, float), self._k, out)
         return out
 
+    def centre(self) -> np.ndarray:
+        """Mean of the saved view ends in {W}: a point near the pipe, inside what was seen of it."""
+        return self._pts[: self._k].reshape(-1, 3).mean(axis=0)
+
     def ends(self, m: np.ndarray, d: np.ndarray) -> np.ndarray:
         c = geo.closest_point(m, d)
         a, b = self.interval(m, d)
@@ -261,6 +265,16 @@ class _Extent:
         s = (ends_W - c) @ d
         lo, hi = (b - margin, s.min() + margin) if s.mean() > 0.5 * (a + b) else (s.max() - margin, a + margin)
         return bool(np.any((s_on > lo) & (s_on < hi)))
+
+
+def _overlap_fraction(a: _Extent, ends_b: np.ndarray, m: np.ndarray, d: np.ndarray) -> float:
+    """Length shared by a's seen extent and the segment ends_b along the line (m, d) of a, over the
+    shorter one's length."""
+    a0, a1 = a.interval(m, d)
+    s = (ends_b - geo.closest_point(m, d)) @ d
+    b0, b1 = float(s.min()), float(s.max())
+    shorter = min(a1 - a0, b1 - b0)
+    return max(0.0, min(a1, b1) - max(a0, b0)) / shorter if shorter > 0 else 0.0
 
 
 def _along_sigma(o: LineObservation) -> float:
@@ -512,7 +526,7 @@ class EkfEstimator:
         self._diag: list[str] = []
         self._warned: set[str] = set()
         self._dr_map: list[LandmarkEstimate] = []
-        self._merged = 0  # duplicate objects fused
+        self._merged = 0  # duplicate objects and pipes fused
 
     # ------------------------------------------------------------------- sensor metadata
     def _extrinsic(self, sensor: str) -> tuple[np.ndarray, np.ndarray]:
@@ -813,6 +827,7 @@ class EkfEstimator:
         self._tentative(stamp, [obs[i] for i, on in zip(unpaired, on_pipe) if not on])
         touched = {f.id for _, f in paired} | {f.id for f in self._features[n_before:]}
         self._merge_duplicate_objects(touched)
+        self._merge_duplicate_pipes(touched)
 
     def _merge_duplicate_objects(self, touched: set[int] | None = None) -> None:
         """Two mapped objects whose difference is compatible with zero (χ² at the association
@@ -848,9 +863,79 @@ class EkfEstimator:
             return
         fa, fb = self._features[objs[a[k]]], self._features[objs[b[k]]]
         keep, drop = (fa, fb) if fa.id < fb.id else (fb, fa)
-        cols = np.r_[keep.cols, drop.cols]
-        H = np.hstack([np.eye(3), -np.eye(3)])
-        self.state.update(-(x[keep.cols] - x[drop.cols]), cols, H, np.eye(3) * 1e-12)
+        self._fuse_duplicate(keep, drop, x[drop.cols] - x[keep.cols], -np.eye(3), np.eye(3))
+
+    def _merge_duplicate_pipes(self, touched: set[int]) -> None:
+        """Two mapped pipes that are one pipe seen twice (two tracks started on parts of it that did
+        not overlap yet): the paper's collinearity criterion between them (angle, distance, extent
+        gap, no object between), and either their line difference compatible with zero (χ² at the
+        association confidence, full joint covariance: fused as objects are) or the two sharing a
+        stretch of pipe (:meth:`_same_stretch`: the younger is dropped). The stretch rule catches
+        what the χ² test leaves: two estimates of one short pipe can disagree by 5–8° with line
+        covariances overconfident by then (NIS 100–450 on the tank), yet two pipes cannot share a
+        stretch closer than a diameter. The younger's extent and views go to the older."""
+        pipes = [f for f in self._features if f.kind == "pipe"]
+        if len(pipes) < 2 or not any(f.id in touched for f in pipes):
+            return
+        x, P = self.state.x, self.state.P
+        lp = x[np.array([f.index for f in pipes])[:, None] + np.arange(4)]
+        U = geo.rot_batch(lp[:, :3])
+        dirs, closest = U[:, :, 1], np.cross(U[:, :, 1], lp[:, 3:4] * U[:, :, 0])
+        mids = np.array([f.extent.centre() for f in pipes])
+        objects = None
+        gate = Chi2Gate(self.assoc.confidence)(4)
+        best = None
+        for a, fa in enumerate(pipes):
+            if fa.id not in touched:
+                continue
+            m_a, d_a = lp[a, 3] * U[a, :, 0], dirs[a]
+            # cheap screen over the map: near a's direction, b's seen middle near a's line
+            r = mids - closest[a]
+            off = np.linalg.norm(r - np.outer(r @ d_a, d_a), axis=1)
+            screen = (np.abs(dirs @ d_a) >= math.cos(self.assoc.merge_angle_rad)) & (off <= self.assoc.merge_distance_m)
+            for b in np.flatnonzero(screen):
+                fb = pipes[b]
+                if fb is fa or (fb.id in touched and fb.id < fa.id):  # each pair once
+                    continue
+                ends_b = fb.extent.ends(lp[b, 3] * U[b, :, 0], dirs[b])
+                objects = self._object_positions() if objects is None else objects
+                if not self._on_pipe(ends_b, fa.extent, m_a, d_a, objects):
+                    continue
+                nu, H_a, H_b = geo.line_difference(lp[a], lp[b])
+                cols = np.r_[fa.cols, fb.cols]
+                H = np.hstack([H_a, H_b])
+                nis = float(nu @ np.linalg.solve(H @ P[np.ix_(cols, cols)] @ H.T, nu))
+                if nis >= gate and not self._same_stretch(fa.extent, ends_b, m_a, d_a):
+                    continue
+                if best is None or nis < best[0]:
+                    best = (nis, fa, fb, nu, H_a, H_b)
+        if best is None:
+            return
+        nis, fa, fb, nu, H_a, H_b = best
+        keep, drop, H_keep, H_drop = (fa, fb, H_a, H_b) if fa.id < fb.id else (fb, fa, H_b, H_a)
+        # two estimates that fail the χ² test are not fused: the constraint would pull the state (the
+        # vehicle too) across a disagreement their covariances call impossible; the younger is dropped
+        self._fuse_duplicate(keep, drop, nu, H_keep, H_drop, constrain=nis < gate)
+        keep.extent.merge(drop.extent)
+        x = self.state.x
+        x[keep.index : keep.index + 3] = geo.wrap(x[keep.index : keep.index + 3])
+
+    def _same_stretch(self, extent: _Extent, ends_b: np.ndarray, m: np.ndarray, d: np.ndarray) -> bool:
+        """Segment ends_b shares over half of the shorter stretch with the seen extent of the pipe (m, d),
+        its ends within ``ekf.duplicate_pipe_distance_m`` of that pipe's axis."""
+        r = ends_b - geo.closest_point(m, d)
+        off = np.linalg.norm(r - np.outer(r @ d, d), axis=1).max()
+        return off <= self.cfg.duplicate_pipe_distance_m and _overlap_fraction(extent, ends_b, m, d) >= 0.5
+
+    def _fuse_duplicate(self, keep: _Feature, drop: _Feature, diff: np.ndarray, H_keep: np.ndarray,
+                        H_drop: np.ndarray, constrain: bool = True) -> None:
+        """Impose keep = drop (their difference ``diff`` with Jacobians H_keep, H_drop, as a perfect
+        measurement of zero) unless not ``constrain``, then drop the younger block (marginalise it
+        out); its views and class evidence go to keep."""
+        if constrain:
+            cols = np.r_[keep.cols, drop.cols]
+            self.state.update(-diff, cols, np.hstack([H_keep, H_drop]), np.eye(len(diff)) * 1e-12)
+            self._wrap_vehicle()
         self.state.remove(drop.index, drop.size)
         self._features.remove(drop)
         for f in self._features:
