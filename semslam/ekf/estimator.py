@@ -83,6 +83,7 @@ from semslam.ekf.filter import EkfState
 from semslam.ekf.jcbb import Chi2Gate, jcbb_dense
 from semslam.ekf.models import ATT, BIAS, NX, POS, VEL
 from semslam.errors import ConfigError, MissionError
+from semslam.backend.landmarks import robust_ends, small_median
 from semslam.estimation import EstimatorResult, LandmarkEstimate, Trajectory
 from semslam.mission.measurements import Attitude, Depth, DvlVelocity, GroundTruthPose, Measurement
 from semslam.mission.mission import MissionMetadata
@@ -172,21 +173,12 @@ def _posterior(log: dict[str, float]) -> dict[str, float] | None:
     return dict(zip(log.keys(), map(float, p)))
 
 
-def _median(v: np.ndarray) -> float:
-    """np.median of a small 1-D array, without its per-call overhead."""
-    v = np.sort(v)
-    n = len(v)
-    return float(v[n // 2]) if n % 2 else 0.5 * float(v[n // 2 - 1] + v[n // 2])
-
-
 class _Extent:
     """What was seen of a pipe: every view's endpoints in {W} (saved as seen) with their along-axis σ.
 
     The saved endpoints are re-projected onto the current line estimate whenever the extent is used,
-    so they follow every update. Each end is robust to endpoint noise: the median of the view ends
-    within 6σ of the extreme one (the extreme alone is biased outwards by the noise; views clipped
-    by the field of view lie further in and are left out). The interval of the latest line asked
-    for is kept, so that the checks of one scan against one pipe compute it once."""
+    so they follow every update. Its ends follow the graph's rule (``robust_ends``). The interval of
+    the latest line asked for is kept, so that the checks of one scan against one pipe compute it once."""
 
     def __init__(self):
         self._pts = np.zeros((8, 2, 3))  # (2, 3) per view, in a buffer that grows by doubling
@@ -219,12 +211,8 @@ class _Extent:
         s = (self._pts[: self._k] - c) @ d  # (K, 2)
         lo, hi = s.min(axis=1), s.max(axis=1)
         if self._w is None or self._w[0] != self._k:
-            self._w = (self._k, 6.0 * _median(self._sig[: self._k]))
-        w = self._w[1]
-        lo_min, hi_max = lo.min(), hi.max()
-        a = _median(lo[lo <= lo_min + w])
-        b = _median(hi[hi >= hi_max - w])
-        out = (a, b) if b > a else (float(lo_min), float(hi_max))
+            self._w = (self._k, 6.0 * small_median(self._sig[: self._k]))
+        out = robust_ends(lo, hi, self._w[1])
         self._memo = (np.array(m, float), np.array(d, float), self._k, out)
         return out
 
