@@ -127,8 +127,8 @@ def match_landmarks(
 
     Object error: distance between positions. Pipe error: mean distance of the estimated endpoints
     to the true pipe axis (endpoints are only as long as what was seen). Structure error: distance
-    between origins. Returns the matches and counts of duplicates (an estimate left unmatched
-    whose nearest truth is already matched within the gate) and spurious estimates.
+    between origins. Returns the matches and counts of duplicates (estimates beyond the first whose
+    nearest truth within the gate is the same) and spurious estimates (no truth within the gate).
     """
     matches: list[LandmarkMatch] = []
     counts = {"duplicates": 0, "spurious": 0}
@@ -160,13 +160,12 @@ def match_landmarks(
             if C[a, b] <= gate_m:
                 matches.append(LandmarkMatch(kind, ests[a].id, gts[b].id, float(C[a, b])))
                 matched_rows.add(a)
-        for a in range(len(ests)):
-            if a in matched_rows:
-                continue
-            if np.min(C[a]) <= gate_m:
-                counts["duplicates"] += 1
-            else:
-                counts["spurious"] += 1
+        # duplicates by nearest truth, not by what the assignment left over: a second estimate of one
+        # pipe is otherwise assigned to an unseen neighbour within the gate and hidden
+        nearest = np.argmin(C, axis=1)
+        within = np.min(C, axis=1) <= gate_m
+        counts["spurious"] += int(np.sum(~within))
+        counts["duplicates"] += int(within.sum() - len(np.unique(nearest[within])))
     return matches, counts
 
 
