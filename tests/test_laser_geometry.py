@@ -129,3 +129,11 @@ def test_single_threaded_blas_restores_the_thread_count():
     inside = single_threaded_blas(blas_threads)()
     assert inside and all(n == 1 for n in inside)
     assert blas_threads() == before
+
+
+def test_row_dot_is_the_row_sum_to_the_last_bit():
+    from frontends.laser.grid import row_dot
+
+    rng = np.random.default_rng(5)
+    a, b = rng.normal(size=(1000, 3)) * 1e3, rng.normal(size=(1000, 3))
+    assert np.array_equal(row_dot(a, b), (a * b).sum(axis=1))

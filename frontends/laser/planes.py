@@ -29,7 +29,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.sparse import coo_matrix
+from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import connected_components
 
 from frontends.laser.config import PlaneConfig
@@ -56,13 +56,17 @@ def grow_regions(pre: Preprocessed, cfg: PlaneConfig) -> np.ndarray:
     rows = np.flatnonzero(smooth)
     nb = np.take(pre.neighbours, rows, axis=0)[:, 1:]  # the 26-neighbours of smooth points (−1: empty cell)
     # Each undirected edge once (j > i: also drops the −1s), between smooth points only.
-    keep = (nb > rows[:, None]) & np.append(smooth, False)[nb]
-    i = np.broadcast_to(rows[:, None], nb.shape)[keep]
-    j = nb[keep]
+    keep = np.flatnonzero((nb > rows[:, None]) & np.append(smooth, False)[nb])
+    # (gathers at the mask's flat positions: several times faster than boolean indexing)
+    i = np.take(rows, keep // nb.shape[1])
+    j = np.take(nb, keep)
     cos_min = np.cos(np.radians(cfg.max_normal_angle_deg))
     # (rows gathered by np.take: several times faster than fancy indexing of N×3 arrays)
-    ok = np.einsum("ij,ij->i", np.take(pre.normals, i, axis=0), np.take(pre.normals, j, axis=0)) >= cos_min
-    graph = coo_matrix((np.ones(ok.sum(), np.int8), (i[ok], j[ok])), shape=(m, m))
+    ok = np.flatnonzero(np.einsum("ij,ij->i", np.take(pre.normals, i, axis=0), np.take(pre.normals, j, axis=0)) >= cos_min)
+    i, j = np.take(i, ok), np.take(j, ok)
+    # The edges come sorted by i: the graph in CSR directly (no COO conversion in connected_components).
+    indptr = np.concatenate(([0], np.cumsum(np.bincount(i, minlength=m))))
+    graph = csr_matrix((np.ones(len(j)), j, indptr), shape=(m, m))
     _, labels = connected_components(graph, directed=False)
     return labels
 
