@@ -199,3 +199,29 @@ def test_a_strip_as_wide_as_the_pipe_is_not_a_pipe():
 
     assert lever_pipes(max_see_through=1.0)  # the strip fits a cylinder ...
     assert not lever_pipes()  # ... but the sensor sees through it
+
+
+def test_in_long_runs_keeps_only_runs_of_the_length_needed():
+    from frontends.laser.pipes import _in_long_runs
+
+    flag = np.array([1, 0, 1, 1, 0, 1, 1, 1, 0, 1], bool)
+    assert _in_long_runs(flag, 2).tolist() == [0, 0, 1, 1, 0, 1, 1, 1, 0, 0]
+    assert _in_long_runs(flag, 3).tolist() == [0, 0, 0, 0, 0, 1, 1, 1, 0, 0]
+    assert _in_long_runs(flag, 1).tolist() == flag.tolist()
+    assert not _in_long_runs(flag[:2], 3).any()  # shorter than a run can be
+
+
+def test_bin_medians_match_numpy_per_bin():
+    from frontends.laser.pipes import _bin_medians
+
+    rng = np.random.default_rng(3)
+    b = np.sort(rng.integers(0, 12, 200))
+    b[0], b[-1] = 0, 14  # bins 12 and 13 empty, as may be any bin but the first and the last
+    res = rng.normal(size=200)
+    cnt, med = _bin_medians(b, res, 15)
+    assert cnt.tolist() == np.bincount(b, minlength=15).tolist()
+    for k in range(15):
+        if cnt[k]:
+            assert med[k] == np.median(res[b == k])
+        else:
+            assert np.isnan(med[k])

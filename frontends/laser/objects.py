@@ -30,7 +30,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 from frontends.laser.config import ObjectConfig
-from frontends.laser.grid import VoxelGrid, adjacency_of, single_threaded_blas
+from frontends.laser.grid import VoxelGrid, adjacency_of, row_dot, single_threaded_blas
 from frontends.laser.pipes import Pipe
 
 
@@ -108,7 +108,7 @@ def own_points(points: np.ndarray, end: np.ndarray, out: np.ndarray, radius: flo
     has none."""
     x = points - end
     t = x @ out
-    rad = np.sqrt(np.maximum((x * x).sum(axis=1) - t * t, 0.0))
+    rad = np.sqrt(np.maximum(row_dot(x, x) - t * t, 0.0))
     return int(((rad > radius + cfg.own_margin) | (t > cfg.own_beyond)).sum())
 
 
@@ -124,7 +124,7 @@ def collinear_stub(points: np.ndarray, end: np.ndarray, out: np.ndarray, radius:
     t = x @ out
     sel = (t >= cfg.stub_start) & (t <= cfg.stub_reach)
     x, t = x[sel], t[sel]
-    rad = np.sqrt(np.maximum((x * x).sum(axis=1) - t * t, 0.0))
+    rad = np.sqrt(np.maximum(row_dot(x, x) - t * t, 0.0))
     t = t[np.abs(rad - radius) <= cfg.stub_tolerance]
     if len(t) < cfg.stub_points:
         return False
@@ -269,7 +269,7 @@ def segment_objects(points: np.ndarray, pipes: list[Pipe], up: np.ndarray, cfg: 
     # Points within reach of each site (all sites at once), then the exact boxes on those only.
     reach = np.linalg.norm(np.maximum(body, handle) / 2 + [0, 0, body[2] / 2 + handle[2] / 2])
     centres = np.array([site.center for site in sites])
-    d2 = (X * X).sum(axis=1)[:, None] - 2.0 * X @ centres.T + (centres * centres).sum(axis=1)[None, :]
+    d2 = row_dot(X, X)[:, None] - 2.0 * X @ centres.T + (centres * centres).sum(axis=1)[None, :]
     crops = []
     for site, d2_site in zip(sites, d2.T):
         crop = rest[_crop(X, np.flatnonzero(d2_site <= reach**2), site, cfg)]

@@ -28,7 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from frontends.laser.config import PipeConfig
-from frontends.laser.grid import single_threaded_blas
+from frontends.laser.grid import row_dot, single_threaded_blas
 from frontends.laser.preprocess import eigen3
 
 _REFINE_REACH = 0.05  # m beyond a pipe's surface over which a refinement looks for its inliers
@@ -143,8 +143,8 @@ def inlier_mask(points, normals, c, a, r, cfg: PipeConfig, sq=None, pn=None) -> 
     radial·n = p·n − c·n − along (a·n). ``sq`` = |p|² and ``pn`` = p·n per point may be passed
     when already known (they do not depend on the cylinder).
     """
-    sq = (points * points).sum(axis=1) if sq is None else sq
-    pn = (points * normals).sum(axis=1) if pn is None else pn
+    sq = row_dot(points, points) if sq is None else sq
+    pn = row_dot(points, normals) if pn is None else pn
     along = a @ points.T - np.einsum("hj,hj->h", a, c)[:, None]
     v2 = sq[None, :] - 2.0 * (c @ points.T) + (c * c).sum(axis=1)[:, None]
     dist = np.sqrt(np.maximum(v2 - along * along, 1e-18))
@@ -161,8 +161,8 @@ class _Points:
         self.index = index
         self.p = np.take(points, index, axis=0)  # (rows by np.take: several times faster than points[index])
         self.n = np.take(normals, index, axis=0)
-        self.sq = (self.p * self.p).sum(axis=1)
-        self.pn = (self.p * self.n).sum(axis=1)
+        self.sq = row_dot(self.p, self.p)
+        self.pn = row_dot(self.p, self.n)
 
     def subset(self, mask) -> _Points:
         sub = object.__new__(_Points)
@@ -186,7 +186,7 @@ class Rays:
 
     def __init__(self, points: np.ndarray):
         pts = np.asarray(points, dtype=np.float64)
-        ranges = np.sqrt((pts * pts).sum(axis=1))
+        ranges = np.sqrt(row_dot(pts, pts))
         keep = ranges > 0
         if not keep.all():  # (a copy of the scan only when some point is at the origin)
             pts, ranges = pts[keep], ranges[keep]
@@ -208,7 +208,7 @@ class Rays:
         da = d @ a
         w = d - da[:, None] * a
         cp = c - (c @ a) * a
-        A = np.maximum((w * w).sum(axis=1), 1e-12)
+        A = np.maximum(row_dot(w, w), 1e-12)
         B = -2.0 * (w @ cp)
         disc = B * B - 4.0 * A * (cp @ cp - r * r)
         root = np.sqrt(np.maximum(disc, 0.0))
@@ -358,17 +358,7 @@ def split_at_fittings(
     t0 = t.min()
     b = np.floor((t - t0) / cfg.bump_bin).astype(np.int64)
     n_bins = int(b.max()) + 1
-    # Median residual per bin, vectorised: sort by (bin, residual), take each bin's middle element.
-    order = np.lexsort((residual, b))
-    bs, rs = b[order], residual[order]
-    # (np.concatenate rather than np.r_, np.pad, np.isin, np.unique below: their Python overhead,
-    # ~20-70 µs a call, was most of this function's time on a pipe's few hundred inliers)
-    starts = np.flatnonzero(np.concatenate(([True], bs[1:] != bs[:-1])))
-    counts = np.diff(np.append(starts, len(bs)))
-    med = np.full(n_bins, np.nan)
-    med[bs[starts]] = 0.5 * (rs[starts + (counts - 1) // 2] + rs[starts + counts // 2])
-    cnt = np.zeros(n_bins, np.int64)
-    cnt[bs[starts]] = counts
+    cnt, med = _bin_medians(b, residual, n_bins)
     # Against the pipe's own level nearby (a slightly tilted fit makes the level drift along the
     # axis): the median of the bin medians over ±bump_window, longer than any socket.
     w = int(np.ceil(cfg.bump_window / cfg.bump_bin))
@@ -386,37 +376,55 @@ def split_at_fittings(
         c3 = np.convolve(cnt, np.ones(3), "same")
         smooth = np.where(c3 >= 6, s3 / np.maximum(c3, 1), np.nan)
         bad_bin |= (smooth - level > height) & (cnt >= 2)
-    bad = set(np.flatnonzero(bad_bin).tolist())
+    # Bins flagged, over a range that also holds the foreign points' bins (which may lie beyond
+    # the inliers): flag[k - first] is bin k's.
+    first, flag = 0, bad_bin
     if len(t_foreign):
         fb = np.floor((t_foreign - t0) / cfg.bump_bin).astype(np.int64)
-        c = np.bincount(fb - fb.min())
-        bad |= set((np.flatnonzero(c >= cfg.fitting_points) + fb.min()).tolist())
-    bad_bins = np.sort(np.fromiter(bad, np.int64, len(bad)))
+        fb_min = int(fb.min())
+        crowded = np.bincount(fb - fb_min) >= cfg.fitting_points
+        first = min(0, fb_min)
+        flag = np.zeros(max(n_bins, fb_min + len(crowded)) - first, bool)
+        flag[-first : n_bins - first] = bad_bin
+        flag[fb_min - first : fb_min - first + len(crowded)] |= crowded
     # A fitting is at least min_fitting_length long (the shortest socket is 8.8 cm): a lone bin is
     # noise or a pipe passing close by, not a fitting.
-    if len(bad_bins):
-        run_start = np.concatenate(([True], np.diff(bad_bins) > 1))
-        run_id = np.cumsum(run_start) - 1
-        run_len = np.bincount(run_id)
-        need = max(int(round(cfg.min_fitting_length / cfg.bump_bin)), 1)
-        bad_bins = bad_bins[run_len[run_id] >= need]
-    is_bad = np.zeros(n_bins, bool)
-    is_bad[bad_bins[(bad_bins >= 0) & (bad_bins < n_bins)]] = True
-    kept = np.flatnonzero(~is_bad[b])
+    flag = _in_long_runs(flag, max(int(round(cfg.min_fitting_length / cfg.bump_bin)), 1))
+    bad_bins = np.flatnonzero(flag) + first
+    kept = np.flatnonzero(~flag[b - first])
     if len(kept) == 0:
         return []
     kept = kept[np.argsort(t[kept])]
     tk = t[kept]
     # Cut between consecutive kept points with a fitting bin between them, or too far apart.
-    lo = t0 + bad_bins * cfg.bump_bin
-    fitting_between = np.searchsorted(lo, tk[1:]) > np.searchsorted(lo, tk[:-1])
-    gap = np.diff(tk)
-    cut = fitting_between | (gap > cfg.max_gap)
+    fitting_before = np.searchsorted(t0 + bad_bins * cfg.bump_bin, tk)
+    gap = tk[1:] - tk[:-1]
+    cut = (fitting_before[1:] > fitting_before[:-1]) | (gap > cfg.max_gap)
     if t_around is not None and len(t_around):
         ta = np.sort(t_around)
         inside = np.searchsorted(ta, tk[1:]) - np.searchsorted(ta, tk[:-1], side="right")
         cut |= (gap > cfg.min_fitting_length) & (inside >= cfg.fitting_points)
     return np.split(kept, np.flatnonzero(cut) + 1)
+
+
+def _bin_medians(b: np.ndarray, residual: np.ndarray, n_bins: int) -> tuple[np.ndarray, np.ndarray]:
+    """Count and median residual of every bin ``b`` (NaN where empty), by one sort on (bin,
+    residual): bin k's residuals are then rs[start[k] : start[k] + cnt[k]], in order. (Bin 0 and
+    the last bin are never empty, so an empty bin's unused indices stay in range.)"""
+    rs = residual[np.lexsort((residual, b))]
+    cnt = np.bincount(b, minlength=n_bins)
+    start = np.cumsum(cnt) - cnt
+    med = 0.5 * (rs[start + (cnt - 1) // 2] + rs[start + cnt // 2])
+    return cnt, np.where(cnt > 0, med, np.nan)
+
+
+def _in_long_runs(flag: np.ndarray, need: int) -> np.ndarray:
+    """The True entries of ``flag`` that belong to runs of at least ``need`` consecutive ones."""
+    if need <= 1 or len(flag) < need:
+        return flag if need <= 1 else np.zeros_like(flag)
+    ones = np.ones(need, np.int64)
+    full = np.convolve(flag, ones, "valid") == need  # windows of `need` flagged entries
+    return np.convolve(full, ones, "full") > 0  # the entries of such windows
 
 
 def endpoint_covariance(p, q, axis, n_points, mean_range, cfg: PipeConfig) -> np.ndarray:
@@ -520,7 +528,7 @@ def detect_pipes(points: np.ndarray, normals: np.ndarray, grid, cfg: PipeConfig,
     rng = np.random.default_rng(cfg.seed)
     free = np.ones(n, bool)
     seedable = np.ones(n, bool)
-    sq = (points * points).sum(axis=1)
+    sq = row_dot(points, points)
     pipes: list[Pipe] = []
     failures = 0
     cand = None  # the free points, narrowed when a pipe takes some
@@ -604,7 +612,7 @@ def merge_duplicates(pipes: list[Pipe], points, normals, cfg: PipeConfig) -> lis
         merged = _make_pipe(points, normals, seg, pipes[x].axis, cfg)
         v = points[seg] - merged.p
         t = v @ merged.axis
-        residual = np.sqrt(np.maximum((v * v).sum(axis=1) - t * t, 0.0)) - merged.radius
+        residual = np.sqrt(np.maximum(row_dot(v, v) - t * t, 0.0)) - merged.radius
         runs = split_at_fittings(t, residual, np.zeros(0), cfg)
         dropped = np.ones(len(seg), bool)
         for run in runs:
