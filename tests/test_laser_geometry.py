@@ -137,3 +137,15 @@ def test_row_dot_is_the_row_sum_to_the_last_bit():
     rng = np.random.default_rng(5)
     a, b = rng.normal(size=(1000, 3)) * 1e3, rng.normal(size=(1000, 3))
     assert np.array_equal(row_dot(a, b), (a * b).sum(axis=1))
+
+
+def test_eigen3_parts_equals_eigen3_on_the_assembled_matrices():
+    from frontends.laser.preprocess import eigen3_parts
+
+    rng = np.random.default_rng(6)
+    X = rng.normal(size=(2000, 3, 4))
+    C = X @ X.transpose(0, 2, 1)
+    C[:5] = 0.0  # degenerate: no preferred normal
+    parts = np.stack([C[:, 0, 0], C[:, 0, 1], C[:, 0, 2], C[:, 1, 1], C[:, 1, 2], C[:, 2, 2]])
+    for got, want in zip(eigen3_parts(parts), eigen3(C)):
+        assert np.array_equal(got, want)

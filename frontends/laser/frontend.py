@@ -19,7 +19,7 @@ from frontends.laser.objects import SegmentedObject, segment_objects
 from frontends.laser.pipes import Pipe, Rays, detect_pipes
 from frontends.laser.planes import PlaneResult, remove_planes
 from frontends.laser.grid import VoxelGrid, adjacency_of
-from frontends.laser.preprocess import Preprocessed, hop_covariances, preprocess, shape_of
+from frontends.laser.preprocess import Preprocessed, hop_covariance_parts, preprocess, shape_of_parts
 from semslam.errors import ConfigError
 from semslam.mission.measurements import PointCloud
 from semslam.observations import Connectivity, LineObservation, Observation, PointObservation
@@ -85,7 +85,7 @@ def structure_cloud(raw: np.ndarray, pre: Preprocessed, planes: PlaneResult, cfg
     grid = VoxelGrid(raw[keep], cfg.preprocess.structure_voxel_size)
     raw_to_structure[keep] = grid.inverse
     A = adjacency_of(grid.neighbours(1))
-    normals, _, _ = shape_of(hop_covariances(grid.points, A, cfg.pipes.normal_hops), grid.points)
+    normals, _, _ = shape_of_parts(hop_covariance_parts(grid.points, A, cfg.pipes.normal_hops), grid.points)
     return grid, raw_to_structure, normals
 
 

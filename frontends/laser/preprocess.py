@@ -85,26 +85,44 @@ def _moments(points: np.ndarray, centre: np.ndarray | None = None) -> np.ndarray
 
 def _covariances_from_sums(S: np.ndarray) -> np.ndarray:
     """R×3×3 covariances from summed (weighted) moments (R×10, see :func:`_moments`)."""
+    return _assemble(_covariance_parts(S))
+
+
+def _covariance_parts(S: np.ndarray) -> np.ndarray:
+    """The six distinct entries (xx, xy, xz, yy, yz, zz) of R covariances from summed (weighted)
+    moments (R×10, see :func:`_moments`), as a 6×R array: what :func:`eigen3_parts` takes, without
+    assembling R×3×3 matrices (12 strided column writes, most of the cost here)."""
     S = S[:, 1:] / np.maximum(S[:, :1], 1e-300)
     mean = S[:, :3]
     sec = S[:, 3:] - mean[:, [0, 0, 0, 1, 1, 2]] * mean[:, [0, 1, 2, 1, 2, 2]]
-    cov = np.empty((len(S), 3, 3))
+    return np.ascontiguousarray(sec.T)
+
+
+def _assemble(parts: np.ndarray) -> np.ndarray:
+    """R×3×3 symmetric matrices from their 6×R distinct entries (see :func:`_covariance_parts`)."""
+    cov = np.empty((parts.shape[1], 3, 3))
     for col, (a, b) in enumerate([(0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)]):
-        cov[:, a, b] = cov[:, b, a] = sec[:, col]
+        cov[:, a, b] = cov[:, b, a] = parts[col]
     return cov
 
 
 @single_threaded_blas
-def hop_covariances(
+def hop_covariance_parts(
     points: np.ndarray, adjacency: csr_matrix, hops: int, rows: np.ndarray | None = None, centre: np.ndarray | None = None
 ) -> np.ndarray:
-    """Covariance (R×3×3) of each point's neighbourhood grown ``hops`` steps over ``adjacency``
-    (M×M, self-links included), every point weighted by its number of paths from the centre; for
-    the points ``rows`` (all when None). ``centre``: see :func:`_moments`."""
+    """Covariances (6×R distinct entries, see :func:`_covariance_parts`) of each point's
+    neighbourhood grown ``hops`` steps over ``adjacency`` (M×M, self-links included), every point
+    weighted by its number of paths from the centre; for the points ``rows`` (all when None).
+    ``centre``: see :func:`_moments`."""
     S = _moments(points, centre)
     for _ in range(hops):
         S = adjacency @ S
-    return _covariances_from_sums(S if rows is None else np.take(S, rows, axis=0))
+    return _covariance_parts(S if rows is None else np.take(S, rows, axis=0))
+
+
+def hop_covariances(points, adjacency, hops, rows=None, centre=None) -> np.ndarray:
+    """The covariances of :func:`hop_covariance_parts` as R×3×3 matrices."""
+    return _assemble(hop_covariance_parts(points, adjacency, hops, rows, centre))
 
 
 def smallest_eigen(cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -122,6 +140,23 @@ def eigen3(cov: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndar
     """
     a00, a11, a22 = cov[:, 0, 0], cov[:, 1, 1], cov[:, 2, 2]
     a01, a02, a12 = cov[:, 0, 1], cov[:, 0, 2], cov[:, 1, 2]
+    lam0, lam1, lam2 = _eigenvalues(a00, a11, a22, a01, a02, a12)
+    M = cov - lam0[:, None, None] * np.eye(3)
+    rows = [(M[:, r, 0], M[:, r, 1], M[:, r, 2]) for r in range(3)]
+    return np.maximum(lam0, 0.0), np.maximum(lam1, 0.0), np.maximum(lam2, 0.0), _null_vector(*rows)
+
+
+def eigen3_parts(parts: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`eigen3` of symmetric matrices given by their 6×R distinct entries (xx, xy, xz, yy,
+    yz, zz): the same results, on contiguous rows rather than strided matrix entries."""
+    a00, a01, a02, a11, a12, a22 = parts
+    lam0, lam1, lam2 = _eigenvalues(a00, a11, a22, a01, a02, a12)
+    rows = [(a00 - lam0, a01, a02), (a01, a11 - lam0, a12), (a02, a12, a22 - lam0)]  # of C − λ0·I
+    return np.maximum(lam0, 0.0), np.maximum(lam1, 0.0), np.maximum(lam2, 0.0), _null_vector(*rows)
+
+
+def _eigenvalues(a00, a11, a22, a01, a02, a12):
+    """λ0 ≤ λ1 ≤ λ2 (λ0 not clamped at 0) of the symmetric matrices with these entries."""
     q = (a00 + a11 + a22) / 3.0
     p1 = a01**2 + a02**2 + a12**2
     p2 = (a00 - q) ** 2 + (a11 - q) ** 2 + (a22 - q) ** 2 + 2.0 * p1
@@ -133,14 +168,13 @@ def eigen3(cov: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndar
     lam0 = q + 2.0 * p * np.cos(phi + 2.0 * np.pi / 3.0)
     lam2 = q + 2.0 * p * np.cos(phi)
     lam1 = 3.0 * q - lam0 - lam2
-    return np.maximum(lam0, 0.0), np.maximum(lam1, 0.0), np.maximum(lam2, 0.0), _null_vector(cov, lam0)
+    return lam0, lam1, lam2
 
 
-def _null_vector(cov, lam0):
-    """Unit eigenvector of λ0: the longest of the cross products of the rows of C − λ0·I."""
-    n = len(cov)
-    M = cov - lam0[:, None, None] * np.eye(3)
-    r0, r1, r2 = M[:, 0], M[:, 1], M[:, 2]
+def _null_vector(r0, r1, r2):
+    """Unit eigenvector of λ0: the longest of the cross products of the rows r0, r1, r2 of
+    C − λ0·I (each a triple of component arrays)."""
+    n = len(r0[0])
     c = np.empty((n, 3, 3))  # [matrix, pair of rows, component], written in place (no stacking)
     _cross_into(r0, r1, c[:, 0])
     _cross_into(r0, r2, c[:, 1])
@@ -157,11 +191,12 @@ def _null_vector(cov, lam0):
     return v
 
 
-def _cross_into(a: np.ndarray, b: np.ndarray, out: np.ndarray) -> None:
-    """Row-wise cross products of N×3 arrays into ``out`` (``np.cross`` costs several times more)."""
-    np.subtract(a[:, 1] * b[:, 2], a[:, 2] * b[:, 1], out=out[:, 0])
-    np.subtract(a[:, 2] * b[:, 0], a[:, 0] * b[:, 2], out=out[:, 1])
-    np.subtract(a[:, 0] * b[:, 1], a[:, 1] * b[:, 0], out=out[:, 2])
+def _cross_into(a, b, out: np.ndarray) -> None:
+    """Cross products of vectors given as component triples (a0, a1, a2), (b0, b1, b2) into the
+    N×3 ``out`` (``np.cross`` costs several times more)."""
+    np.subtract(a[1] * b[2], a[2] * b[1], out=out[:, 0])
+    np.subtract(a[2] * b[0], a[0] * b[2], out=out[:, 1])
+    np.subtract(a[0] * b[1], a[1] * b[0], out=out[:, 2])
 
 
 def local_geometry(
@@ -186,7 +221,16 @@ def local_shape(points, knn, rows=None, viewpoint=(0.0, 0.0, 0.0)):
 @single_threaded_blas
 def shape_of(cov: np.ndarray, centre: np.ndarray, viewpoint=(0.0, 0.0, 0.0)):
     """Normals (towards ``viewpoint``), curvature and planarity of neighbourhood covariances."""
-    lam0, lam1, lam2, normals = eigen3(cov)
+    return _shape(*eigen3(cov), centre, viewpoint)
+
+
+@single_threaded_blas
+def shape_of_parts(parts: np.ndarray, centre: np.ndarray, viewpoint=(0.0, 0.0, 0.0)):
+    """:func:`shape_of` of covariances given by their 6×R distinct entries (see :func:`eigen3_parts`)."""
+    return _shape(*eigen3_parts(parts), centre, viewpoint)
+
+
+def _shape(lam0, lam1, lam2, normals, centre, viewpoint):
     trace = lam0 + lam1 + lam2
     curvature = np.where(trace > 0, lam0 / np.maximum(trace, 1e-300), 0.0)
     planarity = np.where(lam2 > 0, lam1 / np.maximum(lam2, 1e-300), 0.0)
@@ -228,8 +272,8 @@ def preprocess(points: np.ndarray, pre: PreprocessConfig, planes: PlaneConfig) -
         return _empty(raw_to_voxel)
     raw_to_voxel[keep] = inv
     # (moments centred on the kept voxels' mean, as if the strays had never been there)
-    cov = hop_covariances(all_vox, A, planes.normal_hops, rows=kept, centre=vox.mean(axis=0))
-    normals, curvature, planarity = shape_of(cov, vox)
+    cov = hop_covariance_parts(all_vox, A, planes.normal_hops, rows=kept, centre=vox.mean(axis=0))
+    normals, curvature, planarity = shape_of_parts(cov, vox)
     return Preprocessed(vox, raw_to_voxel, nb, normals, curvature, planarity)
 
 
