@@ -117,7 +117,11 @@ class VoxelGrid:
         sums = np.stack([np.bincount(self.inverse, weights=pts[:, j], minlength=n) for j in range(3)], axis=1)
         self.points = sums / np.maximum(self.counts, 1)[:, None]
         # Blocks: their ids in the box, the 27 around each (−1 → an empty block appended last).
-        ub, self._block = np.unique(uniq >> 3 * _B, return_inverse=True)
+        # Blocks of the cells (uniq is sorted, so are its blocks: np.unique's sort is not needed).
+        cell_block = uniq >> 3 * _B
+        new_block = np.ones(n, bool)
+        np.not_equal(cell_block[1:], cell_block[:-1], out=new_block[1:])
+        ub, self._block = cell_block[new_block], np.cumsum(new_block) - 1
         self._slot = (uniq & (_L**3 - 1)).astype(np.int32)
         table = np.full(int(np.prod(bdims)), len(ub), np.int32)  # ≤ (12 m / 8 cm)³ blocks: 14 MB at worst
         table[ub] = np.arange(len(ub))

@@ -29,7 +29,7 @@ import numpy as np
 
 from frontends.laser.config import PipeConfig
 from frontends.laser.grid import row_dot, single_threaded_blas
-from frontends.laser.preprocess import eigen3
+from frontends.laser.preprocess import eigen3_parts
 
 _REFINE_REACH = 0.05  # m beyond a pipe's surface over which a refinement looks for its inliers
 # A patch's normals must turn (mean sin² of their spread across the axis, a pipe of radius r over
@@ -107,7 +107,7 @@ def patch_hypotheses(points, normals, grid, seeds, usable, cfg: PipeConfig):
     # (rows gathered by np.take: several times faster than fancy indexing on N×3 arrays)
     N = np.take(normals, j, axis=0)
     M = _sums_by_seed(np.take(N, [0, 0, 0, 1, 1, 2], axis=1) * np.take(N, [0, 1, 2, 1, 2, 2], axis=1), cnt)
-    lam0, lam1, _, a = eigen3(M[:, [[0, 1, 2], [1, 3, 4], [2, 4, 5]]])
+    lam0, lam1, _, a = eigen3_parts(M.T)
     # Offsets from the seed across the axis, of positions and of normals.
     aj = np.take(a, s_of, axis=0)
     ps, ns = np.take(points, seeds, axis=0), np.take(normals, seeds, axis=0)
@@ -130,7 +130,8 @@ def patch_hypotheses(points, normals, grid, seeds, usable, cfg: PipeConfig):
 def _sums_by_seed(x: np.ndarray, counts: np.ndarray) -> np.ndarray:
     """Sums of consecutive row groups of ``x`` (P×k, grouped by seed, ``counts`` rows each; a
     group may be empty), by differences of a cumulative sum."""
-    c = np.vstack([np.zeros((1, x.shape[1])), np.cumsum(x, axis=0)])
+    c = np.zeros((len(x) + 1, x.shape[1]))
+    np.cumsum(x, axis=0, out=c[1:])
     end = np.cumsum(counts)
     return c[end] - c[end - counts]
 

@@ -138,13 +138,13 @@ def _keep_on_plane(points, plane_of, planes, max_offset: float):
     """
     P = np.array([p[0] for p in planes])
     D = np.array([p[1] for p in planes])
-    on = plane_of >= 0
-    idx = np.flatnonzero(on)
-    dist = np.abs(np.einsum("ij,ij->i", points[idx], P[plane_of[idx]]) - D[plane_of[idx]])
+    idx = np.flatnonzero(plane_of >= 0)
+    on, which = np.take(points, idx, axis=0), plane_of[idx]  # the points of the planes, and whose
+    dist = np.abs(np.einsum("ij,ij->i", on, P[which]) - D[which])
     good = dist <= max_offset
     refit = []
     for k in range(len(planes)):  # a handful of planes
-        pts = points[idx[good & (plane_of[idx] == k)]]
+        pts = np.take(on, np.flatnonzero(good & (which == k)), axis=0)
         if len(pts) < 3:
             refit.append(planes[k])
             continue
@@ -154,7 +154,7 @@ def _keep_on_plane(points, plane_of, planes, max_offset: float):
         refit.append((n, float(n @ c)))
     P = np.array([p[0] for p in refit])
     D = np.array([p[1] for p in refit])
-    dist = np.abs(np.einsum("ij,ij->i", points[idx], P[plane_of[idx]]) - D[plane_of[idx]])
+    dist = np.abs(np.einsum("ij,ij->i", on, P[which]) - D[which])
     plane_of = plane_of.copy()
     plane_of[idx[dist > max_offset]] = -1
     return plane_of, refit
