@@ -319,3 +319,129 @@ def test_biased_attitude_factor_jacobians(seed):
     assert np.allclose(biased_attitude_residual(T, b, R_exact), 0, atol=1e-12)
     # ... and a bias equal to the heading offset absorbs it exactly.
     assert np.allclose(biased_attitude_residual(T, b + 0.3, so3_exp(np.array([0, 0, 0.3])) @ R_exact), 0, atol=1e-12)
+
+
+# --------------------------------------------------------------------------------------------
+# The fast callbacks and built-in replacements give the reference residuals' numbers.
+
+
+def _reference_factor(noise, keys, residual):
+    """A CustomFactor straight from a reference residual function returning (r, [H...])."""
+
+    def error(this, values, H):
+        r, Hs = residual(values)
+        if H is not None:
+            for k, Hk in enumerate(Hs):
+                H[k] = Hk
+        return r
+
+    return gtsam.CustomFactor(noise, keys, error)
+
+
+def assert_same_linearization(f, ref, v):
+    np.testing.assert_allclose(f.whitenedError(v), ref.whitenedError(v), rtol=1e-12, atol=1e-9)
+    A, b = f.linearize(v).jacobian()
+    A_ref, b_ref = ref.linearize(v).jacobian()
+    np.testing.assert_allclose(A, A_ref, rtol=1e-10, atol=1e-8 * max(1.0, np.abs(A_ref).max()))
+    np.testing.assert_allclose(b, b_ref, rtol=1e-10, atol=1e-9)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_depth_factor_builtin_equals_depth_residual(seed):
+    """GPSFactorArm with precisions (0, 0, 1/σ²): whitened error (0, 0, r/σ), r = depth_residual,
+    and Jacobian (0, 0, H/σ) at random states and lever arms."""
+    from factors.navigation import depth_residual
+
+    rng = np.random.default_rng(seed)
+    t_BS, sigma = rng.normal(size=3) * 0.5, 0.01 + rng.uniform() * 0.1
+    depth = rng.uniform(0, 50)
+    f = depth_factor(1, depth, sigma**2, t_BS)
+    for _ in range(5):
+        T = random_pose(rng, 20.0)
+        v = gtsam.Values()
+        v.insert(1, T)
+        r, H = depth_residual(T, t_BS, depth, jac=True)
+        np.testing.assert_allclose(f.whitenedError(v), [0.0, 0.0, r[0] / sigma], rtol=1e-12, atol=1e-9)
+        assert 2 * f.error(v) == pytest.approx((r[0] / sigma) ** 2, rel=1e-12)
+        A, b = f.linearize(v).jacobian()
+        np.testing.assert_allclose(A[:2], 0.0)
+        np.testing.assert_allclose(A[2], H[0] / sigma, rtol=1e-10, atol=1e-9)
+        np.testing.assert_allclose(b, [0.0, 0.0, -r[0] / sigma], rtol=1e-12, atol=1e-9)
+
+
+@pytest.mark.parametrize("seed", range(5))
+@pytest.mark.parametrize("tilt", [0.0, 1e-9, 0.4, 2.5])
+def test_line_factor_callback_equals_line_residual(seed, tilt):
+    rng = np.random.default_rng(100 + seed)
+    T, T_BS = random_pose(rng), random_extrinsic(rng)
+    anchor = LineAnchor.from_points(rng.normal(size=3) * 3, rng.normal(size=3) * 3)
+    ang = rng.uniform(0, 2 * np.pi)
+    theta = np.array([tilt * np.cos(ang), tilt * np.sin(ang), *rng.normal(size=2)])
+    p_S, q_S = rng.normal(size=3) * 2, rng.normal(size=3) * 2
+    cov4 = random_cov(rng, 4, 0.02)
+    robust = gtsam.noiseModel.mEstimator.Huber.Create(1.345)
+    for rob in (None, robust):
+        noise = gtsam.noiseModel.Gaussian.Covariance(cov4)
+        noise = noise if rob is None else gtsam.noiseModel.Robust.Create(rob, noise)
+        f = line_factor(1, 2, anchor, p_S, q_S, cov4, T_BS, rob)
+
+        def res(vals):
+            r, H_x, H_l = line_residual(vals.atPose3(1), vals.atVector(2), anchor, T_BS, p_S, q_S, jac=True)
+            return r, (H_x, H_l)
+
+        ref = _reference_factor(noise, [1, 2], res)
+        for _ in range(3):
+            v = gtsam.Values()
+            v.insert(1, T.retract(rng.normal(size=6) * 0.1))
+            v.insert(2, theta + rng.normal(size=4) * 0.05)
+            assert_same_linearization(f, ref, v)
+
+
+@pytest.mark.parametrize("seed", range(4))
+@pytest.mark.parametrize("gap", [False, True])
+def test_displacement_factor_callback_equals_displacement_residual(seed, gap):
+    from factors.navigation import displacement_residual
+
+    rng = np.random.default_rng(200 + seed)
+    Ti = random_pose(rng)
+    pre = DvlPreintegrator(0.0, Ti.rotation().matrix(), accel_sigma=0.05, attitude_sigma=0.01)
+    if not gap:
+        for t in np.arange(0.2, 1.0, 0.2):
+            pre.add(t, Ti.rotation().matrix() @ so3_exp(rng.normal(size=3) * 0.05), rng.normal(size=3) * 0.3, random_cov(rng, 3, 0.01))
+    d = pre.integrate(1.1, Ti.rotation().matrix() @ so3_exp(rng.normal(size=3) * 0.05))
+    f = displacement_factor(1, 2, 3, 4, d)
+
+    def res(vals):
+        r, Hs = displacement_residual(vals.atPose3(1), vals.atPose3(2), vals.atVector(3), vals.atVector(4), d, jac=True)
+        return r, Hs
+
+    ref = _reference_factor(gtsam.noiseModel.Gaussian.Covariance(d.cov), [1, 2, 3, 4], res)
+    for _ in range(4):
+        v = gtsam.Values()
+        v.insert(1, random_pose(rng))
+        v.insert(2, random_pose(rng))
+        v.insert(3, rng.normal(size=3))
+        v.insert(4, rng.normal(size=3))
+        assert_same_linearization(f, ref, v)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_biased_attitude_factor_callback_equals_residual(seed):
+    from factors.navigation import biased_attitude_factor, biased_attitude_residual
+
+    rng = np.random.default_rng(300 + seed)
+    R_meas = so3_exp(rng.normal(size=3))
+    cov = random_cov(rng, 3, 0.01)
+    f = biased_attitude_factor(1, 2, R_meas, cov)
+
+    def res(vals):
+        r, H_x, H_b = biased_attitude_residual(vals.atPose3(1), float(vals.atVector(2)[0]), R_meas, jac=True)
+        return r, (H_x, H_b)
+
+    ref = _reference_factor(gtsam.noiseModel.Gaussian.Covariance(cov), [1, 2], res)
+    for _ in range(4):
+        b = float(rng.normal(0, 0.3))
+        v = gtsam.Values()
+        v.insert(1, gtsam.Pose3(gtsam.Rot3(so3_exp(np.array([0, 0, -b])) @ R_meas @ so3_exp(rng.normal(size=3) * 0.3)), rng.normal(size=3)))
+        v.insert(2, np.array([b]))
+        assert_same_linearization(f, ref, v)
