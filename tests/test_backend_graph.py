@@ -174,6 +174,33 @@ def test_protocol_view_and_failure_recovery():
     assert mission_end > 0
 
 
+def test_isam2_callbacks_get_theta_itself_not_a_copy():
+    """CustomFactor callbacks inside iSAM2 receive the estimator's handle on iSAM2's θ (pybind11
+    would otherwise copy all of θ for every callback: a per-update cost growing with the map),
+    also after a rebuild replaces iSAM2."""
+    from semslam.backend.graph import X
+
+    mission = simulate(SyntheticConfig(duration_s=20.0, n_objects=0, n_pipes=0, n_structures=0, seed=2))
+    est = GraphEstimator(mission.metadata, SemslamConfig())
+    seen = []
+
+    def probe(this, values, H):
+        seen.append(values is est._theta)
+        if H is not None:
+            H[0] = np.zeros((1, 6))
+        return np.zeros(1)
+
+    for m in mission:
+        est.process_measurement(m)
+        if len(est.kf_stamps) == 5 and not seen:
+            est._commit([(gtsam.CustomFactor(gtsam.noiseModel.Isotropic.Sigma(1, 1.0), [X(2)], probe), None)], gtsam.Values())
+    n_before = len(seen)
+    old = est._theta
+    est._rebuild([], gtsam.Values(), [])  # a fresh iSAM2 relinearises every factor
+    assert est._theta is not old and est._theta is est.isam.getLinearizationPoint()
+    assert n_before > 0 and len(seen) > n_before and all(seen)
+
+
 def test_landmark_needs_min_observations():
     """Two observations of an object do not create a landmark; the third does."""
     mission = simulate(SyntheticConfig(duration_s=20.0, n_objects=0, n_pipes=0, n_structures=0, seed=2))
