@@ -108,6 +108,7 @@ def test_metrics_and_outputs(tmp_path):
         assert REQUIRED_ESTIMATOR_KEYS <= set(e)
     assert metrics["estimators"]["a"]["ate_rmse_m"] == pytest.approx(0.1, abs=1e-9)
     assert metrics["estimators"]["a_online"]["ate_rmse_m"] == pytest.approx(0.15, abs=1e-9)
+    assert metrics["estimators"]["a"]["ate_rmse_se3_m"] is None  # a straight line fixes no alignment
     assert metrics["estimators"]["b"]["ate_max_m"] == pytest.approx(0.2, abs=1e-9)
     assert metrics["estimators"]["b"]["landmark_median_error_m"] == pytest.approx(0.2, abs=1e-9)
     assert metrics["estimators"]["a"]["nees_mean"] == pytest.approx(1.0)  # error 1σ along one axis

@@ -188,6 +188,9 @@ def estimator_metrics(
         "ate_rmse_m": None,
         "ate_max_m": None,
         "rpe_rmse_m": None,
+        # after an SE(3) (Umeyama) alignment: without the error of the global frame, which a
+        # heading-biased AHRS leaves unobservable (the map's yaw about the start)
+        "ate_rmse_se3_m": None,
         "landmark_median_error_m": None,
         "n_objects": sum(lm.kind == "object" for lm in result.landmarks),
         "n_pipes": sum(lm.kind == "pipe" for lm in result.landmarks),
@@ -204,6 +207,7 @@ def estimator_metrics(
         errs = trajectory_errors(result.trajectory, truth_trajectory, alignment=alignment)
         if errs is not None:
             out.update(ate_rmse_m=errs.ate_rmse_m, ate_max_m=errs.ate_max_m, rpe_rmse_m=errs.rpe_rmse_m)
+            out["ate_rmse_se3_m"] = _aligned_ate(result.trajectory, truth_trajectory)
         out["nees_mean"] = position_nees(result.trajectory, truth_trajectory)
     if truth_map is not None and result.landmarks:
         matches, counts = match_landmarks(result.landmarks, truth_map)
@@ -214,6 +218,17 @@ def estimator_metrics(
             out[f"{kind}_median_error_m"] = float(np.median(errs_k)) if errs_k else None
         out.update({f"landmark_{k}": v for k, v in counts.items()})
     return out
+
+
+def _aligned_ate(estimate: Trajectory, truth: Trajectory) -> float | None:
+    """ATE RMSE after SE(3) alignment; None when the trajectory cannot fix one (a straight line)."""
+    from evo.core.geometry import GeometryException
+
+    try:
+        errs = trajectory_errors(estimate, truth, alignment="se3")
+    except GeometryException:
+        return None
+    return errs.ate_rmse_m if errs is not None else None
 
 
 def _yaw(R: np.ndarray) -> float:

@@ -14,6 +14,7 @@ from semslam.pipeline import PipelineResult
 
 ROWS = [
     ("ATE RMSE [m]", "ate_rmse_m", "{:.3f}"),
+    ("ATE RMSE, SE(3)-aligned [m]", "ate_rmse_se3_m", "{:.4f}"),
     ("ATE max [m]", "ate_max_m", "{:.3f}"),
     ("RPE RMSE [m/m]", "rpe_rmse_m", "{:.3f}"),
     ("landmark median error [m]", "landmark_median_error_m", "{:.3f}"),
