@@ -225,3 +225,14 @@ def test_bin_medians_match_numpy_per_bin():
             assert med[k] == np.median(res[b == k])
         else:
             assert np.isnan(med[k])
+
+
+def test_eigh_is_numpys_eigh_bit_for_bit():
+    from frontends.laser.pipes import _eigh
+
+    rng = np.random.default_rng(4)
+    for _ in range(50):
+        X = rng.normal(size=(30, 3))
+        w, v = _eigh(X.T @ X)
+        W, V = np.linalg.eigh(X.T @ X)
+        assert np.array_equal(w, W) and np.array_equal(v, V)
