@@ -294,18 +294,19 @@ def segment_objects(points: np.ndarray, pipes: list[Pipe], up: np.ndarray, cfg: 
         if site.config == 1:
             # A lone pipe end is no evidence by itself (the pipe may leave the view or be hidden):
             # the object must touch the end and have points of its own beyond the pipe's surface.
-            near_end = (points[crop] - e[0]) @ -dirs[0] <= cfg.attach_distance
-            crop = crop[_largest_cluster(points[crop], cfg.cluster_distance, near_end)]
+            P = np.take(points, crop, axis=0)  # (np.take: several times faster than points[crop])
+            near_end = (P - e[0]) @ -dirs[0] <= cfg.attach_distance
+            crop = crop[_largest_cluster(P, cfg.cluster_distance, near_end)]
             radius = pipes[site.members[0] // 2].radius
-            if own_points(points[crop], e[0], -dirs[0], radius, cfg) < cfg.min_own_points:
+            if own_points(np.take(points, crop, axis=0), e[0], -dirs[0], radius, cfg) < cfg.min_own_points:
                 continue
         else:
-            crop = crop[_largest_cluster(points[crop], cfg.cluster_distance)]
+            crop = crop[_largest_cluster(np.take(points, crop, axis=0), cfg.cluster_distance)]
         if len(crop) < cfg.min_points:
             continue
         config = site.config
         if site.config == 1:  # on the pipe's axis, midway along the object's extent
-            t = (points[crop] - e[0]) @ (-dirs[0])
+            t = (np.take(points, crop, axis=0) - e[0]) @ (-dirs[0])
             lo, hi = np.percentile(t, [2, 98])
             center = e[0] - dirs[0] * 0.5 * (max(lo, 0.0) + hi)
             if collinear_stub(X, e[0], -dirs[0], pipes[site.members[0] // 2].radius, cfg):

@@ -490,7 +490,7 @@ def _refine(free: _Points, c, a, r, cfg: PipeConfig):
             prev = len(idx)
             if len(idx) < cfg.min_points:
                 return None
-            c, a, r = fit_cylinder(local.p[idx], local.n[idx], a, cfg)
+            c, a, r = fit_cylinder(np.take(local.p, idx, axis=0), np.take(local.n, idx, axis=0), a, cfg)
             if not (cfg.min_radius <= r <= cfg.max_radius):
                 return None
             idx = np.flatnonzero(local.test(c, a, r, cfg)[0])
@@ -504,7 +504,7 @@ def _refine(free: _Points, c, a, r, cfg: PipeConfig):
 def _cut_into_segments(points, normals, sq, cb, ab, rb, idx, cfg: PipeConfig) -> list[Pipe]:
     """The pipe segments of a refined cylinder's inliers ``idx``: cut at fittings (foreign points
     just outside its surface, wider sockets), keep the runs long enough."""
-    t = points[idx] @ ab
+    t = np.take(points, idx, axis=0) @ ab
     if len(idx) < cfg.min_points or t.max() - t.min() < cfg.min_detect_length:
         return []  # no run of these inliers can be a segment
     pc = points @ cb
@@ -622,7 +622,7 @@ def merge_duplicates(pipes: list[Pipe], points, normals, cfg: PipeConfig) -> lis
         x, y = pair
         seg = np.union1d(pipes[x].inliers, pipes[y].inliers)
         merged = _make_pipe(points, normals, seg, pipes[x].axis, cfg)
-        v = points[seg] - merged.p
+        v = np.take(points, seg, axis=0) - merged.p
         t = v @ merged.axis
         residual = np.sqrt(np.maximum(row_dot(v, v) - t * t, 0.0)) - merged.radius
         runs = split_at_fittings(t, residual, np.zeros(0), cfg)
