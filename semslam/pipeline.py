@@ -4,13 +4,14 @@ identical measurement and observation stream, in time order, to every estimator 
 from __future__ import annotations
 
 import time
-from collections import defaultdict
+from collections import defaultdict, deque
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from semslam.estimation import Estimator, EstimatorResult, Trajectory
+from semslam.frontend_process import FrontendProcess, runs_in_process
 from semslam.mission.measurements import GroundTruthPose
 from semslam.mission.mission import Mission
 from semslam.observations import Observation
@@ -31,7 +32,8 @@ class PipelineResult:
     results: dict[str, EstimatorResult]
     truth: Trajectory | None
     observations: list[ObservationRecord] = field(default_factory=list)
-    timing_s: dict[str, float] = field(default_factory=dict)  # "read", "frontend:<name>", "estimator:<name>"
+    # "read", "frontend:<name>", "estimator:<name>"; "wall" when front-ends ran in their own process
+    timing_s: dict[str, float] = field(default_factory=dict)
     n_measurements: int = 0
     duration_s: float = 0.0
     frontend_summaries: dict[str, FrontendSummary] = field(default_factory=dict)
@@ -56,11 +58,15 @@ def run_pipeline(
     view_estimator: str | None = None,
     progress: bool = False,
     keep_observations: bool = True,
+    frontend_process: bool = True,
 ) -> PipelineResult:
     """Feed ``mission`` through ``frontends`` into every estimator.
 
     Front-ends see the estimate of ``view_estimator`` (default: "graph" if present, else the first
-    estimator) — the semantic feedback of the paper (global ids for class fusion).
+    estimator) — the semantic feedback of the paper (global ids for class fusion). Front-ends that
+    never read it (``uses_view = False``) run in a process of their own a few scans ahead
+    (``frontend_process``; see :mod:`semslam.frontend_process`): the same observations, in the same
+    order, in less wall time.
 
     BLAS runs single-threaded meanwhile: the matrices here are small (an EKF of a few hundred
     states, 3×3 to 100×100 blocks), and OpenBLAS's threads spinning against GTSAM's and each other
@@ -68,19 +74,62 @@ def run_pipeline(
     """
     from threadpoolctl import threadpool_limits
 
-    with threadpool_limits(limits=1, user_api="blas"):
-        return _run_pipeline(mission, estimators, frontends, view_estimator, progress, keep_observations)
+    apart = [fe for fe in frontends if frontend_process and runs_in_process(fe)]
+    worker = FrontendProcess(apart) if apart else None
+    try:
+        with threadpool_limits(limits=1, user_api="blas"):
+            return _run_pipeline(mission, estimators, frontends, view_estimator, progress, keep_observations, worker)
+    finally:
+        if worker is not None:
+            worker.close()
 
 
-def _run_pipeline(mission, estimators, frontends, view_estimator, progress, keep_observations) -> PipelineResult:
+# Measurements the front-end process may be ahead by: a few scans with the AHRS readings between.
+LOOKAHEAD = 256
+
+
+def _in_order(mission: Mission, worker: FrontendProcess | None, timing: dict):
+    """The mission's measurements in order, each with whether the front-end process has it; reads
+    ahead so that the process holds up to LOOKAHEAD of them."""
+    it = iter(mission)
+    pending: deque = deque()
+    exhausted = False
+    while True:
+        while not exhausted and (worker.in_flight < LOOKAHEAD if worker is not None else not pending):
+            t0 = time.perf_counter()
+            m = next(it, None)
+            timing["read"] += time.perf_counter() - t0
+            if m is None:
+                exhausted = True
+                break
+            sent = worker is not None and worker.consumes(m)
+            if sent:
+                worker.submit(m)
+            pending.append((m, sent))
+        if not pending:
+            return
+        yield pending.popleft()
+
+
+def _run_pipeline(mission, estimators, frontends, view_estimator, progress, keep_observations, worker) -> PipelineResult:
     if not estimators:
         raise ValueError("at least one estimator is needed")
+    wall0 = time.perf_counter()
     by_name = {e.name: e for e in estimators}
     view_source = by_name.get(view_estimator or "graph", estimators[0])
     timing: dict[str, float] = defaultdict(float)
     truth: list[GroundTruthPose] = []
     records: list[ObservationRecord] = []
     consumers = [(fe, tuple(fe.consumes)) for fe in frontends]
+    apart = set(worker.names) if worker is not None else set()
+
+    def feed(fe_name: str, stamp: int, obs) -> None:
+        if keep_observations:
+            records.extend(ObservationRecord(fe_name, stamp, o) for o in obs)
+        for est in estimators:
+            t0 = time.perf_counter()
+            est.process_observations(stamp, obs)
+            timing[f"estimator:{est.name}"] += time.perf_counter() - t0
 
     bar = None
     if progress:
@@ -88,17 +137,9 @@ def _run_pipeline(mission, estimators, frontends, view_estimator, progress, keep
 
         bar = tqdm(total=getattr(mission, "message_count", None), unit=" msg", desc="mission", dynamic_ncols=True,
                    mininterval=0.5)
-        wall0 = time.perf_counter()
     first = last = None
     n = 0
-    it = iter(mission)
-    while True:
-        t0 = time.perf_counter()
-        try:
-            m = next(it)
-        except StopIteration:
-            break
-        timing["read"] += time.perf_counter() - t0
+    for m, sent in _in_order(mission, worker, timing):
         n += 1
         first = m.stamp if first is None else first
         last = m.stamp
@@ -108,42 +149,43 @@ def _run_pipeline(mission, estimators, frontends, view_estimator, progress, keep
             t0 = time.perf_counter()
             est.process_measurement(m)
             timing[f"estimator:{est.name}"] += time.perf_counter() - t0
-        for fe, types in consumers:
-            if not isinstance(m, types):
-                continue
-            t0 = time.perf_counter()
-            obs = fe.process(m, view_source.view())
-            timing[f"frontend:{fe.name}"] += time.perf_counter() - t0
-            if not obs:
-                continue
-            if keep_observations:
-                records.extend(ObservationRecord(fe.name, m.stamp, o) for o in obs)
-            for est in estimators:
+        done = worker.result() if sent else {}
+        for fe, types in consumers:  # in the front-ends' order, wherever they ran
+            if fe.name in apart:
+                if fe.name not in done:
+                    continue
+                obs, dt = done[fe.name]
+            elif isinstance(m, types):
                 t0 = time.perf_counter()
-                est.process_observations(m.stamp, obs)
-                timing[f"estimator:{est.name}"] += time.perf_counter() - t0
+                obs = fe.process(m, view_source.view())
+                dt = time.perf_counter() - t0
+            else:
+                continue
+            timing[f"frontend:{fe.name}"] += dt
+            if obs:
+                feed(fe.name, m.stamp, obs)
         if bar is not None:
             bar.update(1)
             if n % 200 == 0:
                 mission_s = (m.stamp - first) * 1e-9
                 bar.set_postfix_str(f"mission t={mission_s:6.1f} s, {mission_s / max(time.perf_counter() - wall0, 1e-9):5.1f}× real time")
     summaries = {}
+    finished = worker.finish() if worker is not None else {}
     for fe, _ in consumers:  # the front-ends' last word, before the estimators close
-        if not hasattr(fe, "finish"):
+        if fe.name in finished:
+            summary, dt = finished[fe.name]
+        elif fe.name not in apart and hasattr(fe, "finish"):
+            t0 = time.perf_counter()
+            summary = fe.finish(view_source.view())
+            dt = time.perf_counter() - t0
+        else:
             continue
-        t0 = time.perf_counter()
-        summary = fe.finish(view_source.view())
-        timing[f"frontend:{fe.name}"] += time.perf_counter() - t0
+        timing[f"frontend:{fe.name}"] += dt
         if summary is None:
             continue
         summaries[fe.name] = summary
         if summary.observations and last is not None:
-            if keep_observations:
-                records.extend(ObservationRecord(fe.name, last, o) for o in summary.observations)
-            for est in estimators:
-                t0 = time.perf_counter()
-                est.process_observations(last, summary.observations)
-                timing[f"estimator:{est.name}"] += time.perf_counter() - t0
+            feed(fe.name, last, summary.observations)
     results = {}
     for est in estimators:
         t0 = time.perf_counter()
@@ -151,6 +193,8 @@ def _run_pipeline(mission, estimators, frontends, view_estimator, progress, keep
         timing[f"estimator:{est.name}"] += time.perf_counter() - t0
     if bar is not None:
         bar.close()
+    if worker is not None:  # the stages overlapped: their sum is not the time it took
+        timing["wall"] = time.perf_counter() - wall0
     duration = 0.0 if first is None else (last - first) * 1e-9
     resolved = {fe.name: fe.config.model_dump(mode="json") for fe in frontends if hasattr(getattr(fe, "config", None), "model_dump")}
     return PipelineResult(results, _truth_trajectory(truth), records, dict(timing), n, duration, summaries, resolved)

@@ -41,6 +41,9 @@ class Frontend(Protocol):
     def process(self, measurement: Measurement, view: EstimateView) -> list[Observation]: ...
 
     # Optional: ``finish(view) -> FrontendSummary`` at the end of the mission (see FrontendSummary).
+    # Optional: ``uses_view: ClassVar[bool] = False`` for a front-end that never reads the view: it
+    # then runs in a process of its own, ahead of the estimators (semslam.frontend_process); it, its
+    # observations and its summary must pickle, and it gets ``view=None``.
 
 
 @dataclass

@@ -25,6 +25,7 @@ from semslam.observations import Connectivity, LineObservation, Observation, Poi
 class OracleFrontend:
     name: ClassVar[str] = "oracle"
     consumes: ClassVar[tuple[type[Measurement], ...]] = (PointCloud, GroundTruthPose)
+    uses_view: ClassVar[bool] = False  # ground truth only: it may run in a process of its own
 
     def __init__(self, metadata: MissionMetadata, config: dict | None = None):
         try:

@@ -43,11 +43,14 @@ def timing_table(metrics: dict) -> list[list[str]]:
     duration = (metrics.get("mission") or {}).get("duration_s") or 0.0
     rows = [["stage", "time [s]", "× real time"]]
     total = 0.0
-    for key in sorted(timing, key=lambda k: (k.split(":")[0] != "read", k)):
+    for key in sorted((k for k in timing if k != "wall"), key=lambda k: (k.split(":")[0] != "read", k)):
         t = float(timing[key])
         total += t
         rows.append([key.replace(":", " "), f"{t:.1f}", f"{duration / t:.0f}" if t > 0 and duration else "–"])
-    rows.append(["total", f"{total:.1f}", f"{duration / total:.1f}" if total > 0 and duration else "–"])
+    rows.append(["sum of the stages", f"{total:.1f}", f"{duration / total:.1f}" if total > 0 and duration else "–"])
+    if "wall" in timing:  # front-ends ran in their own process, beside the estimators
+        wall = float(timing["wall"])
+        rows.append(["wall (front-ends in parallel)", f"{wall:.1f}", f"{duration / wall:.1f}" if wall > 0 and duration else "–"])
     return rows
 
 

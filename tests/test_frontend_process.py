@@ -1,0 +1,57 @@
+"""Front-ends that never read the estimate run in a process of their own (semslam.frontend_process):
+the estimators must see exactly what they would see with the front-end inline, and an error in
+the process must surface as itself, not hang the run."""
+
+from typing import ClassVar
+
+import numpy as np
+import pytest
+
+from semslam.backend.synthetic import SyntheticConfig, simulate
+from semslam.config import SemslamConfig
+from semslam.ekf import EkfEstimator
+from semslam.mission.measurements import PointCloud
+from semslam.pipeline import run_pipeline
+from semslam.registry import create_frontends
+
+
+def _run(mission, frontend_process: bool):
+    fes = create_frontends(["oracle"], mission.metadata, {"oracle": {"seed": 3, "false_positive_rate": 0.1, "miss_rate": 0.1}})
+    return run_pipeline(mission, [EkfEstimator(mission.metadata, SemslamConfig())], fes, frontend_process=frontend_process)
+
+
+def test_the_oracle_in_its_own_process_gives_the_same_stream_and_estimate():
+    mission = simulate(SyntheticConfig(duration_s=40.0, seed=2))
+    inline, apart = _run(mission, False), _run(mission, True)
+    assert "wall" in apart.timing_s and "wall" not in inline.timing_s
+    assert apart.timing_s["frontend:oracle"] > 0
+    assert len(inline.observations) == len(apart.observations) > 20
+    for a, b in zip(inline.observations, apart.observations):
+        assert (a.frontend, a.stamp, type(a.observation)) == (b.frontend, b.stamp, type(b.observation))
+        assert a.observation.truth_id == b.observation.truth_id
+    ta, tb = inline.results["ekf"].trajectory, apart.results["ekf"].trajectory
+    np.testing.assert_array_equal(ta.stamps, tb.stamps)
+    np.testing.assert_allclose(ta.positions, tb.positions, atol=1e-12)
+
+
+class FailingFrontend:
+    """Fails on its third scan, in the front-end process."""
+
+    name: ClassVar[str] = "failing"
+    consumes: ClassVar[tuple] = (PointCloud,)
+    uses_view: ClassVar[bool] = False
+
+    def __init__(self):
+        self.n = 0
+
+    def process(self, measurement, view):
+        self.n += 1
+        if self.n == 3:
+            raise ValueError(f"scan {measurement.stamp} is broken")
+        return []
+
+
+def test_an_error_in_the_front_end_process_is_raised_as_itself():
+    mission = simulate(SyntheticConfig(duration_s=20.0, seed=1))
+    with pytest.raises(ValueError, match="is broken"):
+        run_pipeline(mission, [EkfEstimator(mission.metadata, SemslamConfig())], [FailingFrontend()])
