@@ -168,6 +168,8 @@ def adjacency_of(nb: np.ndarray) -> csr_matrix:
     none), as given by :meth:`VoxelGrid.neighbours` (``h = 1``: itself and its 26-neighbours)."""
     m = len(nb)
     ok = nb >= 0
-    indptr = np.concatenate(([0], np.cumsum(ok.sum(axis=1))))
+    # int32 like the indices, so that scipy takes both as they are (no index-type conversion)
+    indptr = np.zeros(m + 1, np.int32)
+    np.cumsum(np.count_nonzero(ok, axis=1), out=indptr[1:])
     # (a gather at the mask's flat positions: ~3x faster than boolean indexing nb[ok], same order)
     return csr_matrix((np.ones(int(indptr[-1]), np.float64), np.take(nb, np.flatnonzero(ok)), indptr), shape=(m, m))
