@@ -166,19 +166,41 @@ class _Points:
         self.pn = row_dot(self.p, self.n)
 
     def subset(self, mask) -> _Points:
+        """The points of a mask (or of sorted indices) of these."""
         sub = object.__new__(_Points)
-        k = np.flatnonzero(mask)
+        k = np.flatnonzero(mask) if mask.dtype == bool else mask
         sub.index, sub.sq, sub.pn = self.index[k], self.sq[k], self.pn[k]
         sub.p, sub.n = np.take(self.p, k, axis=0), np.take(self.n, k, axis=0)
         return sub
 
-    def test(self, c, a, r, cfg: PipeConfig, reach: float = 0.0):
-        """(inlier mask, mask of the points within ``r + reach`` of the axis) for one cylinder."""
+    def test(self, c, a, r, cfg: PipeConfig):
+        """Inlier mask of the cylinder (c, a, r)."""
+        along, dist = self._along_dist(c, a)
+        return self._inliers(c, a, r, cfg, along, dist)
+
+    def test_near(self, c, a, r, cfg: PipeConfig, reach: float):
+        """(indices of the points within ``r + reach`` of the axis, inlier mask of those points)
+        for one cylinder: the inlier test runs on the points near the axis only (inliers are
+        within ``r + distance_tolerance`` ≤ ``r + reach``)."""
+        along, dist = self._along_dist(c, a)
+        near = np.flatnonzero(dist <= r + reach)
+        return near, self._inliers(c, a, r, cfg, along, dist, near)
+
+    def _along_dist(self, c, a):
+        """Position along the axis and distance to it of every point."""
         along = self.p @ a - a @ c
-        dist = np.sqrt(np.maximum(self.sq - 2.0 * (self.p @ c) + c @ c - along * along, 1e-18))
-        rn = self.pn - self.n @ c - along * (self.n @ a)
-        inl = (np.abs(dist - r) <= cfg.distance_tolerance) & (rn >= np.cos(np.radians(cfg.normal_tolerance_deg)) * dist)
-        return inl, dist <= r + reach
+        return along, np.sqrt(np.maximum(self.sq - 2.0 * (self.p @ c) + c @ c - along * along, 1e-18))
+
+    def _inliers(self, c, a, r, cfg: PipeConfig, along, dist, rows=None):
+        """Inlier mask (of the points ``rows``, all when None): within the distance tolerance of the
+        surface, normal within the normal tolerance of radial. (The products with c and a are of
+        all points, then gathered: the same values as before a subset.)"""
+        nc, na = self.n @ c, self.n @ a
+        pn = self.pn
+        if rows is not None:
+            pn, nc, na, along, dist = pn[rows], nc[rows], na[rows], along[rows], dist[rows]
+        rn = pn - nc - along * na
+        return (np.abs(dist - r) <= cfg.distance_tolerance) & (rn >= np.cos(np.radians(cfg.normal_tolerance_deg)) * dist)
 
 
 class Rays:
@@ -480,11 +502,11 @@ def _refine(free: _Points, c, a, r, cfg: PipeConfig):
     moved far enough to gain more than two, the rounds go on from there.
     """
     reach = cfg.distance_tolerance + _REFINE_REACH
-    inl, near = free.test(c, a, r, cfg, reach)
+    near, inl = free.test_near(c, a, r, cfg, reach)
     rounds = 0
     while True:
         local = free.subset(near)
-        idx = np.flatnonzero(inl[near])
+        idx = np.flatnonzero(inl)
         while rounds < cfg.refine_rounds:
             rounds += 1
             prev = len(idx)
@@ -493,12 +515,12 @@ def _refine(free: _Points, c, a, r, cfg: PipeConfig):
             c, a, r = fit_cylinder(np.take(local.p, idx, axis=0), np.take(local.n, idx, axis=0), a, cfg)
             if not (cfg.min_radius <= r <= cfg.max_radius):
                 return None
-            idx = np.flatnonzero(local.test(c, a, r, cfg)[0])
+            idx = np.flatnonzero(local.test(c, a, r, cfg))
             if abs(len(idx) - prev) <= 2:
                 break
-        inl, near = free.test(c, a, r, cfg, reach)
+        near, inl = free.test_near(c, a, r, cfg, reach)
         if inl.sum() - len(idx) <= 2 or rounds >= cfg.refine_rounds:
-            return c, a, r, free.index[inl]
+            return c, a, r, free.index[near[inl]]
 
 
 def _cut_into_segments(points, normals, sq, cb, ab, rb, idx, cfg: PipeConfig) -> list[Pipe]:
