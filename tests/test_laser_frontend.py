@@ -83,15 +83,23 @@ def test_recognizer_hook_fills_likelihoods():
     assert all(dict(p.class_likelihood) == {"valve": 0.7, "elbow": 0.3} for p in points)
 
 
-def test_up_follows_vehicle_attitude():
-    fe = LaserFrontend(_metadata(), {})
-    pitch = np.radians(20)
-    T = np.eye(4)
-    T[:3, :3] = [[np.cos(pitch), 0, np.sin(pitch)], [0, 1, 0], [-np.sin(pitch), 0, np.cos(pitch)]]
-    up = fe._up("laser", 0, _View(T))
-    assert np.allclose(up, T[:3, :3].T @ [0, 0, -1.0])
-    assert np.allclose(fe._up("laser", 0, _View(None)), [0, 0, -1.0])  # level vehicle assumed
-    assert fe._up("unknown", 0, _View(T)) is None
+def test_up_follows_the_ahrs_attitude():
+    from scipy.spatial.transform import Rotation
+
+    from semslam.mission.measurements import Attitude
+
+    meta = _metadata()
+    T_BA = np.eye(4)
+    T_BA[:3, :3] = Rotation.from_euler("z", 90, degrees=True).as_matrix()  # the AHRS mounted turned
+    meta.sensors["ahrs"] = SensorInfo("ahrs", "ahrs", "/imu", T_BS=T_BA)
+    fe = LaserFrontend(meta, {})
+    assert fe.uses_view is False and Attitude in fe.consumes
+    assert np.allclose(fe._up("laser"), [0, 0, -1.0])  # before any AHRS reading: level vehicle assumed
+    R_WB = Rotation.from_euler("ZYX", [1.2, np.radians(20), np.radians(-5)]).as_matrix()
+    R_WA = R_WB @ T_BA[:3, :3]
+    assert fe.process(Attitude(stamp=1, sensor="ahrs", orientation=Rotation.from_matrix(R_WA).as_quat()), None) == []
+    assert np.allclose(fe._up("laser"), R_WB.T @ [0, 0, -1.0])
+    assert fe._up("unknown") is None
 
 
 def test_empty_and_tiny_scans():

@@ -13,6 +13,7 @@ from typing import Any, ClassVar, Protocol
 
 import numpy as np
 from pydantic import ValidationError
+from scipy.spatial.transform import Rotation
 
 from frontends.laser.config import LaserConfig
 from frontends.laser.objects import SegmentedObject, segment_objects
@@ -21,7 +22,7 @@ from frontends.laser.planes import PlaneResult, remove_planes
 from frontends.laser.grid import VoxelGrid, adjacency_of
 from frontends.laser.preprocess import Preprocessed, hop_covariance_parts, preprocess, shape_of_parts
 from semslam.errors import ConfigError
-from semslam.mission.measurements import PointCloud
+from semslam.mission.measurements import Attitude, PointCloud
 from semslam.observations import Connectivity, LineObservation, Observation, PointObservation
 from semslam.registry import FrontendSummary
 
@@ -147,7 +148,10 @@ class LaserFrontend:
     """
 
     name: ClassVar[str] = "laser"
-    consumes: ClassVar[tuple[type, ...]] = (PointCloud,)
+    # The AHRS gives "up" (roll and pitch), so the front-end never reads the estimate and may run in
+    # a process of its own, ahead of the estimators (semslam.frontend_process).
+    consumes: ClassVar[tuple[type, ...]] = (PointCloud, Attitude)
+    uses_view: ClassVar[bool] = False
 
     def __init__(self, metadata: Any, config: dict | None = None, recognizer: Recognizer | None = None):
         try:
@@ -158,6 +162,7 @@ class LaserFrontend:
             raise ConfigError(f"frontends.laser.{key}: {err['msg']}") from exc
         self.metadata = metadata
         self._recognizer = recognizer
+        self._R_WB: np.ndarray | None = None  # the vehicle's attitude from the latest AHRS reading
         self.last: ScanSegmentation | None = None  # the latest scan's stages, for inspection
 
     @property
@@ -174,21 +179,29 @@ class LaserFrontend:
     def recognizer(self, value: Recognizer | None) -> None:
         self._recognizer = value
 
-    def _up(self, sensor: str, stamp: int, view) -> np.ndarray | None:
-        """Up (against gravity) in {S}: R_WSᵀ·up_W, with R_WS from the current pose estimate, or from
-        the extrinsic alone (level vehicle; yaw does not change "up") when there is none."""
+    def _extrinsic(self, sensor: str) -> np.ndarray | None:
         info = getattr(self.metadata, "sensors", {}).get(sensor) if self.metadata is not None else None
-        if info is None:
+        return None if info is None else np.asarray(info.T_BS)[:3, :3]
+
+    def _up(self, sensor: str) -> np.ndarray | None:
+        """Up (against gravity) in {S}: R_WSᵀ·up_W, with R_WB from the latest AHRS reading (its
+        heading bias does not change "up"), or level (the extrinsic alone) before the first."""
+        R_BS = self._extrinsic(sensor)
+        if R_BS is None:
             return None
-        R_BS = np.asarray(info.T_BS)[:3, :3]
-        T_WB = view.pose_at(stamp) if view is not None else None
-        if T_WB is not None and hasattr(T_WB, "matrix"):  # a gtsam.Pose3 rather than a 4×4 array
-            T_WB = T_WB.matrix()
-        R_WB = np.asarray(T_WB)[:3, :3] if T_WB is not None else np.eye(3)
+        R_WB = self._R_WB if self._R_WB is not None else np.eye(3)
         return (R_WB @ R_BS).T @ UP_NED
 
-    def process(self, measurement: PointCloud, view=None) -> list[Observation]:
-        seg = segment_scan(measurement.points, self.config, self._up(measurement.sensor, measurement.stamp, view))
+    def _attitude(self, m: Attitude) -> None:
+        R_BA = self._extrinsic(m.sensor)
+        R_WA = Rotation.from_quat(np.asarray(m.orientation, float)).as_matrix()
+        self._R_WB = R_WA @ (R_BA.T if R_BA is not None else np.eye(3))
+
+    def process(self, measurement: PointCloud | Attitude, view=None) -> list[Observation]:
+        if isinstance(measurement, Attitude):
+            self._attitude(measurement)
+            return []
+        seg = segment_scan(measurement.points, self.config, self._up(measurement.sensor))
         self.last = seg
         stamp, sensor = measurement.stamp, measurement.sensor
         obs: list[Observation] = [
