@@ -201,6 +201,39 @@ def test_isam2_callbacks_get_theta_itself_not_a_copy():
     assert n_before > 0 and len(seen) > n_before and all(seen)
 
 
+def test_batch_levenberg_marquardt_is_gtsams():
+    """The batch LM loop (iterated in Python to hold a handle on the values it linearises at) gives
+    GTSAM's optimize() result: same error, same estimate."""
+    from semslam.backend.graph import _levenberg_marquardt
+
+    rng = np.random.default_rng(0)
+    graph, init = gtsam.NonlinearFactorGraph(), gtsam.Values()
+    graph.add(gtsam.PriorFactorPose3(0, gtsam.Pose3(), gtsam.noiseModel.Isotropic.Sigma(6, 0.01)))
+    for k in range(30):
+        step = gtsam.Pose3(gtsam.Rot3.Expmap(rng.normal(size=3) * 0.1), rng.normal(size=3))
+        graph.add(gtsam.BetweenFactorPose3(k, k + 1, step, gtsam.noiseModel.Isotropic.Sigma(6, 0.05)))
+    for k in range(31):
+        init.insert(k, gtsam.Pose3(gtsam.Rot3.Expmap(rng.normal(size=3) * 0.3), rng.normal(size=3) * 3))
+
+    def height(this, v, H):  # a nonlinear CustomFactor: z of the last pose's point (1, 0, 0) is 2
+        T = v.atPose3(30)
+        if H is not None:
+            H[0] = (T.rotation().matrix() @ np.hstack([-np.array([[0, 0, 0], [0, 0, -1], [0, 1, 0]]), np.eye(3)]))[2:3]
+        return np.array([T.transformFrom(np.array([1.0, 0, 0]))[2] - 2.0])
+
+    graph.add(gtsam.CustomFactor(gtsam.noiseModel.Isotropic.Sigma(1, 0.01), [30], height))
+    params = gtsam.LevenbergMarquardtParams()
+    params.setMaxIterations(50)
+    ref = gtsam.LevenbergMarquardtOptimizer(graph, init, params).optimize()
+    ours = _levenberg_marquardt(graph, init, params)
+    assert graph.error(ours) == pytest.approx(graph.error(ref), rel=1e-12, abs=1e-12)
+    for k in range(31):
+        assert ours.atPose3(k).equals(ref.atPose3(k), 1e-9)
+    params.setMaxIterations(2)  # and the iteration limit
+    ref2, ours2 = gtsam.LevenbergMarquardtOptimizer(graph, init, params).optimize(), _levenberg_marquardt(graph, init, params)
+    assert graph.error(ours2) == pytest.approx(graph.error(ref2), rel=1e-12) and graph.error(ref2) > graph.error(ref)
+
+
 def test_landmark_needs_min_observations():
     """Two observations of an object do not create a landmark; the third does."""
     mission = simulate(SyntheticConfig(duration_s=20.0, n_objects=0, n_pipes=0, n_structures=0, seed=2))

@@ -14,6 +14,7 @@ estimate, and initialisation after ``association.min_observations`` consistent o
 from __future__ import annotations
 
 import bisect
+import math
 import time
 from functools import lru_cache
 from collections.abc import Sequence
@@ -126,6 +127,7 @@ class GraphEstimator:
         self._sphere_ids: list[int] = []
         self._sphere_c = np.zeros((0, 3))
         self._sphere_r = np.zeros(0)
+        self._sphere_obj = np.zeros(0, bool)  # the row is an object landmark (its centre is its point)
 
     # ------------------------------------------------------------------ protocol
     def view(self) -> GraphView:
@@ -677,9 +679,13 @@ class GraphEstimator:
 
     def _object_points(self) -> np.ndarray:
         """Mapped and tentative objects in {W} (N×3): the in-line parts that separate collinear pipes."""
-        pts = [np.asarray(lm.estimate, float) for lm in self.landmarks.values() if lm.kind == "object"]
-        pts += [tr.world[-1] for tr in self.tracks if tr.kind == "object" and tr.world]
-        return np.array(pts).reshape(-1, 3)
+        # Mapped ones from the cached spheres (an object's centre is its estimate; rows of landmarks
+        # that left the map are at infinity), in map order: numpy, not a loop over the map.
+        n = len(self._sphere_ids)
+        c = self._sphere_c[:n]
+        mapped = c[self._sphere_obj[:n] & np.isfinite(c[:, 0])]
+        tentative = [tr.world[-1] for tr in self.tracks if tr.kind == "object" and tr.world]
+        return np.vstack([mapped, np.array(tentative).reshape(-1, 3)]) if tentative else mapped.copy()
 
     def _is_ambiguous(self, z) -> bool:
         return any(self._current_obs[i] is z for i in self._ambiguous)
@@ -747,9 +753,10 @@ class GraphEstimator:
             if row >= len(self._sphere_r):  # amortised growth
                 self._sphere_c = np.vstack([self._sphere_c, np.zeros((max(64, row), 3))])
                 self._sphere_r = np.concatenate([self._sphere_r, np.zeros(max(64, row))])
+                self._sphere_obj = np.concatenate([self._sphere_obj, np.zeros(max(64, row), bool)])
             self._sphere_row[lm.id] = row
             self._sphere_ids.append(lm.id)
-        self._sphere_c[row], self._sphere_r[row] = c, r
+        self._sphere_c[row], self._sphere_r[row], self._sphere_obj[row] = c, r, lm.kind == "object"
 
     def _refresh_landmarks(self, ids, covariance: bool = False) -> None:
         """Current estimates of the landmarks and, with ``covariance``, their gating covariances.
@@ -872,7 +879,7 @@ class GraphEstimator:
             params = gtsam.LevenbergMarquardtParams()
             params.setMaxIterations(self.cfg.batch_max_iterations)
             try:
-                values = gtsam.LevenbergMarquardtOptimizer(graph, self.isam.calculateEstimate(), params).optimize()
+                values = _levenberg_marquardt(graph, self.isam.calculateEstimate(), params)
             except RuntimeError as exc:
                 self.diagnostics.append(f"batch optimisation failed ({str(exc).splitlines()[0]}); online estimate kept")
                 values = None
@@ -934,6 +941,30 @@ class GraphEstimator:
 
 
 # ---------------------------------------------------------------------------------------------
+
+
+def _levenberg_marquardt(graph: gtsam.NonlinearFactorGraph, initial: gtsam.Values, params) -> gtsam.Values:
+    """GTSAM's Levenberg–Marquardt, iterated here exactly as ``optimize()`` does (its
+    ``defaultOptimize`` loop and stopping rules), holding a Python handle on the optimiser's current
+    values during each iteration: the iteration linearises at them, and its CustomFactor callbacks
+    then get that object instead of a copy of every variable (see :meth:`GraphEstimator._new_isam`).
+    The error evaluations of trial steps still copy."""
+    opt = gtsam.LevenbergMarquardtOptimizer(graph, initial, params)
+    new = opt.error()
+    if new <= params.getErrorTol() or opt.iterations() >= params.getMaxIterations():
+        return gtsam.Values(opt.values())
+    while True:
+        current = new
+        held = opt.values()  # alive while iterate() linearises at it
+        opt.iterate()
+        del held  # an accepted step replaced the values it pointed to
+        new = opt.error()
+        if not (
+            opt.iterations() < params.getMaxIterations()
+            and not gtsam.checkConvergence(params, current, new)
+            and math.isfinite(current)
+        ):
+            return gtsam.Values(opt.values())
 
 
 @lru_cache(maxsize=256)
