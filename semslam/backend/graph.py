@@ -167,9 +167,11 @@ class GraphEstimator:
     def _nav_factors_at(self, k: int, t: float) -> tuple[list, np.ndarray, np.ndarray | None]:
         """AHRS, depth and DVL factors of keyframe k at time t; returns (factors, R_WB, v_B prior mean)."""
         factors = []
-        R, cov_R = self.nav.attitude_at(t)
-        if t - self.nav.attitude.t <= self.cfg.ahrs_max_age_s:
-            factors.append(biased_attitude_factor(X(k), B(k), R, cov_R) if self._bias_walk > 0 else attitude_factor(X(k), R, cov_R))
+        R, _ = self.nav.attitude_at(t)
+        fused = self.nav.take_fused_attitude(t)
+        if fused is not None and t - self.nav.attitude.t <= self.cfg.ahrs_max_age_s:
+            R_f, cov_f, _ = fused
+            factors.append(biased_attitude_factor(X(k), B(k), R_f, cov_f) if self._bias_walk > 0 else attitude_factor(X(k), R_f, cov_f))
         v_prior = None
         dvl = self.nav.dvl
         # The newest DVL sample is the velocity factor when it is fresh, and also when it is the last

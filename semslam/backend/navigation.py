@@ -1,5 +1,6 @@
 """Navigation measurement buffer of the graph back-end: the latest AHRS, depth and DVL readings,
-brought to a keyframe's time, and the DVL preintegrator running since the last keyframe."""
+brought to a keyframe's time, the AHRS readings since the last keyframe fused into one attitude,
+and the DVL preintegrator running since the last keyframe."""
 
 from __future__ import annotations
 
@@ -20,6 +21,35 @@ class AttitudeSample:
     R_WB: np.ndarray
     cov: np.ndarray  # right-tangent covariance of R_WB (3×3)
     omega_B: np.ndarray | None  # body angular rate (rad/s), when known
+
+
+@dataclass
+class FusedAttitude:
+    """Every AHRS reading since the last keyframe in one attitude: a Kalman filter on SO(3) that
+    carries its estimate from reading to reading with the measured rate (its covariance growing by
+    the rate noise) and updates it with each reading. At 20 Hz and a keyframe a second, one factor
+    then holds the information of ~20 readings (the heading σ of one reading, 0.5° in the tank,
+    becomes ~0.15°) instead of the newest reading's alone, as the EKF uses them all."""
+
+    t: float
+    R_WB: np.ndarray
+    cov: np.ndarray
+    omega_B: np.ndarray | None
+    n: int = 1
+
+    def predict(self, t: float, rate_sigma: float) -> tuple[np.ndarray, np.ndarray]:
+        """The fused attitude carried on to t along the latest rate, and its covariance."""
+        dt = t - self.t
+        R = self.R_WB if self.omega_B is None or dt == 0 else self.R_WB @ so3_exp(self.omega_B * dt)
+        return R, self.cov + np.eye(3) * (rate_sigma * abs(dt)) ** 2
+
+    def update(self, s: AttitudeSample, rate_sigma: float) -> None:
+        R, P = self.predict(s.t, rate_sigma)
+        K = P @ np.linalg.inv(P + s.cov)
+        self.R_WB = R @ so3_exp(K @ Rotation.from_matrix(R.T @ s.R_WB).as_rotvec())
+        self.cov = (np.eye(3) - K) @ P
+        self.cov = 0.5 * (self.cov + self.cov.T)
+        self.t, self.omega_B, self.n = s.t, s.omega_B, self.n + 1
 
 
 @dataclass
@@ -50,6 +80,7 @@ class NavigationBuffer:
         self.rate_sigma = rate_sigma
         self.attitude: AttitudeSample | None = None
         self._prev_attitude: AttitudeSample | None = None
+        self.fused: FusedAttitude | None = None  # the readings since the last keyframe
         self.dvl: DvlSample | None = None
         self.depth: DepthSample | None = None
         self.preint: DvlPreintegrator | None = None
@@ -73,6 +104,10 @@ class NavigationBuffer:
                 # Finite difference of consecutive attitudes when the AHRS gives no rate.
                 omega = Rotation.from_matrix(self.attitude.R_WB.T @ R_WB).as_rotvec() / (t - self.attitude.t)
             self._prev_attitude, self.attitude = self.attitude, AttitudeSample(t, R_WB, cov, omega)
+            if self.fused is None:
+                self.fused = FusedAttitude(t, R_WB, cov, omega)
+            else:
+                self.fused.update(self.attitude, self.rate_sigma)
         elif isinstance(m, Depth):
             self.depth = DepthSample(t, m.depth, m.variance, self._T_BS(m.sensor)[:3, 3])
         elif isinstance(m, DvlVelocity):
@@ -98,6 +133,15 @@ class NavigationBuffer:
         age = t - a.t
         R = a.R_WB if a.omega_B is None or age == 0 else a.R_WB @ so3_exp(a.omega_B * age)
         return R, a.cov + np.eye(3) * (self.rate_sigma * abs(age)) ** 2
+
+    def take_fused_attitude(self, t: float) -> tuple[np.ndarray, np.ndarray, int] | None:
+        """The AHRS readings since the last call fused and carried to t: (R_WB, covariance, how
+        many readings); the next call starts afresh, so that no reading is used twice."""
+        if self.fused is None:
+            return None
+        R, cov = self.fused.predict(t, self.rate_sigma)
+        n, self.fused = self.fused.n, None
+        return R, cov, n
 
     def start_interval(self, t: float, R_WB: np.ndarray, attitude_sigma: float) -> None:
         self.preint = DvlPreintegrator(t, R_WB, self.accel_sigma, attitude_sigma)
