@@ -21,3 +21,24 @@ def test_ends_of_many_noisy_views_are_not_biased_outwards():
 def test_a_few_views_give_their_median_ends():
     a, b = robust_ends(np.array([0.01, -0.01, 0.0]), np.array([0.39, 0.41, 0.4]), 0.06)
     assert (a, b) == (0.0, 0.4)
+
+
+def test_association_extent_stays_short_of_the_next_valve():
+    from semslam.backend.landmarks import Landmark, object_between
+
+    # pipe 18 of the tank: 0.40 m long, a 3-way valve 0.12 m beyond its end, then pipe 16
+    rng = np.random.default_rng(5)
+    lm = Landmark(1, "pipe", 0)
+    for _ in range(220):  # views along the axis (line frame: s), endpoint σ 5 cm
+        lo, hi = rng.normal(0.0, 0.05), rng.normal(0.40, 0.05)
+        lm.seen_ends.append((lo, hi, 0.05))
+    lm.extent = (min(e[0] for e in lm.seen_ends), max(e[1] for e in lm.seen_ends))
+    c, d = np.zeros(3), np.array([1.0, 0.0, 0.0])
+    valve = np.array([[0.52, 0.0, 0.0]])
+    next_pipe = np.array([[0.53, 0.0, 0.0], [1.05, 0.0, 0.0]])  # a view of pipe 16 (from 0.64), its near end 2σ long
+    # every view's extreme reaches into the valve: the next pipe's view overlaps it, nothing between
+    assert lm.extent[1] > 0.52
+    assert not object_between(lm.extent, next_pipe, c, d, valve, 0.15)
+    lo, hi = lm.robust_extent()
+    assert abs(hi - 0.40) < 0.02
+    assert object_between((lo, hi), next_pipe, c, d, valve, 0.15)

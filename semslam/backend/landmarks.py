@@ -39,6 +39,7 @@ class Landmark:
     cov_stamp: int | None = None  # when ``covariance`` was last computed (None: new information since)
     information: np.ndarray | None = None  # Σ information of its observations on its parameters
     seen_ends: list[tuple[float, float, float]] = field(default_factory=list)  # pipes: (s_lo, s_hi, σ_along) per view
+    _robust: tuple | None = field(default=None, repr=False)  # (views, robust_extent()) cached
     connected: set[int] = field(default_factory=set)
 
     def add_information(self, info: np.ndarray) -> None:
@@ -55,11 +56,17 @@ class Landmark:
         return class_posterior(self.class_likelihoods)
 
     def robust_extent(self) -> tuple[float, float]:
-        """The pipe's ends along its axis (line frame), robust to endpoint noise (:func:`robust_ends`)."""
+        """The pipe's ends along its axis (line frame), robust to endpoint noise (:func:`robust_ends`).
+        What association tests against: the plain extent (every view's extreme) grows with the
+        endpoint noise, 3σ beyond each end after a few hundred views, until it reaches across the
+        in-line valve that separates this pipe from the next one in line."""
         if not self.seen_ends:
             return self.extent
-        e = np.array(self.seen_ends)
-        return robust_ends(e[:, 0], e[:, 1], 6.0 * small_median(e[:, 2]))
+        n = len(self.seen_ends)
+        if self._robust is None or self._robust[0] != n:
+            e = np.array(self.seen_ends)
+            self._robust = (n, robust_ends(e[:, 0], e[:, 1], 6.0 * small_median(e[:, 2])))
+        return self._robust[1]
 
 
 def robust_ends(lo: np.ndarray, hi: np.ndarray, window: float) -> tuple[float, float]:

@@ -97,11 +97,11 @@ class GraphAssociationProblem:
             # The segment must overlap what has been seen of the pipe (collinear pipes on either
             # side of a valve share one infinite line) ...
             s = (seg - lm.anchor.c0) @ d
-            lo, hi = lm.extent
+            lo, hi = seen = lm.robust_extent()
             if s.max() < lo - self.gap or s.min() > hi + self.gap:
                 return None
             # ... and no in-line part (valve, socket) may lie between them: that is the next pipe
-            if object_between(lm.extent, seg, lm.anchor.c0, d, self.separators, self.separator_radius):
+            if object_between(seen, seg, lm.anchor.c0, d, self.separators, self.separator_radius):
                 return None
             r, H_x, H_l = line_residual_at(self._R, self._t, RL, Jr2, lm.anchor.c0, theta[2:4], e_B, jac=True)
             R = line_observation_covariance(self.pose, theta, lm.anchor, T_BS, z.covariance, RL=RL)
