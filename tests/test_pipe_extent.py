@@ -1,6 +1,7 @@
 """A pipe's ends from many noisy, partly clipped views (the graph's and the EKF's shared rule)."""
 
 import numpy as np
+import pytest
 
 from semslam.backend.landmarks import robust_ends
 
@@ -42,3 +43,26 @@ def test_association_extent_stays_short_of_the_next_valve():
     lo, hi = lm.robust_extent()
     assert abs(hi - 0.40) < 0.02
     assert object_between((lo, hi), next_pipe, c, d, valve, 0.15)
+
+
+def test_a_pipe_seen_through_a_mapped_tee_is_cut_at_it_on_the_side_of_its_views():
+    from factors.landmarks import LineAnchor
+    from semslam.backend.landmarks import Landmark
+
+    # a landmark started by laser fits through an in-line tee at s = 0.5: most views then see the
+    # part before it, a few the whole 1 m
+    lm = Landmark(1, "pipe", 0, anchor=LineAnchor.from_points(np.zeros(3), np.array([1.0, 0.0, 0.0])), estimate=np.zeros(4))
+    lm.seen_ends = [(0.0, 0.45, 0.01)] * 30 + [(0.0, 1.0, 0.01)] * 5
+    lm.extent = (0.0, 1.0)
+    d = lm.anchor.direction(lm.estimate)
+    c0 = lm.anchor.c0
+    tee = c0 + 0.5 * d + np.array([0.0, 0.02, 0.0])  # 2 cm off the axis, as estimated
+    elbow = c0 + 1.05 * d  # at the end: not inside
+    assert lm.stretch(np.zeros((0, 3)), 0.15) == lm.robust_extent()
+    lo, hi = lm.stretch(np.array([tee, elbow]), 0.15)
+    assert lo == pytest.approx(lm.robust_extent()[0]) and hi == pytest.approx(0.5, abs=1e-9)
+    # the views mostly beyond the tee keep that side instead
+    other = Landmark(2, "pipe", 0, anchor=lm.anchor, estimate=lm.estimate, extent=(0.0, 1.0))
+    other.seen_ends = [(0.55, 1.0, 0.01)] * 30 + [(0.0, 1.0, 0.01)] * 5
+    lo, hi = other.stretch(np.array([tee]), 0.15)
+    assert lo == pytest.approx(0.5, abs=1e-9) and hi == pytest.approx(1.0, abs=1e-9)

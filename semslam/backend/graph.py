@@ -519,6 +519,7 @@ class GraphEstimator:
         problem = GraphAssociationProblem(
             pose, pose_cov, obs, T_BS, cands, self.assoc.pipe_extent_gap_m, allowed,
             separators=self._object_points(), separator_radius=self.assoc.inline_object_radius_m,
+            cutters=self._mapped_object_points(),
         )
         result = jcbb(problem, confidence=self.assoc.confidence)
         paired = {j for j in result if j is not None}
@@ -666,7 +667,7 @@ class GraphEstimator:
             return False
         seg = np.vstack([T_WS.transformFrom(z.p), T_WS.transformFrom(z.q)])
         u = (seg[1] - seg[0]) / np.linalg.norm(seg[1] - seg[0])
-        objects = self._object_points()
+        objects, mapped = self._object_points(), self._mapped_object_points()
         for lm in landmarks:
             if lm.kind != "pipe":
                 continue
@@ -677,7 +678,7 @@ class GraphEstimator:
             if np.linalg.norm(r - np.outer(r @ d, d), axis=1).max() >= sep:
                 continue
             s_ = (seg - c0) @ d
-            lo, hi = seen = lm.robust_extent()
+            lo, hi = seen = lm.stretch(mapped, self.assoc.inline_object_radius_m)
             if min(s_.max(), hi) - max(s_.min(), lo) < 0.5 * (s_.max() - s_.min()):
                 continue  # mostly beyond what was seen: possibly the next pipe in line
             if not object_between(seen, seg, c0, d, objects, self.assoc.inline_object_radius_m):
@@ -703,13 +704,16 @@ class GraphEstimator:
             )
         return out
 
-    def _object_points(self) -> np.ndarray:
-        """Mapped and tentative objects in {W} (N×3): the in-line parts that separate collinear pipes."""
-        # Mapped ones from the cached spheres (an object's centre is its estimate; rows of landmarks
-        # that left the map are at infinity), in map order: numpy, not a loop over the map.
+    def _mapped_object_points(self) -> np.ndarray:
+        """Mapped objects in {W} (N×3), from the cached spheres (an object's centre is its estimate;
+        rows of landmarks that left the map are at infinity), in map order: numpy, not a loop."""
         n = len(self._sphere_ids)
         c = self._sphere_c[:n]
-        mapped = c[self._sphere_obj[:n] & np.isfinite(c[:, 0])]
+        return c[self._sphere_obj[:n] & np.isfinite(c[:, 0])]
+
+    def _object_points(self) -> np.ndarray:
+        """Mapped and tentative objects in {W} (N×3): the in-line parts that separate collinear pipes."""
+        mapped = self._mapped_object_points()
         tentative = [tr.world[-1] for tr in self.tracks if tr.kind == "object" and tr.world]
         return np.vstack([mapped, np.array(tentative).reshape(-1, 3)]) if tentative else mapped.copy()
 
@@ -829,6 +833,7 @@ class GraphEstimator:
     def landmark_estimates(self, covariance: bool = True, values: gtsam.Values | None = None, marginals=None) -> list[LandmarkEstimate]:
         out = []
         covs = self._landmark_marginals(marginals) if covariance else {}
+        mapped = self._mapped_object_points()
         for lm in self.landmarks.values():
             est = _value(values, lm.key, lm.kind) if values is not None else _value(self.isam, lm.key, lm.kind)
             cov = covs.get(lm.id)
@@ -839,7 +844,7 @@ class GraphEstimator:
             elif lm.kind == "pipe":
                 c, d = lm.anchor.point(est), lm.anchor.direction(est)
                 # extent was measured in the line frame centred at c0: project onto the new line
-                lo, hi = lm.robust_extent()
+                lo, hi = lm.stretch(mapped, self.assoc.inline_object_radius_m)
                 foot = (lm.anchor.c0 - c) @ d
                 le.p, le.q = c + (foot + lo) * d, c + (foot + hi) * d
                 le.covariance = cov

@@ -40,6 +40,7 @@ class Landmark:
     information: np.ndarray | None = None  # Σ information of its observations on its parameters
     seen_ends: list[tuple[float, float, float]] = field(default_factory=list)  # pipes: (s_lo, s_hi, σ_along) per view
     _robust: tuple | None = field(default=None, repr=False)  # (views, robust_extent()) cached
+    _middle: tuple | None = field(default=None, repr=False)  # (views, median of the views' middles)
     connected: set[int] = field(default_factory=set)
 
     def add_information(self, info: np.ndarray) -> None:
@@ -67,6 +68,30 @@ class Landmark:
             e = np.array(self.seen_ends)
             self._robust = (n, robust_ends(e[:, 0], e[:, 1], 6.0 * small_median(e[:, 2])))
         return self._robust[1]
+
+
+    def stretch(self, objects: np.ndarray, radius: float, margin: float = 0.05) -> tuple[float, float]:
+        """What of its line this pipe is (line frame): the robust extent, cut at the mapped objects
+        (N×3, {W}) that lie on the line inside it, keeping the side that holds most of its views.
+        A laser fit through an in-line socket or tee sees two pipes as one segment (2 % of the
+        tank's segments); once the part between them is mapped, the other pipe's views must stop
+        pairing with the landmark those fits started, and the map must not draw it through."""
+        lo, hi = self.robust_extent()
+        if len(objects) == 0 or not self.seen_ends:
+            return lo, hi
+        d = self.anchor.direction(self.estimate)
+        r = np.asarray(objects, float).reshape(-1, 3) - self.anchor.c0
+        s = r @ d
+        inside = (np.linalg.norm(r - s[:, None] * d, axis=1) < radius) & (s > lo + margin) & (s < hi - margin)
+        if not inside.any():
+            return lo, hi
+        n = len(self.seen_ends)
+        if self._middle is None or self._middle[0] != n:
+            e = np.array(self.seen_ends)
+            self._middle = (n, small_median(0.5 * (e[:, 0] + e[:, 1])))
+        mid = self._middle[1]
+        below, above = s[inside & (s <= mid)], s[inside & (s > mid)]
+        return (float(below.max()) if below.size else lo, float(above.min()) if above.size else hi)
 
 
 def robust_ends(lo: np.ndarray, hi: np.ndarray, window: float) -> tuple[float, float]:

@@ -43,6 +43,7 @@ class GraphAssociationProblem:
         allowed: np.ndarray,
         separators: np.ndarray | None = None,
         separator_radius: float = 0.15,
+        cutters: np.ndarray | None = None,
     ):
         self.pose = pose
         self.pose_cov = pose_cov
@@ -53,6 +54,7 @@ class GraphAssociationProblem:
         self.allowed = allowed  # (n_obs, n_cand) bool: the Euclidean pre-gate
         self.separators = np.zeros((0, 3)) if separators is None else separators  # objects in {W}
         self.separator_radius = separator_radius
+        self.cutters = np.zeros((0, 3)) if cutters is None else cutters  # mapped objects: end a pipe's stretch
         self.n_observations = len(observations)
         self.n_landmarks = len(candidates)
         self._cache: dict[tuple[int, int], PairLinearization | None] = {}
@@ -97,7 +99,7 @@ class GraphAssociationProblem:
             # The segment must overlap what has been seen of the pipe (collinear pipes on either
             # side of a valve share one infinite line) ...
             s = (seg - lm.anchor.c0) @ d
-            lo, hi = seen = lm.robust_extent()
+            lo, hi = seen = lm.stretch(self.cutters, self.separator_radius)
             if s.max() < lo - self.gap or s.min() > hi + self.gap:
                 return None
             # ... and no in-line part (valve, socket) may lie between them: that is the next pipe
