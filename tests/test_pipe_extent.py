@@ -66,3 +66,21 @@ def test_a_pipe_seen_through_a_mapped_tee_is_cut_at_it_on_the_side_of_its_views(
     other.seen_ends = [(0.55, 1.0, 0.01)] * 30 + [(0.0, 1.0, 0.01)] * 5
     lo, hi = other.stretch(np.array([tee]), 0.15)
     assert lo == pytest.approx(0.5, abs=1e-9) and hi == pytest.approx(1.0, abs=1e-9)
+
+
+def test_the_ekf_extent_is_cut_at_a_mapped_tee_like_the_graphs():
+    from semslam.ekf.estimator import _Extent
+
+    ext = _Extent()
+    for _ in range(30):
+        ext.add(np.array([[0.0, 1.0, 4.0], [0.45, 1.0, 4.0]]), 0.01)  # the part before the tee
+    for _ in range(5):
+        ext.add(np.array([[0.0, 1.0, 4.0], [1.0, 1.0, 4.0]]), 0.01)  # fits through the tee
+    d = np.array([1.0, 0.0, 0.0])
+    m = np.cross(np.array([0.0, 1.0, 4.0]), d)
+    c = np.cross(d, m)  # the line's closest point to the origin: positions are along d from it
+    a, b = ext.interval(m, d)
+    assert b - a == pytest.approx(1.0, abs=1e-9)
+    a, b = ext.interval(m, d, np.array([[0.5, 1.02, 4.0]]), 0.15)
+    np.testing.assert_allclose(c + b * d, [0.5, 1.0, 4.0], atol=1e-9)
+    np.testing.assert_allclose(c + a * d, [0.0, 1.0, 4.0], atol=1e-9)

@@ -79,19 +79,27 @@ class Landmark:
         lo, hi = self.robust_extent()
         if len(objects) == 0 or not self.seen_ends:
             return lo, hi
-        d = self.anchor.direction(self.estimate)
-        r = np.asarray(objects, float).reshape(-1, 3) - self.anchor.c0
-        s = r @ d
-        inside = (np.linalg.norm(r - s[:, None] * d, axis=1) < radius) & (s > lo + margin) & (s < hi - margin)
-        if not inside.any():
-            return lo, hi
         n = len(self.seen_ends)
         if self._middle is None or self._middle[0] != n:
             e = np.array(self.seen_ends)
             self._middle = (n, small_median(0.5 * (e[:, 0] + e[:, 1])))
-        mid = self._middle[1]
-        below, above = s[inside & (s <= mid)], s[inside & (s > mid)]
-        return (float(below.max()) if below.size else lo, float(above.min()) if above.size else hi)
+        return cut_at_objects((lo, hi), self.anchor.c0, self.anchor.direction(self.estimate), objects, radius,
+                              self._middle[1], margin)
+
+
+def cut_at_objects(seen: tuple[float, float], c: np.ndarray, d: np.ndarray, objects: np.ndarray, radius: float,
+                   middle: float, margin: float = 0.05) -> tuple[float, float]:
+    """The stretch ``seen`` of the line (c, d) (positions along d from c) cut at the objects (N×3,
+    {W}) within ``radius`` of the line and more than ``margin`` inside it, keeping the side that
+    holds ``middle`` (the median of the views' middles)."""
+    lo, hi = seen
+    r = np.asarray(objects, float).reshape(-1, 3) - c
+    s = r @ d
+    inside = (np.linalg.norm(r - s[:, None] * d, axis=1) < radius) & (s > lo + margin) & (s < hi - margin)
+    if not inside.any():
+        return lo, hi
+    below, above = s[inside & (s <= middle)], s[inside & (s > middle)]
+    return (float(below.max()) if below.size else lo, float(above.min()) if above.size else hi)
 
 
 def robust_ends(lo: np.ndarray, hi: np.ndarray, window: float) -> tuple[float, float]:

@@ -83,7 +83,7 @@ from semslam.ekf.filter import EkfState
 from semslam.ekf.jcbb import Chi2Gate, jcbb_dense
 from semslam.ekf.models import ATT, BIAS, NX, POS, VEL
 from semslam.errors import ConfigError, MissionError
-from semslam.backend.landmarks import robust_ends, small_median
+from semslam.backend.landmarks import cut_at_objects, robust_ends, small_median
 from semslam.estimation import EstimatorResult, LandmarkEstimate, Trajectory
 from semslam.mission.measurements import Attitude, Depth, DvlVelocity, GroundTruthPose, Measurement
 from semslam.mission.mission import MissionMetadata
@@ -203,7 +203,18 @@ class _Extent:
         for k in range(other._k):
             self.add(other._pts[k], other._sig[k])
 
-    def interval(self, m: np.ndarray, d: np.ndarray) -> tuple[float, float]:
+    def interval(self, m: np.ndarray, d: np.ndarray, cutters: np.ndarray | None = None,
+                 radius: float = 0.0) -> tuple[float, float]:
+        """Where the pipe (m, d) was seen, along d from its closest point to the origin; cut at the
+        mapped objects ``cutters`` on the line inside it (the graph's rule, ``cut_at_objects``)."""
+        out = self._robust(m, d)
+        if cutters is None or not len(cutters):
+            return out
+        c = geo.closest_point(m, d)
+        middle = small_median(((self._pts[: self._k] - c) @ d).mean(axis=1))
+        return cut_at_objects(out, c, d, cutters, radius, middle)
+
+    def _robust(self, m: np.ndarray, d: np.ndarray) -> tuple[float, float]:
         memo = self._memo
         if memo is not None and memo[2] == self._k and np.array_equal(memo[0], m) and np.array_equal(memo[1], d):
             return memo[3]
@@ -220,21 +231,23 @@ class _Extent:
         """Mean of the saved view ends in {W}: a point near the pipe, inside what was seen of it."""
         return self._pts[: self._k].reshape(-1, 3).mean(axis=0)
 
-    def ends(self, m: np.ndarray, d: np.ndarray) -> np.ndarray:
+    def ends(self, m: np.ndarray, d: np.ndarray, cutters: np.ndarray | None = None, radius: float = 0.0) -> np.ndarray:
         c = geo.closest_point(m, d)
-        a, b = self.interval(m, d)
+        a, b = self.interval(m, d, cutters, radius)
         return np.array([c + a * d, c + b * d])
 
-    def gap(self, ends_W: np.ndarray, m: np.ndarray, d: np.ndarray) -> float:
+    def gap(self, ends_W: np.ndarray, m: np.ndarray, d: np.ndarray, cutters: np.ndarray | None = None,
+            radius: float = 0.0) -> float:
         """Gap (m) along the line between the seen extent and a segment; 0 when they overlap."""
-        a, b = self.interval(m, d)
+        a, b = self.interval(m, d, cutters, radius)
         s = (ends_W - geo.closest_point(m, d)) @ d
         return max(0.0, s.min() - b, a - s.max())
 
     def separated(self, ends_W: np.ndarray, m: np.ndarray, d: np.ndarray, objects: np.ndarray,
-                  radius: float, margin: float = 0.1) -> bool:
-        """True when an object (N×3, in {W}) on the line lies between the seen extent and the segment:
-        collinear pipes joined by an in-line part (a valve, a socket) are different pipes."""
+                  radius: float, margin: float = 0.1, cutters: np.ndarray | None = None) -> bool:
+        """True when an object (N×3, in {W}) on the line lies between the seen extent (cut at
+        ``cutters``) and the segment: collinear pipes joined by an in-line part (a valve, a socket)
+        are different pipes."""
         if len(objects) == 0:
             return False
         c = geo.closest_point(m, d)
@@ -249,7 +262,7 @@ class _Extent:
             self._sep_memo = (key, np.array(m, float), np.array(d, float), s_on)
         if not len(s_on):
             return False
-        a, b = self.interval(m, d)
+        a, b = self.interval(m, d, cutters, radius)
         s = (ends_W - c) @ d
         lo, hi = (b - margin, s.min() + margin) if s.mean() > 0.5 * (a + b) else (s.max() - margin, a + margin)
         return bool(np.any((s_on > lo) & (s_on < hi)))
@@ -778,9 +791,18 @@ class EkfEstimator:
 
     def _pipe_apart(self, extent: _Extent, ends_W: np.ndarray, m: np.ndarray, d: np.ndarray,
                     objects: np.ndarray) -> bool:
-        """A segment cannot be this pipe: beyond the gap from its seen extent, or across an object."""
-        return extent.gap(ends_W, m, d) > self.assoc.pipe_extent_gap_m or extent.separated(
-            ends_W, m, d, objects, self.assoc.inline_object_radius_m)
+        """A segment cannot be this pipe: beyond the gap from its seen extent, or across an object.
+        The extent is cut at mapped in-line objects (as the graph's): a pipe seen through a socket
+        or a tee must not keep the views of the pipe beyond it."""
+        mapped, r = self._mapped_object_positions(), self.assoc.inline_object_radius_m
+        return extent.gap(ends_W, m, d, mapped, r) > self.assoc.pipe_extent_gap_m or extent.separated(
+            ends_W, m, d, objects, r, cutters=mapped)
+
+    def _mapped_object_positions(self) -> np.ndarray:
+        idx = [f.index for f in self._features if f.kind == "object"]
+        if not idx:
+            return np.zeros((0, 3))
+        return self.state.x[np.array(idx)[:, None] + np.arange(3)]
 
     def _associate_batch(self, obs: list[_Obs]) -> list[int | None]:
         """Custom association (``associate=``): the generic problem, pair by pair."""
@@ -1163,7 +1185,7 @@ class EkfEstimator:
         if f.kind == "object":
             return LandmarkEstimate(f.id, "object", position=l, covariance=cov,
                                     class_posterior=_posterior(f.class_log), n_observations=f.n_obs)
-        p, q = f.extent.ends(*geo.line_plucker(l))
+        p, q = f.extent.ends(*geo.line_plucker(l), self._mapped_object_positions(), self.assoc.inline_object_radius_m)
         return LandmarkEstimate(f.id, "pipe", p=p, q=q, covariance=cov, n_observations=f.n_obs)
 
     def landmarks(self) -> list[LandmarkEstimate]:
