@@ -268,6 +268,11 @@ class _Extent:
         return bool(np.any((s_on > lo) & (s_on < hi)))
 
 
+def _off_axis(points: np.ndarray, m: np.ndarray, d: np.ndarray) -> float:
+    """The largest distance of the points (N×3) from the line (m, d)."""
+    return float(np.linalg.norm(points - geo.project_on_line(points, m, d), axis=1).max())
+
+
 def _overlap_fraction(a: _Extent, ends_b: np.ndarray, m: np.ndarray, d: np.ndarray) -> float:
     """Length shared by a's seen extent and the segment ends_b along the line (m, d) of a, over the
     shorter one's length."""
@@ -933,9 +938,7 @@ class EkfEstimator:
     def _same_stretch(self, extent: _Extent, ends_b: np.ndarray, m: np.ndarray, d: np.ndarray) -> bool:
         """Segment ends_b shares over half of the shorter stretch with the seen extent of the pipe (m, d),
         its ends within ``ekf.duplicate_pipe_distance_m`` of that pipe's axis."""
-        r = ends_b - geo.closest_point(m, d)
-        off = np.linalg.norm(r - np.outer(r @ d, d), axis=1).max()
-        return off <= self.cfg.duplicate_pipe_distance_m and _overlap_fraction(extent, ends_b, m, d) >= 0.5
+        return _off_axis(ends_b, m, d) <= self.cfg.duplicate_pipe_distance_m and _overlap_fraction(extent, ends_b, m, d) >= 0.5
 
     def _fuse_duplicate(self, keep: _Feature, drop: _Feature, diff: np.ndarray, H_keep: np.ndarray,
                         H_drop: np.ndarray, constrain: bool = True) -> None:
@@ -987,9 +990,7 @@ class EkfEstimator:
         u = u / np.linalg.norm(u)
         if abs(float(u @ d)) < math.cos(self.assoc.merge_angle_rad):
             return False
-        r = ends_W - geo.closest_point(m, d)
-        perp = r - np.outer(r @ d, d)
-        if np.linalg.norm(perp, axis=1).max() > self.assoc.merge_distance_m:
+        if _off_axis(ends_W, m, d) > self.assoc.merge_distance_m:
             return False
         return not self._pipe_apart(extent, ends_W, m, d, objects)
 
