@@ -582,10 +582,11 @@ class GraphEstimator:
         the row (tank, 10 % misses: views of three objects in the wrong tracks)."""
         items = [(z, *self._in_world(z, T_BS, pose, pose_cov)) for z, T_BS in unpaired if not self._is_ambiguous(z)]
         tracks = list(self.tracks)
+        objects = self._object_points()  # the separators of collinear pipes, once for the scan
         cost = np.full((len(items), len(tracks)), np.inf)
         for i, (z, w, cov) in enumerate(items):
             for j, tr in enumerate(tracks):
-                cost[i, j] = self._track_cost(tr, z, w, cov, k)
+                cost[i, j] = self._track_cost(tr, z, w, cov, k, objects)
         chosen: dict[int, Track] = {}
         if np.isfinite(cost).any():
             # each observation may also start a track, at the price of its gate: two near misses
@@ -629,11 +630,11 @@ class GraphEstimator:
             return self.assoc.merge_distance_m
         return _chi2(self.cfg.track_gate_confidence, 3)
 
-    def _track_cost(self, tr: Track, z, w, cov, k: int) -> float:
+    def _track_cost(self, tr: Track, z, w, cov, k: int, objects: np.ndarray) -> float:
         """How well observation z (in {W}: w, cov) continues track tr; inf when it cannot.
         Points and structures: the Mahalanobis distance² within the track gate; pipes: the
         distance of the segment's middle from the track's line, when the paper's collinearity
-        criterion holds and no in-line object lies between."""
+        criterion holds and no in-line object (``objects``, N×3 in {W}) lies between."""
         kind = KIND_OF_OBS[type(z)]
         if tr.kind != kind or tr.records[-1].keyframe == k:
             return np.inf
@@ -643,7 +644,7 @@ class GraphEstimator:
             s_seen = (seen - c) @ d
             if not _segment_matches_line(
                 w, c, d, seen, self.assoc.merge_angle_rad, self.assoc.merge_distance_m, self.assoc.pipe_extent_gap_m
-            ) or object_between((s_seen.min(), s_seen.max()), w, c, d, self._object_points(), self.assoc.inline_object_radius_m):
+            ) or object_between((s_seen.min(), s_seen.max()), w, c, d, objects, self.assoc.inline_object_radius_m):
                 return np.inf
             return float(np.linalg.norm(np.cross(w.mean(axis=0) - c, d)))
         if kind == "structure" and tr.model != z.model:
@@ -687,14 +688,14 @@ class GraphEstimator:
 
     def _merged_lines(self, observations: list, pose: gtsam.Pose3) -> list[LineObservation]:
         """The batch's pipe segments merged along shared axes, sensor by sensor. Objects of the batch
-        and objects already mapped (placed in the sensor frame with the current pose) keep the
-        segments on either side of them apart: a missed in-line valve must not join its two pipes."""
+        and objects already mapped or tracked (placed in the sensor frame with the current pose) keep
+        the segments on either side of them apart: a missed in-line valve must not join its two pipes."""
         out: list[LineObservation] = []
-        mapped_W = self._object_points()
+        objects_W = self._object_points()
         for sensor in dict.fromkeys(z.sensor for z in observations if isinstance(z, LineObservation)):
             T_SW = pose.compose(gtsam.Pose3(self._sensor_T(sensor))).inverse().matrix()
             seps = [z.position for z in observations if isinstance(z, PointObservation) and z.sensor == sensor]
-            seps = np.vstack([np.array(seps).reshape(-1, 3), mapped_W @ T_SW[:3, :3].T + T_SW[:3, 3]])
+            seps = np.vstack([np.array(seps).reshape(-1, 3), objects_W @ T_SW[:3, :3].T + T_SW[:3, 3]])
             out += merge_collinear(
                 [z for z in observations if isinstance(z, LineObservation) and z.sensor == sensor],
                 self.assoc.merge_angle_rad,
