@@ -22,29 +22,26 @@ class AttitudeSample:
     cov: np.ndarray  # right-tangent covariance of R_WB (3×3)
     omega_B: np.ndarray | None  # body angular rate (rad/s), when known
 
+    def carried_to(self, t: float, rate_sigma: float) -> tuple[np.ndarray, np.ndarray]:
+        """R_WB at t, rotated on by the angular rate over the age; the covariance grows with the
+        age (rate noise)."""
+        dt = t - self.t
+        R = self.R_WB if self.omega_B is None or dt == 0 else self.R_WB @ so3_exp(self.omega_B * dt)
+        return R, self.cov + np.eye(3) * (rate_sigma * abs(dt)) ** 2
+
 
 @dataclass
-class FusedAttitude:
+class FusedAttitude(AttitudeSample):
     """Every AHRS reading since the last keyframe in one attitude: a Kalman filter on SO(3) that
     carries its estimate from reading to reading with the measured rate (its covariance growing by
     the rate noise) and updates it with each reading. At 20 Hz and a keyframe a second, one factor
     then holds the information of ~20 readings (the heading σ of one reading, 0.5° in the tank,
     becomes ~0.15°) instead of the newest reading's alone, as the EKF uses them all."""
 
-    t: float
-    R_WB: np.ndarray
-    cov: np.ndarray
-    omega_B: np.ndarray | None
-    n: int = 1
-
-    def predict(self, t: float, rate_sigma: float) -> tuple[np.ndarray, np.ndarray]:
-        """The fused attitude carried on to t along the latest rate, and its covariance."""
-        dt = t - self.t
-        R = self.R_WB if self.omega_B is None or dt == 0 else self.R_WB @ so3_exp(self.omega_B * dt)
-        return R, self.cov + np.eye(3) * (rate_sigma * abs(dt)) ** 2
+    n: int = 1  # readings fused
 
     def update(self, s: AttitudeSample, rate_sigma: float) -> None:
-        R, P = self.predict(s.t, rate_sigma)
+        R, P = self.carried_to(s.t, rate_sigma)
         K = P @ np.linalg.inv(P + s.cov)
         self.R_WB = R @ so3_exp(K @ Rotation.from_matrix(R.T @ s.R_WB).as_rotvec())
         self.cov = (np.eye(3) - K) @ P
@@ -129,17 +126,14 @@ class NavigationBuffer:
     def attitude_at(self, t: float) -> tuple[np.ndarray, np.ndarray]:
         """R_WB at t from the latest AHRS reading, rotated on by the angular rate over its age;
         the covariance grows with the age (rate noise)."""
-        a = self.attitude
-        age = t - a.t
-        R = a.R_WB if a.omega_B is None or age == 0 else a.R_WB @ so3_exp(a.omega_B * age)
-        return R, a.cov + np.eye(3) * (self.rate_sigma * abs(age)) ** 2
+        return self.attitude.carried_to(t, self.rate_sigma)
 
     def take_fused_attitude(self, t: float) -> tuple[np.ndarray, np.ndarray, int] | None:
         """The AHRS readings since the last call fused and carried to t: (R_WB, covariance, how
         many readings); the next call starts afresh, so that no reading is used twice."""
         if self.fused is None:
             return None
-        R, cov = self.fused.predict(t, self.rate_sigma)
+        R, cov = self.fused.carried_to(t, self.rate_sigma)
         n, self.fused = self.fused.n, None
         return R, cov, n
 
