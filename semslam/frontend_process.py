@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import multiprocessing as mp
 import pickle
+import queue
 import time
 import traceback
 from collections.abc import Sequence
@@ -76,9 +77,7 @@ class FrontendProcess:
             try:
                 kind, payload = pickle.loads(self._out.get(timeout=5.0))
                 break
-            except Exception as exc:  # queue.Empty: the worker may have died without a word
-                if type(exc).__name__ != "Empty":
-                    raise
+            except queue.Empty:  # the worker may have died without a word
                 if not self._proc.is_alive():
                     raise RuntimeError(f"the front-end process ({', '.join(self.names)}) died "
                                        f"(exit code {self._proc.exitcode})") from None
