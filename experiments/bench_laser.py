@@ -13,10 +13,13 @@ before a change), a paired comparison instead: one worker process per checkout, 
 same scans alternately (so a change of the machine's load falls on both), each result hashed (pipes,
 their inliers and covariances, objects, plane mask) to check that the outputs are identical; reports
 both medians and the median of the per-scan ratios. On the loaded 2-core machine, an A/A run of the
-same checkout gives a ratio within ~2 % of 1.
+same checkout gives a ratio within ~2 % of 1. With ``--process`` too, the workers time
+``LaserFrontend.process`` instead (recognition included) and the hash also covers its observations
+(clouds, class likelihoods, connectivity).
 
     python experiments/bench_laser.py [--source tank] [--scans 8] [--repeat 3] [--process] [--config '{...}']
     python experiments/bench_laser.py --against /tmp/before --every 3 --scans 82 --repeat 1
+    python experiments/bench_laser.py --against /tmp/before --every 3 --scans 40 --repeat 1 --process
 """
 
 from __future__ import annotations
@@ -60,26 +63,59 @@ def _bench_process(scans, overrides: dict, repeat: int) -> dict:
     }
 
 
-def _worker(path: Path, overrides: dict) -> int:
+def _hash_segmentation(h, seg) -> None:
+    """Adds a segmentation's outputs (plane mask, pipes with inliers and covariances, objects) to ``h``."""
+    h.update(seg.planes.structure.tobytes())
+    for p in seg.pipes:
+        h.update(np.concatenate([p.p, p.q, p.covariance.ravel()]).tobytes() + p.inliers.tobytes())
+    for o in seg.objects:
+        h.update(o.position.tobytes() + o.covariance.tobytes() + o.indices.tobytes() + bytes([o.configuration]))
+
+
+def _hash_observations(h, obs) -> None:
+    """Adds ``LaserFrontend.process``'s observations (with clouds and class likelihoods) to ``h``."""
+    for o in obs:
+        for name in ("p", "q", "covariance", "position", "cloud"):
+            v = getattr(o, name, None)
+            if v is not None:
+                h.update(name.encode() + np.ascontiguousarray(v).tobytes())
+        lik = getattr(o, "class_likelihood", None)
+        h.update(repr(sorted(lik.items()) if lik is not None else None).encode())
+        h.update(repr(getattr(o, "connectivity", None)).encode())
+
+
+def _worker(path: Path, overrides: dict, process: bool = False) -> int:
     """Worker of the paired comparison: reads scan indices on stdin, answers (cpu, wall, stage CPU
-    times, hash of the result) pickled and length-prefixed on stdout."""
+    times, hash of the result) pickled and length-prefixed on stdout. With ``process``, times
+    ``LaserFrontend.process`` (recognition included) and hashes its observations too."""
     import hashlib
     import pickle
 
     scans = list(np.load(path).values())
     cfg = LaserConfig.model_validate(overrides)
-    segment_scan(scans[0], cfg)  # warm-up
+    if process:
+        from frontends.laser import LaserFrontend
+        from semslam.mission.measurements import PointCloud
+
+        fe = LaserFrontend(None, overrides)
+        fe.recognizer  # warm-up: builds (or loads) the recogniser's view database
+        fe.process(PointCloud(stamp=0, sensor="laser", points=scans[0]))
+    else:
+        segment_scan(scans[0], cfg)  # warm-up
     out = sys.stdout.buffer
     for line in sys.stdin:
         pts = scans[int(line)]
+        h = hashlib.sha1()
         c0, w0 = time.process_time(), time.perf_counter()
-        seg = segment_scan(pts, cfg)
+        if process:
+            obs = fe.process(PointCloud(stamp=int(line), sensor="laser", points=pts))
+            seg = fe.last
+        else:
+            seg = segment_scan(pts, cfg)
         cpu, wall = time.process_time() - c0, time.perf_counter() - w0
-        h = hashlib.sha1(seg.planes.structure.tobytes())
-        for p in seg.pipes:
-            h.update(np.concatenate([p.p, p.q, p.covariance.ravel()]).tobytes() + p.inliers.tobytes())
-        for o in seg.objects:
-            h.update(o.position.tobytes() + o.covariance.tobytes() + o.indices.tobytes() + bytes([o.configuration]))
+        _hash_segmentation(h, seg)
+        if process:
+            _hash_observations(h, obs)
         stages = {k[4:]: v for k, v in seg.timings.items() if k.startswith("cpu_")}
         msg = pickle.dumps((cpu, wall, stages, h.hexdigest()))
         out.write(len(msg).to_bytes(8, "little") + msg)
@@ -87,8 +123,9 @@ def _worker(path: Path, overrides: dict) -> int:
     return 0
 
 
-def _paired(scans: list, overrides: dict, against: Path, repeat: int) -> dict:
-    """Paired A/B: this checkout (B) and ``against`` (A) in two workers, taking the scans alternately."""
+def _paired(scans: list, overrides: dict, against: Path, repeat: int, process: bool = False) -> dict:
+    """Paired A/B: this checkout (B) and ``against`` (A) in two workers, taking the scans alternately
+    (with ``process``: ``LaserFrontend.process``, recognition included)."""
     import pickle
     import subprocess
     import tempfile
@@ -100,6 +137,7 @@ def _paired(scans: list, overrides: dict, against: Path, repeat: int) -> dict:
         workers = {}
         for name, root in (("A", Path(against).resolve()), ("B", here)):
             cmd = [sys.executable, str(Path(__file__).resolve()), "--worker", str(path), "--config", json.dumps(overrides)]
+            cmd += ["--process"] if process else []
             env = dict(os.environ, BENCH_LASER_ROOT=str(root))
             workers[name] = subprocess.Popen(cmd, cwd=root, env=env, stdin=subprocess.PIPE, stdout=subprocess.PIPE)
 
@@ -129,6 +167,7 @@ def _paired(scans: list, overrides: dict, against: Path, repeat: int) -> dict:
     stages = sorted(res["A"][0][2])
     return {
         "against": str(against),
+        "timed": "LaserFrontend.process" if process else "segment_scan",
         "runs": len(res["A"]),
         "identical_results": bool(identical),
         "cpu_median_s": {"A": med("A", 0), "B": med("B", 0), "median_ratio_B_A": ratio[0]},
@@ -154,7 +193,7 @@ def main(argv=None) -> int:
     ap.add_argument("--worker", type=Path, default=None, help=argparse.SUPPRESS)  # internal: scans file
     args = ap.parse_args(argv)
     if args.worker is not None:
-        return _worker(args.worker, json.loads(args.config))
+        return _worker(args.worker, json.loads(args.config), args.process)
     overrides = json.loads(args.config)
     scans = []
     if args.source == "tank":
@@ -171,7 +210,7 @@ def main(argv=None) -> int:
             T = viewpoint(rng.uniform(0, 360), rng.uniform(-0.3, 0.3, 2), rng.uniform(-10, 10), rng.uniform(-0.5, 0.3))
             scans.append(raycast(default_scene(), n_rays=args.rays, T_scene=T, seed=i).points)
     if args.against is not None:
-        print(json.dumps(_paired(scans, overrides, args.against, args.repeat), indent=2))
+        print(json.dumps(_paired(scans, overrides, args.against, args.repeat, args.process), indent=2))
         return 0
     cfg = LaserConfig.model_validate(overrides)
     segment_scan(scans[0], cfg)  # warm-up (imports, open3d initialisation)
