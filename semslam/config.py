@@ -23,6 +23,12 @@ class MotionNoiseConfig(BaseModel):
     angular_rate_sigma_rad_s: float = Field(0.01, gt=0, description="white angular-rate noise")
 
 
+# The heading bias's prior σ at the start when the mission declares none (an AHRS's heading is
+# typically good to a degree), and the least one used (a bias declared exactly known).
+DEFAULT_BIAS_SIGMA0 = 0.0175
+MIN_BIAS_SIGMA0 = 1e-4
+
+
 class SensorModelConfig(BaseModel):
     """Sensor error models beyond the white noise that the bag's covariances give, shared by every
     estimator that models them."""
@@ -35,19 +41,35 @@ class SensorModelConfig(BaseModel):
         "disturbances, gyro bias); None: from the mission's declared noise (simulated missions: the bias "
         "drift over the mission's duration), else 0 = no bias state",
     )
-    heading_bias_initial_sigma_rad: float = Field(
-        0.0175, gt=0, description="prior σ of the heading bias at the start of the mission (rad)"
+    heading_bias_initial_sigma_rad: float | None = Field(
+        None,
+        ge=0,
+        description="prior σ of the heading bias at the start of the mission (rad); None: the mission's "
+        f"declared one (simulated missions: 0, their AHRS heading at the start defines the world's yaw), "
+        f"else {DEFAULT_BIAS_SIGMA0} (1°)",
     )
+
+    def _declared_ahrs(self, metadata) -> dict:
+        return (getattr(metadata, "extras", None) or {}).get("noise", {}).get("ahrs", {})
 
     def heading_bias_walk(self, metadata) -> float:
         """The heading-bias random-walk intensity for ``metadata``'s mission (rad/√s)."""
         if self.heading_bias_walk_rad_per_sqrt_s is not None:
             return self.heading_bias_walk_rad_per_sqrt_s
-        ahrs = (getattr(metadata, "extras", None) or {}).get("noise", {}).get("ahrs", {})
+        ahrs = self._declared_ahrs(metadata)
         drift, over = ahrs.get("heading_bias_drift_rad"), ahrs.get("heading_bias_drift_over_s")
         if drift and over:
             return float(drift) / float(over) ** 0.5  # a walk whose σ reaches the drift at the end
         return 0.0
+
+    def heading_bias_sigma0(self, metadata) -> float:
+        """The prior σ of the heading bias at the mission's start (rad), at least MIN_BIAS_SIGMA0: a
+        bias known exactly is still a proper Gaussian prior, for the filter's covariance and the
+        graph's noise model alike."""
+        s0 = self.heading_bias_initial_sigma_rad
+        if s0 is None:
+            s0 = self._declared_ahrs(metadata).get("heading_bias_initial_sigma_rad", DEFAULT_BIAS_SIGMA0)
+        return max(float(s0), MIN_BIAS_SIGMA0)
 
 
 class AssociationConfig(BaseModel):

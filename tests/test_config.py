@@ -49,3 +49,23 @@ def test_unknown_key_and_missing_file_are_errors(tmp_path):
 def test_version():
     res = runner.invoke(app, ["--version"])
     assert res.exit_code == 0 and res.output.startswith("semslam ")
+
+
+def test_heading_bias_prior_comes_from_the_mission_unless_configured():
+    """The heading bias's start σ is the mission's declared one (the tank simulator's bias starts at 0:
+    its AHRS heading at the start defines the world's yaw), floored to a proper prior; a configured
+    value wins; a mission that declares nothing gets the 1° default."""
+    from types import SimpleNamespace
+
+    from semslam.config import DEFAULT_BIAS_SIGMA0, MIN_BIAS_SIGMA0
+    from semslam.sim.config import TankSimConfig
+    from semslam.sim.simulate import declared_noise
+
+    tank = SimpleNamespace(extras={"noise": declared_noise(TankSimConfig())})
+    declared = SimpleNamespace(extras={"noise": {"ahrs": {"heading_bias_initial_sigma_rad": 0.01}}})
+    silent = SimpleNamespace(extras={})
+    sensors = SemslamConfig().sensors
+    assert sensors.heading_bias_sigma0(tank) == MIN_BIAS_SIGMA0
+    assert sensors.heading_bias_sigma0(declared) == 0.01
+    assert sensors.heading_bias_sigma0(silent) == DEFAULT_BIAS_SIGMA0
+    assert SemslamConfig(sensors={"heading_bias_initial_sigma_rad": 0.03}).sensors.heading_bias_sigma0(tank) == 0.03

@@ -125,7 +125,7 @@ def test_heading_bias_is_estimated_from_the_map_and_grows_in_dead_reckoning():
         assert abs(b[-1] - truth[k]) < 3 * sb[-1], (name, b[-1], truth[k], sb[-1])
     _, _, sb_dr = res["dr"].history["heading_bias"]
     _, _, sb_ekf = res["ekf"].history["heading_bias"]
-    s0 = cfg.sensors.heading_bias_initial_sigma_rad
+    s0 = cfg.sensors.heading_bias_sigma0(sim.metadata)
     quarters = sb_dr[np.linspace(len(sb_dr) // 10, len(sb_dr) - 1, 5).astype(int)]
     assert np.all(np.diff(quarters) > 0)  # grows (an AHRS update takes a little off: ψ + b vs the gyro)
     # at most the walk's growth (less: with a gyro this good, ψ + b from the AHRS tells a little of b)

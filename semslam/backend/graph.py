@@ -109,7 +109,7 @@ class GraphEstimator:
         self._pose_cov: np.ndarray | None = None
         # AHRS heading bias as a random walk (0: not modelled, the AHRS heading taken as unbiased).
         self._bias_walk = config.sensors.heading_bias_walk(metadata)
-        self._bias_sigma0 = config.sensors.heading_bias_initial_sigma_rad
+        self._bias_sigma0 = config.sensors.heading_bias_sigma0(metadata)
         self._bias = 0.0  # latest keyframe's bias estimate (rad)
         self.online: list[tuple[int, gtsam.Pose3, np.ndarray]] = []
         self.landmarks: dict[int, Landmark] = {}

@@ -12,7 +12,7 @@ disturbances, gyro bias; the simulated tank's by ~2° over the mission) while it
 white noise. The graph back-end models the drift as a random-walk state, so for a fair comparison the
 filter models it the same way, from the same shared sensor model (``config.sensors``): whenever
 ``heading_bias_walk(metadata)`` > 0 the vehicle state is [x y z φ θ ψ u v w b] (10 entries, b at
-:data:`semslam.ekf.models.BIAS`), b starts at 0 with σ ``heading_bias_initial_sigma_rad``, the
+:data:`semslam.ekf.models.BIAS`), b starts at 0 with σ ``heading_bias_sigma0(metadata)`` (declared by the mission), the
 prediction adds σ_b² Δt to its variance (:func:`~semslam.ekf.models.predict_biased`), and the AHRS
 update measures (φ, θ, ψ + b), i.e. R_meas = Rz(b) R_WB as the graph's ``biased_attitude_residual``
 (:func:`~semslam.ekf.models.biased_attitude_update`). Nothing else sees b: landmark, DVL and depth
@@ -509,7 +509,7 @@ class EkfEstimator:
         self._fej = self.cfg.line_jacobians == "first_estimate"
         # AHRS heading bias (the shared sensor model; 0 = not modelled): a 10th vehicle state
         self._bias_walk = config.sensors.heading_bias_walk(metadata)
-        self._bias_sigma0 = config.sensors.heading_bias_initial_sigma_rad
+        self._bias_sigma0 = config.sensors.heading_bias_sigma0(metadata)
         self.nv = NX + 1 if self._bias_walk > 0 else NX
         self._fej_yaw = self.nv > NX and self.cfg.heading_jacobians == "first_estimate"
         self._p_fe = np.zeros(3)  # the propagated (first) estimate of the position at the current time

@@ -215,7 +215,8 @@ def simulate_circling(
     extras = {}
     if heading_bias_walk > 0:  # declared as the tank simulator does: a drift over the mission
         extras["noise"] = {"ahrs": {"heading_bias_drift_rad": heading_bias_walk * np.sqrt(duration_s),
-                                    "heading_bias_drift_over_s": duration_s}}
+                                    "heading_bias_drift_over_s": duration_s,
+                                    "heading_bias_initial_sigma_rad": heading_bias_sigma0}}
     meta = MissionMetadata("synthetic-circling", sensors, ground_truth=gt_map, extras=extras)
     truth = np.column_stack([pos, eul, v_true])
     idx = every(0.05)

@@ -49,6 +49,8 @@ def nav_noise(dvl: DvlConfig, ahrs: AhrsConfig, depth: DepthConfig, duration_s: 
             "heading_sigma_rad": ahrs.heading_sigma_deg * d2r,
             "heading_bias_drift_rad": ahrs.heading_bias_drift_deg * d2r,
             "heading_bias_drift_over_s": duration_s,
+            # The bias starts at 0: the AHRS's heading at the start defines the world's yaw.
+            "heading_bias_initial_sigma_rad": 0.0,
             "angular_rate_sigma_rad_s": ahrs.angular_rate_sigma_rad_s,
             "rate_hz": ahrs.rate_hz,
         },
