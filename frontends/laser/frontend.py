@@ -162,7 +162,7 @@ class LaserFrontend:
             raise ConfigError(f"frontends.laser.{key}: {err['msg']}") from exc
         self.metadata = metadata
         self._recognizer = recognizer
-        self._R_WB: np.ndarray | None = None  # the vehicle's attitude from the latest AHRS reading
+        self._latest_attitude: Attitude | None = None  # the latest AHRS reading (R_WB computed from it per scan)
         self.last: ScanSegmentation | None = None  # the latest scan's stages, for inspection
 
     @property
@@ -189,17 +189,20 @@ class LaserFrontend:
         R_BS = self._extrinsic(sensor)
         if R_BS is None:
             return None
-        R_WB = self._R_WB if self._R_WB is not None else np.eye(3)
+        R_WB = self._R_WB(self._latest_attitude) if self._latest_attitude is not None else np.eye(3)
         return (R_WB @ R_BS).T @ UP_NED
 
-    def _attitude(self, m: Attitude) -> None:
+    def _R_WB(self, m: Attitude) -> np.ndarray:
+        """The vehicle's attitude R_WB from an AHRS reading."""
         R_BA = self._extrinsic(m.sensor)
         R_WA = Rotation.from_quat(np.asarray(m.orientation, float)).as_matrix()
-        self._R_WB = R_WA @ (R_BA.T if R_BA is not None else np.eye(3))
+        return R_WA @ (R_BA.T if R_BA is not None else np.eye(3))
 
     def process(self, measurement: PointCloud | Attitude, view=None) -> list[Observation]:
         if isinstance(measurement, Attitude):
-            self._attitude(measurement)
+            # Only the latest reading before a scan is used: kept as is, converted at the scan
+            # (~40 AHRS readings a scan in the tank mission; the conversion was most of their cost).
+            self._latest_attitude = measurement
             return []
         seg = segment_scan(measurement.points, self.config, self._up(measurement.sensor))
         self.last = seg

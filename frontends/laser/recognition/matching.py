@@ -1,6 +1,8 @@
 """Matching a descriptor against the view database (Himri et al. 2018): chi-square nearest
 neighbour, and an RBF support-vector machine (scikit-learn), with leave-one-out evaluation.
 
+The SVM itself lives in ``svm.py`` (scikit-learn, imported only when an SVM is made).
+
 The chi-square distance between histograms a and b is ½ Σ (a − b)² / (a + b) over the bins where
 a + b > 0. For CVFH, whose views carry several descriptors, the distance between two views is the
 smallest over their pairs of descriptors.
@@ -11,10 +13,6 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 
 import numpy as np
-from sklearn.base import BaseEstimator, TransformerMixin
-from sklearn.pipeline import make_pipeline
-from sklearn.preprocessing import StandardScaler
-from sklearn.svm import SVC
 
 
 def principal_extents(cloud: np.ndarray) -> np.ndarray:
@@ -118,28 +116,14 @@ def svm_features(hist: np.ndarray, extents: np.ndarray | None = None) -> np.ndar
     return x if extents is None else np.hstack([x, np.log(np.atleast_2d(extents))])
 
 
-class _TailGain(TransformerMixin, BaseEstimator):
-    """Multiplies the last ``n`` (standardised) columns by ``gain``: lets 3 size inputs weigh
-    against hundreds of histogram bins in the RBF kernel."""
-
-    def __init__(self, n: int = 0, gain: float = 1.0):
-        self.n = n
-        self.gain = gain
-
-    def fit(self, X, y=None):
-        return self
-
-    def transform(self, X):
-        X = np.array(X, dtype=np.float64, copy=True)
-        if self.n:
-            X[:, -self.n :] *= self.gain
-        return X
-
-
 def make_svm(C: float = 10.0, gamma: str | float = "scale", n_size: int = 0, size_gain: float = 16.0):
     """An RBF SVM on standardised features (see :func:`svm_features`); the last ``n_size``
     columns (the size cue) are up-weighted by ``size_gain`` after standardisation."""
-    return make_pipeline(StandardScaler(), _TailGain(n_size, size_gain), SVC(kernel="rbf", C=C, gamma=gamma))
+    # scikit-learn imported only here: ~1.2 s of a front-end process's start-up otherwise paid by
+    # the default chi-square NN recogniser, which never uses it.
+    from frontends.laser.recognition.svm import make_svm as _make_svm
+
+    return _make_svm(C, gamma, n_size, size_gain)
 
 
 def leave_one_out(
