@@ -69,6 +69,10 @@ class FrontendProcess:
             self._proc.join(timeout=10)
             if self._proc.is_alive():
                 self._proc.terminate()
+        if not self._proc.is_alive():
+            # Measurements still queued for a dead worker can never be read: without this, the
+            # queue's feeder thread blocks on the full pipe and the interpreter hangs at exit.
+            self._in.cancel_join_thread()
         self._in.close()
         self._out.close()
 
@@ -80,7 +84,9 @@ class FrontendProcess:
             except queue.Empty:  # the worker may have died without a word
                 if not self._proc.is_alive():
                     raise RuntimeError(f"the front-end process ({', '.join(self.names)}) died "
-                                       f"(exit code {self._proc.exitcode})") from None
+                                       f"(exit code {self._proc.exitcode}; a script that runs the "
+                                       "pipeline must start it under `if __name__ == '__main__':`, "
+                                       "as the process is spawned)") from None
         if kind == "error":
             exc, tb = payload
             exc.__notes__ = [*getattr(exc, "__notes__", []), f"in the front-end process:\n{tb}"]

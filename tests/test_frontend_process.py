@@ -10,7 +10,7 @@ import pytest
 from semslam.backend.synthetic import SyntheticConfig, simulate
 from semslam.config import SemslamConfig
 from semslam.ekf import EkfEstimator
-from semslam.mission.measurements import PointCloud
+from semslam.mission.measurements import Measurement, PointCloud
 from semslam.pipeline import run_pipeline
 from semslam.registry import create_frontends
 
@@ -55,3 +55,41 @@ def test_an_error_in_the_front_end_process_is_raised_as_itself():
     mission = simulate(SyntheticConfig(duration_s=20.0, seed=1))
     with pytest.raises(ValueError, match="is broken"):
         run_pipeline(mission, [EkfEstimator(mission.metadata, SemslamConfig())], [FailingFrontend()])
+
+
+class DyingFrontend(FailingFrontend):
+    """Kills its process on the third measurement, without a word (as a crash in C code would).
+    It consumes every measurement, so that more than a pipe's worth is queued for it."""
+
+    name: ClassVar[str] = "dying"
+    consumes: ClassVar[tuple] = (Measurement,)
+
+    def process(self, measurement, view):
+        import os
+
+        self.n += 1
+        if self.n == 3:
+            os._exit(3)
+        return []
+
+
+def test_a_dead_front_end_process_is_an_error_and_the_run_exits():
+    """The pipeline raises, naming the process and its exit code, and nothing waits on measurements
+    queued for it (the parent once hung at exit on the queue's feeder thread): a child interpreter
+    that runs this test's body after the death must exit promptly."""
+    import subprocess
+    import sys
+
+    code = (
+        "import sys; sys.path.insert(0, %r)\n"
+        "from test_frontend_process import *\n"
+        "if __name__ == '__main__':\n"
+        "    mission = simulate(SyntheticConfig(duration_s=40.0, seed=1))\n"
+        "    try:\n"
+        "        run_pipeline(mission, [EkfEstimator(mission.metadata, SemslamConfig())], [DyingFrontend()])\n"
+        "    except RuntimeError as exc:\n"
+        "        print('raised:', exc)\n"
+    ) % str(__import__("pathlib").Path(__file__).parent)
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert "raised: the front-end process (dying) died (exit code 3" in out.stdout
