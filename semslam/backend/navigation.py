@@ -7,9 +7,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
-from factors.geometry import so3_exp
+from factors.geometry import quat_to_rot, so3_exp, so3_log
 from factors.navigation import DvlPreintegrator, ahrs_body_rotation, dvl_to_body
 from semslam.mission.measurements import Attitude, Depth, DvlVelocity
 from semslam.mission.mission import MissionMetadata
@@ -43,7 +42,7 @@ class FusedAttitude(AttitudeSample):
     def update(self, s: AttitudeSample, rate_sigma: float) -> None:
         R, P = self.carried_to(s.t, rate_sigma)
         K = P @ np.linalg.inv(P + s.cov)
-        self.R_WB = R @ so3_exp(K @ Rotation.from_matrix(R.T @ s.R_WB).as_rotvec())
+        self.R_WB = R @ so3_exp(K @ so3_log(R.T @ s.R_WB))
         self.cov = (np.eye(3) - K) @ P
         self.cov = 0.5 * (self.cov + self.cov.T)
         self.t, self.omega_B, self.n = s.t, s.omega_B, self.n + 1
@@ -94,12 +93,12 @@ class NavigationBuffer:
         t = m.stamp * 1e-9
         if isinstance(m, Attitude):
             R_BS = self._T_BS(m.sensor)[:3, :3]
-            R_WS = Rotation.from_quat(m.orientation).as_matrix()
+            R_WS = quat_to_rot(m.orientation)
             R_WB, cov = ahrs_body_rotation(R_WS, np.asarray(m.covariance), R_BS)
             omega = None if m.angular_rate is None else R_BS @ np.asarray(m.angular_rate)
             if omega is None and self.attitude is not None and t > self.attitude.t:
                 # Finite difference of consecutive attitudes when the AHRS gives no rate.
-                omega = Rotation.from_matrix(self.attitude.R_WB.T @ R_WB).as_rotvec() / (t - self.attitude.t)
+                omega = so3_log(self.attitude.R_WB.T @ R_WB) / (t - self.attitude.t)
             self._prev_attitude, self.attitude = self.attitude, AttitudeSample(t, R_WB, cov, omega)
             if self.fused is None:
                 self.fused = FusedAttitude(t, R_WB, cov, omega)

@@ -21,6 +21,8 @@ import math
 
 import numpy as np
 
+from factors.geometry import quat_to_rot, so3_exp, so3_log  # noqa: F401 (shared with the graph; re-exported)
+
 
 def skew(v: np.ndarray) -> np.ndarray:
     """[v]× such that [v]× w = v × w."""
@@ -102,42 +104,6 @@ def euler_rate_jacobian(phi: float, theta: float, w: np.ndarray) -> np.ndarray:
             [b / ct, a * st / ct**2, 0.0],
         ]
     )
-
-
-def quat_to_rot(q) -> np.ndarray:
-    """Rotation matrix of a unit quaternion (x, y, z, w) (normalised here), as scipy's Rotation."""
-    x, y, z, w = (float(v) for v in q)
-    s = 2.0 / (x * x + y * y + z * z + w * w)
-    return np.array(
-        [
-            [1.0 - s * (y * y + z * z), s * (x * y - z * w), s * (x * z + y * w)],
-            [s * (x * y + z * w), 1.0 - s * (x * x + z * z), s * (y * z - x * w)],
-            [s * (x * z - y * w), s * (y * z + x * w), 1.0 - s * (x * x + y * y)],
-        ]
-    )
-
-
-def so3_exp(w: np.ndarray) -> np.ndarray:
-    t = np.linalg.norm(w)
-    K = skew(w)
-    if t < 1e-9:
-        return np.eye(3) + K + 0.5 * K @ K
-    return np.eye(3) + np.sin(t) / t * K + (1 - np.cos(t)) / t**2 * K @ K
-
-
-def so3_log(R: np.ndarray) -> np.ndarray:
-    c = np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0)
-    t = np.arccos(c)
-    v = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
-    if t < 1e-7:
-        return 0.5 * v
-    if np.pi - t < 1e-5:  # near π: from the symmetric part
-        B = 0.5 * (R + np.eye(3))
-        k = int(np.argmax(np.diag(B)))
-        axis = B[:, k] / np.sqrt(max(B[k, k], 1e-12))
-        axis *= np.sign(axis @ v) if axis @ v != 0 else 1.0
-        return t * axis / np.linalg.norm(axis)
-    return t / (2 * np.sin(t)) * v
 
 
 def so3_right_jacobian_inv(w: np.ndarray) -> np.ndarray:
