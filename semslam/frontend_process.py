@@ -5,20 +5,30 @@ takes "up" from the AHRS, the oracle reads ground truth) depends on nothing but 
 so it can work a few scans ahead while the estimators work through the measurements before them.
 On the tank mission that is the laser's ~50 s beside the estimators' ~35 s on two cores.
 
-The front-ends are pickled into one worker process (spawned: a fork would inherit the parent's
+The front-ends are pickled into worker processes (spawned: a fork would inherit the parent's
 OpenMP and GTSAM threads) and fed every measurement they consume, in order; they keep their state
 there. Results come back in the same order: the observations of each front-end and the time it
 took. Payloads are pickled in the worker, so that an object that cannot cross (or any exception)
 is reported to the caller instead of hanging a queue's feeder thread.
+
+Replicas: a front-end whose result for some measurement types depends only on that measurement and
+on what it kept from its other types (``parallel_consumes``: the laser's scans, given the latest
+AHRS reading) can run in several workers at once. Each worker holds a replica of every front-end;
+a measurement that every front-end consuming it takes in parallel goes to one worker in turn, any
+other measurement to all of them (so that each replica keeps the same state), answered by the first.
+A replica's ``finish()`` must then not depend on the parallel measurements (the first one's is used).
+On 2 cores the laser's ~50 s of scans then share both cores with the estimators' ~35 s.
 """
 
 from __future__ import annotations
 
 import multiprocessing as mp
+import os
 import pickle
 import queue
 import time
 import traceback
+from collections import deque
 from collections.abc import Sequence
 
 from semslam.mission.measurements import Measurement
@@ -31,37 +41,91 @@ def runs_in_process(frontend) -> bool:
     return getattr(frontend, "uses_view", True) is False
 
 
-class FrontendProcess:
-    """One worker process running ``frontends`` on the measurements submitted to it, in order."""
+def default_workers() -> int:
+    """One worker per core, at most 4 (the estimators keep the main process busy too)."""
+    return max(1, min(os.cpu_count() or 1, 4))
 
-    def __init__(self, frontends: Sequence):
+
+class FrontendProcess:
+    """Worker processes running ``frontends`` on the measurements submitted to them; results in
+    submission order. ``workers`` > 1 only helps front-ends that declare ``parallel_consumes``."""
+
+    def __init__(self, frontends: Sequence, workers: int = 1):
         ctx = mp.get_context("spawn")
         self.names = [fe.name for fe in frontends]
         self._types = [tuple(fe.consumes) for fe in frontends]
-        self._in = ctx.Queue()
-        self._out = ctx.Queue()
-        self._proc = ctx.Process(target=_work, args=(list(frontends), self._in, self._out), daemon=True,
-                                 name="semslam-frontends")
-        self._proc.start()
-        self.in_flight = 0
+        self._parallel = [tuple(getattr(fe, "parallel_consumes", ())) for fe in frontends]
+        if not any(self._parallel):
+            workers = 1  # replicas would all do the same work
+        self._workers = [_Worker(ctx, list(frontends), i) for i in range(max(1, workers))]
+        self._owners: deque[int] = deque()  # which worker answers each submitted measurement
+        self._turn = 0
+
+    @property
+    def in_flight(self) -> int:
+        return len(self._owners)
 
     def consumes(self, m: Measurement) -> bool:
         return any(isinstance(m, t) for t in self._types)
 
+    def _shared(self, m: Measurement) -> bool:
+        """Every front-end that consumes ``m`` takes it in parallel: one replica suffices."""
+        return all(isinstance(m, par) for types, par in zip(self._types, self._parallel) if isinstance(m, types))
+
     def submit(self, m: Measurement) -> None:
-        self._in.put(m)
-        self.in_flight += 1
+        if len(self._workers) > 1 and self._shared(m):
+            owner = self._turn
+            self._turn = (self._turn + 1) % len(self._workers)
+            self._workers[owner].send(m, reply=True)
+        else:
+            owner = 0
+            for w in self._workers:
+                w.send(m, reply=w.index == owner)
+        self._owners.append(owner)
 
     def result(self) -> dict[str, tuple[list, float]]:
         """The next submitted measurement's results: front-end name → (observations, seconds),
         for the front-ends that consume it."""
-        self.in_flight -= 1
-        return self._receive()
+        return self._workers[self._owners.popleft()].receive(self.names)
 
     def finish(self) -> dict[str, tuple[object, float]]:
-        """Every front-end's ``finish()`` summary (None without one) and its time."""
-        self._in.put(_FINISH)
-        return self._receive()
+        """Every front-end's ``finish()`` summary (None without one) and its time (the first replica's)."""
+        self._workers[0].send(_FINISH, reply=True)
+        return self._workers[0].receive(self.names)
+
+    def close(self) -> None:
+        for w in self._workers:
+            w.close()
+
+
+class _Worker:
+    def __init__(self, ctx, frontends: list, index: int):
+        self.index = index
+        self._in = ctx.Queue()
+        self._out = ctx.Queue()
+        self._proc = ctx.Process(target=_work, args=(frontends, self._in, self._out), daemon=True,
+                                 name=f"semslam-frontends-{index}")
+        self._proc.start()
+
+    def send(self, item, reply: bool) -> None:
+        self._in.put((item, reply))
+
+    def receive(self, names: list[str]):
+        while True:
+            try:
+                kind, payload = pickle.loads(self._out.get(timeout=5.0))
+                break
+            except queue.Empty:  # the worker may have died without a word
+                if not self._proc.is_alive():
+                    raise RuntimeError(f"the front-end process ({', '.join(names)}) died "
+                                       f"(exit code {self._proc.exitcode}; a script that runs the "
+                                       "pipeline must start it under `if __name__ == '__main__':`, "
+                                       "as the process is spawned)") from None
+        if kind == "error":
+            exc, tb = payload
+            exc.__notes__ = [*getattr(exc, "__notes__", []), f"in the front-end process:\n{tb}"]
+            raise exc
+        return payload
 
     def close(self) -> None:
         if self._proc.is_alive():
@@ -76,32 +140,16 @@ class FrontendProcess:
         self._in.close()
         self._out.close()
 
-    def _receive(self):
-        while True:
-            try:
-                kind, payload = pickle.loads(self._out.get(timeout=5.0))
-                break
-            except queue.Empty:  # the worker may have died without a word
-                if not self._proc.is_alive():
-                    raise RuntimeError(f"the front-end process ({', '.join(self.names)}) died "
-                                       f"(exit code {self._proc.exitcode}; a script that runs the "
-                                       "pipeline must start it under `if __name__ == '__main__':`, "
-                                       "as the process is spawned)") from None
-        if kind == "error":
-            exc, tb = payload
-            exc.__notes__ = [*getattr(exc, "__notes__", []), f"in the front-end process:\n{tb}"]
-            raise exc
-        return payload
-
 
 def _work(frontends: list, inq, outq) -> None:
     from threadpoolctl import threadpool_limits
 
     with threadpool_limits(limits=1, user_api="blas"):  # as in the pipeline: small matrices
         while True:
-            item = inq.get()
-            if item is None:
+            msg = inq.get()
+            if msg is None:
                 return
+            item, reply = msg
             try:
                 if isinstance(item, str) and item == _FINISH:
                     out = {}
@@ -116,6 +164,8 @@ def _work(frontends: list, inq, outq) -> None:
                             t0 = time.perf_counter()
                             obs = fe.process(item, None)
                             out[fe.name] = (obs, time.perf_counter() - t0)
+                if not reply:
+                    continue  # a replica keeping its state: another worker answers
                 payload = pickle.dumps(("ok", out))
             except BaseException as exc:  # reported to the caller, which raises it
                 try:

@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from semslam.estimation import Estimator, EstimatorResult, Trajectory
-from semslam.frontend_process import FrontendProcess, runs_in_process
+from semslam.frontend_process import FrontendProcess, default_workers, runs_in_process
 from semslam.mission.measurements import GroundTruthPose
 from semslam.mission.mission import Mission
 from semslam.observations import Observation
@@ -59,6 +59,7 @@ def run_pipeline(
     progress: bool = False,
     keep_observations: bool = True,
     frontend_process: bool = True,
+    frontend_workers: int | None = None,
 ) -> PipelineResult:
     """Feed ``mission`` through ``frontends`` into every estimator.
 
@@ -66,7 +67,8 @@ def run_pipeline(
     estimator) — the semantic feedback of the paper (global ids for class fusion). Front-ends that
     never read it (``uses_view = False``) run in a process of their own a few scans ahead
     (``frontend_process``; see :mod:`semslam.frontend_process`): the same observations, in the same
-    order, in less wall time.
+    order, in less wall time; front-ends that declare ``parallel_consumes`` (the laser's scans) run
+    in ``frontend_workers`` replicas (default: one per core, at most 4).
 
     BLAS runs single-threaded meanwhile: the matrices here are small (an EKF of a few hundred
     states, 3×3 to 100×100 blocks), and OpenBLAS's threads spinning against GTSAM's and each other
@@ -75,7 +77,7 @@ def run_pipeline(
     from threadpoolctl import threadpool_limits
 
     apart = [fe for fe in frontends if frontend_process and runs_in_process(fe)]
-    worker = FrontendProcess(apart) if apart else None
+    worker = FrontendProcess(apart, frontend_workers or default_workers()) if apart else None
     try:
         with threadpool_limits(limits=1, user_api="blas"):
             return _run_pipeline(mission, estimators, frontends, view_estimator, progress, keep_observations, worker)

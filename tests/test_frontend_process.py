@@ -10,7 +10,8 @@ import pytest
 from semslam.backend.synthetic import SyntheticConfig, simulate
 from semslam.config import SemslamConfig
 from semslam.ekf import EkfEstimator
-from semslam.mission.measurements import Measurement, PointCloud
+from semslam.mission.measurements import Attitude, Measurement, PointCloud
+from semslam.observations import PointObservation
 from semslam.pipeline import run_pipeline
 from semslam.registry import create_frontends
 
@@ -93,3 +94,46 @@ def test_a_dead_front_end_process_is_an_error_and_the_run_exits():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
     assert out.returncode == 0, out.stderr[-2000:]
     assert "raised: the front-end process (dying) died (exit code 3" in out.stdout
+
+
+class ScanWithAttitude:
+    """Reports, per scan, the stamp of the latest AHRS reading it kept: a replica that missed one
+    would tell. Scans are independent given that (``parallel_consumes``), as the laser's are."""
+
+    name: ClassVar[str] = "scan_att"
+    consumes: ClassVar[tuple] = (PointCloud, Attitude)
+    parallel_consumes: ClassVar[tuple] = (PointCloud,)
+    uses_view: ClassVar[bool] = False
+
+    def __init__(self):
+        self.latest = 0
+
+    def process(self, measurement, view):
+        import os
+
+        if isinstance(measurement, Attitude):
+            self.latest = measurement.stamp
+            return []
+        return [PointObservation(measurement.stamp, "laser", position=np.array([self.latest * 1e-9, os.getpid(), 1.0]))]
+
+    def finish(self, view=None):
+        from semslam.registry import FrontendSummary
+
+        return FrontendSummary(section="scan_att", metrics={"latest": self.latest})
+
+
+def test_replicas_share_the_scans_and_give_the_inline_stream():
+    """With two workers, scans alternate between them while both see every AHRS reading: the
+    observations are those of the front-end inline, in the same order, and come from both processes."""
+    mission = simulate(SyntheticConfig(duration_s=40.0, seed=1))
+
+    def run(**kw):
+        return run_pipeline(mission, [EkfEstimator(mission.metadata, SemslamConfig())], [ScanWithAttitude()],
+                            keep_observations=True, **kw)
+
+    inline, apart = run(frontend_process=False), run(frontend_workers=2)
+    a = [(r.stamp, r.observation.position[0]) for r in inline.observations]
+    b = [(r.stamp, r.observation.position[0]) for r in apart.observations]
+    assert len(a) > 10 and a == b
+    assert len({r.observation.position[1] for r in apart.observations}) == 2  # both workers took scans
+    assert apart.frontend_summaries["scan_att"].metrics == inline.frontend_summaries["scan_att"].metrics
