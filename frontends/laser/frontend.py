@@ -213,14 +213,16 @@ class LaserFrontend:
             if pp.reported(self.config.pipes)
         ]
         spts = seg.structure_points
+        conns, clouds = [], []
         for o in seg.objects:
-            conn = Connectivity(len(o.directions), o.configuration, tuple(tuple(map(float, d)) for d in o.directions))
+            conns.append(Connectivity(len(o.directions), o.configuration, tuple(tuple(map(float, d)) for d in o.directions)))
             if self.config.full_resolution_clouds:
                 cloud = np.asarray(measurement.points)[seg.raw_indices(o.indices)]
             else:
                 cloud = spts[o.indices]
-            cloud = np.asarray(cloud, dtype=np.float32)
-            likelihood = self.recognizer.classify(cloud, conn) if self.recognizer is not None else None
+            clouds.append(np.asarray(cloud, dtype=np.float32))
+        likelihoods = self._classify(clouds, conns) if seg.objects else []
+        for o, conn, cloud, likelihood in zip(seg.objects, conns, clouds, likelihoods):
             obs.append(
                 PointObservation(
                     stamp,
@@ -233,6 +235,16 @@ class LaserFrontend:
                 )
             )
         return obs
+
+    def _classify(self, clouds: list[np.ndarray], conns: list[Connectivity]) -> list[dict[str, float] | None]:
+        """Class likelihoods of a scan's object clouds (None without a recogniser): all at once
+        when the recogniser can (``classify_many``: the default one describes them together)."""
+        rec = self.recognizer
+        if rec is None:
+            return [None] * len(clouds)
+        if hasattr(rec, "classify_many"):
+            return rec.classify_many(clouds, conns)
+        return [rec.classify(c, k) for c, k in zip(clouds, conns)]
 
     def finish(self, view=None) -> FrontendSummary:
         """The recogniser's SYN stage (its confusion on held-out synthetic views, the P(Z | X) it

@@ -77,12 +77,15 @@ def _voxel_index(p: np.ndarray) -> np.ndarray:
     return np.where(p < 0.0, np.floor(p) + HALF, np.ceil(p) + HALF - 1).astype(np.int32)
 
 
-def _surface_lut(vox: np.ndarray) -> np.ndarray:
+def _surface_lut(vox: np.ndarray, grid_of: np.ndarray | None = None, n_grids: int = 1) -> np.ndarray:
     """The voxels of the points dilated by one voxel (PCL ``voxelize9``), as a flat uint8 0/1 grid
     of (64 + 2)³ voxels: the 64³ grid with a one-voxel border (voxel (x, y, z) at
-    ``_ORIGIN + x·66² + y·66 + z``)."""
+    ``_ORIGIN + x·66² + y·66 + z``). With ``grid_of`` (the grid of every point, < ``n_grids``),
+    ``n_grids`` such grids one after the other (grid g's voxels offset by g·66³)."""
     occ = (vox[:, 0].astype(np.int64) * _PG + vox[:, 1]) * _PG + vox[:, 2] + _ORIGIN
-    lut = np.zeros(_PG**3, dtype=np.uint8)
+    if grid_of is not None:
+        occ += grid_of * _PG**3
+    lut = np.zeros(n_grids * _PG**3, dtype=np.uint8)
     lut[(occ[:, None] + _NEIGHBOUR_OFFSETS[None, :]).ravel()] = 1
     return lut
 
@@ -178,9 +181,11 @@ def _row_sums(hit: np.ndarray) -> np.ndarray:
 def _walk(
     lut: np.ndarray, start: tuple[np.ndarray, ...], end: tuple[np.ndarray, ...], *,
     chunk: int = 65536, band: int | None = None, head: int = 0, tail: int = 0,
+    grid_offset: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
     """PCL's ``lci`` for every segment ``start → end`` (per-axis integer voxel coordinates in
     [0, 64)) in the bordered grid ``lut`` (see :func:`_surface_lut`): ``(inside, count)``.
+    ``grid_offset`` (per segment) is the flat offset of its grid in a ``lut`` of several grids.
 
     The first ``head`` and the last ``tail`` voxels of every walk are counted as inside without a
     look-up (only valid when they are known to be, as in :func:`esf`).
@@ -205,7 +210,10 @@ def _walk(
     rows = np.empty((3, len(o)), dtype=np.int32)
     for ax, d in enumerate((dx, dy, dz)):
         np.take(l_rows + np.take(_EXTENT_ROW[ax], d + (GRID - 1)), o, out=rows[ax])
-    base = np.take((sx * _PG + sy) * _PG + sz + _ORIGIN, o).astype(np.int32)
+    start_flat = (sx * _PG + sy) * _PG + sz + _ORIGIN
+    if grid_offset is not None:
+        start_flat = start_flat + grid_offset
+    base = np.take(start_flat, o).astype(np.int32)
     # The padding (offset 0) revisits the start voxel (width − mid) times: taken off at the end.
     width_of = np.minimum((band_of[o].astype(np.int32) + 1) * band, GRID)
     padding = (width_of - np.take(mid, o)) * np.take(lut, base)
@@ -247,39 +255,63 @@ def trace_lines(
     return _walk(grid, tuple(s.T.copy()), tuple(e.T.copy()), chunk=chunk, band=band)
 
 
+def _triangles(px: np.ndarray, py: np.ndarray, pz: np.ndarray, i1: np.ndarray, i2: np.ndarray, i3: np.ndarray):
+    """Side vectors u = v21, v = v31, w = v23 (3-tuples of coordinates), side lengths a = |v21|,
+    b = |v31|, c = |v23| and Heron product of candidate triplets (index arrays of distinct points)."""
+    x1, y1, z1 = px[i1], py[i1], pz[i1]
+    ux, uy, uz = px[i2] - x1, py[i2] - y1, pz[i2] - z1  # v21
+    vx, vy, vz = px[i3] - x1, py[i3] - y1, pz[i3] - z1  # v31
+    wx, wy, wz = ux - vx, uy - vy, uz - vz  # v23 = p2 − p3
+    a = np.sqrt(ux * ux + uy * uy + uz * uz)
+    b = np.sqrt(vx * vx + vy * vy + vz * vz)
+    c = np.sqrt(wx * wx + wy * wy + wz * wz)
+    s = 0.5 * (a + b + c)
+    heron = s * (s - a) * (s - b) * (s - c)
+    return (ux, uy, uz), (vx, vy, vz), (wx, wy, wz), a, b, c, heron
+
+
+def _cosines(u, v, w, a, b, c) -> np.ndarray:
+    """The three |cos| of PCL's angles (3×n: at p1 between v21 and v31, at p3 between v23 and v31,
+    at p2 between v23 and v21) from :func:`_triangles`' sides."""
+    (ux, uy, uz), (vx, vy, vz), (wx, wy, wz) = u, v, w
+    cos = np.empty((3, len(a)))
+    np.abs(ux * vx + uy * vy + uz * vz, out=cos[0])
+    np.abs(wx * vx + wy * vy + wz * vz, out=cos[1])
+    np.abs(wx * ux + wy * uy + wz * uz, out=cos[2])
+    cos /= np.stack([a * b, c * b, c * a])
+    return cos
+
+
+def _candidates(n_points: int, n: int, rng: np.random.Generator) -> np.ndarray:
+    """A round of random triplets (m×3 indices) when ``n`` are still needed."""
+    return rng.integers(0, n_points, size=(int(n * 1.25) + 64, 3))
+
+
+def _distinct(idx: np.ndarray) -> np.ndarray:
+    """Mask of the triplets (m×3) of three distinct indices."""
+    i1, i2, i3 = idx[:, 0], idx[:, 1], idx[:, 2]
+    return (i1 != i2) & (i1 != i3) & (i2 != i3)
+
+
 def _sample_triplets(pts: np.ndarray, n: int, rng: np.random.Generator) -> tuple[np.ndarray, ...]:
     """``n`` random index triplets of distinct points spanning a non-degenerate triangle (Heron
     product > 0.001), as ``(i1, i2, i3, a, b, c, heron, cos)``: side lengths a = |p2 − p1|,
-    b = |p3 − p1|, c = |p2 − p3|, and the three |cos| of PCL's angles (3×n: at p1 between v21 and
-    v31, at p3 between v23 and v31, at p2 between v23 and v21). Computed per coordinate on the
-    candidate triplets, rejected ones dropped before the angles."""
+    b = |p3 − p1|, c = |p2 − p3|, and the three |cos| of PCL's angles (3×n, see
+    :func:`_cosines`). Computed per coordinate on the candidate triplets, rejected ones dropped
+    before the angles."""
     N = len(pts)
     px, py, pz = (np.ascontiguousarray(pts[:, k]) for k in range(3))
     parts: list[tuple[np.ndarray, ...]] = []
     have = 0
     for _ in range(50):
-        m = int((n - have) * 1.25) + 64
-        idx = rng.integers(0, N, size=(m, 3))
+        idx = _candidates(N, n - have, rng)
+        idx = idx[_distinct(idx)]
         i1, i2, i3 = idx[:, 0], idx[:, 1], idx[:, 2]
-        distinct = (i1 != i2) & (i1 != i3) & (i2 != i3)
-        i1, i2, i3 = i1[distinct], i2[distinct], i3[distinct]
-        x1, y1, z1 = px[i1], py[i1], pz[i1]
-        ux, uy, uz = px[i2] - x1, py[i2] - y1, pz[i2] - z1  # v21
-        vx, vy, vz = px[i3] - x1, py[i3] - y1, pz[i3] - z1  # v31
-        wx, wy, wz = ux - vx, uy - vy, uz - vz  # v23 = p2 − p3
-        a = np.sqrt(ux * ux + uy * uy + uz * uz)
-        b = np.sqrt(vx * vx + vy * vy + vz * vz)
-        c = np.sqrt(wx * wx + wy * wy + wz * wz)
-        s = 0.5 * (a + b + c)
-        heron = s * (s - a) * (s - b) * (s - c)
+        u, v, w, a, b, c, heron = _triangles(px, py, pz, i1, i2, i3)
         keep = np.flatnonzero(heron > 0.001)[: n - have]
-        ux, uy, uz, vx, vy, vz, wx, wy, wz, a, b, c = (x[keep] for x in (ux, uy, uz, vx, vy, vz, wx, wy, wz, a, b, c))
-        cos = np.empty((3, len(keep)))
-        np.abs(ux * vx + uy * vy + uz * vz, out=cos[0])
-        np.abs(wx * vx + wy * vy + wz * vz, out=cos[1])
-        np.abs(wx * ux + wy * uy + wz * uz, out=cos[2])
-        cos /= np.stack([a * b, c * b, c * a])
-        parts.append((i1[keep], i2[keep], i3[keep], a, b, c, heron[keep], cos))
+        u, v, w = (tuple(x[keep] for x in side) for side in (u, v, w))
+        a, b, c = a[keep], b[keep], c[keep]
+        parts.append((i1[keep], i2[keep], i3[keep], a, b, c, heron[keep], _cosines(u, v, w, a, b, c)))
         have += len(keep)
         if have >= n:
             break
@@ -290,8 +322,17 @@ def _sample_triplets(pts: np.ndarray, n: int, rng: np.random.Generator) -> tuple
     return tuple(np.concatenate(p, axis=-1) for p in zip(*parts))
 
 
-def _hist(values: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
-    return np.bincount(values, weights=weights, minlength=_NB)[:_NB].astype(np.float64)
+def _scaled(cloud: np.ndarray) -> np.ndarray:
+    """The cloud centred on its centroid, scaled so that its farthest point lies at 32 voxels."""
+    pts = np.asarray(cloud, dtype=np.float64)
+    if pts.ndim != 2 or pts.shape[1] != 3 or len(pts) < 3:
+        raise ValueError(f"ESF needs an N×3 cloud with N ≥ 3, got shape {pts.shape}")
+    pts = pts - pts.mean(axis=0)
+    r = np.sqrt((pts**2).sum(axis=1).max())
+    if r == 0.0:
+        raise ValueError("ESF: all points coincide")
+    pts *= HALF / r
+    return pts
 
 
 def esf(cloud: np.ndarray, *, n_samples: int = 20000, seed: int | np.random.Generator | None = 0) -> np.ndarray:
@@ -300,64 +341,156 @@ def esf(cloud: np.ndarray, *, n_samples: int = 20000, seed: int | np.random.Gene
     ``seed`` makes the triplet sampling reproducible (an int, a Generator, or None for fresh
     entropy).
     """
-    pts = np.asarray(cloud, dtype=np.float64)
-    if pts.ndim != 2 or pts.shape[1] != 3 or len(pts) < 3:
-        raise ValueError(f"ESF needs an N×3 cloud with N ≥ 3, got shape {pts.shape}")
+    pts = _scaled(cloud)
     rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
-
-    pts = pts - pts.mean(axis=0)
-    r = np.sqrt((pts**2).sum(axis=1).max())
-    if r == 0.0:
-        raise ValueError("ESF: all points coincide")
-    pts *= HALF / r
     vox = _voxel_index(pts)
-    lut = _surface_lut(vox)
-
     i1, i2, i3, a, b, c, heron, cos = _sample_triplets(pts, n_samples, rng)
-    n = len(i1)
+    rows = (x[None] for x in (i1, i2, i3, a, b, c, heron))
+    return _histograms(vox, None, 1, *rows, cos[:, None])[0]
+
+
+def esf_many(clouds: list[np.ndarray], *, n_samples: int = 20000, seed: int | None = 0) -> list[np.ndarray | None]:
+    """``esf(cloud, n_samples=n_samples, seed=seed)`` of every cloud (the same descriptors, each
+    sampled from its own generator seeded ``seed``), None where ``esf`` raises ValueError.
+
+    All clouds go through each step together (one concatenated array, one look-up grid per cloud
+    in one buffer): on the ~20 segments of a scan with 1000 triplets each, numpy's per-call
+    overhead is most of ``esf``'s cost, and it is paid once here instead of per segment.
+    """
+    out: list[np.ndarray | None] = [None] * len(clouds)
+    scaled, where = [], []
+    for k, cloud in enumerate(clouds):
+        try:
+            scaled.append(_scaled(cloud))
+            where.append(k)
+        except ValueError:
+            pass
+    if not scaled:
+        return out
+    pts = np.concatenate(scaled)
+    sizes = np.array([len(p) for p in scaled])
+    first_point = np.cumsum(sizes) - sizes
+    grid_of = np.repeat(np.arange(len(scaled)), sizes)
+    done, trip = _first_triplets(pts, scaled, first_point, n_samples, seed)
+    D = _histograms(_voxel_index(pts), grid_of, len(scaled), *trip)
+    for row, k in enumerate(np.flatnonzero(done)):
+        out[where[k]] = D[row]
+    return out
+
+
+def _first_triplets(pts, scaled, first_point, n: int, seed):
+    """Every cloud's ``_sample_triplets(cloud, n, default_rng(seed))``, the first round of all
+    clouds at once (global point indices; a cloud whose first round keeps fewer than ``n`` redoes
+    it alone, then draws more). Returns (mask of the clouds sampled (False: degenerate), their
+    (i1, i2, i3, a, b, c, heron) as K×n arrays and cos as 3×K×n)."""
+    K = len(scaled)
+    idx = np.concatenate([_candidates(len(p), n, np.random.default_rng(seed)) for p in scaled])
+    owner = np.repeat(np.arange(K), len(idx) // K)
+    idx += np.repeat(first_point, len(idx) // K)[:, None]
+    distinct = _distinct(idx)
+    idx, owner = idx[distinct], owner[distinct]
+    i1, i2, i3 = idx[:, 0], idx[:, 1], idx[:, 2]
+    px, py, pz = (np.ascontiguousarray(pts[:, k]) for k in range(3))
+    u, v, w, a, b, c, heron = _triangles(px, py, pz, i1, i2, i3)
+    # The first n non-degenerate triplets of each cloud, in order.
+    ok = np.flatnonzero(heron > 0.001)
+    rank = np.arange(len(ok)) - np.searchsorted(owner[ok], owner[ok])
+    keep = ok[rank < n]
+    full = np.bincount(owner[keep], minlength=K) == n
+    keep = keep[full[owner[keep]]]
+    u, v, w = (tuple(x[keep] for x in side) for side in (u, v, w))
+    a, b, c = a[keep], b[keep], c[keep]
+    cols = [i1[keep], i2[keep], i3[keep], a, b, c, heron[keep]]
+    cos = _cosines(u, v, w, a, b, c)
+    rows = [x.reshape(-1, n) for x in cols]
+    cos = cos.reshape(3, -1, n)
+    if full.all():
+        return full, (*rows, cos)
+    # The clouds that needed more rounds (rare), sampled alone: spliced in at their rows.
+    done = full.copy()
+    extra: dict[int, tuple] = {}
+    for k in np.flatnonzero(~full):
+        try:
+            extra[k] = _sample_triplets(scaled[k], n, np.random.default_rng(seed))
+            done[k] = True
+        except ValueError:  # degenerate: no descriptor
+            pass
+    at = np.cumsum(done) - 1  # row of each sampled cloud
+    out = [np.empty((int(done.sum()), n), x.dtype) for x in rows]
+    out_cos = np.empty((3, int(done.sum()), n))
+    for x, o in zip(rows, out):
+        o[at[full]] = x
+    out_cos[:, at[full]] = cos
+    for k, t in extra.items():
+        for j, o in enumerate(out):
+            o[at[k]] = t[j] + (first_point[k] if j < 3 else 0)
+        out_cos[:, at[k]] = t[7]
+    return done, (*out, out_cos)
+
+
+def _histograms(vox, grid_of, n_grids: int, i1, i2, i3, a, b, c, heron, cos) -> np.ndarray:
+    """The normalised ESF histograms (K×640) of K clouds' triplets: ``vox`` the voxels of all
+    their points (``grid_of`` the cloud of each, None for one cloud), the triplets' point indices,
+    side lengths and Heron products K×n (one row per cloud), their |cos| 3×K×n.
+
+    Every value of a cloud is computed, and every bin filled, as for that cloud alone (the bins of
+    cloud k are offset by k whole histograms; ``np.bincount`` adds the weights of a bin in input
+    order, and each cloud's entries keep theirs).
+    """
+    K, n = i1.shape
+    T = K * n
+    lut = _surface_lut(vox, grid_of, n_grids)
     # A3 bins of the angles at p1, p3, p2 (rows of ``th``).
-    th = _pcl_round(np.arccos(np.clip(cos, 0.0, 1.0)) / (np.pi / 2) * (_NB - 1))
+    th = _pcl_round(np.arccos(np.clip(cos, 0.0, 1.0)) / (np.pi / 2) * (_NB - 1)).reshape(3, T)
 
     # Lines 1→2, 1→3, 2→3 (PCL's order), traced between the voxels of their endpoints.
-    p, q = np.concatenate([i1, i1, i2]), np.concatenate([i2, i3, i3])
+    p = np.concatenate([i1.ravel(), i1.ravel(), i2.ravel()])
+    q = np.concatenate([i2.ravel(), i3.ravel(), i3.ravel()])
     axes = [np.ascontiguousarray(vox[:, k]) for k in range(3)]
+    offset = None if grid_of is None else np.take(grid_of, p) * _PG**3
     inside, count = _walk(
-        lut, tuple(v[p] for v in axes), tuple(v[q] for v in axes), head=_KNOWN_HEAD, tail=_KNOWN_TAIL
-    )
+        lut, tuple(v[p] for v in axes), tuple(v[q] for v in axes), head=_KNOWN_HEAD, tail=_KNOWN_TAIL,
+        grid_offset=offset,
+    )  # fmt: skip
     key = inside * (GRID + 1) + count
     line_cls = np.take(_LINE_CLASS, key)
-    d2 = np.concatenate([a, b, c])
 
-    in3 = inside[:n] + inside[n : 2 * n] + inside[2 * n :]
-    pc12, pc13, pc23 = count[:n], count[n : 2 * n], count[2 * n :]
+    in3 = inside[:T] + inside[T : 2 * T] + inside[2 * T :]
+    pc12, pc13, pc23 = count[:T], count[T : 2 * T], count[2 * T :]
     cnt3 = pc12 + pc13 + pc23
 
     # Triangle class: 0 out, 1 in, 2 mixed (PCL tests "out" first). PCL's D3 class follows from
     # its weight (1 in, 0 out, else in3 / cnt3: above 21/192 and at most 1 − 4/192 for a mixed
     # triangle), so it is the triangle class itself.
     tri = np.where(in3 <= 21, 0, np.where(cnt3 - in3 < 4, 1, 2))
+    cloud = np.repeat(np.arange(K), n)  # of every triplet
+    tri_bin = (tri + 3 * cloud) * _NB  # cloud k's three histograms (out, in, mixed) at 3k·64
 
     # A3: each angle weighted by the voxel length of the side opposite to it, / 32; one histogram
-    # per triangle class (rows: out, in, mixed).
+    # per triangle class.
     a3 = np.bincount(
-        (th + tri * _NB).ravel(), weights=np.concatenate([pc23, pc12, pc13]) / 32.0, minlength=3 * _NB
-    ).reshape(3, _NB)
-    a3_out, a3_in, a3_mix = a3
+        (th + tri_bin).ravel(), weights=np.concatenate([pc23, pc12, pc13]) / 32.0, minlength=3 * _NB * K
+    ).reshape(K, 3, _NB)
 
     d3 = np.sqrt(np.sqrt(heron))
-    d3_bin = _pcl_round(d3 / d3.max() * (_NB - 1))
-    d3_out, d3_in, d3_mix = np.bincount(tri * _NB + d3_bin, minlength=3 * _NB).reshape(3, _NB).astype(np.float64)
+    d3_bin = _pcl_round(d3 / d3.max(axis=1, keepdims=True) * (_NB - 1))
+    d3h = np.bincount(tri_bin + d3_bin.ravel(), minlength=3 * _NB * K).reshape(K, 3, _NB).astype(np.float64)
 
-    d2_bin = _pcl_round(d2 / d2.max() * (_NB - 1))
-    h_in, h_out, h_mix = np.bincount(line_cls * _NB + d2_bin, minlength=3 * _NB).reshape(3, _NB).astype(np.float64)
-    h_ratio = _hist(np.take(_LINE_RATIO_BIN, key))
+    d2 = np.stack([a, b, c])  # the lines' lengths, 3×K×n
+    d2_bin = _pcl_round(d2 / d2.max(axis=(0, 2))[None, :, None] * (_NB - 1)).ravel()
+    line_cloud = np.tile(cloud, 3)
+    h = np.bincount((line_cls + 3 * line_cloud) * _NB + d2_bin, minlength=3 * _NB * K)
+    h = h.reshape(K, 3, _NB).astype(np.float64)  # in, out, mixed
+    ratio = np.bincount(np.take(_LINE_RATIO_BIN, key) + (_NB + 1) * line_cloud, minlength=(_NB + 1) * K)
+    h_ratio = ratio.reshape(K, _NB + 1)[:, :_NB].astype(np.float64)  # (bin 64: not a mixed line)
 
     hist = np.concatenate(
         [
-            0.5 * a3_in, 0.5 * a3_out, 0.5 * a3_mix,
-            0.5 * d3_in, 0.5 * d3_out, 1.0 * d3_mix,
-            0.5 * h_in, 2.0 * h_out, 2.0 * h_mix,
+            0.5 * a3[:, 1], 0.5 * a3[:, 0], 0.5 * a3[:, 2],
+            0.5 * d3h[:, 1], 0.5 * d3h[:, 0], 1.0 * d3h[:, 2],
+            0.5 * h[:, 0], 2.0 * h[:, 1], 2.0 * h[:, 2],
             1.0 * h_ratio,
-        ]
+        ],
+        axis=1,
     )  # fmt: skip
-    return hist / hist.sum()
+    return hist / hist.sum(axis=1, keepdims=True)

@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from frontends.laser.recognition.cvfh import cvfh
-from frontends.laser.recognition.esf import esf
+from frontends.laser.recognition.esf import esf, esf_many
 from frontends.laser.recognition.matching import (
     Chi2Index,
     chi2_distances,
@@ -87,6 +87,14 @@ def held_out_views(
                 clouds.append(c)
                 labels.append(cls)
     return clouds, labels
+
+
+def _segment(cloud: np.ndarray) -> np.ndarray:
+    """A segment as float64 N×3, at least 10 points (ValueError otherwise)."""
+    pts = np.asarray(cloud, dtype=np.float64)
+    if pts.ndim != 2 or pts.shape[1] != 3 or len(pts) < 10:
+        raise ValueError(f"a segment needs at least 10 points (N×3), got shape {pts.shape}")
+    return pts
 
 
 class Recognizer:
@@ -166,10 +174,11 @@ class Recognizer:
 
     def recognise(self, cloud: np.ndarray) -> Recognition:
         """The recognised class of an N×3 segment (sensor frame, metres) and its nearest view."""
-        pts = np.asarray(cloud, dtype=np.float64)
-        if pts.ndim != 2 or pts.shape[1] != 3 or len(pts) < 10:
-            raise ValueError(f"a segment needs at least 10 points (N×3), got shape {pts.shape}")
-        q = self.describe(pts)
+        pts = _segment(cloud)
+        return self._match(pts, self.describe(pts))
+
+    def _match(self, pts: np.ndarray, q: np.ndarray) -> Recognition:
+        """The recognition of a segment (N×3 float64) whose descriptor is ``q``."""
         ext = principal_extents(pts)
         if self.method == "nn" and self._index is not None and self.size_weight > 0:
             size_d = np.abs(np.log(ext) - self._log_extents).sum(axis=1)  # size_distances, logs kept
@@ -217,6 +226,35 @@ class Recognizer:
             lik = self.model.likelihood(self.recognise(cloud).cls)
         except ValueError:  # too few or degenerate points: no evidence, not a failure of the scan
             lik = {c: 1.0 for c in self.classes}
+        return self._with_connectivity(lik, connectivity)
+
+    def classify_many(self, clouds: Sequence[np.ndarray], connectivities: Sequence | None = None) -> list[dict[str, float]]:
+        """``classify`` of every segment of a scan (the same likelihoods), their ESF descriptors
+        computed together (:func:`esf_many`: one pass of numpy calls for all the segments)."""
+        conns = list(connectivities) if connectivities is not None else [None] * len(clouds)
+        if self.descriptor != "esf":
+            return [self.classify(c, k) for c, k in zip(clouds, conns)]
+        segments: list[np.ndarray | None] = []
+        for cloud in clouds:
+            try:
+                segments.append(_segment(cloud))
+            except ValueError:
+                segments.append(None)
+        valid = [k for k, pts in enumerate(segments) if pts is not None]
+        described = esf_many([segments[k] for k in valid], n_samples=self.esf_samples, seed=self.seed)
+        q_of = dict(zip(valid, described))
+        out = []
+        for k, conn in enumerate(conns):
+            q = q_of.get(k)
+            if q is None:  # too few or degenerate points: no evidence (as ``classify``)
+                lik = {c: 1.0 for c in self.classes}
+            else:
+                lik = self.model.likelihood(self._match(segments[k], q).cls)
+            out.append(self._with_connectivity(lik, conn))
+        return out
+
+    def _with_connectivity(self, lik: dict[str, float], connectivity) -> dict[str, float]:
+        """The likelihood masked by the connectivity's compatible classes, with ``apply_connectivity``."""
         if self.apply_connectivity and connectivity is not None:
             conf = getattr(connectivity, "configuration", connectivity)
             if conf is not None:
