@@ -100,11 +100,12 @@ class VoxelGrid:
     precomputed tables (which neighbouring block, which slot there), with no key arithmetic.
     """
 
-    def __init__(self, points: np.ndarray, size: float):
+    def __init__(self, points: np.ndarray, size: float, keys: np.ndarray | None = None):
+        """``keys`` (N×3 int64, overwritten): the points' integer cells, when not ``floor(points / size)``."""
         pts = np.asarray(points, dtype=np.float64)
         self.size = size
         m = len(pts)
-        keys = np.floor(pts / size).astype(np.int64)
+        keys = np.floor(pts / size).astype(np.int64) if keys is None else keys
         # (column by column: a reduction over axis 0 of an N×3 array took ~15 times longer)
         keys -= np.array([keys[:, j].min() for j in range(3)]) - _PAD * _L if m else 0
         blk = keys >> _B
