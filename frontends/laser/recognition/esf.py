@@ -43,6 +43,9 @@ sort of a byte), each band is walked as one padded block per ~64k voxels: three 
 a per-band offset table, the start voxel's flat index added, one look-up in the (bordered) grid,
 row sums of the 0/1 bytes four or eight at a time (summed as machine words, then folded). No
 Python loop runs over samples, lines or voxels; the loops run over bands and blocks (~20 per call).
+``esf_many`` describes several clouds in one such pass (one look-up grid per cloud in one buffer,
+every bin offset by its cloud's histogram): a scan's ~20 segments with 1000 triplets each would
+otherwise pay numpy's per-call overhead, most of ``esf``'s cost at that size, once per segment.
 
 Frames and units: the input cloud is N×3 in any metric frame (metres); the descriptor is
 invariant to translation (the cloud is centred on its centroid) and scale (scaled so that the
@@ -385,8 +388,9 @@ def _first_triplets(pts, scaled, first_point, n: int, seed):
     (i1, i2, i3, a, b, c, heron) as K×n arrays and cos as 3×K×n)."""
     K = len(scaled)
     idx = np.concatenate([_candidates(len(p), n, np.random.default_rng(seed)) for p in scaled])
-    owner = np.repeat(np.arange(K), len(idx) // K)
-    idx += np.repeat(first_point, len(idx) // K)[:, None]
+    m = len(idx) // K  # candidates per cloud (the same number for all)
+    owner = np.repeat(np.arange(K), m)
+    idx += np.repeat(first_point, m)[:, None]  # global point indices
     distinct = _distinct(idx)
     idx, owner = idx[distinct], owner[distinct]
     i1, i2, i3 = idx[:, 0], idx[:, 1], idx[:, 2]
