@@ -34,6 +34,7 @@ from collections.abc import Sequence
 from semslam.mission.measurements import Measurement
 
 _FINISH = "finish"
+WORKER_NICE = 10
 
 
 def runs_in_process(frontend) -> bool:
@@ -143,6 +144,11 @@ class _Worker:
 
 def _work(frontends: list, inq, outq) -> None:
     from threadpoolctl import threadpool_limits
+
+    # Below the estimators' priority: they consume the results in order, so on a machine with
+    # fewer cores than processes a worker should take the CPU they leave, not the reverse
+    # (tank mission, 2 cores, 2 workers: 58.8 -> 53.3 s median wall).
+    os.nice(WORKER_NICE)
 
     with threadpool_limits(limits=1, user_api="blas"):  # as in the pipeline: small matrices
         while True:

@@ -44,6 +44,10 @@ class Frontend(Protocol):
     # Optional: ``uses_view: ClassVar[bool] = False`` for a front-end that never reads the view: it
     # then runs in a process of its own, ahead of the estimators (semslam.frontend_process); it, its
     # observations and its summary must pickle, and it gets ``view=None``.
+    # Optional with it: ``parallel_consumes: ClassVar[tuple[type, ...]]``, the consumed types whose
+    # result depends only on the measurement and on what the front-end kept from its other types;
+    # replicas in several worker processes then share them (semslam.frontend_process), and
+    # ``finish()`` must not depend on them.
 
 
 @dataclass

@@ -129,3 +129,41 @@ def test_finish_hands_over_the_measured_syn_confusion_only():
     # no recogniser built during the mission (no object seen): nothing, and none built now
     fe = LaserFrontend(_metadata(), {"recognition": {"enabled": True}})
     assert fe.finish(_View()).section is None and fe._recognizer is None
+
+
+def test_replicas_in_two_processes_give_the_inline_observations():
+    """The laser declares its scans independent (parallel_consumes): its RANSAC and descriptor
+    generators are seeded per scan, so two worker processes sharing the scans (each seeing every
+    AHRS reading) give exactly the observations of one front-end inline."""
+    from scipy.spatial.transform import Rotation
+
+    from semslam.ekf import DeadReckoning
+    from semslam.config import SemslamConfig
+    from semslam.mission.measurements import Attitude
+    from semslam.mission.mission import Mission
+    from semslam.pipeline import run_pipeline
+
+    meta = _metadata()
+    meta.sensors["ahrs"] = SensorInfo("ahrs", "ahrs", "/imu", T_BS=np.eye(4))
+    scan = cached_scan()
+    rng = np.random.default_rng(3)
+    ms = []
+    for k in range(6):  # each scan jittered, with a different attitude before it
+        q = Rotation.from_euler("ZYX", [0.3 * k, 0.02 * k, -0.01 * k]).as_quat()
+        ms.append(Attitude(stamp=k * 10**9, sensor="ahrs", orientation=q))
+        pts = scan.points + rng.normal(scale=0.002, size=scan.points.shape)
+        ms.append(PointCloud(stamp=k * 10**9 + 5, sensor="laser", points=pts.astype(np.float32)))
+    mission = Mission.from_measurements(meta, ms)
+    cfg = {"recognition": {"enabled": False}}
+
+    def stream(**kw):
+        res = run_pipeline(mission, [DeadReckoning(meta, SemslamConfig())], [LaserFrontend(meta, cfg)], **kw)
+        return [(r.stamp, type(r.observation).__name__, getattr(r.observation, "position", None),
+                 getattr(r.observation, "p", None)) for r in res.observations]
+
+    inline, apart = stream(frontend_process=False), stream(frontend_workers=2)
+    assert len(inline) > 20 and len(apart) == len(inline)
+    for a, b in zip(inline, apart):
+        assert a[:2] == b[:2]
+        for x, y in zip(a[2:], b[2:]):
+            assert (x is None and y is None) or np.array_equal(x, y)

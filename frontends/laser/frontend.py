@@ -152,6 +152,9 @@ class LaserFrontend:
     # a process of its own, ahead of the estimators (semslam.frontend_process).
     consumes: ClassVar[tuple[type, ...]] = (PointCloud, Attitude)
     uses_view: ClassVar[bool] = False
+    # A scan's result depends only on the scan and the latest AHRS reading (the RANSAC and ESF
+    # generators are seeded per call): replicas in several worker processes may share the scans.
+    parallel_consumes: ClassVar[tuple[type, ...]] = (PointCloud,)
 
     def __init__(self, metadata: Any, config: dict | None = None, recognizer: Recognizer | None = None):
         try:
