@@ -15,8 +15,10 @@ Replicas: a front-end whose result for some measurement types depends only on th
 on what it kept from its other types (``parallel_consumes``: the laser's scans, given the latest
 AHRS reading) can run in several workers at once. Each worker holds a replica of every front-end;
 a measurement that every front-end consuming it takes in parallel goes to one worker in turn, any
-other measurement to all of them (so that each replica keeps the same state), answered by the first.
-A replica's ``finish()`` must then not depend on the parallel measurements (the first one's is used).
+other measurement to all of them (so that each replica keeps the same state). A replicated
+front-end observes only on its parallel types: its other types feed its state, nobody answers for
+them, and the estimators go on without waiting (the laser's 9800 AHRS readings). A replica's
+``finish()`` must not depend on the parallel measurements (the first one's is used).
 On 2 cores the laser's ~50 s of scans then share both cores with the estimators' ~35 s.
 """
 
@@ -62,18 +64,24 @@ class FrontendProcess:
         self._owners: deque[int] = deque()  # which worker answers each submitted measurement
         self._turn = 0
 
-    @property
-    def in_flight(self) -> int:
-        return len(self._owners)
-
     def consumes(self, m: Measurement) -> bool:
         return any(isinstance(m, t) for t in self._types)
+
+    def _observed(self, m: Measurement) -> bool:
+        """Some front-end may observe on ``m``: one without parallel types, or one that takes ``m``'s
+        type in parallel. A replicated front-end's other types only feed its state (no reply)."""
+        return any(isinstance(m, types) and (not par or isinstance(m, par)) for types, par in zip(self._types, self._parallel))
 
     def _shared(self, m: Measurement) -> bool:
         """Every front-end that consumes ``m`` takes it in parallel: one replica suffices."""
         return all(isinstance(m, par) for types, par in zip(self._types, self._parallel) if isinstance(m, types))
 
-    def submit(self, m: Measurement) -> None:
+    def submit(self, m: Measurement) -> bool:
+        """Send ``m`` to the workers; True if a result will come back for it (see :meth:`result`)."""
+        if not self._observed(m):  # state only, for every replica
+            for w in self._workers:
+                w.send(m, reply=False)
+            return False
         if len(self._workers) > 1 and self._shared(m):
             owner = self._turn
             self._turn = (self._turn + 1) % len(self._workers)
@@ -83,10 +91,11 @@ class FrontendProcess:
             for w in self._workers:
                 w.send(m, reply=w.index == owner)
         self._owners.append(owner)
+        return True
 
     def result(self) -> dict[str, tuple[list, float]]:
-        """The next submitted measurement's results: front-end name → (observations, seconds),
-        for the front-ends that consume it."""
+        """The results of the next submitted measurement that has some: front-end name →
+        (observations, seconds), for the front-ends that consume it."""
         return self._workers[self._owners.popleft()].receive(self.names)
 
     def finish(self) -> dict[str, tuple[object, float]]:
@@ -150,6 +159,7 @@ def _work(frontends: list, inq, outq) -> None:
     # (tank mission, 2 cores, 2 workers: 58.8 -> 53.3 s median wall).
     os.nice(WORKER_NICE)
 
+    unreported: dict[str, float] = {}  # time spent on measurements without a reply, told with the next
     with threadpool_limits(limits=1, user_api="blas"):  # as in the pipeline: small matrices
         while True:
             msg = inq.get()
@@ -170,8 +180,16 @@ def _work(frontends: list, inq, outq) -> None:
                             t0 = time.perf_counter()
                             obs = fe.process(item, None)
                             out[fe.name] = (obs, time.perf_counter() - t0)
-                if not reply:
-                    continue  # a replica keeping its state: another worker answers
+                            par = tuple(getattr(fe, "parallel_consumes", ()))
+                            if obs and par and not isinstance(item, par):
+                                raise RuntimeError(f"front-end {fe.name!r} observed on a {type(item).__name__}, which it "
+                                                   "does not take in parallel: with parallel_consumes, its other "
+                                                   "measurement types may only feed its state")
+                if not reply:  # a replica keeping its state: another worker answers, if anyone
+                    for name, (_, dt) in out.items():
+                        unreported[name] = unreported.get(name, 0.0) + dt
+                    continue
+                out = {name: (o, dt + unreported.pop(name, 0.0)) for name, (o, dt) in out.items()}
                 payload = pickle.dumps(("ok", out))
             except BaseException as exc:  # reported to the caller, which raises it
                 try:

@@ -86,27 +86,26 @@ def run_pipeline(
             worker.close()
 
 
-# Measurements the front-end process may be ahead by: a few scans with the AHRS readings between.
-LOOKAHEAD = 256
+# Measurements read ahead of the estimators when front-ends run apart: ~12 s of the tank mission
+# (83 a second), a few scans for the front-end process to work on.
+LOOKAHEAD = 1024
 
 
 def _in_order(mission: Mission, worker: FrontendProcess | None, timing: dict):
-    """The mission's measurements in order, each with whether the front-end process has it; reads
-    ahead so that the process holds up to LOOKAHEAD of them."""
+    """The mission's measurements in order, each with whether a result will come back for it from
+    the front-end process; reads up to LOOKAHEAD ahead, submitting to the process as it reads."""
     it = iter(mission)
     pending: deque = deque()
     exhausted = False
     while True:
-        while not exhausted and (worker.in_flight < LOOKAHEAD if worker is not None else not pending):
+        while not exhausted and (len(pending) < LOOKAHEAD if worker is not None else not pending):
             t0 = time.perf_counter()
             m = next(it, None)
             timing["read"] += time.perf_counter() - t0
             if m is None:
                 exhausted = True
                 break
-            sent = worker is not None and worker.consumes(m)
-            if sent:
-                worker.submit(m)
+            sent = worker is not None and worker.consumes(m) and worker.submit(m)
             pending.append((m, sent))
         if not pending:
             return
