@@ -137,3 +137,22 @@ def test_replicas_share_the_scans_and_give_the_inline_stream():
     assert len(a) > 10 and a == b
     assert len({r.observation.position[1] for r in apart.observations}) == 2  # both workers took scans
     assert apart.frontend_summaries["scan_att"].metrics == inline.frontend_summaries["scan_att"].metrics
+
+
+class ObservesOnAttitude(ScanWithAttitude):
+    """Breaks the contract: observes on a type it does not take in parallel."""
+
+    name: ClassVar[str] = "bad_att"
+
+    def process(self, measurement, view):
+        if isinstance(measurement, Attitude):
+            return [PointObservation(measurement.stamp, "laser", position=np.zeros(3))]
+        return []
+
+
+def test_a_replicated_front_end_observing_on_a_state_type_is_an_error():
+    """No worker answers for a replicated front-end's non-parallel types, so an observation there
+    would be lost: it is an error naming the front-end and the type."""
+    mission = simulate(SyntheticConfig(duration_s=20.0, seed=1))
+    with pytest.raises(RuntimeError, match="'bad_att' observed on a Attitude"):
+        run_pipeline(mission, [EkfEstimator(mission.metadata, SemslamConfig())], [ObservesOnAttitude()], frontend_workers=2)
