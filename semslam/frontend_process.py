@@ -3,7 +3,7 @@
 A front-end that declares ``uses_view = False`` (it never reads the ``EstimateView``: the laser
 takes "up" from the AHRS, the oracle reads ground truth) depends on nothing but the measurements,
 so it can work a few scans ahead while the estimators work through the measurements before them.
-On the tank mission that is the laser's ~50 s beside the estimators' ~35 s on two cores.
+On the tank mission that is the laser's ~50 s beside the ~45 s of reading and estimating, on two cores.
 
 The front-ends are pickled into worker processes (spawned: a fork would inherit the parent's
 OpenMP and GTSAM threads) and fed every measurement they consume, in order; they keep their state
@@ -19,7 +19,7 @@ other measurement to all of them (so that each replica keeps the same state). A 
 front-end observes only on its parallel types: its other types feed its state, nobody answers for
 them, and the estimators go on without waiting (the laser's 9800 AHRS readings). A replica's
 ``finish()`` must not depend on the parallel measurements (the first one's is used).
-On 2 cores the laser's ~50 s of scans then share both cores with the estimators' ~35 s.
+On 2 cores the laser's scans then take what CPU the estimators leave on both cores.
 """
 
 from __future__ import annotations
