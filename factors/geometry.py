@@ -13,8 +13,9 @@ import numpy as np
 
 
 def skew(w: np.ndarray) -> np.ndarray:
-    """[w]×, the cross-product matrix of a 3-vector."""
-    return np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
+    """[w]×, the cross-product matrix of a 3-vector: [w]× v = w × v."""
+    x, y, z = w
+    return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
 
 
 # so3_exp and so3_log run per AHRS reading and per DVL sample (tens of thousands a mission): they

@@ -69,7 +69,6 @@ class Landmark:
             self._robust = (n, robust_ends(e[:, 0], e[:, 1], 6.0 * small_median(e[:, 2])))
         return self._robust[1]
 
-
     def stretch(self, objects: np.ndarray, radius: float, margin: float = 0.05) -> tuple[float, float]:
         """What of its line this pipe is (line frame): the robust extent, cut at the mapped objects
         (N×3, {W}) that lie on the line inside it, keeping the side that holds most of its views.

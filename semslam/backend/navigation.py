@@ -75,7 +75,6 @@ class NavigationBuffer:
         self.accel_sigma = accel_sigma
         self.rate_sigma = rate_sigma
         self.attitude: AttitudeSample | None = None
-        self._prev_attitude: AttitudeSample | None = None
         self.fused: FusedAttitude | None = None  # the readings since the last keyframe
         self.dvl: DvlSample | None = None
         self.depth: DepthSample | None = None
@@ -99,7 +98,7 @@ class NavigationBuffer:
             if omega is None and self.attitude is not None and t > self.attitude.t:
                 # Finite difference of consecutive attitudes when the AHRS gives no rate.
                 omega = so3_log(self.attitude.R_WB.T @ R_WB) / (t - self.attitude.t)
-            self._prev_attitude, self.attitude = self.attitude, AttitudeSample(t, R_WB, cov, omega)
+            self.attitude = AttitudeSample(t, R_WB, cov, omega)
             if self.fused is None:
                 self.fused = FusedAttitude(t, R_WB, cov, omega)
             else:

@@ -12,9 +12,10 @@ disturbances, gyro bias; the simulated tank's by ~2° over the mission) while it
 white noise. The graph back-end models the drift as a random-walk state, so for a fair comparison the
 filter models it the same way, from the same shared sensor model (``config.sensors``): whenever
 ``heading_bias_walk(metadata)`` > 0 the vehicle state is [x y z φ θ ψ u v w b] (10 entries, b at
-:data:`semslam.ekf.models.BIAS`), b starts at 0 with σ ``heading_bias_sigma0(metadata)`` (declared by the mission), the
-prediction adds σ_b² Δt to its variance (:func:`~semslam.ekf.models.predict_biased`), and the AHRS
-update measures (φ, θ, ψ + b), i.e. R_meas = Rz(b) R_WB as the graph's ``biased_attitude_residual``
+:data:`semslam.ekf.models.BIAS`), b starts at 0 with σ ``heading_bias_sigma0(metadata)`` (the
+mission's declared one), the prediction adds σ_b² Δt to its variance
+(:func:`~semslam.ekf.models.predict_biased`), and the AHRS update measures (φ, θ, ψ + b), i.e.
+R_meas = Rz(b) R_WB as the graph's ``biased_attitude_residual``
 (:func:`~semslam.ekf.models.biased_attitude_update`). Nothing else sees b: landmark, DVL and depth
 Jacobians have a zero column for it, and it rides in the vehicle block of the compressed steps. Only
 the map (a heading relative to features seen earlier) makes b observable: dead reckoning carries it

@@ -21,13 +21,7 @@ import math
 
 import numpy as np
 
-from factors.geometry import quat_to_rot, so3_exp, so3_log  # noqa: F401 (shared with the graph; re-exported)
-
-
-def skew(v: np.ndarray) -> np.ndarray:
-    """[v]× such that [v]× w = v × w."""
-    x, y, z = v
-    return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
+from factors.geometry import quat_to_rot, skew, so3_exp, so3_log  # noqa: F401 (shared with the graph; re-exported)
 
 
 def cross3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
