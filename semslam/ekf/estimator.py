@@ -641,9 +641,9 @@ class EkfEstimator:
 
     def _attitude(self, m: Attitude) -> None:
         R_BS, _ = self._extrinsic(m.sensor)
-        R_WS = geo.quat_to_rot(m.orientation)
-        if m.angular_rate is not None and np.isfinite(m.angular_rate).all():
-            self._omega = R_BS @ m.angular_rate
+        R_WS, omega, e_B, cov_B = _ahrs_reading(m, self.metadata, R_BS)
+        if omega is not None:
+            self._omega = omega
             self._omega_stamp = m.stamp
         elif self._last_att is not None and m.stamp > self._last_att[0]:
             # no rate in the message: the body rate from consecutive attitudes
@@ -652,7 +652,6 @@ class EkfEstimator:
             self._omega = geo.so3_log(R_prev.T @ (R_WS @ R_BS.T)) / dt
             self._omega_stamp = m.stamp
         self._last_att = (m.stamp, R_WS)
-        e_B, cov_B = mdl.attitude_in_body(R_WS, m.covariance, R_BS)
         if self.nv > NX:
             self._nav_update(mdl.biased_attitude_update(self.state.xv, e_B, cov_B))
         else:
@@ -1263,6 +1262,26 @@ def _class_log(o: Observation) -> dict[str, float]:
     log: dict[str, float] = {}
     _fuse_class(log, getattr(o, "class_likelihood", None))
     return log
+
+
+# The last AHRS reading in {B}: DR and the EKF are fed the same measurement object one after the
+# other (semslam.pipeline), and what it says does not depend on the filter's state.
+_last_ahrs: tuple = (None, None, None)  # (measurement, metadata, reading)
+
+
+def _ahrs_reading(m: Attitude, metadata: MissionMetadata, R_BS: np.ndarray) -> tuple:
+    """(R_WS, body rate ω_B or None, Euler angles of R_WB, their covariance) of an AHRS reading."""
+    global _last_ahrs
+    if _last_ahrs[0] is m and _last_ahrs[1] is metadata:
+        return _last_ahrs[2]
+    R_WS = geo.quat_to_rot(m.orientation)
+    omega = R_BS @ m.angular_rate if m.angular_rate is not None and np.isfinite(m.angular_rate).all() else None
+    reading = (R_WS, omega, *mdl.attitude_in_body(R_WS, m.covariance, R_BS))
+    for a in reading:  # shared: nobody may change it
+        if a is not None:
+            a.flags.writeable = False
+    _last_ahrs = (m, metadata, reading)
+    return reading
 
 
 class DeadReckoning(EkfEstimator):
