@@ -38,8 +38,7 @@ def inv_small(S: np.ndarray) -> np.ndarray:
     if d == 1:
         return np.array([[1.0 / S[0, 0]]])
     if d == 3:
-        a, b, c = float(S[0, 0]), float(S[0, 1]), float(S[0, 2])
-        e, f, i = float(S[1, 1]), float(S[1, 2]), float(S[2, 2])
+        (a, b, c), (_, e, f), (_, _, i) = S.tolist()
         A, B, C = e * i - f * f, c * f - b * i, b * f - c * e
         det = a * A + b * B + c * C
         if det > 0.0:
@@ -158,7 +157,7 @@ class EkfState:
         if len(dx) > nv:
             self._y += dx[nv:]
         Pn = P - K @ HP
-        P[:] = Pn + Pn.T
+        np.add(Pn, Pn.T, out=P)
         P *= 0.5
         return float(innovation @ S_inv @ innovation) if nis else None
 

@@ -53,7 +53,8 @@ POS, ATT, VEL = slice(0, 3), slice(3, 6), slice(6, 9)
 
 
 # ------------------------------------------------------------------------------ prediction
-def predict(x: np.ndarray, omega_B: np.ndarray, dt: float, accel_sigma: float, rate_sigma: float):
+def predict(x: np.ndarray, omega_B: np.ndarray, dt: float, accel_sigma: float, rate_sigma: float,
+            bias_walk: float | None = None):
     """Constant-velocity model with the AHRS body rate ω_B as input (eqs. 20–22).
 
     p' = p + R_WB v Δt, e' = e + E⁻¹(φ, θ) ω_B Δt, v' = v. Noise: white linear acceleration in
@@ -62,8 +63,9 @@ def predict(x: np.ndarray, omega_B: np.ndarray, dt: float, accel_sigma: float, r
 
     Returns (x', F, Q) with F = ∂x'/∂x and Q the discrete process noise (9×9). (Written out in
     scalars: it runs at every navigation measurement, where numpy's per-call cost dominates.)
+    With ``bias_walk``, the same for the 10-state [x_v; b] (:func:`predict_biased`).
     """
-    px, py, pz, phi, theta, psi, u, v, w = map(float, x)
+    px, py, pz, phi, theta, psi, u, v, w = x.tolist()[:NX]
     wx, wy, wz = map(float, omega_B)
     cf, sf = math.cos(phi), math.sin(phi)
     ct, st = math.cos(theta), math.sin(theta)
@@ -77,7 +79,7 @@ def predict(x: np.ndarray, omega_B: np.ndarray, dt: float, accel_sigma: float, r
     e00, e01, e02 = 1.0, sf * tt, cf * tt
     e10, e11, e12 = 0.0, cf, -sf
     e20, e21, e22 = 0.0, sf / ct, cf / ct
-    xn = np.array([
+    xn = [
         px + (r00 * u + r01 * v + r02 * w) * dt,
         py + (r10 * u + r11 * v + r12 * w) * dt,
         pz + (r20 * u + r21 * v + r22 * w) * dt,
@@ -85,7 +87,7 @@ def predict(x: np.ndarray, omega_B: np.ndarray, dt: float, accel_sigma: float, r
         theta + (e11 * wy + e12 * wz) * dt,
         wrap_angle(psi + (e21 * wy + e22 * wz) * dt),
         u, v, w,
-    ])
+    ]
     # ∂p'/∂e = -R [v]× E dt with E = [[1, 0, -st], [0, cf, sf ct], [0, -sf, cf ct]]
     m00, m01, m02 = 0.0, -w * cf - v * sf, -w * sf * ct + v * cf * ct  # [v]× E, [v]× = [[0,-w,v],[w,0,-u],[-v,u,0]]
     m10, m11, m12 = w, u * sf, -w * st - u * cf * ct
@@ -105,7 +107,7 @@ def predict(x: np.ndarray, omega_B: np.ndarray, dt: float, accel_sigma: float, r
     j00, j01 = b * tt * dt, a / ct**2 * dt
     j10 = -a * dt
     j20, j21 = b / ct * dt, a * st / ct**2 * dt
-    F = np.array([
+    F = [
         [1.0, 0.0, 0.0, a00, a01, a02, r00 * dt, r01 * dt, r02 * dt],
         [0.0, 1.0, 0.0, a10, a11, a12, r10 * dt, r11 * dt, r12 * dt],
         [0.0, 0.0, 1.0, a20, a21, a22, r20 * dt, r21 * dt, r22 * dt],
@@ -115,7 +117,7 @@ def predict(x: np.ndarray, omega_B: np.ndarray, dt: float, accel_sigma: float, r
         [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0],
         [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0],
         [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0],
-    ])
+    ]
     qa, qw = accel_sigma**2, rate_sigma**2
     q3, q2, q1 = qa * dt**3 / 3.0, qa * dt**2 / 2.0, qa * dt
     qe = qw * dt
@@ -126,7 +128,7 @@ def predict(x: np.ndarray, omega_B: np.ndarray, dt: float, accel_sigma: float, r
     g11 = qe
     g12 = (cf * sf / ct - sf * cf / ct) * qe
     g22 = (1.0 / ct**2) * qe
-    Q = np.array([
+    Q = [
         [q3, 0.0, 0.0, 0.0, 0.0, 0.0, r00 * q2, r01 * q2, r02 * q2],
         [0.0, q3, 0.0, 0.0, 0.0, 0.0, r10 * q2, r11 * q2, r12 * q2],
         [0.0, 0.0, q3, 0.0, 0.0, 0.0, r20 * q2, r21 * q2, r22 * q2],
@@ -136,8 +138,16 @@ def predict(x: np.ndarray, omega_B: np.ndarray, dt: float, accel_sigma: float, r
         [r00 * q2, r10 * q2, r20 * q2, 0.0, 0.0, 0.0, q1, 0.0, 0.0],
         [r01 * q2, r11 * q2, r21 * q2, 0.0, 0.0, 0.0, 0.0, q1, 0.0],
         [r02 * q2, r12 * q2, r22 * q2, 0.0, 0.0, 0.0, 0.0, 0.0, q1],
-    ])
-    return xn, F, Q
+    ]
+    if bias_walk is not None:  # b' = b, a random walk (the rows and columns built here: no 10×10 copies)
+        xn.append(float(x[BIAS]))
+        for row in F:
+            row.append(0.0)
+        for row in Q:
+            row.append(0.0)
+        F.append([0.0] * NX + [1.0])
+        Q.append([0.0] * NX + [bias_walk**2 * dt])
+    return np.array(xn), np.array(F), np.array(Q)
 
 
 def predict_reference(x: np.ndarray, omega_B: np.ndarray, dt: float, accel_sigma: float, rate_sigma: float):
@@ -169,17 +179,7 @@ def predict_biased(x: np.ndarray, omega_B: np.ndarray, dt: float, accel_sigma: f
     """:func:`predict` for the 10-state [x_v; b] with the AHRS heading bias b a random walk of intensity
     ``bias_walk`` (rad/√s): b' = b, Var(b' − b) = σ_b² Δt (the graph's ``heading_bias_walk_factor``).
     The bias does not enter the motion (the body rate input is the gyro's, not the biased heading's)."""
-    xn9, F9, Q9 = predict(x[:NX], omega_B, dt, accel_sigma, rate_sigma)
-    xn = np.empty(NX + 1)
-    xn[:NX] = xn9
-    xn[BIAS] = x[BIAS]
-    F = np.zeros((NX + 1, NX + 1))
-    F[:NX, :NX] = F9
-    F[BIAS, BIAS] = 1.0
-    Q = np.zeros((NX + 1, NX + 1))
-    Q[:NX, :NX] = Q9
-    Q[BIAS, BIAS] = bias_walk**2 * dt
-    return xn, F, Q
+    return predict(x, omega_B, dt, accel_sigma, rate_sigma, bias_walk)
 
 
 # ------------------------------------------------------------------------- linear updates
