@@ -153,9 +153,23 @@ def bench_long(hours: float) -> dict:
         "update_ms_median": float(np.median(t)),
         "update_ms_p95": float(np.percentile(t, 95)),
         "by_map_size": bins,
+        "update_ms_max": float(t.max()),
+        "window_slides": _slide_summary(res.history.get("window_slides", [])),
+        "window_returns": res.history.get("window_returns"),
         "by_600s": windows,
         **{k: v for k, v in summarize(res, mission).items() if k in ("ate_rmse_m", "landmark_median_error_m", "duplicated", "wrongly_merged")},
     }
+
+
+def _slide_summary(slides: list[dict]) -> dict | None:
+    """How often the window slid, what it cost and how large its separator was."""
+    if not slides:
+        return None
+    sec = np.array([s["seconds"] for s in slides]) * 1e3
+    sep = np.array([s["separator"] for s in slides])
+    return {"n": len(slides), "ms_median": float(np.median(sec)), "ms_max": float(sec.max()),
+            "separator_median": float(np.median(sep)), "separator_max": int(sep.max()),
+            "left_landmarks": int(sum(s["left_landmarks"] for s in slides))}
 
 
 def bench_factor_cost(n: int = 5000) -> dict:

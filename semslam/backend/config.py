@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 
 class GraphConfig(BaseModel):
@@ -45,6 +45,14 @@ class GraphConfig(BaseModel):
     track_gate_confidence: float = Field(
         0.999, gt=0, lt=1, description="χ² confidence for an observation to extend a tentative landmark"
     )
+    window_s: float | None = Field(
+        600.0,
+        gt=0,
+        description="online smoothing window (mission seconds): keyframes older than this, and landmarks no newer "
+        "keyframe sees, are marginalised into a linear prior on what stays, every half window, so that the cost per "
+        "update stays flat on long missions; a landmark seen again re-enters with its last estimate and the "
+        "covariance of its own views. None: smooth the whole mission. The batch always spans the whole mission",
+    )
     batch_max_iterations: int = Field(100, ge=1, description="Levenberg–Marquardt iterations in batch mode")
     covariance_in_result: bool = Field(True, description="marginal covariances of keyframes and landmarks in the result")
     result_covariance_keyframes: int = Field(
@@ -53,3 +61,10 @@ class GraphConfig(BaseModel):
         description="keyframes (evenly spaced) whose marginal covariance the result carries, the others NaN: "
         "each costs a partial elimination of a graph where every landmark links to every pose",
     )
+
+    @model_validator(mode="after")
+    def _window_holds_tracks(self) -> "GraphConfig":
+        # a tentative landmark's views must still be in the window when it is promoted
+        if self.window_s is not None and self.window_s <= 2 * self.track_timeout_s:
+            raise ValueError(f"graph.window_s ({self.window_s} s) must exceed twice graph.track_timeout_s ({self.track_timeout_s} s)")
+        return self

@@ -9,6 +9,8 @@ DVL at all, the velocity random walk. At each keyframe: the AHRS attitude, the d
 DVL velocity. Landmarks: object points L(id), pipe lines P(id) (4-vector, anchored chart),
 structures S(id) (Pose3), with robust kernels, data association by JCBB against the current
 estimate, and initialisation after ``association.min_observations`` consistent observations.
+Online, iSAM2 holds a window of ``GraphConfig.window_s`` seconds (see :mod:`semslam.backend.window`);
+the batch re-optimisation spans the whole mission.
 """
 
 from __future__ import annotations
@@ -51,6 +53,7 @@ from semslam.backend.config import GraphConfig
 from semslam.backend.landmarks import Landmark, ObservationRecord, Track, merge_collinear, object_between
 from semslam.backend.navigation import NavigationBuffer
 from semslam.backend.problem import Candidate, GraphAssociationProblem, possible_pairs
+from semslam.backend.window import LANDMARK_CHARS, marginal_factors, split_factors, subset, value_of
 from semslam.config import SemslamConfig
 from semslam.estimation import EstimatorResult, LandmarkEstimate, Trajectory
 from semslam.mission.measurements import GroundTruthPose, Measurement
@@ -103,6 +106,15 @@ class GraphEstimator:
         # and every variable's initial value, for batch optimisation and failure recovery.
         self._factors: list[tuple[gtsam.NonlinearFactor, int | None]] = []
         self._initial = gtsam.Values()
+        # The smoothing window (``GraphConfig.window_s``): the factors iSAM2 holds (those of
+        # ``_factors`` on window variables, the marginals of what left and the priors of landmarks
+        # that came back), the oldest keyframe in it, and the frozen estimates of what left.
+        self._window: list[tuple[gtsam.NonlinearFactor, int | None]] = []
+        self._first_active = 0
+        self._frozen = gtsam.Values()
+        self._slide_after = 0  # stamp before which no slide is tried (after a failed one)
+        self.slides: list[dict] = []  # one row per marginalisation, for benchmarks
+        self.returns = 0  # marginalised landmarks seen again
         self.kf_stamps: list[int] = []
         self._pose: gtsam.Pose3 | None = None  # latest keyframe pose estimate
         self._vel: np.ndarray | None = None
@@ -239,6 +251,7 @@ class GraphEstimator:
         self.kf_stamps.append(stamp)
         self._commit([(f, None) for f in factors], values)
         self._after_keyframe(t)
+        self._slide_window()
         return k
 
     def _after_keyframe(self, t: float) -> None:
@@ -282,17 +295,20 @@ class GraphEstimator:
         self.isam = gtsam.ISAM2(params)
         self._theta = self.isam.getLinearizationPoint()
 
-    def _commit(self, factors: list[tuple], values: gtsam.Values) -> bool:
-        """Add factors (with their owners) and new variables to iSAM2; recover from a failure by
-        dropping the landmark factors of this update (and landmarks they would have created)
-        and rebuilding iSAM2 from the rest. Returns False if something was dropped."""
+    def _commit(self, factors: list[tuple], values: gtsam.Values, priors: list[tuple] = ()) -> bool:
+        """Add factors (with their owners) and new variables to iSAM2, and ``priors`` that only the
+        window holds (a returning landmark's); recover from a failure by dropping the landmark
+        factors of this update (and landmarks they would have created) and rebuilding iSAM2 from
+        the rest. Returns False if something was dropped."""
         graph = gtsam.NonlinearFactorGraph()
-        for f, _ in factors:
+        for f, _ in [*factors, *priors]:
             graph.add(f)
         try:
             self.isam.update(graph, values)
             self._factors.extend(factors)
-            self._initial.insert(values)
+            self._window.extend(factors)
+            self._window.extend(priors)
+            self._initial.insert_or_assign(values)  # a returning landmark's key is there already
             return True
         except RuntimeError as exc:
             msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
@@ -315,18 +331,18 @@ class GraphEstimator:
                 row = self._sphere_row.pop(lid, None)
                 if row is not None:
                     self._sphere_c[row] = np.inf  # never near again
-        keep_keys = {X(i) for i in range(len(self.kf_stamps))} | {V(i) for i in range(len(self.kf_stamps))}
-        keep_keys |= {lm.key for lm in self.landmarks.values()} | set(self._merged_keys)
-        if self._bias_walk > 0:
-            keep_keys |= {B(i) for i in range(len(self.kf_stamps))}
+        self._factors.extend(new_nav)
+        self._window.extend(new_nav)
+        keep_keys = {k for f, _ in self._window for k in f.keys()}  # every variable a kept factor holds
+        for lm in self.landmarks.values():  # one that was coming back stays out
+            lm.active = lm.key in keep_keys
         full = gtsam.Values()
         for src in (estimate, values, self._initial):
             for key in src.keys():
                 if key in keep_keys and not full.exists(key):
-                    full.insert(key, src.atPose3(key) if gtsam.Symbol(key).chr() in (ord("x"), ord("s")) else _value(src, key))
-        self._factors.extend(new_nav)
+                    full.insert(key, value_of(src, key))
         graph = gtsam.NonlinearFactorGraph()
-        for f, _ in self._factors:
+        for f, _ in self._window:
             graph.add(f)
         params = self.isam.params()
         self._new_isam(params)
@@ -339,12 +355,78 @@ class GraphEstimator:
             prior = gtsam.PriorFactorPose3(X(k), pose, gtsam.noiseModel.Isotropic.Sigma(6, 10.0))
             vprior = gtsam.PriorFactorVector(V(k), _value(full, V(k)), gtsam.noiseModel.Isotropic.Sigma(3, 10.0))
             self._factors += [(prior, None), (vprior, None)]
+            self._window += [(prior, None), (vprior, None)]
             graph.add(prior)
             graph.add(vprior)
             self._new_isam(params)
             self.isam.update(graph, full)
             self.diagnostics.append(f"rebuild needed a weak re-anchoring prior on keyframe {k} ({str(exc).splitlines()[0]})")
         self._initial = full
+
+    def _slide_window(self) -> None:
+        """Once the window spans 1.5 × ``window_s``, marginalise the keyframes older than
+        ``window_s`` and the landmarks no kept keyframe observes (:mod:`semslam.backend.window`),
+        and restart iSAM2 on the rest with their marginal; the cost of that restart is a batch
+        elimination of the window, once per half window."""
+        w = self.cfg.window_s
+        now = self.kf_stamps[-1]
+        if w is None or now < self._slide_after or (now - self.kf_stamps[self._first_active]) * 1e-9 < 1.5 * w:
+            return
+        b = min(bisect.bisect_left(self.kf_stamps, now - int(w * 1e9)), len(self.kf_stamps) - 1)
+        kept_kf = {key for i in range(b, len(self.kf_stamps)) for key in (X(i), V(i), B(i))}
+        live, landmark_keys = set(), set()
+        for f, _ in self._window:
+            keys = f.keys()
+            lms = [k for k in keys if gtsam.Symbol(k).chr() in LANDMARK_CHARS]
+            landmark_keys.update(lms)
+            if lms and any(k in kept_kf for k in keys):
+                live.update(lms)
+        drop = {key for i in range(self._first_active, b) for key in (X(i), V(i), B(i))} | (landmark_keys - live)
+        t0 = time.perf_counter()
+        estimate = self.isam.calculateEstimate()
+        kept, leaving = split_factors(self._window, drop)
+        old = self.isam, self._theta
+        try:
+            marginal = marginal_factors(leaving, estimate, drop)
+            window = kept + [(m, None) for m in marginal]
+            graph = gtsam.NonlinearFactorGraph()
+            for f, _ in window:
+                graph.add(f)
+            self._new_isam(self.isam.params())
+            self.isam.update(graph, subset(estimate, {k for f, _ in window for k in f.keys()}))
+        except RuntimeError as exc:
+            self.isam, self._theta = old
+            self._slide_after = now + int(0.5 * w * 1e9)
+            self.diagnostics.append(f"{now}: marginalising keyframes before {b} failed ({str(exc).splitlines()[0]}); retried in {0.5 * w:g} s")
+            return
+        self._window, self._first_active = window, b
+        self.slides.append({
+            "stamp": now, "first_keyframe": b, "left_landmarks": len(drop & landmark_keys),
+            "separator": len({k for m in marginal for k in m.keys()}), "window_factors": len(window),
+            "seconds": time.perf_counter() - t0,
+        })
+        self._frozen.insert_or_assign(subset(estimate, [k for k in drop if estimate.exists(k)]))
+        for lm in self.landmarks.values():
+            if lm.active and lm.key in drop:
+                lm.active, lm.estimate = False, _value(estimate, lm.key, lm.kind)
+                self._update_sphere(lm)
+        self._refresh_current()
+
+    def _reactivate(self, lm: Landmark, priors: list, values: gtsam.Values) -> None:
+        """A marginalised landmark seen again re-enters the window: its frozen estimate, with the
+        covariance of its own views (pose uncertainty folded in) as a prior. Its correlation with
+        the window's poses was lost when it left; the views' covariance is the conservative choice."""
+        lm.active = True
+        self.returns += 1
+        noise = gtsam.noiseModel.Gaussian.Covariance(lm.information_covariance())
+        if lm.kind == "object":
+            prior = gtsam.PriorFactorPoint3(lm.key, np.asarray(lm.estimate, float), noise)
+        elif lm.kind == "pipe":
+            prior = gtsam.PriorFactorVector(lm.key, np.asarray(lm.estimate, float), noise)
+        else:
+            prior = gtsam.PriorFactorPose3(lm.key, lm.estimate, noise)
+        priors.append((prior, lm.id))
+        values.insert(lm.key, lm.estimate)
 
     # ------------------------------------------------------------------ observations
     def _sensor_T(self, sensor: str) -> np.ndarray:
@@ -356,13 +438,16 @@ class GraphEstimator:
             return np.eye(4)
         return info.T_BS
 
-    def _keyframe_for(self, stamp: int) -> int:
+    def _keyframe_for(self, stamp: int) -> int | None:
         if stamp == self.kf_stamps[-1]:
             return len(self.kf_stamps) - 1
         if stamp > self.kf_stamps[-1]:
             return self._keyframe(stamp)
         i = bisect.bisect_left(self.kf_stamps, stamp)
         i = min(range(max(i - 1, 0), min(i + 1, len(self.kf_stamps))), key=lambda j: abs(self.kf_stamps[j] - stamp))
+        if i < self._first_active:
+            self.diagnostics.append(f"{stamp}: observations older than the smoothing window, dropped")
+            return None
         self.diagnostics.append(f"{stamp}: observations older than the newest keyframe, attached to keyframe {i}")
         return i
 
@@ -376,6 +461,8 @@ class GraphEstimator:
 
     def _observations(self, stamp: int, observations: list) -> None:
         k = self._keyframe_for(stamp)
+        if k is None:
+            return
         if k != len(self.kf_stamps) - 1:
             pose, pose_cov = self.isam.calculateEstimatePose3(X(k)), self.isam.marginalCovariance(X(k))
         else:
@@ -388,6 +475,7 @@ class GraphEstimator:
         lines = self._merged_lines(observations, pose)
         obs = [z for z in observations if isinstance(z, (PointObservation, StructureObservation))] + lines
         factors: list[tuple] = [(f, None) for f in self._odometry_factors(odom, k)]
+        priors: list[tuple] = []
         values = gtsam.Values()
         if obs:
             T_BS = [self._sensor_T(z.sensor) for z in obs]
@@ -396,13 +484,15 @@ class GraphEstimator:
             for i, z in enumerate(obs):
                 if pairing[i] is not None:
                     lm = self.landmarks[pairing[i]]
+                    if not lm.active:
+                        self._reactivate(lm, priors, values)
                     factors.append((self._landmark_factor(lm, k, z, T_BS[i], pose), lm.id))
                     self._record(lm, stamp, k, z, pose, T_BS[i], pose_cov)
             unpaired = [(z, T_BS[i]) for i, z in enumerate(obs) if pairing[i] is None]
             self._extend_tracks(stamp, k, unpaired, pose, pose_cov, factors, values)
         self._purge_tracks(stamp)
         if factors or values.size():
-            self._commit(factors, values)
+            self._commit(factors, values, priors)
             self._refresh_current()
             if k == len(self.kf_stamps) - 1:  # the online pose of this keyframe is the one after its landmarks
                 R = self._pose.rotation().matrix()
@@ -427,7 +517,7 @@ class GraphEstimator:
             sphere_ids, centres, _ = self._spheres()
             near = np.flatnonzero(np.linalg.norm(centres - np.asarray(a.estimate, float), axis=1) < self.assoc.min_separation_m)
             for b in [self.landmarks.get(sphere_ids[r]) for r in near]:
-                if b is None or b.kind != "object" or b.id == a.id:
+                if b is None or b.kind != "object" or b.id == a.id or not b.active:
                     continue
                 d = np.asarray(a.estimate, float) - np.asarray(b.estimate, float)
                 S = a.information_covariance() + b.information_covariance()
@@ -460,8 +550,8 @@ class GraphEstimator:
         for z in odom:
             i, T_i_from = self._nearest_keyframe(z.stamp_from)
             j, T_j_to = self._nearest_keyframe(z.stamp)
-            if i is None or j is None or i == j:
-                self.diagnostics.append(f"{z.stamp}: odometry from {z.stamp_from} has no distinct keyframes to join, dropped")
+            if i is None or j is None or i == j or min(i, j) < self._first_active:
+                self.diagnostics.append(f"{z.stamp}: odometry from {z.stamp_from} has no distinct keyframes in the window to join, dropped")
                 continue
             meas = T_i_from.compose(gtsam.Pose3(z.relative_pose)).compose(T_j_to.inverse())
             out.append(gtsam.BetweenFactorPose3(X(i), X(j), meas, gtsam.noiseModel.Gaussian.Covariance(z.covariance)))
@@ -728,17 +818,18 @@ class GraphEstimator:
         self._next_id += 1
         key = KEY_OF_KIND[tr.kind](lid)
         lm = Landmark(lid, tr.kind, key, model=tr.model)
-        poses = {r.keyframe: self._kf_pose(r.keyframe) for r in tr.records}
-        Ts = [self._sensor_T(r.observation.sensor) for r in tr.records]
+        records = [r for r in tr.records if r.keyframe >= self._first_active]  # views from keyframes that left: dropped
+        poses = {r.keyframe: self._kf_pose(r.keyframe) for r in records}
+        Ts = [self._sensor_T(r.observation.sensor) for r in records]
         if tr.kind == "object":
-            pts = np.array([poses[r.keyframe].compose(gtsam.Pose3(T)).transformFrom(r.observation.position) for r, T in zip(tr.records, Ts)])
+            pts = np.array([poses[r.keyframe].compose(gtsam.Pose3(T)).transformFrom(r.observation.position) for r, T in zip(records, Ts)])
             lm.estimate = pts.mean(axis=0)
             values.insert(key, lm.estimate)
         elif tr.kind == "pipe":
             ends = np.vstack(
                 [
                     [poses[r.keyframe].compose(gtsam.Pose3(T)).transformFrom(e) for e in (r.observation.p, r.observation.q)]
-                    for r, T in zip(tr.records, Ts)
+                    for r, T in zip(records, Ts)
                 ]
             )
             c = ends.mean(axis=0)
@@ -750,19 +841,33 @@ class GraphEstimator:
             lm.extent = (float(s.min()), float(s.max()))
             values.insert(key, lm.estimate)
         else:
-            r, T = tr.records[-1], Ts[-1]
+            r, T = records[-1], Ts[-1]
             lm.estimate = poses[r.keyframe].compose(gtsam.Pose3(T @ r.observation.pose))
             values.insert(key, lm.estimate)
         self.landmarks[lid] = lm
         self._update_sphere(lm)
-        for r, T in zip(tr.records, Ts):
+        for r, T in zip(records, Ts):
             factors.append((self._landmark_factor(lm, r.keyframe, r.observation, T, poses[r.keyframe]), lid))
             self._record(lm, r.stamp, r.keyframe, r.observation, poses[r.keyframe], T, pose_cov)
 
     def _kf_pose(self, k: int) -> gtsam.Pose3:
         if k == len(self.kf_stamps) - 1 and self._pose is not None:
             return self._pose
+        if k < self._first_active:
+            return self._frozen.atPose3(X(k))
         return self.isam.calculateEstimatePose3(X(k))
+
+    def _landmark_value(self, lm: Landmark):
+        """A landmark's current estimate: iSAM2's in the window, else the frozen one."""
+        return _value(self.isam, lm.key, lm.kind) if lm.active else lm.estimate
+
+    def _all_estimates(self) -> gtsam.Values:
+        """The window's estimate with the frozen estimates of everything that left it."""
+        values = self.isam.calculateEstimate()
+        for key in self._frozen.keys():
+            if not values.exists(key):  # not a landmark that came back
+                values.insert(key, value_of(self._frozen, key))
+        return values
 
     def _purge_tracks(self, stamp: int) -> None:
         horizon = stamp - int(self.cfg.track_timeout_s * 1e9)
@@ -802,7 +907,7 @@ class GraphEstimator:
             lm = self.landmarks.get(lid)
             if lm is None:
                 continue
-            lm.estimate = _value(self.isam, lm.key, lm.kind)
+            lm.estimate = self._landmark_value(lm)
             self._update_sphere(lm)
             if covariance and lm.cov_stamp is None:
                 lm.cov_stamp = self.kf_stamps[-1]
@@ -827,7 +932,7 @@ class GraphEstimator:
         i = bisect.bisect_right(self.kf_stamps, stamp)
         if i == 0:
             return None
-        a, b = self.isam.calculateEstimatePose3(X(i - 1)), self.isam.calculateEstimatePose3(X(i))
+        a, b = self._kf_pose(i - 1), self._kf_pose(i)
         s = (stamp - self.kf_stamps[i - 1]) / (self.kf_stamps[i] - self.kf_stamps[i - 1])
         return gtsam.Pose3(a.rotation().slerp(s, b.rotation()), (1 - s) * a.translation() + s * b.translation())
 
@@ -836,7 +941,7 @@ class GraphEstimator:
         covs = self._landmark_marginals(marginals) if covariance else {}
         mapped = self._mapped_object_points()
         for lm in self.landmarks.values():
-            est = _value(values, lm.key, lm.kind) if values is not None else _value(self.isam, lm.key, lm.kind)
+            est = _value(values, lm.key, lm.kind) if values is not None else self._landmark_value(lm)
             cov = covs.get(lm.id)
             le = LandmarkEstimate(id=lm.id, kind=lm.kind, n_observations=len(lm.history), model=lm.model)
             if lm.kind == "object":
@@ -873,7 +978,7 @@ class GraphEstimator:
             if k not in out:
                 try:
                     out[k] = self.isam.marginalCovariance(k)
-                except RuntimeError:
+                except (RuntimeError, IndexError):  # indeterminate, or left the window
                     pass
         return out
 
@@ -897,7 +1002,7 @@ class GraphEstimator:
 
     def finish(self) -> EstimatorResult:
         n = len(self.kf_stamps)
-        history: dict = {"update_kinds": list(self.update_kinds), "n_keyframes": n}
+        history: dict = {"update_kinds": list(self.update_kinds), "n_keyframes": n, "window_slides": list(self.slides), "window_returns": self.returns}
         if n == 0:
             self.diagnostics.append("no keyframe: the mission had no AHRS (or no start pose)")
             empty = Trajectory(np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 4)))
@@ -911,13 +1016,13 @@ class GraphEstimator:
             params = gtsam.LevenbergMarquardtParams()
             params.setMaxIterations(self.cfg.batch_max_iterations)
             try:
-                values = _levenberg_marquardt(graph, self.isam.calculateEstimate(), params)
+                values = _levenberg_marquardt(graph, self._all_estimates(), params)
             except RuntimeError as exc:
                 self.diagnostics.append(f"batch optimisation failed ({str(exc).splitlines()[0]}); online estimate kept")
                 values = None
             history["batch_time_s"] = time.perf_counter() - t0
         if values is None:
-            values = self.isam.calculateEstimate()
+            values = self._all_estimates()
         if self.cfg.covariance_in_result and marginals is None:
             marginals = self._marginals(values)
         poses = [values.atPose3(X(i)) for i in range(n)]

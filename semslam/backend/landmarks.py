@@ -42,6 +42,7 @@ class Landmark:
     _robust: tuple | None = field(default=None, repr=False)  # (views, robust_extent()) cached
     _middle: tuple | None = field(default=None, repr=False)  # (views, median of the views' middles)
     connected: set[int] = field(default_factory=set)
+    active: bool = True  # in the smoother's window; False: marginalised out, ``estimate`` frozen
 
     def add_information(self, info: np.ndarray) -> None:
         self.information = info if self.information is None else self.information + info

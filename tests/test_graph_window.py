@@ -1,0 +1,157 @@
+"""The graph back-end's bounded smoothing window (``graph.window_s``): the marginal of what leaves
+the window is exact on a linear problem, and on a simulated mission a window far shorter than the
+mission keeps the estimate's accuracy, lets landmarks leave and come back without duplicates, and
+leaves the batch re-optimisation the whole mission."""
+
+import gtsam
+import numpy as np
+import pytest
+
+from frontends.oracle import OracleFrontend
+from semslam.backend.graph import X, GraphEstimator
+from semslam.backend.run import run_graph
+from semslam.backend.synthetic import SyntheticConfig, landmark_report, simulate
+from semslam.backend.window import marginal_factors, split_factors, subset
+from semslam.config import SemslamConfig
+
+from test_backend_graph import DROPOUTS, ate, dr_ate
+
+
+def _chain(rng):
+    """Vector states x0..x5 (random walk with priors) and two landmarks seen from several states:
+    every factor linear, so marginalising is exact."""
+    x = [gtsam.symbol("v", i) for i in range(6)]  # vector-valued symbols (value_of reads by symbol)
+    lm = [gtsam.symbol("q", i) for i in range(2)]
+    factors = [(gtsam.PriorFactorVector(x[0], rng.normal(size=2), gtsam.noiseModel.Isotropic.Sigma(2, 0.1)), None)]
+    for i in range(5):
+        factors.append((gtsam.BetweenFactorVector(x[i], x[i + 1], rng.normal(size=2), gtsam.noiseModel.Diagonal.Sigmas(rng.uniform(0.05, 0.2, 2))), None))
+    for j, seen_from in enumerate(([0, 1, 2], [1, 3, 4, 5])):
+        for i in seen_from:
+            factors.append((gtsam.BetweenFactorVector(x[i], lm[j], rng.normal(size=2), gtsam.noiseModel.Isotropic.Sigma(2, 0.3)), j))
+    values = gtsam.Values()
+    for k in x + lm:
+        values.insert(k, rng.normal(size=2))
+    return x, lm, factors, values
+
+
+def _solve(factors, values):
+    graph = gtsam.NonlinearFactorGraph()
+    for f, *_ in factors:
+        graph.add(f)
+    result = gtsam.LevenbergMarquardtOptimizer(graph, values).optimize()
+    return result, gtsam.Marginals(graph, result)
+
+
+def test_marginal_of_what_leaves_is_exact_on_a_linear_problem():
+    x, lm, factors, values = _chain(np.random.default_rng(4))
+    full, full_marg = _solve(factors, values)
+    # x0, x1 leave; landmark l0 (seen from x0..x2) stays, seen from x2
+    drop = {x[0], x[1]}
+    kept, leaving = split_factors(factors, drop)
+    assert all(not drop & set(f.keys()) for f, _ in kept) and leaving
+    marginal = marginal_factors(leaving, full, drop)
+    assert {k for m in marginal for k in m.keys()} == {x[2], lm[0], lm[1]}  # x1 saw l1
+    window = kept + [(m, None) for m in marginal]
+    rest, rest_marg = _solve(window, subset(full, [k for k in x[2:] + lm]))
+    for k in x[2:] + lm:
+        np.testing.assert_allclose(rest.atVector(k), full.atVector(k), atol=1e-9)
+        np.testing.assert_allclose(rest_marg.marginalCovariance(k), full_marg.marginalCovariance(k), rtol=1e-7, atol=1e-12)
+
+
+def test_marginal_without_the_leaving_factors_is_not_the_full_answer():
+    # the check above is not vacuous: dropping what leaves (no marginal) changes the estimate
+    x, lm, factors, values = _chain(np.random.default_rng(4))
+    full, _ = _solve(factors, values)
+    kept, _ = split_factors(factors, {x[0], x[1]})
+    kept.append((gtsam.PriorFactorVector(x[2], full.atVector(x[2]), gtsam.noiseModel.Isotropic.Sigma(2, 1.0)), None))
+    rest, _ = _solve(kept, subset(full, x[2:] + lm))
+    assert np.linalg.norm(rest.atVector(lm[0]) - full.atVector(lm[0])) > 1e-3
+
+
+@pytest.fixture(scope="module")
+def windowed():
+    # three 16 m lanes, 3 m apart, at 0.25 m/s: an object leaves the window of 125 s with its lane
+    # and is seen again on the next pass
+    mission = simulate(SyntheticConfig(duration_s=400.0, path="lawnmower", lane_length_m=16.0, lane_spacing_m=3.0, n_lanes=3,
+                                       dropouts=DROPOUTS, ahrs_yaw_bias_rad=0.0, seed=0))
+    runs = {}
+    for window in (None, 125.0):
+        fe = OracleFrontend(mission.metadata, {"seed": 1})
+        runs[window] = run_graph(mission, SemslamConfig(graph={"window_s": window}), [fe], batch=True)
+    return mission, runs[None], runs[125.0]
+
+
+def test_window_slides_and_landmarks_come_back(windowed):
+    _, full, win = windowed
+    slides = win.history["window_slides"]
+    assert len(slides) >= 3 and not full.history["window_slides"]
+    assert sum(s["left_landmarks"] for s in slides) > 0
+    assert win.history["window_returns"] > 0
+    assert all(s["separator"] > 0 for s in slides)
+    assert not win.diagnostics  # no failed update on the way
+
+
+def test_windowed_online_estimate_keeps_its_accuracy(windowed):
+    mission, full, win = windowed
+    win_ate = ate(win.online_trajectory, mission)
+    assert win_ate <= 0.25 * dr_ate(mission)
+    assert win_ate <= 1.25 * ate(full.online_trajectory, mission)
+    rep, full_rep = (landmark_report(r, mission.metadata.ground_truth) for r in (win, full))
+    assert rep.median_error_m <= 1.25 * full_rep.median_error_m
+    assert not rep.duplicated and not rep.wrongly_merged
+    assert len(win.landmarks) == len(full.landmarks)
+
+
+def test_batch_after_a_window_spans_the_whole_mission(windowed):
+    mission, full, win = windowed
+    assert len(win.trajectory) == win.history["n_keyframes"] == full.history["n_keyframes"]
+    # LM over every factor of the mission, none of the window's marginals or priors: it lands where
+    # the full smoother's batch does (the two differ only by a few associations; 5.6 mm at most)
+    gap = np.linalg.norm(win.trajectory.positions - full.trajectory.positions, axis=1)
+    assert gap.max() < 0.01
+    assert np.isfinite(win.trajectory.position_cov[0]).all()  # covariances reach the keyframes that left
+
+
+def _circle_with_window(duration_s=200.0):
+    mission = simulate(SyntheticConfig(duration_s=duration_s, n_pipes=0, n_structures=0, ahrs_yaw_bias_rad=0.0, seed=2))
+    return mission, GraphEstimator(mission.metadata, SemslamConfig(graph={"window_s": 125.0}))
+
+
+def test_failed_update_after_a_slide_rebuilds_the_window_only():
+    mission, est = _circle_with_window()
+    injected = False
+    for m in mission:
+        est.process_measurement(m)
+        if not injected and est.slides:
+            key = gtsam.symbol("l", 999)  # constrained along one axis only: a zero pivot
+            bad = gtsam.CustomFactor(
+                gtsam.noiseModel.Isotropic.Sigma(1, 0.01),
+                [key],
+                lambda this, v, H: (H.__setitem__(0, np.array([[1.0, 0.0, 0.0]])) if H is not None else None)
+                or np.array([v.atPoint3(key)[0] - 1.0]),
+            )
+            values = gtsam.Values()
+            values.insert(key, np.zeros(3))
+            assert not est._commit([(bad, 999)], values)
+            injected = True
+            assert not est.isam.valueExists(X(0))  # rebuilt from the window, not the whole mission
+            assert est.isam.valueExists(X(len(est.kf_stamps) - 1))
+    res = est.finish()
+    assert injected and any("failed" in d for d in res.diagnostics)
+    assert len(res.trajectory) == len(est.kf_stamps) and np.isfinite(res.trajectory.positions).all()
+
+
+def test_failed_marginalisation_keeps_the_full_smoother(monkeypatch):
+    import semslam.backend.graph as graph_module
+
+    def fail(*args):
+        raise RuntimeError("indeterminant system")
+
+    monkeypatch.setattr(graph_module, "marginal_factors", fail)
+    mission, est = _circle_with_window()
+    for m in mission:
+        est.process_measurement(m)
+    res = est.finish()
+    assert not est.slides and est._first_active == 0
+    assert sum("marginalising" in d for d in res.diagnostics) == 1  # retried after half a window, not at every keyframe
+    assert est.isam.valueExists(X(0)) and len(res.trajectory) == len(est.kf_stamps)
