@@ -61,6 +61,7 @@ class GraphAssociationProblem:
         self._R, self._t = pose.rotation().matrix(), pose.translation()
         self._frames: dict[int, tuple] = {}
         self._segments: dict[int, tuple] = {}
+        self._stretches: dict[int, tuple[float, float]] = {}
 
     def _line_frame(self, j: int):
         """R_L, J_r columns and direction of pipe candidate j (once per problem)."""
@@ -69,6 +70,12 @@ class GraphAssociationProblem:
             RL, Jr2 = line_frame(lm.anchor, lm.estimate)
             self._frames[j] = (RL, Jr2, RL[:, 2])
         return self._frames[j]
+
+    def _stretch(self, j: int) -> tuple[float, float]:
+        """What has been seen of pipe candidate j along its line (once per problem)."""
+        if j not in self._stretches:
+            self._stretches[j] = self.candidates[j].landmark.stretch(self.cutters, self.separator_radius)
+        return self._stretches[j]
 
     def _segment(self, i: int):
         """Endpoints of line observation i in {B} (2×3) and in {W} (once per problem)."""
@@ -99,7 +106,7 @@ class GraphAssociationProblem:
             # The segment must overlap what has been seen of the pipe (collinear pipes on either
             # side of a valve share one infinite line) ...
             s = (seg - lm.anchor.c0) @ d
-            lo, hi = seen = lm.stretch(self.cutters, self.separator_radius)
+            lo, hi = seen = self._stretch(j)
             if s.max() < lo - self.gap or s.min() > hi + self.gap:
                 return None
             # ... and no in-line part (valve, socket) may lie between them: that is the next pipe
