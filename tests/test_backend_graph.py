@@ -137,6 +137,21 @@ def test_false_positives_and_misses_make_no_wrong_landmarks():
     assert len(res.landmarks) >= 0.9 * (len(gt.objects) + len(gt.pipes))
 
 
+def indeterminate_landmark(lid: int) -> tuple[list, gtsam.Values]:
+    """A point landmark constrained along one axis only (a zero pivot in the elimination): its
+    factor with its owner, and its initial value."""
+    key = gtsam.symbol("l", lid)
+    bad = gtsam.CustomFactor(
+        gtsam.noiseModel.Isotropic.Sigma(1, 0.01),
+        [key],
+        lambda this, v, H: (H.__setitem__(0, np.array([[1.0, 0.0, 0.0]])) if H is not None else None)
+        or np.array([v.atPoint3(key)[0] - 1.0]),
+    )
+    values = gtsam.Values()
+    values.insert(key, np.zeros(3))
+    return [(bad, lid)], values
+
+
 def test_protocol_view_and_failure_recovery():
     """A landmark whose factors make the system indeterminate is dropped, reported, and the
     mission goes on."""
@@ -149,16 +164,7 @@ def test_protocol_view_and_failure_recovery():
         if not injected and len(est.kf_stamps) > 5:
             # A point landmark constrained along one axis only: a zero pivot in the elimination.
             k = len(est.kf_stamps) - 1
-            key = gtsam.symbol("l", 999)
-            bad = gtsam.CustomFactor(
-                gtsam.noiseModel.Isotropic.Sigma(1, 0.01),
-                [key],
-                lambda this, v, H: (H.__setitem__(0, np.array([[1.0, 0.0, 0.0]])) if H is not None else None)
-                or np.array([v.atPoint3(key)[0] - 1.0]),
-            )
-            values = gtsam.Values()
-            values.insert(key, np.zeros(3))
-            ok = est._commit([(bad, 999)], values)
+            ok = est._commit(*indeterminate_landmark(999))
             assert not ok
             injected = True
     res = est.finish()

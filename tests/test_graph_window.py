@@ -14,7 +14,7 @@ from semslam.backend.synthetic import SyntheticConfig, landmark_report, simulate
 from semslam.backend.window import marginal_factors, split_factors, subset
 from semslam.config import SemslamConfig
 
-from test_backend_graph import DROPOUTS, ate, dr_ate
+from test_backend_graph import DROPOUTS, ate, dr_ate, indeterminate_landmark
 
 
 def _chain(rng):
@@ -123,16 +123,7 @@ def test_failed_update_after_a_slide_rebuilds_the_window_only():
     for m in mission:
         est.process_measurement(m)
         if not injected and est.slides:
-            key = gtsam.symbol("l", 999)  # constrained along one axis only: a zero pivot
-            bad = gtsam.CustomFactor(
-                gtsam.noiseModel.Isotropic.Sigma(1, 0.01),
-                [key],
-                lambda this, v, H: (H.__setitem__(0, np.array([[1.0, 0.0, 0.0]])) if H is not None else None)
-                or np.array([v.atPoint3(key)[0] - 1.0]),
-            )
-            values = gtsam.Values()
-            values.insert(key, np.zeros(3))
-            assert not est._commit([(bad, 999)], values)
+            assert not est._commit(*indeterminate_landmark(999))
             injected = True
             assert not est.isam.valueExists(X(0))  # rebuilt from the window, not the whole mission
             assert est.isam.valueExists(X(len(est.kf_stamps) - 1))
