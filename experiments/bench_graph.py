@@ -8,7 +8,8 @@
 3. Factor cost: linearisation time of every domain factor (the CustomFactors: line, DVL displacement,
    biased attitude; the built-ins: object point, depth) against plain built-ins of the same size.
 
-Run: ``python experiments/bench_graph.py [--runs 3] [--long-hours 2] [--skip-long]``.
+Run: ``python experiments/bench_graph.py [--runs 3] [--long-hours 2] [--skip-long] [--out F.json]`` (with
+``--out``, the long mission's cost per 600 s is also plotted to ``F_long.png``; ``--plot F.json`` redraws it).
 Timings on a shared machine are noisy: report medians.
 """
 
@@ -217,14 +218,48 @@ def bench_factor_cost(n: int = 5000) -> dict:
     return {"linearize_us": out}
 
 
+def plot_long(long: dict, png: str) -> None:
+    """The long mission's cost per update for each 600 s of mission (median and p95) beside the
+    map's size: flat cost while the map grows is what the window is for."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    w = long["by_600s"]
+    t = np.array([x["t_s"] for x in w]) / 3600.0
+    fig, ax = plt.subplots(figsize=(8, 4))
+    ax.plot(t, [x["ms_median"] for x in w], "o-", label="median")
+    ax.plot(t, [x["ms_p95"] for x in w], "s--", label="p95")
+    ax.set_xlabel("mission time [h] (end of each 600 s)")
+    ax.set_ylabel("graph update [ms]")
+    ax.set_ylim(0, 1.3 * max(x["ms_p95"] for x in w))  # room for the legend above the curves
+    ax2 = ax.twinx()
+    ax2.plot(t, [x["landmarks"] for x in w], color="0.5", label="landmarks")
+    ax2.set_ylabel("landmarks mapped")
+    ax2.set_ylim(0, 1.3 * max(x["landmarks"] for x in w))
+    lines = ax.get_legend_handles_labels()[0] + ax2.get_legend_handles_labels()[0]
+    ax.legend(lines, [h.get_label() for h in lines], loc="upper center", ncol=3)
+    ax.grid(alpha=0.3)
+    slides = long.get("window_slides") or {}
+    ax.set_title(f"{long['duration_h']:g} h lawnmower: {long['n_keyframes']} keyframes, {long['n_landmarks']} landmarks, "
+                 f"{slides.get('n', 0)} window slides", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(png, dpi=110)
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--runs", type=int, default=3)
     ap.add_argument("--long-hours", type=float, default=2.0)
     ap.add_argument("--skip-long", action="store_true")
     ap.add_argument("--skip-default", action="store_true")
-    ap.add_argument("--out", default=None, help="write the numbers as JSON here")
+    ap.add_argument("--out", default=None, help="write the numbers as JSON here (and the long mission's cost as PNG beside it)")
+    ap.add_argument("--plot", default=None, metavar="JSON", help="only plot the long mission of an earlier --out")
     a = ap.parse_args()
+    if a.plot:
+        plot_long(json.load(open(a.plot))["long"], a.plot.removesuffix(".json") + "_long.png")
+        return
     from threadpoolctl import threadpool_limits
 
     threadpool_limits(limits=1, user_api="blas")  # as run_pipeline does: small matrices, no thread contention
@@ -243,6 +278,8 @@ def main():
     if a.out:
         with open(a.out, "w") as fh:
             json.dump(report, fh, indent=1)
+        if "long" in report:
+            plot_long(report["long"], a.out.removesuffix(".json") + "_long.png")
 
 
 if __name__ == "__main__":
