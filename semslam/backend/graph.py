@@ -136,7 +136,6 @@ class GraphEstimator:
         self._volume: dict[int, list[tuple[int, float]]] = {}  # landmark id → [(stamp, log det cov)]
         # Bounding sphere (centre, radius) of every landmark, refreshed with its estimate.
         self._sphere_row: dict[int, int] = {}
-        self._merged_keys: list[int] = []  # keys of landmarks merged into another (still in the graph)
         self._sphere_ids: list[int] = []
         self._sphere_c = np.zeros((0, 3))
         self._sphere_r = np.zeros(0)
@@ -531,7 +530,6 @@ class GraphEstimator:
                     keep.add_information(drop.information)
                 keep.connected |= drop.connected
                 del self.landmarks[drop.id]
-                self._merged_keys.append(drop.key)
                 row = self._sphere_row.pop(drop.id, None)
                 if row is not None:
                     self._sphere_c[row] = np.inf  # never near again
