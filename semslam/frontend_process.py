@@ -120,6 +120,8 @@ class FrontendProcess:
         return self._workers[0].receive(self.names)
 
     def close(self) -> None:
+        for w in self._workers:  # all told first: their exits overlap (~0.5 s each, open3d and all)
+            w.stop()
         for w in self._workers:
             w.close()
 
@@ -153,9 +155,12 @@ class _Worker:
             raise exc
         return payload
 
-    def close(self) -> None:
+    def stop(self) -> None:
         if self._proc.is_alive():
             self._in.put(None)
+
+    def close(self) -> None:
+        if self._proc.is_alive():
             self._proc.join(timeout=10)
             if self._proc.is_alive():
                 self._proc.terminate()
