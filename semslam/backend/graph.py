@@ -352,7 +352,7 @@ class GraphEstimator:
             k = len(self.kf_stamps) - 1
             pose = full.atPose3(X(k))
             prior = gtsam.PriorFactorPose3(X(k), pose, gtsam.noiseModel.Isotropic.Sigma(6, 10.0))
-            vprior = gtsam.PriorFactorVector(V(k), _value(full, V(k)), gtsam.noiseModel.Isotropic.Sigma(3, 10.0))
+            vprior = gtsam.PriorFactorVector(V(k), value_of(full, V(k)), gtsam.noiseModel.Isotropic.Sigma(3, 10.0))
             self._factors += [(prior, None), (vprior, None)]
             self._window += [(prior, None), (vprior, None)]
             graph.add(prior)
@@ -407,7 +407,7 @@ class GraphEstimator:
         self._frozen.insert_or_assign(subset(estimate, [k for k in drop if estimate.exists(k)]))
         for lm in self.landmarks.values():
             if lm.active and lm.key in drop:
-                lm.active, lm.estimate = False, _value(estimate, lm.key, lm.kind)
+                lm.active, lm.estimate = False, value_of(estimate, lm.key)
                 self._update_sphere(lm)
         self._refresh_current()
 
@@ -857,7 +857,7 @@ class GraphEstimator:
 
     def _landmark_value(self, lm: Landmark):
         """A landmark's current estimate: iSAM2's in the window, else the frozen one."""
-        return _value(self.isam, lm.key, lm.kind) if lm.active else lm.estimate
+        return value_of(self.isam, lm.key) if lm.active else lm.estimate
 
     def _all_estimates(self) -> gtsam.Values:
         """The window's estimate with the frozen estimates of everything that left it."""
@@ -939,7 +939,7 @@ class GraphEstimator:
         covs = self._landmark_marginals(marginals) if covariance else {}
         mapped = self._mapped_object_points()
         for lm in self.landmarks.values():
-            est = _value(values, lm.key, lm.kind) if values is not None else self._landmark_value(lm)
+            est = value_of(values, lm.key) if values is not None else self._landmark_value(lm)
             cov = covs.get(lm.id)
             le = LandmarkEstimate(id=lm.id, kind=lm.kind, n_observations=len(lm.history), model=lm.model)
             if lm.kind == "object":
@@ -1106,17 +1106,6 @@ def _levenberg_marquardt(graph: gtsam.NonlinearFactorGraph, initial: gtsam.Value
 def _chi2(confidence: float, dof: int) -> float:
     """χ² quantile (scipy's ppf costs ~0.1 ms: cached)."""
     return float(chi2.ppf(confidence, dof))
-
-
-def _value(src, key, kind: str | None = None):
-    """A variable's value from Values or ISAM2, by its symbol character."""
-    c = chr(gtsam.Symbol(key).chr())
-    is_values = isinstance(src, gtsam.Values)
-    if c in ("x", "s"):
-        return src.atPose3(key) if is_values else src.calculateEstimatePose3(key)
-    if c == "l":
-        return np.asarray(src.atPoint3(key) if is_values else src.calculateEstimatePoint3(key), float)
-    return np.asarray(src.atVector(key) if is_values else src.calculateEstimateVector(key), float)
 
 
 def _connect(estimates: list[LandmarkEstimate], landmarks: dict[int, Landmark], max_distance: float) -> None:

@@ -21,14 +21,17 @@ POSE_CHARS = frozenset(map(ord, "xs"))  # Pose3-valued keys (keyframes, structur
 POINT_CHARS = frozenset(map(ord, "l"))  # Point3-valued keys
 
 
-def value_of(values: gtsam.Values, key: int):
-    """A variable of ``values`` by its symbol character (Pose3, Point3 or vector)."""
+def value_of(src: gtsam.Values | gtsam.ISAM2, key: int):
+    """A variable of ``src`` (Values, or iSAM2's current estimate) by its symbol character: a Pose3,
+    or a numpy vector (point, line, velocity, bias)."""
     c = gtsam.Symbol(key).chr()
+    if isinstance(src, gtsam.Values):
+        if c in POSE_CHARS:
+            return src.atPose3(key)
+        return src.atPoint3(key) if c in POINT_CHARS else src.atVector(key)
     if c in POSE_CHARS:
-        return values.atPose3(key)
-    if c in POINT_CHARS:
-        return values.atPoint3(key)
-    return values.atVector(key)
+        return src.calculateEstimatePose3(key)
+    return src.calculateEstimatePoint3(key) if c in POINT_CHARS else src.calculateEstimateVector(key)
 
 
 def subset(values: gtsam.Values, keys: Iterable[int]) -> gtsam.Values:
