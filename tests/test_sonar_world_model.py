@@ -54,3 +54,35 @@ def test_a_tight_budget_simplifies_the_seabed_further():
     _, info = _world(int(tight_budget / cfg.max_fraction), cfg)
     assert info["seabed_triangles"] < info_loose["seabed_triangles"]
     assert info["bytes"] <= tight_budget
+
+
+def test_world_model_rendering_reads_no_uninitialised_memory(monkeypatch, tmp_path):
+    """Facets clipped to a close-up have 3 to 7 vertices. Rendered as they are, matplotlib pads
+    them into np.empty and autoscaled on the padding (matplotlib#32272): an infinite axis limit
+    now and then. Here every np.empty is filled with the largest float (what uninitialised memory
+    may hold), so that reading it shows every time."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from frontends.sonar.figures import _clip_box, _render
+
+    real_empty = np.empty
+
+    def garbage_empty(*a, **k):
+        out = real_empty(*a, **k)
+        if out.dtype.kind == "f":
+            out.fill(np.finfo(out.dtype).max)
+        return out
+
+    monkeypatch.setattr(np, "empty", garbage_empty)
+    tri = np.array([[[0.0, 0.0, 1.0], [2.0, 0.0, 1.5], [0.0, 2.0, 2.0]], [[0.3, 0.3, 1.0], [0.9, 0.3, 1.0], [0.3, 0.9, 1.2]]])
+    polys = [P for t in tri for P in _clip_box(t[None], np.array([0.2, 0.2]), np.array([1.0, 1.0]))]
+    assert len({len(P) for P in polys}) > 1  # ragged: what triggered it
+    fig = plt.figure()
+    ax = fig.add_subplot(projection="3d")
+    _render(ax, polys, np.full((len(polys), 3), 0.5))
+    assert np.all(np.isfinite(ax.get_zlim()))
+    fig.savefig(tmp_path / "close_up.png")
+    plt.close(fig)

@@ -168,8 +168,14 @@ def _render(ax, polys, colors, light=np.array([-0.4, 0.5, 0.77])):
         n /= max(np.linalg.norm(n), 1e-12)
         shade.append(0.45 + 0.55 * abs(n @ light))
     col = np.clip(np.asarray(colors) * np.asarray(shade)[:, None], 0, 1)
+    # One array of equal-length polygons (each padded by repeating its last vertex, which draws
+    # the same polygon): given ragged ones, matplotlib 3.11 pads them into np.empty and reads that
+    # uninitialised padding when autoscaling and projecting (matplotlib#32272), which now and
+    # then gave an infinite axis limit.
+    n = max(len(P) for P in polys)
+    faces = np.stack([np.concatenate([P, np.repeat(P[-1:], n - len(P), axis=0)]) for P in polys])
     # edges in the face colour hide the hairline seams between adjacent facets
-    ax.add_collection3d(Poly3DCollection(polys, facecolors=col, edgecolors=col, linewidths=0.2))
+    ax.add_collection3d(Poly3DCollection(faces, facecolors=col, edgecolors=col, linewidths=0.2))
 
 
 def world_model_figure(fe, path) -> None:
