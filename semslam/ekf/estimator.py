@@ -238,17 +238,19 @@ class _Extent:
         return np.array([c + a * d, c + b * d])
 
     def gap(self, ends_W: np.ndarray, m: np.ndarray, d: np.ndarray, cutters: np.ndarray | None = None,
-            radius: float = 0.0) -> float:
-        """Gap (m) along the line between the seen extent and a segment; 0 when they overlap."""
-        a, b = self.interval(m, d, cutters, radius)
+            radius: float = 0.0, span: tuple[float, float] | None = None) -> float:
+        """Gap (m) along the line between the seen extent (``span``: its ``interval`` when already
+        known) and a segment; 0 when they overlap."""
+        a, b = self.interval(m, d, cutters, radius) if span is None else span
         s = (ends_W - geo.closest_point(m, d)) @ d
         return max(0.0, s.min() - b, a - s.max())
 
     def separated(self, ends_W: np.ndarray, m: np.ndarray, d: np.ndarray, objects: np.ndarray,
-                  radius: float, margin: float = 0.1, cutters: np.ndarray | None = None) -> bool:
+                  radius: float, margin: float = 0.1, cutters: np.ndarray | None = None,
+                  span: tuple[float, float] | None = None) -> bool:
         """True when an object (N×3, in {W}) on the line lies between the seen extent (cut at
-        ``cutters``) and the segment: collinear pipes joined by an in-line part (a valve, a socket)
-        are different pipes."""
+        ``cutters``; ``span``: its ``interval`` when already known) and the segment: collinear pipes
+        joined by an in-line part (a valve, a socket) are different pipes."""
         if len(objects) == 0:
             return False
         c = geo.closest_point(m, d)
@@ -263,7 +265,7 @@ class _Extent:
             self._sep_memo = (key, np.array(m, float), np.array(d, float), s_on)
         if not len(s_on):
             return False
-        a, b = self.interval(m, d, cutters, radius)
+        a, b = self.interval(m, d, cutters, radius) if span is None else span
         s = (ends_W - c) @ d
         lo, hi = (b - margin, s.min() + margin) if s.mean() > 0.5 * (a + b) else (s.max() - margin, a + margin)
         return bool(np.any((s_on > lo) & (s_on < hi)))
@@ -404,11 +406,11 @@ class _ScanPairs:
                     keep = nis < gate(size)
                     if kind == "pipe":
                         if objects is None:
-                            objects = est._object_positions()
+                            objects, mapped = est._object_positions(), est._mapped_object_positions()
                         for k in np.flatnonzero(keep):
                             f = feats[fj[k]]
                             m_W, d_W = geo.line_plucker(x[f.index : f.index + 4])
-                            keep[k] = not est._pipe_apart(f.extent, obs[oi[k]].ends_W, m_W, d_W, objects)
+                            keep[k] = not est._pipe_apart(f.extent, obs[oi[k]].ends_W, m_W, d_W, objects, mapped)
                     obs_i.append(oi[keep])
                     feat_j.append(fj[keep])
                     nus += list(nu[keep])
@@ -795,13 +797,16 @@ class EkfEstimator:
         return np.array(pts).reshape(-1, 3)
 
     def _pipe_apart(self, extent: _Extent, ends_W: np.ndarray, m: np.ndarray, d: np.ndarray,
-                    objects: np.ndarray) -> bool:
+                    objects: np.ndarray, mapped: np.ndarray | None = None) -> bool:
         """A segment cannot be this pipe: beyond the gap from its seen extent, or across an object.
-        The extent is cut at mapped in-line objects (as the graph's): a pipe seen through a socket
-        or a tee must not keep the views of the pipe beyond it."""
-        mapped, r = self._mapped_object_positions(), self.assoc.inline_object_radius_m
-        return extent.gap(ends_W, m, d, mapped, r) > self.assoc.pipe_extent_gap_m or extent.separated(
-            ends_W, m, d, objects, r, cutters=mapped)
+        The extent is cut at mapped in-line objects (as the graph's; ``mapped``: their positions
+        when already known): a pipe seen through a socket or a tee must not keep the views of the
+        pipe beyond it. (The cut extent is computed once, for both tests.)"""
+        mapped = self._mapped_object_positions() if mapped is None else mapped
+        r = self.assoc.inline_object_radius_m
+        span = extent.interval(m, d, mapped, r)
+        return extent.gap(ends_W, m, d, span=span) > self.assoc.pipe_extent_gap_m or extent.separated(
+            ends_W, m, d, objects, r, span=span)
 
     def _mapped_object_positions(self) -> np.ndarray:
         idx = [f.index for f in self._features if f.kind == "object"]
