@@ -51,6 +51,7 @@ from factors.geometry import pose_point_jacobian
 from semslam.backend.association import jcbb
 from semslam.backend.config import GraphConfig
 from semslam.backend.landmarks import Landmark, ObservationRecord, Track, merge_collinear, object_between
+from semslam.backend.marginal import marginal_covariance
 from semslam.backend.navigation import NavigationBuffer
 from semslam.backend.problem import Candidate, GraphAssociationProblem, possible_pairs
 from semslam.backend.window import LANDMARK_CHARS, marginal_factors, split_factors, subset, value_of
@@ -276,7 +277,7 @@ class GraphEstimator:
         if self._bias_walk > 0:
             self._bias = float(self.isam.calculateEstimateVector(B(k))[0])
         try:
-            self._pose_cov = self.isam.marginalCovariance(X(k))
+            self._pose_cov = marginal_covariance(self.isam, X(k))  # from the root clique: it holds X(k)
         except RuntimeError:
             self._pose_cov = np.eye(6) * 1e2
 
@@ -463,7 +464,7 @@ class GraphEstimator:
         if k is None:
             return
         if k != len(self.kf_stamps) - 1:
-            pose, pose_cov = self.isam.calculateEstimatePose3(X(k)), self.isam.marginalCovariance(X(k))
+            pose, pose_cov = self.isam.calculateEstimatePose3(X(k)), marginal_covariance(self.isam, X(k))
         else:
             pose, pose_cov = self._pose, self._pose_cov
         bad = [z for z in observations if not self._valid(z)]

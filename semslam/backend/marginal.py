@@ -1,0 +1,83 @@
+"""One variable's marginal covariance from iSAM2, cheaply when the variable is in the root clique.
+
+The graph back-end needs the newest keyframe pose's marginal after every update (association gate,
+online ±2σ, NEES). iSAM2 orders the keys of new factors last, so that pose is a frontal of the root
+clique, whose conditional p(F) has no parents: it is the joint marginal of the root's frontals, with
+information RᵀR. ``ISAM2.marginalCovariance`` re-eliminates that whole conditional down to the one
+variable: on the tank, roots of ~90 variables (~450 dimensions, dense: every landmark is seen from
+every pose) cost up to 25 ms per call. From R itself, Σ_jj = YᵀY with Rᵀ Y = E_j, one triangular
+solve (rows of Y before j's block are zero, so only R's trailing block is used).
+
+The Python wrapper does not expose the Bayes tree's root. ``marginalFactor(j, function)`` calls the
+elimination ``function`` first with the root conditional alone (after the root's empty separator
+marginal); the probe below takes it there and stops the elimination by raising. Anything else (j
+not in the root, a constrained model, an unknown symbol) falls back to ``marginalCovariance``.
+"""
+
+from __future__ import annotations
+
+import gtsam
+import numpy as np
+from scipy.linalg.lapack import dtrtrs
+
+# Tangent dimension of every symbol character the graph back-end uses (keyframe pose, velocity,
+# heading bias, object point, pipe line, structure pose).
+KEY_DIM = {ord("x"): 6, ord("v"): 3, ord("b"): 1, ord("l"): 3, ord("p"): 4, ord("s"): 6}
+
+
+class _Caught(Exception):
+    """Raised by the probe to stop iSAM2's elimination once it has the root conditional."""
+
+
+def _root_conditional(isam: gtsam.ISAM2, key: int) -> gtsam.GaussianConditional | None:
+    box = []
+
+    def probe(graph, ordering):
+        box.append(graph)
+        raise _Caught
+
+    try:
+        isam.marginalFactor(key, probe)
+    except _Caught:
+        pass
+    if not box or box[0].size() != 1:
+        return None
+    c = box[0].at(0)
+    return c if isinstance(c, gtsam.GaussianConditional) else None
+
+
+def root_marginal_covariance(isam: gtsam.ISAM2, key: int) -> np.ndarray | None:
+    """Marginal covariance of ``key`` from the root clique's conditional; None if ``key`` is not
+    a frontal of the root (or the conditional is not one this reads)."""
+    c = _root_conditional(isam, key)
+    if c is None or c.S().size:  # not the root: it has parents
+        return None
+    keys = c.keys()
+    try:
+        i = keys.index(key)
+        dims = [KEY_DIM[k >> 56] for k in keys]  # a Symbol's character is the key's top byte
+    except (ValueError, KeyError):
+        return None
+    R = c.R()
+    if sum(dims) != R.shape[0]:
+        return None
+    a, d = sum(dims[:i]), dims[i]
+    R = R[a:, a:]
+    model = c.get_model()
+    if model is not None:
+        sigmas = model.sigmas()[a:]
+        if not np.all(sigmas > 0):
+            return None
+        R = R / sigmas[:, None]
+    E = np.zeros((R.shape[0], d), order="F")
+    E[:d] = np.eye(d)
+    Y, info = dtrtrs(R, E, lower=0, trans=1)
+    if info != 0:
+        return None
+    return Y.T @ Y
+
+
+def marginal_covariance(isam: gtsam.ISAM2, key: int) -> np.ndarray:
+    """iSAM2's marginal covariance of ``key`` (raises as ``marginalCovariance`` does)."""
+    cov = root_marginal_covariance(isam, key)
+    return cov if cov is not None else isam.marginalCovariance(key)

@@ -1,0 +1,61 @@
+"""The newest pose's marginal from iSAM2's root clique (semslam.backend.marginal)."""
+
+import gtsam
+import numpy as np
+
+from semslam.backend.marginal import _root_conditional, marginal_covariance, root_marginal_covariance
+
+X, L = gtsam.symbol_shorthand.X, gtsam.symbol_shorthand.L
+
+
+def _isam(n: int = 12) -> gtsam.ISAM2:
+    """A trajectory of n poses seeing four points, built one keyframe at a time."""
+    rng = np.random.default_rng(3)
+    isam = gtsam.ISAM2()
+    odo = gtsam.noiseModel.Diagonal.Sigmas(np.r_[0.01, 0.02, 0.03, 0.1, 0.2, 0.05])
+    obs = gtsam.noiseModel.Isotropic.Sigma(3, 0.1)
+    pts = rng.normal(size=(4, 3)) * 3
+    for k in range(n):
+        g, v = gtsam.NonlinearFactorGraph(), gtsam.Values()
+        pose = gtsam.Pose3(gtsam.Rot3.Yaw(0.1 * k), np.array([k, 0.5 * k, 0.0]))
+        v.insert(X(k), pose)
+        if k == 0:
+            g.add(gtsam.PriorFactorPose3(X(0), pose, gtsam.noiseModel.Isotropic.Sigma(6, 0.1)))
+        else:
+            prev = gtsam.Pose3(gtsam.Rot3.Yaw(0.1 * (k - 1)), np.array([k - 1, 0.5 * (k - 1), 0.0]))
+            g.add(gtsam.BetweenFactorPose3(X(k - 1), X(k), prev.between(pose), odo))
+        for j, p in enumerate(pts):
+            if (k + j) % 3:
+                continue
+            if k < 3:
+                v.insert(L(j), p + rng.normal(size=3) * 0.05)
+            if k < 3 or isam.valueExists(L(j)):
+                g.add(_point_factor(X(k), L(j), pose.transformTo(p), obs))
+        isam.update(g, v)
+    return isam
+
+
+def _point_factor(x, l, p_B, noise):
+    """A point seen from a pose: bearing (2) and range (1)."""
+    return gtsam.BearingRangeFactor3D(x, l, gtsam.Unit3(p_B), float(np.linalg.norm(p_B)), noise)
+
+
+def test_newest_pose_from_root_matches_isam2():
+    isam = _isam()
+    newest = X(11)
+    cov = root_marginal_covariance(isam, newest)
+    assert cov is not None  # new keys are ordered last: the newest pose is in the root
+    ref = isam.marginalCovariance(newest)
+    assert np.max(np.abs(cov - ref)) <= 1e-9 * np.max(np.abs(ref))
+    # Every frontal of the root, wherever it sits in R (a point, an older pose, the newest pose).
+    root_keys = _root_conditional(isam, newest).keys()
+    assert len(root_keys) > 2 and any(gtsam.Symbol(k).chr() == ord("l") for k in root_keys)
+    for key in root_keys:
+        ref = isam.marginalCovariance(key)
+        assert np.max(np.abs(root_marginal_covariance(isam, key) - ref)) <= 1e-9 * np.max(np.abs(ref))
+
+
+def test_key_outside_the_root_falls_back():
+    isam = _isam()
+    assert root_marginal_covariance(isam, X(0)) is None
+    np.testing.assert_array_equal(marginal_covariance(isam, X(0)), isam.marginalCovariance(X(0)))
