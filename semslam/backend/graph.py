@@ -48,7 +48,7 @@ from factors.navigation import (
     velocity_random_walk_factor,
 )
 from factors.geometry import pose_point_jacobian
-from semslam.backend.association import jcbb
+from semslam.backend.association import PairLinearization, jcbb
 from semslam.backend.config import GraphConfig
 from semslam.backend.landmarks import Landmark, ObservationRecord, Track, merge_collinear, object_between
 from semslam.backend.marginal import marginal_covariance
@@ -480,14 +480,14 @@ class GraphEstimator:
         if obs:
             T_BS = [self._sensor_T(z.sensor) for z in obs]
             self._current_obs = obs
-            pairing = self._associate(pose, pose_cov, obs, T_BS)
+            pairing, lins = self._associate(pose, pose_cov, obs, T_BS)
             for i, z in enumerate(obs):
                 if pairing[i] is not None:
                     lm = self.landmarks[pairing[i]]
                     if not lm.active:
                         self._reactivate(lm, priors, values)
-                    factors.append((self._landmark_factor(lm, k, z, T_BS[i], pose), lm.id))
-                    self._record(lm, stamp, k, z, pose, T_BS[i], pose_cov)
+                    factors.append((self._landmark_factor(lm, k, z, T_BS[i], pose, lins[i]), lm.id))
+                    self._record(lm, stamp, k, z, pose, T_BS[i], pose_cov, lins[i])
             unpaired = [(z, T_BS[i]) for i, z in enumerate(obs) if pairing[i] is None]
             self._extend_tracks(stamp, k, unpaired, pose, pose_cov, factors, values)
         self._purge_tracks(stamp)
@@ -579,22 +579,25 @@ class GraphEstimator:
             return T_WS.transformFrom(0.5 * (z.p + z.q))
         return T_WS.transformFrom(z.pose[:3, 3])
 
-    def _associate(self, pose, pose_cov, obs, T_BS) -> list[int | None]:
-        """JCBB over the pre-gated landmarks; returns the landmark id of each observation or None.
+    def _associate(self, pose, pose_cov, obs, T_BS) -> tuple[list[int | None], list[PairLinearization | None]]:
+        """JCBB over the pre-gated landmarks; returns the landmark id of each observation or None,
+        and the linearisation of each pairing at (pose, landmark estimate), which the association
+        computed and the factor and the landmark's information reuse.
 
         Unpaired observations individually compatible with a landmark are left unpaired too, but
         flagged: pipes attach to it (two segments of one pipe), others are discarded rather than
         allowed to start a duplicate."""
         self._ambiguous: set[int] = set()
+        none = [None] * len(obs)
         if not self.landmarks:
-            return [None] * len(obs)
+            return none, none
         obs_pts = np.array([self._world_summary(z, pose, T) for z, T in zip(obs, T_BS)])
         # Coarse pre-gate on the cached spheres (O(map) in numpy only, so the cost stays flat).
         ids, centres, radii = self._spheres()
         dist = np.linalg.norm(obs_pts[:, None, :] - centres[None, :, :], axis=2) - radii[None, :]
         near = np.flatnonzero((dist <= self.cfg.pre_gate_m + 1.0).any(axis=0))
         if near.size == 0:
-            return [None] * len(obs)
+            return none, none
         cand_lms = [self.landmarks[ids[j]] for j in near if ids[j] in self.landmarks]
         self._refresh_landmarks({lm.id for lm in cand_lms}, covariance=True)
         anchor_pts = np.array([_landmark_point(lm) for lm in cand_lms])
@@ -613,11 +616,14 @@ class GraphEstimator:
         result = jcbb(problem, confidence=self.assoc.confidence)
         paired = {j for j in result if j is not None}
         out: list[int | None] = []
+        lins: list[PairLinearization | None] = []
         from semslam.backend.association import individual_nis
 
         for i, j in enumerate(result):
+            lins.append(None)
             if j is not None:
                 out.append(cand_lms[j].id)
+                lins[i] = problem.pair(i, j)
                 continue
             # Left unpaired by JCBB: is it compatible with some landmark anyway?
             best, best_j = np.inf, None
@@ -631,25 +637,31 @@ class GraphEstimator:
             if best_j is not None and best < _chi2(self.assoc.confidence, len(problem.pair(i, best_j).innovation)):
                 if isinstance(obs[i], LineObservation) and best_j in paired:
                     out.append(cand_lms[best_j].id)  # a second segment of a pipe already paired
+                    lins[i] = problem.pair(i, best_j)
                     continue
                 self._ambiguous.add(i)
             elif self._overlaps_mapped(obs[i], pose, T_BS[i], cand_lms):
                 self._ambiguous.add(i)
             out.append(None)
-        return out
+        return out, lins
 
     # ------------------------------------------------------------------ landmarks
-    def _landmark_factor(self, lm: Landmark, k: int, z, T_BS, pose: gtsam.Pose3):
+    def _landmark_factor(self, lm: Landmark, k: int, z, T_BS, pose: gtsam.Pose3, lin: PairLinearization | None = None):
+        """``lin``: the pairing's linearisation at (pose, lm.estimate), when the association has it."""
         if lm.kind == "object":
             return point_factor(X(k), lm.key, z.position, z.covariance, T_BS, self.robust)
         if lm.kind == "pipe":
-            cov4 = line_observation_covariance(pose, lm.estimate, lm.anchor, T_BS, z.covariance)
+            cov4 = lin.R if lin is not None else line_observation_covariance(pose, lm.estimate, lm.anchor, T_BS, z.covariance)
             return line_factor(X(k), lm.key, lm.anchor, z.p, z.q, cov4, T_BS, self.robust)
         return structure_factor(X(k), lm.key, z.pose, z.covariance, T_BS, self.robust)
 
-    def _record(self, lm: Landmark, stamp: int, k: int, z, pose: gtsam.Pose3, T_BS, pose_cov: np.ndarray) -> None:
+    def _record(self, lm: Landmark, stamp: int, k: int, z, pose: gtsam.Pose3, T_BS, pose_cov: np.ndarray, lin: PairLinearization | None = None) -> None:
+        """``lin``: the observation's linearisation at (pose, lm.estimate), when the association has it."""
         lm.history.append(ObservationRecord(stamp, k, z))
-        lm.add_information(_observation_information(lm, z, pose, pose_cov, T_BS))
+        if lin is not None:
+            lm.add_information(_information(lin.H_x, lin.H_l, lin.R, pose_cov))
+        else:
+            lm.add_information(_observation_information(lm, z, pose, pose_cov, T_BS))
         if isinstance(z, PointObservation) and z.class_likelihood:
             lm.class_likelihoods.append(dict(z.class_likelihood))
         if lm.kind == "pipe":
@@ -1142,6 +1154,11 @@ def _observation_information(lm: Landmark, z, pose: gtsam.Pose3, pose_cov: np.nd
     else:
         _, H_x, H_l = structure_residual(pose, lm.estimate, T_BS, z.pose, jac=True)
         R = z.covariance
+    return _information(H_x, H_l, R, pose_cov)
+
+
+def _information(H_x: np.ndarray, H_l: np.ndarray, R: np.ndarray, pose_cov: np.ndarray) -> np.ndarray:
+    """H_lᵀ (R + H_x P H_xᵀ)⁻¹ H_l."""
     S = R + H_x @ pose_cov @ H_x.T
     return H_l.T @ np.linalg.solve(S, H_l)
 
