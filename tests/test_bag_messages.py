@@ -324,3 +324,92 @@ def test_uniform_grid_of_sparse_and_irregular_swaths():
         assert np.all(np.diff(idx) > 0)
     with pytest.raises(Unencodable, match="not on a uniform grid"):
         uniform_grid(np.array([0.0, 0.1, 0.1 * np.pi, 0.7]))
+
+
+def _ros1_odometry_imu_bag(path: Path, broken: bytes | None = None) -> Path:
+    """A ROS 1 bag of Odometry and Imu messages covering what their decoders distinguish (no orientation,
+    no angular rate, NaN, a header stamp of 0), plus optionally one raw Odometry message ``broken``."""
+    from rosbags.rosbag1 import Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    store = get_typestore(Stores.ROS1_NOETIC)
+    T = store.types
+    v3 = lambda x, y, z: T["geometry_msgs/msg/Vector3"](x=x, y=y, z=z)  # noqa: E731
+    quat = lambda a: T["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=np.sin(a), w=np.cos(a) if a == a else 1.0)  # noqa: E731
+    ocov, no = np.diag([1e-4, 1e-4, 1e-3]).reshape(9), np.array([-1.0] + [0.0] * 8)
+
+    def imu(t, stamp, q, oc, wc):
+        return T["sensor_msgs/msg/Imu"](
+            header=header(store, 1, stamp, frame="ahrs_ü"), orientation=q, orientation_covariance=oc,
+            angular_velocity=v3(0.1, -0.2, 0.3), angular_velocity_covariance=wc, linear_acceleration=v3(0, 0, 9.8),
+            linear_acceleration_covariance=no)
+
+    def odom(t, x):
+        pwc = T["geometry_msgs/msg/PoseWithCovariance"](
+            pose=T["geometry_msgs/msg/Pose"](position=T["geometry_msgs/msg/Point"](x=x, y=-2.5, z=1e-3 * t / 1e9),
+                                             orientation=quat(0.2)), covariance=np.arange(36.0))
+        twc = T["geometry_msgs/msg/TwistWithCovariance"](
+            twist=T["geometry_msgs/msg/Twist"](linear=v3(1, 2, 3), angular=v3(4, 5, 6)), covariance=np.ones(36))
+        return T["nav_msgs/msg/Odometry"](header=header(store, 1, t), child_frame_id="base", pose=pwc, twist=twc)
+
+    s = 10**9
+    imus = [(s, imu(s, s, quat(0.25), ocov, np.zeros(9))), (2 * s, imu(2 * s, 0, quat(0.3), ocov, no)),
+            (3 * s, imu(3 * s, 3 * s, quat(0.3), no, np.zeros(9))), (4 * s, imu(4 * s, 4 * s, quat(np.nan), ocov, no))]
+    odoms = [(t, odom(t, x)) for t, x in [(s, 0.5), (2 * s, np.inf), (3 * s, 1.0 / 3.0)]]
+    with Writer(path) as writer:
+        ci = writer.add_connection("/imu", "sensor_msgs/msg/Imu", typestore=store)
+        co = writer.add_connection("/odom", "nav_msgs/msg/Odometry", typestore=store)
+        for t, m in imus:
+            writer.write(ci, t, store.serialize_ros1(m, "sensor_msgs/msg/Imu"))
+        for t, m in odoms:
+            writer.write(co, t, store.serialize_ros1(m, "nav_msgs/msg/Odometry"))
+        if broken is not None:
+            writer.write(co, 5 * s, broken)
+    return path
+
+
+def _read_all(path: Path, fast: bool, cfg: ReaderConfig | None = None):
+    import semslam.mission.bag_reader as bag_reader
+
+    saved = bag_reader.ROS1_FAST
+    bag_reader.ROS1_FAST = saved if fast else {}
+    try:
+        m = read_mission(path, cfg)
+        exact = lambda v: (v.dtype.str, v.shape, v.tobytes()) if isinstance(v, np.ndarray) else repr(v)  # noqa: E731
+        return [(type(x), [(k, exact(v)) for k, v in vars(x).items()]) for x in m], dict(m.dropped_fields)
+    except MissionError as exc:
+        return str(exc)
+    finally:
+        bag_reader.ROS1_FAST = saved
+
+
+def test_ros1_fast_path_gives_the_general_paths_measurements_and_errors(tmp_path):
+    """ROS 1 Odometry and Imu are parsed from their bytes (semslam.mission.conversions.ROS1_FAST):
+    the same measurements, drops and errors as through rosbags' message objects."""
+    path = _ros1_odometry_imu_bag(tmp_path / "ok.bag")
+    from semslam.mission.bag_reader import _fast_paths, open_bag
+
+    with open_bag(path) as reader:
+        assert set(_fast_paths(reader, reader.connections, 1)) == {"/imu", "/odom"}
+    fast, general = _read_all(path, True), _read_all(path, False)
+    assert fast == general
+    assert len(fast[0]) == 4 and fast[1] == {"imu": {"orientation_covariance": 1, "orientation": 1},
+                                             "odom": {"position": 1}}
+    strict = ReaderConfig(on_nonfinite="error")
+    assert "field position is not finite" in _read_all(path, True, strict) == _read_all(path, False, strict)
+
+    raw = _first_raw(path, "/odom")  # broken variants: truncated, too long, cut in the header, a frame id
+    bad_utf8 = raw.replace(b"base", b"ba\xffe")
+    # that is not UTF-8, a frame id longer than the message
+    for i, broken in enumerate([raw[:-8], raw + b"\0" * 8, raw[:14], bad_utf8, raw[:12] + b"\xff\xff\xff\x7f" + raw[16:]]):
+        p = _ros1_odometry_imu_bag(tmp_path / f"bad{i}.bag", broken)
+        err = _read_all(p, True)
+        assert isinstance(err, str) and "topic /odom: message at t=5.000000 s cannot be decoded as nav_msgs/Odometry" in err
+        assert err == _read_all(p, False)
+
+
+def _first_raw(path: Path, topic: str) -> bytes:
+    from rosbags.rosbag1 import Reader
+
+    with Reader(path) as r:
+        return next(raw for c, _, raw in r.messages() if c.topic == topic)

@@ -31,8 +31,10 @@ from semslam.mission import sidecar
 from semslam.mission.config import ReaderConfig
 from semslam.mission.conversions import (
     CODECS,
+    ROS1_FAST,
     Codec,
     MalformedMessage,
+    Ros1Fast,
     Unusable,
     nonfinite_field,
     normalize_msgtype,
@@ -99,6 +101,7 @@ class BagMission(Mission):
         seq = 0
         with open_bag(self.path) as reader:
             conns = [c for c in reader.connections if c.topic in by_topic]
+            fast = _fast_paths(reader, conns, self.ros_version)
             messages = reader.messages(connections=conns)
             while True:
                 try:
@@ -109,25 +112,33 @@ class BagMission(Mission):
                     break
                 conn, t_bag, raw = item
                 b = by_topic[conn.topic]
-                where = f"{self.path}: topic {b.topic}"
-                try:
-                    msg = reader.deserialize(raw, conn.msgtype)
-                except Exception as exc:
-                    raise MissionError(
-                        f"{where}: message at t={t_bag * 1e-9:.6f} s cannot be decoded as "
-                        f"{short_msgtype(conn.msgtype)} ({_one_line(exc)})"
-                    ) from None
-                stamp = stamp_ns(msg.header) or t_bag
+                f = fast.get(b.topic)
+                parsed = f.parse(raw) if f is not None else None
+                if parsed is None:
+                    try:
+                        msg = reader.deserialize(raw, conn.msgtype)
+                    except Exception as exc:
+                        raise MissionError(
+                            f"{self.path}: topic {b.topic}: message at t={t_bag * 1e-9:.6f} s cannot be decoded as "
+                            f"{short_msgtype(conn.msgtype)} ({_one_line(exc)})"
+                        ) from None
+                    header_stamp = stamp_ns(msg.header)
+                else:
+                    header_stamp, values = parsed
+                stamp = header_stamp or t_bag
                 if stamp < last_stamp.get(b.topic, stamp):
                     raise MissionError(
-                        f"{where}: header stamps go backwards ({stamp * 1e-9:.6f} s after "
+                        f"{self.path}: topic {b.topic}: header stamps go backwards ({stamp * 1e-9:.6f} s after "
                         f"{last_stamp[b.topic] * 1e-9:.6f} s)"
                     )
                 last_stamp[b.topic] = stamp
                 try:
-                    m = b.codec.decode(msg, b.sensor, cfg)
+                    if parsed is None:
+                        m = b.codec.decode(msg, b.sensor, cfg)
+                    else:
+                        m = f.build(header_stamp, values, b.sensor, cfg)
                 except MalformedMessage as exc:
-                    raise MissionError(f"{where}: {exc} (message at t={stamp * 1e-9:.6f} s)") from None
+                    raise MissionError(f"{self.path}: topic {b.topic}: {exc} (message at t={stamp * 1e-9:.6f} s)") from None
                 except Unusable as exc:  # e.g. an Imu without orientation: no AHRS reading in it
                     dropped[b.sensor] += 1
                     fields[b.sensor][exc.field] += 1
@@ -137,13 +148,13 @@ class BagMission(Mission):
                 bad = nonfinite_field(m)
                 if bad is not None:
                     if cfg.on_nonfinite == "error":
-                        raise MissionError(f"{where}: field {bad} is not finite (message at t={stamp * 1e-9:.6f} s)")
+                        raise MissionError(f"{self.path}: topic {b.topic}: field {bad} is not finite (message at t={stamp * 1e-9:.6f} s)")
                     dropped[b.sensor] += 1
                     fields[b.sensor][bad] += 1
                     continue
                 if stamp < released:
                     raise MissionError(
-                        f"{where}: message stamped {stamp * 1e-9:.6f} s arrived after messages stamped more "
+                        f"{self.path}: topic {b.topic}: message stamped {stamp * 1e-9:.6f} s arrived after messages stamped more "
                         f"than reorder_window_s={cfg.reorder_window_s} s later (raise reorder_window_s)"
                     )
                 heapq.heappush(heap, (stamp, seq, m))
@@ -158,6 +169,37 @@ class BagMission(Mission):
         self.dropped.clear()
         self.dropped.update(dropped)
         self.dropped_fields = dict(fields)
+
+
+def _fast_paths(reader, conns, ros_version: int) -> dict[str, Ros1Fast]:
+    """Topic → the fast path of its message type (ROS 1 only), where the bag's definition of that
+    type, nested types included, is the standard one that the fast path reads."""
+    if ros_version != 1:
+        return {}
+    standard = typestore(1)
+    out = {}
+    for c in conns:
+        f = ROS1_FAST.get(normalize_msgtype(c.msgtype))
+        try:
+            if f is not None and _layout(reader.typestore, c.msgtype) == _layout(standard, normalize_msgtype(c.msgtype)):
+                out[c.topic] = f
+        except KeyError:  # a type the store does not know: the general path says what is wrong
+            pass
+    return out
+
+
+def _layout(store, typename: str) -> tuple:
+    """The fields of ``typename`` with every nested type replaced by its own fields, recursively."""
+    from rosbags.typesys.base import Nodetype
+
+    def walk(d):
+        if isinstance(d, tuple):
+            if len(d) == 2 and d[0] == Nodetype.NAME and isinstance(d[1], str):
+                return (Nodetype.NAME, _layout(store, d[1]))
+            return tuple(walk(x) for x in d)
+        return d
+
+    return walk(tuple(store.fielddefs[typename][1]))
 
 
 def _one_line(exc: BaseException) -> str:

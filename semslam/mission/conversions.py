@@ -40,6 +40,7 @@ Conventions worth knowing:
 
 from __future__ import annotations
 
+import struct
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -95,14 +96,7 @@ def stamp_ns(header) -> int:
 
 def nonfinite_field(m: Measurement) -> str | None:
     """Name of the first field holding NaN/inf (same rule as ``Measurement.is_finite``), else None."""
-    if m.is_finite():
-        return None
-    for name, value in vars(m).items():
-        if isinstance(value, np.ndarray) and value.dtype.kind == "f" and not np.isfinite(value).all():
-            return name
-        if isinstance(value, float) and not np.isfinite(value):
-            return name
-    return "?"  # pragma: no cover - is_finite and this scan agree
+    return m.nonfinite_field()
 
 
 # ----------------------------------------------------------------------------------------------
@@ -252,6 +246,92 @@ def _decode_cola2_dvl(msg, sensor: str, cfg: ReaderConfig) -> DvlVelocity:
 def _decode_odometry(msg, sensor: str, cfg: ReaderConfig) -> GroundTruthPose:
     p, q = msg.pose.pose.position, msg.pose.pose.orientation
     return GroundTruthPose(stamp_ns(msg.header), sensor, position=(p.x, p.y, p.z), orientation=(q.x, q.y, q.z, q.w))
+
+
+# ----------------------------------------------------------------------------------------------
+# ROS 1 fast path: the most frequent messages parsed straight from their bytes
+# ----------------------------------------------------------------------------------------------
+# rosbags builds a message object per nested type (an Odometry: ten of them, ~43 µs); the tank
+# mission's 24,501 ground-truth poses and 9800 AHRS readings took ~1.3 s of it. For these fixed
+# layouts, ``parse`` reads the header stamp and the numbers the decoder uses (as rosbags would:
+# little-endian, the stamp's sec int32), and ``build`` makes the same measurement as the decoder.
+# ``parse`` accepts only what rosbags accepts (strings inside the message and valid UTF-8, the
+# size exact) and returns None otherwise: the caller then takes the general path, whose error
+# it reports as before.
+
+_U32 = struct.Struct("<I")
+_TIME = struct.Struct("<iI")
+_ODOMETRY_POSE = struct.Struct("<7d")  # pose.pose: position, orientation (x, y, z, w)
+_ODOMETRY_AFTER_CHILD = 8 * (7 + 36 + 6 + 36)  # pose (pose, covariance), twist (twist, covariance)
+_IMU_BODY = struct.Struct("<37d")  # orientation, its covariance, angular velocity, its cov., accel., its cov.
+
+
+def _ros1_string_end(raw, pos: int) -> int | None:
+    """End of the ROS 1 string at ``pos`` (uint32 length, UTF-8 bytes), None if rosbags would reject it."""
+    if pos + 4 > len(raw):
+        return None
+    end = pos + 4 + _U32.unpack_from(raw, pos)[0]
+    if end > len(raw):
+        return None
+    try:
+        bytes(raw[pos + 4 : end]).decode()
+    except UnicodeDecodeError:
+        return None
+    return end
+
+
+def _ros1_header(raw) -> tuple[int, int] | None:
+    """(stamp ns, end) of the std_msgs/Header at the start of ``raw`` (seq, stamp, frame_id)."""
+    if len(raw) < 12:
+        return None
+    sec, nanosec = _TIME.unpack_from(raw, 4)
+    end = _ros1_string_end(raw, 12)
+    return None if end is None else (sec * 1_000_000_000 + nanosec, end)
+
+
+def _parse_odometry_ros1(raw):
+    head = _ros1_header(raw)
+    if head is None:
+        return None
+    stamp, pos = head
+    pos = _ros1_string_end(raw, pos)  # child_frame_id
+    if pos is None or pos + _ODOMETRY_AFTER_CHILD != len(raw):
+        return None
+    return stamp, _ODOMETRY_POSE.unpack_from(raw, pos)
+
+
+def _build_odometry(stamp: int, v: tuple, sensor: str, cfg: ReaderConfig) -> GroundTruthPose:
+    return GroundTruthPose(stamp, sensor, position=v[0:3], orientation=v[3:7])
+
+
+def _parse_imu_ros1(raw):
+    head = _ros1_header(raw)
+    if head is None or head[1] + _IMU_BODY.size != len(raw):
+        return None
+    return head[0], _IMU_BODY.unpack_from(raw, head[1])
+
+
+def _build_imu(stamp: int, v: tuple, sensor: str, cfg: ReaderConfig) -> Attitude:
+    ocov = np.array(v[4:13], dtype=float).reshape(3, 3)
+    if ocov[0, 0] == -1.0:
+        raise Unusable("orientation_covariance", "-1: no orientation in this Imu message (REP 145)")
+    rate = v[13:16] if v[16] != -1.0 else None
+    return Attitude(stamp, sensor, orientation=v[0:4], covariance=ocov, angular_rate=rate)
+
+
+@dataclass(frozen=True)
+class Ros1Fast:
+    """A message type's fast path: ``parse(raw) -> (header stamp, values) | None`` and
+    ``build(stamp, values, sensor, cfg) -> Measurement`` (may raise as the decoder does)."""
+
+    parse: Callable[[object], tuple[int, tuple] | None]
+    build: Callable[[int, tuple, str, ReaderConfig], Measurement]
+
+
+ROS1_FAST: dict[str, Ros1Fast] = {
+    "nav_msgs/msg/Odometry": Ros1Fast(_parse_odometry_ros1, _build_odometry),
+    "sensor_msgs/msg/Imu": Ros1Fast(_parse_imu_ros1, _build_imu),
+}
 
 
 def _decode_laserscan(msg, sensor: str, cfg: ReaderConfig) -> SonarSwath:

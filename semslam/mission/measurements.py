@@ -8,6 +8,7 @@ Arrays are made read-only so that a measurement really is immutable once built.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -21,6 +22,14 @@ def _frozen(a, dtype=np.float64, shape=None) -> np.ndarray:
     return arr
 
 
+def _all_finite(a: np.ndarray) -> bool:
+    """No NaN or inf in the float array ``a``. Small arrays (a pose, a 3×3 covariance: most of a
+    mission's measurements) through Python floats, ~4× cheaper than NumPy's per-call overhead."""
+    if a.size <= 64 and a.dtype.itemsize <= 8:
+        return all(map(math.isfinite, a.ravel().tolist()))
+    return bool(np.isfinite(a).all())
+
+
 @dataclass(frozen=True)
 class Measurement:
     """Base of all measurements: ``stamp`` in ns, ``sensor`` the sensor name of the mission."""
@@ -30,12 +39,17 @@ class Measurement:
 
     def is_finite(self) -> bool:
         """False if any numeric field holds NaN or inf (such measurements are dropped and counted)."""
-        for value in vars(self).values():
-            if isinstance(value, np.ndarray) and value.dtype.kind == "f" and not np.isfinite(value).all():
-                return False
-            if isinstance(value, float) and not np.isfinite(value):
-                return False
-        return True
+        return self.nonfinite_field() is None
+
+    def nonfinite_field(self) -> str | None:
+        """Name of the first field holding NaN or inf, else None (the rule of :meth:`is_finite`)."""
+        for name, value in vars(self).items():
+            if isinstance(value, np.ndarray):
+                if value.dtype.kind == "f" and not _all_finite(value):
+                    return name
+            elif isinstance(value, float) and not math.isfinite(value):
+                return name
+        return None
 
 
 @dataclass(frozen=True)
@@ -56,9 +70,9 @@ class DvlVelocity(Measurement):
         object.__setattr__(self, "velocity", _frozen(self.velocity, shape=(3,)))
         object.__setattr__(self, "covariance", _frozen(self.covariance, shape=(3, 3)))
 
-    def is_finite(self) -> bool:
+    def nonfinite_field(self) -> str | None:
         # An invalid DVL reading may legitimately carry NaN velocity; it is kept as a dropout marker.
-        return (not self.valid) or super().is_finite()
+        return super().nonfinite_field() if self.valid else None
 
 
 @dataclass(frozen=True)
