@@ -36,7 +36,6 @@ from semslam.mission.conversions import (
     MalformedMessage,
     Ros1Fast,
     Unusable,
-    nonfinite_field,
     normalize_msgtype,
     short_msgtype,
     stamp_ns,
@@ -102,6 +101,7 @@ class BagMission(Mission):
         with open_bag(self.path) as reader:
             conns = [c for c in reader.connections if c.topic in by_topic]
             fast = _fast_paths(reader, conns, self.ros_version)
+            where = {t: f"{self.path}: topic {t}" for t in by_topic}  # every error's prefix, per topic
             messages = reader.messages(connections=conns)
             while True:
                 try:
@@ -119,7 +119,7 @@ class BagMission(Mission):
                         msg = reader.deserialize(raw, conn.msgtype)
                     except Exception as exc:
                         raise MissionError(
-                            f"{self.path}: topic {b.topic}: message at t={t_bag * 1e-9:.6f} s cannot be decoded as "
+                            f"{where[b.topic]}: message at t={t_bag * 1e-9:.6f} s cannot be decoded as "
                             f"{short_msgtype(conn.msgtype)} ({_one_line(exc)})"
                         ) from None
                     header_stamp = stamp_ns(msg.header)
@@ -128,7 +128,7 @@ class BagMission(Mission):
                 stamp = header_stamp or t_bag
                 if stamp < last_stamp.get(b.topic, stamp):
                     raise MissionError(
-                        f"{self.path}: topic {b.topic}: header stamps go backwards ({stamp * 1e-9:.6f} s after "
+                        f"{where[b.topic]}: header stamps go backwards ({stamp * 1e-9:.6f} s after "
                         f"{last_stamp[b.topic] * 1e-9:.6f} s)"
                     )
                 last_stamp[b.topic] = stamp
@@ -138,23 +138,23 @@ class BagMission(Mission):
                     else:
                         m = f.build(header_stamp, values, b.sensor, cfg)
                 except MalformedMessage as exc:
-                    raise MissionError(f"{self.path}: topic {b.topic}: {exc} (message at t={stamp * 1e-9:.6f} s)") from None
+                    raise MissionError(f"{where[b.topic]}: {exc} (message at t={stamp * 1e-9:.6f} s)") from None
                 except Unusable as exc:  # e.g. an Imu without orientation: no AHRS reading in it
                     dropped[b.sensor] += 1
                     fields[b.sensor][exc.field] += 1
                     continue
                 if m.stamp != stamp:
                     m = dataclasses.replace(m, stamp=stamp)
-                bad = nonfinite_field(m)
+                bad = m.nonfinite_field()
                 if bad is not None:
                     if cfg.on_nonfinite == "error":
-                        raise MissionError(f"{self.path}: topic {b.topic}: field {bad} is not finite (message at t={stamp * 1e-9:.6f} s)")
+                        raise MissionError(f"{where[b.topic]}: field {bad} is not finite (message at t={stamp * 1e-9:.6f} s)")
                     dropped[b.sensor] += 1
                     fields[b.sensor][bad] += 1
                     continue
                 if stamp < released:
                     raise MissionError(
-                        f"{self.path}: topic {b.topic}: message stamped {stamp * 1e-9:.6f} s arrived after messages stamped more "
+                        f"{where[b.topic]}: message stamped {stamp * 1e-9:.6f} s arrived after messages stamped more "
                         f"than reorder_window_s={cfg.reorder_window_s} s later (raise reorder_window_s)"
                     )
                 heapq.heappush(heap, (stamp, seq, m))

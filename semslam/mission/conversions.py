@@ -94,11 +94,6 @@ def stamp_ns(header) -> int:
     return int(header.stamp.sec) * 1_000_000_000 + int(header.stamp.nanosec)
 
 
-def nonfinite_field(m: Measurement) -> str | None:
-    """Name of the first field holding NaN/inf (same rule as ``Measurement.is_finite``), else None."""
-    return m.nonfinite_field()
-
-
 # ----------------------------------------------------------------------------------------------
 # Decoding: message object → measurement (MalformedMessage: broken; Unusable: nothing to use)
 # ----------------------------------------------------------------------------------------------
@@ -188,15 +183,19 @@ def _decode_pointcloud2(msg, sensor: str, cfg: ReaderConfig) -> PointCloud:
 
 
 def _decode_imu(msg, sensor: str, cfg: ReaderConfig) -> Attitude:
-    ocov = np.asarray(msg.orientation_covariance, dtype=float).reshape(3, 3)
+    q, w = msg.orientation, msg.angular_velocity
+    return _imu_attitude(stamp_ns(msg.header), sensor, (q.x, q.y, q.z, q.w), msg.orientation_covariance,
+                         (w.x, w.y, w.z), msg.angular_velocity_covariance[0])
+
+
+def _imu_attitude(stamp: int, sensor: str, orientation, orientation_cov, rate, rate_cov_00: float) -> Attitude:
+    """The AHRS reading of an Imu message's numbers (REP 145: a covariance starting with −1 means
+    the quantity is absent), whether rosbags or the ROS 1 fast path read them."""
+    ocov = np.asarray(orientation_cov, dtype=float).reshape(3, 3)
     if ocov[0, 0] == -1.0:
         raise Unusable("orientation_covariance", "-1: no orientation in this Imu message (REP 145)")
-    q = msg.orientation
-    rate = None
-    if msg.angular_velocity_covariance[0] != -1.0:
-        w = msg.angular_velocity
-        rate = (w.x, w.y, w.z)
-    return Attitude(stamp_ns(msg.header), sensor, orientation=(q.x, q.y, q.z, q.w), covariance=ocov, angular_rate=rate)
+    return Attitude(stamp, sensor, orientation=orientation, covariance=ocov,
+                    angular_rate=rate if rate_cov_00 != -1.0 else None)
 
 
 def _decode_fluid_pressure(msg, sensor: str, cfg: ReaderConfig) -> Depth:
@@ -312,11 +311,7 @@ def _parse_imu_ros1(raw):
 
 
 def _build_imu(stamp: int, v: tuple, sensor: str, cfg: ReaderConfig) -> Attitude:
-    ocov = np.array(v[4:13], dtype=float).reshape(3, 3)
-    if ocov[0, 0] == -1.0:
-        raise Unusable("orientation_covariance", "-1: no orientation in this Imu message (REP 145)")
-    rate = v[13:16] if v[16] != -1.0 else None
-    return Attitude(stamp, sensor, orientation=v[0:4], covariance=ocov, angular_rate=rate)
+    return _imu_attitude(stamp, sensor, v[0:4], v[4:13], v[13:16], v[16])
 
 
 @dataclass(frozen=True)
