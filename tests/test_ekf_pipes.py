@@ -31,12 +31,13 @@ def test_robust_ends_are_not_biased_outwards_by_noise():
 def test_gap_and_separation_by_an_in_line_object():
     ext = _Extent()
     ext.add(seg(0.0, 2.0), 0.05)
-    assert ext.gap(seg(1.0, 2.5), M, D) == 0.0
-    assert abs(ext.gap(seg(2.4, 3.5), M, D) - 0.4) < 1e-9
+    span = ext.interval(M, D)
+    assert ext.gap(seg(1.0, 2.5), M, D, span) == 0.0
+    assert abs(ext.gap(seg(2.4, 3.5), M, D, span) - 0.4) < 1e-9
     valve = np.array([[2.2, 2.0, 4.0]])
     off_line = np.array([[2.2, 2.5, 4.0]])
-    assert ext.separated(seg(2.3, 3.5), M, D, valve, radius=0.15)  # pipe B beyond the valve
-    assert not ext.separated(seg(2.3, 3.5), M, D, off_line, radius=0.15)
-    assert not ext.separated(seg(0.5, 1.8), M, D, valve, radius=0.15)  # a view inside pipe A
+    assert ext.separated(seg(2.3, 3.5), M, D, valve, 0.15, span)  # pipe B beyond the valve
+    assert not ext.separated(seg(2.3, 3.5), M, D, off_line, 0.15, span)
+    assert not ext.separated(seg(0.5, 1.8), M, D, valve, 0.15, span)  # a view inside pipe A
     elbow_at_end = np.array([[2.08, 2.0, 4.0]])
-    assert not ext.separated(seg(1.0, 1.9), M, D, elbow_at_end, radius=0.15)
+    assert not ext.separated(seg(1.0, 1.9), M, D, elbow_at_end, 0.15, span)

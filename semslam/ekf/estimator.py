@@ -237,20 +237,18 @@ class _Extent:
         a, b = self.interval(m, d, cutters, radius)
         return np.array([c + a * d, c + b * d])
 
-    def gap(self, ends_W: np.ndarray, m: np.ndarray, d: np.ndarray, cutters: np.ndarray | None = None,
-            radius: float = 0.0, span: tuple[float, float] | None = None) -> float:
-        """Gap (m) along the line between the seen extent (``span``: its ``interval`` when already
-        known) and a segment; 0 when they overlap."""
-        a, b = self.interval(m, d, cutters, radius) if span is None else span
+    def gap(self, ends_W: np.ndarray, m: np.ndarray, d: np.ndarray, span: tuple[float, float]) -> float:
+        """Gap (m) along the line between the seen extent ``span`` (its :meth:`interval`) and a
+        segment; 0 when they overlap."""
+        a, b = span
         s = (ends_W - geo.closest_point(m, d)) @ d
         return max(0.0, s.min() - b, a - s.max())
 
     def separated(self, ends_W: np.ndarray, m: np.ndarray, d: np.ndarray, objects: np.ndarray,
-                  radius: float, margin: float = 0.1, cutters: np.ndarray | None = None,
-                  span: tuple[float, float] | None = None) -> bool:
-        """True when an object (N×3, in {W}) on the line lies between the seen extent (cut at
-        ``cutters``; ``span``: its ``interval`` when already known) and the segment: collinear pipes
-        joined by an in-line part (a valve, a socket) are different pipes."""
+                  radius: float, span: tuple[float, float], margin: float = 0.1) -> bool:
+        """True when an object (N×3, in {W}) within ``radius`` of the line lies between the seen
+        extent ``span`` (its :meth:`interval`) and the segment: collinear pipes joined by an in-line
+        part (a valve, a socket) are different pipes."""
         if len(objects) == 0:
             return False
         c = geo.closest_point(m, d)
@@ -265,7 +263,7 @@ class _Extent:
             self._sep_memo = (key, np.array(m, float), np.array(d, float), s_on)
         if not len(s_on):
             return False
-        a, b = self.interval(m, d, cutters, radius) if span is None else span
+        a, b = span
         s = (ends_W - c) @ d
         lo, hi = (b - margin, s.min() + margin) if s.mean() > 0.5 * (a + b) else (s.max() - margin, a + margin)
         return bool(np.any((s_on > lo) & (s_on < hi)))
@@ -805,8 +803,8 @@ class EkfEstimator:
         mapped = self._mapped_object_positions() if mapped is None else mapped
         r = self.assoc.inline_object_radius_m
         span = extent.interval(m, d, mapped, r)
-        return extent.gap(ends_W, m, d, span=span) > self.assoc.pipe_extent_gap_m or extent.separated(
-            ends_W, m, d, objects, r, span=span)
+        return extent.gap(ends_W, m, d, span) > self.assoc.pipe_extent_gap_m or extent.separated(
+            ends_W, m, d, objects, r, span)
 
     def _mapped_object_positions(self) -> np.ndarray:
         idx = [f.index for f in self._features if f.kind == "object"]
