@@ -28,7 +28,9 @@ from multiprocessing's fork server instead, a fresh interpreter (no threads) tha
 front-ends' modules once (``set_forkserver_preload``): a spawned worker imported them itself (open3d
 and all, ~2.2 s of CPU each before its first message); a forked one starts in ~0.25 s, after the
 server's ~2.1 s once per process (tank mission, 2 workers: ~1.8 s of CPU less per run, the next
-runs in the same process ~4 s less). The server lives until this process exits.
+runs in the same process ~4 s less). The server lives until this process exits, with the
+environment it started with: each worker is handed this process's environment as it is when the
+worker is created (a front-end may read it at use, e.g. the recogniser's cache folder).
 """
 
 from __future__ import annotations
@@ -153,7 +155,7 @@ class _Worker:
         self.index = index
         self._in = ctx.Queue()
         self._out = ctx.Queue()
-        self._proc = ctx.Process(target=_work, args=(frontends, self._in, self._out), daemon=True,
+        self._proc = ctx.Process(target=_work, args=(frontends, self._in, self._out, dict(os.environ)), daemon=True,
                                  name=f"semslam-frontends-{index}")
         # Started aside: a forkserver's start waits for its child's pid, i.e. for the server to have
         # imported the front-ends (~2 s, once per process), while the caller could be reading the
@@ -219,8 +221,12 @@ class _Worker:
         self._out.close()
 
 
-def _work(frontends: list, inq, outq) -> None:
+def _work(frontends: list, inq, outq, environ: dict[str, str]) -> None:
     from threadpoolctl import threadpool_limits
+
+    # The caller's environment now, not the fork server's (frozen when the server started).
+    os.environ.clear()
+    os.environ.update(environ)
 
     # Below the estimators' priority: they consume the results in order, so on a machine with
     # fewer cores than processes a worker should take the CPU they leave, not the reverse

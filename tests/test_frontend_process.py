@@ -10,7 +10,7 @@ import pytest
 from semslam.backend.synthetic import SyntheticConfig, simulate
 from semslam.config import SemslamConfig
 from semslam.ekf import EkfEstimator
-from semslam.mission.measurements import Attitude, Measurement, PointCloud
+from semslam.mission.measurements import Attitude, Depth, Measurement, PointCloud
 from semslam.observations import PointObservation
 from semslam.pipeline import run_pipeline
 from semslam.registry import create_frontends
@@ -156,3 +156,33 @@ def test_a_replicated_front_end_observing_on_a_state_type_is_an_error():
     mission = simulate(SyntheticConfig(duration_s=20.0, seed=1))
     with pytest.raises(RuntimeError, match="'bad_att' observed on a Attitude"):
         run_pipeline(mission, [EkfEstimator(mission.metadata, SemslamConfig())], [ObservesOnAttitude()], frontend_workers=2)
+
+
+class EnvFrontend:
+    """Answers each depth reading with the value of SEMSLAM_TEST_ENV in its process."""
+
+    name: ClassVar[str] = "env"
+    consumes: ClassVar[tuple] = (Depth,)
+    uses_view: ClassVar[bool] = False
+
+    def process(self, measurement, view):
+        import os
+
+        return [os.environ.get("SEMSLAM_TEST_ENV")]
+
+
+def test_a_worker_sees_the_callers_environment_of_its_start(monkeypatch):
+    """Workers fork from a server started once per process: each must still see the environment as
+    it is when the worker is made (a front-end reads e.g. its cache folder from it), not the server's."""
+    from semslam.frontend_process import FrontendProcess
+
+    seen = []
+    for value in ("first", "second"):
+        monkeypatch.setenv("SEMSLAM_TEST_ENV", value)
+        proc = FrontendProcess([EnvFrontend()])
+        try:
+            assert proc.submit(Depth(stamp=1, sensor="depth", depth=1.0))
+            seen.append(proc.result()["env"][0])
+        finally:
+            proc.close()
+    assert seen == [["first"], ["second"]]
