@@ -136,3 +136,77 @@ def test_a_collinear_pipe_stub_beyond_a_lone_end_gives_two_connections():
     pts, pipes = _pipe_with_end(cap=True, body=True)
     (o,) = segment_objects(np.vstack([pts, shell(0.22, 0.34, 60)]), pipes, up, cfg)
     assert o.configuration == 2 and len(o.directions) == 2 and o.directions[0] @ o.directions[1] < -0.99
+
+
+def test_a_fitting_body_fitted_as_a_short_pipe_between_collinear_pipes_is_one_inline_object():
+    """A tee seen without its branch: its straight body, fitted as an 8 cm pipe between the two pipes
+    in line, adds two ends on their line. Four ends, two directions: two collinear connections,
+    centred between the pipes (as a junction its centre would be the crossing of parallel lines)."""
+    from frontends.laser.config import ObjectConfig
+    from frontends.laser.objects import _site
+
+    cfg = ObjectConfig()
+    x = np.array([1.0, 0, 0])
+    tilt = np.array([np.cos(0.03), np.sin(0.03), 0.0])  # fits are never exactly parallel
+    ends = np.array([[-0.10, 0, 2.0], [-0.04, 0.001, 2.0], [0.04, -0.001, 2.0], [0.10, 0.002, 2.0]])
+    out = np.array([x, -tilt, tilt, -x])
+    guess = ends + 0.15 * out
+    site = _site(np.arange(4), ends, out, guess, np.array([0, 0, -1.0]), cfg)
+    assert site.config == 2 and len(site.dirs) == 2 and site.dirs[0] @ site.dirs[1] < -0.99
+    assert np.linalg.norm(site.center - [0, 0, 2.0]) < 0.01
+    # a real junction keeps its crossing: a pipe leaving sideways makes three directions
+    y = np.array([0, 1.0, 0])
+    site = _site(np.arange(3), np.array([[-0.1, 0, 2.0], [0.1, 0, 2.0], [0, -0.1, 2.0]]), np.array([x, -x, y]),
+                 guess[:3], np.array([0, 0, -1.0]), cfg)
+    assert site.config == 4 and np.linalg.norm(site.center - [0, 0, 2.0]) < 1e-9
+
+
+def _pipe_running_on(beyond_radius: float, beyond_to: float):
+    """A pipe along +x (radius 31.5 mm, seen from above) fitted up to x = 0, with more of a
+    cylinder of ``beyond_radius`` from x = 0 to ``beyond_to`` that is not among its inliers."""
+    from frontends.laser.config import PipeConfig
+    from frontends.laser.pipes import _make_pipe
+
+    rng = np.random.default_rng(5)
+    r = 0.0315
+
+    def shell(x0, x1, radius, n):
+        th = rng.uniform(-1.3, 1.3, n)
+        return np.column_stack([rng.uniform(x0, x1, n), radius * np.sin(th), 2.0 - radius * np.cos(th)]), th
+
+    fitted, th = shell(-0.5, 0.0, r, 600)
+    normals = np.column_stack([np.zeros(600), np.sin(th), -np.cos(th)])
+    pipe = _make_pipe(fitted, normals, np.arange(600), np.array([1.0, 0, 0]), PipeConfig(radius_prior=r))
+    return np.vstack([fitted, shell(0.0, beyond_to, beyond_radius, 120)[0]]), [pipe]
+
+
+def test_a_pipe_running_on_past_its_fitted_end_is_no_object_but_a_socket_is():
+    from frontends.laser.config import ObjectConfig
+    from frontends.laser.objects import segment_objects
+
+    up, cfg = np.array([0.0, 0.0, -1.0]), ObjectConfig()
+    pts, pipes = _pipe_running_on(0.0315, 0.15)  # the sparse far part of the same pipe
+    assert segment_objects(pts, pipes, up, cfg) == []
+    pts, pipes = _pipe_running_on(0.0315 + 0.008, 0.06)  # a socket: 8 mm wider than its pipe
+    (o,) = segment_objects(pts, pipes, up, cfg)
+    assert o.configuration == 1 and 0.0 < o.position[0] < 0.06
+
+
+def test_one_object_per_cluster_the_best_supported():
+    """Objects sharing at least half of the smaller cloud are one: the one on the longest pipes stays
+    (a valve's lever fitted as a 10 cm pipe puts a second object on the valve's points)."""
+    from frontends.laser.objects import SegmentedObject, one_per_cluster
+    from frontends.laser.pipes import Pipe
+
+    def pipe(length):
+        return Pipe(np.zeros(3), np.array([length, 0, 0]), np.array([1.0, 0, 0]), 0.03, np.arange(0), np.eye(6))
+
+    def obj(indices, pipe_ids):
+        return SegmentedObject(np.zeros(3), np.eye(3), np.asarray(indices), np.zeros((1, 3)), 1, pipe_ids)
+
+    pipes = [pipe(0.10), pipe(0.80), pipe(0.50)]
+    lever = obj(np.arange(50, 120), (0,))  # listed first, on the short piece: 50 of its 70 points shared
+    valve = obj(np.arange(0, 100), (1,))
+    other = obj(np.arange(200, 260), (0,))  # its own points
+    near = obj(np.arange(90, 190), (2,))  # shares 10 of 70 with the lever, 10 of 100 with the valve
+    assert one_per_cluster([lever, valve, other, near], pipes, 300) == [valve, other, near]

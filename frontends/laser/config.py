@@ -244,6 +244,13 @@ class ObjectConfig(_Section):
         description="fewest own points of an object at a lone pipe end: on the tank, free pipe ends (end caps) have "
         "0-1, the fittings seen from one pipe ≥ 14",
     )
+    tail_tolerance: float = Field(
+        0.003,
+        gt=0,
+        description="a lone pipe end's object is the pipe running on (its sparse far part not fitted), not a "
+        "fitting, when its points beyond the end lie within this of the pipe's own radial level (m; the tank's "
+        "sockets are ≥ 6 mm wider than their pipes) and fewer than min_own_points are off its cylinder",
+    )
     stub_start: float = Field(
         0.20,
         gt=0,

@@ -150,6 +150,26 @@ def own_points(points: np.ndarray, end: np.ndarray, out: np.ndarray, radius: flo
     return int(((rad > radius + cfg.own_margin) | (t > cfg.own_beyond)).sum())
 
 
+def pipe_continues(points: np.ndarray, end: np.ndarray, out: np.ndarray, pipe: Pipe, all_points: np.ndarray,
+                   cfg: ObjectConfig) -> bool:
+    """Whether an object's ``points`` at a lone end of ``pipe`` (outward unit ``out``) are that pipe
+    running on past its fitted ``end`` (its sparse far part not taken as inliers) rather than a
+    fitting: fewer than ``min_own_points`` off its cylinder and, beyond the end, at the pipe's own
+    radial level (the median distance of its inliers, in ``all_points``, from its axis) within
+    ``tail_tolerance``. A socket or a port is wider than its pipe; an elbow or a body leaves the
+    cylinder."""
+    x = points - end
+    t = x @ out
+    rad = np.sqrt(np.maximum(row_dot(x, x) - t * t, 0.0))
+    beyond = t > cfg.own_beyond
+    if not beyond.any() or int((rad > pipe.radius + cfg.own_margin).sum()) >= cfg.min_own_points:
+        return False
+    y = np.take(all_points, pipe.inliers, axis=0) - pipe.p
+    s = y @ pipe.axis
+    level = np.median(np.sqrt(np.maximum(row_dot(y, y) - s * s, 0.0)))
+    return bool(np.median(rad[beyond]) - level <= cfg.tail_tolerance)
+
+
 def collinear_stub(points: np.ndarray, end: np.ndarray, out: np.ndarray, radius: float, cfg: ObjectConfig) -> bool:
     """Whether a second pipe leaves the object at a lone pipe end on the far side, in line with the
     first: ``points`` (not pipe inliers) on that pipe's cylinder (``radius``) continued beyond the
@@ -216,22 +236,38 @@ class _Site(NamedTuple):
     center: np.ndarray
     R: np.ndarray  # box frame: along the first pipe, across, up
     members: np.ndarray  # pipe-end indices
-    dirs: np.ndarray  # pipe axes leaving the object
-    ends: np.ndarray
+    dirs: np.ndarray  # distinct pipe axes leaving the object (the first: the first member's)
+    ends: np.ndarray  # of the members
     config: int
+
+
+def distinct_directions(directions: np.ndarray, collinear_angle_deg: float) -> np.ndarray:
+    """The directions (unit, K×3) with those in the same sense as an earlier one within
+    ``collinear_angle_deg`` left out, the first kept first."""
+    cos_c = np.cos(np.radians(collinear_angle_deg))
+    keep: list[int] = []
+    for k, d in enumerate(directions):
+        if all(d @ directions[j] < cos_c for j in keep):
+            keep.append(k)
+    return directions[keep]
 
 
 def _site(members, ends, out, guess, up, cfg: ObjectConfig) -> _Site:
     dirs = -out[members]
     e = ends[members]
-    config = configuration_of(dirs, cfg.collinear_angle_deg)
+    # Connectivity counts the directions pipes leave in, not the pipe ends: a fitting's straight
+    # body fitted as a short pipe between two collinear pipes adds two ends on their line (a tee
+    # seen without its branch: four ends, two directions). Counted as a junction, its centre would
+    # be the crossing of parallel lines, undetermined along them.
+    distinct = distinct_directions(dirs, cfg.collinear_angle_deg)
+    config = configuration_of(distinct, cfg.collinear_angle_deg)
     if config == 2:
         center = e.mean(axis=0)
     elif config in (3, 4):
         center = _line_intersection(e, dirs)
     else:
         center = guess[members[0]]
-    return _Site(center, box_frame(dirs[0], up), members, dirs, e, config)
+    return _Site(center, box_frame(dirs[0], up), members, distinct, e, config)
 
 
 def _crop(X: np.ndarray, rows: np.ndarray, site: _Site, cfg: ObjectConfig) -> np.ndarray:
@@ -245,19 +281,28 @@ def _crop(X: np.ndarray, rows: np.ndarray, site: _Site, cfg: ObjectConfig) -> np
     return rows[mask]
 
 
+_SHARED = 0.5  # two crops or clouds sharing this fraction of the smaller one's points are one object's
+
+
+def _shared_points(index_sets: list[np.ndarray], n_points: int):
+    """Sparse matrix of how many points each pair of index sets (into ``n_points``) shares."""
+    sizes = np.array([len(c) for c in index_sets])
+    rows = np.repeat(np.arange(len(index_sets)), sizes)
+    cols = np.concatenate(index_sets) if len(rows) else rows
+    C = coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(len(index_sets), n_points)).tocsr()
+    return (C @ C.T).tocsr()
+
+
 def _merge_overlapping(sites: list[_Site], crops: list[np.ndarray], out, owner, n_points: int, cfg: ObjectConfig) -> list[list[int]]:
     """Groups of sites that are one object: a lone pipe end that did not join the others (a pipe
     cut short before its fitting, so its end lies farther than ``max_port_distance``) and another
     site (lone or not) whose crops share at least half of the smaller one's points, and whose
     ends meet by the test of :func:`join_ends` with twice the port distance."""
     sizes = np.array([len(c) for c in crops])
-    rows = np.repeat(np.arange(len(crops)), sizes)
-    cols = np.concatenate(crops) if len(rows) else rows
-    C = coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(len(crops), n_points)).tocsr()
-    shared = (C @ C.T).tocoo()
+    shared = _shared_points(crops, n_points).tocoo()
     lone = np.array([site.config == 1 for site in sites])
     small = np.minimum(sizes[shared.row], sizes[shared.col])
-    cand = (shared.row < shared.col) & (lone[shared.row] | lone[shared.col]) & (shared.data >= 0.5 * np.maximum(small, 1))
+    cand = (shared.row < shared.col) & (lone[shared.row] | lone[shared.col]) & (shared.data >= _SHARED * np.maximum(small, 1))
     relaxed = cfg.model_copy(update={"max_port_distance": 2 * cfg.max_port_distance})
 
     def meet(a: int, b: int) -> bool:
@@ -337,8 +382,11 @@ def segment_objects(points: np.ndarray, pipes: list[Pipe], up: np.ndarray, cfg: 
         center, dirs, e = site.center, site.dirs, site.ends
         crop = crop[cluster]
         if site.config == 1:
-            radius = pipes[site.members[0] // 2].radius
-            if own_points(np.take(points, crop, axis=0), e[0], -dirs[0], radius, cfg) < cfg.min_own_points:
+            pipe = pipes[site.members[0] // 2]
+            P = np.take(points, crop, axis=0)
+            if own_points(P, e[0], -dirs[0], pipe.radius, cfg) < cfg.min_own_points:
+                continue
+            if pipe_continues(P, e[0], -dirs[0], pipe, points, cfg):
                 continue
         if len(crop) < cfg.min_points:
             continue
@@ -354,4 +402,22 @@ def segment_objects(points: np.ndarray, pipes: list[Pipe], up: np.ndarray, cfg: 
         cov = position_covariance(site.config, site.R, cfg)
         pipe_ids = tuple(int(m // 2) for m in site.members)
         objects.append(SegmentedObject(center, cov, crop, dirs, config, pipe_ids))
-    return objects
+    return one_per_cluster(objects, pipes, len(points))
+
+
+def one_per_cluster(objects: list[SegmentedObject], pipes: list[Pipe], n_points: int) -> list[SegmentedObject]:
+    """One object per cluster of points: of objects whose clouds share at least half of the smaller
+    one's points, the one whose attached pipes are the longest (then the larger cloud) is kept. A
+    valve's own parts fitted as short pipes (its disc's rim, its stem, its lever) put more sites on
+    its points, with their positions on those pieces' axes, 10-20 cm off."""
+    if len(objects) < 2:
+        return objects
+    shared = _shared_points([o.indices for o in objects], n_points).toarray()  # a scan's few objects: dense
+    sizes = np.array([len(o.indices) for o in objects])
+    support = [sum(pipes[k].length for k in set(o.pipes)) for o in objects]
+    order = sorted(range(len(objects)), key=lambda i: (-support[i], -sizes[i], i))
+    kept: list[int] = []
+    for i in order:
+        if not any(shared[i, j] >= _SHARED * min(sizes[i], sizes[j]) for j in kept):
+            kept.append(i)
+    return [objects[i] for i in sorted(kept)]
