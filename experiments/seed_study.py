@@ -4,9 +4,10 @@ simulator seeds: each seed draws its own pipe rack, noise and DVL dropouts.
 For each seed the tank mission is simulated (into a temporary folder, or read from ``--cache``),
 run through the laser front-end and dr / ekf / graph as `semslam demo` runs them (the demo's
 configuration), and the acceptance quantities are printed: ATE RMSE and SE(3)-aligned ATE, the
-graph/EKF and graph/DR ratios, object median error and duplicates. The absolute ATE carries the
-offset that both SLAM estimators inherit from the drift before the first landmark is seen, which no
-later measurement observes; the aligned ATE shows the shape of the trajectory without it.
+graph/EKF and graph/DR ratios, object median error, duplicates and the recognition's SEM F1. The
+absolute ATE carries the offset that both SLAM estimators inherit from the drift before the first
+landmark is seen, which no later measurement observes; the aligned ATE shows the shape of the
+trajectory without it.
 
     python experiments/seed_study.py [--seeds 0,1,2,3] [--cache DIR] [--json experiments/out/seed_study.json]
 """
@@ -40,8 +41,10 @@ def run_seed(seed: int, folder: Path) -> dict:
     fes = create_frontends(["laser"], mission.metadata, cfg.frontends)
     ests = [create_estimator(n, mission.metadata, cfg) for n in DEFAULT_ESTIMATORS]
     res = run_pipeline(mission, ests, fes, view_estimator="graph")
-    est = build_metrics(res, mission.metadata)["estimators"]
+    metrics = build_metrics(res, mission.metadata)
+    est = metrics["estimators"]
     out = {n: {k: est[n][k] for k in KEYS} for n in DEFAULT_ESTIMATORS}
+    out["sem_f1"] = (metrics.get("recognition") or {}).get("SEM", {}).get("f1")
     g, e, d = (out[n] for n in ("graph", "ekf", "dr"))
     out["ratios"] = {
         "graph/ekf ATE": g["ate_rmse_m"] / e["ate_rmse_m"],
@@ -70,7 +73,7 @@ def main() -> None:
                   + ", ".join(f"{k} {v:.2f}" for k, v in r["ratios"].items())
                   + f" | graph objects {r['graph']['n_objects']}, pipes {r['graph']['n_pipes']}, "
                   f"duplicates {r['graph']['landmark_duplicates']} (ekf {r['ekf']['landmark_duplicates']}), "
-                  f"object median error {r['graph']['object_median_error_m']:.3f} m", flush=True)
+                  f"object median error {r['graph']['object_median_error_m']:.3f} m, SEM F1 {r['sem_f1']:.3f}", flush=True)
     Path(args.json).parent.mkdir(parents=True, exist_ok=True)
     Path(args.json).write_text(json.dumps(results, indent=1))
 

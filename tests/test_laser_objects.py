@@ -154,6 +154,10 @@ def test_a_fitting_body_fitted_as_a_short_pipe_between_collinear_pipes_is_one_in
     site = _site(np.arange(4), ends, out, guess, np.array([0, 0, -1.0]), cfg)
     assert site.config == 2 and len(site.dirs) == 2 and site.dirs[0] @ site.dirs[1] < -0.99
     assert np.linalg.norm(site.center - [0, 0, 2.0]) < 0.01
+    # the centre is the middle of the gap between the pipes, wherever the body piece's axis lies
+    off_line = ends + np.array([0, 0.02, 0]) * np.array([[0], [1], [1], [0]])
+    site = _site(np.arange(4), off_line, out, guess, np.array([0, 0, -1.0]), cfg)
+    assert site.config == 2 and abs(site.center[1]) < 0.003
     # a real junction keeps its crossing: a pipe leaving sideways makes three directions
     y = np.array([0, 1.0, 0])
     site = _site(np.arange(3), np.array([[-0.1, 0, 2.0], [0.1, 0, 2.0], [0, -0.1, 2.0]]), np.array([x, -x, y]),
@@ -161,9 +165,10 @@ def test_a_fitting_body_fitted_as_a_short_pipe_between_collinear_pipes_is_one_in
     assert site.config == 4 and np.linalg.norm(site.center - [0, 0, 2.0]) < 1e-9
 
 
-def _pipe_running_on(beyond_radius: float, beyond_to: float):
+def _pipe_running_on(beyond_radius: float, beyond_to: float, then_pipe_to: float = 0.0, handle: bool = False):
     """A pipe along +x (radius 31.5 mm, seen from above) fitted up to x = 0, with more of a
-    cylinder of ``beyond_radius`` from x = 0 to ``beyond_to`` that is not among its inliers."""
+    cylinder of ``beyond_radius`` from x = 0 to ``beyond_to`` that is not among its inliers, then
+    (to ``then_pipe_to``) the pipe's own cylinder again, and optionally a handle above the end."""
     from frontends.laser.config import PipeConfig
     from frontends.laser.pipes import _make_pipe
 
@@ -177,7 +182,12 @@ def _pipe_running_on(beyond_radius: float, beyond_to: float):
     fitted, th = shell(-0.5, 0.0, r, 600)
     normals = np.column_stack([np.zeros(600), np.sin(th), -np.cos(th)])
     pipe = _make_pipe(fitted, normals, np.arange(600), np.array([1.0, 0, 0]), PipeConfig(radius_prior=r))
-    return np.vstack([fitted, shell(0.0, beyond_to, beyond_radius, 120)[0]]), [pipe]
+    parts = [fitted, shell(0.0, beyond_to, beyond_radius, 120)[0]]
+    if then_pipe_to > beyond_to:
+        parts.append(shell(beyond_to, then_pipe_to, r, 300)[0])
+    if handle:  # a lever 6-8 cm above the axis (up is −z), over the end
+        parts.append(np.column_stack([rng.uniform(0.0, 0.1, 40), rng.uniform(-0.01, 0.01, 40), rng.uniform(1.92, 1.94, 40)]))
+    return np.vstack(parts), [pipe]
 
 
 def test_a_pipe_running_on_past_its_fitted_end_is_no_object_but_a_socket_is():
@@ -187,9 +197,18 @@ def test_a_pipe_running_on_past_its_fitted_end_is_no_object_but_a_socket_is():
     up, cfg = np.array([0.0, 0.0, -1.0]), ObjectConfig()
     pts, pipes = _pipe_running_on(0.0315, 0.15)  # the sparse far part of the same pipe
     assert segment_objects(pts, pipes, up, cfg) == []
-    pts, pipes = _pipe_running_on(0.0315 + 0.008, 0.06)  # a socket: 8 mm wider than its pipe
+    pts, pipes = _pipe_running_on(0.0315 + 0.0045, 0.06)  # a socket: 4.5 mm wider than its pipe
     (o,) = segment_objects(pts, pipes, up, cfg)
     assert o.configuration == 1 and 0.0 < o.position[0] < 0.06
+    # the same socket with a pipe running on behind it, too short to have been detected
+    pts, pipes = _pipe_running_on(0.0315 + 0.0045, 0.06, then_pipe_to=0.20)
+    assert len(segment_objects(pts, pipes, up, cfg)) == 1
+    # a narrower part beyond the end is no more the pipe than a wider one
+    pts, pipes = _pipe_running_on(0.0315 - 0.006, 0.06)
+    assert len(segment_objects(pts, pipes, up, cfg)) == 1
+    # points at the pipe's level beyond the end, but a handle above it: an object
+    pts, pipes = _pipe_running_on(0.0315, 0.15, handle=True)
+    assert len(segment_objects(pts, pipes, up, cfg)) == 1
 
 
 def test_one_object_per_cluster_the_best_supported():
@@ -204,9 +223,13 @@ def test_one_object_per_cluster_the_best_supported():
     def obj(indices, pipe_ids):
         return SegmentedObject(np.zeros(3), np.eye(3), np.asarray(indices), np.zeros((1, 3)), 1, pipe_ids)
 
-    pipes = [pipe(0.10), pipe(0.80), pipe(0.50)]
-    lever = obj(np.arange(50, 120), (0,))  # listed first, on the short piece: 50 of its 70 points shared
-    valve = obj(np.arange(0, 100), (1,))
+    pipes = [pipe(0.10), pipe(0.80), pipe(0.50), pipe(0.40), pipe(0.40), pipe(1.50)]
+    lever = obj(np.arange(30, 130), (0,))  # listed first, on the short piece, the larger cloud
+    valve = obj(np.arange(0, 70), (1,))  # shares 40 of its 70 points with the lever
     other = obj(np.arange(200, 260), (0,))  # its own points
-    near = obj(np.arange(90, 190), (2,))  # shares 10 of 70 with the lever, 10 of 100 with the valve
+    near = obj(np.arange(120, 190), (2,))  # shares 10 of 70 with the lever, none with the valve
     assert one_per_cluster([lever, valve, other, near], pipes, 300) == [valve, other, near]
+    # where two pipes meet (a junction) beats a lone end, even of a longer pipe
+    junction = obj(np.arange(0, 60), (3, 4))
+    lone = obj(np.arange(20, 100), (5,))
+    assert one_per_cluster([lone, junction], pipes, 300) == [junction]

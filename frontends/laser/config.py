@@ -248,8 +248,9 @@ class ObjectConfig(_Section):
         0.003,
         gt=0,
         description="a lone pipe end's object is the pipe running on (its sparse far part not fitted), not a "
-        "fitting, when its points beyond the end lie within this of the pipe's own radial level (m; the tank's "
-        "sockets are ≥ 6 mm wider than their pipes) and fewer than min_own_points are off its cylinder",
+        "fitting, when its points beyond the end lie within this of the pipe's own radial level along every 2 cm "
+        "(their median; m) and fewer than min_own_points are off its cylinder: the tank's sockets are 4.5-5 mm "
+        "wider than their pipes",
     )
     stub_start: float = Field(
         0.20,

@@ -2,8 +2,9 @@
 
 Objects (valves, elbows, tees...) sit where pipes end. Pipe ends that face each other on one line
 (an in-line part between them) or whose axes cross just beyond them (a junction) meet at one
-object, and the pipes at it give its connectivity: 1 = one pipe, 2 = two collinear pipes, 3 = two
-orthogonal pipes, 4 = three or more. A lone pipe end is an object only if something is there.
+object, and the directions the pipes leave it in give its connectivity: 1 = one pipe, 2 = two
+collinear pipes, 3 = two orthogonal pipes, 4 = three or more (a fitting's body fitted as a short pipe
+between collinear pipes adds ends, not directions). A lone pipe end is an object only if something is there.
 The object is cropped from the structure points (pipe inliers excluded) with an oriented box in a
 frame (pipe direction, across, up): the "mushroom" (body box plus a handle box above it) when the
 object has one connection or two collinear ones — a valve's handle stands above its body — and the
@@ -150,14 +151,20 @@ def own_points(points: np.ndarray, end: np.ndarray, out: np.ndarray, radius: flo
     return int(((rad > radius + cfg.own_margin) | (t > cfg.own_beyond)).sum())
 
 
+_TAIL_BIN = 0.02  # m along the axis: the profile beyond a lone end is judged per stretch of this length
+_TAIL_BIN_POINTS = 5  # ... with at least this many points (fewer everywhere: all of them as one)
+
+
 def pipe_continues(points: np.ndarray, end: np.ndarray, out: np.ndarray, pipe: Pipe, all_points: np.ndarray,
                    cfg: ObjectConfig) -> bool:
     """Whether an object's ``points`` at a lone end of ``pipe`` (outward unit ``out``) are that pipe
     running on past its fitted ``end`` (its sparse far part not taken as inliers) rather than a
     fitting: fewer than ``min_own_points`` off its cylinder and, beyond the end, at the pipe's own
     radial level (the median distance of its inliers, in ``all_points``, from its axis) within
-    ``tail_tolerance``. A socket or a port is wider than its pipe; an elbow or a body leaves the
-    cylinder."""
+    ``tail_tolerance`` along every 2 cm stretch. A socket or a port is wider than its pipe, even
+    with an undetected pipe running on behind it; an elbow or a body leaves the cylinder."""
+    if len(pipe.inliers) == 0:
+        return False
     x = points - end
     t = x @ out
     rad = np.sqrt(np.maximum(row_dot(x, x) - t * t, 0.0))
@@ -167,7 +174,13 @@ def pipe_continues(points: np.ndarray, end: np.ndarray, out: np.ndarray, pipe: P
     y = np.take(all_points, pipe.inliers, axis=0) - pipe.p
     s = y @ pipe.axis
     level = np.median(np.sqrt(np.maximum(row_dot(y, y) - s * s, 0.0)))
-    return bool(np.median(rad[beyond]) - level <= cfg.tail_tolerance)
+    off = np.abs(rad[beyond] - level)
+    stretch = ((t[beyond] - cfg.own_beyond) / _TAIL_BIN).astype(np.int64)
+    counts = np.bincount(stretch)
+    full = np.flatnonzero(counts >= _TAIL_BIN_POINTS)
+    if not len(full):
+        return bool(np.median(off) <= cfg.tail_tolerance)
+    return all(np.median(off[stretch == b]) <= cfg.tail_tolerance for b in full)
 
 
 def collinear_stub(points: np.ndarray, end: np.ndarray, out: np.ndarray, radius: float, cfg: ObjectConfig) -> bool:
@@ -242,14 +255,20 @@ class _Site(NamedTuple):
 
 
 def distinct_directions(directions: np.ndarray, collinear_angle_deg: float) -> np.ndarray:
-    """The directions (unit, K×3) with those in the same sense as an earlier one within
-    ``collinear_angle_deg`` left out, the first kept first."""
+    """The directions (unit, K×3), each left out when within ``collinear_angle_deg`` of one already
+    kept (in the same sense; greedy, in order), the first kept first."""
     cos_c = np.cos(np.radians(collinear_angle_deg))
     keep: list[int] = []
     for k, d in enumerate(directions):
         if all(d @ directions[j] < cos_c for j in keep):
             keep.append(k)
     return directions[keep]
+
+
+def _outermost_end(ends: np.ndarray, dirs: np.ndarray, d: np.ndarray, collinear_angle_deg: float) -> np.ndarray:
+    """Of the ends whose pipes leave in direction ``d`` (within the angle), the farthest along it."""
+    same = np.flatnonzero(dirs @ d >= np.cos(np.radians(collinear_angle_deg)))
+    return ends[same[np.argmax(ends[same] @ d)]]
 
 
 def _site(members, ends, out, guess, up, cfg: ObjectConfig) -> _Site:
@@ -261,8 +280,8 @@ def _site(members, ends, out, guess, up, cfg: ObjectConfig) -> _Site:
     # be the crossing of parallel lines, undetermined along them.
     distinct = distinct_directions(dirs, cfg.collinear_angle_deg)
     config = configuration_of(distinct, cfg.collinear_angle_deg)
-    if config == 2:
-        center = e.mean(axis=0)
+    if config == 2:  # the middle of the gap between the pipes' ends (not a body piece's between them)
+        center = 0.5 * sum(_outermost_end(e, dirs, d, cfg.collinear_angle_deg) for d in distinct)
     elif config in (3, 4):
         center = _line_intersection(e, dirs)
     else:
@@ -407,15 +426,17 @@ def segment_objects(points: np.ndarray, pipes: list[Pipe], up: np.ndarray, cfg: 
 
 def one_per_cluster(objects: list[SegmentedObject], pipes: list[Pipe], n_points: int) -> list[SegmentedObject]:
     """One object per cluster of points: of objects whose clouds share at least half of the smaller
-    one's points, the one whose attached pipes are the longest (then the larger cloud) is kept. A
-    valve's own parts fitted as short pipes (its disc's rim, its stem, its lever) put more sites on
-    its points, with their positions on those pieces' axes, 10-20 cm off."""
+    one's points, the one with the most attached pipes (a junction's crossing axes place it best),
+    then the longest, then the larger cloud, is kept. A valve's own parts fitted as short pipes (its
+    disc's rim, its stem, its lever) put more sites on its points, with their positions on those
+    pieces' axes, 10-20 cm off."""
     if len(objects) < 2:
         return objects
     shared = _shared_points([o.indices for o in objects], n_points).toarray()  # a scan's few objects: dense
     sizes = np.array([len(o.indices) for o in objects])
     support = [sum(pipes[k].length for k in set(o.pipes)) for o in objects]
-    order = sorted(range(len(objects)), key=lambda i: (-support[i], -sizes[i], i))
+    n_pipes = [len(set(o.pipes)) for o in objects]
+    order = sorted(range(len(objects)), key=lambda i: (-n_pipes[i], -support[i], -sizes[i], i))
     kept: list[int] = []
     for i in order:
         if not any(shared[i, j] >= _SHARED * min(sizes[i], sizes[j]) for j in kept):
