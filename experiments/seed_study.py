@@ -15,12 +15,13 @@ trajectory without it.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import tempfile
 from pathlib import Path
 
 from semslam.compare import DEFAULT_ESTIMATORS
-from semslam.demo import demo_config
+from semslam.demo import demo_config, simulator_fingerprint
 from semslam.estimators import create_estimator
 from semslam.eval.outputs import build_metrics
 from semslam.mission.bag import read_mission, write_mission
@@ -33,7 +34,7 @@ KEYS = ("ate_rmse_m", "ate_rmse_se3_m", "object_median_error_m", "landmark_dupli
 
 
 def run_seed(seed: int, folder: Path) -> dict:
-    path = folder / f"tank-seed{seed}.bag"
+    path = folder / f"tank-seed{seed}-{simulator_fingerprint()}.bag"  # never a stale simulator's
     if not path.exists():
         write_mission(simulate_tank(TankSimConfig(seed=seed)), path)
     cfg = demo_config()
@@ -61,8 +62,8 @@ def main() -> None:
     ap.add_argument("--json", default="experiments/out/seed_study.json")
     args = ap.parse_args()
     seeds = [int(s) for s in args.seeds.split(",")]
-    with tempfile.TemporaryDirectory() as tmp:
-        folder = args.cache or Path(tmp)
+    with contextlib.ExitStack() as stack:
+        folder = args.cache or Path(stack.enter_context(tempfile.TemporaryDirectory()))
         folder.mkdir(parents=True, exist_ok=True)
         results = {}
         for s in seeds:

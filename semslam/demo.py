@@ -16,7 +16,7 @@ def cache_dir() -> Path:
     return Path(base)
 
 
-def _simulator_fingerprint() -> str:
+def simulator_fingerprint() -> str:
     """Hash of the simulator's source: a changed simulator never reuses a stale cached mission."""
     h = hashlib.sha1(semslam.__version__.encode())
     for f in sorted((Path(semslam.__file__).parent / "sim").rglob("*.py")):
@@ -30,7 +30,7 @@ def demo_mission(progress: bool = False) -> Path:
     from semslam.sim.config import TankSimConfig
     from semslam.sim.simulate import simulate_tank
 
-    path = cache_dir() / "missions" / f"tank-default-{_simulator_fingerprint()}.bag"
+    path = cache_dir() / "missions" / f"tank-default-{simulator_fingerprint()}.bag"
     if not path.exists():
         path.parent.mkdir(parents=True, exist_ok=True)
         if progress:
