@@ -3,15 +3,17 @@
 Objects (valves, elbows, tees...) sit where pipes end. Pipe ends that face each other on one line
 (an in-line part between them) or whose axes cross just beyond them (a junction) meet at one
 object, and the directions the pipes leave it in give its connectivity: 1 = one pipe, 2 = two
-collinear pipes, 3 = two orthogonal pipes, 4 = three or more (a fitting's body fitted as a short pipe
-between collinear pipes adds ends, not directions). A lone pipe end is an object only if something is there.
-The object is cropped from the structure points (pipe inliers excluded) with an oriented box in a
-frame (pipe direction, across, up): the "mushroom" (body box plus a handle box above it) when the
-object has one connection or two collinear ones — a valve's handle stands above its body — and the
-body box alone otherwise. The largest Euclidean cluster of the crop is the object's cloud. Where
-pipes cross but their fits took in the fitting's surface (an elbow continues its pipes'
-cylinders), the crop keeps the pipe points; two lone ends whose crops overlap and whose axes meet
-a little farther away than ``max_port_distance`` are one object.
+collinear pipes, 3 = two orthogonal pipes, 4 = three or more (a fitting's body fitted as a short
+pipe between collinear pipes adds ends, not directions). A lone pipe end is an object only if
+something is there, other than the pipe running on. The object is cropped from the structure points
+(pipe inliers excluded) with an oriented box in a frame (pipe direction, across, up): the
+"mushroom" (body box plus a handle box above it) when the object has one connection or two
+collinear ones — a valve's handle stands above its body — and the body box alone otherwise. The
+largest Euclidean cluster of the crop is the object's cloud; objects sharing half of their clouds
+are one (the one on the most and longest pipes). Where pipes cross but their fits took in the
+fitting's surface (an elbow continues its pipes' cylinders), the crop keeps the pipe points; two
+lone ends whose crops overlap and whose axes meet a little farther away than ``max_port_distance``
+are one object.
 
 Its position is taken from the pipe geometry, which is more accurate than the centroid of a
 one-sided view of the surface: the intersection of the pipe axes (two orthogonal or three pipes),
