@@ -141,15 +141,20 @@ def _largest_clusters(clouds: list[np.ndarray], radius: float, anchored: list[np
     return out
 
 
+def along_and_off_axis(points: np.ndarray, origin: np.ndarray, axis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Position along the unit ``axis`` from ``origin`` and distance from that axis of every point."""
+    x = points - origin
+    t = x @ axis
+    return t, np.sqrt(np.maximum(row_dot(x, x) - t * t, 0.0))
+
+
 def own_points(points: np.ndarray, end: np.ndarray, out: np.ndarray, radius: float, cfg: ObjectConfig) -> int:
     """How many of an object's ``points`` are its own rather than the pipe's that ends at ``end``
     (outward unit ``out``, pipe ``radius``): off the pipe's cylinder by more than ``own_margin``
     (a body, a branch or a handle wider than the pipe) or beyond its end by more than
     ``own_beyond`` (a socket, a part in line). A pipe's end cap, or a pipe leaving the view,
     has none."""
-    x = points - end
-    t = x @ out
-    rad = np.sqrt(np.maximum(row_dot(x, x) - t * t, 0.0))
+    t, rad = along_and_off_axis(points, end, out)
     return int(((rad > radius + cfg.own_margin) | (t > cfg.own_beyond)).sum())
 
 
@@ -167,15 +172,11 @@ def pipe_continues(points: np.ndarray, end: np.ndarray, out: np.ndarray, pipe: P
     with an undetected pipe running on behind it; an elbow or a body leaves the cylinder."""
     if len(pipe.inliers) == 0:
         return False
-    x = points - end
-    t = x @ out
-    rad = np.sqrt(np.maximum(row_dot(x, x) - t * t, 0.0))
+    t, rad = along_and_off_axis(points, end, out)
     beyond = t > cfg.own_beyond
     if not beyond.any() or int((rad > pipe.radius + cfg.own_margin).sum()) >= cfg.min_own_points:
         return False
-    y = np.take(all_points, pipe.inliers, axis=0) - pipe.p
-    s = y @ pipe.axis
-    level = np.median(np.sqrt(np.maximum(row_dot(y, y) - s * s, 0.0)))
+    level = np.median(along_and_off_axis(np.take(all_points, pipe.inliers, axis=0), pipe.p, pipe.axis)[1])
     off = np.abs(rad[beyond] - level)
     stretch = ((t[beyond] - cfg.own_beyond) / _TAIL_BIN).astype(np.int64)
     counts = np.bincount(stretch)
