@@ -20,13 +20,9 @@ import json
 import tempfile
 from pathlib import Path
 
-from semslam.compare import DEFAULT_ESTIMATORS
+from semslam.compare import DEFAULT_ESTIMATORS, run_comparison
 from semslam.demo import demo_config, simulator_fingerprint
-from semslam.estimators import create_estimator
-from semslam.eval.outputs import build_metrics
 from semslam.mission.bag import read_mission, write_mission
-from semslam.pipeline import run_pipeline
-from semslam.registry import create_frontends
 from semslam.sim.config import TankSimConfig
 from semslam.sim.simulate import simulate_tank
 
@@ -38,11 +34,7 @@ def run_seed(seed: int, folder: Path) -> dict:
     if not path.exists():
         write_mission(simulate_tank(TankSimConfig(seed=seed)), path)
     cfg = demo_config()
-    mission = read_mission(path, cfg.reader)
-    fes = create_frontends(["laser"], mission.metadata, cfg.frontends)
-    ests = [create_estimator(n, mission.metadata, cfg) for n in DEFAULT_ESTIMATORS]
-    res = run_pipeline(mission, ests, fes, view_estimator="graph")
-    metrics = build_metrics(res, mission.metadata)
+    _, metrics = run_comparison(read_mission(path, cfg.reader), cfg, ["laser"])
     est = metrics["estimators"]
     out = {n: {k: est[n][k] for k in KEYS} for n in DEFAULT_ESTIMATORS}
     out["sem_f1"] = (metrics.get("recognition") or {}).get("SEM", {}).get("f1")
