@@ -28,7 +28,9 @@ def make_mission(n_messages: int, n_points: int) -> Mission:
     rng = np.random.default_rng(0)
     pts = rng.normal(size=(n_points, 3)).astype(np.float32)
     inten = rng.random(n_points).astype(np.float32)
-    clouds = [PointCloud(10**9 + k * 10**8, "laser", points=pts + np.float32(k), intensity=inten) for k in range(n_messages)]
+    clouds = [
+        PointCloud(10**9 + k * 10**8, "laser", points=pts + np.float32(k), intensity=inten) for k in range(n_messages)
+    ]
     meta = MissionMetadata(name="bench", sensors={"laser": SensorInfo("laser", "laser", topic="/laser/points")})
     return Mission.from_measurements(meta, clouds)
 

@@ -22,13 +22,13 @@ import open3d as o3d
 
 from frontends.laser.recognition.cvfh import cvfh
 from frontends.laser.recognition.esf import esf
-from frontends.laser.recognition.views import VirtualScanner, ViewParams, fibonacci_directions, look_at
 from frontends.laser.recognition.vfh import vfh
+from frontends.laser.recognition.views import ViewParams, VirtualScanner, fibonacci_directions, look_at
 
 
 def segments(n_points: int = 2000, seed: int = 0) -> dict[str, np.ndarray]:
     try:
-        from semslam.sim.cad import library
+        from semslam.models.cad import library
 
         meshes = {name: m.mesh for name, m in library().items() if m.source is None}
     except ImportError:
@@ -72,8 +72,18 @@ def main() -> None:
 
     n_front = RecognitionConfig().esf_samples  # what the laser front-end draws per scan segment
     targets = {"esf": 20.0, "vfh": 10.0, "cvfh": None, f"esf{n_front}": None}
-    fns = {"esf": lambda c: esf(c, seed=0), "vfh": vfh, "cvfh": cvfh, f"esf{n_front}": lambda c: esf(c, n_samples=n_front, seed=0)}
-    result = {"segments": len(clouds), "points": 2000, "runs": args.runs, "machine": platform.processor() or platform.machine()}
+    fns = {
+        "esf": lambda c: esf(c, seed=0),
+        "vfh": vfh,
+        "cvfh": cvfh,
+        f"esf{n_front}": lambda c: esf(c, n_samples=n_front, seed=0),
+    }
+    result = {
+        "segments": len(clouds),
+        "points": 2000,
+        "runs": args.runs,
+        "machine": platform.processor() or platform.machine(),
+    }
     print(f"{len(clouds)} segments × {args.runs} runs, 2000 points each")
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else None
     result["load_average_1min"] = load

@@ -21,21 +21,21 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
 import argparse  # noqa: E402
-import time
-from pathlib import Path
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
 
-import numpy as np
-from scipy.spatial.transform import Rotation
+import numpy as np  # noqa: E402
+from scipy.spatial.transform import Rotation  # noqa: E402
 
-from semslam.config import SemslamConfig
-from semslam.ekf import EkfEstimator
-from semslam.ekf import geometry as geo
-from semslam.ekf import models as mdl
-from semslam.ekf import estimator as ekf_estimator
-from semslam.ekf.estimator import _Extent, _Track
-from semslam.ekf.synthetic import simulate_circling
-from semslam.mission.measurements import Attitude, GroundTruthPose
-from semslam.observations import LineObservation, PointObservation
+from semslam.config import SemslamConfig  # noqa: E402
+from semslam.ekf import EkfEstimator  # noqa: E402
+from semslam.ekf import estimator as ekf_estimator  # noqa: E402
+from semslam.ekf import geometry as geo  # noqa: E402
+from semslam.ekf import models as mdl  # noqa: E402
+from semslam.ekf.estimator import _Extent, _Track  # noqa: E402
+from semslam.ekf.synthetic import simulate_circling  # noqa: E402
+from semslam.mission.measurements import Attitude, GroundTruthPose  # noqa: E402
+from semslam.observations import LineObservation, PointObservation  # noqa: E402
 
 
 def build(n_landmarks: int, seed: int = 0):
@@ -43,8 +43,9 @@ def build(n_landmarks: int, seed: int = 0):
     rng = np.random.default_rng(seed)
     meta = simulate_circling(seed=seed, duration_s=1.0, with_features=False).metadata
     est = EkfEstimator(meta, SemslamConfig())
-    est.process_measurement(GroundTruthPose(0, "gt", position=np.array([0.0, 0.0, 2.0]),
-                                            orientation=np.array([0.0, 0.0, 0.0, 1.0])))
+    est.process_measurement(
+        GroundTruthPose(0, "gt", position=np.array([0.0, 0.0, 2.0]), orientation=np.array([0.0, 0.0, 0.0, 1.0]))
+    )
     T = meta.sensors["laser"].T_BS
     R_BS, t_BS = T[:3, :3], T[:3, 3]
     R, t, _, _ = mdl.sensor_pose(est.state.xv, R_BS, t_BS)
@@ -79,11 +80,20 @@ def build(n_landmarks: int, seed: int = 0):
 
 
 def batch(stamp, R, t, objs, pipes, rng):
-    out = [PointObservation(stamp, "laser", position=(c - t) @ R + rng.normal(0, 0.03, 3),
-                            covariance=np.eye(3) * 9e-4) for c in objs]
+    out = [
+        PointObservation(stamp, "laser", position=(c - t) @ R + rng.normal(0, 0.03, 3), covariance=np.eye(3) * 9e-4)
+        for c in objs
+    ]
     for pw, qw in pipes:
-        out.append(LineObservation(stamp, "laser", p=(pw - t) @ R + rng.normal(0, 0.02, 3),
-                                   q=(qw - t) @ R + rng.normal(0, 0.02, 3), covariance=np.eye(6) * 4e-4))
+        out.append(
+            LineObservation(
+                stamp,
+                "laser",
+                p=(pw - t) @ R + rng.normal(0, 0.02, 3),
+                q=(qw - t) @ R + rng.normal(0, 0.02, 3),
+                covariance=np.eye(6) * 4e-4,
+            )
+        )
     return out
 
 
@@ -110,8 +120,7 @@ def bench(n_landmarks: int, reps: int) -> dict:
     for k in range(reps):
         # a navigation step (AHRS: predict + update; vehicle-only, compressed), then a scan: its update
         # also applies the pending navigation steps to the whole map (once per scan)
-        m = Attitude(int((k + 1) * 5e7), "ahrs", orientation=q, covariance=np.eye(3) * 1e-4,
-                     angular_rate=np.zeros(3))
+        m = Attitude(int((k + 1) * 5e7), "ahrs", orientation=q, covariance=np.eye(3) * 1e-4, angular_rate=np.zeros(3))
         t0 = time.perf_counter()
         est.process_measurement(m)
         preds.append(time.perf_counter() - t0)
@@ -139,12 +148,17 @@ def main():
     ap.add_argument("--png", default="experiments/out/bench_ekf.png")
     args = ap.parse_args()
     rows = []
-    print(f"{'landmarks':>9} {'state n':>8} {'paired':>6} {'update ms':>10} {'JCBB ms':>9} {'Joseph ms':>10} {'nav ms':>8}")
+    print(
+        f"{'landmarks':>9} {'state n':>8} {'paired':>6} {'update ms':>10} {'JCBB ms':>9} {'Joseph ms':>10} {'nav ms':>8}"
+    )
     for n in map(int, args.sizes.split(",")):
         r = bench(n, args.reps)
         rows.append(r)
-        print(f"{r['landmarks']:9d} {r['state']:8d} {r['paired']:6d} {r['update_ms']:10.2f} {r['assoc_ms']:9.2f} "
-              f"{r['joseph_ms']:10.2f} {r['nav_ms']:8.3f}", flush=True)
+        print(
+            f"{r['landmarks']:9d} {r['state']:8d} {r['paired']:6d} {r['update_ms']:10.2f} {r['assoc_ms']:9.2f} "
+            f"{r['joseph_ms']:10.2f} {r['nav_ms']:8.3f}",
+            flush=True,
+        )
     if args.png:
         import matplotlib
 

@@ -55,8 +55,12 @@ def summarize(res, mission) -> dict:
     out = {
         "update_ms_median": float(np.median(t)),
         "update_ms_p95": float(np.percentile(t, 95)),
-        "obs_update_ms_median": float(np.median(t[kinds == "observations"])) if (kinds == "observations").any() else None,
-        "obs_update_ms_p95": float(np.percentile(t[kinds == "observations"], 95)) if (kinds == "observations").any() else None,
+        "obs_update_ms_median": float(np.median(t[kinds == "observations"]))
+        if (kinds == "observations").any()
+        else None,
+        "obs_update_ms_p95": float(np.percentile(t[kinds == "observations"], 95))
+        if (kinds == "observations").any()
+        else None,
         "n_updates": int(len(t)),
         "n_landmarks": len(res.landmarks),
         "ate_rmse_m": float(np.sqrt(np.mean(e**2))),
@@ -87,7 +91,12 @@ def bench_default(runs: int) -> dict:
         rows.append(row)
         print(f"  run {r}: {json.dumps(row)}", flush=True)
     keys = [k for k in rows[0] if isinstance(rows[0][k], (int, float)) and rows[0][k] is not None]
-    return {"mission": name, "dr_ate_rmse_m": dr, "runs": runs, **{k: float(np.median([x[k] for x in rows])) for k in keys}}
+    return {
+        "mission": name,
+        "dr_ate_rmse_m": dr,
+        "runs": runs,
+        **{k: float(np.median([x[k] for x in rows])) for k in keys},
+    }
 
 
 def bench_long(hours: float) -> dict:
@@ -111,7 +120,10 @@ def bench_long(hours: float) -> dict:
     t0 = time.perf_counter()
     mission = simulate(cfg)
     gt = mission.metadata.ground_truth
-    print(f"  long mission simulated in {time.perf_counter() - t0:.1f} s: {len(gt.objects)} objects, {len(gt.pipes)} pipes", flush=True)
+    print(
+        f"  long mission simulated in {time.perf_counter() - t0:.1f} s: {len(gt.objects)} objects, {len(gt.pipes)} pipes",
+        flush=True,
+    )
     fe = OracleFrontend(mission.metadata, {"seed": 0})
     t0, c0 = time.perf_counter(), time.process_time()
     est = GraphEstimator(mission.metadata, SemslamConfig(graph={"covariance_in_result": False}))
@@ -128,12 +140,21 @@ def bench_long(hours: float) -> dict:
             # The updates of the last 600 s of mission (keyframes and observations).
             recent = np.array(est.update_times[i0:]) * 1e3
             i0 = len(est.update_times)
-            w = {"t_s": next_report, "landmarks": len(est.landmarks), "n_updates": len(recent),
-                 "ms_median": float(np.median(recent)), "ms_p95": float(np.percentile(recent, 95)),
-                 "wall_s": time.perf_counter() - t0, "cpu_s": time.process_time() - c0}
+            w = {
+                "t_s": next_report,
+                "landmarks": len(est.landmarks),
+                "n_updates": len(recent),
+                "ms_median": float(np.median(recent)),
+                "ms_p95": float(np.percentile(recent, 95)),
+                "wall_s": time.perf_counter() - t0,
+                "cpu_s": time.process_time() - c0,
+            }
             windows.append(w)
-            print(f"    t={next_report:6.0f} s  landmarks={w['landmarks']:5d}  updates of the last 600 s ({len(recent)}): "
-                  f"median {w['ms_median']:.1f} ms  p95 {w['ms_p95']:.1f} ms  wall {w['wall_s']:.0f} s  cpu {w['cpu_s']:.0f} s", flush=True)
+            print(
+                f"    t={next_report:6.0f} s  landmarks={w['landmarks']:5d}  updates of the last 600 s ({len(recent)}): "
+                f"median {w['ms_median']:.1f} ms  p95 {w['ms_p95']:.1f} ms  wall {w['wall_s']:.0f} s  cpu {w['cpu_s']:.0f} s",
+                flush=True,
+            )
             next_report += 600.0
     res = est.finish()
     wall, cpu = time.perf_counter() - t0, time.process_time() - c0
@@ -144,7 +165,13 @@ def bench_long(hours: float) -> dict:
     # Per-update cost by map size: deciles of the mission.
     bins = []
     for chunk_t, chunk_n in zip(np.array_split(t[obs], 10), np.array_split(n[obs], 10)):
-        bins.append({"landmarks": int(chunk_n.max()), "ms_median": float(np.median(chunk_t)), "ms_p95": float(np.percentile(chunk_t, 95))})
+        bins.append(
+            {
+                "landmarks": int(chunk_n.max()),
+                "ms_median": float(np.median(chunk_t)),
+                "ms_p95": float(np.percentile(chunk_t, 95)),
+            }
+        )
     return {
         "duration_h": hours,
         "wall_s": wall,
@@ -158,7 +185,11 @@ def bench_long(hours: float) -> dict:
         "window_slides": _slide_summary(res.history.get("window_slides", [])),
         "window_returns": res.history.get("window_returns"),
         "by_600s": windows,
-        **{k: v for k, v in summarize(res, mission).items() if k in ("ate_rmse_m", "landmark_median_error_m", "duplicated", "wrongly_merged")},
+        **{
+            k: v
+            for k, v in summarize(res, mission).items()
+            if k in ("ate_rmse_m", "landmark_median_error_m", "duplicated", "wrongly_merged")
+        },
     }
 
 
@@ -168,9 +199,14 @@ def _slide_summary(slides: list[dict]) -> dict | None:
         return None
     sec = np.array([s["seconds"] for s in slides]) * 1e3
     sep = np.array([s["separator"] for s in slides])
-    return {"n": len(slides), "ms_median": float(np.median(sec)), "ms_max": float(sec.max()),
-            "separator_median": float(np.median(sep)), "separator_max": int(sep.max()),
-            "left_landmarks": int(sum(s["left_landmarks"] for s in slides))}
+    return {
+        "n": len(slides),
+        "ms_median": float(np.median(sec)),
+        "ms_max": float(sec.max()),
+        "separator_median": float(np.median(sep)),
+        "separator_max": int(sep.max()),
+        "left_landmarks": int(sum(s["left_landmarks"] for s in slides)),
+    }
 
 
 def bench_factor_cost(n: int = 5000) -> dict:
@@ -191,18 +227,34 @@ def bench_factor_cost(n: int = 5000) -> dict:
     values.insert(b, np.array([0.01]))
     T_BS = np.eye(4)
     T_BS[:3, 3] = [0.6, 0.0, 0.3]
-    d = DisplacementIntegral(dt=1.0, c=rng.normal(size=3), A=0.2 * np.eye(3), B=0.3 * gtsam.Rot3.Expmap(rng.normal(size=3)).matrix(),
-                             cov=np.eye(3) * 1e-4, n_samples=4, last_sample_age=0.1, last_sample=None)
+    d = DisplacementIntegral(
+        dt=1.0,
+        c=rng.normal(size=3),
+        A=0.2 * np.eye(3),
+        B=0.3 * gtsam.Rot3.Expmap(rng.normal(size=3)).matrix(),
+        cov=np.eye(3) * 1e-4,
+        n_samples=4,
+        last_sample_age=0.1,
+        last_sample=None,
+    )
     huber = gtsam.noiseModel.mEstimator.Huber.Create(1.345)
     anchor = LineAnchor.from_points(np.zeros(3), np.array([1.0, 0.2, 0.1]))
     noise3 = gtsam.noiseModel.Isotropic.Sigma(3, 0.02)
     factors = {
-        "line_factor (CustomFactor, 4)": line_factor(x, p, anchor, np.array([0.1, 0.2, 1.0]), np.array([0.5, 0.1, 1.1]), np.eye(4) * 1e-4, T_BS, huber),
+        "line_factor (CustomFactor, 4)": line_factor(
+            x, p, anchor, np.array([0.1, 0.2, 1.0]), np.array([0.5, 0.1, 1.1]), np.eye(4) * 1e-4, T_BS, huber
+        ),
         "displacement_factor (CustomFactor, 3)": displacement_factor(x, y, vi, vj, d),
-        "biased_attitude_factor (CustomFactor, 3)": biased_attitude_factor(x, b, gtsam.Rot3.Expmap(rng.normal(size=3)).matrix(), np.eye(3) * 1e-4),
+        "biased_attitude_factor (CustomFactor, 3)": biased_attitude_factor(
+            x, b, gtsam.Rot3.Expmap(rng.normal(size=3)).matrix(), np.eye(3) * 1e-4
+        ),
         "depth_factor (built-in GPSFactorArm, 1)": depth_factor(x, 2.0, 1e-4, np.array([-0.5, 0.0, -0.1])),
-        "point_factor (built-in BearingRangeFactor3D, 3)": point_factor(x, l, np.ones(3), np.eye(3) * 4e-4, np.eye(4), huber),
-        "BetweenFactorPose3 (6)": gtsam.BetweenFactorPose3(x, y, gtsam.Pose3(), gtsam.noiseModel.Isotropic.Sigma(6, 0.1)),
+        "point_factor (built-in BearingRangeFactor3D, 3)": point_factor(
+            x, l, np.ones(3), np.eye(3) * 4e-4, np.eye(4), huber
+        ),
+        "BetweenFactorPose3 (6)": gtsam.BetweenFactorPose3(
+            x, y, gtsam.Pose3(), gtsam.noiseModel.Isotropic.Sigma(6, 0.1)
+        ),
         "PriorFactorPoint3 (3)": gtsam.PriorFactorPoint3(l, np.zeros(3), noise3),
     }
     out = {}
@@ -242,8 +294,11 @@ def plot_long(long: dict, png: str) -> None:
     ax.legend(lines, [h.get_label() for h in lines], loc="upper center", ncol=3)
     ax.grid(alpha=0.3)
     slides = long.get("window_slides") or {}
-    ax.set_title(f"{long['duration_h']:g} h lawnmower: {long['n_keyframes']} keyframes, {long['n_landmarks']} landmarks, "
-                 f"{slides.get('n', 0)} window slides", fontsize=10)
+    ax.set_title(
+        f"{long['duration_h']:g} h lawnmower: {long['n_keyframes']} keyframes, {long['n_landmarks']} landmarks, "
+        f"{slides.get('n', 0)} window slides",
+        fontsize=10,
+    )
     fig.tight_layout()
     fig.savefig(png, dpi=110)
 
@@ -254,7 +309,9 @@ def main():
     ap.add_argument("--long-hours", type=float, default=2.0)
     ap.add_argument("--skip-long", action="store_true")
     ap.add_argument("--skip-default", action="store_true")
-    ap.add_argument("--out", default=None, help="write the numbers as JSON here (and the long mission's cost as PNG beside it)")
+    ap.add_argument(
+        "--out", default=None, help="write the numbers as JSON here (and the long mission's cost as PNG beside it)"
+    )
     ap.add_argument("--plot", default=None, metavar="JSON", help="only plot the long mission of an earlier --out")
     a = ap.parse_args()
     if a.plot:

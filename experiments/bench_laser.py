@@ -98,7 +98,7 @@ def _worker(path: Path, overrides: dict, process: bool = False) -> int:
         from semslam.mission.measurements import PointCloud
 
         fe = LaserFrontend(None, overrides)
-        fe.recognizer  # warm-up: builds (or loads) the recogniser's view database
+        fe.recognizer  # warm-up: builds (or loads) the recogniser's view database  # noqa: B018
         fe.process(PointCloud(stamp=0, sensor="laser", points=scans[0]))
     else:
         segment_scan(scans[0], cfg)  # warm-up
@@ -136,7 +136,14 @@ def _paired(scans: list, overrides: dict, against: Path, repeat: int, process: b
         here = Path(__file__).resolve().parents[1]
         workers = {}
         for name, root in (("A", Path(against).resolve()), ("B", here)):
-            cmd = [sys.executable, str(Path(__file__).resolve()), "--worker", str(path), "--config", json.dumps(overrides)]
+            cmd = [
+                sys.executable,
+                str(Path(__file__).resolve()),
+                "--worker",
+                str(path),
+                "--config",
+                json.dumps(overrides),
+            ]
             cmd += ["--process"] if process else []
             env = dict(os.environ, BENCH_LASER_ROOT=str(root))
             workers[name] = subprocess.Popen(cmd, cwd=root, env=env, stdin=subprocess.PIPE, stdout=subprocess.PIPE)

@@ -58,8 +58,11 @@ def main() -> None:
         for w in counts:
             r = one_run(mission, cfg, w)
             runs.append(r)
-            print(f"run {i} workers {w}: wall {r['wall_s']:.1f} s ({r['real_time_factor']:.1f}× real time); ATE "
-                  + ", ".join(f"{n} {a:.4f}" for n, a in r["ate_m"].items()), flush=True)
+            print(
+                f"run {i} workers {w}: wall {r['wall_s']:.1f} s ({r['real_time_factor']:.1f}× real time); ATE "
+                + ", ".join(f"{n} {a:.4f}" for n, a in r["ate_m"].items()),
+                flush=True,
+            )
     ates = {json.dumps(r["ate_m"], sort_keys=True) for r in runs}
     summary = {}
     for w in counts:
@@ -71,8 +74,10 @@ def main() -> None:
             "stages_s_median": {k: float(np.median([r["stages_s"].get(k, 0.0) for r in rs])) for k in stages},
         }
         s = summary[w]
-        print(f"workers {w}: median wall {s['wall_s_median']:.1f} s = {s['real_time_factor_median']:.1f}× real time; "
-              "stages " + ", ".join(f"{k} {v:.1f}" for k, v in s["stages_s_median"].items()))
+        print(
+            f"workers {w}: median wall {s['wall_s_median']:.1f} s = {s['real_time_factor_median']:.1f}× real time; "
+            "stages " + ", ".join(f"{k} {v:.1f}" for k, v in s["stages_s_median"].items())
+        )
     print("estimates identical across runs:", len(ates) == 1)
     Path(args.json).parent.mkdir(parents=True, exist_ok=True)
     Path(args.json).write_text(json.dumps({"runs": runs, "summary": summary, "identical": len(ates) == 1}, indent=1))

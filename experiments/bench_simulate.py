@@ -39,9 +39,13 @@ def main() -> None:
     gt = mission.metadata.ground_truth
     ex = mission.metadata.extras
     print("measurements:", dict(counts))
-    print(f"points per scan: median {np.median(pts):.0f}, min {pts.min()}, max {pts.max()}, total {pts.sum() / 1e6:.1f} M")
+    print(
+        f"points per scan: median {np.median(pts):.0f}, min {pts.min()}, max {pts.max()}, total {pts.sum() / 1e6:.1f} M"
+    )
     print(f"objects {len(gt.objects)} (seen {len(gt.seen_objects)}), pipes {len(gt.pipes)} (seen {len(gt.seen_pipes)})")
-    print(f"DVL invalid: {100 * ex['dvl_dropouts']['invalid_fraction']:.1f} % in {len(ex['dvl_dropouts']['intervals_s'])} bursts")
+    print(
+        f"DVL invalid: {100 * ex['dvl_dropouts']['invalid_fraction']:.1f} % in {len(ex['dvl_dropouts']['intervals_s'])} bursts"
+    )
     if args.preview:
         from semslam.sim.preview import render_preview
 

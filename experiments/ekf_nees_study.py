@@ -29,16 +29,33 @@ from semslam.ekf.synthetic import simulate_circling
 ACCEL, RATE = 0.01, 0.002
 
 
-def run(seed: int, duration: float, features: bool, jacobians: str = "first_estimate", bias: float = 0.0,
-        heading_jacobians: str = "first_estimate"):
+def run(
+    seed: int,
+    duration: float,
+    features: bool,
+    jacobians: str = "first_estimate",
+    bias: float = 0.0,
+    heading_jacobians: str = "first_estimate",
+):
     """(times, vehicle NEES, heading NEES, bias NEES or None) of one run."""
-    sim = simulate_circling(seed=seed, duration_s=duration, accel_sigma=ACCEL, rate_sigma=RATE,
-                            dropouts=((30.0, 15.0), (80.0, 15.0)), with_features=features,
-                            velocity_tau_s=None if not features else 30.0, track_gain=0.0 if not features else 0.1,
-                            heading_bias_walk=bias)
-    est = EkfEstimator(sim.metadata, SemslamConfig(motion={"accel_sigma_m_s2": ACCEL, "angular_rate_sigma_rad_s": RATE},
-                                                   ekf={"line_jacobians": jacobians,
-                                                        "heading_jacobians": heading_jacobians}))
+    sim = simulate_circling(
+        seed=seed,
+        duration_s=duration,
+        accel_sigma=ACCEL,
+        rate_sigma=RATE,
+        dropouts=((30.0, 15.0), (80.0, 15.0)),
+        with_features=features,
+        velocity_tau_s=None if not features else 30.0,
+        track_gain=0.0 if not features else 0.1,
+        heading_bias_walk=bias,
+    )
+    est = EkfEstimator(
+        sim.metadata,
+        SemslamConfig(
+            motion={"accel_sigma_m_s2": ACCEL, "angular_rate_sigma_rad_s": RATE},
+            ekf={"line_jacobians": jacobians, "heading_jacobians": heading_jacobians},
+        ),
+    )
     ts = sim.truth_stamps
     out_t, out_nees, out_yaw, out_b = [], [], [], []
     for m, obs in sim.stream():
@@ -65,31 +82,47 @@ def main():
     ap.add_argument("--runs", type=int, default=50)
     ap.add_argument("--duration", type=float, default=120.0)
     ap.add_argument("--features", action="store_true")
-    ap.add_argument("--jacobians", default="first_estimate", choices=("first_estimate", "current"),
-                    help="ekf.line_jacobians: pipe Jacobians at the first estimate (FEJ) or the current one")
+    ap.add_argument(
+        "--jacobians",
+        default="first_estimate",
+        choices=("first_estimate", "current"),
+        help="ekf.line_jacobians: pipe Jacobians at the first estimate (FEJ) or the current one",
+    )
     ap.add_argument("--bias", type=float, default=0.0, help="AHRS heading-bias walk (rad/√s); 0: none")
-    ap.add_argument("--heading-jacobians", default="first_estimate", choices=("first_estimate", "current"),
-                    help="ekf.heading_jacobians (with --bias)")
+    ap.add_argument(
+        "--heading-jacobians",
+        default="first_estimate",
+        choices=("first_estimate", "current"),
+        help="ekf.heading_jacobians (with --bias)",
+    )
     ap.add_argument("--png", default="experiments/out/ekf_nees.png")
     args = ap.parse_args()
-    results = [run(s, args.duration, args.features, args.jacobians, args.bias, args.heading_jacobians)
-               for s in range(args.runs)]
+    results = [
+        run(s, args.duration, args.features, args.jacobians, args.bias, args.heading_jacobians)
+        for s in range(args.runs)
+    ]
     t = results[0][0]
     dim = 10 if args.bias > 0 else 9
     anees = np.mean([r[1] for r in results], axis=0)
     lo, hi = chi2.ppf([0.025, 0.975], dim * args.runs) / args.runs
     inside = np.mean((anees > lo) & (anees < hi))
-    print(f"runs {args.runs}, duration {args.duration:.0f} s, features {args.features}, pipe Jacobians {args.jacobians}"
-          + (f", heading bias walk {args.bias} rad/√s, heading Jacobians {args.heading_jacobians}" if args.bias else ""))
-    print(f"ANEES mean {anees.mean():.2f} (dimension {dim}), 95 % bounds [{lo:.2f}, {hi:.2f}], "
-          f"inside {inside:.0%} of the time")
+    print(
+        f"runs {args.runs}, duration {args.duration:.0f} s, features {args.features}, pipe Jacobians {args.jacobians}"
+        + (f", heading bias walk {args.bias} rad/√s, heading Jacobians {args.heading_jacobians}" if args.bias else "")
+    )
+    print(
+        f"ANEES mean {anees.mean():.2f} (dimension {dim}), 95 % bounds [{lo:.2f}, {hi:.2f}], "
+        f"inside {inside:.0%} of the time"
+    )
     lo1, hi1 = chi2.ppf([0.025, 0.975], args.runs) / args.runs
     for name, k in (("heading", 2), ("bias", 3)):
         a1 = np.mean([r[k] for r in results], axis=0)
         if np.isfinite(a1).all():
             inside1 = np.mean((a1 > lo1) & (a1 < hi1))
-            print(f"{name} NEES mean {a1.mean():.2f} (1 dof), last quarter {a1[-len(a1) // 4:].mean():.2f}, "
-                  f"95 % bounds [{lo1:.2f}, {hi1:.2f}], inside {inside1:.0%} of the time")
+            print(
+                f"{name} NEES mean {a1.mean():.2f} (1 dof), last quarter {a1[-len(a1) // 4 :].mean():.2f}, "
+                f"95 % bounds [{lo1:.2f}, {hi1:.2f}], inside {inside1:.0%} of the time"
+            )
     if args.png:
         import matplotlib
 

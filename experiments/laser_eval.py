@@ -65,13 +65,17 @@ def tank_truth(scene, T_WS: np.ndarray, points: np.ndarray, gt, min_pipe_hits: i
     (kind and id of the surface along its ray; range noise does not change the label)."""
     from frontends.laser.evaluation import OBJECT, OTHER, PIPE, PLANE, ScanTruth
     from frontends.laser.objects import configuration_of
-    from semslam.sim.tank import FLOOR, OBJECT as SIM_OBJECT, PIPE as SIM_PIPE, WALL
+    from semslam.sim.tank import FLOOR, WALL
+    from semslam.sim.tank import OBJECT as SIM_OBJECT
+    from semslam.sim.tank import PIPE as SIM_PIPE
 
     R, o = T_WS[:3, :3], T_WS[:3, 3]
     d = np.asarray(points, float)
     d = d / np.linalg.norm(d, axis=1, keepdims=True)
     _, kind, ident = scene.cast(o, d @ R.T)
-    ours = np.select([(kind == FLOOR) | (kind == WALL), kind == SIM_PIPE, kind == SIM_OBJECT], [PLANE, PIPE, OBJECT], OTHER)
+    ours = np.select(
+        [(kind == FLOOR) | (kind == WALL), kind == SIM_PIPE, kind == SIM_OBJECT], [PLANE, PIPE, OBJECT], OTHER
+    )
     index = np.where((kind == SIM_PIPE) | (kind == SIM_OBJECT), ident, -1)
     T_SW = np.linalg.inv(T_WS)
 
@@ -88,7 +92,11 @@ def tank_truth(scene, T_WS: np.ndarray, points: np.ndarray, gt, min_pipe_hits: i
         dirs, vis_dirs = [], []
         for pid in ob.pipes:
             p = pipe_by_id[pid]
-            far = np.asarray(p.q) if np.linalg.norm(np.subtract(p.p, ob.position)) < np.linalg.norm(np.subtract(p.q, ob.position)) else np.asarray(p.p)
+            far = (
+                np.asarray(p.q)
+                if np.linalg.norm(np.subtract(p.p, ob.position)) < np.linalg.norm(np.subtract(p.q, ob.position))
+                else np.asarray(p.p)
+            )
             u = far - np.asarray(ob.position)
             u = T_SW[:3, :3] @ (u / np.linalg.norm(u))
             dirs.append(u)
@@ -139,7 +147,10 @@ def main(argv=None) -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--config", type=str, default="{}", help="frontends.laser section as JSON")
     ap.add_argument(
-        "--figure-scan", type=int, default=-1, help="index of the scan drawn stage by stage (−1: the one with most visible objects)"
+        "--figure-scan",
+        type=int,
+        default=-1,
+        help="index of the scan drawn stage by stage (−1: the one with most visible objects)",
     )
     args = ap.parse_args(argv)
 
@@ -147,7 +158,9 @@ def main(argv=None) -> int:
     if args.source == "tank":  # the tank's PVC radius is known (semslam.demo.demo_config does the same)
         from semslam.sim import TankSimConfig
 
-        overrides.setdefault("pipes", {}).setdefault("radius_prior", TankSimConfig(seed=args.seed).structure.pipe_radius_m)
+        overrides.setdefault("pipes", {}).setdefault(
+            "radius_prior", TankSimConfig(seed=args.seed).structure.pipe_radius_m
+        )
     cfg = LaserConfig.model_validate(overrides)
     args.out.mkdir(parents=True, exist_ok=True)
     source = synthetic_scans(args.scans, args.seed) if args.source == "synthetic" else tank_scans(args.every, args.seed)

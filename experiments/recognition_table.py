@@ -73,7 +73,7 @@ def syn_stage(args) -> dict:
 
     models = builtin_models()
     if not models:
-        sys.exit("the simulator's CAD library (semslam.sim.cad) is not available")
+        sys.exit("the simulator's CAD library (semslam.models.cad) is not available")
     params = ViewParams(n_views=args.views)
     t0 = time.perf_counter()
     db = load_database(models, params, cache_dir=args.cache_dir, include_user_models=False)
@@ -93,7 +93,7 @@ def syn_stage(args) -> dict:
                 if size == 0.0:
                     loo["nn"] = float(np.mean(leave_one_out(ChiSquareNN, X, y) == y))
                 feats = svm_features(X, ext if size else None)
-                loo["svm"] = float(np.mean(leave_one_out(lambda: make_svm(n_size=3 if size else 0), feats, y) == y))
+                loo["svm"] = float(np.mean(leave_one_out(lambda: make_svm(n_size=3 if size else 0), feats, y) == y))  # noqa: B023
             for method in ("nn", "svm"):
                 if desc == "cvfh" and method == "svm":
                     continue
@@ -108,7 +108,11 @@ def syn_stage(args) -> dict:
     best = next(r for r in rows if r["descriptor"] == "esf" and r["method"] == "nn" and r["size_cue"])
     syn = classification_metrics(np.array(best["confusion"]), db.classes)
     # Issue 7's acceptance: ESF top-1 ≥ 0.90 on held-out views (Himri et al.: 0.9375 with ESF + SVM).
-    acc = {f"esf_{r['method']}{'_size' if r['size_cue'] else ''}": r["held_out_accuracy"] for r in rows if r["descriptor"] == "esf"}
+    acc = {
+        f"esf_{r['method']}{'_size' if r['size_cue'] else ''}": r["held_out_accuracy"]
+        for r in rows
+        if r["descriptor"] == "esf"
+    }
     print(
         f"\nESF held-out top-1 (target ≥ 0.90; {args.esf_samples} query triplets): ESF alone NN {acc['esf_nn']:.3f}, "
         f"ESF alone SVM {acc['esf_svm']:.3f}, ESF + size NN {acc['esf_nn_size']:.3f} (the front-end's default), "
@@ -192,9 +196,7 @@ def tank_records(args) -> tuple[list[ObservationRecord], dict]:
                     p = pipes[pid]
                     far = p.q if np.linalg.norm(p.q - o.position) > np.linalg.norm(p.p - o.position) else p.p
                     dirs.append(far - o.position)
-            records.append(
-                ObservationRecord(o.cls, rec.classify(pts[sel], None), int(oid), configuration_of(dirs))
-            )
+            records.append(ObservationRecord(o.cls, rec.classify(pts[sel], None), int(oid), configuration_of(dirs)))
         if (i + 1) % 25 == 0:
             print(f"  scan {i + 1}/{len(t)}: {len(records)} object observations ({time.perf_counter() - t0:.0f} s)")
     return records, syn
@@ -209,8 +211,15 @@ def main() -> None:
     ap.add_argument("--tank", action="store_true", help="the simulated tank with oracle segmentation and ids")
     ap.add_argument("--max-scans", type=int, default=0, help="--tank: use about this many scans (0: all)")
     ap.add_argument("--min-points", type=int, default=50, help="--tank: fewest hits of a visible object or pipe")
-    ap.add_argument("--mode", choices=["online", "final"], default="online", help="score each observation online or with the final map")
-    ap.add_argument("--views", type=int, default=24, help="database viewing directions per model (each at every distance)")
+    ap.add_argument(
+        "--mode",
+        choices=["online", "final"],
+        default="online",
+        help="score each observation online or with the final map",
+    )
+    ap.add_argument(
+        "--views", type=int, default=24, help="database viewing directions per model (each at every distance)"
+    )
     ap.add_argument("--held-out", type=int, default=30, help="held-out views per model")
     ap.add_argument("--cache-dir", type=Path, default=None)
     ap.add_argument(

@@ -50,7 +50,9 @@ def run_seed(seed: int, folder: Path) -> dict:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", default="0,1,2,3", help="simulator seeds, comma-separated (0: the default mission)")
-    ap.add_argument("--cache", type=Path, help="folder keeping the simulated missions between runs (default: a temporary one)")
+    ap.add_argument(
+        "--cache", type=Path, help="folder keeping the simulated missions between runs (default: a temporary one)"
+    )
     ap.add_argument("--json", default="experiments/out/seed_study.json")
     args = ap.parse_args()
     seeds = [int(s) for s in args.seeds.split(",")]
@@ -60,13 +62,16 @@ def main() -> None:
         results = {}
         for s in seeds:
             results[s] = r = run_seed(s, folder)
-            print(f"seed {s}: ATE dr {r['dr']['ate_rmse_m']:.3f} ekf {r['ekf']['ate_rmse_m']:.3f} "
-                  f"graph {r['graph']['ate_rmse_m']:.3f} | aligned ekf {r['ekf']['ate_rmse_se3_m']:.4f} "
-                  f"graph {r['graph']['ate_rmse_se3_m']:.4f} | "
-                  + ", ".join(f"{k} {v:.2f}" for k, v in r["ratios"].items())
-                  + f" | graph objects {r['graph']['n_objects']}, pipes {r['graph']['n_pipes']}, "
-                  f"duplicates {r['graph']['landmark_duplicates']} (ekf {r['ekf']['landmark_duplicates']}), "
-                  f"object median error {r['graph']['object_median_error_m']:.3f} m, SEM F1 {r['sem_f1']:.3f}", flush=True)
+            print(
+                f"seed {s}: ATE dr {r['dr']['ate_rmse_m']:.3f} ekf {r['ekf']['ate_rmse_m']:.3f} "
+                f"graph {r['graph']['ate_rmse_m']:.3f} | aligned ekf {r['ekf']['ate_rmse_se3_m']:.4f} "
+                f"graph {r['graph']['ate_rmse_se3_m']:.4f} | "
+                + ", ".join(f"{k} {v:.2f}" for k, v in r["ratios"].items())
+                + f" | graph objects {r['graph']['n_objects']}, pipes {r['graph']['n_pipes']}, "
+                f"duplicates {r['graph']['landmark_duplicates']} (ekf {r['ekf']['landmark_duplicates']}), "
+                f"object median error {r['graph']['object_median_error_m']:.3f} m, SEM F1 {r['sem_f1']:.3f}",
+                flush=True,
+            )
     Path(args.json).parent.mkdir(parents=True, exist_ok=True)
     Path(args.json).write_text(json.dumps(results, indent=1))
 

@@ -32,7 +32,7 @@ from frontends.sonar.grid import ElevationMap, estimate_ground
 from frontends.sonar.patches import top_points
 from frontends.sonar.recognition import Recogniser
 from frontends.sonar.synthetic import true_points, true_structure_pose, yaw_error
-from semslam.sim.structures import structure_library
+from semslam.models.structures import structure_library
 
 
 class Buckets:
@@ -49,8 +49,8 @@ class Buckets:
         self.keys = key[self.order]
 
     def near(self, c, r) -> np.ndarray:
-        i0, j0 = (np.floor((np.asarray(c) - r) / self.cell).astype(int) - self.lo)
-        i1, j1 = (np.floor((np.asarray(c) + r) / self.cell).astype(int) - self.lo)
+        i0, j0 = np.floor((np.asarray(c) - r) / self.cell).astype(int) - self.lo
+        i1, j1 = np.floor((np.asarray(c) + r) / self.cell).astype(int) - self.lo
         idx = []
         for i in range(max(i0, 0), i1 + 1):
             a = np.searchsorted(self.keys, i * self.w + max(j0, 0))
@@ -76,7 +76,7 @@ class Timer:
 
 def run_once(rec: Recogniser, top: np.ndarray, full: Buckets, mission) -> dict:
     """One recognition + registration pass, timed by stage."""
-    t_map, t_search, t_reg = Timer(), Timer(), Timer()
+    t_map, _t_search, _t_reg = Timer(), Timer(), Timer()
     # the map and its seabed (what recognise() does first), timed on their own
     with t_map:
         em = ElevationMap.from_points(top, rec.delta, quantile=0.1)
@@ -98,14 +98,26 @@ def run_once(rec: Recogniser, top: np.ndarray, full: Buckets, mission) -> dict:
     for d in dets:
         T_true = true_structure_pose(mission, d.model)
         lib = structure_library()[d.model]
-        found.append({"model": d.model, "score": d.normalised,
-                      "position_error_m": float(np.linalg.norm(d.registration.T[:3, 3] - T_true[:3, 3])),
-                      "yaw_error_deg": float(np.degrees(yaw_error(d.registration.T, T_true, lib.symmetry))),
-                      "median_m": d.registration.median_m})
-    return {"map_cpu_s": t_map.cpu, "map_wall_s": t_map.wall, "search_cpu_s": search_cpu,
-            "registration_cpu_s": reg_cpu, "search_wall_s": search_cpu * scale, "registration_wall_s": reg_cpu * scale,
-            "rec_reg_cpu_s": search_cpu + reg_cpu, "rec_reg_wall_s": (search_cpu + reg_cpu) * scale,
-            "found": found}
+        found.append(
+            {
+                "model": d.model,
+                "score": d.normalised,
+                "position_error_m": float(np.linalg.norm(d.registration.T[:3, 3] - T_true[:3, 3])),
+                "yaw_error_deg": float(np.degrees(yaw_error(d.registration.T, T_true, lib.symmetry))),
+                "median_m": d.registration.median_m,
+            }
+        )
+    return {
+        "map_cpu_s": t_map.cpu,
+        "map_wall_s": t_map.wall,
+        "search_cpu_s": search_cpu,
+        "registration_cpu_s": reg_cpu,
+        "search_wall_s": search_cpu * scale,
+        "registration_wall_s": reg_cpu * scale,
+        "rec_reg_cpu_s": search_cpu + reg_cpu,
+        "rec_reg_wall_s": (search_cpu + reg_cpu) * scale,
+        "found": found,
+    }
 
 
 def main(argv=None):
@@ -138,19 +150,39 @@ def main(argv=None):
             rec = Recogniser(lib, RecognitionConfig(delta_m=delta), StructureRegistrationConfig())
             runs.append(run_once(rec, top, buckets, mission))
         med = {k: float(np.median([r[k] for r in runs])) for k in runs[0] if k != "found"}
-        row = {"delta_m": delta, "runs": len(runs), **med, "found": runs[0]["found"],
-               "rec_reg_cpu_s_each": [r["rec_reg_cpu_s"] for r in runs],
-               "rec_reg_wall_s_each": [r["rec_reg_wall_s"] for r in runs]}
+        row = {
+            "delta_m": delta,
+            "runs": len(runs),
+            **med,
+            "found": runs[0]["found"],
+            "rec_reg_cpu_s_each": [r["rec_reg_cpu_s"] for r in runs],
+            "rec_reg_wall_s_each": [r["rec_reg_wall_s"] for r in runs],
+        }
         rows.append(row)
-        names = ", ".join(f"{f['model']} {100 * f['position_error_m']:.1f} cm {f['yaw_error_deg']:.2f}°" for f in row["found"])
-        print(f"Δ {100 * delta:4.0f} cm: search {row['search_cpu_s']:6.2f} s, registration {row['registration_cpu_s']:5.2f} s, "
-              f"recognition+registration {row['rec_reg_cpu_s']:6.2f} s CPU ({row['rec_reg_wall_s']:6.2f} s wall), "
-              f"map {row['map_cpu_s']:.2f} s; found: {names}", flush=True)
+        names = ", ".join(
+            f"{f['model']} {100 * f['position_error_m']:.1f} cm {f['yaw_error_deg']:.2f}°" for f in row["found"]
+        )
+        print(
+            f"Δ {100 * delta:4.0f} cm: search {row['search_cpu_s']:6.2f} s, registration {row['registration_cpu_s']:5.2f} s, "
+            f"recognition+registration {row['rec_reg_cpu_s']:6.2f} s CPU ({row['rec_reg_wall_s']:6.2f} s wall), "
+            f"map {row['map_cpu_s']:.2f} s; found: {names}",
+            flush=True,
+        )
     load = (load_start, os.getloadavg()[0])  # 1-min load averages: the wall times depend on them
     args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "bench.json").write_text(json.dumps({"seed": args.seed, "returns": len(full), "map_points": len(top),
-                                                      "cpus": os.cpu_count(), "load_average_start_end": load,
-                                                      "rows": rows}, indent=1))
+    (args.out / "bench.json").write_text(
+        json.dumps(
+            {
+                "seed": args.seed,
+                "returns": len(full),
+                "map_points": len(top),
+                "cpus": os.cpu_count(),
+                "load_average_start_end": load,
+                "rows": rows,
+            },
+            indent=1,
+        )
+    )
     plot(rows, args.out / "sonar_bench.png", load)
     print(f"figure: {args.out / 'sonar_bench.png'}")
 
@@ -170,14 +202,19 @@ def plot(rows, path, load=None):
     ax.plot(d, [r["map_cpu_s"] for r in rows], "v:", color="tab:green", label="elevation map at Δ + seabed (CPU)")
     ax.axhline(10.0, color="red", lw=1, ls=":", label="target: 10 s at Δ = 8 cm")
     for r, x in zip(rows, d):
-        ax.annotate(f"{len(r['found'])}/3", (x, r["rec_reg_cpu_s"]), xytext=(4, 6), textcoords="offset points", fontsize=8)
+        ax.annotate(
+            f"{len(r['found'])}/3", (x, r["rec_reg_cpu_s"]), xytext=(4, 6), textcoords="offset points", fontsize=8
+        )
     ax.set_xlabel("Δ: candidate spacing and descriptor cell (cm)")
     ax.set_ylabel("time (s)")
     ax.set_yscale("log")
     runs = min(r["runs"] for r in rows)
-    shared = (f"; wall on {os.cpu_count()} cores at load {load[0]:.1f}–{load[1]:.1f}" if load else "")
-    ax.set_title("Recognition + registration of the three structures over the whole field\n"
-                 f"(34 × 50 m, 4.5 M returns; n/3 = structures found; medians of {runs} runs{shared})", fontsize=10)
+    shared = f"; wall on {os.cpu_count()} cores at load {load[0]:.1f}–{load[1]:.1f}" if load else ""
+    ax.set_title(
+        "Recognition + registration of the three structures over the whole field\n"
+        f"(34 × 50 m, 4.5 M returns; n/3 = structures found; medians of {runs} runs{shared})",
+        fontsize=10,
+    )
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=8)
     fig.tight_layout()

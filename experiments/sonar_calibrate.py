@@ -31,10 +31,10 @@ from frontends.sonar.config import RecognitionConfig, StructureRegistrationConfi
 from frontends.sonar.descriptor import search
 from frontends.sonar.recognition import Recogniser
 from frontends.sonar.synthetic import true_points
+from semslam.models.structures import structure_library
 from semslam.sim.drift import dead_reckoning
 from semslam.sim.field_config import FieldSimConfig
 from semslam.sim.field_mission import simulate_field
-from semslam.sim.structures import structure_library
 
 
 def dr_points(mission) -> np.ndarray:
@@ -73,7 +73,7 @@ def scores(rec: Recogniser, pts: np.ndarray, truth: dict) -> dict:
         c = truth[m.name]
         d = np.hypot(N[ii] - c[0], E[jj] - c[1])
         clear_m = clear
-        for name, c2 in truth.items():
+        for c2 in truth.values():
             clear_m = clear_m & (np.hypot(N[ii] - c2[0], E[jj] - c2[1]) > m.footprint_radius)
         others = np.zeros((H, W), bool)
         for name, c2 in truth.items():
@@ -101,23 +101,34 @@ def main(argv=None) -> dict:
         t0 = time.time()
         m = simulate_field(FieldSimConfig(seed=seed))
         truth = {s.model: np.array(s.position[:2]) for s in m.metadata.ground_truth.structures}
-        results[seed] = {"true_poses": scores(rec, true_points(m), truth),
-                         "dead_reckoning": scores(rec, dr_points(m), truth)}
+        results[seed] = {
+            "true_poses": scores(rec, true_points(m), truth),
+            "dead_reckoning": scores(rec, dr_points(m), truth),
+        }
         print(f"seed {seed}: {time.time() - t0:.0f} s")
     worst_true = max(r[k][n]["true"] or np.inf for r in results.values() for k in ("true_poses",) for n in r[k])
     best_false = min(r[k][n]["false"] or np.inf for r in results.values() for k in r for n in r[k])
-    summary = {"seeds": args.seeds, "max_true": worst_true, "min_false": best_false,
-               "suggested_threshold": 0.5 * (worst_true + best_false), "configured": RecognitionConfig().threshold,
-               "results": results}
+    summary = {
+        "seeds": args.seeds,
+        "max_true": worst_true,
+        "min_false": best_false,
+        "suggested_threshold": 0.5 * (worst_true + best_false),
+        "configured": RecognitionConfig().threshold,
+        "results": results,
+    }
     print(f"{'seed':>4} {'placement':>15} {'model':>9} {'true':>6} {'seabed':>6} {'others':>6}  seabed best at")
     nan = float("nan")
     for seed, r in results.items():
         for k, rows in r.items():
             for n, row in rows.items():
-                print(f"{seed:>4} {k:>15} {n:>9} {row['true'] or nan:6.3f} {row['false'] or nan:6.3f} "
-                      f"{row['other_structures'] or nan:6.3f}  {row.get('false_at')}")
-    print(f"max true (true poses) {worst_true:.3f}, min false (seabed, pipelines) {best_false:.3f} → threshold "
-          f"{summary['suggested_threshold']:.3f} (configured {summary['configured']})")
+                print(
+                    f"{seed:>4} {k:>15} {n:>9} {row['true'] or nan:6.3f} {row['false'] or nan:6.3f} "
+                    f"{row['other_structures'] or nan:6.3f}  {row.get('false_at')}"
+                )
+    print(
+        f"max true (true poses) {worst_true:.3f}, min false (seabed, pipelines) {best_false:.3f} → threshold "
+        f"{summary['suggested_threshold']:.3f} (configured {summary['configured']})"
+    )
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(summary, indent=1, default=float))
     return summary

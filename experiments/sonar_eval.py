@@ -69,7 +69,7 @@ def between_lines(traj, truth, lines, t0_ns: int, step_m: float = 0.5) -> dict:
         e = np.arange(lo, hi + 1e-9, step_m)
 
         def when(line):
-            f = (e - line["east_from_m"]) / (line["east_to_m"] - line["east_from_m"])
+            f = (e - line["east_from_m"]) / (line["east_to_m"] - line["east_from_m"])  # noqa: B023
             return line["t_start_s"] + f * (line["t_end_s"] - line["t_start_s"])
 
         ta, tb = when(a), when(b)
@@ -78,7 +78,10 @@ def between_lines(traj, truth, lines, t0_ns: int, step_m: float = 0.5) -> dict:
         eb = np.stack([np.interp(tb[ok], t, err[:, k]) for k in range(2)], 1)
         out.append(np.linalg.norm(ea - eb, axis=1))
     d = np.concatenate(out) if out else np.zeros(0)
-    return {"median_m": float(np.median(d)) if len(d) else None, "p95_m": float(np.percentile(d, 95)) if len(d) else None}
+    return {
+        "median_m": float(np.median(d)) if len(d) else None,
+        "p95_m": float(np.percentile(d, 95)) if len(d) else None,
+    }
 
 
 def load(seed: int, bag_dir: Path | None):
@@ -171,8 +174,11 @@ def evaluate(seed: int, bag_dir: Path | None, out_dir: Path, fe_config: dict | N
     disagreement = {k: swath_disagreement(fe, f, pairs) for k, f in placements.items()}
     lines = mission.metadata.extras.get("trajectory", {}).get("lines", [])
     start_ns = int(round(mission.metadata.extras["simulator"]["config"]["start_time_s"] * 1e9)) if lines else 0
-    misalignment = {name: between_lines(res.results[name].trajectory, res.truth, lines, start_ns)
-                    for name in ("dr", "graph")} if lines and res.truth is not None else {}
+    misalignment = (
+        {name: between_lines(res.results[name].trajectory, res.truth, lines, start_ns) for name in ("dr", "graph")}
+        if lines and res.truth is not None
+        else {}
+    )
     if misalignment:
         misalignment["graph_without_sonar"] = between_lines(g0, res.truth, lines, start_ns)
     e = metrics["estimators"]
@@ -204,32 +210,44 @@ def evaluate(seed: int, bag_dir: Path | None, out_dir: Path, fe_config: dict | N
     import pickle
 
     with open(out_dir / f"seed{seed}_frontend.pkl", "wb") as f:  # for diagnosis: constraints and their poses
-        pickle.dump({"swath_registrations": fe.swath_registrations, "swath_log": fe.swath_log,
-                     "structures": [(k.model, k.history, k.T_WM) for k in fe.structures],
-                     "rejection_log": fe.rejection_log}, f)
+        pickle.dump(
+            {
+                "swath_registrations": fe.swath_registrations,
+                "swath_log": fe.swath_log,
+                "structures": [(k.model, k.history, k.T_WM) for k in fe.structures],
+                "rejection_log": fe.rejection_log,
+            },
+            f,
+        )
     return row
 
 
 def table(rows: list[dict]) -> str:
-    lines = ["| seed | structure | found | position err (m) | median pt-model (cm) | yaw err (°) |",
-             "|---:|---|:---:|---:|---:|---:|"]
+    lines = [
+        "| seed | structure | found | position err (m) | median pt-model (cm) | yaw err (°) |",
+        "|---:|---|:---:|---:|---:|---:|",
+    ]
     for r in rows:
         for s in r["structures"]:
             pe = "–" if s["position_error_m"] is None else f"{s['position_error_m']:.3f}"
             me = "–" if s["median_error_m"] is None else f"{100 * s['median_error_m']:.2f}"
             ye = "–" if s["yaw_error_deg"] is None else f"{s['yaw_error_deg']:.2f}"
             lines.append(f"| {r['seed']} | {s['model']} | {'yes' if s['found'] else 'NO'} | {pe} | {me} | {ye} |")
-    lines += ["", "Swath disagreement: median |Δ depth| between overlapping passes (cm), patches placed by dead "
-              "reckoning / the graph without the sonar's constraints / as navigated online (metrics.json's "
-              "'before') / the final graph ('after') / the truth; between-line "
-              "misalignment (cm) and ATE (m) of dead reckoning / graph without sonar / graph.", "",
-              "| seed | all cells | textured cells | between-line misalignment | swath regs | NEES swath/dof, "
-              "structure (6) | world model | ATE | landmarks | CPU rec+reg / front-end (s) |",
-              "|---:|---|---|---|---:|---|---|---|---:|---|"]
+    lines += [
+        "",
+        "Swath disagreement: median |Δ depth| between overlapping passes (cm), patches placed by dead "
+        "reckoning / the graph without the sonar's constraints / as navigated online (metrics.json's "
+        "'before') / the final graph ('after') / the truth; between-line "
+        "misalignment (cm) and ATE (m) of dead reckoning / graph without sonar / graph.",
+        "",
+        "| seed | all cells | textured cells | between-line misalignment | swath regs | NEES swath/dof, "
+        "structure (6) | world model | ATE | landmarks | CPU rec+reg / front-end (s) |",
+        "|---:|---|---|---|---:|---|---|---|---:|---|",
+    ]
     for r in rows:
         d = r["disagreement"]
         order = ("dead_reckoning", "graph_without_sonar", "as_navigated", "final_graph", "ground_truth")
-        f = lambda key: " / ".join("–" if d[k][key] is None else f"{100 * d[k][key]:.2f}" for k in order)  # noqa: E731
+        f = lambda key: " / ".join("–" if d[k][key] is None else f"{100 * d[k][key]:.2f}" for k in order)  # noqa: B023, E731
         c = r["consistency"]
         ns = "–" if c["swath_nees_per_dof"] is None else f"{c['swath_nees_per_dof']:.2f}"
         nt = "–" if c["structure_nees_mean_6dof"] is None else f"{c['structure_nees_mean_6dof']:.1f}"
@@ -241,7 +259,8 @@ def table(rows: list[dict]) -> str:
             f"{r['world_model_bytes'] / 1e3:.0f} kB = {100 * r['world_model_fraction']:.2f} % | "
             f"{r['ate_dr_m']:.3f} / {r['ate_graph_without_sonar_m']:.3f} / {r['ate_graph_m']:.3f} | "
             f"{r['graph_structures']} | "
-            f"{r['frontend_recognition_registration_cpu_s']:.1f} / {r['frontend_cpu_s']:.1f} |")
+            f"{r['frontend_recognition_registration_cpu_s']:.1f} / {r['frontend_cpu_s']:.1f} |"
+        )
     return "\n".join(lines)
 
 
@@ -250,9 +269,13 @@ def main(argv=None):
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     ap.add_argument("--bag-dir", type=Path, default=None)
     ap.add_argument("--out", type=Path, default=Path("experiments/out/sonar_eval"))
-    ap.add_argument("--frontend-config", type=json.loads, default=None,
-                    help='JSON overrides of frontends.sonar, e.g. \'{"recognition": {"enabled": false}}\' '
-                         "(swath registration alone: what it does to the disagreement without structures)")
+    ap.add_argument(
+        "--frontend-config",
+        type=json.loads,
+        default=None,
+        help='JSON overrides of frontends.sonar, e.g. \'{"recognition": {"enabled": false}}\' '
+        "(swath registration alone: what it does to the disagreement without structures)",
+    )
     args = ap.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
     rows = []
@@ -270,13 +293,17 @@ def main(argv=None):
         "median_point_to_model_cm_max": 100 * max(s["median_error_m"] for s in ok) if ok else None,
         "yaw_error_deg_max": max(s["yaw_error_deg"] for s in ok) if ok else None,
         "position_error_m_median": float(np.median([s["position_error_m"] for s in ok])) if ok else None,
-        "disagreement_median_cm": {k: float(np.median([100 * r["disagreement"][k]["median_m"] for r in rows]))
-                                   for k in rows[0]["disagreement"]},
+        "disagreement_median_cm": {
+            k: float(np.median([100 * r["disagreement"][k]["median_m"] for r in rows])) for k in rows[0]["disagreement"]
+        },
         "textured_disagreement_median_cm": {
             k: float(np.median([100 * r["disagreement"][k]["textured_median_m"] for r in rows]))
-            for k in rows[0]["disagreement"]},
+            for k in rows[0]["disagreement"]
+        },
         "world_model_fraction_max": max(r["world_model_fraction"] for r in rows),
-        "recognition_registration_cpu_s_median": float(np.median([r["frontend_recognition_registration_cpu_s"] for r in rows])),
+        "recognition_registration_cpu_s_median": float(
+            np.median([r["frontend_recognition_registration_cpu_s"] for r in rows])
+        ),
     }
     (args.out / "summary.json").write_text(json.dumps({"overall": overall, "seeds": rows}, indent=1, default=float))
     md = table(rows)

@@ -32,11 +32,13 @@ def so3_exp(w: np.ndarray) -> np.ndarray:
         th = math.sqrt(th2)
         a, b = math.sin(th) / th, (1.0 - math.cos(th)) / th2
     # I + a K + b K², with K² = w wᵀ − θ² I
-    return np.array([
-        [1.0 - b * (y * y + z * z), b * x * y - a * z, b * x * z + a * y],
-        [b * x * y + a * z, 1.0 - b * (x * x + z * z), b * y * z - a * x],
-        [b * x * z - a * y, b * y * z + a * x, 1.0 - b * (x * x + y * y)],
-    ])
+    return np.array(
+        [
+            [1.0 - b * (y * y + z * z), b * x * y - a * z, b * x * z + a * y],
+            [b * x * y + a * z, 1.0 - b * (x * x + z * z), b * y * z - a * x],
+            [b * x * z - a * y, b * y * z + a * x, 1.0 - b * (x * x + y * y)],
+        ]
+    )
 
 
 def so3_log(R: np.ndarray) -> np.ndarray:
@@ -59,11 +61,13 @@ def quat_to_rot(q) -> np.ndarray:
     """Rotation matrix of a quaternion (x, y, z, w) (ROS order; normalised here), as scipy's Rotation."""
     x, y, z, w = (float(v) for v in q)
     s = 2.0 / (x * x + y * y + z * z + w * w)
-    return np.array([
-        [1.0 - s * (y * y + z * z), s * (x * y - z * w), s * (x * z + y * w)],
-        [s * (x * y + z * w), 1.0 - s * (x * x + z * z), s * (y * z - x * w)],
-        [s * (x * z - y * w), s * (y * z + x * w), 1.0 - s * (x * x + y * y)],
-    ])
+    return np.array(
+        [
+            [1.0 - s * (y * y + z * z), s * (x * y - z * w), s * (x * z + y * w)],
+            [s * (x * y + z * w), 1.0 - s * (x * x + z * z), s * (y * z - x * w)],
+            [s * (x * z - y * w), s * (y * z + x * w), 1.0 - s * (x * x + y * y)],
+        ]
+    )
 
 
 def so3_right_jacobian(w: np.ndarray) -> np.ndarray:

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import gtsam
 import numpy as np
 
-from factors.geometry import pose_point_jacobian, skew, so3_exp, so3_right_jacobian
+from factors.geometry import skew, so3_exp, so3_right_jacobian
 
 # --------------------------------------------------------------------------------------------
 # Object point
@@ -75,7 +75,7 @@ class LineAnchor:
     c0: np.ndarray  # (3,)
 
     @staticmethod
-    def from_points(p: np.ndarray, q: np.ndarray) -> "LineAnchor":
+    def from_points(p: np.ndarray, q: np.ndarray) -> LineAnchor:
         """Anchor at the midpoint of p, q with e_z along q − p."""
         d = (q - p) / np.linalg.norm(q - p)
         helper = np.array([1.0, 0.0, 0.0]) if abs(d[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
@@ -125,7 +125,16 @@ def line_frame(anchor: LineAnchor, theta) -> tuple[np.ndarray, np.ndarray]:
     return anchor.R0 @ so3_exp(phi), so3_right_jacobian(phi)[:, :2]
 
 
-def line_residual_at(R: np.ndarray, t: np.ndarray, RL: np.ndarray, Jr2: np.ndarray, c0: np.ndarray, ab, e_B: np.ndarray, jac: bool = False):
+def line_residual_at(
+    R: np.ndarray,
+    t: np.ndarray,
+    RL: np.ndarray,
+    Jr2: np.ndarray,
+    c0: np.ndarray,
+    ab,
+    e_B: np.ndarray,
+    jac: bool = False,
+):
     """:func:`line_residual` from its pieces: the pose (R, t), the line frame (R_L, J_r columns,
     anchor c0, offsets ab) and the endpoints in the body frame e_B (2×3). Both endpoints at once."""
     e_W = t + e_B @ R.T
@@ -184,7 +193,10 @@ def line_factor(x: int, l: int, anchor: LineAnchor, p_S, q_S, cov4: np.ndarray, 
     the factors of one landmark through :meth:`LineAnchor.frame_rows`. Same numbers (tested)."""
     T_BS = np.asarray(T_BS, float)
     R_BS, t_BS = T_BS[:3, :3], T_BS[:3, 3]
-    (p0, p1, p2), (q0, q1, q2) = (R_BS @ np.asarray(p_S, float) + t_BS).tolist(), (R_BS @ np.asarray(q_S, float) + t_BS).tolist()
+    (p0, p1, p2), (q0, q1, q2) = (
+        (R_BS @ np.asarray(p_S, float) + t_BS).tolist(),
+        (R_BS @ np.asarray(q_S, float) + t_BS).tolist(),
+    )
     c0x, c0y, c0z = anchor.c0.tolist()
 
     def error(this, values, H):
@@ -194,8 +206,16 @@ def line_factor(x: int, l: int, anchor: LineAnchor, p_S, q_S, cov4: np.ndarray, 
         a, b = float(th[2]), float(th[3])
         # A = R_Lᵀ R (rows A0, A1, A2); u = R_Lᵀ (t − c0); e_L = u + A e_B for each endpoint
         dx, dy, dz = tx - c0x, ty - c0y, tz - c0z
-        A00, A01, A02 = L00 * R00 + L10 * R10 + L20 * R20, L00 * R01 + L10 * R11 + L20 * R21, L00 * R02 + L10 * R12 + L20 * R22
-        A10, A11, A12 = L01 * R00 + L11 * R10 + L21 * R20, L01 * R01 + L11 * R11 + L21 * R21, L01 * R02 + L11 * R12 + L21 * R22
+        A00, A01, A02 = (
+            L00 * R00 + L10 * R10 + L20 * R20,
+            L00 * R01 + L10 * R11 + L20 * R21,
+            L00 * R02 + L10 * R12 + L20 * R22,
+        )
+        A10, A11, A12 = (
+            L01 * R00 + L11 * R10 + L21 * R20,
+            L01 * R01 + L11 * R11 + L21 * R21,
+            L01 * R02 + L11 * R12 + L21 * R22,
+        )
         u0 = L00 * dx + L10 * dy + L20 * dz
         u1 = L01 * dx + L11 * dy + L21 * dz
         pl0, pl1 = u0 + A00 * p0 + A01 * p1 + A02 * p2, u1 + A10 * p0 + A11 * p1 + A12 * p2
@@ -203,7 +223,11 @@ def line_factor(x: int, l: int, anchor: LineAnchor, p_S, q_S, cov4: np.ndarray, 
         r = np.array([pl0 - a, pl1 - b, ql0 - a, ql1 - b])
         if H is None:
             return r
-        A20, A21, A22 = L02 * R00 + L12 * R10 + L22 * R20, L02 * R01 + L12 * R11 + L22 * R21, L02 * R02 + L12 * R12 + L22 * R22
+        A20, A21, A22 = (
+            L02 * R00 + L12 * R10 + L22 * R20,
+            L02 * R01 + L12 * R11 + L22 * R21,
+            L02 * R02 + L12 * R12 + L22 * R22,
+        )
         u2 = L02 * dx + L12 * dy + L22 * dz
         pl2 = u2 + A20 * p0 + A21 * p1 + A22 * p2
         ql2 = u2 + A20 * q0 + A21 * q1 + A22 * q2

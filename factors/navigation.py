@@ -10,7 +10,7 @@ as a Wiener process, white acceleration σ_a) whose uncertainty grows with the g
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import gtsam
 import numpy as np
@@ -211,12 +211,35 @@ def displacement_factor(xi: int, xj: int, vi: int, vj: int, d: DisplacementInteg
         )
         if H is None:
             return r
-        H[0] = np.array([[0.0, -z, y, -1.0, 0.0, 0.0], [z, 0.0, -x, 0.0, -1.0, 0.0], [-y, x, 0.0, 0.0, 0.0, -1.0]])  # [[δ]×, −I]
+        H[0] = np.array(
+            [[0.0, -z, y, -1.0, 0.0, 0.0], [z, 0.0, -x, 0.0, -1.0, 0.0], [-y, x, 0.0, 0.0, 0.0, -1.0]]
+        )  # [[δ]×, −I]
         H[1] = np.array(  # [0, R_iᵀ R_j]
             [
-                [0.0, 0.0, 0.0, R00 * S00 + R10 * S10 + R20 * S20, R00 * S01 + R10 * S11 + R20 * S21, R00 * S02 + R10 * S12 + R20 * S22],
-                [0.0, 0.0, 0.0, R01 * S00 + R11 * S10 + R21 * S20, R01 * S01 + R11 * S11 + R21 * S21, R01 * S02 + R11 * S12 + R21 * S22],
-                [0.0, 0.0, 0.0, R02 * S00 + R12 * S10 + R22 * S20, R02 * S01 + R12 * S11 + R22 * S21, R02 * S02 + R12 * S12 + R22 * S22],
+                [
+                    0.0,
+                    0.0,
+                    0.0,
+                    R00 * S00 + R10 * S10 + R20 * S20,
+                    R00 * S01 + R10 * S11 + R20 * S21,
+                    R00 * S02 + R10 * S12 + R20 * S22,
+                ],
+                [
+                    0.0,
+                    0.0,
+                    0.0,
+                    R01 * S00 + R11 * S10 + R21 * S20,
+                    R01 * S01 + R11 * S11 + R21 * S21,
+                    R01 * S02 + R11 * S12 + R21 * S22,
+                ],
+                [
+                    0.0,
+                    0.0,
+                    0.0,
+                    R02 * S00 + R12 * S10 + R22 * S20,
+                    R02 * S01 + R12 * S11 + R22 * S21,
+                    R02 * S02 + R12 * S12 + R22 * S22,
+                ],
             ]
         )
         H[2] = H_vi
@@ -282,9 +305,21 @@ def biased_attitude_factor(x: int, b: int, R_meas: np.ndarray, cov_tangent: np.n
         E = gtsam.Rot3(
             np.array(
                 [
-                    [n00 * R00 + n01 * R10 + m02 * R20, n00 * R01 + n01 * R11 + m02 * R21, n00 * R02 + n01 * R12 + m02 * R22],
-                    [n10 * R00 + n11 * R10 + m12 * R20, n10 * R01 + n11 * R11 + m12 * R21, n10 * R02 + n11 * R12 + m12 * R22],
-                    [n20 * R00 + n21 * R10 + m22 * R20, n20 * R01 + n21 * R11 + m22 * R21, n20 * R02 + n21 * R12 + m22 * R22],
+                    [
+                        n00 * R00 + n01 * R10 + m02 * R20,
+                        n00 * R01 + n01 * R11 + m02 * R21,
+                        n00 * R02 + n01 * R12 + m02 * R22,
+                    ],
+                    [
+                        n10 * R00 + n11 * R10 + m12 * R20,
+                        n10 * R01 + n11 * R11 + m12 * R21,
+                        n10 * R02 + n11 * R12 + m12 * R22,
+                    ],
+                    [
+                        n20 * R00 + n21 * R10 + m22 * R20,
+                        n20 * R01 + n21 * R11 + m22 * R21,
+                        n20 * R02 + n21 * R12 + m22 * R22,
+                    ],
                 ]
             )
         )

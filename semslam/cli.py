@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import sys
 from pathlib import Path
-from typing import Optional
 
 import typer
 
@@ -42,7 +41,7 @@ ConfigOpt = typer.Option(None, "--config", "-c", help="YAML configuration (see `
 
 @app.command()
 @user_errors
-def info(mission: Path = MissionArg, config: Optional[Path] = ConfigOpt):
+def info(mission: Path = MissionArg, config: Path | None = ConfigOpt):
     """Sensors, topics, message types, counts, rates, duration and gaps of a mission."""
     from semslam.config import load_config
     from semslam.mission.bag import read_mission
@@ -55,7 +54,7 @@ def info(mission: Path = MissionArg, config: Optional[Path] = ConfigOpt):
 
 @config_app.command("dump")
 @user_errors
-def config_dump(config: Optional[Path] = ConfigOpt):
+def config_dump(config: Path | None = ConfigOpt):
     """Print the resolved configuration (defaults, overridden by --config)."""
     from semslam.config import dump_config, load_config
 
@@ -68,13 +67,13 @@ def simulate(
     scene: str = typer.Argument(..., help="tank (laser, DVL, AHRS, depth) or field (multibeam sonar)"),
     out: Path = typer.Option(..., "--out", "-o", help="bag to write: .bag = ROS 1, .mcap, otherwise a ROS 2 directory"),
     seed: int = typer.Option(0, "--seed", help="random seed (seed 0 reproduces the default layout)"),
-    loops: Optional[float] = typer.Option(None, "--loops", help="tank: loops around the structure (default 3)"),
-    dvl_dropout_rate: Optional[float] = typer.Option(
+    loops: float | None = typer.Option(None, "--loops", help="tank: loops around the structure (default 3)"),
+    dvl_dropout_rate: float | None = typer.Option(
         None, "--dvl-dropout-rate", help="fraction of the mission lost to random DVL dropout bursts"
     ),
-    layout: Optional[Path] = typer.Option(None, "--layout", help="tank: structure layout YAML instead of a seeded one"),
-    preview: Optional[Path] = typer.Option(None, "--preview", help="also render the scene and trajectory to this PNG"),
-    sim_config: Optional[Path] = typer.Option(None, "--sim-config", help="YAML overriding the simulator defaults"),
+    layout: Path | None = typer.Option(None, "--layout", help="tank: structure layout YAML instead of a seeded one"),
+    preview: Path | None = typer.Option(None, "--preview", help="also render the scene and trajectory to this PNG"),
+    sim_config: Path | None = typer.Option(None, "--sim-config", help="YAML overriding the simulator defaults"),
     overwrite: bool = typer.Option(False, "--overwrite", help="replace an existing bag"),
 ):
     """Simulate a mission with ground truth and write it as an ordinary ROS bag."""
@@ -84,8 +83,15 @@ def simulate(
         from semslam.sim.simulate import simulate_tank_to_bag
 
         m = simulate_tank_to_bag(
-            out, seed=seed, dvl_dropout_rate=dvl_dropout_rate, loops=loops, preview=preview,
-            config=sim_config, layout=layout, overwrite=overwrite, progress=sys.stderr.isatty(),
+            out,
+            seed=seed,
+            dvl_dropout_rate=dvl_dropout_rate,
+            loops=loops,
+            preview=preview,
+            config=sim_config,
+            layout=layout,
+            overwrite=overwrite,
+            progress=sys.stderr.isatty(),
         )
     elif scene == "field":
         if loops is not None or layout is not None:
@@ -93,8 +99,13 @@ def simulate(
         from semslam.sim.field_mission import simulate_field_to_bag
 
         m = simulate_field_to_bag(
-            out, seed=seed, dvl_dropout_rate=dvl_dropout_rate, preview=preview, config=sim_config,
-            overwrite=overwrite, progress=sys.stderr.isatty(),
+            out,
+            seed=seed,
+            dvl_dropout_rate=dvl_dropout_rate,
+            preview=preview,
+            config=sim_config,
+            overwrite=overwrite,
+            progress=sys.stderr.isatty(),
         )
     else:
         raise SemslamError(f"unknown scene {scene!r} (choose tank or field)")
@@ -114,7 +125,7 @@ def run(
     estimator: str = typer.Option("graph", "--estimator", "-e", help="graph, ekf or dr"),
     batch: bool = typer.Option(False, "--batch", help="graph: re-optimise the whole mission at the end"),
     frontends: str = typer.Option("", "--frontends", help="comma-separated front-end names"),
-    config: Optional[Path] = ConfigOpt,
+    config: Path | None = ConfigOpt,
 ):
     """Run one estimator over a mission and write its trajectory, map and metrics."""
     from semslam.config import load_config
@@ -145,8 +156,8 @@ def run(
 def compare(
     mission: Path = MissionArg,
     out: Path = typer.Option(..., "--out", "-o", help="output directory"),
-    frontends: Optional[str] = typer.Option(None, "--frontends", help="comma-separated; default: by sensor kind"),
-    config: Optional[Path] = ConfigOpt,
+    frontends: str | None = typer.Option(None, "--frontends", help="comma-separated; default: by sensor kind"),
+    config: Path | None = ConfigOpt,
 ):
     """dr, ekf and graph on identical inputs, with a report."""
     from semslam.compare import compare_to_dir
@@ -164,7 +175,7 @@ def compare(
 
 @app.command()
 @user_errors
-def demo(out: Optional[Path] = typer.Option(None, "--out", "-o", help="output directory")):
+def demo(out: Path | None = typer.Option(None, "--out", "-o", help="output directory")):
     """Simulate the default tank mission and compare dr, ekf and graph on it."""
     from semslam.demo import run_demo
     from semslam.eval.report import metrics_table, recognition_table, text_table
@@ -175,7 +186,9 @@ def demo(out: Optional[Path] = typer.Option(None, "--out", "-o", help="output di
     if rec:
         typer.echo("")
         typer.echo(text_table(rec))
-    typer.echo(f"\nwhole comparison: {metrics['wall_time_s']:.0f} s for {metrics['mission']['duration_s']:.0f} s of mission")
+    typer.echo(
+        f"\nwhole comparison: {metrics['wall_time_s']:.0f} s for {metrics['mission']['duration_s']:.0f} s of mission"
+    )
     typer.echo(f"report: {report.resolve()}")
 
 

@@ -43,7 +43,10 @@ def run_comparison(
 
 
 def compare_to_dir(
-    mission: Mission, config: SemslamConfig, out: str | Path, frontends: Sequence[str] | None = None,
+    mission: Mission,
+    config: SemslamConfig,
+    out: str | Path,
+    frontends: Sequence[str] | None = None,
     progress: bool = False,
 ) -> tuple[dict, Path]:
     result, metrics = run_comparison(mission, config, frontends, progress=progress)

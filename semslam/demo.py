@@ -12,14 +12,17 @@ from semslam.config import SemslamConfig
 
 
 def cache_dir() -> Path:
-    base = os.environ.get("SEMSLAM_CACHE") or os.path.join(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache"), "semslam")
+    base = os.environ.get("SEMSLAM_CACHE") or os.path.join(
+        os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache"), "semslam"
+    )
     return Path(base)
 
 
 def simulator_fingerprint() -> str:
     """Hash of the simulator's source: a changed simulator never reuses a stale cached mission."""
     h = hashlib.sha1(semslam.__version__.encode())
-    for f in sorted((Path(semslam.__file__).parent / "sim").rglob("*.py")):
+    root = Path(semslam.__file__).parent
+    for f in sorted([*(root / "sim").rglob("*.py"), *(root / "models").rglob("*.py")]):  # models: the scene's parts
         h.update(f.read_bytes())
     return h.hexdigest()[:12]
 

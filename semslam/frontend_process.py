@@ -99,7 +99,9 @@ class FrontendProcess:
     def _observed(self, m: Measurement) -> bool:
         """Some front-end may observe on ``m``: one without parallel types, or one that takes ``m``'s
         type in parallel. A replicated front-end's other types only feed its state (no reply)."""
-        return any(isinstance(m, types) and (not par or isinstance(m, par)) for types, par in zip(self._types, self._parallel))
+        return any(
+            isinstance(m, types) and (not par or isinstance(m, par)) for types, par in zip(self._types, self._parallel)
+        )
 
     def _shared(self, m: Measurement) -> bool:
         """Every front-end that consumes ``m`` takes it in parallel: one replica suffices."""
@@ -155,14 +157,19 @@ class _Worker:
         self.index = index
         self._in = ctx.Queue()
         self._out = ctx.Queue()
-        self._proc = ctx.Process(target=_work, args=(frontends, self._in, self._out, dict(os.environ)), daemon=True,
-                                 name=f"semslam-frontends-{index}")
+        self._proc = ctx.Process(
+            target=_work,
+            args=(frontends, self._in, self._out, dict(os.environ)),
+            daemon=True,
+            name=f"semslam-frontends-{index}",
+        )
         # Started aside: a forkserver's start waits for its child's pid, i.e. for the server to have
         # imported the front-ends (~2 s, once per process), while the caller could be reading the
         # mission. Measurements sent meanwhile wait in the queue.
         self._start_error: BaseException | None = None
-        self._starter: threading.Thread | None = threading.Thread(target=self._start, daemon=True,
-                                                                  name=f"semslam-frontends-start-{index}")
+        self._starter: threading.Thread | None = threading.Thread(
+            target=self._start, daemon=True, name=f"semslam-frontends-start-{index}"
+        )
         self._starter.start()
 
     def _start(self) -> None:
@@ -190,10 +197,12 @@ class _Worker:
                 break
             except queue.Empty:  # the worker may have died without a word
                 if not self._proc.is_alive():
-                    raise RuntimeError(f"the front-end process ({', '.join(names)}) died "
-                                       f"(exit code {self._proc.exitcode}; a script that runs the "
-                                       "pipeline must start it under `if __name__ == '__main__':`, "
-                                       "as the process imports the script)") from None
+                    raise RuntimeError(
+                        f"the front-end process ({', '.join(names)}) died "
+                        f"(exit code {self._proc.exitcode}; a script that runs the "
+                        "pipeline must start it under `if __name__ == '__main__':`, "
+                        "as the process imports the script)"
+                    ) from None
         if kind == "error":
             exc, tb = payload
             exc.__notes__ = [*getattr(exc, "__notes__", []), f"in the front-end process:\n{tb}"]
@@ -277,7 +286,9 @@ def _process(frontends: list, item) -> dict[str, tuple[object, float]]:
             out[fe.name] = (obs, time.perf_counter() - t0)
             par = tuple(getattr(fe, "parallel_consumes", ()))
             if obs and par and not isinstance(item, par):
-                raise RuntimeError(f"front-end {fe.name!r} observed on a {type(item).__name__}, which it "
-                                   "does not take in parallel: with parallel_consumes, its other "
-                                   "measurement types may only feed its state")
+                raise RuntimeError(
+                    f"front-end {fe.name!r} observed on a {type(item).__name__}, which it "
+                    "does not take in parallel: with parallel_consumes, its other "
+                    "measurement types may only feed its state"
+                )
     return out

@@ -112,7 +112,9 @@ def _in_order(mission: Mission, worker: FrontendProcess | None, timing: dict):
         yield pending.popleft()
 
 
-def _run_pipeline(mission, estimators, frontends, view_estimator, progress, keep_observations, worker) -> PipelineResult:
+def _run_pipeline(
+    mission, estimators, frontends, view_estimator, progress, keep_observations, worker
+) -> PipelineResult:
     if not estimators:
         raise ValueError("at least one estimator is needed")
     wall0 = time.perf_counter()
@@ -136,8 +138,13 @@ def _run_pipeline(mission, estimators, frontends, view_estimator, progress, keep
     if progress:
         from tqdm import tqdm
 
-        bar = tqdm(total=getattr(mission, "message_count", None), unit=" msg", desc="mission", dynamic_ncols=True,
-                   mininterval=0.5)
+        bar = tqdm(
+            total=getattr(mission, "message_count", None),
+            unit=" msg",
+            desc="mission",
+            dynamic_ncols=True,
+            mininterval=0.5,
+        )
     first = last = None
     n = 0
     for m, sent in _in_order(mission, worker, timing):
@@ -169,7 +176,9 @@ def _run_pipeline(mission, estimators, frontends, view_estimator, progress, keep
             bar.update(1)
             if n % 200 == 0:
                 mission_s = (m.stamp - first) * 1e-9
-                bar.set_postfix_str(f"mission t={mission_s:6.1f} s, {mission_s / max(time.perf_counter() - wall0, 1e-9):5.1f}× real time")
+                bar.set_postfix_str(
+                    f"mission t={mission_s:6.1f} s, {mission_s / max(time.perf_counter() - wall0, 1e-9):5.1f}× real time"
+                )
     summaries = {}
     finished = worker.finish() if worker is not None else {}
     for fe, _ in consumers:  # the front-ends' last word, before the estimators close
@@ -197,5 +206,9 @@ def _run_pipeline(mission, estimators, frontends, view_estimator, progress, keep
     if worker is not None:  # the stages overlapped: their sum is not the time it took
         timing["wall"] = time.perf_counter() - wall0
     duration = 0.0 if first is None else (last - first) * 1e-9
-    resolved = {fe.name: fe.config.model_dump(mode="json") for fe in frontends if hasattr(getattr(fe, "config", None), "model_dump")}
+    resolved = {
+        fe.name: fe.config.model_dump(mode="json")
+        for fe in frontends
+        if hasattr(getattr(fe, "config", None), "model_dump")
+    }
     return PipelineResult(results, _truth_trajectory(truth), records, dict(timing), n, duration, summaries, resolved)

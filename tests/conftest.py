@@ -14,8 +14,18 @@ def sample_mission():
     sonar 4 Hz, ground truth 10 Hz, all starting at t = 100 s.
     """
     from semslam.mission import (
-        Attitude, Depth, DvlVelocity, GroundTruthMap, GroundTruthPose, GtObject, GtPipe, Mission,
-        MissionMetadata, PointCloud, SensorInfo, SonarSwath,
+        Attitude,
+        Depth,
+        DvlVelocity,
+        GroundTruthMap,
+        GroundTruthPose,
+        GtObject,
+        GtPipe,
+        Mission,
+        MissionMetadata,
+        PointCloud,
+        SensorInfo,
+        SonarSwath,
     )
 
     def make(seconds: float = 2.0, seed: int = 0):
@@ -28,27 +38,51 @@ def sample_mission():
 
         for k, t in enumerate(stamps(5)):
             valid = k not in (3, 4)
-            ms.append(DvlVelocity(
-                t, "dvl", velocity=rng.normal(size=3) if valid else np.full(3, np.nan),
-                covariance=np.diag([1e-4, 2e-4, 3e-4]) if valid else np.full((3, 3), np.nan), valid=valid,
-                beam_valid=(True, True, True, valid) if valid else (True, False, False, False),
-                altitude=None if k == 1 else 2.0 + 0.1 * k,
-            ))
+            ms.append(
+                DvlVelocity(
+                    t,
+                    "dvl",
+                    velocity=rng.normal(size=3) if valid else np.full(3, np.nan),
+                    covariance=np.diag([1e-4, 2e-4, 3e-4]) if valid else np.full((3, 3), np.nan),
+                    valid=valid,
+                    beam_valid=(True, True, True, valid) if valid else (True, False, False, False),
+                    altitude=None if k == 1 else 2.0 + 0.1 * k,
+                )
+            )
         for k, t in enumerate(stamps(20)):
-            ms.append(Attitude(t, "ahrs", orientation=rng.normal(size=4), covariance=np.diag([1e-4, 1e-4, 4e-4]),
-                               angular_rate=rng.normal(size=3) if k % 2 else None))
+            ms.append(
+                Attitude(
+                    t,
+                    "ahrs",
+                    orientation=rng.normal(size=4),
+                    covariance=np.diag([1e-4, 1e-4, 4e-4]),
+                    angular_rate=rng.normal(size=3) if k % 2 else None,
+                )
+            )
         for t in stamps(8):
             ms.append(Depth(t, "depth", depth=rng.uniform(1, 20), variance=rng.uniform(1e-4, 1e-2)))
         for k, t in enumerate(stamps(2)):
             n = 200 + k
-            ms.append(PointCloud(t, "laser", points=rng.normal(size=(n, 3)).astype(np.float32),
-                                 intensity=rng.random(n).astype(np.float32) if k % 2 == 0 else None))
+            ms.append(
+                PointCloud(
+                    t,
+                    "laser",
+                    points=rng.normal(size=(n, 3)).astype(np.float32),
+                    intensity=rng.random(n).astype(np.float32) if k % 2 == 0 else None,
+                )
+            )
         for k, t in enumerate(stamps(4)):
             grid = np.float32(-1.2) + np.arange(128) * np.float64(np.float32(0.02))
             keep = np.sort(rng.choice(128, 90, replace=False))
-            ms.append(SonarSwath(t, "sonar", angles=grid[keep],
-                                 ranges=rng.uniform(0.5, 30, keep.size).astype(np.float32),
-                                 intensities=rng.random(keep.size).astype(np.float32) if k % 2 else None))
+            ms.append(
+                SonarSwath(
+                    t,
+                    "sonar",
+                    angles=grid[keep],
+                    ranges=rng.uniform(0.5, 30, keep.size).astype(np.float32),
+                    intensities=rng.random(keep.size).astype(np.float32) if k % 2 else None,
+                )
+            )
         for t in stamps(10):
             q = rng.normal(size=4)
             ms.append(GroundTruthPose(t, "gt", position=rng.normal(size=3), orientation=q / np.linalg.norm(q)))

@@ -83,9 +83,7 @@ def _brute_force(prob, confidence):
         if any(individual_nis(prob, i, j) >= chi2.ppf(confidence, 3) for i, j in pairs):
             continue
         # Every prefix of the hypothesis must be jointly compatible too (JCBB's search order).
-        ok = all(
-            joint_nis(prob, pairs[:k]) < chi2.ppf(confidence, 3 * k) for k in range(1, len(pairs) + 1)
-        )
+        ok = all(joint_nis(prob, pairs[:k]) < chi2.ppf(confidence, 3 * k) for k in range(1, len(pairs) + 1))
         if not ok:
             continue
         nis = joint_nis(prob, pairs)

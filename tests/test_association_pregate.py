@@ -40,13 +40,22 @@ def scene(rng):
         d /= np.linalg.norm(d)
         anchor = LineAnchor.from_points(p, p + d)
         theta = rng.normal(0, 0.05, 4)
-        lm = Landmark(10 + k, "pipe", gtsam.symbol_shorthand.P(k), anchor=anchor, estimate=theta,
-                      covariance=random_spd(rng, 4, 0.02), extent=(-5.0, 5.0))
+        lm = Landmark(
+            10 + k,
+            "pipe",
+            gtsam.symbol_shorthand.P(k),
+            anchor=anchor,
+            estimate=theta,
+            covariance=random_spd(rng, 4, 0.02),
+            extent=(-5.0, 5.0),
+        )
         cands.append(Candidate(lm, lm.covariance))
         c, u = anchor.point(theta), anchor.direction(theta)
         off = rng.normal(0, rng.choice([0.01, 0.05, 0.2]), 3)
         a, b = c + off + rng.uniform(-1, 0) * u, c + off + rng.uniform(0.2, 1) * u
-        obs.append(LineObservation(0, "s", p=T_WS.transformTo(a), q=T_WS.transformTo(b), covariance=random_spd(rng, 6, 0.02)))
+        obs.append(
+            LineObservation(0, "s", p=T_WS.transformTo(a), q=T_WS.transformTo(b), covariance=random_spd(rng, 6, 0.02))
+        )
     return pose, pose_cov, obs, [T_BS] * len(obs), cands
 
 

@@ -20,9 +20,15 @@ def _readings(rng, n, rate_z=0.0, hz=20.0, rate_sigma=0.01):
         t = i / hz
         R = Rotation.from_euler("ZYX", [0.3 + rate_z * t, theta, phi])
         noisy = R * Rotation.from_rotvec(rng.normal(0, SIG))
-        out.append(Attitude(stamp=int(t * 1e9), sensor="ahrs", orientation=noisy.as_quat(),
-                            covariance=np.diag(SIG**2),
-                            angular_rate=omega_B + rng.normal(0, rate_sigma, 3)))
+        out.append(
+            Attitude(
+                stamp=int(t * 1e9),
+                sensor="ahrs",
+                orientation=noisy.as_quat(),
+                covariance=np.diag(SIG**2),
+                angular_rate=omega_B + rng.normal(0, rate_sigma, 3),
+            )
+        )
         truth.append(R)
     return out, truth
 

@@ -23,7 +23,7 @@ from semslam.backend.synthetic import (
     simulate,
 )
 from semslam.config import SemslamConfig
-from semslam.estimation import Estimator, EstimateView
+from semslam.estimation import EstimateView, Estimator
 from semslam.observations import PointObservation
 
 DROPOUTS = ((60.0, 20.0), (150.0, 15.0))
@@ -144,8 +144,10 @@ def indeterminate_landmark(lid: int) -> tuple[list, gtsam.Values]:
     bad = gtsam.CustomFactor(
         gtsam.noiseModel.Isotropic.Sigma(1, 0.01),
         [key],
-        lambda this, v, H: (H.__setitem__(0, np.array([[1.0, 0.0, 0.0]])) if H is not None else None)
-        or np.array([v.atPoint3(key)[0] - 1.0]),
+        lambda this, v, H: (
+            (H.__setitem__(0, np.array([[1.0, 0.0, 0.0]])) if H is not None else None)
+            or np.array([v.atPoint3(key)[0] - 1.0])
+        ),
     )
     values = gtsam.Values()
     values.insert(key, np.zeros(3))
@@ -163,7 +165,7 @@ def test_protocol_view_and_failure_recovery():
         est.process_measurement(m)
         if not injected and len(est.kf_stamps) > 5:
             # A point landmark constrained along one axis only: a zero pivot in the elimination.
-            k = len(est.kf_stamps) - 1
+            len(est.kf_stamps) - 1
             ok = est._commit(*indeterminate_landmark(999))
             assert not ok
             injected = True
@@ -199,7 +201,9 @@ def test_isam2_callbacks_get_theta_itself_not_a_copy():
     for m in mission:
         est.process_measurement(m)
         if len(est.kf_stamps) == 5 and not seen:
-            est._commit([(gtsam.CustomFactor(gtsam.noiseModel.Isotropic.Sigma(1, 1.0), [X(2)], probe), None)], gtsam.Values())
+            est._commit(
+                [(gtsam.CustomFactor(gtsam.noiseModel.Isotropic.Sigma(1, 1.0), [X(2)], probe), None)], gtsam.Values()
+            )
     n_before = len(seen)
     old = est._theta
     est._rebuild([], gtsam.Values(), [])  # a fresh iSAM2 relinearises every factor
@@ -236,7 +240,10 @@ def test_batch_levenberg_marquardt_is_gtsams():
     for k in range(31):
         assert ours.atPose3(k).equals(ref.atPose3(k), 1e-9)
     params.setMaxIterations(2)  # and the iteration limit
-    ref2, ours2 = gtsam.LevenbergMarquardtOptimizer(graph, init, params).optimize(), _levenberg_marquardt(graph, init, params)
+    ref2, ours2 = (
+        gtsam.LevenbergMarquardtOptimizer(graph, init, params).optimize(),
+        _levenberg_marquardt(graph, init, params),
+    )
     assert graph.error(ours2) == pytest.approx(graph.error(ref2), rel=1e-12) and graph.error(ref2) > graph.error(ref)
 
 
@@ -253,7 +260,9 @@ def test_landmark_needs_min_observations():
             target = T[:3, 3] + [0.0, 0.0, 3.0] if target is None else target
             T_WS = T @ mission.metadata.sensors["laser"].T_BS
             z = np.linalg.solve(T_WS, np.r_[target, 1.0])[:3]
-            est.process_observations(m.stamp, [PointObservation(m.stamp, "laser", position=z, covariance=np.eye(3) * 1e-4)])
+            est.process_observations(
+                m.stamp, [PointObservation(m.stamp, "laser", position=z, covariance=np.eye(3) * 1e-4)]
+            )
             sent += 1
             assert len(est.landmarks) == (0 if sent < 3 else 1)
     res = est.finish()
@@ -266,7 +275,9 @@ def test_two_object_landmarks_on_one_place_are_merged():
     keeps one object with both histories, and the graph (rebuild included) goes on."""
     from semslam.backend.landmarks import Track
 
-    mission = simulate(SyntheticConfig(duration_s=60.0, n_objects=3, n_pipes=0, n_structures=0, ahrs_yaw_bias_rad=0.0, seed=2))
+    mission = simulate(
+        SyntheticConfig(duration_s=60.0, n_objects=3, n_pipes=0, n_structures=0, ahrs_yaw_bias_rad=0.0, seed=2)
+    )
     fe = OracleFrontend(mission.metadata, {"seed": 0})
     est = GraphEstimator(mission.metadata, SemslamConfig())
     view, twin = est.view(), None
@@ -295,7 +306,9 @@ def test_two_object_landmarks_on_one_place_are_merged():
     assert twin is not None
     rep = landmark_report(res, mission.metadata.ground_truth)
     # no duplicate, and the map as good as without the twin (its views were counted twice)
-    base = landmark_report(run_graph(mission, SemslamConfig(), [OracleFrontend(mission.metadata, {"seed": 0})]),
-                           mission.metadata.ground_truth)
+    base = landmark_report(
+        run_graph(mission, SemslamConfig(), [OracleFrontend(mission.metadata, {"seed": 0})]),
+        mission.metadata.ground_truth,
+    )
     assert not rep.duplicated and len(rep.errors_m) == len(base.errors_m)
     assert rep.median_error_m < base.median_error_m + 0.01

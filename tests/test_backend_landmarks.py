@@ -8,7 +8,9 @@ from semslam.observations import LineObservation
 
 
 def seg(p, q, tid=None, sensor="laser"):
-    return LineObservation(0, sensor, p=np.array(p, float), q=np.array(q, float), covariance=np.eye(6) * 1e-4, truth_id=tid)
+    return LineObservation(
+        0, sensor, p=np.array(p, float), q=np.array(q, float), covariance=np.eye(6) * 1e-4, truth_id=tid
+    )
 
 
 def test_collinear_thresholds():
@@ -17,7 +19,9 @@ def test_collinear_thresholds():
     assert not collinear(*map(np.array, a), np.array([1.4, 0, 0]), np.array([2.0, 0, 0]), 0.175, 0.3)  # gap 0.4
     assert not collinear(*map(np.array, a), np.array([0.5, 0.35, 0]), np.array([2.0, 0.35, 0]), 0.175, 0.3)  # offset
     tilt = 0.2  # > 0.175 rad
-    assert not collinear(*map(np.array, a), np.array([0.5, 0, 0]), np.array([0.5 + np.cos(tilt), np.sin(tilt), 0]), 0.175, 0.3)
+    assert not collinear(
+        *map(np.array, a), np.array([0.5, 0, 0]), np.array([0.5 + np.cos(tilt), np.sin(tilt), 0]), 0.175, 0.3
+    )
     # Order of the endpoints does not matter.
     assert collinear(np.array([1.0, 0, 0]), np.zeros(3), np.array([2.0, 0, 0]), np.array([1.1, 0, 0]), 0.175, 0.3)
 
@@ -31,9 +35,13 @@ def test_merge_collinear_spans_all_members():
     assert sorted([merged.p[0], merged.q[0]]) == pytest.approx([0.0, 2.5])
     assert merged.truth_id == 1
     # Chains merge transitively (union-find), other sensors are never merged.
-    out = merge_collinear([seg([0, 0, 0], [1, 0, 0]), seg([1.2, 0, 0], [2, 0, 0]), seg([2.2, 0, 0], [3, 0, 0])], 0.175, 0.3)
+    out = merge_collinear(
+        [seg([0, 0, 0], [1, 0, 0]), seg([1.2, 0, 0], [2, 0, 0]), seg([2.2, 0, 0], [3, 0, 0])], 0.175, 0.3
+    )
     assert len(out) == 1
-    assert len(merge_collinear([seg([0, 0, 0], [1, 0, 0]), seg([1.1, 0, 0], [2, 0, 0], sensor="other")], 0.175, 0.3)) == 2
+    assert (
+        len(merge_collinear([seg([0, 0, 0], [1, 0, 0]), seg([1.1, 0, 0], [2, 0, 0], sensor="other")], 0.175, 0.3)) == 2
+    )
 
 
 def test_class_posterior_is_normalised_product():
@@ -56,7 +64,9 @@ def test_landmark_report_keys_truth_ids_by_kind():
     from semslam.estimation import EstimatorResult, LandmarkEstimate, Trajectory
     from semslam.mission.ground_truth import GroundTruthMap, GtObject, GtPipe
 
-    gt = GroundTruthMap(objects=(GtObject(3, "Elbow", (0.0, 0.0, 1.0)),), pipes=(GtPipe(3, (1.0, 0, 1), (2.0, 0, 1), 0.03),))
+    gt = GroundTruthMap(
+        objects=(GtObject(3, "Elbow", (0.0, 0.0, 1.0)),), pipes=(GtPipe(3, (1.0, 0, 1), (2.0, 0, 1), 0.03),)
+    )
     obj = LandmarkEstimate(0, "object", position=np.array([0.0, 0.0, 1.0]))
     pipe = LandmarkEstimate(1, "pipe", p=np.array([1.0, 0, 1]), q=np.array([2.0, 0, 1]))
     hist = {"landmark_observations": {0: [(0, 3)], 1: [(0, 3)]}}
@@ -85,8 +95,12 @@ def test_a_mapped_in_line_object_keeps_two_collinear_pipe_views_apart(monkeypatc
     est = GraphEstimator(mission.metadata, SemslamConfig())
     pose = gtsam.Pose3(gtsam.Rot3.Yaw(0.3), gtsam.Point3(1.0, 2.0, 3.0))
     cov = np.eye(3) * 1e-4
-    a = LineObservation(0, "laser", p=np.array([-0.6, 0.0, 2.0]), q=np.array([-0.1, 0.0, 2.0]), covariance=np.eye(6) * 1e-4)
-    b = LineObservation(0, "laser", p=np.array([0.1, 0.0, 2.0]), q=np.array([0.6, 0.0, 2.0]), covariance=np.eye(6) * 1e-4)
+    a = LineObservation(
+        0, "laser", p=np.array([-0.6, 0.0, 2.0]), q=np.array([-0.1, 0.0, 2.0]), covariance=np.eye(6) * 1e-4
+    )
+    b = LineObservation(
+        0, "laser", p=np.array([0.1, 0.0, 2.0]), q=np.array([0.6, 0.0, 2.0]), covariance=np.eye(6) * 1e-4
+    )
     assert len(est._merged_lines([a, b], pose)) == 1
     valve_S = np.array([0.0, 0.02, 2.0])
     seen = PointObservation(0, "laser", position=valve_S, covariance=cov)

@@ -56,8 +56,9 @@ def _ate(result, mission):
 @pytest.fixture(scope="module")
 def drifting_mission():
     # A long DVL dropout: dead reckoning drifts, relative poses across it bound the drift.
-    return simulate(SyntheticConfig(duration_s=120.0, n_objects=0, n_pipes=0, n_structures=0,
-                                    dropouts=((30.0, 40.0),), seed=5))
+    return simulate(
+        SyntheticConfig(duration_s=120.0, n_objects=0, n_pipes=0, n_structures=0, dropouts=((30.0, 40.0),), seed=5)
+    )
 
 
 def test_relative_poses_between_non_keyframe_stamps_bound_the_drift(drifting_mission):

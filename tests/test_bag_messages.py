@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from semslam.errors import MissionError
-from semslam.mission import Attitude, Depth, DvlVelocity, Mission, MissionMetadata, PointCloud, SonarSwath
+from semslam.mission import Attitude, Depth, DvlVelocity, PointCloud, SonarSwath
 from semslam.mission.bag import read_mission, write_mission
 from semslam.mission.config import ReaderConfig
 
@@ -91,7 +91,10 @@ def test_cola2_dvl_validity_from_beam_flags(tmp_path, ros_version):
         ([], False, None, True),  # no beams: the covariance marker alone decides
     ]
     t0 = 10**9
-    msgs = [(t0 + k * 200_000_000, cola2_dvl(store, ros_version, t0 + k * 200_000_000, b, inv)) for k, (b, inv, _, _) in enumerate(cases)]
+    msgs = [
+        (t0 + k * 200_000_000, cola2_dvl(store, ros_version, t0 + k * 200_000_000, b, inv))
+        for k, (b, inv, _, _) in enumerate(cases)
+    ]
     name = "dvl.bag" if ros_version == 1 else "dvl_ros2"
     path = write_raw(tmp_path / name, ros_version, {"/girona500/navigator/dvl": ("cola2_msgs/msg/DVL", msgs)}, store)
 
@@ -138,21 +141,47 @@ def test_pointcloud2_any_layout(tmp_path, ros_version):
     for k, big in enumerate((False, True)):
         e = ">" if big else "<"
         # layout: intensity u2 @0, pad, z f8 @8, x f8 @16, pad, y f8 @32; point_step 48; 16 bytes row padding
-        dt = np.dtype({"names": ["intensity", "z", "x", "y"], "formats": [e + "u2", e + "f8", e + "f8", e + "f8"],
-                       "offsets": [0, 8, 16, 32], "itemsize": 48})
+        dt = np.dtype(
+            {
+                "names": ["intensity", "z", "x", "y"],
+                "formats": [e + "u2", e + "f8", e + "f8", e + "f8"],
+                "offsets": [0, 8, 16, 32],
+                "itemsize": 48,
+            }
+        )
         rec = np.zeros(h * w, dt)
         rec["x"], rec["y"], rec["z"], rec["intensity"] = pts[:, 0], pts[:, 1], pts[:, 2], inten
         rows = rec.view(np.uint8).reshape(h, w * 48)
         data = np.concatenate([rows, np.full((h, 16), 0xAB, np.uint8)], axis=1).reshape(-1)
         PF = T["sensor_msgs/msg/PointField"]
         t = 10**9 * (k + 1)
-        msgs.append((t, T["sensor_msgs/msg/PointCloud2"](
-            header=header(store, ros_version, t), height=h, width=w,
-            fields=[PF(name="y", offset=32, datatype=8, count=1), PF(name="intensity", offset=0, datatype=4, count=1),
-                    PF(name="x", offset=16, datatype=8, count=1), PF(name="z", offset=8, datatype=8, count=1)],
-            is_bigendian=big, point_step=48, row_step=w * 48 + 16, data=data, is_dense=False)))
-    path = write_raw(tmp_path / ("pc.bag" if ros_version == 1 else "pc"), ros_version,
-                     {"/cloud": ("sensor_msgs/msg/PointCloud2", msgs)}, store)
+        msgs.append(
+            (
+                t,
+                T["sensor_msgs/msg/PointCloud2"](
+                    header=header(store, ros_version, t),
+                    height=h,
+                    width=w,
+                    fields=[
+                        PF(name="y", offset=32, datatype=8, count=1),
+                        PF(name="intensity", offset=0, datatype=4, count=1),
+                        PF(name="x", offset=16, datatype=8, count=1),
+                        PF(name="z", offset=8, datatype=8, count=1),
+                    ],
+                    is_bigendian=big,
+                    point_step=48,
+                    row_step=w * 48 + 16,
+                    data=data,
+                    is_dense=False,
+                ),
+            )
+        )
+    path = write_raw(
+        tmp_path / ("pc.bag" if ros_version == 1 else "pc"),
+        ros_version,
+        {"/cloud": ("sensor_msgs/msg/PointCloud2", msgs)},
+        store,
+    )
     keep = np.ones(h * w, bool)
     keep[4] = False
     for cloud in read_mission(path):
@@ -171,22 +200,50 @@ def test_imu_pressure_laserscan_conventions(tmp_path):
     ocov = np.diag([1e-4, 1e-4, 1e-3]).reshape(9)
     no = np.array([-1.0] + [0.0] * 8)
     imu = lambda t, oc, wc: T["sensor_msgs/msg/Imu"](  # noqa: E731
-        header=header(store, 2, t), orientation=q, orientation_covariance=oc, angular_velocity=v3(0.1, 0.2, 0.3),
-        angular_velocity_covariance=wc, linear_acceleration=v3(0, 0, 9.8), linear_acceleration_covariance=no)
+        header=header(store, 2, t),
+        orientation=q,
+        orientation_covariance=oc,
+        angular_velocity=v3(0.1, 0.2, 0.3),
+        angular_velocity_covariance=wc,
+        linear_acceleration=v3(0, 0, 9.8),
+        linear_acceleration_covariance=no,
+    )
     cfg = ReaderConfig(water_density_kg_m3=1000.0, atmospheric_pressure_pa=100000.0, gravity_m_s2=10.0)
-    pressure = [(t, T["sensor_msgs/msg/FluidPressure"](header=header(store, 2, t), fluid_pressure=p, variance=var))
-                for t, p, var in [(10**9, 100000.0 + 10000.0 * 12.5, 1e4), (2 * 10**9, 100000.0, 0.0)]]
+    pressure = [
+        (t, T["sensor_msgs/msg/FluidPressure"](header=header(store, 2, t), fluid_pressure=p, variance=var))
+        for t, p, var in [(10**9, 100000.0 + 10000.0 * 12.5, 1e4), (2 * 10**9, 100000.0, 0.0)]
+    ]
     inf = np.inf
     ranges = np.array([1.0, inf, 0.05, 5.0, 50.0, np.nan, 2.5], np.float32)  # range limits [0.1, 40]
     scan = T["sensor_msgs/msg/LaserScan"](
-        header=header(store, 2, 10**9), angle_min=-0.3, angle_max=0.3, angle_increment=0.1, time_increment=0.0,
-        scan_time=0.0, range_min=0.1, range_max=40.0, ranges=ranges, intensities=np.arange(7, dtype=np.float32))
-    path = write_raw(tmp_path / "std", 2, {
-        "/imu": ("sensor_msgs/msg/Imu", [(10**9, imu(10**9, ocov, np.zeros(9))), (2 * 10**9, imu(2 * 10**9, ocov, no)),
-                                         (3 * 10**9, imu(3 * 10**9, no, np.zeros(9)))]),
-        "/pressure": ("sensor_msgs/msg/FluidPressure", pressure),
-        "/scan": ("sensor_msgs/msg/LaserScan", [(10**9, scan)]),
-    }, store)
+        header=header(store, 2, 10**9),
+        angle_min=-0.3,
+        angle_max=0.3,
+        angle_increment=0.1,
+        time_increment=0.0,
+        scan_time=0.0,
+        range_min=0.1,
+        range_max=40.0,
+        ranges=ranges,
+        intensities=np.arange(7, dtype=np.float32),
+    )
+    path = write_raw(
+        tmp_path / "std",
+        2,
+        {
+            "/imu": (
+                "sensor_msgs/msg/Imu",
+                [
+                    (10**9, imu(10**9, ocov, np.zeros(9))),
+                    (2 * 10**9, imu(2 * 10**9, ocov, no)),
+                    (3 * 10**9, imu(3 * 10**9, no, np.zeros(9))),
+                ],
+            ),
+            "/pressure": ("sensor_msgs/msg/FluidPressure", pressure),
+            "/scan": ("sensor_msgs/msg/LaserScan", [(10**9, scan)]),
+        },
+        store,
+    )
     m = read_mission(path, cfg)
     out = {s: [x for x in m if x.sensor == s] for s in ("imu", "pressure", "scan")}
     a, b = out["imu"]  # the third Imu has no orientation (REP 145): not an AHRS reading
@@ -215,13 +272,20 @@ def test_twist_dvl_validity_marker(tmp_path):
     def twist(t, cov00):
         cov = np.zeros(36)
         cov[0], cov[7], cov[14] = cov00, 2e-4, 3e-4
-        tw = T["geometry_msgs/msg/Twist"](linear=T["geometry_msgs/msg/Vector3"](x=1.0, y=0.0, z=0.0),
-                                          angular=T["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=0.0))
+        tw = T["geometry_msgs/msg/Twist"](
+            linear=T["geometry_msgs/msg/Vector3"](x=1.0, y=0.0, z=0.0),
+            angular=T["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=0.0),
+        )
         return t, T["geometry_msgs/msg/TwistWithCovarianceStamped"](
-            header=header(store, 1, t), twist=T["geometry_msgs/msg/TwistWithCovariance"](twist=tw, covariance=cov))
+            header=header(store, 1, t), twist=T["geometry_msgs/msg/TwistWithCovariance"](twist=tw, covariance=cov)
+        )
 
-    path = write_raw(tmp_path / "tw.bag", 1, {"/dvl": ("geometry_msgs/msg/TwistWithCovarianceStamped",
-                                                       [twist(10**9, 1e-4), twist(2 * 10**9, -1.0)])}, store)
+    path = write_raw(
+        tmp_path / "tw.bag",
+        1,
+        {"/dvl": ("geometry_msgs/msg/TwistWithCovarianceStamped", [twist(10**9, 1e-4), twist(2 * 10**9, -1.0)])},
+        store,
+    )
     a, b = list(read_mission(path))
     assert a.valid and not b.valid and a.beam_valid is None
     np.testing.assert_allclose(a.covariance, np.diag([1e-4, 2e-4, 3e-4]))
@@ -247,7 +311,9 @@ def _latency_bag(path: Path, late_s: float, clock_offset_s: float = 0.0) -> Path
         fast = w.add_connection("/fast", "sensor_msgs/msg/FluidPressure", typestore=store)
         for k in range(40):
             t = 10**9 + k * 100_000_000
-            w.write(fast, off + t + 1_000_000, store.serialize_ros1(fp(t + 50_000_000), "sensor_msgs/msg/FluidPressure"))
+            w.write(
+                fast, off + t + 1_000_000, store.serialize_ros1(fp(t + 50_000_000), "sensor_msgs/msg/FluidPressure")
+            )
             w.write(slow, off + t + int(late_s * 1e9), store.serialize_ros1(fp(t), "sensor_msgs/msg/FluidPressure"))
     return path
 
@@ -262,8 +328,11 @@ def test_reorder_buffer_releases_in_header_stamp_order(tmp_path, clock_offset_s)
 
 def test_message_later_than_reorder_window_is_an_error(tmp_path):
     path = _latency_bag(tmp_path / "lat.bag", late_s=1.0)
-    with pytest.raises(MissionError, match=r"topic /slow: message stamped 1.000000 s arrived after messages "
-                                           r"stamped more than reorder_window_s=0.5 s later"):
+    with pytest.raises(
+        MissionError,
+        match=r"topic /slow: message stamped 1.000000 s arrived after messages "
+        r"stamped more than reorder_window_s=0.5 s later",
+    ):
         list(read_mission(path, ReaderConfig(reorder_window_s=0.5)))
     assert len(list(read_mission(path))) == 80  # the default 2 s window absorbs it
 
@@ -293,10 +362,13 @@ def test_ros2_directory_with_mcap_storage(tmp_path, sample_mission):
     assert len(list(back)) == len(list(mission))
 
 
-@pytest.mark.parametrize("fields, data_len, expected", [
-    ([("x", 0), ("y", 4)], 24, "topic /cloud: field fields: no 'z' field (have ['x', 'y'])"),
-    ([("x", 0), ("y", 4), ("z", 8)], 20, "topic /cloud: field data: 20 bytes, expected 24 (2 points × 12)"),
-])
+@pytest.mark.parametrize(
+    "fields, data_len, expected",
+    [
+        ([("x", 0), ("y", 4)], 24, "topic /cloud: field fields: no 'z' field (have ['x', 'y'])"),
+        ([("x", 0), ("y", 4), ("z", 8)], 20, "topic /cloud: field data: 20 bytes, expected 24 (2 points × 12)"),
+    ],
+)
 def test_malformed_pointcloud2_is_one_clear_error(tmp_path, fields, data_len, expected):
     from rosbags.typesys import Stores, get_typestore
 
@@ -304,9 +376,16 @@ def test_malformed_pointcloud2_is_one_clear_error(tmp_path, fields, data_len, ex
     T = store.types
     PF = T["sensor_msgs/msg/PointField"]
     msg = T["sensor_msgs/msg/PointCloud2"](
-        header=header(store, 1, 10**9), height=1, width=2,
+        header=header(store, 1, 10**9),
+        height=1,
+        width=2,
         fields=[PF(name=n, offset=o, datatype=7, count=1) for n, o in fields],
-        is_bigendian=False, point_step=12, row_step=24, data=np.zeros(data_len, np.uint8), is_dense=True)
+        is_bigendian=False,
+        point_step=12,
+        row_step=24,
+        data=np.zeros(data_len, np.uint8),
+        is_dense=True,
+    )
     path = write_raw(tmp_path / "bad.bag", 1, {"/cloud": ("sensor_msgs/msg/PointCloud2", [(10**9, msg)])}, store)
     with pytest.raises(MissionError) as err:
         list(read_mission(path))
@@ -340,21 +419,34 @@ def _ros1_odometry_imu_bag(path: Path, broken: bytes | None = None) -> Path:
 
     def imu(t, stamp, q, oc, wc):
         return T["sensor_msgs/msg/Imu"](
-            header=header(store, 1, stamp, frame="ahrs_ü"), orientation=q, orientation_covariance=oc,
-            angular_velocity=v3(0.1, -0.2, 0.3), angular_velocity_covariance=wc, linear_acceleration=v3(0, 0, 9.8),
-            linear_acceleration_covariance=no)
+            header=header(store, 1, stamp, frame="ahrs_ü"),
+            orientation=q,
+            orientation_covariance=oc,
+            angular_velocity=v3(0.1, -0.2, 0.3),
+            angular_velocity_covariance=wc,
+            linear_acceleration=v3(0, 0, 9.8),
+            linear_acceleration_covariance=no,
+        )
 
     def odom(t, x):
         pwc = T["geometry_msgs/msg/PoseWithCovariance"](
-            pose=T["geometry_msgs/msg/Pose"](position=T["geometry_msgs/msg/Point"](x=x, y=-2.5, z=1e-3 * t / 1e9),
-                                             orientation=quat(0.2)), covariance=np.arange(36.0))
+            pose=T["geometry_msgs/msg/Pose"](
+                position=T["geometry_msgs/msg/Point"](x=x, y=-2.5, z=1e-3 * t / 1e9), orientation=quat(0.2)
+            ),
+            covariance=np.arange(36.0),
+        )
         twc = T["geometry_msgs/msg/TwistWithCovariance"](
-            twist=T["geometry_msgs/msg/Twist"](linear=v3(1, 2, 3), angular=v3(4, 5, 6)), covariance=np.ones(36))
+            twist=T["geometry_msgs/msg/Twist"](linear=v3(1, 2, 3), angular=v3(4, 5, 6)), covariance=np.ones(36)
+        )
         return T["nav_msgs/msg/Odometry"](header=header(store, 1, t), child_frame_id="base", pose=pwc, twist=twc)
 
     s = 10**9
-    imus = [(s, imu(s, s, quat(0.25), ocov, np.zeros(9))), (2 * s, imu(2 * s, 0, quat(0.3), ocov, no)),
-            (3 * s, imu(3 * s, 3 * s, quat(0.3), no, np.zeros(9))), (4 * s, imu(4 * s, 4 * s, quat(np.nan), ocov, no))]
+    imus = [
+        (s, imu(s, s, quat(0.25), ocov, np.zeros(9))),
+        (2 * s, imu(2 * s, 0, quat(0.3), ocov, no)),
+        (3 * s, imu(3 * s, 3 * s, quat(0.3), no, np.zeros(9))),
+        (4 * s, imu(4 * s, 4 * s, quat(np.nan), ocov, no)),
+    ]
     odoms = [(t, odom(t, x)) for t, x in [(s, 0.5), (2 * s, np.inf), (3 * s, 1.0 / 3.0)]]
     with Writer(path) as writer:
         ci = writer.add_connection("/imu", "sensor_msgs/msg/Imu", typestore=store)
@@ -393,18 +485,25 @@ def test_ros1_fast_path_gives_the_general_paths_measurements_and_errors(tmp_path
         assert set(_fast_paths(reader, reader.connections, 1)) == {"/imu", "/odom"}
     fast, general = _read_all(path, True), _read_all(path, False)
     assert fast == general
-    assert len(fast[0]) == 4 and fast[1] == {"imu": {"orientation_covariance": 1, "orientation": 1},
-                                             "odom": {"position": 1}}
+    assert len(fast[0]) == 4 and fast[1] == {
+        "imu": {"orientation_covariance": 1, "orientation": 1},
+        "odom": {"position": 1},
+    }
     strict = ReaderConfig(on_nonfinite="error")
     assert "field position is not finite" in _read_all(path, True, strict) == _read_all(path, False, strict)
 
     raw = _first_raw(path, "/odom")  # broken variants: truncated, too long, cut in the header, a frame id
     bad_utf8 = raw.replace(b"base", b"ba\xffe")
     # that is not UTF-8, a frame id longer than the message
-    for i, broken in enumerate([raw[:-8], raw + b"\0" * 8, raw[:14], bad_utf8, raw[:12] + b"\xff\xff\xff\x7f" + raw[16:]]):
+    for i, broken in enumerate(
+        [raw[:-8], raw + b"\0" * 8, raw[:14], bad_utf8, raw[:12] + b"\xff\xff\xff\x7f" + raw[16:]]
+    ):
         p = _ros1_odometry_imu_bag(tmp_path / f"bad{i}.bag", broken)
         err = _read_all(p, True)
-        assert isinstance(err, str) and "topic /odom: message at t=5.000000 s cannot be decoded as nav_msgs/Odometry" in err
+        assert (
+            isinstance(err, str)
+            and "topic /odom: message at t=5.000000 s cannot be decoded as nav_msgs/Odometry" in err
+        )
         assert err == _read_all(p, False)
 
 

@@ -38,8 +38,12 @@ def assert_same(a, b, exact: bool = False):
             key = (type(a).__name__, name)
             rtol, atol = (0.0, 0.0) if exact and key in EXACT_AFTER_READ else TOL.get(key, (0.0, 0.0))
             np.testing.assert_allclose(
-                np.asarray(vb, dtype=float), np.asarray(va, dtype=float), rtol=rtol, atol=atol,
-                equal_nan=True, err_msg=f"{type(a).__name__}.{name} at {a.stamp}",
+                np.asarray(vb, dtype=float),
+                np.asarray(va, dtype=float),
+                rtol=rtol,
+                atol=atol,
+                equal_nan=True,
+                err_msg=f"{type(a).__name__}.{name} at {a.stamp}",
             )
 
 
@@ -52,7 +56,14 @@ def test_round_trip_every_type(tmp_path, sample_mission, name):
     assert len(a) == len(b) == 10 + 40 + 16 + 4 + 8 + 20
     for x, y in zip(a, b):
         assert_same(x, y)
-    assert {type(m).__name__ for m in b} == {"DvlVelocity", "Attitude", "Depth", "PointCloud", "SonarSwath", "GroundTruthPose"}
+    assert {type(m).__name__ for m in b} == {
+        "DvlVelocity",
+        "Attitude",
+        "Depth",
+        "PointCloud",
+        "SonarSwath",
+        "GroundTruthPose",
+    }
     assert sum(not m.valid for m in b if m.sensor == "dvl") == 2
 
     # metadata: names, kinds, topics, extrinsics, ground truth, extras
@@ -84,7 +95,12 @@ def test_formats_and_sidecar_locations(tmp_path, sample_mission):
     assert mcap.is_file() and mcap.read_bytes()[:8] == b"\x89MCAP0\r\n"
     # nothing else left behind (no temporary directories)
     assert sorted(p.name for p in tmp_path.iterdir()) == [
-        "a.bag", "a.bag.semslam.json", "b", "c.mcap", "c.mcap.semslam.json"]
+        "a.bag",
+        "a.bag.semslam.json",
+        "b",
+        "c.mcap",
+        "c.mcap.semslam.json",
+    ]
 
 
 def test_sensor_without_measurements_keeps_its_topic(tmp_path, sample_mission):
@@ -110,7 +126,9 @@ def test_failed_write_leaves_nothing(tmp_path):
     bad = SonarSwath(5, "sonar", angles=np.array([0.0, 0.1, 0.1 * np.pi]), ranges=np.ones(3))
     m = Mission.from_measurements(MissionMetadata(), [Depth(1, "depth", depth=1.0, variance=0.1), bad])
     for name in ("x.bag", "y", "z.mcap"):
-        with pytest.raises(MissionError, match="sensor 'sonar' at t=0.000000 s: swath beam angles are not on a uniform grid"):
+        with pytest.raises(
+            MissionError, match="sensor 'sonar' at t=0.000000 s: swath beam angles are not on a uniform grid"
+        ):
             write_mission(m, tmp_path / name)
     assert list(tmp_path.iterdir()) == []
 
@@ -119,10 +137,12 @@ def test_configuration_overrides_sidecar(tmp_path, sample_mission):
     p = write_mission(sample_mission(seconds=0.5), tmp_path / "x.bag")
     T = np.eye(4)
     T[:3, 3] = (1.0, 2.0, 3.0)
-    cfg = ReaderConfig(sensors={
-        "dvl": TopicBinding(topic="/nav/dvl", kind="dvl", T_BS=T.tolist()),
-        "imu": TopicBinding(topic="/nav/imu", kind="ahrs"),
-    })
+    cfg = ReaderConfig(
+        sensors={
+            "dvl": TopicBinding(topic="/nav/dvl", kind="dvl", T_BS=T.tolist()),
+            "imu": TopicBinding(topic="/nav/imu", kind="ahrs"),
+        }
+    )
     m = read_mission(p, cfg)
     assert list(m.metadata.sensors) == ["dvl", "imu"]  # only the configured sensors are read
     np.testing.assert_array_equal(m.metadata.sensors["dvl"].T_BS, T)

@@ -16,7 +16,12 @@ def test_summary_of_memory_and_bag_agree(tmp_path, sample_mission, capsys):
     assert "msg" in capsys.readouterr().err  # the tqdm bar went to stderr
     assert [s.name for s in mem.sensors] == [s.name for s in bag.sensors]
     for a, b in zip(mem.sensors, bag.sensors):
-        assert (a.stats.count, a.stats.first, a.stats.last, a.stats.invalid) == (b.stats.count, b.stats.first, b.stats.last, b.stats.invalid)
+        assert (a.stats.count, a.stats.first, a.stats.last, a.stats.invalid) == (
+            b.stats.count,
+            b.stats.first,
+            b.stats.last,
+            b.stats.invalid,
+        )
     s = bag.sensor("ahrs")
     assert s.stats.count == 60 and s.stats.rate_hz == pytest.approx(20.0) and s.period_s == pytest.approx(0.05)
     assert bag.duration_s == pytest.approx(2.95)
@@ -30,7 +35,7 @@ def test_summary_format_is_a_table(sample_mission):
     head = next(i for i, line in enumerate(lines) if line.startswith("sensor"))
     assert lines[head].split()[:4] == ["sensor", "kind", "topic", "message"]
     assert len(lines) >= head + 7  # one row per sensor
-    widths = {len(line) for line in lines[head: head + 7]}
+    widths = {len(line) for line in lines[head : head + 7]}
     assert max(widths) - min(widths) < 12  # aligned columns (right-stripped rows)
 
 

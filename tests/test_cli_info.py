@@ -53,8 +53,17 @@ def test_info_counts_and_rates(tmp_path, sample_mission, name):
 
 
 def _dvl_mission(stamps_valid, extra=()):
-    ms = [DvlVelocity(t, "dvl", velocity=(0.1, 0.0, 0.0) if v else (np.nan,) * 3, covariance=np.eye(3) * 1e-4,
-                      valid=v, beam_valid=(v,) * 4) for t, v in stamps_valid]
+    ms = [
+        DvlVelocity(
+            t,
+            "dvl",
+            velocity=(0.1, 0.0, 0.0) if v else (np.nan,) * 3,
+            covariance=np.eye(3) * 1e-4,
+            valid=v,
+            beam_valid=(v,) * 4,
+        )
+        for t, v in stamps_valid
+    ]
     return Mission.from_measurements(MissionMetadata(name="dropouts"), [*ms, *extra])
 
 
@@ -118,8 +127,12 @@ def test_configured_topic_missing(tmp_path, sample_mission):
     path = write_mission(sample_mission(seconds=0.5), tmp_path / "m.bag")
     cfg = tmp_path / "c.yaml"
     cfg.write_text("reader:\n  sensors:\n    dvl:\n      topic: /girona500/dvl\n      kind: dvl\n")
-    assert_one_line_error(info(path, "--config", cfg), str(path),
-                          "topic /girona500/dvl (configured sensor 'dvl') is not in the bag", "/nav/dvl")
+    assert_one_line_error(
+        info(path, "--config", cfg),
+        str(path),
+        "topic /girona500/dvl (configured sensor 'dvl') is not in the bag",
+        "/nav/dvl",
+    )
 
 
 def test_configured_topic_of_unsupported_type(tmp_path, sample_mission):
@@ -140,15 +153,21 @@ def test_stamps_going_backwards(tmp_path):
         conn = w.add_connection("/depth", "sensor_msgs/msg/FluidPressure", typestore=store)
         for k, stamp in enumerate([1.0, 1.1, 1.2, 0.9, 1.4]):
             ns = int(stamp * 1e9)
-            hdr = T["std_msgs/msg/Header"](seq=k, stamp=T["builtin_interfaces/msg/Time"](sec=ns // 10**9, nanosec=ns % 10**9), frame_id="p")
+            hdr = T["std_msgs/msg/Header"](
+                seq=k, stamp=T["builtin_interfaces/msg/Time"](sec=ns // 10**9, nanosec=ns % 10**9), frame_id="p"
+            )
             msg = T["sensor_msgs/msg/FluidPressure"](header=hdr, fluid_pressure=101325.0, variance=1.0)
             w.write(conn, 10**9 + k * 10**8, store.serialize_ros1(msg, "sensor_msgs/msg/FluidPressure"))
-    assert_one_line_error(info(path), str(path), "topic /depth: header stamps go backwards (0.900000 s after 1.200000 s)")
+    assert_one_line_error(
+        info(path), str(path), "topic /depth: header stamps go backwards (0.900000 s after 1.200000 s)"
+    )
 
 
 def test_malformed_sidecar(tmp_path, sample_mission):
     path = write_mission(sample_mission(seconds=0.5), tmp_path / "m.bag")
-    Path(str(path) + ".semslam.json").write_text('{"format": "semslam-mission", "version": 1, "sensors": {"x": {"kind": "rocket"}}}')
+    Path(str(path) + ".semslam.json").write_text(
+        '{"format": "semslam-mission", "version": 1, "sensors": {"x": {"kind": "rocket"}}}'
+    )
     assert_one_line_error(info(path), "m.bag.semslam.json: sensors.x.kind")
 
 
@@ -165,5 +184,7 @@ def test_configured_kind_must_match_message_type(tmp_path, sample_mission):
     path = write_mission(sample_mission(seconds=0.5), tmp_path / "m.bag")
     cfg = tmp_path / "c.yaml"
     cfg.write_text("reader:\n  sensors:\n    imu:\n      topic: /nav/dvl\n      kind: ahrs\n")
-    assert_one_line_error(info(path, "--config", cfg),
-                          "topic /nav/dvl: cola2_msgs/DVL feeds a dvl sensor, but configured sensor 'imu' is of kind ahrs")
+    assert_one_line_error(
+        info(path, "--config", cfg),
+        "topic /nav/dvl: cola2_msgs/DVL feeds a dvl sensor, but configured sensor 'imu' is of kind ahrs",
+    )

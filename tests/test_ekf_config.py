@@ -8,7 +8,6 @@ from semslam.ekf import EkfConfig, EkfEstimator
 from semslam.ekf.synthetic import simulate_circling
 from semslam.errors import ConfigError, SemslamError
 from semslam.mission.measurements import GroundTruthPose
-from semslam.mission.mission import MissionMetadata
 from semslam.observations import PointObservation
 
 
@@ -63,10 +62,14 @@ def test_pipe_extent_gap_and_inline_object_radius_are_the_shared_association_set
     ext.add(np.array([[0.0, 2.0, 4.0], [2.0, 2.0, 4.0]]), 0.01)
     beyond = np.array([[2.4, 2.0, 4.0], [3.0, 2.0, 4.0]])  # 0.4 m beyond what was seen
     valve = np.array([[2.2, 2.1, 4.0]])  # 0.1 m off the axis, in between
-    for gap, radius, apart, apart_valve in ((0.5, 0.05, False, False), (0.3, 0.05, True, True),
-                                            (0.5, 0.15, False, True)):
-        est = EkfEstimator(sim.metadata, SemslamConfig(association={"pipe_extent_gap_m": gap,
-                                                                    "inline_object_radius_m": radius}))
+    for gap, radius, apart, apart_valve in (
+        (0.5, 0.05, False, False),
+        (0.3, 0.05, True, True),
+        (0.5, 0.15, False, True),
+    ):
+        est = EkfEstimator(
+            sim.metadata, SemslamConfig(association={"pipe_extent_gap_m": gap, "inline_object_radius_m": radius})
+        )
         assert est._pipe_apart(ext, beyond, m, d, np.zeros((0, 3))) == apart
         assert est._pipe_apart(ext, beyond, m, d, valve) == apart_valve
     for key in ("pipe_extent_gap_m", "pipe_object_radius_m"):

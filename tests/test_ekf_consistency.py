@@ -18,9 +18,17 @@ N_RUNS = 6
 def nees_run(seed: int, duration_s: float = 50.0, sample_every_s: float = 1.0, bias_walk: float = 0.0):
     """NEES of the vehicle state (9 dof; 10 with the AHRS heading bias of a mission that has one) of one
     run sampled every ``sample_every_s``, and the position σ over time."""
-    sim = simulate_circling(seed=seed, duration_s=duration_s, accel_sigma=ACCEL, rate_sigma=RATE,
-                            dropouts=((20.0, 12.0),), with_features=False, velocity_tau_s=None, track_gain=0.0,
-                            heading_bias_walk=bias_walk)
+    sim = simulate_circling(
+        seed=seed,
+        duration_s=duration_s,
+        accel_sigma=ACCEL,
+        rate_sigma=RATE,
+        dropouts=((20.0, 12.0),),
+        with_features=False,
+        velocity_tau_s=None,
+        track_gain=0.0,
+        heading_bias_walk=bias_walk,
+    )
     cfg = SemslamConfig(motion={"accel_sigma_m_s2": ACCEL, "angular_rate_sigma_rad_s": RATE})
     est = EkfEstimator(sim.metadata, cfg)
     nv = 10 if bias_walk > 0 else 9
@@ -89,8 +97,10 @@ def _pipes_only_run(mode: str, seed: int = 1, sigma: float = 0.002):
     sim = simulate_circling(seed=seed, duration_s=60.0, dropouts=(), with_features=False, radius_m=1.0, speed_m_s=0.1)
     rng = np.random.default_rng(seed + 100)
     T = sim.metadata.sensors["laser"].T_BS
-    pipes = [(np.array([x, y, 3.5]), np.array([x, y, 4.5]))
-             for x, y in ((0.3, 0.2), (-0.25, 0.4), (0.2, -0.3), (-0.3, -0.2), (0.6, 0.9))]
+    pipes = [
+        (np.array([x, y, 3.5]), np.array([x, y, 4.5]))
+        for x, y in ((0.3, 0.2), (-0.25, 0.4), (0.2, -0.3), (-0.3, -0.2), (0.6, 0.9))
+    ]
     pipes.append((np.array([-1.0, -0.5, 4.5]), np.array([1.0, -0.2, 4.5])))
     est = EkfEstimator(sim.metadata, SemslamConfig(ekf={"line_jacobians": mode}))
     first, sig = None, []
@@ -100,9 +110,19 @@ def _pipes_only_run(mode: str, seed: int = 1, sigma: float = 0.002):
             continue
         xt = sim.truth_states[np.searchsorted(sim.truth_stamps, m.stamp)]
         R, t, _, _ = mdl.sensor_pose(xt, T[:3, :3], T[:3, 3])
-        est.process_observations(m.stamp, [
-            LineObservation(m.stamp, "laser", p=(a - t) @ R + rng.normal(0, sigma, 3), q=(b - t) @ R + rng.normal(0, sigma, 3),
-                            covariance=np.eye(6) * sigma**2) for a, b in pipes])
+        est.process_observations(
+            m.stamp,
+            [
+                LineObservation(
+                    m.stamp,
+                    "laser",
+                    p=(a - t) @ R + rng.normal(0, sigma, 3),
+                    q=(b - t) @ R + rng.normal(0, sigma, 3),
+                    covariance=np.eye(6) * sigma**2,
+                )
+                for a, b in pipes
+            ],
+        )
         if est._features:
             s = np.sqrt(np.trace(est.state.Pvv[:2, :2]))
             first = first or s
@@ -156,8 +176,9 @@ def test_heading_first_estimates_keep_the_rotation_about_the_vertical_unobservab
     from semslam.ekf.estimator import _ScanPairs
 
     sim = simulate_circling(seed=4, duration_s=40.0, accel_sigma=ACCEL, rate_sigma=RATE, heading_bias_walk=0.003)
-    cfg = SemslamConfig(motion={"accel_sigma_m_s2": ACCEL, "angular_rate_sigma_rad_s": RATE},
-                        ekf={"heading_jacobians": mode})
+    cfg = SemslamConfig(
+        motion={"accel_sigma_m_s2": ACCEL, "angular_rate_sigma_rad_s": RATE}, ekf={"heading_jacobians": mode}
+    )
     est = EkfEstimator(sim.metadata, cfg)
     steps, worst_H, kinds, n_pairs = [], 0.0, set(), 0
     for m, obs in sim.stream():

@@ -33,11 +33,22 @@ def _scene_run(extra_after_s: float | None = None, extra=None, offset=np.zeros(3
         late = extra_after_s is not None and t_s >= extra_after_s
         segs = [(pipe_a[0] + (offset if late else 0), pipe_a[1] + (offset if late else 0)), pipe_b]
         segs += list(extra or []) if late else []
-        obs = [LineObservation(m.stamp, "laser", p=(a - t) @ R + rng.normal(0, SIGMA, 3),
-                               q=(b - t) @ R + rng.normal(0, SIGMA, 3), covariance=np.eye(6) * SIGMA**2)
-               for a, b in segs]
-        obs += [PointObservation(m.stamp, "laser", position=(c - t) @ R + rng.normal(0, 0.005, 3),
-                                 covariance=np.eye(3) * 0.005**2) for c in objects]
+        obs = [
+            LineObservation(
+                m.stamp,
+                "laser",
+                p=(a - t) @ R + rng.normal(0, SIGMA, 3),
+                q=(b - t) @ R + rng.normal(0, SIGMA, 3),
+                covariance=np.eye(6) * SIGMA**2,
+            )
+            for a, b in segs
+        ]
+        obs += [
+            PointObservation(
+                m.stamp, "laser", position=(c - t) @ R + rng.normal(0, 0.005, 3), covariance=np.eye(3) * 0.005**2
+            )
+            for c in objects
+        ]
         est.process_observations(m.stamp, obs)
     return est
 
@@ -104,7 +115,9 @@ def _add_pipe(est, a_W, b_W, sigma=0.01):
 
     T = est.metadata.sensors["laser"].T_BS
     R, t, _, _ = mdl.sensor_pose(est.state.xv, T[:3, :3], T[:3, 3])
-    (ob,) = est._prepare([LineObservation(0, "laser", p=(a_W - t) @ R, q=(b_W - t) @ R, covariance=np.eye(6) * sigma**2)])
+    (ob,) = est._prepare(
+        [LineObservation(0, "laser", p=(a_W - t) @ R, q=(b_W - t) @ R, covariance=np.eye(6) * sigma**2)]
+    )
     extent = _Extent()
     extent.add(ob.ends_W, sigma)
     est._add_feature(ob, _Track("pipe", np.zeros(6), np.eye(4), 3, 0, extent))

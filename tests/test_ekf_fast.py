@@ -135,15 +135,32 @@ def test_batch_models_equal_the_scalar_ones():
     pairs = [_line_obs(k) for k in range(16)]
     Ls = np.array([p[0] for p in pairs])
     obs = [p[1] for p in pairs]
-    out = bt.line_innovations(X, Ls, np.array([o.U for o in obs]), np.array([o.rho for o in obs]),
-                              np.array([o.d for o in obs]), np.array([o.cov for o in obs]), R_BS, T_BS)
+    out = bt.line_innovations(
+        X,
+        Ls,
+        np.array([o.U for o in obs]),
+        np.array([o.rho for o in obs]),
+        np.array([o.d for o in obs]),
+        np.array([o.cov for o in obs]),
+        R_BS,
+        T_BS,
+    )
     for k in range(len(Ls)):
         for a, b in zip((v[k] for v in out), mdl.line_innovation(X, Ls[k], obs[k], R_BS, T_BS)):
             np.testing.assert_allclose(a, b, atol=1e-10, rtol=1e-8)
     # first-estimates Jacobians: H at L_lin, ν and R at L
     L_lin = Ls + RNG.normal(0, 0.01, Ls.shape)
-    out = bt.line_innovations(X, Ls, np.array([o.U for o in obs]), np.array([o.rho for o in obs]),
-                              np.array([o.d for o in obs]), np.array([o.cov for o in obs]), R_BS, T_BS, L_lin=L_lin)
+    out = bt.line_innovations(
+        X,
+        Ls,
+        np.array([o.U for o in obs]),
+        np.array([o.rho for o in obs]),
+        np.array([o.d for o in obs]),
+        np.array([o.cov for o in obs]),
+        R_BS,
+        T_BS,
+        L_lin=L_lin,
+    )
     for k in range(len(Ls)):
         ref = mdl.line_innovation(X, Ls[k], obs[k], R_BS, T_BS, l_lin=L_lin[k])
         for a, b in zip((v[k] for v in out), ref):
@@ -239,8 +256,11 @@ def _jcbb_most_certain_first(prob, confidence):
 
     def best(i):
         v = [individual_nis(prob, i, j) for j in range(prob.n_landmarks) if prob.pair(i, j) is not None]
-        v = [x for x, j in zip(v, [j for j in range(prob.n_landmarks) if prob.pair(i, j) is not None])
-             if x < gate[len(prob.pair(i, j).innovation)]]
+        v = [
+            x
+            for x, j in zip(v, [j for j in range(prob.n_landmarks) if prob.pair(i, j) is not None])
+            if x < gate[len(prob.pair(i, j).innovation)]
+        ]
         return min(v) if v else np.inf
 
     perm = sorted(range(prob.n_observations), key=best)
@@ -295,8 +315,12 @@ def test_scan_linearisation_equals_the_pairwise_problem():
     # every pair the generic problem accepts within the gate is in the scan (the extent checks of
     # pipes are made only within it)
     gate = {3: chi2.ppf(0.999, 3), 4: chi2.ppf(0.999, 4)}
-    generic = {(i, j) for i in range(len(prepared)) for j in range(prob.n_landmarks)
-               if prob.pair(i, j) is not None and individual_nis(prob, i, j) < gate[len(prob.pair(i, j).innovation)]}
+    generic = {
+        (i, j)
+        for i in range(len(prepared))
+        for j in range(prob.n_landmarks)
+        if prob.pair(i, j) is not None and individual_nis(prob, i, j) < gate[len(prob.pair(i, j).innovation)]
+    }
     assert generic == {(int(i), int(j)) for i, j in zip(scan.obs, scan.feat)}
     assert all(scan.nis[k] < gate[len(scan.nu[k])] for k in range(len(scan.obs)))
     assert scan.associate(0.99) == _jcbb_most_certain_first(prob, 0.99)

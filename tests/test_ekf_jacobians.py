@@ -36,10 +36,10 @@ def test_euler_round_trip_and_rates():
         E = g.euler_rate_to_body(e[0], e[1])
         np.testing.assert_allclose(g.body_to_euler_rate(e[0], e[1]) @ E, np.eye(3), atol=1e-12)
         # R(e + δe) = R(e) Exp(E δe)
-        N = numjac(lambda d: g.so3_log(g.rot(*e).T @ g.rot(*(e + d))), np.zeros(3))
+        N = numjac(lambda d: g.so3_log(g.rot(*e).T @ g.rot(*(e + d))), np.zeros(3))  # noqa: B023
         assert_jac(E, N)
         w = RNG.normal(size=3)
-        assert_jac(g.euler_rate_jacobian(e[0], e[1], w), numjac(lambda ee: g.body_to_euler_rate(ee[0], ee[1]) @ w, e))
+        assert_jac(g.euler_rate_jacobian(e[0], e[1], w), numjac(lambda ee: g.body_to_euler_rate(ee[0], ee[1]) @ w, e))  # noqa: B023
 
 
 def test_so3_jacobians():
@@ -115,8 +115,9 @@ def test_line_parametrisation_jacobians(beta):
     m, d = g.line_plucker(l)
     U = g.rot(*l[:3])
     T = g.line_params_from_error(l) @ g.line_error_map(U, l[3])
-    N = numjac(lambda md: g.line_params(md[:3], md[3:] / np.linalg.norm(md[3:]))
-               - np.r_[0, 0, 0, 0], np.r_[m, d], h=1e-8)
+    N = numjac(
+        lambda md: g.line_params(md[:3], md[3:] / np.linalg.norm(md[3:])) - np.r_[0, 0, 0, 0], np.r_[m, d], h=1e-8
+    )
     # only perturbations that keep (m, d) a valid line (d ⊥ m, |d| = 1) are meaningful: project
     B = g.line_error_inverse(U, l[3])
     assert_jac(T @ B, N @ B, rtol=1e-4, atol=1e-5)

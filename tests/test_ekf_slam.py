@@ -23,8 +23,9 @@ def _ate(result, sim) -> float:
 
 @pytest.fixture(scope="module")
 def runs():
-    sim = simulate_circling(seed=1, duration_s=150.0, accel_sigma=ACCEL, rate_sigma=RATE,
-                            dropouts=((30.0, 20.0), (90.0, 20.0)))
+    sim = simulate_circling(
+        seed=1, duration_s=150.0, accel_sigma=ACCEL, rate_sigma=RATE, dropouts=((30.0, 20.0), (90.0, 20.0))
+    )
     cfg = SemslamConfig(motion={"accel_sigma_m_s2": ACCEL, "angular_rate_sigma_rad_s": RATE})
     ests = [DeadReckoning(sim.metadata, cfg), EkfEstimator(sim.metadata, cfg)]
     for m, obs in sim.stream():
@@ -67,18 +68,17 @@ def test_ekf_maps_each_seen_feature_once(runs):
         for i in gt.seen_pipes:
             a, b = np.array(gt.pipes[i].p), np.array(gt.pipes[i].q)
             d = (b - a) / np.linalg.norm(b - a)
-            off = lambda x: np.linalg.norm((x - a) - ((x - a) @ d) * d)
+            off = lambda x: np.linalg.norm((x - a) - ((x - a) @ d) * d)  # noqa: B023
             dists.append(max(off(lm.p), off(lm.q)))
         assert min(dists) < 0.1
         assert np.linalg.norm(lm.q - lm.p) > 1.0  # the saved extent grew with the views
     assert all(lm.covariance.shape == (4, 4) for lm in pipes)
-    assert all(lm.class_posterior and max(lm.class_posterior, key=lm.class_posterior.get) != "other"
-               for lm in objects)
+    assert all(lm.class_posterior and max(lm.class_posterior, key=lm.class_posterior.get) != "other" for lm in objects)
 
 
 def test_outputs_and_histories(runs):
     sim, res = runs
-    for name, r in res.items():
+    for _name, r in res.items():
         tr = r.trajectory
         assert len(tr) > 1000 and np.all(np.diff(tr.stamps) > 0)
         assert tr.position_cov.shape == (len(tr), 3, 3) and tr.velocity_cov.shape == (len(tr), 3, 3)
@@ -89,7 +89,7 @@ def test_outputs_and_histories(runs):
         assert set(r.history["landmark_volume"]) == {lm.id for lm in r.landmarks}
         assert len({lm.id for lm in r.landmarks}) == len(r.landmarks)
     # uncertainty volumes of the EKF's features decrease as they are re-observed (Figs. 11–12)
-    for lid, (stamps, vol) in res["ekf"].history["landmark_volume"].items():
+    for _lid, (stamps, vol) in res["ekf"].history["landmark_volume"].items():
         assert len(stamps) == len(vol)
         if len(vol) > 5:
             assert vol[-1] < vol[0]
@@ -104,8 +104,9 @@ def test_heading_bias_is_estimated_from_the_map_and_grows_in_dead_reckoning():
     consistently. The map makes it observable: EKF-SLAM tracks it (within 3σ, with a smaller σ). A
     configured walk of 0 is the paper's 9-state filter."""
     walk, T = 0.004, 150.0
-    sim = simulate_circling(seed=2, duration_s=T, accel_sigma=ACCEL, rate_sigma=RATE, dropouts=((30.0, 20.0),),
-                            heading_bias_walk=walk)
+    sim = simulate_circling(
+        seed=2, duration_s=T, accel_sigma=ACCEL, rate_sigma=RATE, dropouts=((30.0, 20.0),), heading_bias_walk=walk
+    )
     cfg = SemslamConfig(motion={"accel_sigma_m_s2": ACCEL, "angular_rate_sigma_rad_s": RATE})
     assert cfg.sensors.heading_bias_walk(sim.metadata) == pytest.approx(walk)
     ests = [DeadReckoning(sim.metadata, cfg), EkfEstimator(sim.metadata, cfg)]

@@ -17,18 +17,26 @@ def _setup():
     T_BS[:3, 3] = (0.5, 0, 0)
     meta = MissionMetadata(
         sensors={"laser": SensorInfo("laser", "laser", T_BS=T_BS)},
-        ground_truth=GroundTruthMap(classes=CLASSES, objects=(GtObject(1, "A", (3.5, 0, 0)), GtObject(2, "B", (0.5, 2, 0)))),
+        ground_truth=GroundTruthMap(
+            classes=CLASSES, objects=(GtObject(1, "A", (3.5, 0, 0)), GtObject(2, "B", (0.5, 2, 0)))
+        ),
     )
     stamps = np.arange(0, 10) * 1_000_000_000
-    truth = Trajectory(stamps, np.column_stack([np.arange(10) * 0.0 + 1.0, np.zeros(10), np.zeros(10)]),
-                       np.tile([0, 0, 0, 1.0], (10, 1)))
+    truth = Trajectory(
+        stamps,
+        np.column_stack([np.arange(10) * 0.0 + 1.0, np.zeros(10), np.zeros(10)]),
+        np.tile([0, 0, 0, 1.0], (10, 1)),
+    )
     lik_A, lik_B = {"A": 0.7, "B": 0.3}, {"A": 0.3, "B": 0.7}
     obs = [
         # body at (1,0,0), sensor 0.5 m ahead: object A at (3.5,0,0) is 2 m ahead of the sensor
         PointObservation(stamps[1], "laser", position=[2.0, 0, 0], class_likelihood=lik_A),
-        PointObservation(stamps[2], "laser", position=[2.01, 0, 0], class_likelihood={"A": 0.4, "B": 0.6}),  # wrong alone
-        PointObservation(stamps[3], "laser", position=[1.99, 0, 0], class_likelihood=lik_A,
-                         connectivity=Connectivity(1, 1)),
+        PointObservation(
+            stamps[2], "laser", position=[2.01, 0, 0], class_likelihood={"A": 0.4, "B": 0.6}
+        ),  # wrong alone
+        PointObservation(
+            stamps[3], "laser", position=[1.99, 0, 0], class_likelihood=lik_A, connectivity=Connectivity(1, 1)
+        ),
         PointObservation(stamps[4], "laser", position=[-1.0, 2, 0], class_likelihood=lik_B),  # object B
         PointObservation(stamps[5], "laser", position=[0.0, -3, 0], class_likelihood=lik_A),  # no object there
     ]

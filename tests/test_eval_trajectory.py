@@ -18,14 +18,20 @@ def _circle(n=400):
 def test_a_rotated_and_shifted_trajectory_has_no_aligned_error():
     truth = _circle()
     R = Rotation.from_euler("z", 0.5, degrees=True)
-    moved = Trajectory(truth.stamps, R.apply(truth.positions) + [0.02, -0.01, 0.0],
-                       (R * Rotation.from_quat(truth.orientations)).as_quat())
+    moved = Trajectory(
+        truth.stamps,
+        R.apply(truth.positions) + [0.02, -0.01, 0.0],
+        (R * Rotation.from_quat(truth.orientations)).as_quat(),
+    )
     assert trajectory_errors(moved, truth).ate_rmse_m > 0.02
     assert _aligned_ate(moved, truth) < 1e-6
 
 
 def test_aligned_error_keeps_the_shape_error():
     truth = _circle()
-    noisy = Trajectory(truth.stamps, truth.positions + np.random.default_rng(0).normal(0, 0.01, truth.positions.shape),
-                       truth.orientations)
+    noisy = Trajectory(
+        truth.stamps,
+        truth.positions + np.random.default_rng(0).normal(0, 0.01, truth.positions.shape),
+        truth.orientations,
+    )
     assert 0.012 < _aligned_ate(noisy, truth) < 0.02  # √3 × 1 cm, barely reduced by the fit

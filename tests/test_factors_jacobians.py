@@ -177,7 +177,9 @@ def test_structure_factor_and_residual_jacobians(seed):
     rng = np.random.default_rng(seed)
     T, M, T_BS = random_pose(rng), random_pose(rng), random_extrinsic(rng)
     T_WS = T.compose(gtsam.Pose3(T_BS))
-    T_S_model = T_WS.between(M).compose(gtsam.Pose3(gtsam.Rot3.Expmap(rng.normal(size=3) * 0.05), rng.normal(size=3) * 0.05))
+    T_S_model = T_WS.between(M).compose(
+        gtsam.Pose3(gtsam.Rot3.Expmap(rng.normal(size=3) * 0.05), rng.normal(size=3) * 0.05)
+    )
     cov = random_cov(rng, 6, 0.05)
     f = structure_factor(1, 2, T_S_model.matrix(), cov, T_BS)
     v = gtsam.Values()
@@ -407,7 +409,12 @@ def test_displacement_factor_callback_equals_displacement_residual(seed, gap):
     pre = DvlPreintegrator(0.0, Ti.rotation().matrix(), accel_sigma=0.05, attitude_sigma=0.01)
     if not gap:
         for t in np.arange(0.2, 1.0, 0.2):
-            pre.add(t, Ti.rotation().matrix() @ so3_exp(rng.normal(size=3) * 0.05), rng.normal(size=3) * 0.3, random_cov(rng, 3, 0.01))
+            pre.add(
+                t,
+                Ti.rotation().matrix() @ so3_exp(rng.normal(size=3) * 0.05),
+                rng.normal(size=3) * 0.3,
+                random_cov(rng, 3, 0.01),
+            )
     d = pre.integrate(1.1, Ti.rotation().matrix() @ so3_exp(rng.normal(size=3) * 0.05))
     f = displacement_factor(1, 2, 3, 4, d)
 
@@ -442,6 +449,12 @@ def test_biased_attitude_factor_callback_equals_residual(seed):
     for _ in range(4):
         b = float(rng.normal(0, 0.3))
         v = gtsam.Values()
-        v.insert(1, gtsam.Pose3(gtsam.Rot3(so3_exp(np.array([0, 0, -b])) @ R_meas @ so3_exp(rng.normal(size=3) * 0.3)), rng.normal(size=3)))
+        v.insert(
+            1,
+            gtsam.Pose3(
+                gtsam.Rot3(so3_exp(np.array([0, 0, -b])) @ R_meas @ so3_exp(rng.normal(size=3) * 0.3)),
+                rng.normal(size=3),
+            ),
+        )
         v.insert(2, np.array([b]))
         assert_same_linearization(f, ref, v)

@@ -17,8 +17,12 @@ from semslam.registry import create_frontends
 
 
 def _run(mission, frontend_process: bool):
-    fes = create_frontends(["oracle"], mission.metadata, {"oracle": {"seed": 3, "false_positive_rate": 0.1, "miss_rate": 0.1}})
-    return run_pipeline(mission, [EkfEstimator(mission.metadata, SemslamConfig())], fes, frontend_process=frontend_process)
+    fes = create_frontends(
+        ["oracle"], mission.metadata, {"oracle": {"seed": 3, "false_positive_rate": 0.1, "miss_rate": 0.1}}
+    )
+    return run_pipeline(
+        mission, [EkfEstimator(mission.metadata, SemslamConfig())], fes, frontend_process=frontend_process
+    )
 
 
 def test_the_oracle_in_its_own_process_gives_the_same_stream_and_estimate():
@@ -82,7 +86,7 @@ def test_a_dead_front_end_process_is_an_error_and_the_run_exits():
     import sys
 
     code = (
-        "import sys; sys.path.insert(0, %r)\n"
+        "import sys; sys.path.insert(0, {!r})\n"
         "from test_frontend_process import *\n"
         "if __name__ == '__main__':\n"
         "    mission = simulate(SyntheticConfig(duration_s=40.0, seed=1))\n"
@@ -90,7 +94,7 @@ def test_a_dead_front_end_process_is_an_error_and_the_run_exits():
         "        run_pipeline(mission, [EkfEstimator(mission.metadata, SemslamConfig())], [DyingFrontend()])\n"
         "    except RuntimeError as exc:\n"
         "        print('raised:', exc)\n"
-    ) % str(__import__("pathlib").Path(__file__).parent)
+    ).format(str(__import__("pathlib").Path(__file__).parent))
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
     assert out.returncode == 0, out.stderr[-2000:]
     assert "raised: the front-end process (dying) died (exit code 3" in out.stdout
@@ -128,8 +132,13 @@ def test_replicas_share_the_scans_and_give_the_inline_stream():
     mission = simulate(SyntheticConfig(duration_s=40.0, seed=1))
 
     def run(**kw):
-        return run_pipeline(mission, [EkfEstimator(mission.metadata, SemslamConfig())], [ScanWithAttitude()],
-                            keep_observations=True, **kw)
+        return run_pipeline(
+            mission,
+            [EkfEstimator(mission.metadata, SemslamConfig())],
+            [ScanWithAttitude()],
+            keep_observations=True,
+            **kw,
+        )
 
     inline, apart = run(frontend_process=False), run(frontend_workers=2)
     a = [(r.stamp, r.observation.position[0]) for r in inline.observations]
@@ -155,7 +164,9 @@ def test_a_replicated_front_end_observing_on_a_state_type_is_an_error():
     would be lost: it is an error naming the front-end and the type."""
     mission = simulate(SyntheticConfig(duration_s=20.0, seed=1))
     with pytest.raises(RuntimeError, match="'bad_att' observed on a Attitude"):
-        run_pipeline(mission, [EkfEstimator(mission.metadata, SemslamConfig())], [ObservesOnAttitude()], frontend_workers=2)
+        run_pipeline(
+            mission, [EkfEstimator(mission.metadata, SemslamConfig())], [ObservesOnAttitude()], frontend_workers=2
+        )
 
 
 class EnvFrontend:

@@ -6,15 +6,14 @@ leaves the batch re-optimisation the whole mission."""
 import gtsam
 import numpy as np
 import pytest
+from test_backend_graph import DROPOUTS, ate, dr_ate, indeterminate_landmark
 
 from frontends.oracle import OracleFrontend
-from semslam.backend.graph import X, GraphEstimator
+from semslam.backend.graph import GraphEstimator, X
 from semslam.backend.run import run_graph
 from semslam.backend.synthetic import SyntheticConfig, landmark_report, simulate
 from semslam.backend.window import marginal_factors, split_factors, subset
 from semslam.config import SemslamConfig
-
-from test_backend_graph import DROPOUTS, ate, dr_ate, indeterminate_landmark
 
 
 def _chain(rng):
@@ -24,10 +23,24 @@ def _chain(rng):
     lm = [gtsam.symbol("q", i) for i in range(2)]
     factors = [(gtsam.PriorFactorVector(x[0], rng.normal(size=2), gtsam.noiseModel.Isotropic.Sigma(2, 0.1)), None)]
     for i in range(5):
-        factors.append((gtsam.BetweenFactorVector(x[i], x[i + 1], rng.normal(size=2), gtsam.noiseModel.Diagonal.Sigmas(rng.uniform(0.05, 0.2, 2))), None))
+        factors.append(
+            (
+                gtsam.BetweenFactorVector(
+                    x[i], x[i + 1], rng.normal(size=2), gtsam.noiseModel.Diagonal.Sigmas(rng.uniform(0.05, 0.2, 2))
+                ),
+                None,
+            )
+        )
     for j, seen_from in enumerate(([0, 1, 2], [1, 3, 4, 5])):
         for i in seen_from:
-            factors.append((gtsam.BetweenFactorVector(x[i], lm[j], rng.normal(size=2), gtsam.noiseModel.Isotropic.Sigma(2, 0.3)), j))
+            factors.append(
+                (
+                    gtsam.BetweenFactorVector(
+                        x[i], lm[j], rng.normal(size=2), gtsam.noiseModel.Isotropic.Sigma(2, 0.3)
+                    ),
+                    j,
+                )
+            )
     values = gtsam.Values()
     for k in x + lm:
         values.insert(k, rng.normal(size=2))
@@ -55,7 +68,9 @@ def test_marginal_of_what_leaves_is_exact_on_a_linear_problem():
     rest, rest_marg = _solve(window, subset(full, [k for k in x[2:] + lm]))
     for k in x[2:] + lm:
         np.testing.assert_allclose(rest.atVector(k), full.atVector(k), atol=1e-9)
-        np.testing.assert_allclose(rest_marg.marginalCovariance(k), full_marg.marginalCovariance(k), rtol=1e-7, atol=1e-12)
+        np.testing.assert_allclose(
+            rest_marg.marginalCovariance(k), full_marg.marginalCovariance(k), rtol=1e-7, atol=1e-12
+        )
 
 
 def test_marginal_without_the_leaving_factors_is_not_the_full_answer():
@@ -72,8 +87,18 @@ def test_marginal_without_the_leaving_factors_is_not_the_full_answer():
 def windowed():
     # three 16 m lanes, 3 m apart, at 0.25 m/s: an object leaves the window of 125 s with its lane
     # and is seen again on the next pass
-    mission = simulate(SyntheticConfig(duration_s=400.0, path="lawnmower", lane_length_m=16.0, lane_spacing_m=3.0, n_lanes=3,
-                                       dropouts=DROPOUTS, ahrs_yaw_bias_rad=0.0, seed=0))
+    mission = simulate(
+        SyntheticConfig(
+            duration_s=400.0,
+            path="lawnmower",
+            lane_length_m=16.0,
+            lane_spacing_m=3.0,
+            n_lanes=3,
+            dropouts=DROPOUTS,
+            ahrs_yaw_bias_rad=0.0,
+            seed=0,
+        )
+    )
     runs = {}
     for window in (None, 125.0):
         fe = OracleFrontend(mission.metadata, {"seed": 1})

@@ -4,12 +4,12 @@ import numpy as np
 import pytest
 
 from frontends.laser import LaserFrontend
+from frontends.laser.synthetic import cached_scan
 from semslam.errors import ConfigError
 from semslam.mission.measurements import PointCloud
 from semslam.mission.mission import MissionMetadata, SensorInfo
 from semslam.observations import Connectivity, LineObservation, PointObservation
 from semslam.registry import Frontend, load_frontend_class
-from frontends.laser.synthetic import cached_scan
 
 
 class _View:
@@ -137,8 +137,8 @@ def test_replicas_in_two_processes_give_the_inline_observations():
     AHRS reading) give exactly the observations of one front-end inline."""
     from scipy.spatial.transform import Rotation
 
-    from semslam.ekf import DeadReckoning
     from semslam.config import SemslamConfig
+    from semslam.ekf import DeadReckoning
     from semslam.mission.measurements import Attitude
     from semslam.mission.mission import Mission
     from semslam.pipeline import run_pipeline
@@ -158,8 +158,15 @@ def test_replicas_in_two_processes_give_the_inline_observations():
 
     def stream(**kw):
         res = run_pipeline(mission, [DeadReckoning(meta, SemslamConfig())], [LaserFrontend(meta, cfg)], **kw)
-        return [(r.stamp, type(r.observation).__name__, getattr(r.observation, "position", None),
-                 getattr(r.observation, "p", None)) for r in res.observations]
+        return [
+            (
+                r.stamp,
+                type(r.observation).__name__,
+                getattr(r.observation, "position", None),
+                getattr(r.observation, "p", None),
+            )
+            for r in res.observations
+        ]
 
     inline, apart = stream(frontend_process=False), stream(frontend_workers=2)
     assert len(inline) > 20 and len(apart) == len(inline)

@@ -5,11 +5,11 @@ import numpy as np
 from frontends.laser.config import LaserConfig
 from frontends.laser.grid import VoxelGrid, adjacency_of, offsets
 from frontends.laser.preprocess import (
+    eigen3,
     hop_covariances,
     knn_search,
     local_geometry,
     preprocess,
-    eigen3,
     shape_of,
     small_clusters,
     smallest_eigen,
@@ -112,7 +112,7 @@ def test_preprocess_crops_and_maps_raw_points():
     assert np.all(pre.raw_to_voxel[-2:] == -1)  # cropped by range
     mapped = pre.raw_to_voxel[:-2]
     ok = mapped >= 0
-    interior = np.all(np.abs(near[:, :2]) < 0.9, axis=1)
+    np.all(np.abs(near[:, :2]) < 0.9, axis=1)
     assert ok.all()  # one connected patch: no stray returns
     assert np.all(np.linalg.norm(pre.points[mapped[ok]] - near[ok], axis=1) <= 0.05 * np.sqrt(3))
     assert np.all(pre.neighbours[:, 0] == np.arange(len(pre.points)))
@@ -120,6 +120,7 @@ def test_preprocess_crops_and_maps_raw_points():
 
 def test_single_threaded_blas_restores_the_thread_count():
     import threadpoolctl  # a dependency: never skipped
+
     from frontends.laser.grid import single_threaded_blas
 
     def blas_threads():

@@ -97,7 +97,13 @@ def _pipe_with_end(cap: bool, body: bool):
     if body:  # the top of a 12 cm box body, 10 cm wide, its top 6 cm above the axis
         parts.append(np.column_stack([rng.uniform(0.0, 0.12, 150), rng.uniform(-0.05, 0.05, 150), np.full(150, 1.94)]))
     pts = np.vstack(parts)
-    pipe = _make_pipe(pts, np.vstack([normals, np.zeros((len(pts) - 600, 3))]), np.arange(600), np.array([1.0, 0, 0]), PipeConfig(radius_prior=r))
+    pipe = _make_pipe(
+        pts,
+        np.vstack([normals, np.zeros((len(pts) - 600, 3))]),
+        np.arange(600),
+        np.array([1.0, 0, 0]),
+        PipeConfig(radius_prior=r),
+    )
     return pts, [pipe]
 
 
@@ -160,8 +166,14 @@ def test_a_fitting_body_fitted_as_a_short_pipe_between_collinear_pipes_is_one_in
     assert site.config == 2 and abs(site.center[1]) < 0.003
     # a real junction keeps its crossing: a pipe leaving sideways makes three directions
     y = np.array([0, 1.0, 0])
-    site = _site(np.arange(3), np.array([[-0.1, 0, 2.0], [0.1, 0, 2.0], [0, -0.1, 2.0]]), np.array([x, -x, y]),
-                 guess[:3], np.array([0, 0, -1.0]), cfg)
+    site = _site(
+        np.arange(3),
+        np.array([[-0.1, 0, 2.0], [0.1, 0, 2.0], [0, -0.1, 2.0]]),
+        np.array([x, -x, y]),
+        guess[:3],
+        np.array([0, 0, -1.0]),
+        cfg,
+    )
     assert site.config == 4 and np.linalg.norm(site.center - [0, 0, 2.0]) < 1e-9
 
 
@@ -186,7 +198,9 @@ def _pipe_running_on(beyond_radius: float, beyond_to: float, then_pipe_to: float
     if then_pipe_to > beyond_to:
         parts.append(shell(beyond_to, then_pipe_to, r, 300)[0])
     if handle:  # a lever 6-8 cm above the axis (up is −z), over the end
-        parts.append(np.column_stack([rng.uniform(0.0, 0.1, 40), rng.uniform(-0.01, 0.01, 40), rng.uniform(1.92, 1.94, 40)]))
+        parts.append(
+            np.column_stack([rng.uniform(0.0, 0.1, 40), rng.uniform(-0.01, 0.01, 40), rng.uniform(1.92, 1.94, 40)])
+        )
     return np.vstack(parts), [pipe]
 
 

@@ -5,7 +5,7 @@ import numpy as np
 from frontends.laser import LaserConfig, segment_scan
 from frontends.laser.config import PipeConfig
 from frontends.laser.evaluation import score_scan
-from frontends.laser.pipes import endpoint_covariance, fit_cylinder, hypotheses, merge_duplicates, _make_pipe
+from frontends.laser.pipes import _make_pipe, endpoint_covariance, fit_cylinder, hypotheses, merge_duplicates
 from frontends.laser.synthetic import cached_scan, truth_of
 
 

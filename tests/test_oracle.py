@@ -8,7 +8,7 @@ from semslam.errors import ConfigError
 from semslam.mission.ground_truth import GroundTruthMap, GtObject, GtPipe
 from semslam.mission.measurements import GroundTruthPose, PointCloud
 from semslam.mission.mission import MissionMetadata, SensorInfo
-from semslam.observations import LineObservation, PointObservation
+from semslam.observations import LineObservation
 from semslam.registry import load_frontend_class
 
 CLASSES = ("valve", "elbow", "tee")
@@ -57,7 +57,9 @@ def test_observations_in_sensor_frame_with_stated_noise():
 
 def test_pipe_clipped_to_view():
     pipe = GtPipe(5, (-10.0, 0.0, 3.0), (10.0, 0.0, 3.0), 0.05)
-    fe = OracleFrontend(metadata(pipes=[pipe]), {"line_sigma_m": 0.0, "line_along_sigma_m": 0.0, "fov_half_angle_deg": 45})
+    fe = OracleFrontend(
+        metadata(pipes=[pipe]), {"line_sigma_m": 0.0, "line_along_sigma_m": 0.0, "fov_half_angle_deg": 45}
+    )
     (obs,) = scan(fe)
     assert isinstance(obs, LineObservation) and obs.truth_id == 5
     # Cone of 45° at 3 m depth: the visible stretch is |x| ≤ 3 (within sampling).
@@ -85,13 +87,17 @@ def test_class_likelihood_is_a_confusion_column():
         lk = scan(fe, 10 + i)[0].class_likelihood
         assert set(lk) == set(CLASSES) and np.isclose(sum(lk.values()), 1.0)
         detected = max(lk, key=lk.get)
-        assert lk[detected] == pytest.approx(0.7) and all(v == pytest.approx(0.15) for c, v in lk.items() if c != detected)
+        assert lk[detected] == pytest.approx(0.7) and all(
+            v == pytest.approx(0.15) for c, v in lk.items() if c != detected
+        )
         right += detected == "elbow"
     assert right / 1000 == pytest.approx(0.7, abs=0.05)
 
 
 def test_pose_interpolated_between_ground_truth_samples():
-    fe = OracleFrontend(metadata([GtObject(1, "valve", (1.0, 0.0, 3.0))]), {"point_sigma_m": 0.0, "point_sigma_per_m": 0.0})
+    fe = OracleFrontend(
+        metadata([GtObject(1, "valve", (1.0, 0.0, 3.0))]), {"point_sigma_m": 0.0, "point_sigma_per_m": 0.0}
+    )
     fe.process(GroundTruthPose(0, "gt", position=np.zeros(3), orientation=np.array([0, 0, 0, 1.0])), None)
     fe.process(GroundTruthPose(100, "gt", position=np.array([1.0, 0, 0]), orientation=np.array([0, 0, 0, 1.0])), None)
     (obs,) = fe.process(PointCloud(150, "laser"), None)  # extrapolated to x = 1.5

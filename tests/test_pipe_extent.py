@@ -51,7 +51,9 @@ def test_a_pipe_seen_through_a_mapped_tee_is_cut_at_it_on_the_side_of_its_views(
 
     # a landmark started by laser fits through an in-line tee at s = 0.5: most views then see the
     # part before it, a few the whole 1 m
-    lm = Landmark(1, "pipe", 0, anchor=LineAnchor.from_points(np.zeros(3), np.array([1.0, 0.0, 0.0])), estimate=np.zeros(4))
+    lm = Landmark(
+        1, "pipe", 0, anchor=LineAnchor.from_points(np.zeros(3), np.array([1.0, 0.0, 0.0])), estimate=np.zeros(4)
+    )
     lm.seen_ends = [(0.0, 0.45, 0.01)] * 30 + [(0.0, 1.0, 0.01)] * 5
     lm.extent = (0.0, 1.0)
     d = lm.anchor.direction(lm.estimate)

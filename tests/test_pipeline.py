@@ -21,8 +21,17 @@ from semslam.observations import PointObservation
 from semslam.pipeline import run_pipeline
 
 REQUIRED_ESTIMATOR_KEYS = {
-    "ate_rmse_m", "ate_max_m", "rpe_rmse_m", "landmark_median_error_m", "n_objects", "n_pipes",
-    "n_structures", "runtime_s", "update_ms_median", "update_ms_p95", "nees_mean",
+    "ate_rmse_m",
+    "ate_max_m",
+    "rpe_rmse_m",
+    "landmark_median_error_m",
+    "n_objects",
+    "n_pipes",
+    "n_structures",
+    "runtime_s",
+    "update_ms_median",
+    "update_ms_p95",
+    "nees_mean",
 }
 
 
@@ -52,14 +61,23 @@ class Recorder:
     def finish(self):
         stamps = np.array([p.stamp for p in self.truth])
         pos = np.array([p.position for p in self.truth]) + [self.offset, 0, 0]
-        traj = Trajectory(stamps, pos, np.array([p.orientation for p in self.truth]),
-                          position_cov=np.tile(np.eye(3) * self.offset**2, (len(stamps), 1, 1)))
-        lm = LandmarkEstimate(id=0, kind="object", position=np.array([1.0 + self.offset, 2.0, 3.0]),
-                              class_posterior={"Elbow": 0.8, "R-Tee": 0.2})
+        traj = Trajectory(
+            stamps,
+            pos,
+            np.array([p.orientation for p in self.truth]),
+            position_cov=np.tile(np.eye(3) * self.offset**2, (len(stamps), 1, 1)),
+        )
+        lm = LandmarkEstimate(
+            id=0,
+            kind="object",
+            position=np.array([1.0 + self.offset, 2.0, 3.0]),
+            class_posterior={"Elbow": 0.8, "R-Tee": 0.2},
+        )
         # "a" smooths: its online estimate (a further 0.05 m off) differs from the final one; "b" filters.
         online = Trajectory(stamps, pos + [0.05, 0, 0], traj.orientations) if self.name == "a" else traj
-        return EstimatorResult(self.name, traj, [lm], online_trajectory=online,
-                               update_times_s=np.array([0.001, 0.002, 0.003]))
+        return EstimatorResult(
+            self.name, traj, [lm], online_trajectory=online, update_times_s=np.array([0.001, 0.002, 0.003])
+        )
 
 
 class CountingFrontend:
@@ -117,8 +135,15 @@ def test_metrics_and_outputs(tmp_path):
 
     out = write_outputs(tmp_path / "run", SemslamConfig(), res, metrics)
     names = {p.name for p in out.iterdir()}
-    assert {"config.yaml", "metrics.json", "trajectory_a.tum", "trajectory_a_online.tum", "map_a.json",
-            "map_a.ply", "trajectory_b.tum"} <= names
+    assert {
+        "config.yaml",
+        "metrics.json",
+        "trajectory_a.tum",
+        "trajectory_a_online.tum",
+        "map_a.json",
+        "map_a.ply",
+        "trajectory_b.tum",
+    } <= names
     tum = np.loadtxt(out / "trajectory_a.tum")
     assert tum.shape == (50, 8) and tum[3, 1] == pytest.approx(0.4)
     m = json.loads((out / "map_b.json").read_text())
@@ -163,8 +188,12 @@ class FinishingFrontend(CountingFrontend):
         pose[:3, 3] = (1.0, 2.0, 3.0)
         return FrontendSummary(
             section="sonar",
-            metrics={"structures": [{"model": "manifold", "pose": pose.tolist(), "median_error_m": 0.02, "symmetry": 2}],
-                     "runtime_s": 1.5, "world_model_bytes": 1000, "raw_cloud_bytes": 200_000},
+            metrics={
+                "structures": [{"model": "manifold", "pose": pose.tolist(), "median_error_m": 0.02, "symmetry": 2}],
+                "runtime_s": 1.5,
+                "world_model_bytes": 1000,
+                "raw_cloud_bytes": 200_000,
+            },
             files={"figures/sonar_elevation.png": figure},
         )
 
@@ -175,7 +204,9 @@ def test_frontend_summary_reaches_metrics_outputs_and_report(tmp_path):
 
     mission = _mission()
     mission.metadata.ground_truth = GroundTruthMap(
-        structures=(GtStructure(3, "manifold", (1.0, 2.5, 3.0), (0, 0, np.sin(np.pi / 2 + 0.01), np.cos(np.pi / 2 + 0.01))),),
+        structures=(
+            GtStructure(3, "manifold", (1.0, 2.5, 3.0), (0, 0, np.sin(np.pi / 2 + 0.01), np.cos(np.pi / 2 + 0.01))),
+        ),
     )
     res = run_pipeline(mission, [Recorder("dr", 0.3), Recorder("graph", 0.05)], [FinishingFrontend()])
     metrics = build_metrics(res, mission.metadata)

@@ -94,7 +94,9 @@ def test_view_cache_is_keyed_by_content(tmp_path):
     bigger = o3d.geometry.TriangleMesh(mesh).scale(1.1, center=np.zeros(3))
     c = build_model_views("cyl", cls, bigger, params, cache_dir=tmp_path)
     assert c.key != a.key and len(list((tmp_path / "views").glob("*.npz"))) == 2
-    d = build_model_views("cyl", cls, mesh, ViewParams(n_views=4, distances_m=(1.5,), range_sigma_m=0.002), cache_dir=tmp_path)
+    d = build_model_views(
+        "cyl", cls, mesh, ViewParams(n_views=4, distances_m=(1.5,), range_sigma_m=0.002), cache_dir=tmp_path
+    )
     assert d.key != a.key
     files[0].write_bytes(b"garbage")
     with pytest.raises(RecognitionError, match="corrupt view cache"):
@@ -206,7 +208,9 @@ def test_icp_pose_recovers_the_object_pose(database):
     name, est = rec.pose(cloud)
     assert name == "ell"
     v = np.asarray(mesh.vertices)
-    err = np.linalg.norm((v @ est.T_SM[:3, :3].T + est.T_SM[:3, 3]) - (v @ T_SM_true[:3, :3].T + T_SM_true[:3, 3]), axis=1)
+    err = np.linalg.norm(
+        (v @ est.T_SM[:3, :3].T + est.T_SM[:3, 3]) - (v @ T_SM_true[:3, :3].T + T_SM_true[:3, 3]), axis=1
+    )
     assert est.fitness > 0.9
     assert err.max() < 0.02, err.max()
     angle = Rotation.from_matrix(est.T_SM[:3, :3].T @ T_SM_true[:3, :3]).magnitude()
@@ -214,7 +218,7 @@ def test_icp_pose_recovers_the_object_pose(database):
 
 
 def test_six_class_cad_library_held_out_esf_accuracy(request):
-    cad = pytest.importorskip("semslam.sim.cad")
+    cad = pytest.importorskip("semslam.models.cad")
     models = {n: (m.cls, m.mesh, list(m.ports)) for n, m in cad.library().items() if m.source is None}
     params = ViewParams(n_views=12, distances_m=(1.0, 1.8, 3.0))  # a lighter database than the default
     db = load_database(models, params, cache_dir=_view_cache(request), include_user_models=False)

@@ -5,7 +5,7 @@ import open3d as o3d
 import pytest
 
 from semslam.errors import SemslamError
-from semslam.sim import cad
+from semslam.models import cad
 
 
 def _raycast(mesh, origins, dirs):
@@ -37,7 +37,14 @@ def test_six_classes_with_paper_sizes():
 def test_ports_are_socket_mouths():
     """A ray shot back along each port's outward direction, from just outside, hits the part at the
     port (the mouth is the outermost surface along that direction), and ports are unit and distinct."""
-    expected_ports = {"Ball-Valve": 2, "Elbow": 2, "R-Tee": 3, "R-Socket": 2, "Butterfly-Valve": 2, "3-Way-Ball-Valve": 3}
+    expected_ports = {
+        "Ball-Valve": 2,
+        "Elbow": 2,
+        "R-Tee": 3,
+        "R-Socket": 2,
+        "Butterfly-Valve": 2,
+        "3-Way-Ball-Valve": 3,
+    }
     for c, m in cad.library().items():
         assert len(m.ports) == expected_ports[c]
         P = np.array([p for p, _ in m.ports])

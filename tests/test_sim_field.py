@@ -11,8 +11,8 @@ from typer.testing import CliRunner
 
 from semslam.errors import ConfigError
 from semslam.mission import Attitude, Depth, DvlVelocity, GroundTruthPose, SonarSwath
+from semslam.models import structures as st
 from semslam.sim import sensors as S
-from semslam.sim import structures as st
 from semslam.sim.field import PIPE, STRUCTURE, FieldScene, make_field
 from semslam.sim.field_config import FieldSimConfig, load_field_config
 from semslam.sim.field_mission import REFLECTIVITY, simulate_field
@@ -186,7 +186,11 @@ def test_layout_structures_and_pipelines(seed):
     field = make_field(cfg)
     gt = field.ground_truth()
     lib = st.structure_library()
-    assert [s.model for s in gt.structures] == ["plet", "manifold", "wellhead"] and [s.id for s in gt.structures] == [0, 1, 2]
+    assert [s.model for s in gt.structures] == ["plet", "manifold", "wellhead"] and [s.id for s in gt.structures] == [
+        0,
+        1,
+        2,
+    ]
     assert [p.radius for p in gt.pipes] == [0.25, 0.10]
     assert gt.extras["pipeline_connections"] == {"0": [0, 1], "1": [1, 2]}
     half = np.array(cfg.seabed.area_m) / 2
@@ -198,7 +202,9 @@ def test_layout_structures_and_pipelines(seed):
         R = Rotation.from_quat(s.orientation).as_matrix()
         np.testing.assert_allclose(R[:, 2], [0, 0, 1], atol=1e-12)
         assert c[2] == pytest.approx(float(field.seabed.depth(c[0], c[1])), abs=1e-9)
-        ring = c[:2] + m.footprint_radius * np.stack([np.cos(np.arange(0, 6.3, 0.3)), np.sin(np.arange(0, 6.3, 0.3))], 1)
+        ring = c[:2] + m.footprint_radius * np.stack(
+            [np.cos(np.arange(0, 6.3, 0.3)), np.sin(np.arange(0, 6.3, 0.3))], 1
+        )
         np.testing.assert_allclose(field.seabed.depth(ring[:, 0], ring[:, 1]), c[2], atol=1e-9)  # level ground
     for i in range(3):
         for j in range(i + 1, 3):
@@ -210,7 +216,11 @@ def test_layout_structures_and_pipelines(seed):
             s = gt.structures[sid]
             T = np.eye(4)
             T[:3, :3], T[:3, 3] = Rotation.from_quat(s.orientation).as_matrix(), s.position
-            hubs = [(h, d) for (h, d), spec in zip(lib[s.model].hubs_in(T), lib[s.model].hubs) if spec.pipe_radius == p.radius]
+            hubs = [
+                (h, d)
+                for (h, d), spec in zip(lib[s.model].hubs_in(T), lib[s.model].hubs)
+                if spec.pipe_radius == p.radius
+            ]
             dist = min(np.linalg.norm(np.asarray(end) - h) for h, _ in hubs)
             assert dist < 0.01
             # the pipeline leaves the hub roughly along the hub's direction
@@ -340,7 +350,9 @@ def test_noise_free_dvl_integrates_to_the_true_trajectory():
     scene = FieldScene(make_field(cfg))
     traj = Lawnmower(cfg.trajectory, cfg.seabed)
     st_, t = S.sample_times(0, cfg.dvl.rate_hz, traj.duration)
-    res = S.simulate_dvl(cfg.dvl, traj, scene, st_, t, np.random.default_rng(0), np.random.default_rng(1), lost_kinds=())
+    res = S.simulate_dvl(
+        cfg.dvl, traj, scene, st_, t, np.random.default_rng(0), np.random.default_rng(1), lost_kinds=()
+    )
     assert res.valid.all()
     v_S = np.array([m.velocity for m in res.measurements])
     T_BS = cfg.dvl.mount.matrix()
@@ -448,7 +460,9 @@ def test_cli_simulate_field_and_info(tmp_path):
     sim = tmp_path / "sim.yaml"
     sim.write_text("trajectory: {lines: 2, line_length_m: 8.0}\nsonar: {n_beams: 32}\n")
     out, png = tmp_path / "f.bag", tmp_path / "f.png"
-    res = runner.invoke(app, ["simulate", "field", "--seed", "3", "--out", str(out), "--sim-config", str(sim), "--preview", str(png)])
+    res = runner.invoke(
+        app, ["simulate", "field", "--seed", "3", "--out", str(out), "--sim-config", str(sim), "--preview", str(png)]
+    )
     assert res.exit_code == 0, res.output
     assert "3 structures, 2 pipelines" in res.output and png.stat().st_size > 50_000
     info = runner.invoke(app, ["info", str(out)])
@@ -456,7 +470,9 @@ def test_cli_simulate_field_and_info(tmp_path):
     rows = {line.split()[0]: line.split() for line in info.output.splitlines() if line.split()}
     assert rows["sonar"][1:4] == ["sonar", "/sim/sonar/scan", "sensor_msgs/LaserScan"]
     assert float(rows["sonar"][5]) == pytest.approx(12.5) and float(rows["ground_truth"][5]) == pytest.approx(25.0)
-    assert int(rows["sonar"][4]) == int(json.loads((tmp_path / "f.bag.semslam.json").read_text())["extras"]["sonar"]["swaths"])
+    assert int(rows["sonar"][4]) == int(
+        json.loads((tmp_path / "f.bag.semslam.json").read_text())["extras"]["sonar"]["swaths"]
+    )
     again = runner.invoke(app, ["simulate", "field", "--out", str(out)])
     assert again.exit_code == 1 and "already exists" in again.output
     assert len([line for line in again.output.splitlines() if line.strip()]) == 1

@@ -8,7 +8,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from semslam.mission import Attitude, Depth, DvlVelocity, GroundTruthPose, PointCloud
-from semslam.sim import cad
+from semslam.models import cad
 from semslam.sim import sensors as S
 from semslam.sim.config import TankSimConfig
 from semslam.sim.simulate import simulate_tank
@@ -292,8 +292,9 @@ def test_simulate_to_bag_with_options(tmp_path):
 
     cfg = tmp_path / "sim.yaml"
     cfg.write_text("trajectory: {rest_s: 1.0, ramp_s: 5.0, loop_period_s: 20.0}\nlaser: {resolution: [40, 30]}\n")
-    simulate_tank_to_bag(tmp_path / "m.bag", seed=4, dvl_dropout_rate=0.3, loops=0.5, config=cfg,
-                         preview=tmp_path / "m.png")
+    simulate_tank_to_bag(
+        tmp_path / "m.bag", seed=4, dvl_dropout_rate=0.3, loops=0.5, config=cfg, preview=tmp_path / "m.png"
+    )
     back = read_mission(tmp_path / "m.bag")
     resolved = back.metadata.extras["simulator"]["config"]
     assert resolved["seed"] == 4 and resolved["dvl"]["random_dropout_rate"] == 0.3

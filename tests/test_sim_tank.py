@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from semslam.errors import ConfigError
-from semslam.sim import cad
+from semslam.models import cad
 from semslam.sim.config import TankSimConfig
 from semslam.sim.tank import (
     FLOOR,

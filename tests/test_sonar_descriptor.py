@@ -15,7 +15,7 @@ from frontends.sonar.descriptor import (
     score,
     search,
 )
-from semslam.sim.structures import pose_matrix, structure_library
+from semslam.models.structures import pose_matrix, structure_library
 
 
 def test_emd_closed_form_matches_scipy():

@@ -21,8 +21,15 @@ def mission():
     """Two 18 m lines of seed 23's field: its 0.25 m pipeline crosses their overlap north–south,
     the PLET lies under the second line and the manifold under the first. A drifting heading
     (2.5° over the survey) and a noisier DVL misalign the lines by 0.2–0.5 m."""
-    cfg = survey_config(seed=23, lines=2, line_length_m=18.0, centre=(5.8, 6.0), sonar={"n_beams": 256},
-                        ahrs={"heading_bias_drift_deg": 2.5}, dvl={"sigma_m_s": 0.02, "random_dropout_rate": 0.0})
+    cfg = survey_config(
+        seed=23,
+        lines=2,
+        line_length_m=18.0,
+        centre=(5.8, 6.0),
+        sonar={"n_beams": 256},
+        ahrs={"heading_bias_drift_deg": 2.5},
+        dvl={"sigma_m_s": 0.02, "random_dropout_rate": 0.0},
+    )
     return simulate_field(cfg)
 
 
@@ -104,8 +111,12 @@ def test_structure_becomes_a_graph_landmark(mission, baseline, tmp_path):
     # a second run into the same directory (quick stand-in writers for the same files)
     import dataclasses
 
-    rerun = dataclasses.replace(summary, files={n: (lambda p: (p.parent.mkdir(parents=True, exist_ok=True),
-                                                               p.write_bytes(b"x"))) for n in summary.files})
+    rerun = dataclasses.replace(
+        summary,
+        files={
+            n: (lambda p: (p.parent.mkdir(parents=True, exist_ok=True), p.write_bytes(b"x"))) for n in summary.files
+        },
+    )
     write_outputs(out, SemslamConfig(), dataclasses.replace(res, frontend_summaries={"sonar": rerun}), metrics)
     assert {p.name for p in (out / "figures").iterdir()} == figures
     assert (out / "figures" / "sonar_world_model.png").read_bytes() == b"x"

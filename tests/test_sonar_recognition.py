@@ -10,15 +10,18 @@ from frontends.sonar.grid import ElevationMap, estimate_ground
 from frontends.sonar.recognition import Recogniser
 from frontends.sonar.registration import icp, model_data, register_structure
 from frontends.sonar.synthetic import survey_config, true_points, true_structure_pose, yaw_error
+from semslam.models.structures import structure_library
 from semslam.sim.field_mission import simulate_field
-from semslam.sim.structures import structure_library
 
 
 @pytest.fixture(scope="module")
 def survey():
     """Three 34 m lines of seed 0's field (256 beams): the manifold, the PLET and the wellhead in view."""
-    m = simulate_field(survey_config(seed=0, lines=3, line_length_m=34.0, centre="manifold", east_offset_m=-2.0,
-                                     sonar={"n_beams": 256}))
+    m = simulate_field(
+        survey_config(
+            seed=0, lines=3, line_length_m=34.0, centre="manifold", east_offset_m=-2.0, sonar={"n_beams": 256}
+        )
+    )
     return m, true_points(m).astype(np.float32)
 
 

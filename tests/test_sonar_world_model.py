@@ -2,13 +2,12 @@
 
 import numpy as np
 import open3d as o3d
-import pytest
 
 from frontends.sonar.config import WorldModelConfig
 from frontends.sonar.grid import GridSpec
 from frontends.sonar.pipes import PipeSegment
 from frontends.sonar.world_model import build_world_model, write_ply
-from semslam.sim.structures import pose_matrix, structure_library
+from semslam.models.structures import pose_matrix, structure_library
 
 
 def _seabed(cell=0.5):
@@ -23,9 +22,11 @@ def _seabed(cell=0.5):
 
 def _world(raw_bytes, cfg=None):
     lib = structure_library()
-    structs = [(lib["manifold"], pose_matrix((-6.6, -5.0, 20.4), 1.0)),
-               (lib["plet"], pose_matrix((-10.6, 11.0, 20.4), -1.5)),
-               (lib["wellhead"], pose_matrix((0.0, -15.0, 20.2), 2.5))]
+    structs = [
+        (lib["manifold"], pose_matrix((-6.6, -5.0, 20.4), 1.0)),
+        (lib["plet"], pose_matrix((-10.6, 11.0, 20.4), -1.5)),
+        (lib["wellhead"], pose_matrix((0.0, -15.0, 20.2), 2.5)),
+    ]
     pipes = [PipeSegment(np.array([-10.4, 8.9, 20.2]), np.array([-9.0, -1.0, 20.2]), 0.25, 100, 0.01)]
     spec, depth = _seabed()
     return build_world_model(structs, pipes, depth, spec, cfg or WorldModelConfig(), raw_bytes)
@@ -77,7 +78,9 @@ def test_world_model_rendering_reads_no_uninitialised_memory(monkeypatch, tmp_pa
         return out
 
     monkeypatch.setattr(np, "empty", garbage_empty)
-    tri = np.array([[[0.0, 0.0, 1.0], [2.0, 0.0, 1.5], [0.0, 2.0, 2.0]], [[0.3, 0.3, 1.0], [0.9, 0.3, 1.0], [0.3, 0.9, 1.2]]])
+    tri = np.array(
+        [[[0.0, 0.0, 1.0], [2.0, 0.0, 1.5], [0.0, 2.0, 2.0]], [[0.3, 0.3, 1.0], [0.9, 0.3, 1.0], [0.3, 0.9, 1.2]]]
+    )
     polys = [P for t in tri for P in _clip_box(t[None], np.array([0.2, 0.2]), np.array([1.0, 1.0]))]
     assert len({len(P) for P in polys}) > 1  # ragged: what triggered it
     fig = plt.figure()

@@ -63,7 +63,9 @@ class ScanScore:
     # segments per true object (each segment to its nearest object within split_gate), for the
     # visible objects with at least one: class → [objects with one segment, objects with more]
     segments_by_class: dict = field(default_factory=dict)
-    bridged_by_class: dict = field(default_factory=dict)  # class → reported pipe segments running through it (> 0.1 m each side)
+    bridged_by_class: dict = field(
+        default_factory=dict
+    )  # class → reported pipe segments running through it (> 0.1 m each side)
     # signed error of single segments towards the sensor (m), by configuration found (1-4)
     toward_sensor_by_config: dict = field(default_factory=dict)
     # fraction of an object's own hits in its single segment, by class
@@ -201,8 +203,20 @@ def score_scan(
     return score
 
 
-def _score_map_errors(points, seg, truth, score, seg_pos, near_any, min_object_hits, min_pipe_length,
-                      split_gate=0.25, free_end_gate=0.2, bridge_margin=0.10, bridge_lateral=0.04):
+def _score_map_errors(
+    points,
+    seg,
+    truth,
+    score,
+    seg_pos,
+    near_any,
+    min_object_hits,
+    min_pipe_length,
+    split_gate=0.25,
+    free_end_gate=0.2,
+    bridge_margin=0.10,
+    bridge_lateral=0.04,
+):
     """The errors that repeat across consecutive views (so the back-end maps them): spurious
     segments at free pipe ends, objects segmented more than once, pipe segments running through an
     object, a position bias towards the sensor, and how much of each object its segment holds."""
@@ -240,7 +254,7 @@ def _score_map_errors(points, seg, truth, score, seg_pos, near_any, min_object_h
         for j in np.flatnonzero((lateral <= bridge_lateral) & (t > bridge_margin) & (t < det.length - bridge_margin)):
             score.bridged_by_class[classes[j]] = score.bridged_by_class.get(classes[j], 0) + 1
     # bias towards the sensor and coverage, for the objects with a single segment
-    raw_obj = (truth.kind == OBJECT)
+    raw_obj = truth.kind == OBJECT
     for j, (pos, _) in enumerate(truth.objects):
         if hits[j] < min_object_hits or not len(seg_pos):
             continue
@@ -279,7 +293,9 @@ def summarize(scores: list[ScanScore]) -> dict:
     single = sum(s.n_single_segment for s in scores)
     return {
         "scans": len(scores),
-        "structure_kept_overall": ratio(sum(s.n_structure_kept for s in scores), sum(s.n_structure_points for s in scores)),
+        "structure_kept_overall": ratio(
+            sum(s.n_structure_kept for s in scores), sum(s.n_structure_points for s in scores)
+        ),
         "plane_removed_overall": ratio(sum(s.n_plane_removed for s in scores), sum(s.n_plane_points for s in scores)),
         "structure_kept_mean": float(np.mean(structure)) if structure else None,
         "structure_kept_min": float(np.min(structure)) if structure else None,

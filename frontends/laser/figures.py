@@ -69,7 +69,7 @@ def stage_figure(raw: np.ndarray, seg: ScanSegmentation, path, title: str = "", 
             ax.annotate("", e[:2], o.position[:2], arrowprops=dict(arrowstyle="->", color=colors[i]))
         ax.annotate(f"conf {o.configuration}", o.position[:2] + 0.06, fontsize=9)
     if truth is not None:
-        for pos, conf in truth.objects:
+        for pos, _conf in truth.objects:
             ax.plot(pos[0], pos[1], "rx", ms=9)
     ax.set_title(f"objects: {len(seg.objects)} segments (+ estimate, x truth, arrows = pipes)")
 

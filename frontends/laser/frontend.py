@@ -16,10 +16,10 @@ from pydantic import ValidationError
 from scipy.spatial.transform import Rotation
 
 from frontends.laser.config import LaserConfig
+from frontends.laser.grid import VoxelGrid, adjacency_of
 from frontends.laser.objects import SegmentedObject, segment_objects
 from frontends.laser.pipes import Pipe, Rays, detect_pipes
 from frontends.laser.planes import PlaneResult, remove_planes
-from frontends.laser.grid import VoxelGrid, adjacency_of
 from frontends.laser.preprocess import Preprocessed, hop_covariance_parts, preprocess, shape_of_parts
 from semslam.errors import ConfigError
 from semslam.mission.measurements import Attitude, PointCloud
@@ -63,7 +63,9 @@ class ScanSegmentation:
             # per object): voxel v's raw points are order[start[v]:start[v + 1]].
             inside = np.flatnonzero(self.raw_to_structure >= 0)
             order = inside[np.argsort(self.raw_to_structure[inside], kind="stable")]
-            start = np.r_[0, np.cumsum(np.bincount(self.raw_to_structure[inside], minlength=len(self.structure_points)))]
+            start = np.r_[
+                0, np.cumsum(np.bincount(self.raw_to_structure[inside], minlength=len(self.structure_points)))
+            ]
             self._raw_by_voxel = (order, start)
         order, start = self._raw_by_voxel
         v = np.unique(structure_indices)
@@ -83,7 +85,9 @@ def structure_cloud(raw: np.ndarray, pre: Preprocessed, planes: PlaneResult, cfg
     keep = np.flatnonzero(kept_voxel[pre.raw_to_voxel])
     if len(keep) == 0:
         return None, raw_to_structure, np.zeros((0, 3))
-    grid = VoxelGrid(np.take(raw, keep, axis=0), cfg.preprocess.structure_voxel_size)  # (np.take: faster than raw[keep])
+    grid = VoxelGrid(
+        np.take(raw, keep, axis=0), cfg.preprocess.structure_voxel_size
+    )  # (np.take: faster than raw[keep])
     raw_to_structure[keep] = grid.inverse
     A = adjacency_of(grid.neighbours(1))
     normals, _, _ = shape_of_parts(hop_covariance_parts(grid.points, A, cfg.pipes.normal_hops), grid.points)
@@ -218,7 +222,9 @@ class LaserFrontend:
         spts = seg.structure_points
         conns, clouds = [], []
         for o in seg.objects:
-            conns.append(Connectivity(len(o.directions), o.configuration, tuple(tuple(map(float, d)) for d in o.directions)))
+            conns.append(
+                Connectivity(len(o.directions), o.configuration, tuple(tuple(map(float, d)) for d in o.directions))
+            )
             if self.config.full_resolution_clouds:
                 cloud = np.asarray(measurement.points)[seg.raw_indices(o.indices)]
             else:
@@ -258,4 +264,6 @@ class LaserFrontend:
             return FrontendSummary()
         from semslam.semantics.metrics import classification_metrics
 
-        return FrontendSummary(section="recognition", metrics={"SYN": classification_metrics(rec.confusion, rec.classes)})
+        return FrontendSummary(
+            section="recognition", metrics={"SYN": classification_metrics(rec.confusion, rec.classes)}
+        )

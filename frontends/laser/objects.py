@@ -162,8 +162,9 @@ _TAIL_BIN = 0.02  # m along the axis: the profile beyond a lone end is judged pe
 _TAIL_BIN_POINTS = 5  # ... with at least this many points (fewer everywhere: all of them as one)
 
 
-def pipe_continues(points: np.ndarray, end: np.ndarray, out: np.ndarray, pipe: Pipe, all_points: np.ndarray,
-                   cfg: ObjectConfig) -> bool:
+def pipe_continues(
+    points: np.ndarray, end: np.ndarray, out: np.ndarray, pipe: Pipe, all_points: np.ndarray, cfg: ObjectConfig
+) -> bool:
     """Whether an object's ``points`` at a lone end of ``pipe`` (outward unit ``out``) are that pipe
     running on past its fitted ``end`` (its sparse far part not taken as inliers) rather than a
     fitting: fewer than ``min_own_points`` off its cylinder and, beyond the end, at the pipe's own
@@ -225,7 +226,9 @@ def join_ends(ends: np.ndarray, out: np.ndarray, owner: np.ndarray, cfg: ObjectC
     # in-line: facing each other on one line
     gap = np.einsum("ij,ij->i", d, oi)
     lateral = np.linalg.norm(d - gap[:, None] * oi, axis=1)
-    inline = (dot <= -cos_c) & (gap > -cfg.line_tolerance) & (gap <= cfg.max_inline_gap) & (lateral <= cfg.line_tolerance)
+    inline = (
+        (dot <= -cos_c) & (gap > -cfg.line_tolerance) & (gap <= cfg.max_inline_gap) & (lateral <= cfg.line_tolerance)
+    )
     # junction: the two axes cross just beyond both ends
     den = np.maximum(1.0 - dot**2, 1e-12)
     e_i = np.einsum("ij,ij->i", oi, d)
@@ -315,7 +318,9 @@ def _shared_points(index_sets: list[np.ndarray], n_points: int):
     return (C @ C.T).tocsr()
 
 
-def _merge_overlapping(sites: list[_Site], crops: list[np.ndarray], out, owner, n_points: int, cfg: ObjectConfig) -> list[list[int]]:
+def _merge_overlapping(
+    sites: list[_Site], crops: list[np.ndarray], out, owner, n_points: int, cfg: ObjectConfig
+) -> list[list[int]]:
     """Groups of sites that are one object: a lone pipe end that did not join the others (a pipe
     cut short before its fitting, so its end lies farther than ``max_port_distance``) and another
     site (lone or not) whose crops share at least half of the smaller one's points, and whose
@@ -324,7 +329,11 @@ def _merge_overlapping(sites: list[_Site], crops: list[np.ndarray], out, owner, 
     shared = _shared_points(crops, n_points).tocoo()
     lone = np.array([site.config == 1 for site in sites])
     small = np.minimum(sizes[shared.row], sizes[shared.col])
-    cand = (shared.row < shared.col) & (lone[shared.row] | lone[shared.col]) & (shared.data >= _SHARED * np.maximum(small, 1))
+    cand = (
+        (shared.row < shared.col)
+        & (lone[shared.row] | lone[shared.col])
+        & (shared.data >= _SHARED * np.maximum(small, 1))
+    )
     relaxed = cfg.model_copy(update={"max_port_distance": 2 * cfg.max_port_distance})
 
     def meet(a: int, b: int) -> bool:

@@ -200,7 +200,9 @@ class _Points:
         if rows is not None:
             pn, nc, na, along, dist = pn[rows], nc[rows], na[rows], along[rows], dist[rows]
         rn = pn - nc - along * na
-        return (np.abs(dist - r) <= cfg.distance_tolerance) & (rn >= np.cos(np.radians(cfg.normal_tolerance_deg)) * dist)
+        return (np.abs(dist - r) <= cfg.distance_tolerance) & (
+            rn >= np.cos(np.radians(cfg.normal_tolerance_deg)) * dist
+        )
 
 
 class Rays:
@@ -237,7 +239,9 @@ class Rays:
         root = np.sqrt(np.maximum(disc, 0.0))
         s1, s2 = (-B - root) / (2 * A), (-B + root) / (2 * A)
         t_mid = 0.5 * (s1 + s2) * da - c @ a
-        crossing = (disc > 0) & (s1 > 0) & (s2 - s1 >= cfg.see_through_chord) & (t_mid > t0 + 0.01) & (t_mid < t1 - 0.01)
+        crossing = (
+            (disc > 0) & (s1 > 0) & (s2 - s1 >= cfg.see_through_chord) & (t_mid > t0 + 0.01) & (t_mid < t1 - 0.01)
+        )
         behind = crossing & (rng > s2 + cfg.see_through_margin)
         return int(behind.sum()), int(crossing.sum())
 
@@ -250,7 +254,7 @@ class Rays:
         (sel,) = self._cones((c + a * 0.5 * (t0 + t1))[None], np.array([np.hypot(0.5 * (t1 - t0), r)]))
         return self._count(sel, c, a, r, t0, t1, cfg)
 
-    def solid(self, pipes: list["Pipe"], cfg: PipeConfig) -> np.ndarray:
+    def solid(self, pipes: list[Pipe], cfg: PipeConfig) -> np.ndarray:
         """Per pipe segment: whether the rays crossing its cylinder end on it (``see_through``)."""
         if not pipes:
             return np.zeros(0, bool)
@@ -398,7 +402,9 @@ def split_at_fittings(
     w = int(np.ceil(cfg.bump_window / cfg.bump_bin))
     padded = np.full(n_bins + 2 * w, np.nan)
     padded[w : w + n_bins] = med
-    level = _nanmedian_rows(np.lib.stride_tricks.as_strided(padded, (n_bins, 2 * w + 1), padded.strides * 2, writeable=False))
+    level = _nanmedian_rows(
+        np.lib.stride_tricks.as_strided(padded, (n_bins, 2 * w + 1), padded.strides * 2, writeable=False)
+    )
     height = cfg.bump_height if cfg.radius_prior is None else cfg.bump_height_known_radius
     bad_bin = (med - level > height) & (cnt >= 3)
     if cfg.bump_smooth:
@@ -549,7 +555,9 @@ def _cut_into_segments(points, normals, sq, cb, ab, rb, idx, cfg: PipeConfig) ->
 
 
 @single_threaded_blas
-def detect_pipes(points: np.ndarray, normals: np.ndarray, grid, cfg: PipeConfig, rays: Rays | None = None) -> list[Pipe]:
+def detect_pipes(
+    points: np.ndarray, normals: np.ndarray, grid, cfg: PipeConfig, rays: Rays | None = None
+) -> list[Pipe]:
     """Pipes among ``points`` (N×3, {S}) with outward ``normals``; ``grid`` the
     :class:`~frontends.laser.grid.VoxelGrid` whose cells they are, to draw point pairs; ``rays``
     the scan's rays for the see-through test (none when None). Returns merged pipe segments.
@@ -590,7 +598,9 @@ def detect_pipes(points: np.ndarray, normals: np.ndarray, grid, cfg: PipeConfig,
         if isinstance(pick, slice):
             in_sample = inlier_mask(cand.p, cand.n, c, a, r, cfg, cand.sq, cand.pn)
         else:
-            in_sample = inlier_mask(np.take(cand.p, pick, axis=0), np.take(cand.n, pick, axis=0), c, a, r, cfg, cand.sq[pick], cand.pn[pick])
+            in_sample = inlier_mask(
+                np.take(cand.p, pick, axis=0), np.take(cand.n, pick, axis=0), c, a, r, cfg, cand.sq[pick], cand.pn[pick]
+            )
         scores = in_sample.sum(axis=1)
         # A seed whose cylinder the data do not support (fewer than min_points inliers expected)
         # seeds no more: the pool shrinks to the points still worth trying, and the search ends

@@ -62,7 +62,9 @@ def grow_regions(pre: Preprocessed, cfg: PlaneConfig) -> np.ndarray:
     j = np.take(nb, keep)
     cos_min = np.cos(np.radians(cfg.max_normal_angle_deg))
     # (rows gathered by np.take: several times faster than fancy indexing of N×3 arrays)
-    ok = np.flatnonzero(np.einsum("ij,ij->i", np.take(pre.normals, i, axis=0), np.take(pre.normals, j, axis=0)) >= cos_min)
+    ok = np.flatnonzero(
+        np.einsum("ij,ij->i", np.take(pre.normals, i, axis=0), np.take(pre.normals, j, axis=0)) >= cos_min
+    )
     i, j = np.take(i, ok), np.take(j, ok)
     # The edges come sorted by i: the graph in CSR directly (no COO conversion in connected_components).
     indptr = np.concatenate(([0], np.cumsum(np.bincount(i, minlength=m))))

@@ -108,7 +108,11 @@ def _assemble(parts: np.ndarray) -> np.ndarray:
 
 @single_threaded_blas
 def hop_covariance_parts(
-    points: np.ndarray, adjacency: csr_matrix, hops: int, rows: np.ndarray | None = None, centre: np.ndarray | None = None
+    points: np.ndarray,
+    adjacency: csr_matrix,
+    hops: int,
+    rows: np.ndarray | None = None,
+    centre: np.ndarray | None = None,
 ) -> np.ndarray:
     """Covariances (6×R distinct entries, see :func:`_covariance_parts`) of each point's
     neighbourhood grown ``hops`` steps over ``adjacency`` (M×M, self-links included), every point

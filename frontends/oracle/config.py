@@ -13,7 +13,9 @@ class OracleConfig(BaseModel):
     seed: int = Field(0, description="random seed of the noise, misses, false positives and classification")
     max_range_m: float = Field(5.0, gt=0, description="farthest visible point (m)")
     min_range_m: float = Field(0.2, ge=0, description="nearest visible point (m)")
-    fov_half_angle_deg: float = Field(45.0, gt=0, le=180, description="half-angle of the visibility cone about view_axis")
+    fov_half_angle_deg: float = Field(
+        45.0, gt=0, le=180, description="half-angle of the visibility cone about view_axis"
+    )
     view_axis: tuple[float, float, float] = Field((0.0, 0.0, 1.0), description="sensor-frame viewing direction")
     point_sigma_m: float = Field(0.02, ge=0, description="object position noise (per axis, sensor frame)")
     point_sigma_per_m: float = Field(0.002, ge=0, description="... plus this much per metre of range")
@@ -26,8 +28,14 @@ class OracleConfig(BaseModel):
     structures: bool = Field(True, description="also report ground-truth structures in view")
     miss_rate: float = Field(0.0, ge=0, lt=1, description="probability that a visible landmark is not reported")
     false_positive_rate: float = Field(
-        0.0, ge=0, lt=1, description="expected spurious observations per true one (objects and pipes, uniform in the cone)"
+        0.0,
+        ge=0,
+        lt=1,
+        description="expected spurious observations per true one (objects and pipes, uniform in the cone)",
     )
     classification_accuracy: float = Field(
-        0.8, gt=0, le=1, description="probability that the detected class is right; the likelihood vector is the confusion column"
+        0.8,
+        gt=0,
+        le=1,
+        description="probability that the detected class is right; the likelihood vector is the confusion column",
     )

@@ -187,7 +187,9 @@ class OracleFrontend:
         cov = np.zeros((6, 6))
         cov[:3, :3] = cov1
         cov[3:, 3:] = cov1
-        return LineObservation(stamp=m.stamp, sensor=m.sensor, p=p_n, q=q_n, covariance=cov, radius=radius, truth_id=truth_id)
+        return LineObservation(
+            stamp=m.stamp, sensor=m.sensor, p=p_n, q=q_n, covariance=cov, radius=radius, truth_id=truth_id
+        )
 
     def _structures(self, m: PointCloud, T_WS) -> list[Observation]:
         cfg = self.config
@@ -238,7 +240,11 @@ class OracleFrontend:
                 noise, cov = self._point_noise(float(np.linalg.norm(p)))
                 out.append(
                     PointObservation(
-                        stamp=m.stamp, sensor=m.sensor, position=p + noise, covariance=cov, class_likelihood=self._likelihood(None)
+                        stamp=m.stamp,
+                        sensor=m.sensor,
+                        position=p + noise,
+                        covariance=cov,
+                        class_likelihood=self._likelihood(None),
                     )
                 )
             else:

@@ -33,8 +33,10 @@ class MapConfig(_Section):
         0.5, gt=0, description="seabed level: blocks of this size give a deep quantile of their depths ..."
     )
     ground_window_m: float = Field(
-        9.0, gt=0, description="... median-filtered over this window, wider than twice the largest structure's half-width "
-        "so that a structure never fills half of it"
+        9.0,
+        gt=0,
+        description="... median-filtered over this window, wider than twice the largest structure's half-width "
+        "so that a structure never fills half of it",
     )
     ground_smooth_m: float = Field(
         1.0, gt=0, description="σ of the normalised convolution that re-interpolates the seabed from cells near it"
@@ -46,9 +48,11 @@ class MapConfig(_Section):
 
 class PatchConfig(_Section):
     length_m: float = Field(
-        1.0, gt=0, description="consecutive swaths over this much track form a patch, stored rigidly in the frame of its "
+        1.0,
+        gt=0,
+        description="consecutive swaths over this much track form a patch, stored rigidly in the frame of its "
         "middle swath (its anchor); 1 m keeps a structure seen by ≥ 2–3 independent patches per pass (the graph "
-        "needs 3 consistent observations to create a landmark)"
+        "needs 3 consistent observations to create a landmark)",
     )
     max_swaths: int = Field(200, ge=2, description="a patch closes after this many swaths even when the vehicle hovers")
     max_turn_deg: float = Field(
@@ -57,16 +61,24 @@ class PatchConfig(_Section):
 
 
 class SwathRegistrationConfig(_Section):
-    enabled: bool = Field(True, description="register new patches against older overlapping ones (relative-pose constraints)")
+    enabled: bool = Field(
+        True, description="register new patches against older overlapping ones (relative-pose constraints)"
+    )
     window_patches: int = Field(
-        3, ge=1, description="a registration aligns the last this-many patches of the current line (3 m: enough seabed "
-        "texture) as one rigid piece; windows do not overlap, so constraints are independent"
+        3,
+        ge=1,
+        description="a registration aligns the last this-many patches of the current line (3 m: enough seabed "
+        "texture) as one rigid piece; windows do not overlap, so constraints are independent",
     )
     min_age_s: float = Field(
-        30.0, gt=0, description="reference patches are at least this much older than the new ones (a neighbouring line, "
-        "not the track just flown)"
+        30.0,
+        gt=0,
+        description="reference patches are at least this much older than the new ones (a neighbouring line, "
+        "not the track just flown)",
     )
-    cell_m: float = Field(0.05, gt=0, description="cell of the reference elevation map the new points are compared with")
+    cell_m: float = Field(
+        0.05, gt=0, description="cell of the reference elevation map the new points are compared with"
+    )
     max_shift_m: float = Field(
         0.6, gt=0, description="north/east search range (m): the field's between-line drift is ≤ 0.32 m"
     )
@@ -74,8 +86,10 @@ class SwathRegistrationConfig(_Section):
     fine_step_m: float = Field(0.01, gt=0, description="last level of the coarse-to-fine shift search")
     max_points: int = Field(6000, ge=100, description="new points used per registration (random subset, seeded)")
     max_height_m: float = Field(
-        0.8, ge=0, description="reference cells higher than this above the seabed (structures), and tall_margin_m "
-        "around them, are left out: a structure's elevation map depends on the side it is seen from (0: keep all)"
+        0.8,
+        ge=0,
+        description="reference cells higher than this above the seabed (structures), and tall_margin_m "
+        "around them, are left out: a structure's elevation map depends on the side it is seen from (0: keep all)",
     )
     tall_margin_m: float = Field(0.6, ge=0, description="margin around the tall cells left out")
     min_kept: float = Field(
@@ -88,8 +102,10 @@ class SwathRegistrationConfig(_Section):
         0.05, gt=0, description="reject when the robust σ of the depth residual at the optimum exceeds this"
     )
     max_sigma_m: float = Field(
-        0.10, gt=0, description="a north/east direction whose σ exceeds this is flat (no texture): its information is "
-        "dropped (σ set to uninformative_sigma_m) and the shift along it kept at zero"
+        0.10,
+        gt=0,
+        description="a north/east direction whose σ exceeds this is flat (no texture): its information is "
+        "dropped (σ set to uninformative_sigma_m) and the shift along it kept at zero",
     )
     uninformative_sigma_m: float = Field(5.0, gt=0, description="σ given to a direction without information (m)")
     probe_m: float = Field(
@@ -97,17 +113,23 @@ class SwathRegistrationConfig(_Section):
     )
     probe_rise: float = Field(0.5, gt=0, description="... by at least this share of its value at the optimum")
     correlation_cells: float = Field(
-        16.0, ge=1, description="covariance inflation: neighbouring points share reference cells and texture, so the "
-        "linearised information is divided by this"
+        16.0,
+        ge=1,
+        description="covariance inflation: neighbouring points share reference cells and texture, so the "
+        "linearised information is divided by this",
     )
     rotation_sigma_rad: float = Field(
-        0.05, gt=0, description="σ of the relative rotation (not measured by an elevation-map registration: taken from "
-        "the current estimate and left nearly uninformative)"
+        0.05,
+        gt=0,
+        description="σ of the relative rotation (not measured by an elevation-map registration: taken from "
+        "the current estimate and left nearly uninformative)",
     )
     depth_sigma_floor_m: float = Field(0.005, gt=0, description="σ floor of the depth offset (m)")
     shift_sigma_floor_m: float = Field(
-        0.03, gt=0, description="σ floor of an informative north/east direction (m): a structure seen from two sides "
-        "does not give quite the same elevation map (occlusions, oblique sides)"
+        0.03,
+        gt=0,
+        description="σ floor of an informative north/east direction (m): a structure seen from two sides "
+        "does not give quite the same elevation map (occlusions, oblique sides)",
     )
     seed: int = Field(0, description="seed of the point subsets (deterministic runs)")
 
@@ -117,33 +139,47 @@ class RecognitionConfig(_Section):
     models: tuple[str, ...] | None = Field(
         None, description="structure models searched (default: the whole library, largest first)"
     )
-    delta_m: float = Field(0.08, gt=0, description="Δ: spacing of the candidate centres and cell of the descriptor grid (paper: 8 cm)")
-    rings: int = Field(8, ge=1, le=64, description="N concentric rings of equal width over the model's footprint radius")
+    delta_m: float = Field(
+        0.08, gt=0, description="Δ: spacing of the candidate centres and cell of the descriptor grid (paper: 8 cm)"
+    )
+    rings: int = Field(
+        8, ge=1, le=64, description="N concentric rings of equal width over the model's footprint radius"
+    )
     bins: int = Field(13, ge=2, le=128, description="P height bins over [height_min_m, height_max_m]")
     height_min_m: float = Field(-0.125, description="lower edge of the first height bin (above the seabed, m)")
     height_max_m: float = Field(3.125, description="upper edge of the last height bin (m); heights beyond are clipped")
     threshold: float = Field(
-        0.40, gt=0, description="accept a candidate when its score (norm of the ring EMDs) is below this share of the "
+        0.40,
+        gt=0,
+        description="accept a candidate when its score (norm of the ring EMDs) is below this share of the "
         "model's score against a flat seabed (a dimensionless threshold for every model). Calibrated on seeds 3–5 "
         "(experiments/sonar_calibrate.py): true structures score ≤ 0.26, the seabed and pipelines ≥ 0.63, a smaller "
-        "model on a larger structure ≥ 0.45 (largest first removes those areas anyway)"
+        "model on a larger structure ≥ 0.45 (largest first removes those areas anyway)",
     )
     min_coverage: float = Field(
-        0.75, gt=0, le=1, description="share of the descriptor disc's cells that must hold data (footprint well covered)"
+        0.75,
+        gt=0,
+        le=1,
+        description="share of the descriptor disc's cells that must hold data (footprint well covered)",
     )
     min_ring_coverage: float = Field(0.4, ge=0, le=1, description="... and of every ring's cells")
-    bootstrap: int = Field(8, ge=1, description="branch and bound: candidates fully evaluated after the first ring to set the bound")
+    bootstrap: int = Field(
+        8, ge=1, description="branch and bound: candidates fully evaluated after the first ring to set the bound"
+    )
     every_patches: int = Field(3, ge=1, description="search the newly covered area every this many patches")
     trigger_height_m: float = Field(
         0.6, ge=0, description="the search runs only where a cell rises this far above the seabed (every model does)"
     )
     map_cell_m: float = Field(
-        0.04, gt=0, description="each patch keeps one point per cell of this size (its upper surface) for the "
-        "recognition maps: a 5× lighter map at Δ = 8 cm; registration uses every point"
+        0.04,
+        gt=0,
+        description="each patch keeps one point per cell of this size (its upper surface) for the "
+        "recognition maps: a 5× lighter map at Δ = 8 cm; registration uses every point",
     )
     final_pass: bool = Field(
-        True, description="at the end of the mission, search the whole map once more for structures the online search "
-        "missed (reported, but too late to become graph landmarks)"
+        True,
+        description="at the end of the mission, search the whole map once more for structures the online search "
+        "missed (reported, but too late to become graph landmarks)",
     )
     chunk: int = Field(40000, ge=100, description="candidates evaluated together (memory bound)")
 
@@ -151,19 +187,25 @@ class RecognitionConfig(_Section):
 class StructureRegistrationConfig(_Section):
     yaw_step_deg: float = Field(4.0, gt=0, description="yaw step of the coarse level of the exhaustive 4-D search")
     coarse_cell_m: float = Field(
-        0.16, gt=0, description="cell (and north/east step) of the coarse level; each refinement halves cell, step and yaw step"
+        0.16,
+        gt=0,
+        description="cell (and north/east step) of the coarse level; each refinement halves cell, step and yaw step",
     )
     coarse_max_cells: int = Field(
         1500, ge=50, description="the coarse level compares at most this many field cells (an even subsample)"
     )
-    refine_levels: int = Field(2, ge=0, description="refinements around the best coarse hypotheses (0.16 → 0.08 → 0.04 m)")
+    refine_levels: int = Field(
+        2, ge=0, description="refinements around the best coarse hypotheses (0.16 → 0.08 → 0.04 m)"
+    )
     fine_seeds: int = Field(3, ge=1, description="best distinct coarse yaws refined")
     shift_range_m: float = Field(
         0.3, gt=0, description="north/east search range around the recognised centre, at least (m)"
     )
     shift_range_frac: float = Field(
-        0.4, gt=0, description="... or this share of the model's footprint radius: the descriptor's best centre can sit "
-        "off the model's origin along an elongated structure (a manifold's repeated bays)"
+        0.4,
+        gt=0,
+        description="... or this share of the model's footprint radius: the descriptor's best centre can sit "
+        "off the model's origin along an elongated structure (a manifold's repeated bays)",
     )
     icp_distances_m: tuple[float, ...] = Field(
         (0.20, 0.08), description="ICP max correspondence distances, coarse to fine"
@@ -173,36 +215,51 @@ class StructureRegistrationConfig(_Section):
     tukey_k_m: float = Field(0.05, gt=0, description="Tukey robust kernel width of the point-to-plane ICP (m)")
     model_sample_m: float = Field(0.05, gt=0, description="spacing of the points sampled on the CAD mesh for ICP")
     ground_plane: bool = Field(
-        True, description="the ICP target includes the seabed pad the structure stands on (a disc at the base): it "
-        "constrains depth, roll and pitch"
+        True,
+        description="the ICP target includes the seabed pad the structure stands on (a disc at the base): it "
+        "constrains depth, roll and pitch",
     )
-    max_median_m: float = Field(0.05, gt=0, description="reject a registration whose median point-to-model distance exceeds this")
+    max_median_m: float = Field(
+        0.05, gt=0, description="reject a registration whose median point-to-model distance exceeds this"
+    )
     min_points: int = Field(
         60, ge=10, description="fewest structure points (above the pad, on the model's footprint) for a re-observation"
     )
     min_fitness: float = Field(0.5, ge=0, le=1, description="share of structure points within tukey_k_m of the model")
     correlation_points: float = Field(
-        8.0, ge=1, description="ICP covariance inflation: the linearised information is divided by this (calibrated: NEES)"
+        8.0,
+        ge=1,
+        description="ICP covariance inflation: the linearised information is divided by this (calibrated: NEES)",
     )
     sigma_floor_m: float = Field(
-        0.025, gt=0, description="σ floor of a structure observation's translation (m): a 1 m strip sees part of the "
-        "structure, from one side; the point-to-plane information alone is far too confident (calibrated: NEES)"
+        0.025,
+        gt=0,
+        description="σ floor of a structure observation's translation (m): a 1 m strip sees part of the "
+        "structure, from one side; the point-to-plane information alone is far too confident (calibrated: NEES)",
     )
     sigma_floor_rad: float = Field(0.010, gt=0, description="σ floor of its rotation (rad; calibrated likewise)")
     max_sigma_m: float = Field(
-        0.3, gt=0, description="an observation whose largest translation σ exceeds this is not emitted (too partial a view)"
+        0.3,
+        gt=0,
+        description="an observation whose largest translation σ exceeds this is not emitted (too partial a view)",
     )
     max_jump_m: float = Field(
         0.25, gt=0, description="a re-observation may move the structure at most this far from its current estimate ..."
     )
-    max_turn_deg: float = Field(5.0, gt=0, description="... and turn it at most this much (else it slid on a partial view)")
+    max_turn_deg: float = Field(
+        5.0, gt=0, description="... and turn it at most this much (else it slid on a partial view)"
+    )
     carry_sigma_per_m: float = Field(
-        0.01, ge=0, description="σ added per metre of track between a patch's anchor and the current swath (the "
-        "observation is re-expressed in the current sensor frame with the estimated motion)"
+        0.01,
+        ge=0,
+        description="σ added per metre of track between a patch's anchor and the current swath (the "
+        "observation is re-expressed in the current sensor frame with the estimated motion)",
     )
     recent_s: float = Field(
-        12.0, gt=0, description="at recognition, patches of the current pass closed within this time are also registered "
-        "and emitted (one per swath, each at its own keyframe)"
+        12.0,
+        gt=0,
+        description="at recognition, patches of the current pass closed within this time are also registered "
+        "and emitted (one per swath, each at its own keyframe)",
     )
 
 
@@ -228,7 +285,8 @@ class PipeDetectionConfig(_Section):
     along_sigma_m: float = Field(0.3, gt=0, description="σ of an endpoint along the axis (windows cut the pipe)")
     hub_distance_m: float = Field(1.2, gt=0, description="a segment end this close to a recognised hub connects to it")
     window_patches: int = Field(
-        6, ge=1,
+        6,
+        ge=1,
         description="pipes are detected, every swath-registration window, on this many of the latest patches. "
         "More than the window's own makes consecutive views of a pipe overlap (the graph associates a view "
         "with a pipe track only where it meets what was seen of it: with the window's own 3, the graph mapped "
@@ -243,14 +301,20 @@ class WorldModelConfig(_Section):
         0.5, gt=0, description="level of detail of the seabed surface mesh (grid cell before simplification)"
     )
     seabed_max_error_m: float = Field(
-        0.03, ge=0, description="the seabed mesh is simplified (quadric decimation) while its vertical error stays below this"
+        0.03,
+        ge=0,
+        description="the seabed mesh is simplified (quadric decimation) while its vertical error stays below this",
     )
     max_fraction: float = Field(
-        0.01, gt=0, le=1, description="the world model is simplified further until it is at most this share of the raw cloud's bytes"
+        0.01,
+        gt=0,
+        le=1,
+        description="the world model is simplified further until it is at most this share of the raw cloud's bytes",
     )
     seabed_under_structures: Literal["filled", "cut"] = Field(
-        "filled", description="under the registered structures' footprints the seabed surface is the level interpolated "
-        "around them (filled: the CAD meshes stand on it) or left out (cut)"
+        "filled",
+        description="under the registered structures' footprints the seabed surface is the level interpolated "
+        "around them (filled: the CAD meshes stand on it) or left out (cut)",
     )
     pipe_facets: int = Field(12, ge=3, description="facets around a pipeline cylinder")
 

@@ -99,8 +99,13 @@ def score(cdf_a: np.ndarray, cdf_b: np.ndarray, bin_width: float) -> float:
 # model elevation maps
 
 
-def model_height_map(mesh: o3d.geometry.TriangleMesh, cell: float, radius: float, T: np.ndarray | None = None,
-                     centre: tuple[float, float] = (0.0, 0.0)) -> np.ndarray:
+def model_height_map(
+    mesh: o3d.geometry.TriangleMesh,
+    cell: float,
+    radius: float,
+    T: np.ndarray | None = None,
+    centre: tuple[float, float] = (0.0, 0.0),
+) -> np.ndarray:
     """Heights above the base (m) of a model ray-cast straight down on a grid of ``cell`` centred on
     ``centre`` (model x = rows, y = columns) out to ``radius``; 0 where a ray misses the mesh (the
     seabed around the structure). ``T`` optionally turns/moves the mesh first (4×4)."""
@@ -159,9 +164,16 @@ class SearchResult:
     survivors: np.ndarray | None = None  # candidates (indices into the input) under ``bound`` after the first ring
 
 
-def search(bins: np.ndarray, template: Template, candidates: np.ndarray, bound: float,
-           min_coverage: float = 0.75, min_ring_coverage: float = 0.4, bootstrap: int = 8,
-           chunk: int = 40000) -> SearchResult:
+def search(
+    bins: np.ndarray,
+    template: Template,
+    candidates: np.ndarray,
+    bound: float,
+    min_coverage: float = 0.75,
+    min_ring_coverage: float = 0.4,
+    bootstrap: int = 8,
+    chunk: int = 40000,
+) -> SearchResult:
     """Best candidate centre (grid cells, K×2 ``candidates``) for ``template`` on the bin-index grid
     ``bins`` (−1 empty), among those whose score is below ``bound``; branch and bound over rings.
 
@@ -212,8 +224,7 @@ def search(bins: np.ndarray, template: Template, candidates: np.ndarray, bound: 
     # to a flat seabed in that ring over the ring's size): the seabed, most of the field, is then
     # pruned after the fewest cells gathered (any order is exact)
     sizes0 = np.array([len(o) for o in flat_off])
-    order = (np.argsort(-template.ring_contrast**2 / sizes0) if template.ring_contrast is not None
-             else np.arange(N))
+    order = np.argsort(-(template.ring_contrast**2) / sizes0) if template.ring_contrast is not None else np.arange(N)
     flat_off = [flat_off[n] for n in order]
     ring_size = ring_size[order]
     tcdf = template.cdf[order]
@@ -274,12 +285,19 @@ def search(bins: np.ndarray, template: Template, candidates: np.ndarray, bound: 
     kept = np.flatnonzero(ok)[survivors]  # back to the caller's candidate indices
     if best_idx is None:
         return SearchResult(None, float("inf"), 0.0, evals, n_cand, kept)
-    return SearchResult((int(cand[best_idx, 0]), int(cand[best_idx, 1])), best_score,
-                        float(filled[best_idx] / total), evals, n_cand, kept)
+    return SearchResult(
+        (int(cand[best_idx, 0]), int(cand[best_idx, 1])),
+        best_score,
+        float(filled[best_idx] / total),
+        evals,
+        n_cand,
+        kept,
+    )
 
 
-def exhaustive_scores(bins: np.ndarray, template: Template, candidates: np.ndarray,
-                      min_ring_coverage: float = 0.4) -> tuple[np.ndarray, np.ndarray]:
+def exhaustive_scores(
+    bins: np.ndarray, template: Template, candidates: np.ndarray, min_ring_coverage: float = 0.4
+) -> tuple[np.ndarray, np.ndarray]:
     """Every candidate's full score and disc coverage, without pruning (rings in their natural
     order, one histogram per candidate and ring): the reference the branch and bound must agree
     with, and the score maps of the experiments."""

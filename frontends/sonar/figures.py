@@ -42,7 +42,7 @@ def _outline(ax, md, T, color, lw=1.6):
 
 
 def elevation_figure(fe, path) -> None:
-    from semslam.sim.structures import STRUCTURE_COLORS
+    from semslam.models.structures import STRUCTURE_COLORS
 
     plt = _plt()
     em: ElevationMap = fe.final["map"]
@@ -51,17 +51,29 @@ def elevation_figure(fe, path) -> None:
     n_zoom = min(len(fe.structures), 4)
     e0, e1, n0, n1 = em.spec.extent()
     main_h = min(max(12.0 * (n1 - n0) / max(e1 - e0, 1e-6), 3.0), 12.0) + 1.0
-    fig = plt.figure(figsize=(13.5, main_h + (4.2 if n_zoom else 0)), dpi=fe.config.figures.dpi,
-                     layout="constrained")
+    fig = plt.figure(figsize=(13.5, main_h + (4.2 if n_zoom else 0)), dpi=fe.config.figures.dpi, layout="constrained")
     gs = fig.add_gridspec(2 if n_zoom else 1, max(n_zoom, 1), height_ratios=[main_h, 4.2] if n_zoom else [1])
     ax = fig.add_subplot(gs[0, :])
     D = em.depth
     ext = em.spec.extent()
     shade = _hillshade(D, em.spec.cell)
-    im = ax.imshow(D, origin="lower", extent=ext, cmap="viridis_r", interpolation="nearest",
-                   vmin=np.nanpercentile(D, 1), vmax=np.nanpercentile(D, 99.5))
-    ax.imshow(np.where(np.isfinite(D), shade, np.nan), origin="lower", extent=ext, cmap="gray", alpha=0.35,
-              interpolation="nearest")
+    im = ax.imshow(
+        D,
+        origin="lower",
+        extent=ext,
+        cmap="viridis_r",
+        interpolation="nearest",
+        vmin=np.nanpercentile(D, 1),
+        vmax=np.nanpercentile(D, 99.5),
+    )
+    ax.imshow(
+        np.where(np.isfinite(D), shade, np.nan),
+        origin="lower",
+        extent=ext,
+        cmap="gray",
+        alpha=0.35,
+        interpolation="nearest",
+    )
     cb = fig.colorbar(im, ax=ax, shrink=0.9, pad=0.01, fraction=0.03)
     cb.set_label("depth (m, NED)")
     handles = []
@@ -74,17 +86,29 @@ def elevation_figure(fe, path) -> None:
         _outline(ax, fe.recogniser.model_data[ks.model], T, "white", lw=3.2)
         _outline(ax, fe.recogniser.model_data[ks.model], T, col, lw=1.8)
         med = f"{100 * reg.median_m:.1f} cm" if reg is not None else "n/a"
-        ax.annotate(f"{ks.model}\nscore {ks.detection.normalised:.2f}, median {med}", (T[1, 3], T[0, 3]),
-                    xytext=(0, fe.library[ks.model].footprint_radius * 9 + 14), textcoords="offset points",
-                    ha="center", fontsize=9, bbox=dict(boxstyle="round", fc="white", alpha=0.85))
+        ax.annotate(
+            f"{ks.model}\nscore {ks.detection.normalised:.2f}, median {med}",
+            (T[1, 3], T[0, 3]),
+            xytext=(0, fe.library[ks.model].footprint_radius * 9 + 14),
+            textcoords="offset points",
+            ha="center",
+            fontsize=9,
+            bbox=dict(boxstyle="round", fc="white", alpha=0.85),
+        )
         handles.append(Line2D([], [], color=col, lw=2, label=f"{ks.model} (registered CAD outline)"))
     for s in fe.final["pipes"]:
         ax.plot([s.p[1], s.q[1]], [s.p[0], s.q[0]], "-", color="red", lw=2.2, alpha=0.9)
         mid = 0.5 * (s.p + s.q)
         conn = f" → {', '.join(s.connected)}" if s.connected else ""
-        ax.annotate(f"pipe r {s.radius:.2f} m{conn}", (mid[1], mid[0]), fontsize=7, color="darkred",
-                    xytext=(8, -16), textcoords="offset points",
-                    bbox=dict(boxstyle="round,pad=0.2", fc="white", ec="none", alpha=0.75))
+        ax.annotate(
+            f"pipe r {s.radius:.2f} m{conn}",
+            (mid[1], mid[0]),
+            fontsize=7,
+            color="darkred",
+            xytext=(8, -16),
+            textcoords="offset points",
+            bbox=dict(boxstyle="round,pad=0.2", fc="white", ec="none", alpha=0.75),
+        )
     if fe.final["pipes"]:
         handles.append(Line2D([], [], color="red", lw=2, label="pipeline (detected axis)"))
     # the track as finally estimated
@@ -95,8 +119,10 @@ def elevation_figure(fe, path) -> None:
     ax.set_xlabel("east (m)")
     ax.set_ylabel("north (m)")
     ax.set_aspect("equal")
-    ax.set_title(f"Sonar elevation map ({100 * em.spec.cell:.0f} cm cells, median depth, final estimate; "
-                 f"white: no return): {len(fe.structures)} structures recognised, {len(fe.final['pipes'])} pipelines")
+    ax.set_title(
+        f"Sonar elevation map ({100 * em.spec.cell:.0f} cm cells, median depth, final estimate; "
+        f"white: no return): {len(fe.structures)} structures recognised, {len(fe.final['pipes'])} pipelines"
+    )
     ax.legend(handles=handles, loc="upper left", fontsize=8, framealpha=0.9)
     # close-ups: each structure's returns (5 cm cells: the swaths are 4 cm apart, so every cell holds
     # some; height above the structure's base) under its CAD outline; cells without a return in pink
@@ -113,8 +139,15 @@ def elevation_figure(fe, path) -> None:
             continue
         zm = ElevationMap.from_points(near, 0.05)
         h = T[2, 3] - zm.depth  # height above the structure's base
-        im2 = zax.imshow(h, origin="lower", extent=zm.spec.extent(), cmap=cmap, vmin=-0.2,
-                         vmax=fe.library[ks.model].height, interpolation="nearest")
+        im2 = zax.imshow(
+            h,
+            origin="lower",
+            extent=zm.spec.extent(),
+            cmap=cmap,
+            vmin=-0.2,
+            vmax=fe.library[ks.model].height,
+            interpolation="nearest",
+        )
         col = STRUCTURE_COLORS.get(ks.model, (1.0, 0.2, 0.2))
         _outline(zax, fe.recogniser.model_data[ks.model], T, "black", lw=2.8)
         _outline(zax, fe.recogniser.model_data[ks.model], T, col, lw=1.5)
@@ -196,8 +229,17 @@ def world_model_figure(fe, path) -> None:
     col = C[F].mean(1)
     n_zoom = min(len(fe.structures), 4)
     fig = plt.figure(figsize=(14, 7 + (5 if n_zoom else 0)), dpi=fe.config.figures.dpi)
-    gs = fig.add_gridspec(2 if n_zoom else 1, max(n_zoom, 1), height_ratios=[7, 5] if n_zoom else [1],
-                          hspace=0.0, wspace=0.05, left=0.01, right=0.97, top=0.96, bottom=0.01)
+    gs = fig.add_gridspec(
+        2 if n_zoom else 1,
+        max(n_zoom, 1),
+        height_ratios=[7, 5] if n_zoom else [1],
+        hspace=0.0,
+        wspace=0.05,
+        left=0.01,
+        right=0.97,
+        top=0.96,
+        bottom=0.01,
+    )
     ax = fig.add_subplot(gs[0, :], projection="3d")
     _render(ax, list(tri), col)
     lo, hi = P.min(0), P.max(0)
@@ -213,8 +255,10 @@ def world_model_figure(fe, path) -> None:
     ax.set_zlabel("up (m)", labelpad=8)
     ax.zaxis.set_major_locator(MaxNLocator(4))
     info = fe_metrics_line(fe)
-    ax.set_title(f"World model: registered CAD meshes, pipelines and the bare seabed (vertical scale ×{exag:.0f})"
-                 f"\n{info}", fontsize=11)
+    ax.set_title(
+        f"World model: registered CAD meshes, pipelines and the bare seabed (vertical scale ×{exag:.0f})\n{info}",
+        fontsize=11,
+    )
     for k, ks in enumerate(fe.structures[:n_zoom]):
         zax = fig.add_subplot(gs[1, k], projection="3d")
         reg = ks.final or ks.detection.registration
@@ -225,7 +269,7 @@ def world_model_figure(fe, path) -> None:
         big = ~near & (tri[:, :, :2].min(1) < c + R).all(1) & (tri[:, :, :2].max(1) > c - R).all(1)
         polys, cols = [], []
         for i in np.flatnonzero(near | big):
-            clipped = _clip_box(tri[i:i + 1], c - R, c + R)
+            clipped = _clip_box(tri[i : i + 1], c - R, c + R)
             polys += clipped
             cols += [col[i]] * len(clipped)
         if not polys:
@@ -241,8 +285,11 @@ def world_model_figure(fe, path) -> None:
         zax.set_axis_off()  # ticks on a small 3-D box are unreadable: the sizes are in the title
         med = f"{100 * reg.median_m:.1f} cm" if reg is not None else "n/a"
         sx, sy, sz = fe.library[ks.model].size
-        zax.set_title(f"{ks.model}: {sx:.1f} × {sy:.1f} × {sz:.1f} m on a {2 * R:.1f} m square of seabed\n"
-                      f"(true scale), median point-to-model {med}", fontsize=9)
+        zax.set_title(
+            f"{ks.model}: {sx:.1f} × {sy:.1f} × {sz:.1f} m on a {2 * R:.1f} m square of seabed\n"
+            f"(true scale), median point-to-model {med}",
+            fontsize=9,
+        )
     fig.savefig(path)
     plt.close(fig)
 
@@ -269,8 +316,10 @@ def disagreement_figure(fe, path) -> None:
     hax = fig.add_subplot(gs[:, 1])
     hists = []
     sc = None
-    placements = (("as navigated (each patch as placed when it closed)", lambda p: p.T_nav, fe.final.get("before")),
-                  ("re-placed with the final estimate", fe.place, fe.final.get("after")))
+    placements = (
+        ("as navigated (each patch as placed when it closed)", lambda p: p.T_nav, fe.final.get("before")),
+        ("re-placed with the final estimate", fe.place, fe.final.get("after")),
+    )
     for ax, (label, pose_fn, stats) in zip(map_axes, placements):
         pts, vals = [], []
         for a, b in pairs:
@@ -292,13 +341,20 @@ def disagreement_figure(fe, path) -> None:
             X = np.concatenate(pts)
             v = np.concatenate(vals)
             order = np.argsort(v)  # large differences drawn last, on top
-            sc = ax.scatter(X[order, 1], X[order, 0], c=v[order], s=0.6, cmap="magma_r", vmin=0, vmax=0.10,
-                            marker="s", linewidths=0)
+            sc = ax.scatter(
+                X[order, 1], X[order, 0], c=v[order], s=0.6, cmap="magma_r", vmin=0, vmax=0.10, marker="s", linewidths=0
+            )
             hists.append((label.split(" (")[0], v))
-            tex = (f"; on sloped cells (pipes, structures' edges) {100 * stats['textured_median_m']:.2f} cm"
-                   if stats and stats.get("textured_median_m") is not None else "")
-            ax.set_title(f"|Δ depth| between overlapping passes, {label}\nmedian {100 * np.median(v):.2f} cm, "
-                         f"90th percentile {100 * np.percentile(v, 90):.2f} cm{tex}", fontsize=10)
+            tex = (
+                f"; on sloped cells (pipes, structures' edges) {100 * stats['textured_median_m']:.2f} cm"
+                if stats and stats.get("textured_median_m") is not None
+                else ""
+            )
+            ax.set_title(
+                f"|Δ depth| between overlapping passes, {label}\nmedian {100 * np.median(v):.2f} cm, "
+                f"90th percentile {100 * np.percentile(v, 90):.2f} cm{tex}",
+                fontsize=10,
+            )
         ax.set_aspect("equal")
         ax.set_xlabel("east (m)")
         ax.set_ylabel("north (m)")
@@ -312,7 +368,9 @@ def disagreement_figure(fe, path) -> None:
         hax.set_xlabel("|Δ depth| (m)")
         hax.set_ylabel("density")
         hax.legend()
-        hax.set_title(f"{len(fe.swath_registrations)} swath registrations accepted,\n"
-                      f"{len(fe.structures)} structures registered", fontsize=10)
+        hax.set_title(
+            f"{len(fe.swath_registrations)} swath registrations accepted,\n{len(fe.structures)} structures registered",
+            fontsize=10,
+        )
     fig.savefig(path)
     plt.close(fig)

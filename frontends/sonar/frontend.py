@@ -22,12 +22,9 @@ the patch's anchor (a few seconds of DVL/AHRS at most), its covariance grown acc
 
 from __future__ import annotations
 
-import io
-import tempfile
 import time
 from collections import defaultdict
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any, ClassVar
 
 import numpy as np
@@ -83,7 +80,7 @@ class SonarFrontend:
             key = ".".join(str(x) for x in err["loc"])
             msg = err["msg"].removeprefix("Value error, ")
             raise ConfigError(f"frontends.sonar.{key}: {msg}" if key else f"frontends.sonar: {msg}") from exc
-        from semslam.sim.structures import structure_library
+        from semslam.models.structures import structure_library
 
         lib = structure_library()
         names = self.config.recognition.models or tuple(lib)
@@ -124,7 +121,9 @@ class SonarFrontend:
     def recogniser(self) -> Recogniser:
         if self._recogniser is None:
             t0 = time.process_time()
-            self._recogniser = Recogniser(list(self.library.values()), self.config.recognition, self.config.registration)
+            self._recogniser = Recogniser(
+                list(self.library.values()), self.config.recognition, self.config.registration
+            )
             self.timing["templates_s"] += time.process_time() - t0
         return self._recogniser
 
@@ -234,8 +233,16 @@ class SonarFrontend:
         P = np.concatenate(pts) if pts else np.zeros((0, 3), np.float32)
         yaws = np.unwrap(np.array(yaws))
         track = float(np.linalg.norm(np.diff(np.array(pos), axis=0), axis=1).sum())
-        patch = Patch(len(self.patches), stamps, int(stamps[a]), P, np.concatenate(idx), T_WA.copy(),
-                      float(yaws.max() - yaws.min()), track)
+        patch = Patch(
+            len(self.patches),
+            stamps,
+            int(stamps[a]),
+            P,
+            np.concatenate(idx),
+            T_WA.copy(),
+            float(yaws.max() - yaws.min()),
+            track,
+        )
         if len(P):
             W = transform(T_WA, P)
             patch.lo, patch.hi = W[:, :2].min(0), W[:, :2].max(0)
@@ -253,8 +260,11 @@ class SonarFrontend:
             if obs is not None:
                 out.append(obs)
         for ks in new:  # the pass's earlier patches, emitted one per swath from now on
-            recent = [p for p in self.patches[:-1]
-                      if (m.stamp - p.anchor_stamp) * 1e-9 <= cfg.registration.recent_s and self._covers(p, ks)]
+            recent = [
+                p
+                for p in self.patches[:-1]
+                if (m.stamp - p.anchor_stamp) * 1e-9 <= cfg.registration.recent_s and self._covers(p, ks)
+            ]
             self._queue += [(p, ks) for p in reversed(recent)]
         W = cfg.swath_registration.window_patches
         if len(self.patches) - self._window_start >= W:
@@ -296,7 +306,10 @@ class SonarFrontend:
         lo_c, hi_c = lo - R, hi + R  # candidate centres whose disc meets the new data
         data = [p for p in self.patches if overlap_area(p.lo, p.hi, lo_c - R - 0.5, hi_c + R + 0.5) > 0]
         pts = np.concatenate([transform(self.place(p), p.top) for p in data])
-        removed = [(self._current_T(ks)[:2, 3], self.library[ks.model].footprint_radius + 0.3) for ks in self.structures]
+        removed = [
+            (self._current_T(ks)[:2, 3], self.library[ks.model].footprint_radius + 0.3) for ks in self.structures
+        ]
+
         # candidates whose registration failed before are tried again only once their disc holds
         # a quarter more data (a structure first seen in part)
         def n_near(c, r):
@@ -306,8 +319,9 @@ class SonarFrontend:
         self._failed = [f for f, keep in zip(self._failed, still) if keep]
         skip = [(name, c) for name, c, _ in self._failed]
         n_rej = len(rec.rejected)
-        dets = rec.recognise(pts, lo_c, hi_c, removed, ground_kw=self._ground_kw(), full_points=self._points_near,
-                             skip=skip)
+        dets = rec.recognise(
+            pts, lo_c, hi_c, removed, ground_kw=self._ground_kw(), full_points=self._points_near, skip=skip
+        )
         for d in rec.rejected[n_rej:]:
             self._failed.append((d.model, d.centre, n_near(d.centre, self.library[d.model].footprint_radius)))
         new = []
@@ -316,7 +330,9 @@ class SonarFrontend:
             self.structures.append(ks)
             new.append(ks)
             self.timing["registration_s"] += det.timing.get("registration_s", 0.0)
-        self.timing["recognition_s"] += time.process_time() - t0 - sum(d.timing.get("registration_s", 0.0) for d in dets)
+        self.timing["recognition_s"] += (
+            time.process_time() - t0 - sum(d.timing.get("registration_s", 0.0) for d in dets)
+        )
         self.timing["recognition_runs"] += 1
         return new
 
@@ -332,7 +348,9 @@ class SonarFrontend:
 
     def _ground_kw(self) -> dict:
         c = self.config.map
-        return dict(block_m=c.ground_block_m, window_m=c.ground_window_m, smooth_m=c.ground_smooth_m, band_m=c.ground_band_m)
+        return dict(
+            block_m=c.ground_block_m, window_m=c.ground_window_m, smooth_m=c.ground_smooth_m, band_m=c.ground_band_m
+        )
 
     def _reobserve(self, patch: Patch, ks: KnownStructure, m: SonarSwath) -> StructureObservation | None:
         """Register the structure on one patch's points (ICP from its current estimate) and express
@@ -361,14 +379,29 @@ class SonarFrontend:
         jump = np.linalg.norm(d[:3, 3])
         turn = abs(np.arccos(np.clip((np.trace(d[:3, :3]) - 1) / 2, -1, 1)))
         sig_t = np.sqrt(np.linalg.eigvalsh(reg.cov[3:, 3:]).max())
-        if (reg.n_structure < rc.min_points or reg.fitness < rc.min_fitness or reg.median_m > rc.max_median_m
-                or jump > rc.max_jump_m or turn > np.radians(rc.max_turn_deg) or sig_t > rc.max_sigma_m):
-            why = ("points" if reg.n_structure < rc.min_points else "fitness" if reg.fitness < rc.min_fitness
-                   else "median" if reg.median_m > rc.max_median_m
-                   else "jump" if jump > rc.max_jump_m or turn > np.radians(rc.max_turn_deg)
-                   else "sigma")
+        if (
+            reg.n_structure < rc.min_points
+            or reg.fitness < rc.min_fitness
+            or reg.median_m > rc.max_median_m
+            or jump > rc.max_jump_m
+            or turn > np.radians(rc.max_turn_deg)
+            or sig_t > rc.max_sigma_m
+        ):
+            why = (
+                "points"
+                if reg.n_structure < rc.min_points
+                else "fitness"
+                if reg.fitness < rc.min_fitness
+                else "median"
+                if reg.median_m > rc.max_median_m
+                else "jump"
+                if jump > rc.max_jump_m or turn > np.radians(rc.max_turn_deg)
+                else "sigma"
+            )
             self.rejected[f"structure_observation_{why}"] += 1
-            self.rejection_log.append((ks.model, patch.id, why, reg.n_structure, reg.fitness, reg.median_m, jump, np.degrees(turn), sig_t))
+            self.rejection_log.append(
+                (ks.model, patch.id, why, reg.n_structure, reg.fitness, reg.median_m, jump, np.degrees(turn), sig_t)
+            )
             return None
         T_SW = inv(T_now @ self._T_BS(m.sensor))
         T_SM = T_SW @ T_WA @ reg.T
@@ -402,10 +435,13 @@ class SonarFrontend:
             self.rejected["swath_no_reference"] += 1
             return []
         yaw_ref = yaw_of(best.T_nav)
-        group = [q for q in self.patches[max(best.id - 3, 0) : best.id + 4]
-                 if q.heading_change <= np.radians(self.config.patches.max_turn_deg)
-                 and abs(_wrap(yaw_of(q.T_nav) - yaw_ref)) < np.radians(20)
-                 and (j.anchor_stamp - q.anchor_stamp) * 1e-9 >= cfg.min_age_s]
+        group = [
+            q
+            for q in self.patches[max(best.id - 3, 0) : best.id + 4]
+            if q.heading_change <= np.radians(self.config.patches.max_turn_deg)
+            and abs(_wrap(yaw_of(q.T_nav) - yaw_ref)) < np.radians(20)
+            and (j.anchor_stamp - q.anchor_stamp) * 1e-9 >= cfg.min_age_s
+        ]
         ref_pts = np.concatenate([q.world(self.place(q)) for q in group])
         spec = GridSpec.around(lo, hi, cfg.cell_m, pad=cfg.max_shift_m + 0.2)
         ref = ElevationMap.from_points(ref_pts, spec=spec).fill_small_holes()
@@ -427,14 +463,31 @@ class SonarFrontend:
         cov[:3, :3] = np.eye(3) * cfg.rotation_sigma_rad**2
         cov[3:, 3:] = R_j.T @ res.cov @ R_j
         self.swath_registrations.append(
-            {"stamp_from": best.anchor_stamp, "stamp": j.anchor_stamp, "patch_from": best.id, "patch": j.id,
-             "shift": res.shift.tolist(), "raw_shift": res.raw_shift.tolist(), "depth": res.depth,
-             "cov_W": res.cov.tolist(), "sigma": res.sigma, "informative": res.informative, "n_points": res.n_points,
-             "cost_before": res.cost_before, "cost_after": res.cost_after, "relative_pose": rel.tolist(),
-             "covariance": cov.tolist(), "T_from": T_i.tolist(), "T_to": T_j.tolist()}
+            {
+                "stamp_from": best.anchor_stamp,
+                "stamp": j.anchor_stamp,
+                "patch_from": best.id,
+                "patch": j.id,
+                "shift": res.shift.tolist(),
+                "raw_shift": res.raw_shift.tolist(),
+                "depth": res.depth,
+                "cov_W": res.cov.tolist(),
+                "sigma": res.sigma,
+                "informative": res.informative,
+                "n_points": res.n_points,
+                "cost_before": res.cost_before,
+                "cost_after": res.cost_after,
+                "relative_pose": rel.tolist(),
+                "covariance": cov.tolist(),
+                "T_from": T_i.tolist(),
+                "T_to": T_j.tolist(),
+            }
         )
-        return [OdometryObservation(j.anchor_stamp, m.sensor, stamp_from=best.anchor_stamp, relative_pose=rel,
-                                    covariance=cov)]
+        return [
+            OdometryObservation(
+                j.anchor_stamp, m.sensor, stamp_from=best.anchor_stamp, relative_pose=rel, covariance=cov
+            )
+        ]
 
     # ------------------------------------------------------------------------------------------
     # pipelines
@@ -453,8 +506,9 @@ class SonarFrontend:
         pc = self.config.pipes
         em = ElevationMap.from_points(pts_W, pc.cell_m)
         ground = estimate_ground(em.depth, pc.cell_m, **self._ground_kw())
-        segs = detect_pipes(em, ground, pc, self._structure_mask(em.spec, pc.structure_margin_m),
-                            np.random.default_rng(pc.seed))
+        segs = detect_pipes(
+            em, ground, pc, self._structure_mask(em.spec, pc.structure_margin_m), np.random.default_rng(pc.seed)
+        )
         for s in segs:
             s.connected = self._connections(s)
         return segs
@@ -491,8 +545,17 @@ class SonarFrontend:
             cov = np.zeros((6, 6))
             cov[:3, :3] = cS
             cov[3:, 3:] = cS
-            out.append(LineObservation(m.stamp, m.sensor, p=transform(T_SW, s.p[None])[0], q=transform(T_SW, s.q[None])[0],
-                                       covariance=cov, radius=s.radius, connected_models=s.connected))
+            out.append(
+                LineObservation(
+                    m.stamp,
+                    m.sensor,
+                    p=transform(T_SW, s.p[None])[0],
+                    q=transform(T_SW, s.q[None])[0],
+                    covariance=cov,
+                    radius=s.radius,
+                    connected_models=s.connected,
+                )
+            )
         self.pipe_observations += len(out)
         return out
 

@@ -24,7 +24,7 @@ class GridSpec:
     shape: tuple[int, int]
 
     @classmethod
-    def around(cls, lo, hi, cell: float, pad: float = 0.0) -> "GridSpec":
+    def around(cls, lo, hi, cell: float, pad: float = 0.0) -> GridSpec:
         """The grid aligned on multiples of ``cell`` covering the box [lo, hi] (north, east) grown by ``pad``."""
         lo = np.floor((np.asarray(lo, float) - pad) / cell) * cell
         hi = np.asarray(hi, float) + pad
@@ -32,13 +32,17 @@ class GridSpec:
         return cls(float(lo[0]), float(lo[1]), float(cell), (int(shape[0]), int(shape[1])))
 
     def index(self, n, e) -> tuple[np.ndarray, np.ndarray]:
-        return (np.floor((np.asarray(n) - self.n0) / self.cell).astype(np.int64),
-                np.floor((np.asarray(e) - self.e0) / self.cell).astype(np.int64))
+        return (
+            np.floor((np.asarray(n) - self.n0) / self.cell).astype(np.int64),
+            np.floor((np.asarray(e) - self.e0) / self.cell).astype(np.int64),
+        )
 
     def centres(self) -> tuple[np.ndarray, np.ndarray]:
         """North (rows) and east (columns) coordinates of the cell centres."""
-        return (self.n0 + (np.arange(self.shape[0]) + 0.5) * self.cell,
-                self.e0 + (np.arange(self.shape[1]) + 0.5) * self.cell)
+        return (
+            self.n0 + (np.arange(self.shape[0]) + 0.5) * self.cell,
+            self.e0 + (np.arange(self.shape[1]) + 0.5) * self.cell,
+        )
 
     def extent(self) -> tuple[float, float, float, float]:
         """(e_min, e_max, n_min, n_max) for matplotlib's imshow with origin='lower'."""
@@ -70,8 +74,9 @@ class ElevationMap:
         self.count = count
 
     @classmethod
-    def from_points(cls, points: np.ndarray, cell: float = 0.01, spec: GridSpec | None = None,
-                    quantile: float = 0.5) -> "ElevationMap":
+    def from_points(
+        cls, points: np.ndarray, cell: float = 0.01, spec: GridSpec | None = None, quantile: float = 0.5
+    ) -> ElevationMap:
         """Grid N×3 points (north, east, depth) at ``cell`` (or on ``spec``; points outside it are
         ignored). A cell holds the median depth of its points, or their ``quantile`` (0.1: the upper
         surface, as a top-down ray would see it, while an oblique beam also sees under overhangs)."""
@@ -110,11 +115,15 @@ class ElevationMap:
             return out
         i, j, fx, fy = i0[ok], j0[ok], fx[ok], fy[ok]
         D = self.depth
-        out[ok] = ((1 - fx) * (1 - fy) * D[i, j] + fx * (1 - fy) * D[i + 1, j]
-                   + (1 - fx) * fy * D[i, j + 1] + fx * fy * D[i + 1, j + 1])
+        out[ok] = (
+            (1 - fx) * (1 - fy) * D[i, j]
+            + fx * (1 - fy) * D[i + 1, j]
+            + (1 - fx) * fy * D[i, j + 1]
+            + fx * fy * D[i + 1, j + 1]
+        )
         return out
 
-    def fill_small_holes(self, min_neighbours: int = 3) -> "ElevationMap":
+    def fill_small_holes(self, min_neighbours: int = 3) -> ElevationMap:
         """A copy whose empty cells with at least ``min_neighbours`` filled cells among their eight
         neighbours take the mean of those: the gaps between sparse beams close (a bilinear sample
         needs its four surrounding cells), while real holes (shadows, unsurveyed areas) stay empty."""
@@ -148,8 +157,15 @@ def _normalised_smooth(values: np.ndarray, weight: np.ndarray, sigma_cells: floa
         return np.where(den > 1e-3, num / den, np.nan)
 
 
-def estimate_ground(depth: np.ndarray, cell: float, block_m: float = 0.5, window_m: float = 9.0,
-                    smooth_m: float = 1.0, band_m: float = 0.10, iterations: int = 3) -> np.ndarray:
+def estimate_ground(
+    depth: np.ndarray,
+    cell: float,
+    block_m: float = 0.5,
+    window_m: float = 9.0,
+    smooth_m: float = 1.0,
+    band_m: float = 0.10,
+    iterations: int = 3,
+) -> np.ndarray:
     """Seabed depth under every cell of an elevation map (NaN cells included).
 
     1. Blocks of ``block_m``: the 75 % depth quantile of their filled cells (the deeper side: the
@@ -203,8 +219,13 @@ def estimate_ground(depth: np.ndarray, cell: float, block_m: float = 0.5, window
             with np.errstate(invalid="ignore", divide="ignore"):
                 mean = np.where(ws > 0, vs / np.maximum(ws, 1), np.nan)
             gc = _normalised_smooth(mean, ws, sig / f)
-            gi = ndimage.zoom(np.nan_to_num(gc, nan=np.nanmean(gc) if np.isfinite(gc).any() else 0.0), f, order=1,
-                              mode="nearest", grid_mode=True)[:H, :W]
+            gi = ndimage.zoom(
+                np.nan_to_num(gc, nan=np.nanmean(gc) if np.isfinite(gc).any() else 0.0),
+                f,
+                order=1,
+                mode="nearest",
+                grid_mode=True,
+            )[:H, :W]
             g_new = gi
         else:
             g_new = _normalised_smooth(D, ground.astype(float), sig)

@@ -67,8 +67,13 @@ def _fit_cross_section(u: np.ndarray, h: np.ndarray, cfg: PipeDetectionConfig) -
     return best
 
 
-def detect_pipes(em: ElevationMap, ground: np.ndarray, cfg: PipeDetectionConfig,
-                 excluded: np.ndarray | None = None, rng: np.random.Generator | None = None) -> list[PipeSegment]:
+def detect_pipes(
+    em: ElevationMap,
+    ground: np.ndarray,
+    cfg: PipeDetectionConfig,
+    excluded: np.ndarray | None = None,
+    rng: np.random.Generator | None = None,
+) -> list[PipeSegment]:
     """Straight pipe segments on the elevation map ``em`` with seabed level ``ground`` (same grid);
     ``excluded`` marks cells that belong to recognised structures."""
     rng = rng or np.random.default_rng(cfg.seed)

@@ -13,7 +13,7 @@ from frontends.sonar.config import RecognitionConfig, StructureRegistrationConfi
 from frontends.sonar.descriptor import Template, make_spec, model_template, search
 from frontends.sonar.grid import ElevationMap, estimate_ground
 from frontends.sonar.registration import ModelData, Registration, model_data, register_structure
-from semslam.sim.structures import StructureModel
+from semslam.models.structures import StructureModel
 
 
 @dataclass
@@ -30,8 +30,13 @@ class Detection:
 class Recogniser:
     """Templates of the library's models (largest footprint first) at the descriptor cell Δ."""
 
-    def __init__(self, models: list[StructureModel], cfg: RecognitionConfig, reg_cfg: StructureRegistrationConfig,
-                 delta_m: float | None = None):
+    def __init__(
+        self,
+        models: list[StructureModel],
+        cfg: RecognitionConfig,
+        reg_cfg: StructureRegistrationConfig,
+        delta_m: float | None = None,
+    ):
         self.cfg = cfg
         self.reg_cfg = reg_cfg
         self.delta = float(delta_m or cfg.delta_m)
@@ -53,9 +58,17 @@ class Recogniser:
         ground = estimate_ground(em.depth, self.delta, **(ground_kw or {}))
         return em, ground, ground - em.depth
 
-    def recognise(self, points: np.ndarray, region_lo=None, region_hi=None, removed: list[tuple[np.ndarray, float]] = (),
-                  ground_kw: dict | None = None, register: bool = True, full_points=None,
-                  skip: list[tuple[str, np.ndarray]] = ()) -> list[Detection]:
+    def recognise(
+        self,
+        points: np.ndarray,
+        region_lo=None,
+        region_hi=None,
+        removed: list[tuple[np.ndarray, float]] = (),
+        ground_kw: dict | None = None,
+        register: bool = True,
+        full_points=None,
+        skip: list[tuple[str, np.ndarray]] = (),
+    ) -> list[Detection]:
         """Search the map of ``points`` ({W}) for every model, largest first; candidate centres in
         [region_lo, region_hi] (north, east; default everywhere), discs (centre, radius) in
         ``removed`` masked out. Each find is registered (4-D + ICP) unless ``register`` is False,
@@ -81,8 +94,9 @@ class Recogniser:
         near_rows = np.flatnonzero((N >= lo[0] - rmax) & (N <= hi[0] + rmax))
         near_cols = np.flatnonzero((E >= lo[1] - rmax) & (E <= hi[1] + rmax))
         sub = h[np.ix_(near_rows, near_cols)]
-        if cfg.trigger_height_m > 0 and not np.any((np.nan_to_num(sub) > cfg.trigger_height_m)
-                                                  & ~mask[np.ix_(near_rows, near_cols)]):
+        if cfg.trigger_height_m > 0 and not np.any(
+            (np.nan_to_num(sub) > cfg.trigger_height_m) & ~mask[np.ix_(near_rows, near_cols)]
+        ):
             return out
         if full_points is None:
             full_points = lambda c, r: points[np.hypot(points[:, 0] - c[0], points[:, 1] - c[1]) <= r]  # noqa: E731
@@ -103,8 +117,16 @@ class Recogniser:
                 hh = np.where(mask, np.nan, h)
                 bins = tpl.spec.bin_of(hh)
                 cand = cand[~blocked[cand[:, 0], cand[:, 1]]]
-                res = search(bins, tpl, cand, cfg.threshold * tpl.flat_score, cfg.min_coverage,
-                             cfg.min_ring_coverage, cfg.bootstrap, cfg.chunk)
+                res = search(
+                    bins,
+                    tpl,
+                    cand,
+                    cfg.threshold * tpl.flat_score,
+                    cfg.min_coverage,
+                    cfg.min_ring_coverage,
+                    cfg.bootstrap,
+                    cfg.chunk,
+                )
                 if res.centre is not None:
                     # the next search of this model needs only the candidates that passed the first
                     # ring under the threshold, and those whose disc the removed area changes
@@ -117,18 +139,27 @@ class Recogniser:
                 if res.centre is None:
                     break
                 centre = np.array([N[res.centre[0]], E[res.centre[1]]])
-                det = Detection(model.name, centre, res.score, res.score / tpl.flat_score, res.coverage,
-                                timing={"map_s": t_map, "search_s": t_search})
+                det = Detection(
+                    model.name,
+                    centre,
+                    res.score,
+                    res.score / tpl.flat_score,
+                    res.coverage,
+                    timing={"map_s": t_map, "search_s": t_search},
+                )
                 t_map = 0.0
                 disc = np.hypot(N[:, None] - centre[0], E[None, :] - centre[1]) <= model.footprint_radius
                 if register:
                     t2 = time.process_time()
-                    det.registration = self.register(model.name, full_points(centre, model.footprint_radius + 1.5),
-                                                     G, centre)
+                    det.registration = self.register(
+                        model.name, full_points(centre, model.footprint_radius + 1.5), G, centre
+                    )
                     det.timing["registration_s"] = time.process_time() - t2
                     if det.registration is None:
                         # the CAD does not fit there: not this model (maybe a smaller one), search on
-                        tried |= np.hypot(N[:, None] - centre[0], E[None, :] - centre[1]) <= 0.5 * model.footprint_radius
+                        tried |= (
+                            np.hypot(N[:, None] - centre[0], E[None, :] - centre[1]) <= 0.5 * model.footprint_radius
+                        )
                         self.rejected.append(det)
                         continue
                 # the largest structure's area is removed before the next (and the same model's next) search

@@ -31,7 +31,7 @@ from frontends.sonar.config import StructureRegistrationConfig
 from frontends.sonar.descriptor import model_height_map
 from frontends.sonar.grid import ElevationMap, GridSpec
 from frontends.sonar.patches import inv, transform
-from semslam.sim.structures import StructureModel, pose_matrix
+from semslam.models.structures import StructureModel, pose_matrix
 
 PAD_MARGIN_M = 0.3  # the ground disc of the ICP target reaches this beyond the footprint
 STRUCTURE_MIN_HEIGHT_M = 0.10  # structure points are this far above the pad at least
@@ -206,8 +206,9 @@ def _costs(md: ModelData, cells: np.ndarray, hf: np.ndarray, yaws: np.ndarray, s
     return cost, off
 
 
-def search_4d(md: ModelData, pts_h: np.ndarray, centre: np.ndarray, cfg: StructureRegistrationConfig
-              ) -> tuple[float, np.ndarray, float, float]:
+def search_4d(
+    md: ModelData, pts_h: np.ndarray, centre: np.ndarray, cfg: StructureRegistrationConfig
+) -> tuple[float, np.ndarray, float, float]:
     """(yaw, north/east of the model origin, height offset, cost) of the best 4-D match, searched
     exhaustively over yaw ∈ [0, 2π/symmetry) and north/east within ± the shift range of ``centre``
     on a coarse grid, then refined twice around the best hypotheses at halved cells, steps and yaw
@@ -259,8 +260,13 @@ def search_4d(md: ModelData, pts_h: np.ndarray, centre: np.ndarray, cfg: Structu
 # ICP
 
 
-def icp(md: ModelData, pts: np.ndarray, T0: np.ndarray, cfg: StructureRegistrationConfig,
-        distances: tuple[float, ...] | None = None) -> Registration:
+def icp(
+    md: ModelData,
+    pts: np.ndarray,
+    T0: np.ndarray,
+    cfg: StructureRegistrationConfig,
+    distances: tuple[float, ...] | None = None,
+) -> Registration:
     """Robust point-to-plane ICP of the field points ``pts`` (N×3, frame F) on the model from T_F,M
     ``T0``; returns the registration with its quality and covariance."""
     y = transform(inv(T0), pts)
@@ -322,8 +328,14 @@ def evaluate(md: ModelData, pts: np.ndarray, T: np.ndarray, cfg: StructureRegist
     return Registration(T, median, fitness, int(struct.sum()), cov, sigma, coverage)
 
 
-def register_structure(md: ModelData, pts_h: np.ndarray, pts: np.ndarray, centre: np.ndarray,
-                       ground_depth: float, cfg: StructureRegistrationConfig) -> Registration:
+def register_structure(
+    md: ModelData,
+    pts_h: np.ndarray,
+    pts: np.ndarray,
+    centre: np.ndarray,
+    ground_depth: float,
+    cfg: StructureRegistrationConfig,
+) -> Registration:
     """Recognised at ``centre`` (north, east): 4-D search on the heights ``pts_h`` then ICP on the
     points ``pts`` ({W}); the base starts at ``ground_depth`` − the 4-D height offset."""
     yaw, ne, dh, cost = search_4d(md, pts_h, np.asarray(centre, float), cfg)

@@ -8,7 +8,7 @@ import time
 
 import numpy as np
 
-from frontends.sonar.grid import ElevationMap, GridSpec, cell_medians, estimate_ground
+from frontends.sonar.grid import ElevationMap, GridSpec, estimate_ground
 from frontends.sonar.patches import overlap_area, transform
 from frontends.sonar.registration import icp
 from frontends.sonar.swath_registration import _smoothed_gradient
@@ -93,13 +93,26 @@ def swath_disagreement(fe, pose_fn, pairs, cell: float = 0.05) -> dict:
         tex.append(np.abs(ea.depth - eb.depth)[both & steep])
         n_pairs += 1
     if not diffs:
-        return {"median_m": None, "p90_m": None, "mean_m": None, "n_cells": 0, "n_pairs": 0,
-                "textured_median_m": None, "textured_cells": 0}
+        return {
+            "median_m": None,
+            "p90_m": None,
+            "mean_m": None,
+            "n_cells": 0,
+            "n_pairs": 0,
+            "textured_median_m": None,
+            "textured_cells": 0,
+        }
     d = np.concatenate(diffs)
     t = np.concatenate(tex)
-    return {"median_m": float(np.median(d)), "p90_m": float(np.percentile(d, 90)), "mean_m": float(d.mean()),
-            "n_cells": int(len(d)), "n_pairs": n_pairs,
-            "textured_median_m": float(np.median(t)) if len(t) else None, "textured_cells": int(len(t))}
+    return {
+        "median_m": float(np.median(d)),
+        "p90_m": float(np.percentile(d, 90)),
+        "mean_m": float(d.mean()),
+        "n_cells": int(len(d)),
+        "n_pairs": n_pairs,
+        "textured_median_m": float(np.median(t)) if len(t) else None,
+        "textured_cells": int(len(t)),
+    }
 
 
 def final_registrations(fe, pts_W: np.ndarray) -> None:
@@ -159,21 +172,23 @@ def summarise(fe) -> FrontendSummary:
     structures = []
     for ks in fe.structures:
         reg = ks.final or ks.detection.registration
-        structures.append({
-            "model": ks.model,
-            "pose": (reg.T if reg is not None else ks.T_WM).tolist(),
-            "median_error_m": None if reg is None else float(reg.median_m),
-            "symmetry": fe.library[ks.model].symmetry,
-            "fitness": None if reg is None else float(reg.fitness),
-            "structure_points": None if reg is None else int(reg.n_structure),
-            "recognition_score": float(ks.detection.normalised),
-            "recognition_coverage": float(ks.detection.coverage),
-            "recognised_at_stamp": ks.stamp if ks.stamp >= 0 else None,
-            "online": ks not in late,
-            "observations_emitted": ks.n_observations,
-            "landmark_id": ks.landmark_id,
-            "landmark_pose": None if ks.landmark_id is None else fe._current_T(ks).tolist(),
-        })
+        structures.append(
+            {
+                "model": ks.model,
+                "pose": (reg.T if reg is not None else ks.T_WM).tolist(),
+                "median_error_m": None if reg is None else float(reg.median_m),
+                "symmetry": fe.library[ks.model].symmetry,
+                "fitness": None if reg is None else float(reg.fitness),
+                "structure_points": None if reg is None else int(reg.n_structure),
+                "recognition_score": float(ks.detection.normalised),
+                "recognition_coverage": float(ks.detection.coverage),
+                "recognised_at_stamp": ks.stamp if ks.stamp >= 0 else None,
+                "online": ks not in late,
+                "observations_emitted": ks.n_observations,
+                "landmark_id": ks.landmark_id,
+                "landmark_pose": None if ks.landmark_id is None else fe._current_T(ks).tolist(),
+            }
+        )
     regs = fe.swath_registrations
     t = dict(fe.timing)
     metrics = {
@@ -185,9 +200,12 @@ def summarise(fe) -> FrontendSummary:
         "world_model": world_info,
         "swath_disagreement_before_m": before["median_m"],
         "swath_disagreement_after_m": after["median_m"],
-        "swath_disagreement": {"before": before, "after": after,
-                               "before_is": "as navigated: each patch placed with the estimate when it closed",
-                               "after_is": "re-placed with the final graph estimate"},
+        "swath_disagreement": {
+            "before": before,
+            "after": after,
+            "before_is": "as navigated: each patch placed with the estimate when it closed",
+            "after_is": "re-placed with the final graph estimate",
+        },
         "swath_registration": {
             "accepted": len(regs),
             "rejected": dict(fe.rejected),
@@ -195,16 +213,33 @@ def summarise(fe) -> FrontendSummary:
             "median_shift_m": float(np.median([np.hypot(*r["shift"]) for r in regs])) if regs else None,
             "median_sigma_m": float(np.median([r["sigma"] for r in regs])) if regs else None,
         },
-        "pipes": [{"p": s.p.tolist(), "q": s.q.tolist(), "radius_m": s.radius, "length_m": s.length,
-                   "connected_models": list(s.connected)} for s in pipes],
+        "pipes": [
+            {
+                "p": s.p.tolist(),
+                "q": s.q.tolist(),
+                "radius_m": s.radius,
+                "length_m": s.length,
+                "connected_models": list(s.connected),
+            }
+            for s in pipes
+        ],
         "pipe_observations": fe.pipe_observations,
         "patches": len(fe.patches),
         "points": fe.n_points,
         "timing_s": {k: float(v) for k, v in t.items()},
     }
     fe.timing["summary_s"] += time.process_time() - t_start
-    fe.final = {"map": map_em, "pipes": pipes, "world": world, "pts_W": pts_W, "pairs": pairs,
-                "before": before, "after": after, "world_info": world_info, "raw_bytes": raw}
+    fe.final = {
+        "map": map_em,
+        "pipes": pipes,
+        "world": world,
+        "pts_W": pts_W,
+        "pairs": pairs,
+        "before": before,
+        "after": after,
+        "world_info": world_info,
+        "raw_bytes": raw,
+    }
     files = {}
     if world is not None:
         from frontends.sonar.world_model import write_ply

@@ -90,8 +90,9 @@ def _cost(ref: ElevationMap, pts: np.ndarray, shifts: np.ndarray, min_points: in
     return out_c, out_d, out_n
 
 
-def _mean_square(ref: ElevationMap, pts: np.ndarray, shifts: np.ndarray, min_points: int,
-                 clip: float = 0.3) -> np.ndarray:
+def _mean_square(
+    ref: ElevationMap, pts: np.ndarray, shifts: np.ndarray, min_points: int, clip: float = 0.3
+) -> np.ndarray:
     """Mean squared residual (depth offset removed, residuals clipped at ``clip``) per shift."""
     out = np.full(len(shifts), np.inf)
     for k, s in enumerate(shifts):
@@ -152,8 +153,13 @@ def _least_squares(ref: ElevationMap, grads, pts: np.ndarray, s0: np.ndarray, ra
     return s, d, sigma, np.column_stack([G[inl], -np.ones(inl.sum())])
 
 
-def register(new_pts: np.ndarray, ref: ElevationMap, cfg: SwathRegistrationConfig,
-             rng: np.random.Generator | None = None, why: dict | None = None) -> SwathRegistration | None:
+def register(
+    new_pts: np.ndarray,
+    ref: ElevationMap,
+    cfg: SwathRegistrationConfig,
+    rng: np.random.Generator | None = None,
+    why: dict | None = None,
+) -> SwathRegistration | None:
     """Register new points (N×3 north, east, depth in {W}) on the reference map; None when the
     overlap is too small, the match poor, the optimum on the border of the search or inconsistent
     with its least-squares refinement, or the seabed flat in both directions (the reason is
@@ -248,5 +254,6 @@ def register(new_pts: np.ndarray, ref: ElevationMap, cfg: SwathRegistrationConfi
     # keep the shift only along the informative directions; the depth offset follows the slope
     shift = V @ np.where(informative, V.T @ s_ls, 0.0)
     d_kept = float(d_ls + gbar @ (shift - s_ls))
-    return SwathRegistration(shift, d_kept, cov, sigma, int(len(pts)), cost_before, float(c_best[0]),
-                             int(informative.sum()), s_ls)
+    return SwathRegistration(
+        shift, d_kept, cov, sigma, int(len(pts)), cost_before, float(c_best[0]), int(informative.sum()), s_ls
+    )

@@ -11,8 +11,14 @@ from semslam.sim.field import make_field
 from semslam.sim.field_config import FieldSimConfig
 
 
-def survey_config(seed: int = 0, lines: int = 3, line_length_m: float = 34.0, centre="manifold",
-                  east_offset_m: float = 0.0, **sections) -> FieldSimConfig:
+def survey_config(
+    seed: int = 0,
+    lines: int = 3,
+    line_length_m: float = 34.0,
+    centre="manifold",
+    east_offset_m: float = 0.0,
+    **sections,
+) -> FieldSimConfig:
     """A field mission of ``lines`` lines of ``line_length_m`` centred (north/east) on ``centre``: a
     structure model name of the layout, a (north, east) pair, or None (the field's centre);
     ``sections`` override configuration sections (e.g. ``sonar={"n_beams": 256}``)."""

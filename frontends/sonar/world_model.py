@@ -92,8 +92,16 @@ def ply_size(mesh: o3d.geometry.TriangleMesh) -> int:
 
 def write_ply(mesh: o3d.geometry.TriangleMesh, path) -> None:
     Path(path).parent.mkdir(parents=True, exist_ok=True)
-    ok = o3d.io.write_triangle_mesh(str(path), mesh, write_ascii=False, compressed=False, write_vertex_normals=False,
-                                    write_vertex_colors=True, write_triangle_uvs=False, print_progress=False)
+    ok = o3d.io.write_triangle_mesh(
+        str(path),
+        mesh,
+        write_ascii=False,
+        compressed=False,
+        write_vertex_normals=False,
+        write_vertex_colors=True,
+        write_triangle_uvs=False,
+        print_progress=False,
+    )
     if not ok:
         raise OSError(f"could not write {path}")
 
@@ -127,8 +135,9 @@ def pipe_mesh(p, q, radius: float, facets: int) -> o3d.geometry.TriangleMesh:
     return m
 
 
-def build_world_model(structures, pipes, seabed_depth: np.ndarray, seabed_spec: GridSpec, cfg: WorldModelConfig,
-                      raw_bytes: int | None) -> tuple[o3d.geometry.TriangleMesh, dict]:
+def build_world_model(
+    structures, pipes, seabed_depth: np.ndarray, seabed_spec: GridSpec, cfg: WorldModelConfig, raw_bytes: int | None
+) -> tuple[o3d.geometry.TriangleMesh, dict]:
     """(mesh, info) of the world model. ``structures``: (StructureModel, T_WM) pairs; ``pipes``:
     PipeSegments; ``seabed_depth``: the bare seabed's depth on ``seabed_spec``."""
     parts = []

@@ -296,7 +296,7 @@ def jcbb(problem: AssociationProblem, confidence: float = 0.99, max_hypotheses: 
     candidates_of = getattr(problem, "candidate_landmarks", None)
     for i in range(n):
         row = []
-        for j in (candidates_of(i) if candidates_of is not None else range(m)):
+        for j in candidates_of(i) if candidates_of is not None else range(m):
             j = int(j)  # Python ints: landmark sets are bit masks of any width
             p = problem.pair(i, j)
             if p is None:

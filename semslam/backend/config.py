@@ -23,14 +23,20 @@ class GraphConfig(BaseModel):
         description="start pose: the first GroundTruthPose of the stream (a surface fix) or the origin with the AHRS attitude",
     )
     initial_position_sigma_m: float = Field(0.01, gt=0, description="prior σ on the start position (per axis)")
-    initial_rotation_sigma_rad: float = Field(0.05, gt=0, description="prior σ on the start attitude (the AHRS refines it)")
+    initial_rotation_sigma_rad: float = Field(
+        0.05, gt=0, description="prior σ on the start attitude (the AHRS refines it)"
+    )
     initial_velocity_sigma_m_s: float = Field(0.5, gt=0, description="prior σ on the start body velocity")
-    dvl_max_age_s: float = Field(0.5, gt=0, description="a DVL sample older than this at a keyframe is not a velocity factor")
+    dvl_max_age_s: float = Field(
+        0.5, gt=0, description="a DVL sample older than this at a keyframe is not a velocity factor"
+    )
     ahrs_max_age_s: float = Field(0.5, gt=0, description="an AHRS sample older than this at a keyframe is not used")
     depth_max_age_s: float = Field(0.5, gt=0, description="a depth sample older than this at a keyframe is not used")
     relinearize_threshold: float = Field(0.02, gt=0, description="iSAM2 relinearisation threshold (tangent norm)")
     relinearize_skip: int = Field(
-        5, ge=1, description="iSAM2 relinearises every this many updates (every update: twice the cost, same accuracy on the tank)"
+        5,
+        ge=1,
+        description="iSAM2 relinearises every this many updates (every update: twice the cost, same accuracy on the tank)",
     )
     robust_kernel: Literal["huber", "cauchy", "tukey", "none"] = Field(
         "huber", description="m-estimator on landmark factors"
@@ -54,7 +60,9 @@ class GraphConfig(BaseModel):
         "covariance of its own views. None: smooth the whole mission. The batch always spans the whole mission",
     )
     batch_max_iterations: int = Field(100, ge=1, description="Levenberg–Marquardt iterations in batch mode")
-    covariance_in_result: bool = Field(True, description="marginal covariances of keyframes and landmarks in the result")
+    covariance_in_result: bool = Field(
+        True, description="marginal covariances of keyframes and landmarks in the result"
+    )
     result_covariance_keyframes: int = Field(
         150,
         ge=2,
@@ -63,8 +71,10 @@ class GraphConfig(BaseModel):
     )
 
     @model_validator(mode="after")
-    def _window_holds_tracks(self) -> "GraphConfig":
+    def _window_holds_tracks(self) -> GraphConfig:
         # a tentative landmark's views must still be in the window when it is promoted
         if self.window_s is not None and self.window_s <= 2 * self.track_timeout_s:
-            raise ValueError(f"graph.window_s ({self.window_s} s) must exceed twice graph.track_timeout_s ({self.track_timeout_s} s)")
+            raise ValueError(
+                f"graph.window_s ({self.window_s} s) must exceed twice graph.track_timeout_s ({self.track_timeout_s} s)"
+            )
         return self

@@ -18,8 +18,8 @@ from __future__ import annotations
 import bisect
 import math
 import time
-from functools import lru_cache
 from collections.abc import Sequence
+from functools import lru_cache
 
 import gtsam
 import numpy as np
@@ -27,6 +27,7 @@ from scipy.optimize import linear_sum_assignment
 from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
+from factors.geometry import pose_point_jacobian
 from factors.landmarks import (
     LineAnchor,
     line_factor,
@@ -47,7 +48,6 @@ from factors.navigation import (
     heading_bias_walk_factor,
     velocity_random_walk_factor,
 )
-from factors.geometry import pose_point_jacobian
 from semslam.backend.association import PairLinearization, jcbb
 from semslam.backend.config import GraphConfig
 from semslam.backend.landmarks import Landmark, ObservationRecord, Track, merge_collinear, object_between
@@ -64,14 +64,18 @@ from semslam.observations import LineObservation, OdometryObservation, PointObse
 X = gtsam.symbol_shorthand.X
 V = gtsam.symbol_shorthand.V
 B = gtsam.symbol_shorthand.B  # AHRS heading bias (1-vector), when modelled
-KEY_OF_KIND = {"object": gtsam.symbol_shorthand.L, "pipe": gtsam.symbol_shorthand.P, "structure": gtsam.symbol_shorthand.S}
+KEY_OF_KIND = {
+    "object": gtsam.symbol_shorthand.L,
+    "pipe": gtsam.symbol_shorthand.P,
+    "structure": gtsam.symbol_shorthand.S,
+}
 KIND_OF_OBS = {PointObservation: "object", LineObservation: "pipe", StructureObservation: "structure"}
 
 
 class GraphView:
     """Read-only view of the graph estimate handed to front-ends."""
 
-    def __init__(self, est: "GraphEstimator"):
+    def __init__(self, est: GraphEstimator):
         self._est = est
 
     def pose_at(self, stamp: int) -> np.ndarray | None:
@@ -101,7 +105,9 @@ class GraphEstimator:
         params.relinearizeSkip = self.cfg.relinearize_skip
         self._new_isam(params)
         self.robust = robust_kernel(self.cfg.robust_kernel, self.cfg.robust_k)
-        self._wait_for_gt = self.cfg.initial_pose == "first_ground_truth" and bool(metadata.sensors_of_kind("ground_truth"))
+        self._wait_for_gt = self.cfg.initial_pose == "first_ground_truth" and bool(
+            metadata.sensors_of_kind("ground_truth")
+        )
         self._initial_gt: GroundTruthPose | None = None
         # Graph bookkeeping: every factor with its owner (None = navigation, else a landmark id),
         # and every variable's initial value, for batch optimisation and failure recovery.
@@ -184,7 +190,11 @@ class GraphEstimator:
         fused = self.nav.take_fused_attitude(t)
         if fused is not None and t - self.nav.attitude.t <= self.cfg.ahrs_max_age_s:
             R_f, cov_f, _ = fused
-            factors.append(biased_attitude_factor(X(k), B(k), R_f, cov_f) if self._bias_walk > 0 else attitude_factor(X(k), R_f, cov_f))
+            factors.append(
+                biased_attitude_factor(X(k), B(k), R_f, cov_f)
+                if self._bias_walk > 0
+                else attitude_factor(X(k), R_f, cov_f)
+            )
         v_prior = None
         dvl = self.nav.dvl
         # The newest DVL sample is the velocity factor when it is fresh, and also when it is the last
@@ -193,7 +203,11 @@ class GraphEstimator:
         in_interval = bool(self.kf_stamps) and dvl is not None and dvl.t > self.kf_stamps[-1] * 1e-9
         if dvl is not None and 0 <= t - dvl.t and (t - dvl.t <= self.cfg.dvl_max_age_s or in_interval):
             age = t - dvl.t
-            factors.append(dvl_velocity_factor(V(k), dvl.v_S, dvl.cov_S, dvl.T_BS, dvl.omega_B, self.motion.accel_sigma_m_s2**2 * age))
+            factors.append(
+                dvl_velocity_factor(
+                    V(k), dvl.v_S, dvl.cov_S, dvl.T_BS, dvl.omega_B, self.motion.accel_sigma_m_s2**2 * age
+                )
+            )
             v_prior = dvl.v_B
         dep = self.nav.depth
         if dep is not None and 0 <= t - dep.t <= self.cfg.depth_max_age_s:
@@ -216,12 +230,16 @@ class GraphEstimator:
         sig = np.r_[[self.cfg.initial_rotation_sigma_rad] * 3, [self.cfg.initial_position_sigma_m] * 3]
         factors.append(gtsam.PriorFactorPose3(X(0), pose0, gtsam.noiseModel.Diagonal.Sigmas(sig)))
         v0 = v_prior if v_prior is not None else np.zeros(3)
-        factors.append(gtsam.PriorFactorVector(V(0), v0, gtsam.noiseModel.Isotropic.Sigma(3, self.cfg.initial_velocity_sigma_m_s)))
+        factors.append(
+            gtsam.PriorFactorVector(V(0), v0, gtsam.noiseModel.Isotropic.Sigma(3, self.cfg.initial_velocity_sigma_m_s))
+        )
         values = gtsam.Values()
         values.insert(X(0), pose0)
         values.insert(V(0), v0)
         if self._bias_walk > 0:
-            factors.append(gtsam.PriorFactorVector(B(0), np.zeros(1), gtsam.noiseModel.Isotropic.Sigma(1, self._bias_sigma0)))
+            factors.append(
+                gtsam.PriorFactorVector(B(0), np.zeros(1), gtsam.noiseModel.Isotropic.Sigma(1, self._bias_sigma0))
+            )
             values.insert(B(0), np.zeros(1))
         self.kf_stamps.append(stamp)
         self._commit([(f, None) for f in factors], values)
@@ -360,7 +378,9 @@ class GraphEstimator:
             graph.add(vprior)
             self._new_isam(params)
             self.isam.update(graph, full)
-            self.diagnostics.append(f"rebuild needed a weak re-anchoring prior on keyframe {k} ({str(exc).splitlines()[0]})")
+            self.diagnostics.append(
+                f"rebuild needed a weak re-anchoring prior on keyframe {k} ({str(exc).splitlines()[0]})"
+            )
         self._initial = full
 
     def _slide_window(self) -> None:
@@ -397,14 +417,21 @@ class GraphEstimator:
         except RuntimeError as exc:
             self.isam, self._theta = old
             self._slide_after = now + int(0.5 * w * 1e9)
-            self.diagnostics.append(f"{now}: marginalising keyframes before {b} failed ({str(exc).splitlines()[0]}); retried in {0.5 * w:g} s")
+            self.diagnostics.append(
+                f"{now}: marginalising keyframes before {b} failed ({str(exc).splitlines()[0]}); retried in {0.5 * w:g} s"
+            )
             return
         self._window, self._first_active = window, b
-        self.slides.append({
-            "stamp": now, "first_keyframe": b, "left_landmarks": len(drop & landmark_keys),
-            "separator": len({k for m in marginal for k in m.keys()}), "window_factors": len(window),
-            "seconds": time.perf_counter() - t0,
-        })
+        self.slides.append(
+            {
+                "stamp": now,
+                "first_keyframe": b,
+                "left_landmarks": len(drop & landmark_keys),
+                "separator": len({k for m in marginal for k in m.keys()}),
+                "window_factors": len(window),
+                "seconds": time.perf_counter() - t0,
+            }
+        )
         self._frozen.insert_or_assign(subset(estimate, [k for k in drop if estimate.exists(k)]))
         for lm in self.landmarks.values():
             if lm.active and lm.key in drop:
@@ -452,7 +479,11 @@ class GraphEstimator:
         return i
 
     def _valid(self, z) -> bool:
-        arrays = [np.asarray(getattr(z, a)) for a in ("position", "p", "q", "pose", "covariance", "relative_pose") if hasattr(z, a)]
+        arrays = [
+            np.asarray(getattr(z, a))
+            for a in ("position", "p", "q", "pose", "covariance", "relative_pose")
+            if hasattr(z, a)
+        ]
         if not all(np.all(np.isfinite(a)) for a in arrays):
             return False
         if isinstance(z, LineObservation) and np.linalg.norm(z.q - z.p) < 1e-3:
@@ -515,7 +546,9 @@ class GraphEstimator:
             # Neighbours from the landmarks' cached bounding spheres (an object's is its point):
             # numpy over the map, not a Python loop, as this runs after every update.
             sphere_ids, centres, _ = self._spheres()
-            near = np.flatnonzero(np.linalg.norm(centres - np.asarray(a.estimate, float), axis=1) < self.assoc.min_separation_m)
+            near = np.flatnonzero(
+                np.linalg.norm(centres - np.asarray(a.estimate, float), axis=1) < self.assoc.min_separation_m
+            )
             for b in [self.landmarks.get(sphere_ids[r]) for r in near]:
                 if b is None or b.kind != "object" or b.id == a.id or not b.active:
                     continue
@@ -524,7 +557,9 @@ class GraphEstimator:
                 if d @ np.linalg.solve(S, d) > gate:
                     continue
                 keep, drop = (a, b) if a.id < b.id else (b, a)
-                tie = gtsam.BetweenFactorPoint3(keep.key, drop.key, np.zeros(3), gtsam.noiseModel.Isotropic.Sigma(3, 1e-3))
+                tie = gtsam.BetweenFactorPoint3(
+                    keep.key, drop.key, np.zeros(3), gtsam.noiseModel.Isotropic.Sigma(3, 1e-3)
+                )
                 keep.history += drop.history
                 keep.class_likelihoods += drop.class_likelihoods
                 if drop.information is not None:
@@ -535,7 +570,9 @@ class GraphEstimator:
                 if row is not None:
                     self._sphere_c[row] = np.inf  # never near again
                 self._volume.pop(drop.id, None)
-                self.diagnostics.append(f"{self.kf_stamps[-1]}: objects {keep.id} and {drop.id} converged on one place, merged into {keep.id}")
+                self.diagnostics.append(
+                    f"{self.kf_stamps[-1]}: objects {keep.id} and {drop.id} converged on one place, merged into {keep.id}"
+                )
                 self._commit([(tie, keep.id)], gtsam.Values())
                 self._refresh_landmarks({keep.id})
                 if drop is a:
@@ -550,7 +587,9 @@ class GraphEstimator:
             i, T_i_from = self._nearest_keyframe(z.stamp_from)
             j, T_j_to = self._nearest_keyframe(z.stamp)
             if i is None or j is None or i == j or min(i, j) < self._first_active:
-                self.diagnostics.append(f"{z.stamp}: odometry from {z.stamp_from} has no distinct keyframes in the window to join, dropped")
+                self.diagnostics.append(
+                    f"{z.stamp}: odometry from {z.stamp_from} has no distinct keyframes in the window to join, dropped"
+                )
                 continue
             meas = T_i_from.compose(gtsam.Pose3(z.relative_pose)).compose(T_j_to.inverse())
             out.append(gtsam.BetweenFactorPose3(X(i), X(j), meas, gtsam.noiseModel.Gaussian.Covariance(z.covariance)))
@@ -609,8 +648,15 @@ class GraphEstimator:
         gates = {d: _chi2(self.assoc.confidence, d) for d in (3, 4)}
         allowed = (dist <= self.cfg.pre_gate_m) & possible_pairs(pose, pose_cov, obs, T_BS, cands, gates)
         problem = GraphAssociationProblem(
-            pose, pose_cov, obs, T_BS, cands, self.assoc.pipe_extent_gap_m, allowed,
-            separators=self._object_points(), separator_radius=self.assoc.inline_object_radius_m,
+            pose,
+            pose_cov,
+            obs,
+            T_BS,
+            cands,
+            self.assoc.pipe_extent_gap_m,
+            allowed,
+            separators=self._object_points(),
+            separator_radius=self.assoc.inline_object_radius_m,
             cutters=self._mapped_object_points(),
         )
         result = jcbb(problem, confidence=self.assoc.confidence)
@@ -651,11 +697,25 @@ class GraphEstimator:
         if lm.kind == "object":
             return point_factor(X(k), lm.key, z.position, z.covariance, T_BS, self.robust)
         if lm.kind == "pipe":
-            cov4 = lin.R if lin is not None else line_observation_covariance(pose, lm.estimate, lm.anchor, T_BS, z.covariance)
+            cov4 = (
+                lin.R
+                if lin is not None
+                else line_observation_covariance(pose, lm.estimate, lm.anchor, T_BS, z.covariance)
+            )
             return line_factor(X(k), lm.key, lm.anchor, z.p, z.q, cov4, T_BS, self.robust)
         return structure_factor(X(k), lm.key, z.pose, z.covariance, T_BS, self.robust)
 
-    def _record(self, lm: Landmark, stamp: int, k: int, z, pose: gtsam.Pose3, T_BS, pose_cov: np.ndarray, lin: PairLinearization | None = None) -> None:
+    def _record(
+        self,
+        lm: Landmark,
+        stamp: int,
+        k: int,
+        z,
+        pose: gtsam.Pose3,
+        T_BS,
+        pose_cov: np.ndarray,
+        lin: PairLinearization | None = None,
+    ) -> None:
         """``lin``: the observation's linearisation at (pose, lm.estimate), when the association has it."""
         lm.history.append(ObservationRecord(stamp, k, z))
         if lin is not None:
@@ -666,7 +726,9 @@ class GraphEstimator:
             lm.class_likelihoods.append(dict(z.class_likelihood))
         if lm.kind == "pipe":
             T_WS = pose.compose(gtsam.Pose3(T_BS))
-            s = lm.anchor.to_line_frame(lm.estimate, np.vstack([T_WS.transformFrom(z.p), T_WS.transformFrom(z.q)]))[:, 2]
+            s = lm.anchor.to_line_frame(lm.estimate, np.vstack([T_WS.transformFrom(z.p), T_WS.transformFrom(z.q)]))[
+                :, 2
+            ]
             lo, hi = lm.extent
             lm.extent = (min(lo, float(s.min())), max(hi, float(s.max())))
             # Along-axis σ of the endpoints (their covariance projected on the segment direction).
@@ -833,13 +895,21 @@ class GraphEstimator:
         poses = {r.keyframe: self._kf_pose(r.keyframe) for r in records}
         Ts = [self._sensor_T(r.observation.sensor) for r in records]
         if tr.kind == "object":
-            pts = np.array([poses[r.keyframe].compose(gtsam.Pose3(T)).transformFrom(r.observation.position) for r, T in zip(records, Ts)])
+            pts = np.array(
+                [
+                    poses[r.keyframe].compose(gtsam.Pose3(T)).transformFrom(r.observation.position)
+                    for r, T in zip(records, Ts)
+                ]
+            )
             lm.estimate = pts.mean(axis=0)
             values.insert(key, lm.estimate)
         elif tr.kind == "pipe":
             ends = np.vstack(
                 [
-                    [poses[r.keyframe].compose(gtsam.Pose3(T)).transformFrom(e) for e in (r.observation.p, r.observation.q)]
+                    [
+                        poses[r.keyframe].compose(gtsam.Pose3(T)).transformFrom(e)
+                        for e in (r.observation.p, r.observation.q)
+                    ]
                     for r, T in zip(records, Ts)
                 ]
             )
@@ -924,7 +994,9 @@ class GraphEstimator:
                 lm.cov_stamp = self.kf_stamps[-1]
                 lm.covariance = lm.information_covariance()
                 ev = np.linalg.eigvalsh(lm.covariance)
-                self._volume.setdefault(lid, []).append((self.kf_stamps[-1], float(np.sum(np.log(np.maximum(ev, 1e-300))))))
+                self._volume.setdefault(lid, []).append(
+                    (self.kf_stamps[-1], float(np.sum(np.log(np.maximum(ev, 1e-300)))))
+                )
 
     # ------------------------------------------------------------------ views and results
     def pose_at(self, stamp: int) -> gtsam.Pose3 | None:
@@ -947,7 +1019,9 @@ class GraphEstimator:
         s = (stamp - self.kf_stamps[i - 1]) / (self.kf_stamps[i] - self.kf_stamps[i - 1])
         return gtsam.Pose3(a.rotation().slerp(s, b.rotation()), (1 - s) * a.translation() + s * b.translation())
 
-    def landmark_estimates(self, covariance: bool = True, values: gtsam.Values | None = None, marginals=None) -> list[LandmarkEstimate]:
+    def landmark_estimates(
+        self, covariance: bool = True, values: gtsam.Values | None = None, marginals=None
+    ) -> list[LandmarkEstimate]:
         out = []
         covs = self._landmark_marginals(marginals) if covariance else {}
         mapped = self._mapped_object_points()
@@ -1013,7 +1087,12 @@ class GraphEstimator:
 
     def finish(self) -> EstimatorResult:
         n = len(self.kf_stamps)
-        history: dict = {"update_kinds": list(self.update_kinds), "n_keyframes": n, "window_slides": list(self.slides), "window_returns": self.returns}
+        history: dict = {
+            "update_kinds": list(self.update_kinds),
+            "n_keyframes": n,
+            "window_slides": list(self.slides),
+            "window_returns": self.returns,
+        }
         if n == 0:
             self.diagnostics.append("no keyframe: the mission had no AHRS (or no start pose)")
             empty = Trajectory(np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 4)))
@@ -1070,12 +1149,17 @@ class GraphEstimator:
             lid: (np.array([s for s, _ in v], np.int64), np.array([x for _, x in v])) for lid, v in self._volume.items()
         }
         # which landmark each observation (by object identity) ended in, for the recognition tables
-        history["landmark_of_observation"] = {id(r.observation): lm.id for lm in self.landmarks.values() for r in lm.history}
+        history["landmark_of_observation"] = {
+            id(r.observation): lm.id for lm in self.landmarks.values() for r in lm.history
+        }
         history["landmark_observations"] = {
-            lm.id: [(r.stamp, getattr(r.observation, "truth_id", None)) for r in lm.history] for lm in self.landmarks.values()
+            lm.id: [(r.stamp, getattr(r.observation, "truth_id", None)) for r in lm.history]
+            for lm in self.landmarks.values()
         }
         if self.nav.unknown_sensors:
-            self.diagnostics.append(f"measurements from sensors missing in the metadata: {sorted(self.nav.unknown_sensors)}")
+            self.diagnostics.append(
+                f"measurements from sensors missing in the metadata: {sorted(self.nav.unknown_sensors)}"
+            )
         return EstimatorResult(
             name=self.name,
             trajectory=traj,
@@ -1168,7 +1252,9 @@ def _link(a: LandmarkEstimate, b: LandmarkEstimate) -> None:
     b.connected = tuple(sorted({*b.connected, a.id}))
 
 
-def _connect_structures(pipes: list[LandmarkEstimate], structures: list[LandmarkEstimate], landmarks: dict[int, Landmark]) -> None:
+def _connect_structures(
+    pipes: list[LandmarkEstimate], structures: list[LandmarkEstimate], landmarks: dict[int, Landmark]
+) -> None:
     """Pipe ↔ structure connectivity: a pipe whose views said it ends at a model (a pipeline leaving
     a manifold) is linked to the structure landmark of that model nearest to its ends."""
     for pe in pipes:
@@ -1201,7 +1287,9 @@ def _point_segment_distance(pts: np.ndarray, a: np.ndarray, b: np.ndarray) -> np
     return np.linalg.norm(pts - (a + s[:, None] * ab), axis=1)
 
 
-def _segment_matches_line(seg: np.ndarray, c: np.ndarray, d: np.ndarray, seen: np.ndarray, max_angle, max_dist, gap) -> bool:
+def _segment_matches_line(
+    seg: np.ndarray, c: np.ndarray, d: np.ndarray, seen: np.ndarray, max_angle, max_dist, gap
+) -> bool:
     """A world segment (2,3) on the line (c, d): angle, perpendicular offsets and extent overlap."""
     u = seg[1] - seg[0]
     u /= np.linalg.norm(u)

@@ -83,12 +83,20 @@ class Landmark:
         if self._middle is None or self._middle[0] != n:
             e = np.array(self.seen_ends)
             self._middle = (n, small_median(0.5 * (e[:, 0] + e[:, 1])))
-        return cut_at_objects((lo, hi), self.anchor.c0, self.anchor.direction(self.estimate), objects, radius,
-                              self._middle[1], margin)
+        return cut_at_objects(
+            (lo, hi), self.anchor.c0, self.anchor.direction(self.estimate), objects, radius, self._middle[1], margin
+        )
 
 
-def cut_at_objects(seen: tuple[float, float], c: np.ndarray, d: np.ndarray, objects: np.ndarray, radius: float,
-                   middle: float, margin: float = 0.05) -> tuple[float, float]:
+def cut_at_objects(
+    seen: tuple[float, float],
+    c: np.ndarray,
+    d: np.ndarray,
+    objects: np.ndarray,
+    radius: float,
+    middle: float,
+    margin: float = 0.05,
+) -> tuple[float, float]:
     """The stretch ``seen`` of the line (c, d) (positions along d from c) cut at the objects (N×3,
     {W}) within ``radius`` of the line and more than ``margin`` inside it, keeping the side that
     holds ``middle`` (the median of the views' middles)."""
@@ -194,7 +202,13 @@ def collinear(p1, q1, p2, q2, max_angle: float, max_distance: float) -> bool:
 
 
 def object_between(
-    seen: tuple[float, float], seg: np.ndarray, c: np.ndarray, d: np.ndarray, objects: np.ndarray, radius: float, margin: float = 0.1
+    seen: tuple[float, float],
+    seg: np.ndarray,
+    c: np.ndarray,
+    d: np.ndarray,
+    objects: np.ndarray,
+    radius: float,
+    margin: float = 0.1,
 ) -> bool:
     """True when an object lies on the line (c, d) between the stretch ``seen`` (axial interval)
     and the segment ``seg`` (2×3): collinear pipes joined by an in-line part (a valve, a socket)

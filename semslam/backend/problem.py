@@ -15,7 +15,13 @@ from dataclasses import dataclass
 import gtsam
 import numpy as np
 
-from factors.landmarks import line_frame, line_observation_covariance, line_residual_at, point_residual, structure_residual
+from factors.landmarks import (
+    line_frame,
+    line_observation_covariance,
+    line_residual_at,
+    point_residual,
+    structure_residual,
+)
 from semslam.backend.association import PairLinearization
 from semslam.backend.landmarks import Landmark, object_between
 from semslam.observations import LineObservation, PointObservation, StructureObservation

@@ -11,7 +11,9 @@ from semslam.estimation import EstimatorResult
 from semslam.mission.mission import Mission
 
 
-def run_graph(mission: Mission, config: SemslamConfig | None = None, frontends: Sequence = (), batch: bool | None = None) -> EstimatorResult:
+def run_graph(
+    mission: Mission, config: SemslamConfig | None = None, frontends: Sequence = (), batch: bool | None = None
+) -> EstimatorResult:
     """Run :class:`GraphEstimator` over ``mission`` with ``frontends`` (which see its view)."""
     from semslam.pipeline import run_pipeline
 

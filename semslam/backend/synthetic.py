@@ -92,7 +92,16 @@ class _Trajectory:
         # Densify with rounded corners: a closed loop of the lanes, smoothed by a periodic spline.
         from scipy.interpolate import CubicSpline
 
-        loop = np.vstack([pts, [pts[-1][0], pts[-1][1] + c.lane_spacing_m], [pts[0][0] - c.lane_spacing_m, pts[-1][1]], [pts[0][0] - c.lane_spacing_m, -c.lane_spacing_m], [pts[0][0], -c.lane_spacing_m * 0.5], pts[:1]])
+        loop = np.vstack(
+            [
+                pts,
+                [pts[-1][0], pts[-1][1] + c.lane_spacing_m],
+                [pts[0][0] - c.lane_spacing_m, pts[-1][1]],
+                [pts[0][0] - c.lane_spacing_m, -c.lane_spacing_m],
+                [pts[0][0], -c.lane_spacing_m * 0.5],
+                pts[:1],
+            ]
+        )
         seg = np.linalg.norm(np.diff(loop, axis=0), axis=1)
         s = np.concatenate([[0], np.cumsum(seg)])
         fine = np.linspace(0, s[-1], 20 * len(loop))
@@ -153,7 +162,13 @@ def _place_landmarks(cfg: SyntheticConfig, traj: _Trajectory, rng) -> GroundTrut
         return {(int(np.floor(x / sep)), int(np.floor(y / sep))) for x, y in pts[:, :2]}
 
     def free(pts):
-        near = [p for cx, cy in cells(pts) for dx in (-1, 0, 1) for dy in (-1, 0, 1) for p in grid.get((cx + dx, cy + dy), ())]
+        near = [
+            p
+            for cx, cy in cells(pts)
+            for dx in (-1, 0, 1)
+            for dy in (-1, 0, 1)
+            for p in grid.get((cx + dx, cy + dy), ())
+        ]
         if not near:
             return True
         d = np.linalg.norm(pts[:, None, :2] - np.array(near)[None, :, :2], axis=2)
@@ -191,7 +206,9 @@ def _place_landmarks(cfg: SyntheticConfig, traj: _Trajectory, rng) -> GroundTrut
             objects.append(GtObject(100 + len(objects), CLASSES[len(objects) % len(CLASSES)], tuple(p)))
     for k in range(cfg.n_structures):
         a = near_path()
-        structures.append(GtStructure(1000 + k, "manifold", (a[0], a[1], cfg.seabed_depth_m - 0.5), (0, 0, np.sin(0.3), np.cos(0.3))))
+        structures.append(
+            GtStructure(1000 + k, "manifold", (a[0], a[1], cfg.seabed_depth_m - 0.5), (0, 0, np.sin(0.3), np.cos(0.3)))
+        )
     return GroundTruthMap(classes=CLASSES, objects=tuple(objects), pipes=tuple(pipes), structures=tuple(structures))
 
 
@@ -225,7 +242,9 @@ def simulate(cfg: SyntheticConfig | None = None) -> Mission:
     cov = np.eye(3) * cfg.dvl_sigma_m_s**2
     for ti, v in zip(t, v_S):
         valid = not any(s <= ti < s + d for s, d in cfg.dropouts)
-        meas.append(DvlVelocity(ns(ti), "dvl", velocity=v if valid else np.full(3, np.nan), covariance=cov, valid=valid))
+        meas.append(
+            DvlVelocity(ns(ti), "dvl", velocity=v if valid else np.full(3, np.nan), covariance=cov, valid=valid)
+        )
     # AHRS: R_WS = R_WB R_BS with roll/pitch/yaw noise and a constant heading bias.
     t = stamps(cfg.ahrs_rate_hz)
     _, R, _, om = traj.pose(t)
@@ -236,7 +255,9 @@ def simulate(cfg: SyntheticConfig | None = None) -> Mission:
     qs = Rotation.from_euler("ZYX", ypr).as_quat()
     acov = np.diag([cfg.ahrs_sigma_rp_rad**2, cfg.ahrs_sigma_rp_rad**2, cfg.ahrs_sigma_yaw_rad**2])
     rates = om @ R_BS  # ω_S = R_SB ω_B
-    meas += [Attitude(ns(ti), "ahrs", orientation=qi, covariance=acov, angular_rate=w) for ti, qi, w in zip(t, qs, rates)]
+    meas += [
+        Attitude(ns(ti), "ahrs", orientation=qi, covariance=acov, angular_rate=w) for ti, qi, w in zip(t, qs, rates)
+    ]
     # Depth of the pressure sensor.
     t = stamps(cfg.depth_rate_hz)
     pos, R, _, _ = traj.pose(t)
@@ -307,7 +328,9 @@ class LandmarkReport:
     """Mapped landmarks against ground truth, through the ``truth_id`` of their observations
     (evaluation only: the estimator never reads it)."""
 
-    errors_m: dict  # landmark id → error (object/structure: position; pipe: mean distance of the GT axis ends to the line)
+    errors_m: (
+        dict  # landmark id → error (object/structure: position; pipe: mean distance of the GT axis ends to the line)
+    )
     truth_of: dict  # landmark id → majority truth id (None: a false positive)
     duplicated: list  # (kind, truth id) mapped by more than one landmark
     wrongly_merged: list  # landmark ids whose observations come from more than one truth id (or mix in false positives)

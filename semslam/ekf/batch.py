@@ -96,8 +96,9 @@ def line_innovations(
     if L_lin is None and x_lin is None:
         H_x, H_l = _line_jacobians(x, L, r, R_BS, t_BS)
     else:  # r at the first estimates, with the observations flipped as at L
-        H_x, H_l = _line_jacobians(x if x_lin is None else x_lin, L if L_lin is None else L_lin, None, R_BS, t_BS,
-                                   obs_U=obs_U, flip=flip)
+        H_x, H_l = _line_jacobians(
+            x if x_lin is None else x_lin, L if L_lin is None else L_lin, None, R_BS, t_BS, obs_U=obs_U, flip=flip
+        )
     return nu, H_x, H_l, Rn
 
 

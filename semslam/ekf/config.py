@@ -50,13 +50,17 @@ class EkfConfig(BaseModel):
         0.05, gt=0, description="pipe observations whose line passes closer than this to the sensor are ignored (ρ ≈ 0)"
     )
     pre_gate_m: float = Field(
-        2.0, gt=0, description="Euclidean pre-gate (m, plus 3σ of the vehicle position) before the χ² tests: "
-        "saves work on large maps; must exceed the plausible landmark position error"
+        2.0,
+        gt=0,
+        description="Euclidean pre-gate (m, plus 3σ of the vehicle position) before the χ² tests: "
+        "saves work on large maps; must exceed the plausible landmark position error",
     )
     duplicate_pipe_distance_m: float = Field(
-        0.1, gt=0, description="two mapped pipes within the collinearity angle whose seen extents overlap over half "
+        0.1,
+        gt=0,
+        description="two mapped pipes within the collinearity angle whose seen extents overlap over half "
         "the shorter and whose axes are closer than this (a pipe diameter: pipes cannot interpenetrate) are one pipe "
-        "mapped twice, even when their estimates fail the χ² test; the younger is dropped"
+        "mapped twice, even when their estimates fail the χ² test; the younger is dropped",
     )
     track_timeout_s: float = Field(
         60.0, gt=0, description="a tentative feature not seen again within this time is forgotten (false positive)"

@@ -73,8 +73,10 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
+from pydantic import ValidationError
 from scipy.spatial.transform import Rotation
 
+from semslam.backend.landmarks import cut_at_objects, robust_ends, small_median
 from semslam.config import SemslamConfig
 from semslam.ekf import batch as bt
 from semslam.ekf import geometry as geo
@@ -84,7 +86,6 @@ from semslam.ekf.filter import EkfState
 from semslam.ekf.jcbb import Chi2Gate, jcbb_dense
 from semslam.ekf.models import ATT, BIAS, NX, POS, VEL
 from semslam.errors import ConfigError, MissionError
-from semslam.backend.landmarks import cut_at_objects, robust_ends, small_median
 from semslam.estimation import EstimatorResult, LandmarkEstimate, Trajectory
 from semslam.mission.measurements import Attitude, Depth, DvlVelocity, GroundTruthPose, Measurement
 from semslam.mission.mission import MissionMetadata
@@ -100,8 +101,8 @@ def ekf_config(config: SemslamConfig | None) -> EkfConfig:
         return section
     try:
         return EkfConfig.model_validate(section or {})
-    except Exception as exc:  # pydantic ValidationError → one clear line
-        errs = getattr(exc, "errors", lambda: [{"loc": (), "msg": str(exc)}])()
+    except ValidationError as exc:  # → one clear line
+        errs = exc.errors()
         key = ".".join(str(x) for x in errs[0]["loc"])
         raise ConfigError(f"ekf.{key}: {errs[0]['msg']}") from exc
 
@@ -200,12 +201,13 @@ class _Extent:
         self._sig[self._k] = sigma
         self._k += 1
 
-    def merge(self, other: "_Extent") -> None:
+    def merge(self, other: _Extent) -> None:
         for k in range(other._k):
             self.add(other._pts[k], other._sig[k])
 
-    def interval(self, m: np.ndarray, d: np.ndarray, cutters: np.ndarray | None = None,
-                 radius: float = 0.0) -> tuple[float, float]:
+    def interval(
+        self, m: np.ndarray, d: np.ndarray, cutters: np.ndarray | None = None, radius: float = 0.0
+    ) -> tuple[float, float]:
         """Where the pipe (m, d) was seen, along d from its closest point to the origin; cut at the
         mapped objects ``cutters`` on the line inside it (the graph's rule, ``cut_at_objects``)."""
         out = self._robust(m, d)
@@ -244,8 +246,16 @@ class _Extent:
         s = (ends_W - geo.closest_point(m, d)) @ d
         return max(0.0, s.min() - b, a - s.max())
 
-    def separated(self, ends_W: np.ndarray, m: np.ndarray, d: np.ndarray, objects: np.ndarray,
-                  radius: float, span: tuple[float, float], margin: float = 0.1) -> bool:
+    def separated(
+        self,
+        ends_W: np.ndarray,
+        m: np.ndarray,
+        d: np.ndarray,
+        objects: np.ndarray,
+        radius: float,
+        span: tuple[float, float],
+        margin: float = 0.1,
+    ) -> bool:
         """True when an object (N×3, in {W}) within ``radius`` of the line lies between the seen
         extent ``span`` (its :meth:`interval`) and the segment: collinear pipes joined by an in-line
         part (a valve, a socket) are different pipes."""
@@ -311,7 +321,7 @@ class EkfAssociationProblem:
     """The JCBB problem of one batch of observations against the mapped features (full joint
     covariance: every cross block P_jk is the filter's own)."""
 
-    def __init__(self, est: "EkfEstimator", obs: list[_Obs]):
+    def __init__(self, est: EkfEstimator, obs: list[_Obs]):
         self.est = est
         self.obs = obs
         self.n_observations = len(obs)
@@ -347,7 +357,7 @@ class _ScanPairs:
     its individual NIS ``nis[k]``.
     """
 
-    def __init__(self, est: "EkfEstimator", obs: list[_Obs], check_confidence: float):
+    def __init__(self, est: EkfEstimator, obs: list[_Obs], check_confidence: float):
         self.est = est
         self.obs_list = obs
         self.n_obs = len(obs)
@@ -364,7 +374,7 @@ class _ScanPairs:
                 fidx = np.array([j for j, f in enumerate(feats) if f.kind == kind], int)
                 if not len(fidx):
                     continue
-                for sensor, group in _by_sensor(obs, kind):
+                for _sensor, group in _by_sensor(obs, kind):
                     ii, jj = np.nonzero(near[np.ix_(group, fidx)])
                     if not len(ii):
                         continue
@@ -389,11 +399,18 @@ class _ScanPairs:
                     else:
                         L = x[cols]
                         lines = [obs[i].line for i in oi]
-                        args = (np.array([ln.U for ln in lines]), np.array([ln.rho for ln in lines]),
-                                np.array([ln.d for ln in lines]), np.array([ln.cov for ln in lines]), o0.R_BS, o0.t_BS)
+                        args = (
+                            np.array([ln.U for ln in lines]),
+                            np.array([ln.rho for ln in lines]),
+                            np.array([ln.d for ln in lines]),
+                            np.array([ln.cov for ln in lines]),
+                            o0.R_BS,
+                            o0.t_BS,
+                        )
                         L_lin = np.array([feats[j].l_first for j in fj]) if est._fej or est._fej_yaw else None
-                        nu, Hx, HlK, R = bt.line_innovations(x[:NX], L, *args, L_lin=L_lin,
-                                                             x_lin=est._x_lin() if est._fej_yaw else None)
+                        nu, Hx, HlK, R = bt.line_innovations(
+                            x[:NX], L, *args, L_lin=L_lin, x_lin=est._x_lin() if est._fej_yaw else None
+                        )
                     # S = H_x P_vv H_xᵀ + H_x P_vl H_lᵀ + H_l P_lv H_xᵀ + H_l P_ll H_lᵀ + R
                     Pvl = P[:NX][:, cols].transpose(1, 0, 2)  # (K, 9, size)
                     Pll = P[cols[:, :, None], cols[:, None, :]]  # (K, size, size)
@@ -467,8 +484,17 @@ class _ScanPairs:
             r += d
         P = self.est.state.P
         S_all = J @ P[np.ix_(cols, cols)] @ J.T + Rb
-        return jcbb_dense(self.n_obs, self.obs[ks], self.feat[ks], rows, nu, S_all, confidence,
-                          individual_nis=self.nis[ks], by_nis=True)
+        return jcbb_dense(
+            self.n_obs,
+            self.obs[ks],
+            self.feat[ks],
+            rows,
+            nu,
+            S_all,
+            confidence,
+            individual_nis=self.nis[ks],
+            by_nis=True,
+        )
 
     def linearisation(self, i: int, j: int):
         """The pair (observation i, feature j) as a PairLinearization (it must be a candidate)."""
@@ -554,8 +580,12 @@ class EkfEstimator:
         x0[ATT] = geo.euler(R_WB)
         c = self.cfg
         P0 = np.diag(
-            np.r_[pos_sigma**2, [c.initial_attitude_sigma_rad**2] * 3, [c.initial_velocity_sigma_m_s**2] * 3,
-                  [self._bias_sigma0**2] * (self.nv - NX)]
+            np.r_[
+                pos_sigma**2,
+                [c.initial_attitude_sigma_rad**2] * 3,
+                [c.initial_velocity_sigma_m_s**2] * 3,
+                [self._bias_sigma0**2] * (self.nv - NX),
+            ]
         )
         self.state = EkfState(x0, P0)
         self._p_fe = x0[POS].copy()
@@ -634,8 +664,10 @@ class EkfEstimator:
             R_BS, _ = self._extrinsic(m.sensor)
             R_WB = Rotation.from_quat(m.orientation).as_matrix() @ R_BS.T
             z = self._last_depth if self._last_depth is not None else 0.0
-            sig = np.array([self.cfg.initial_position_sigma_m] * 2 + [self.cfg.initial_position_sigma_m if
-                                                                      self._last_depth is not None else 10.0])
+            sig = np.array(
+                [self.cfg.initial_position_sigma_m] * 2
+                + [self.cfg.initial_position_sigma_m if self._last_depth is not None else 10.0]
+            )
             self._initialise(m.stamp, np.array([0.0, 0.0, z]), R_WB, sig)
             self._attitude(m)
 
@@ -694,7 +726,8 @@ class EkfEstimator:
         if lines:
             ls = [o for _, o in lines]
             m, d, U, rho, cov = bt.line_observation_models(
-                np.array([o.p for o in ls]), np.array([o.q for o in ls]), np.array([o.covariance for o in ls]))
+                np.array([o.p for o in ls]), np.array([o.q for o in ls]), np.array([o.covariance for o in ls])
+            )
             poses: dict[str, tuple] = {}
             for k, (slot, o) in enumerate(lines):
                 if rho[k] < self.cfg.line_min_distance_m:
@@ -742,9 +775,15 @@ class EkfEstimator:
         m_W, d_W = geo.line_plucker(l)
         if self._pipe_apart(f.extent, o.ends_W, m_W, d_W, self._object_positions()):
             return None
-        nu, H_x, H_l, R = mdl.line_innovation(x, l, o.line, o.R_BS, o.t_BS,
-                                              f.l_first if self._fej or self._fej_yaw else None,
-                                              self._x_lin() if self._fej_yaw else None)
+        nu, H_x, H_l, R = mdl.line_innovation(
+            x,
+            l,
+            o.line,
+            o.R_BS,
+            o.t_BS,
+            f.l_first if self._fej or self._fej_yaw else None,
+            self._x_lin() if self._fej_yaw else None,
+        )
         return PairLinearization(nu, H_x, H_l, R)
 
     def _pre_gate(self, obs: list[_Obs]) -> np.ndarray:
@@ -794,8 +833,15 @@ class EkfEstimator:
         pts += [t.mean for t in self._tracks if t.kind == "object"]
         return np.array(pts).reshape(-1, 3)
 
-    def _pipe_apart(self, extent: _Extent, ends_W: np.ndarray, m: np.ndarray, d: np.ndarray,
-                    objects: np.ndarray, mapped: np.ndarray | None = None) -> bool:
+    def _pipe_apart(
+        self,
+        extent: _Extent,
+        ends_W: np.ndarray,
+        m: np.ndarray,
+        d: np.ndarray,
+        objects: np.ndarray,
+        mapped: np.ndarray | None = None,
+    ) -> bool:
         """A segment cannot be this pipe: beyond the gap from its seen extent, or across an object.
         The extent is cut at mapped in-line objects (as the graph's; ``mapped``: their positions
         when already known): a pipe seen through a socket or a tee must not keep the views of the
@@ -804,7 +850,8 @@ class EkfEstimator:
         r = self.assoc.inline_object_radius_m
         span = extent.interval(m, d, mapped, r)
         return extent.gap(ends_W, m, d, span) > self.assoc.pipe_extent_gap_m or extent.separated(
-            ends_W, m, d, objects, r, span)
+            ends_W, m, d, objects, r, span
+        )
 
     def _mapped_object_positions(self) -> np.ndarray:
         idx = [f.index for f in self._features if f.kind == "object"]
@@ -856,8 +903,11 @@ class EkfEstimator:
         objs = [k for k, f in enumerate(self._features) if f.kind == "object"]
         if len(objs) < 2:
             return
-        rows = np.arange(len(objs)) if touched is None else np.array(
-            [r for r, k in enumerate(objs) if self._features[k].id in touched], int)
+        rows = (
+            np.arange(len(objs))
+            if touched is None
+            else np.array([r for r, k in enumerate(objs) if self._features[k].id in touched], int)
+        )
         if not len(rows):
             return
         x, P = self.state.x, self.state.P
@@ -941,10 +991,20 @@ class EkfEstimator:
     def _same_stretch(self, extent: _Extent, ends_b: np.ndarray, m: np.ndarray, d: np.ndarray) -> bool:
         """Segment ends_b shares over half of the shorter stretch with the seen extent of the pipe (m, d),
         its ends within ``ekf.duplicate_pipe_distance_m`` of that pipe's axis."""
-        return _off_axis(ends_b, m, d) <= self.cfg.duplicate_pipe_distance_m and _overlap_fraction(extent, ends_b, m, d) >= 0.5
+        return (
+            _off_axis(ends_b, m, d) <= self.cfg.duplicate_pipe_distance_m
+            and _overlap_fraction(extent, ends_b, m, d) >= 0.5
+        )
 
-    def _fuse_duplicate(self, keep: _Feature, drop: _Feature, diff: np.ndarray, H_keep: np.ndarray,
-                        H_drop: np.ndarray, constrain: bool = True) -> None:
+    def _fuse_duplicate(
+        self,
+        keep: _Feature,
+        drop: _Feature,
+        diff: np.ndarray,
+        H_keep: np.ndarray,
+        H_drop: np.ndarray,
+        constrain: bool = True,
+    ) -> None:
         """Impose keep = drop (their difference ``diff`` with Jacobians H_keep, H_drop, as a perfect
         measurement of zero) unless not ``constrain``, then drop the younger block (marginalise it
         out); its views and class evidence go to keep."""
@@ -1035,8 +1095,9 @@ class EkfEstimator:
         Gx, Gz = A @ Jx, A @ Jpq
         return np.r_[m_W, d_W], Gx @ Pvv @ Gx.T + Gz @ o.obs.covariance @ Gz.T
 
-    def _track_nis(self, tr: _Track, o: _Obs, mean: np.ndarray, cov: np.ndarray, objects=None,
-                   below: float = math.inf) -> float:
+    def _track_nis(
+        self, tr: _Track, o: _Obs, mean: np.ndarray, cov: np.ndarray, objects=None, below: float = math.inf
+    ) -> float:
         """NIS of observation o (in {W}: mean, cov) against tentative feature tr; inf when they cannot
         be one (other kind; pipes: beyond the seen extent or across an object). ``objects`` (the
         separators, or a callable giving them) is only needed for a pipe whose NIS is below ``below``."""
@@ -1120,8 +1181,16 @@ class EkfEstimator:
             l_first, G_x, G_z = init(self._x_lin(), *z, o.R_BS, o.t_BS)
         idx = self.state.augment(l, G_x, G_z, np.asarray(o.obs.covariance))
         self._features.append(
-            _Feature(self._next_id, o.kind, idx, len(l), n_obs=tr.n, extent=tr.extent, class_log=dict(tr.class_log),
-                     l_first=np.array(l_first, float))
+            _Feature(
+                self._next_id,
+                o.kind,
+                idx,
+                len(l),
+                n_obs=tr.n,
+                extent=tr.extent,
+                class_log=dict(tr.class_log),
+                l_first=np.array(l_first, float),
+            )
         )
         self._next_id += 1
 
@@ -1130,7 +1199,7 @@ class EkfEstimator:
         """Dead reckoning: every observation becomes its own map entry, placed with the DR pose."""
         x, Pvv = self.state.xv, self.state.Pvv[:NX, :NX]  # the Jacobians' bias column is zero
         entries: list[tuple] = []  # (index, kind, l or (p, q), cov, observation)
-        for sensor, group in _by_sensor(obs, "object"):  # objects: one batch per sensor
+        for _sensor, group in _by_sensor(obs, "object"):  # objects: one batch per sensor
             o0 = obs[group[0]]
             Z = np.array([obs[i].obs.position for i in group])
             R, t, R_WB, E = bt.sensor_pose(x, o0.R_BS, o0.t_BS)
@@ -1156,8 +1225,14 @@ class EkfEstimator:
         stamps = np.array([stamp], np.int64)
         for _, kind, val, cov, o in entries:
             if kind == "object":
-                lm = LandmarkEstimate(self._next_id, "object", position=val, covariance=cov,
-                                      class_posterior=_posterior(_class_log(o.obs)), n_observations=1)
+                lm = LandmarkEstimate(
+                    self._next_id,
+                    "object",
+                    position=val,
+                    covariance=cov,
+                    class_posterior=_posterior(_class_log(o.obs)),
+                    n_observations=1,
+                )
             else:
                 lm = LandmarkEstimate(self._next_id, "pipe", p=val[0], q=val[1], covariance=cov, n_observations=1)
             self._dr_map.append(lm)
@@ -1187,8 +1262,14 @@ class EkfEstimator:
         l = x[f.index : f.index + f.size].copy()
         cov = P[np.ix_(f.cols, f.cols)].copy()
         if f.kind == "object":
-            return LandmarkEstimate(f.id, "object", position=l, covariance=cov,
-                                    class_posterior=_posterior(f.class_log), n_observations=f.n_obs)
+            return LandmarkEstimate(
+                f.id,
+                "object",
+                position=l,
+                covariance=cov,
+                class_posterior=_posterior(f.class_log),
+                n_observations=f.n_obs,
+            )
         p, q = f.extent.ends(*geo.line_plucker(l), self._mapped_object_positions(), self.assoc.inline_object_radius_m)
         return LandmarkEstimate(f.id, "pipe", p=p, q=q, covariance=cov, n_observations=f.n_obs)
 
@@ -1206,7 +1287,9 @@ class EkfEstimator:
             x = self.state.xv[:NX].copy()
             dt = (stamp - self.t) * NS
             if dt > 0:
-                x = mdl.predict(x, self._omega, dt, self.motion.accel_sigma_m_s2, self.motion.angular_rate_sigma_rad_s)[0]
+                x = mdl.predict(x, self._omega, dt, self.motion.accel_sigma_m_s2, self.motion.angular_rate_sigma_rad_s)[
+                    0
+                ]
         else:
             ts = np.asarray(self._traj["t"])
             k = int(np.clip(np.searchsorted(ts, stamp), 0, len(ts) - 1))
@@ -1218,7 +1301,7 @@ class EkfEstimator:
         T[:3, 3] = x[POS]
         return T
 
-    def view(self) -> "EkfEstimator":
+    def view(self) -> EkfEstimator:
         return self  # pose_at / landmarks: the EstimateView protocol
 
     def finish(self) -> EstimatorResult:

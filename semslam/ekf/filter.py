@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import numpy as np
 
-
 _ROW_CHUNK = 512  # rows of P updated per gemm (bounds the temporaries for large maps)
 
 

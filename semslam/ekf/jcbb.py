@@ -88,9 +88,7 @@ def jcbb_dense(
         return result
     gate = Chi2Gate(confidence)
     if individual_nis is None:
-        individual_nis = np.array(
-            [float(nu[r] @ np.linalg.solve(S_all[np.ix_(r, r)], nu[r])) for r in pair_rows]
-        )
+        individual_nis = np.array([float(nu[r] @ np.linalg.solve(S_all[np.ix_(r, r)], nu[r])) for r in pair_rows])
     # Individual compatibility; candidates of each observation by increasing NIS.
     cands: list[list[tuple[float, int, int]]] = [[] for _ in range(n_obs)]
     for k in range(K):

@@ -53,8 +53,9 @@ POS, ATT, VEL = slice(0, 3), slice(3, 6), slice(6, 9)
 
 
 # ------------------------------------------------------------------------------ prediction
-def predict(x: np.ndarray, omega_B: np.ndarray, dt: float, accel_sigma: float, rate_sigma: float,
-            bias_walk: float | None = None):
+def predict(
+    x: np.ndarray, omega_B: np.ndarray, dt: float, accel_sigma: float, rate_sigma: float, bias_walk: float | None = None
+):
     """Constant-velocity model with the AHRS body rate ω_B as input (eqs. 20–22).
 
     p' = p + R_WB v Δt, e' = e + E⁻¹(φ, θ) ω_B Δt, v' = v. Noise: white linear acceleration in
@@ -77,8 +78,8 @@ def predict(x: np.ndarray, omega_B: np.ndarray, dt: float, accel_sigma: float, r
     r20, r21, r22 = -st, ct * sf, ct * cf
     # E⁻¹ (Euler rates from body rates) and the new state
     e00, e01, e02 = 1.0, sf * tt, cf * tt
-    e10, e11, e12 = 0.0, cf, -sf
-    e20, e21, e22 = 0.0, sf / ct, cf / ct
+    _e10, e11, e12 = 0.0, cf, -sf
+    _e20, e21, e22 = 0.0, sf / ct, cf / ct
     xn = [
         px + (r00 * u + r01 * v + r02 * w) * dt,
         py + (r10 * u + r11 * v + r12 * w) * dt,
@@ -86,7 +87,9 @@ def predict(x: np.ndarray, omega_B: np.ndarray, dt: float, accel_sigma: float, r
         wrap_angle(phi + (e00 * wx + e01 * wy + e02 * wz) * dt),
         theta + (e11 * wy + e12 * wz) * dt,
         wrap_angle(psi + (e21 * wy + e22 * wz) * dt),
-        u, v, w,
+        u,
+        v,
+        w,
     ]
     # ∂p'/∂e = -R [v]× E dt with E = [[1, 0, -st], [0, cf, sf ct], [0, -sf, cf ct]]
     m00, m01, m02 = 0.0, -w * cf - v * sf, -w * sf * ct + v * cf * ct  # [v]× E, [v]× = [[0,-w,v],[w,0,-u],[-v,u,0]]
@@ -174,8 +177,9 @@ def predict_reference(x: np.ndarray, omega_B: np.ndarray, dt: float, accel_sigma
     return xn, F, Q
 
 
-def predict_biased(x: np.ndarray, omega_B: np.ndarray, dt: float, accel_sigma: float, rate_sigma: float,
-                   bias_walk: float):
+def predict_biased(
+    x: np.ndarray, omega_B: np.ndarray, dt: float, accel_sigma: float, rate_sigma: float, bias_walk: float
+):
     """:func:`predict` for the 10-state [x_v; b] with the AHRS heading bias b a random walk of intensity
     ``bias_walk`` (rad/√s): b' = b, Var(b' − b) = σ_b² Δt (the graph's ``heading_bias_walk_factor``).
     The bias does not enter the motion (the body rate input is the gyro's, not the biased heading's)."""
@@ -321,22 +325,30 @@ class LineObservationModel:
     cov: np.ndarray
 
     @classmethod
-    def from_endpoints(cls, p: np.ndarray, q: np.ndarray, cov_pq: np.ndarray) -> "LineObservationModel":
+    def from_endpoints(cls, p: np.ndarray, q: np.ndarray, cov_pq: np.ndarray) -> LineObservationModel:
         m, d, J = plucker_from_endpoints(p, q)
         U, rho = orthonormal_from_plucker(m, d)
         A = line_error_map(U, rho) @ J
         return cls(m, d, U, rho, A @ cov_pq @ A.T)
 
-    def flipped(self) -> "LineObservationModel":
+    def flipped(self) -> LineObservationModel:
         """The same line with the opposite direction: (m, d) → (-m, -d), U → U diag(-1, -1, 1);
         the error covariance changes sign in ε₁ and ε₂ (D Σ D, D = diag(-1, -1, 1, 1))."""
         D = np.array([-1.0, -1.0, 1.0, 1.0])
-        return LineObservationModel(-self.m, -self.d, self.U * np.array([-1.0, -1.0, 1.0]), self.rho,
-                                    self.cov * np.outer(D, D))
+        return LineObservationModel(
+            -self.m, -self.d, self.U * np.array([-1.0, -1.0, 1.0]), self.rho, self.cov * np.outer(D, D)
+        )
 
 
-def line_innovation(x: np.ndarray, l: np.ndarray, obs: LineObservationModel, R_BS: np.ndarray, t_BS: np.ndarray,
-                    l_lin: np.ndarray | None = None, x_lin: np.ndarray | None = None):
+def line_innovation(
+    x: np.ndarray,
+    l: np.ndarray,
+    obs: LineObservationModel,
+    R_BS: np.ndarray,
+    t_BS: np.ndarray,
+    l_lin: np.ndarray | None = None,
+    x_lin: np.ndarray | None = None,
+):
     """Innovation of an observed line against pipe l, on the manifold of the orthonormal representation.
 
     ν = [Log(U_hᵀ U_z); ρ_z − ρ_h] where (U_h, ρ_h) is the pipe in {S} and the observed direction is

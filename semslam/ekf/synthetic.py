@@ -148,8 +148,15 @@ def simulate_circling(
         valid = not any(s <= t[i] < s + d for s, d in dropouts)
         R_BS, t_BS = T_dvl[:3, :3], T_dvl[:3, 3]
         v = R_BS.T @ (v_true[i] + np.cross(w_true[i], t_BS)) + rng.normal(scale=dvl_sigma, size=3)
-        meas.append(DvlVelocity(ns(i), "dvl", velocity=v if valid else np.full(3, np.nan),
-                                covariance=np.eye(3) * dvl_sigma**2, valid=valid))
+        meas.append(
+            DvlVelocity(
+                ns(i),
+                "dvl",
+                velocity=v if valid else np.full(3, np.nan),
+                covariance=np.eye(3) * dvl_sigma**2,
+                valid=valid,
+            )
+        )
     for i in every(0.125):
         z = pos[i, 2] + (geo.rot(*eul[i]) @ T_depth[:3, 3])[2] + rng.normal(scale=depth_sigma)
         meas.append(Depth(ns(i), "depth", depth=z, variance=depth_sigma**2))
@@ -179,7 +186,7 @@ def simulate_circling(
             batch: list[Observation] = []
 
             def visible(pw):
-                ps = (pw - t_WS) @ R_WS
+                ps = (pw - t_WS) @ R_WS  # noqa: B023
                 r = np.linalg.norm(ps, axis=-1)
                 ang = np.arccos(np.clip(ps[..., 2] / np.maximum(r, 1e-9), -1, 1))
                 return (r < sensor_range_m) & (ang < sensor_half_fov_rad), ps
@@ -189,9 +196,16 @@ def simulate_circling(
                 if ok:
                     seen_o.add(o.id)
                     cov = np.eye(3) * point_sigma**2
-                    batch.append(PointObservation(ns(i), "laser", position=ps + rng.normal(scale=point_sigma, size=3),
-                                                  covariance=cov, class_likelihood={o.cls: 0.8, "other": 0.2},
-                                                  truth_id=o.id))
+                    batch.append(
+                        PointObservation(
+                            ns(i),
+                            "laser",
+                            position=ps + rng.normal(scale=point_sigma, size=3),
+                            covariance=cov,
+                            class_likelihood={o.cls: 0.8, "other": 0.2},
+                            truth_id=o.id,
+                        )
+                    )
             for p in pipes:
                 s = np.linspace(0.0, 1.0, 200)
                 pts = np.array(p.p) + s[:, None] * (np.array(p.q) - np.array(p.p))
@@ -203,22 +217,46 @@ def simulate_circling(
                     continue
                 seen_p.add(p.id)
                 e = rng.normal(scale=line_sigma, size=(2, 3))
-                batch.append(LineObservation(ns(i), "laser", p=ps[a] + e[0], q=ps[b] + e[1],
-                                             covariance=np.eye(6) * line_sigma**2, radius=p.radius, truth_id=p.id))
+                batch.append(
+                    LineObservation(
+                        ns(i),
+                        "laser",
+                        p=ps[a] + e[0],
+                        q=ps[b] + e[1],
+                        covariance=np.eye(6) * line_sigma**2,
+                        radius=p.radius,
+                        truth_id=p.id,
+                    )
+                )
             if batch:
                 obs[ns(i)] = batch
                 # the scan itself: a marker measurement at the scan stamp (the pipeline's PointCloud)
                 meas.append(PointCloud(ns(i), "laser"))
     meas.sort(key=lambda m: m.stamp)
-    gt_map = GroundTruthMap(classes=("valve", "elbow", "tee", "flange"), objects=tuple(objects), pipes=tuple(pipes),
-                            seen_objects=tuple(sorted(seen_o)), seen_pipes=tuple(sorted(seen_p)))
+    gt_map = GroundTruthMap(
+        classes=("valve", "elbow", "tee", "flange"),
+        objects=tuple(objects),
+        pipes=tuple(pipes),
+        seen_objects=tuple(sorted(seen_o)),
+        seen_pipes=tuple(sorted(seen_p)),
+    )
     extras = {}
     if heading_bias_walk > 0:  # declared as the tank simulator does: a drift over the mission
-        extras["noise"] = {"ahrs": {"heading_bias_drift_rad": heading_bias_walk * np.sqrt(duration_s),
-                                    "heading_bias_drift_over_s": duration_s,
-                                    "heading_bias_initial_sigma_rad": heading_bias_sigma0}}
+        extras["noise"] = {
+            "ahrs": {
+                "heading_bias_drift_rad": heading_bias_walk * np.sqrt(duration_s),
+                "heading_bias_drift_over_s": duration_s,
+                "heading_bias_initial_sigma_rad": heading_bias_sigma0,
+            }
+        }
     meta = MissionMetadata("synthetic-circling", sensors, ground_truth=gt_map, extras=extras)
     truth = np.column_stack([pos, eul, v_true])
     idx = every(0.05)
-    return SyntheticMission(meta, meas, obs, np.array([ns(i) for i in range(n)], np.int64)[idx], truth[idx],
-                            extras={"heading_bias": bias[idx]})
+    return SyntheticMission(
+        meta,
+        meas,
+        obs,
+        np.array([ns(i) for i in range(n)], np.int64)[idx],
+        truth[idx],
+        extras={"heading_bias": bias[idx]},
+    )

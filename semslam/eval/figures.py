@@ -117,7 +117,9 @@ def velocities(results: Mapping[str, EstimatorResult]):
             ax.plot(t, tr.velocities[:, k], color=_color(name), lw=0.8, label=name)
             if tr.velocity_cov is not None:
                 s2 = 2 * np.sqrt(np.maximum(tr.velocity_cov[:, k, k], 0))
-                ax.fill_between(t, tr.velocities[:, k] - s2, tr.velocities[:, k] + s2, color=_color(name), alpha=0.15, lw=0)
+                ax.fill_between(
+                    t, tr.velocities[:, k] - s2, tr.velocities[:, k] + s2, color=_color(name), alpha=0.15, lw=0
+                )
     for ax, lab in zip(axes, ("u", "v", "w")):
         ax.set_ylabel(f"{lab} [m/s]")
         ax.grid(alpha=0.3)
@@ -132,7 +134,8 @@ def uncertainty_volumes(results: Mapping[str, EstimatorResult], t0: int | None =
     """Uncertainty volume (sum of log eigenvalues) of each landmark over time (Figures 11–12).
     Estimators that keep no landmark covariances (dead reckoning) are left out."""
     have = {
-        n: r for n, r in results.items()
+        n: r
+        for n, r in results.items()
         if any(len(np.atleast_1d(st)) >= 2 for st, _ in (r.history.get("landmark_volume") or {}).values())
     }
     if not have:
@@ -161,8 +164,9 @@ def update_cost(results: Mapping[str, EstimatorResult]):
         if name == "dr":
             continue
         if len(r.update_times_s) and len(r.update_n_landmarks) == len(r.update_times_s):
-            ax.scatter(r.update_n_landmarks, np.asarray(r.update_times_s) * 1e3, s=4, alpha=0.5,
-                       color=_color(name), label=name)
+            ax.scatter(
+                r.update_n_landmarks, np.asarray(r.update_times_s) * 1e3, s=4, alpha=0.5, color=_color(name), label=name
+            )
     ax.set(xlabel="landmarks in the map", ylabel="update time [ms]", yscale="log", title="per-update cost")
     ax.grid(alpha=0.3)
     if ax.get_legend_handles_labels()[0]:
@@ -183,8 +187,15 @@ def confusion_matrices(recognition: Mapping[str, dict], classes: list[str]):
         ax.imshow(Cn, cmap="Blues", vmin=0, vmax=1)
         for (i, j), v in np.ndenumerate(C):
             if v:
-                ax.text(j, i, f"{int(v)}", ha="center", va="center", fontsize=7,
-                        color="white" if Cn[i, j] > 0.5 else "black")
+                ax.text(
+                    j,
+                    i,
+                    f"{int(v)}",
+                    ha="center",
+                    va="center",
+                    fontsize=7,
+                    color="white" if Cn[i, j] > 0.5 else "black",
+                )
         ax.set_xticks(range(len(classes)), classes, rotation=60, ha="right", fontsize=7)
         ax.set_yticks(range(len(classes)), classes, fontsize=7)
         f1 = recognition[stage].get("f1")

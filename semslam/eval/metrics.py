@@ -252,8 +252,14 @@ def sonar_metrics(frontend: dict, truth: GroundTruthMap | None) -> dict:
         out.setdefault(k, None)
     if truth is None or not truth.structures:
         out["structures"] = [
-            {"model": s["model"], "found": True, "median_error_m": s.get("median_error_m"), "yaw_error_deg": None,
-             "position_error_m": None, "truth_id": None}
+            {
+                "model": s["model"],
+                "found": True,
+                "median_error_m": s.get("median_error_m"),
+                "yaw_error_deg": None,
+                "position_error_m": None,
+                "truth_id": None,
+            }
             for s in found
         ]
         return out
@@ -274,19 +280,35 @@ def sonar_metrics(frontend: dict, truth: GroundTruthMap | None) -> dict:
             d = float(np.linalg.norm(np.asarray(s["pose"])[:3, 3] - np.asarray(g.position)))
             if d <= best_d:
                 best, best_d = k, d
-        row = {"model": g.model, "truth_id": g.id, "found": best is not None, "median_error_m": None,
-               "yaw_error_deg": None, "position_error_m": None}
+        row = {
+            "model": g.model,
+            "truth_id": g.id,
+            "found": best is not None,
+            "median_error_m": None,
+            "yaw_error_deg": None,
+            "position_error_m": None,
+        }
         if best is not None:
             used.add(best)
             s = found[best]
             period = 2 * np.pi / max(int(s.get("symmetry", 1)), 1)
             dyaw = (_yaw(np.asarray(s["pose"])[:3, :3]) - _yaw(R_true)) % period
             dyaw = min(dyaw, period - dyaw)
-            row.update(median_error_m=s.get("median_error_m"), yaw_error_deg=float(np.degrees(dyaw)), position_error_m=best_d)
+            row.update(
+                median_error_m=s.get("median_error_m"), yaw_error_deg=float(np.degrees(dyaw)), position_error_m=best_d
+            )
         rows.append(row)
     for k, s in enumerate(found):
         if k not in used:
-            rows.append({"model": s["model"], "truth_id": None, "found": True, "median_error_m": s.get("median_error_m"),
-                         "yaw_error_deg": None, "position_error_m": None})
+            rows.append(
+                {
+                    "model": s["model"],
+                    "truth_id": None,
+                    "found": True,
+                    "median_error_m": s.get("median_error_m"),
+                    "yaw_error_deg": None,
+                    "position_error_m": None,
+                }
+            )
     out["structures"] = rows
     return out

@@ -47,8 +47,13 @@ def map_to_dict(result: EstimatorResult) -> dict:
             structures.append(base | {"model": lm.model, "pose": _tolist(lm.pose), "connected": list(lm.connected)})
     # Every link once (object ↔ pipe, pipe ↔ structure), as [smaller id, larger id].
     links = sorted({tuple(sorted((lm.id, c))) for lm in result.landmarks for c in lm.connected})
-    return {"estimator": result.name, "objects": objects, "pipes": pipes, "structures": structures,
-            "connectivity": [list(pair) for pair in links]}
+    return {
+        "estimator": result.name,
+        "objects": objects,
+        "pipes": pipes,
+        "structures": structures,
+        "connectivity": [list(pair) for pair in links],
+    }
 
 
 def map_geometry(landmarks: list[LandmarkEstimate]):
@@ -121,8 +126,14 @@ def build_metrics(pipeline: PipelineResult, metadata: MissionMetadata) -> dict:
         runtime = pipeline.timing_s.get(f"estimator:{name}")
         metrics["estimators"][name] = estimator_metrics(result, pipeline.truth, gt, runtime)
         if _has_distinct_online(result):
-            online = EstimatorResult(f"{name}_online", result.online_trajectory, result.landmarks, None,
-                                     result.update_times_s, result.update_n_landmarks)
+            online = EstimatorResult(
+                f"{name}_online",
+                result.online_trajectory,
+                result.landmarks,
+                None,
+                result.update_times_s,
+                result.update_n_landmarks,
+            )
             metrics["estimators"][f"{name}_online"] = estimator_metrics(online, pipeline.truth, gt, runtime)
     syn = None
     for summary in pipeline.frontend_summaries.values():

@@ -28,11 +28,17 @@ def _true_poses(truth, stamps: np.ndarray) -> np.ndarray | None:
     return T
 
 
-def labelled_object_records(pipeline: PipelineResult, metadata: MissionMetadata, view: str = "graph") -> list[ObservationRecord]:
+def labelled_object_records(
+    pipeline: PipelineResult, metadata: MissionMetadata, view: str = "graph"
+) -> list[ObservationRecord]:
     """Every object observation with a class likelihood, its true class (nearest true object to the
     observation placed with the true pose, within ``MATCH_GATE_M``) and the landmark id it ended in."""
     gt = metadata.ground_truth
-    obs = [r for r in pipeline.observations if isinstance(r.observation, PointObservation) and r.observation.class_likelihood]
+    obs = [
+        r
+        for r in pipeline.observations
+        if isinstance(r.observation, PointObservation) and r.observation.class_likelihood
+    ]
     if gt is None or not gt.objects or not obs:
         return []
     T = _true_poses(pipeline.truth, np.array([r.stamp for r in obs], np.int64))
@@ -57,7 +63,9 @@ def labelled_object_records(pipeline: PipelineResult, metadata: MissionMetadata,
     return out
 
 
-def recognition_block(pipeline: PipelineResult, metadata: MissionMetadata, syn: dict | None = None, view: str = "graph") -> dict:
+def recognition_block(
+    pipeline: PipelineResult, metadata: MissionMetadata, syn: dict | None = None, view: str = "graph"
+) -> dict:
     """metrics.json's "recognition" block: ``syn`` is the recogniser's own SYN entry (if any)."""
     records = labelled_object_records(pipeline, metadata, view)
     out: dict = {}

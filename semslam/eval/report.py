@@ -50,7 +50,9 @@ def timing_table(metrics: dict) -> list[list[str]]:
     rows.append(["sum of the stages", f"{total:.1f}", f"{duration / total:.1f}" if total > 0 and duration else "–"])
     if "wall" in timing:  # front-ends ran in their own process, beside the estimators
         wall = float(timing["wall"])
-        rows.append(["wall (front-ends in parallel)", f"{wall:.1f}", f"{duration / wall:.1f}" if wall > 0 and duration else "–"])
+        rows.append(
+            ["wall (front-ends in parallel)", f"{wall:.1f}", f"{duration / wall:.1f}" if wall > 0 and duration else "–"]
+        )
     return rows
 
 
@@ -58,10 +60,15 @@ def sonar_table(metrics: dict) -> list[list[str]]:
     sonar = metrics.get("sonar") or {}
     rows = [["structure", "found", "median point-to-model [m]", "yaw error [°]", "position error [m]"]]
     for st in sonar.get("structures") or []:
-        rows.append([
-            str(st.get("model")), "yes" if st.get("found") else "no", _fmt(st.get("median_error_m"), "{:.3f}"),
-            _fmt(st.get("yaw_error_deg"), "{:.2f}"), _fmt(st.get("position_error_m"), "{:.3f}"),
-        ])
+        rows.append(
+            [
+                str(st.get("model")),
+                "yes" if st.get("found") else "no",
+                _fmt(st.get("median_error_m"), "{:.3f}"),
+                _fmt(st.get("yaw_error_deg"), "{:.2f}"),
+                _fmt(st.get("position_error_m"), "{:.3f}"),
+            ]
+        )
     return rows if len(rows) > 1 else []
 
 
@@ -107,7 +114,9 @@ def _html_table(rows: list[list[str]]) -> str:
     return f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
 
 
-def make_figures(out_dir: Path, pipeline: PipelineResult, metadata: MissionMetadata, metrics: dict) -> list[tuple[str, Path]]:
+def make_figures(
+    out_dir: Path, pipeline: PipelineResult, metadata: MissionMetadata, metrics: dict
+) -> list[tuple[str, Path]]:
     """Render every figure that the available data allows; returns (caption, path) pairs."""
     fig_dir = out_dir / "figures"
     fig_dir.mkdir(parents=True, exist_ok=True)
@@ -115,17 +124,34 @@ def make_figures(out_dir: Path, pipeline: PipelineResult, metadata: MissionMetad
     results = pipeline.results
     classes = list(gt.classes) if gt is not None else []
     candidates = [
-        ("Trajectories: truth, DR, EKF and graph (top and side views)", "trajectories.png",
-         lambda: figures.trajectories(pipeline.truth, results)),
-        ("Maps: DR (every observation placed with the DR pose), EKF and graph over the true landmarks",
-         "maps.png", lambda: figures.maps(results, gt)),
-        ("Position error with ±2σ over time", "position_error.png",
-         lambda: figures.position_errors(pipeline.truth, results) if pipeline.truth is not None else None),
+        (
+            "Trajectories: truth, DR, EKF and graph (top and side views)",
+            "trajectories.png",
+            lambda: figures.trajectories(pipeline.truth, results),
+        ),
+        (
+            "Maps: DR (every observation placed with the DR pose), EKF and graph over the true landmarks",
+            "maps.png",
+            lambda: figures.maps(results, gt),
+        ),
+        (
+            "Position error with ±2σ over time",
+            "position_error.png",
+            lambda: figures.position_errors(pipeline.truth, results) if pipeline.truth is not None else None,
+        ),
         ("Body velocity with ±2σ over time", "velocity.png", lambda: figures.velocities(results)),
-        ("Uncertainty volume of each pipe and object over time", "uncertainty_volume.png",
-         lambda: figures.uncertainty_volumes(results, pipeline.truth.stamps[0] if pipeline.truth is not None else None)),
-        ("Recognition confusion matrices per stage", "confusion.png",
-         lambda: figures.confusion_matrices(metrics.get("recognition") or {}, classes)),
+        (
+            "Uncertainty volume of each pipe and object over time",
+            "uncertainty_volume.png",
+            lambda: figures.uncertainty_volumes(
+                results, pipeline.truth.stamps[0] if pipeline.truth is not None else None
+            ),
+        ),
+        (
+            "Recognition confusion matrices per stage",
+            "confusion.png",
+            lambda: figures.confusion_matrices(metrics.get("recognition") or {}, classes),
+        ),
         ("Per-update time against the number of landmarks", "update_cost.png", lambda: figures.update_cost(results)),
     ]
     made = []
@@ -162,8 +188,10 @@ def write_report(out_dir: str | Path, pipeline: PipelineResult, metadata: Missio
     sonar = metrics.get("sonar") or {}
     sonar_line = ""
     if sonar_rows and sonar.get("world_model_bytes") and sonar.get("raw_cloud_bytes"):
-        sonar_line = (f"World model {sonar['world_model_bytes'] / 1e3:.0f} kB for a raw cloud of "
-                      f"{sonar['raw_cloud_bytes'] / 1e6:.1f} MB ({100 * sonar['world_model_bytes'] / sonar['raw_cloud_bytes']:.2f} %).")
+        sonar_line = (
+            f"World model {sonar['world_model_bytes'] / 1e3:.0f} kB for a raw cloud of "
+            f"{sonar['raw_cloud_bytes'] / 1e6:.1f} MB ({100 * sonar['world_model_bytes'] / sonar['raw_cloud_bytes']:.2f} %)."
+        )
     md = [f"# {title}", "", mission_line, "", "## Estimators", "", _md_table(est_rows), ""]
     if rec_rows:
         md += ["## Recognition", "", _md_table(rec_rows), ""]

@@ -148,7 +148,9 @@ class BagMission(Mission):
                 bad = m.nonfinite_field()
                 if bad is not None:
                     if cfg.on_nonfinite == "error":
-                        raise MissionError(f"{where[b.topic]}: field {bad} is not finite (message at t={stamp * 1e-9:.6f} s)")
+                        raise MissionError(
+                            f"{where[b.topic]}: field {bad} is not finite (message at t={stamp * 1e-9:.6f} s)"
+                        )
                     dropped[b.sensor] += 1
                     fields[b.sensor][bad] += 1
                     continue
@@ -181,7 +183,9 @@ def _fast_paths(reader, conns, ros_version: int) -> dict[str, Ros1Fast]:
     for c in conns:
         f = ROS1_FAST.get(normalize_msgtype(c.msgtype))
         try:
-            if f is not None and _layout(reader.typestore, c.msgtype) == _layout(standard, normalize_msgtype(c.msgtype)):
+            if f is not None and _layout(reader.typestore, c.msgtype) == _layout(
+                standard, normalize_msgtype(c.msgtype)
+            ):
                 out[c.topic] = f
         except KeyError:  # a type the store does not know: the general path says what is wrong
             pass
@@ -248,9 +252,7 @@ def open_bag(path: Path):
             pass
 
 
-def _bind(
-    path: Path, topics: dict[str, str | None], cfg: ReaderConfig, side: MissionMetadata | None
-) -> list[Binding]:
+def _bind(path: Path, topics: dict[str, str | None], cfg: ReaderConfig, side: MissionMetadata | None) -> list[Binding]:
     """Which sensor reads which topic: the configuration, else the sidecar + discovery by message type."""
 
     def binding(sensor: str, kind: str, topic: str, origin: str) -> Binding:

@@ -156,9 +156,7 @@ def decode_pointcloud2_arrays(msg) -> tuple[np.ndarray, np.ndarray | None]:
         words = buf.view("<f4").reshape(n, step // 4)
         points = np.array(words[:, offs[0] // 4 : offs[0] // 4 + 3], dtype=np.float32)
     else:
-        dtype = np.dtype(
-            {"names": ["x", "y", "z"], "formats": formats[:3], "offsets": offs, "itemsize": step}
-        )
+        dtype = np.dtype({"names": ["x", "y", "z"], "formats": formats[:3], "offsets": offs, "itemsize": step})
         rec = buf.view(dtype)
         points = np.empty((n, 3), np.float32)
         for k, axis in enumerate("xyz"):
@@ -184,8 +182,14 @@ def _decode_pointcloud2(msg, sensor: str, cfg: ReaderConfig) -> PointCloud:
 
 def _decode_imu(msg, sensor: str, cfg: ReaderConfig) -> Attitude:
     q, w = msg.orientation, msg.angular_velocity
-    return _imu_attitude(stamp_ns(msg.header), sensor, (q.x, q.y, q.z, q.w), msg.orientation_covariance,
-                         (w.x, w.y, w.z), msg.angular_velocity_covariance[0])
+    return _imu_attitude(
+        stamp_ns(msg.header),
+        sensor,
+        (q.x, q.y, q.z, q.w),
+        msg.orientation_covariance,
+        (w.x, w.y, w.z),
+        msg.angular_velocity_covariance[0],
+    )
 
 
 def _imu_attitude(stamp: int, sensor: str, orientation, orientation_cov, rate, rate_cov_00: float) -> Attitude:
@@ -194,8 +198,9 @@ def _imu_attitude(stamp: int, sensor: str, orientation, orientation_cov, rate, r
     ocov = np.asarray(orientation_cov, dtype=float).reshape(3, 3)
     if ocov[0, 0] == -1.0:
         raise Unusable("orientation_covariance", "-1: no orientation in this Imu message (REP 145)")
-    return Attitude(stamp, sensor, orientation=orientation, covariance=ocov,
-                    angular_rate=rate if rate_cov_00 != -1.0 else None)
+    return Attitude(
+        stamp, sensor, orientation=orientation, covariance=ocov, angular_rate=rate if rate_cov_00 != -1.0 else None
+    )
 
 
 def _decode_fluid_pressure(msg, sensor: str, cfg: ReaderConfig) -> Depth:

@@ -59,7 +59,7 @@ class GroundTruthMap:
         return asdict(self)
 
     @classmethod
-    def from_dict(cls, d: dict) -> "GroundTruthMap":
+    def from_dict(cls, d: dict) -> GroundTruthMap:
         def tup(x):
             return None if x is None else tuple(x)
 

@@ -75,7 +75,7 @@ class Mission:
         self.dropped: Counter[str] = Counter()  # sensor -> measurements dropped as non-finite (filled by readers)
 
     @classmethod
-    def from_measurements(cls, metadata: MissionMetadata, measurements: Iterable[Measurement]) -> "Mission":
+    def from_measurements(cls, metadata: MissionMetadata, measurements: Iterable[Measurement]) -> Mission:
         items = sorted(measurements, key=lambda m: m.stamp)  # stable: equal stamps keep their order
         return cls(metadata, lambda: iter(items))
 

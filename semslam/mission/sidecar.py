@@ -78,7 +78,7 @@ def load(path: Path) -> MissionMetadata | None:
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise MissionError(f"{path}: not a readable semslam sidecar ({exc})") from None
     if not isinstance(doc, dict) or doc.get("format") != FORMAT:
-        raise MissionError(f"{path}: not a semslam sidecar (expected \"format\": \"{FORMAT}\")")
+        raise MissionError(f'{path}: not a semslam sidecar (expected "format": "{FORMAT}")')
     if doc.get("version") != VERSION:
         raise MissionError(f"{path}: sidecar version {doc.get('version')!r} not supported (expected {VERSION})")
     sensors = {}

@@ -66,23 +66,41 @@ class MissionSummary:
                 f"measurements {self.count}   dropped {self.dropped}"
             )
         lines.append("")
-        header = ("sensor", "kind", "topic", "message type", "count", "rate Hz", "first s", "last s",
-                  "duration s", "invalid", "dropped", "max gap s")
+        header = (
+            "sensor",
+            "kind",
+            "topic",
+            "message type",
+            "count",
+            "rate Hz",
+            "first s",
+            "last s",
+            "duration s",
+            "invalid",
+            "dropped",
+            "max gap s",
+        )
         rows = [header]
         t0 = self.start or 0
         for s in self.sensors:
             st = s.stats
             span = None if st.first is None else (st.last - st.first) * 1e-9
-            rows.append((
-                s.name, s.kind, s.topic or "-", short_msgtype(s.msgtype) if s.msgtype else "-", str(st.count),
-                "-" if st.rate_hz is None else f"{st.rate_hz:.2f}",
-                "-" if st.first is None else f"{(st.first - t0) * 1e-9:.3f}",
-                "-" if st.last is None else f"{(st.last - t0) * 1e-9:.3f}",
-                "-" if span is None else f"{span:.3f}",
-                str(st.invalid) if s.kind == "dvl" else "-",
-                str(st.dropped_nonfinite),
-                f"{st.max_gap_s:.3f}",
-            ))
+            rows.append(
+                (
+                    s.name,
+                    s.kind,
+                    s.topic or "-",
+                    short_msgtype(s.msgtype) if s.msgtype else "-",
+                    str(st.count),
+                    "-" if st.rate_hz is None else f"{st.rate_hz:.2f}",
+                    "-" if st.first is None else f"{(st.first - t0) * 1e-9:.3f}",
+                    "-" if st.last is None else f"{(st.last - t0) * 1e-9:.3f}",
+                    "-" if span is None else f"{span:.3f}",
+                    str(st.invalid) if s.kind == "dvl" else "-",
+                    str(st.dropped_nonfinite),
+                    f"{st.max_gap_s:.3f}",
+                )
+            )
         widths = [max(len(r[i]) for r in rows) for i in range(len(header))]
         numeric = set(range(4, len(header)))
         for r in rows:
@@ -97,13 +115,18 @@ class MissionSummary:
             if len(s.stats.gaps) > MAX_GAPS_LISTED:
                 gap_lines.append(f"  {s.name}: ... {len(s.stats.gaps) - MAX_GAPS_LISTED} more")
         if gap_lines:
-            lines += ["", f"gaps (longer than {GAP_FACTOR:g}× the stream's median period; "
-                      "DVL: between valid readings):"]
+            lines += [
+                "",
+                f"gaps (longer than {GAP_FACTOR:g}× the stream's median period; DVL: between valid readings):",
+            ]
             lines += gap_lines
         drop_lines = [
             f"  {s.name}: {s.stats.dropped_nonfinite} message(s) dropped"
-            + (f" (non-finite or unusable field: {', '.join(f'{k} ×{v}' for k, v in s.dropped_fields.items())})"
-               if s.dropped_fields else " (non-finite)")
+            + (
+                f" (non-finite or unusable field: {', '.join(f'{k} ×{v}' for k, v in s.dropped_fields.items())})"
+                if s.dropped_fields
+                else " (non-finite)"
+            )
             for s in self.sensors
             if s.stats.dropped_nonfinite
         ]
@@ -174,9 +197,16 @@ def summarize(mission: Mission, progress: bool = False) -> MissionSummary:
             max_gap_s=max_gap,
             gaps=gaps,
         )
-        out.append(SensorSummary(
-            name=name, kind=kind, topic=info.topic if info else None, msgtype=info.msgtype if info else None,
-            stats=st, dropped_fields=dict(dropped_fields.get(name, {})), period_s=period,
-        ))
+        out.append(
+            SensorSummary(
+                name=name,
+                kind=kind,
+                topic=info.topic if info else None,
+                msgtype=info.msgtype if info else None,
+                stats=st,
+                dropped_fields=dict(dropped_fields.get(name, {})),
+                period_s=period,
+            )
+        )
     source = str(getattr(mission, "path", "")) or None
     return MissionSummary(name=mission.metadata.name, source=source, sensors=out, start=t0, end=t1)

@@ -7,7 +7,7 @@ COLA2 vehicle reads without ROS or the vehicle's packages installed.
 
 from __future__ import annotations
 
-from functools import lru_cache
+from functools import cache
 from pathlib import Path
 
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
@@ -25,7 +25,7 @@ def shipped_types() -> dict:
     return types
 
 
-@lru_cache(maxsize=None)
+@cache
 def typestore(ros_version: int) -> Typestore:
     """ROS 1 (Noetic) or ROS 2 (Humble) standard types plus the shipped definitions.
 

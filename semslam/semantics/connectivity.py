@@ -70,7 +70,9 @@ def configuration_of(directions: Sequence[Sequence[float]], angle_tol_rad: float
     return TWO_COLLINEAR if float(u[0] @ u[1]) < -np.cos(angle_tol_rad) else TWO_ORTHOGONAL
 
 
-def compatible_configurations(port_directions: Sequence[Sequence[float]], angle_tol_rad: float = np.deg2rad(20.0)) -> frozenset[int]:
+def compatible_configurations(
+    port_directions: Sequence[Sequence[float]], angle_tol_rad: float = np.deg2rad(20.0)
+) -> frozenset[int]:
     """The configurations a model with ports along unit ``port_directions`` (model frame) admits:
     every configuration that some subset of its ports realises."""
     d = np.asarray(port_directions, dtype=np.float64).reshape(-1, 3)

@@ -70,7 +70,9 @@ class ClassFusion:
             raise ValueError("likelihoods must be finite and non-negative")
         return v
 
-    def update(self, landmark_id: Hashable, likelihood: Mapping[str, float] | None, configuration: int | None = None) -> None:
+    def update(
+        self, landmark_id: Hashable, likelihood: Mapping[str, float] | None, configuration: int | None = None
+    ) -> None:
         """Fuse one observation of ``landmark_id``: its class likelihood P(Z | X) (may be None when
         only the connectivity was observed) and the pipe configuration seen (1–4 or None)."""
         tr = self._tracks.setdefault(landmark_id, _Track(np.zeros(len(self.classes))))

@@ -16,7 +16,9 @@ import numpy as np
 class ConfusionModel:
     """P(Z | X) from a confusion matrix ``confusion[x, z]`` (counts) over ``classes``."""
 
-    def __init__(self, confusion: np.ndarray | Sequence[Sequence[float]], classes: Sequence[str], smoothing: float = 1.0):
+    def __init__(
+        self, confusion: np.ndarray | Sequence[Sequence[float]], classes: Sequence[str], smoothing: float = 1.0
+    ):
         c = np.asarray(confusion, dtype=np.float64)
         if c.shape != (len(classes), len(classes)):
             raise ValueError(f"confusion matrix shape {c.shape} does not match {len(classes)} classes")

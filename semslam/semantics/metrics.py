@@ -157,7 +157,9 @@ def format_table(metrics: Mapping[str, dict | None], digits: int = 3) -> str:
         m = metrics.get(stage)
         if m is None:
             continue
-        lines.append(f"| {stage} | {m['n']} | {f(m['accuracy'])} | {f(m['precision'])} | {f(m['recall'])} | {f(m['f1'])} |")
+        lines.append(
+            f"| {stage} | {m['n']} | {f(m['accuracy'])} | {f(m['precision'])} | {f(m['recall'])} | {f(m['f1'])} |"
+        )
     for stage in STAGES:
         m = metrics.get(stage)
         if m is None:

@@ -8,10 +8,11 @@ Tank mission (laser, DVL, AHRS, depth)::
 
 Sonar field mission (multibeam, DVL, AHRS, depth) over three CAD-known subsea structures::
 
-    from semslam.sim import FieldSimConfig, simulate_field, render_field_preview, structure_library
+    from semslam.sim import FieldSimConfig, simulate_field, render_field_preview
+    from semslam.models.structures import structure_library
     mission = simulate_field(FieldSimConfig(seed=0))
     render_field_preview(mission, "field.png")
-    structure_library()["manifold"].mesh                  # the structures a sonar front-end recognises
+    structure_library()["manifold"].mesh                  # the model library (semslam.models), shared with the front-ends
 
 ``semslam.sim.simulate.simulate_tank_to_bag`` / ``semslam.sim.field_mission.simulate_field_to_bag``
 are what ``semslam simulate tank`` / ``semslam simulate field`` run.
@@ -37,20 +38,11 @@ _EXPORTS = {
     "simulate_tank": "semslam.sim.simulate",
     "simulate_tank_to_bag": "semslam.sim.simulate",
     "render_preview": "semslam.sim.preview",
-    "library": "semslam.sim.cad",
-    "register_model": "semslam.sim.cad",
-    "CadModel": "semslam.sim.cad",
-    "CLASSES": "semslam.sim.cad",
     "FieldSimConfig": "semslam.sim.field_config",
     "load_field_config": "semslam.sim.field_config",
     "simulate_field": "semslam.sim.field_mission",
     "simulate_field_to_bag": "semslam.sim.field_mission",
     "render_field_preview": "semslam.sim.field_preview",
-    "structure_library": "semslam.sim.structures",
-    "register_structure": "semslam.sim.structures",
-    "StructureModel": "semslam.sim.structures",
-    "Hub": "semslam.sim.structures",
-    "STRUCTURES": "semslam.sim.structures",
 }
 
 __all__ = list(_EXPORTS)

@@ -79,9 +79,13 @@ class TrajectoryConfig(_Section):
 
     loops: float = Field(3.0, gt=0, description="loops around the structure")
     duration_s: float | None = Field(
-        None, gt=0, description="mission length (s); default rest_s + ramp_s/2 + loops × loop_period_s (490 s, 245 scans)"
+        None,
+        gt=0,
+        description="mission length (s); default rest_s + ramp_s/2 + loops × loop_period_s (490 s, 245 scans)",
     )
-    loop_period_s: float = Field(156.6667, gt=0, description="time per loop at cruise speed (s), when duration_s is unset")
+    loop_period_s: float = Field(
+        156.6667, gt=0, description="time per loop at cruise speed (s), when duration_s is unset"
+    )
     rest_s: float = Field(5.0, ge=0, description="time at rest on the surface before moving (s)")
     ramp_s: float = Field(30.0, gt=0, description="time to reach cruise speed and working depth (s)")
     semi_axes_m: tuple[float, float] = Field(
@@ -105,7 +109,10 @@ class DvlConfig(_Section):
 
     rate_hz: float = Field(5.0, gt=0, description="DVL readings per second")
     time_offset_s: float = Field(
-        0.011, ge=0, lt=1, description="first reading this long after the mission start (the sensors are not synchronised)"
+        0.011,
+        ge=0,
+        lt=1,
+        description="first reading this long after the mission start (the sensors are not synchronised)",
     )
     sigma_m_s: float = Field(0.01, gt=0, description="white noise per axis (m/s); also the message covariance")
     beam_angle_deg: float = Field(30.0, gt=0, lt=80, description="beam tilt from the DVL z axis (deg)")
@@ -118,12 +125,15 @@ class DvlConfig(_Section):
     min_valid_beams: int = Field(3, ge=1, le=4, description="fewer valid beams → the reading is invalid")
     relock_s: float = Field(1.0, ge=0, description="after losing bottom lock, time to re-acquire it (s)")
     random_dropout_rate: float = Field(
-        0.07, ge=0, lt=0.9,
+        0.07,
+        ge=0,
+        lt=0.9,
         description="fraction of the mission lost to random dropout bursts (placed ≥ 1 s clear of the wall dropouts)",
     )
     burst_s: tuple[float, float] = Field((2.0, 10.0), description="min and max duration of a dropout burst (s)")
     mount: Mount = Field(
-        default_factory=lambda: Mount(xyz=(-0.25, 0.0, 0.30)), description="behind and below the body origin, axes as {B}"
+        default_factory=lambda: Mount(xyz=(-0.25, 0.0, 0.30)),
+        description="behind and below the body origin, axes as {B}",
     )
 
 
@@ -132,7 +142,10 @@ class AhrsConfig(_Section):
 
     rate_hz: float = Field(20.0, gt=0, description="AHRS readings per second")
     time_offset_s: float = Field(
-        0.003, ge=0, lt=1, description="first reading this long after the mission start (the sensors are not synchronised)"
+        0.003,
+        ge=0,
+        lt=1,
+        description="first reading this long after the mission start (the sensors are not synchronised)",
     )
     roll_pitch_sigma_deg: float = Field(0.1, gt=0, description="white noise of roll and pitch (deg)")
     heading_sigma_deg: float = Field(0.5, gt=0, description="white noise of the heading (deg)")
@@ -148,10 +161,15 @@ class DepthConfig(_Section):
 
     rate_hz: float = Field(8.0, gt=0, description="pressure readings per second")
     time_offset_s: float = Field(
-        0.007, ge=0, lt=1, description="first reading this long after the mission start (the sensors are not synchronised)"
+        0.007,
+        ge=0,
+        lt=1,
+        description="first reading this long after the mission start (the sensors are not synchronised)",
     )
     sigma_m: float = Field(0.02, gt=0, description="white noise of the depth (m); also the message variance")
-    mount: Mount = Field(default_factory=lambda: Mount(xyz=(0.0, 0.0, -0.20)), description="20 cm above the body origin")
+    mount: Mount = Field(
+        default_factory=lambda: Mount(xyz=(0.0, 0.0, -0.20)), description="20 cm above the body origin"
+    )
 
 
 class LaserConfig(_Section):

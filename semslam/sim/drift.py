@@ -84,7 +84,7 @@ def navigation_drift(mission: Mission, lines: list[dict] | None = None, step_m: 
         e = np.arange(lo, hi + 1e-9, step_m)
 
         def when(line):  # mission time (s) at which the line passes east e
-            f = (e - line["east_from_m"]) / (line["east_to_m"] - line["east_from_m"])
+            f = (e - line["east_from_m"]) / (line["east_to_m"] - line["east_from_m"])  # noqa: B023
             return line["t_start_s"] + f * (line["t_end_s"] - line["t_start_s"])
 
         ta, tb = when(a), when(b)
@@ -105,4 +105,3 @@ def navigation_drift(mission: Mission, lines: list[dict] | None = None, step_m: 
             between_lines_max_per_pair_m=pair_max,
         )
     return out
-

@@ -29,12 +29,12 @@ from scipy.spatial.transform import Rotation
 
 from semslam.errors import ConfigError
 from semslam.mission.ground_truth import GroundTruthMap, GtPipe, GtStructure
-from semslam.sim import cad
+from semslam.models import cad
+from semslam.models.structures import StructureModel, pose_matrix, structure_library
 from semslam.sim.field_config import FieldSimConfig
 from semslam.sim.raycast import LabelledScene
 from semslam.sim.seabed import Pad, Seabed, random_seabed
 from semslam.sim.streams import rng_stream
-from semslam.sim.structures import StructureModel, pose_matrix, structure_library
 
 # geometry kinds in a FieldScene
 SEABED, STRUCTURE, PIPE = 0, 1, 2
@@ -170,9 +170,7 @@ def pipe_mesh(p, q, radius: float) -> o3d.geometry.TriangleMesh:
 def _hubs_of_size(model: StructureModel, radius: float, role: str) -> list[int]:
     idx = [i for i, h in enumerate(model.hubs) if abs(h.pipe_radius - radius) < 1e-6]
     if not idx:
-        raise ConfigError(
-            f"layout.chain: structure {role} ({model.name!r}) has no hub for a pipe of radius {radius} m"
-        )
+        raise ConfigError(f"layout.chain: structure {role} ({model.name!r}) has no hub for a pipe of radius {radius} m")
     return idx
 
 
@@ -226,8 +224,10 @@ def make_field(cfg: FieldSimConfig) -> Field:
     hubs_c = _hubs_of_size(models[2], r12, "C")
     room = min(cfg.seabed.area_m) - 2 * lay.edge_margin_m
     if max(2 * m.footprint_radius for m in models) >= room:
-        raise ConfigError(f"seabed.area_m: {list(cfg.seabed.area_m)} m leaves no room for the structures "
-                          f"with layout.edge_margin_m {lay.edge_margin_m} m")
+        raise ConfigError(
+            f"seabed.area_m: {list(cfg.seabed.area_m)} m leaves no room for the structures "
+            f"with layout.edge_margin_m {lay.edge_margin_m} m"
+        )
     rng = rng_stream(cfg.seed, "field_layout")
     alpha = np.deg2rad(lay.max_hub_angle_deg)
     for _ in range(MAX_DRAWS):
@@ -254,7 +254,7 @@ def _draw(base: Seabed, models, hubs, radii, alpha, cfg: FieldSimConfig, rng) ->
     T = {1: pose_matrix((*xy_b, float(base.base_depth(*xy_b))), yaw_b)}
     yaws = {1: yaw_b}
     ends = {}
-    for sid, hubs_b, hubs_x, radius in ((0, hubs_b01, hubs_a, radii[0]), (2, hubs_b12, hubs_c, radii[1])):
+    for sid, hubs_b, hubs_x, _radius in ((0, hubs_b01, hubs_a, radii[0]), (2, hubs_b12, hubs_c, radii[1])):
         ib = int(rng.choice(hubs_b))
         hub_b, dir_b = mB.hubs_in(T[1])[ib]
         heading = np.arctan2(dir_b[1], dir_b[0]) + rng.uniform(-alpha, alpha)

@@ -1,7 +1,7 @@
 """Configuration of the simulated sonar field mission: every default is documented in its Field.
 
 The field (issue 8): a 34 m (north) × 50 m (east) surveyed area of seabed at ~20 m with a smooth
-relief (±0.8 m), three CAD-known structures (PLET, manifold, wellhead; :mod:`semslam.sim.structures`)
+relief (±0.8 m), three CAD-known structures (PLET, manifold, wellhead; :mod:`semslam.models.structures`)
 joined by two pipelines (radius 0.25 m PLET → manifold, 0.10 m manifold → wellhead). The vehicle
 flies six east–west lines 5.5 m apart at 5 m altitude and 0.5 m/s (≈ 11.5 minutes), with a
 downward multibeam of 512 beams over 80° every 4 cm along track (12.5 Hz), a DVL (5 Hz), an AHRS

@@ -11,8 +11,8 @@ from pathlib import Path
 import numpy as np
 from matplotlib import colormaps
 from matplotlib.cm import ScalarMappable
-from matplotlib.colors import LightSource, Normalize
 from matplotlib.collections import PolyCollection
+from matplotlib.colors import LightSource, Normalize
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.patches import Patch, Rectangle
@@ -20,9 +20,9 @@ from scipy.spatial.transform import Rotation
 
 from semslam.mission.measurements import GroundTruthPose, SonarSwath
 from semslam.mission.mission import Mission
-from semslam.sim import cad
+from semslam.models import cad
+from semslam.models.structures import STRUCTURE_COLORS, structure_library
 from semslam.sim.seabed import Seabed
-from semslam.sim.structures import STRUCTURE_COLORS, structure_library
 
 PIPE_COLOR = (0.25, 0.25, 0.25)
 TRACK_COLOR = (0.05, 0.25, 0.75)
@@ -132,20 +132,40 @@ def render_field_preview(mission: Mission, png_path: str | Path) -> None:
             _silhouette(ax_top, *mesh, 1, 0, color, 5, edge=tuple(0.5 * c for c in color))
         seen = gt.seen_structures is None or s.id in gt.seen_structures
         away = _away_from_pipes(s, gt)  # label on the side without pipelines
-        ax_top.annotate(f"{s.id}: {s.model}" + ("" if seen else " (unseen)"), (s.position[1], s.position[0]),
-                        xytext=(34 * away[1], 34 * away[0]), textcoords="offset points", ha="center", va="center",
-                        fontsize=10, weight="bold", color="k", zorder=7,
-                        bbox=dict(boxstyle="round,pad=0.2", fc="w", ec="none", alpha=0.8))
+        ax_top.annotate(
+            f"{s.id}: {s.model}" + ("" if seen else " (unseen)"),
+            (s.position[1], s.position[0]),
+            xytext=(34 * away[1], 34 * away[0]),
+            textcoords="offset points",
+            ha="center",
+            va="center",
+            fontsize=10,
+            weight="bold",
+            color="k",
+            zorder=7,
+            bbox=dict(boxstyle="round,pad=0.2", fc="w", ec="none", alpha=0.8),
+        )
     for p in pipes:
         a, b = np.asarray(p.p), np.asarray(p.q)
         mid = (a + b) / 2
         side = np.array([-(b - a)[1], (b - a)[0]]) / max(np.linalg.norm((b - a)[:2]), 1e-9)  # across the pipe
         side = side if side[0] >= 0 else -side  # on its northern side
-        ax_top.annotate(f"pipe {p.id}, r {p.radius:.2f} m", (mid[1], mid[0]), xytext=(18 * side[1], 18 * side[0]),
-                        textcoords="offset points", ha="center", va="center", fontsize=9, zorder=7,
-                        bbox=dict(boxstyle="round,pad=0.2", fc="w", ec="none", alpha=0.8))
-    ax_top.set(title="top view (NED): seabed, structures, pipelines, track, outer swath edges",
-               xlabel="east y [m]", ylabel="north x [m]")
+        ax_top.annotate(
+            f"pipe {p.id}, r {p.radius:.2f} m",
+            (mid[1], mid[0]),
+            xytext=(18 * side[1], 18 * side[0]),
+            textcoords="offset points",
+            ha="center",
+            va="center",
+            fontsize=9,
+            zorder=7,
+            bbox=dict(boxstyle="round,pad=0.2", fc="w", ec="none", alpha=0.8),
+        )
+    ax_top.set(
+        title="top view (NED): seabed, structures, pipelines, track, outer swath edges",
+        xlabel="east y [m]",
+        ylabel="north x [m]",
+    )
     ax_top.set_aspect("equal")
     if seabed is not None:
         (bn0, bn1), (be0, be1) = seabed.bounds
@@ -187,8 +207,11 @@ def _cyl(p):
 def _pipeline_profile(ax, gt, seabed, lib) -> None:
     """Depth along the pipelines, end to end: pipe 0 from its first hub, then pipe 1 (the gap between
     them is the way across the structure they share), with the hubs marked."""
-    ax.set(title="along the pipelines: seabed and pipe (bottom under the seabed = buried)",
-           xlabel="distance along the route [m]", ylabel="depth z [m]")
+    ax.set(
+        title="along the pipelines: seabed and pipe (bottom under the seabed = buried)",
+        xlabel="distance along the route [m]",
+        ylabel="depth z [m]",
+    )
     if not gt or not gt.pipes or seabed is None:
         return
     x0, notes, hubs = 0.0, [], []
@@ -218,11 +241,26 @@ def _pipeline_profile(ax, gt, seabed, lib) -> None:
         xs = [xe for xe, k in hubs if k == sid]
         for xe in xs:
             ax.axvline(xe, color=STRUCTURE_COLORS.get(s.model, (0.5, 0.5, 0.5)), lw=2, zorder=0)
-        ax.annotate(f"{sid}: {s.model}", (float(np.mean(xs)), 1.0), xycoords=("data", "axes fraction"),
-                    xytext=(0, -12), textcoords="offset points", ha="center", fontsize=9,
-                    bbox=dict(boxstyle="round,pad=0.2", fc="w", ec="none", alpha=0.8))
-    ax.text(0.02, 0.04, "\n".join(notes), transform=ax.transAxes, fontsize=8.5, va="bottom",
-            bbox=dict(boxstyle="round,pad=0.3", fc="w", ec="0.7", alpha=0.9), zorder=5)
+        ax.annotate(
+            f"{sid}: {s.model}",
+            (float(np.mean(xs)), 1.0),
+            xycoords=("data", "axes fraction"),
+            xytext=(0, -12),
+            textcoords="offset points",
+            ha="center",
+            fontsize=9,
+            bbox=dict(boxstyle="round,pad=0.2", fc="w", ec="none", alpha=0.8),
+        )
+    ax.text(
+        0.02,
+        0.04,
+        "\n".join(notes),
+        transform=ax.transAxes,
+        fontsize=8.5,
+        va="bottom",
+        bbox=dict(boxstyle="round,pad=0.3", fc="w", ec="0.7", alpha=0.9),
+        zorder=5,
+    )
     lo, hi = ax.get_ylim()
     ax.set_ylim(hi + 0.9, lo - 0.4)  # depth down, room for the notes
     ax.grid(alpha=0.3)
@@ -246,9 +284,16 @@ def _side_view(ax, gt, seabed, lib, P) -> None:
         ax.plot(P[:, 2], P[:, 3], color=TRACK_COLOR, lw=1.5, zorder=5, label="track")
         if seabed is not None:
             alt = seabed.depth(P[:, 1], P[:, 2]) - P[:, 3]
-            ax.text(0.02, 0.85, f"track altitude over the seabed {alt.min():.1f}–{alt.max():.1f} m (over the structures: less)",
-                    transform=ax.transAxes, ha="left", va="top", fontsize=8.5,
-                    bbox=dict(boxstyle="round,pad=0.3", fc="w", ec="0.7", alpha=0.9))
+            ax.text(
+                0.02,
+                0.85,
+                f"track altitude over the seabed {alt.min():.1f}–{alt.max():.1f} m (over the structures: less)",
+                transform=ax.transAxes,
+                ha="left",
+                va="top",
+                fontsize=8.5,
+                bbox=dict(boxstyle="round,pad=0.3", fc="w", ec="0.7", alpha=0.9),
+            )
     ax.invert_yaxis()
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8, loc="upper right")

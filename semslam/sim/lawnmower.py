@@ -21,13 +21,12 @@ from __future__ import annotations
 import functools
 
 import numpy as np
-from scipy.interpolate import CubicHermiteSpline
 from scipy.integrate import cumulative_simpson
+from scipy.interpolate import CubicHermiteSpline
 from scipy.spatial.transform import Rotation
 
 from semslam.sim.field_config import FieldTrajectoryConfig, SeabedConfig
 from semslam.sim.trajectory import MotionModel, smoothstep
-
 
 TURN_RAMP_SHARE = 0.2  # a half-turn's yaw rate ramps up over its first 20 % and down over its last 20 %
 
@@ -84,7 +83,7 @@ class Lawnmower(MotionModel):
     def lines(self) -> list[dict]:
         """The survey lines: index, north (m), east from/to (m), heading (deg), time span (s)."""
         out = []
-        for k, (s0, length, n, e, psi, sign) in enumerate(self.segments):
+        for _k, (s0, length, n, e, psi, sign) in enumerate(self.segments):
             if sign != 0 or s0 / self.v >= self.T:
                 continue
             t0, t1 = s0 / self.v, min((s0 + length) / self.v, self.T)  # the last line may be cut short

@@ -9,14 +9,14 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-from matplotlib.figure import Figure
 from matplotlib.collections import PolyCollection
+from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from scipy.spatial.transform import Rotation
 
 from semslam.mission.measurements import DvlVelocity, GroundTruthPose, PointCloud
 from semslam.mission.mission import Mission
-from semslam.sim import cad
+from semslam.models import cad
 
 
 def _object_mesh(o, lib):
@@ -97,11 +97,19 @@ def render_preview(mission: Mission, png_path: str | Path) -> None:
             if mesh is not None:
                 _draw_mesh(ax, *mesh, i_h, i_v, col, 3)
             else:
-                ax.scatter([o.position[i_h]], [o.position[i_v]], s=14, color=col, zorder=3, edgecolors="k", linewidths=0.3)
+                ax.scatter(
+                    [o.position[i_h]], [o.position[i_v]], s=14, color=col, zorder=3, edgecolors="k", linewidths=0.3
+                )
             if close:
                 seen = gt.seen_objects is None or o.id in gt.seen_objects
-                ax.annotate(str(o.id) + ("" if seen else "*"), (o.position[i_h], o.position[i_v]), fontsize=7,
-                            xytext=(5, 5), textcoords="offset points", zorder=4)
+                ax.annotate(
+                    str(o.id) + ("" if seen else "*"),
+                    (o.position[i_h], o.position[i_v]),
+                    fontsize=7,
+                    xytext=(5, 5),
+                    textcoords="offset points",
+                    zorder=4,
+                )
 
     # top views: east to the right, north up; side views: north to the right, depth down
     draw_structure(ax_top, 1, 0, False)
@@ -114,7 +122,9 @@ def render_preview(mission: Mission, png_path: str | Path) -> None:
         ax_top.plot(P[:, 2], P[:, 1], color=(0.1, 0.3, 0.8), lw=3, label="trajectory", zorder=1)
         ax_side.plot(P[:, 1], P[:, 3], color=(0.1, 0.3, 0.8), lw=1, zorder=1)
         for ax, ih, iv in ((ax_top, 2, 1), (ax_side, 1, 3)):
-            ax.scatter([P[0, ih]], [P[0, iv]], marker="^", s=60, color="g", zorder=5, label="start" if ax is ax_top else None)
+            ax.scatter(
+                [P[0, ih]], [P[0, iv]], marker="^", s=60, color="g", zorder=5, label="start" if ax is ax_top else None
+            )
         if dvl:
             st = np.array([s for s, _ in dvl])
             bad = ~np.array([v for _, v in dvl])
@@ -128,7 +138,9 @@ def render_preview(mission: Mission, png_path: str | Path) -> None:
     ax_top.set(title="top view (NED)", xlabel="east y [m]", ylabel="north x [m]")
     ax_side.set(title="side view from the east", xlabel="north x [m]", ylabel="depth z [m]")
     ax_side.invert_yaxis()
-    ax_ztop.set(title="structure from above (ids; * = never hit by the laser)", xlabel="east y [m]", ylabel="north x [m]")
+    ax_ztop.set(
+        title="structure from above (ids; * = never hit by the laser)", xlabel="east y [m]", ylabel="north x [m]"
+    )
     ax_zside.set(title="structure from the east", xlabel="north x [m]", ylabel="depth z [m]")
     ax_zside.invert_yaxis()
     if "structure_bounds" in scene:

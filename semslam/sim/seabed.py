@@ -67,8 +67,10 @@ class Seabed:
             z = z + w * (p.depth - z)
         return z
 
-    def with_pads(self, pads) -> "Seabed":
-        return Seabed(self.depth_m, self.offset_m, self.gradient, self.bumps, self.bounds, self.resolution_m, tuple(pads))
+    def with_pads(self, pads) -> Seabed:
+        return Seabed(
+            self.depth_m, self.offset_m, self.gradient, self.bumps, self.bounds, self.resolution_m, tuple(pads)
+        )
 
     def grid(self, resolution_m: float | None = None) -> tuple[np.ndarray, np.ndarray]:
         """North and east coordinates of the mesh grid (1-D each)."""
@@ -107,7 +109,7 @@ class Seabed:
         }
 
     @classmethod
-    def from_dict(cls, d: dict) -> "Seabed":
+    def from_dict(cls, d: dict) -> Seabed:
         return cls(
             depth_m=float(d["depth_m"]),
             offset_m=float(d["offset_m"]),

@@ -223,7 +223,12 @@ def simulate_ahrs(
 
 
 def simulate_depth(
-    cfg: DepthConfig, traj: MotionModel, stamps: np.ndarray, t: np.ndarray, rng: np.random.Generator, sensor: str = "depth"
+    cfg: DepthConfig,
+    traj: MotionModel,
+    stamps: np.ndarray,
+    t: np.ndarray,
+    rng: np.random.Generator,
+    sensor: str = "depth",
 ) -> list[Depth]:
     """Depth of the pressure sensor (z of p_WB + R_WB t_BS) plus white noise."""
     t_BS = cfg.mount.matrix()[:3, 3]
@@ -236,7 +241,9 @@ def simulate_depth(
 def ground_truth_poses(traj: MotionModel, stamps: np.ndarray, t: np.ndarray, sensor: str = "ground_truth"):
     p, _ = traj.position_velocity(t)
     q = traj.rotation(t).as_quat()
-    return [GroundTruthPose(stamp=int(stamps[i]), sensor=sensor, position=p[i], orientation=q[i]) for i in range(len(t))]
+    return [
+        GroundTruthPose(stamp=int(stamps[i]), sensor=sensor, position=p[i], orientation=q[i]) for i in range(len(t))
+    ]
 
 
 # ----------------------------------------------------------------------------------------------

@@ -29,6 +29,7 @@ SENSORS = {
     "ground_truth": ("ground_truth", "/sim/ground_truth/odom", "nav_msgs/msg/Odometry"),
 }
 
+
 def _rng(seed: int, purpose: str) -> np.random.Generator:
     return rng_stream(seed, purpose)
 
@@ -94,9 +95,7 @@ def simulate_nav(
     ``depth`` and ``ground_truth`` sections; ``dvl_options`` go to :func:`sensors.simulate_dvl`."""
     seed, T = cfg.seed, duration_s
     st, t = S.sample_times(start_ns, cfg.dvl.rate_hz, T, offset_s=cfg.dvl.time_offset_s)
-    dvl = S.simulate_dvl(
-        cfg.dvl, traj, scene, st, t, _rng(seed, "dvl_noise"), _rng(seed, "dvl_dropout"), **dvl_options
-    )
+    dvl = S.simulate_dvl(cfg.dvl, traj, scene, st, t, _rng(seed, "dvl_noise"), _rng(seed, "dvl_dropout"), **dvl_options)
     st, t = S.sample_times(start_ns, cfg.ahrs.rate_hz, T, offset_s=cfg.ahrs.time_offset_s)
     bias = S.heading_bias(cfg.ahrs, t, T, _rng(seed, "heading_bias"))
     ahrs = S.simulate_ahrs(cfg.ahrs, traj, st, t, _rng(seed, "ahrs"), bias)

@@ -7,7 +7,7 @@ The structure is a tree of straight PVC pipes laid along the edges of a small 3-
 on the floor. Fittings sit at lattice nodes and are chosen by the pipe directions meeting there
 (two orthogonal → Elbow, T-shaped three → R-Tee or 3-Way-Ball-Valve, two collinear → an in-line
 part); in-line parts (Ball-Valve, Butterfly-Valve, R-Socket) may also sit mid-edge, and valves at
-free pipe ends. Every object is the CAD mesh of :mod:`semslam.sim.cad` placed so that its ports lie
+free pipe ends. Every object is the CAD mesh of :mod:`semslam.models.cad` placed so that its ports lie
 on the pipe axes: a pipe's end point *is* the port position of the object it enters.
 """
 
@@ -23,7 +23,7 @@ from scipy.spatial.transform import Rotation
 
 from semslam.errors import ConfigError
 from semslam.mission.ground_truth import GroundTruthMap, GtObject, GtPipe
-from semslam.sim import cad
+from semslam.models import cad
 from semslam.sim.config import StructureConfig, TankConfig
 from semslam.sim.raycast import LabelledScene
 
@@ -257,7 +257,9 @@ def layout_from_dict(data: dict, source: str = "layout") -> Layout:
         T[:3, :3] = _rotation_from_quat_or_rpy(e, where)
         T[:3, 3] = _vec3(e["position"], f"{where}.position")
         infer |= "pipes" not in e
-        objects.append(PlacedObject(int(e.get("id", i)), str(e["cls"]), model, T, tuple(int(p) for p in e.get("pipes", ()))))
+        objects.append(
+            PlacedObject(int(e.get("id", i)), str(e["cls"]), model, T, tuple(int(p) for p in e.get("pipes", ())))
+        )
     if len({o.id for o in objects}) != len(objects) or len({p.id for p in pipes}) != len(pipes):
         raise ConfigError(f"{source}: object and pipe ids must be unique")
     layout = Layout(objects, pipes)
@@ -351,9 +353,7 @@ def generate_layout(cfg: StructureConfig, tank: TankConfig, seed: int) -> Layout
             return _try_generate(cfg, tank, rng)
         except _Retry:
             continue
-    raise ConfigError(
-        "structure: no layout satisfies min_objects/min_pipes/min_pipe_length_m on this grid; relax them"
-    )
+    raise ConfigError("structure: no layout satisfies min_objects/min_pipes/min_pipe_length_m on this grid; relax them")
 
 
 def _try_generate(cfg: StructureConfig, tank: TankConfig, rng: np.random.Generator) -> Layout:
@@ -385,7 +385,11 @@ def _try_generate(cfg: StructureConfig, tank: TankConfig, rng: np.random.Generat
         raise _Retry
     order = rng.permutation(len(tees))
     for i, j in enumerate(order):
-        node_cls[tees[j]] = (cad.R_TEE, cad.THREE_WAY_BALL_VALVE)[i] if i < 2 else str(rng.choice([cad.R_TEE, cad.THREE_WAY_BALL_VALVE]))
+        node_cls[tees[j]] = (
+            (cad.R_TEE, cad.THREE_WAY_BALL_VALVE)[i]
+            if i < 2
+            else str(rng.choice([cad.R_TEE, cad.THREE_WAY_BALL_VALVE]))
+        )
 
     # --- in-line slots: collinear nodes always carry a part; leaves and mid-edges optionally
     forced = len(node_cls) + len(collinear)
@@ -496,7 +500,9 @@ def tank_meshes(tank: TankConfig) -> dict[str, o3d.geometry.TriangleMesh]:
     D, fx, fy = tank.depth_m, tank.floor_half_x_m, tank.floor_half_y_m
     off = D / np.tan(np.deg2rad(tank.wall_slope_deg))
     floor_c = np.array([[fx, fy, D], [-fx, fy, D], [-fx, -fy, D], [fx, -fy, D]])
-    top_c = np.array([[fx + off, fy + off, 0], [-fx - off, fy + off, 0], [-fx - off, -fy - off, 0], [fx + off, -fy - off, 0]])
+    top_c = np.array(
+        [[fx + off, fy + off, 0], [-fx - off, fy + off, 0], [-fx - off, -fy - off, 0], [fx + off, -fy - off, 0]]
+    )
     floor = o3d.geometry.TriangleMesh(
         o3d.utility.Vector3dVector(floor_c), o3d.utility.Vector3iVector(np.array([[0, 1, 2], [0, 2, 3]]))
     )

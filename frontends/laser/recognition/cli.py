@@ -4,7 +4,6 @@ through the ``semslam.commands`` entry point)."""
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Optional
 
 import typer
 
@@ -19,7 +18,7 @@ app = typer.Typer(help="CAD models that object recognition knows.", no_args_is_h
 def models_add(
     file: Path = typer.Argument(..., help="the model's mesh: STL, OBJ or PLY"),
     cls: str = typer.Option(..., "--class", help="the object class it belongs to"),
-    name: Optional[str] = typer.Option(None, "--name", help="model name (default: the file's stem)"),
+    name: str | None = typer.Option(None, "--name", help="model name (default: the file's stem)"),
     scale: float = typer.Option(1.0, "--scale", help="factor to metres (e.g. 0.001 for a mesh in mm)"),
 ):
     """Make a user's CAD model recognisable: render its views and cache their descriptors."""

@@ -35,7 +35,11 @@ def smooth_regions(
         cosang = np.einsum("ij,ij->i", normals[pairs[:, 0]], normals[pairs[:, 1]])
         pairs = pairs[np.arccos(np.clip(cosang, -1.0, 1.0)) < eps_angle]
     n = len(cloud)
-    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n)) if len(pairs) else coo_matrix((n, n))
+    graph = (
+        coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
+        if len(pairs)
+        else coo_matrix((n, n))
+    )
     _, labels = connected_components(graph, directed=False)
     sizes = np.bincount(labels)
     return [np.flatnonzero(labels == lab) for lab in np.flatnonzero(sizes >= min_points)]
@@ -64,9 +68,7 @@ def stable_regions(
     if len(keep) >= min_points:
         sub = pts[keep]
         sub_normals, _ = normals_and_curvature(sub, viewpoint, k=k, radius=3 * leaf_size)
-        regions = smooth_regions(
-            sub, sub_normals, tolerance=3 * leaf_size, eps_angle=eps_angle, min_points=min_points
-        )
+        regions = smooth_regions(sub, sub_normals, tolerance=3 * leaf_size, eps_angle=eps_angle, min_points=min_points)
         if regions:
             centroids = np.array([sub[idx].mean(axis=0) for idx in regions])
             mean_normals = np.array([sub_normals[idx].mean(axis=0) for idx in regions])

@@ -35,7 +35,11 @@ def _score(T, seg, target, surface, tol) -> PoseEstimate:
     pts = np.asarray(model.points)
     nrm = np.asarray(model.normals)
     facing = np.einsum("ij,ij->i", nrm, -pts) > 0
-    seen = np.asarray(model.select_by_index(np.flatnonzero(facing)).compute_point_cloud_distance(target)) < 2 * tol if facing.any() else np.zeros(0)
+    seen = (
+        np.asarray(model.select_by_index(np.flatnonzero(facing)).compute_point_cloud_distance(target)) < 2 * tol
+        if facing.any()
+        else np.zeros(0)
+    )
     inl = d_seg < tol
     frac_model = float(seen.mean()) if len(seen) else 0.0
     rmse = float(np.sqrt(np.mean(d_seg[inl] ** 2))) if inl.any() else np.inf
@@ -99,7 +103,9 @@ def estimate_pose(
     candidates.sort(key=lambda e: (e.fitness, -e.rmse_m), reverse=True)
     best: PoseEstimate | None = None
     for cand in candidates[:refine]:
-        reg = o3d.pipelines.registration.registration_icp(model_pcd, target, max_correspondence_m, cand.T_SM, p2plane, fine)
+        reg = o3d.pipelines.registration.registration_icp(
+            model_pcd, target, max_correspondence_m, cand.T_SM, p2plane, fine
+        )
         est = _score(reg.transformation, seg, target, surface, max_correspondence_m)
         if best is None or (est.fitness, -est.rmse_m) > (best.fitness, -best.rmse_m):
             best = est

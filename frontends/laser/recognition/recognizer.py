@@ -31,6 +31,7 @@ from frontends.laser.recognition.matching import (
     svm_features,
 )
 from frontends.laser.recognition.pose import ModelSurface, PoseEstimate, estimate_pose
+from frontends.laser.recognition.vfh import vfh
 from frontends.laser.recognition.views import (
     RecognitionError,
     ViewDatabase,
@@ -40,7 +41,6 @@ from frontends.laser.recognition.views import (
     render_views,
     write_atomic,
 )
-from frontends.laser.recognition.vfh import vfh
 from semslam.semantics.connectivity import ConnectivityTable, compatible_configurations
 from semslam.semantics.likelihood import ConfusionModel
 from semslam.semantics.metrics import confusion_matrix
@@ -228,7 +228,9 @@ class Recognizer:
             lik = {c: 1.0 for c in self.classes}
         return self._with_connectivity(lik, connectivity)
 
-    def classify_many(self, clouds: Sequence[np.ndarray], connectivities: Sequence | None = None) -> list[dict[str, float]]:
+    def classify_many(
+        self, clouds: Sequence[np.ndarray], connectivities: Sequence | None = None
+    ) -> list[dict[str, float]]:
         """``classify`` of every segment of a scan (the same likelihoods), their ESF descriptors
         computed together (:func:`esf_many`: one pass of numpy calls for all the segments)."""
         conns = list(connectivities) if connectivities is not None else [None] * len(clouds)
@@ -263,7 +265,9 @@ class Recognizer:
                     lik = {c: v * m for (c, v), m in zip(lik.items(), mask)}
         return lik
 
-    def pose(self, cloud: np.ndarray, recognition: Recognition | None = None, n_views: int = 12) -> tuple[str, PoseEstimate]:
+    def pose(
+        self, cloud: np.ndarray, recognition: Recognition | None = None, n_views: int = 12
+    ) -> tuple[str, PoseEstimate]:
         """Name of the recognised model and its pose T_SM: ICP started from the camera poses of
         the ``n_views`` views of that model nearest to the segment's descriptor."""
         pts = np.asarray(cloud, dtype=np.float64)
@@ -273,7 +277,11 @@ class Recognizer:
             self._surfaces[mi] = ModelSurface(self._mesh_of(mi), seed=self.seed)
         views = np.flatnonzero(self.db.view_model == mi)
         q = self.describe(pts)
-        d = set_distances(q, [self._features[v] for v in views]) if self.descriptor == "cvfh" else chi2_distances(q, self._features[views])
+        d = (
+            set_distances(q, [self._features[v] for v in views])
+            if self.descriptor == "cvfh"
+            else chi2_distances(q, self._features[views])
+        )
         best = views[np.argsort(d)[:n_views]]
         return self.db.models[mi].name, estimate_pose(pts, self._surfaces[mi], self.db.T_CM[best])
 
@@ -291,7 +299,9 @@ class Recognizer:
         pred = [self.recognise(c).cls for c in clouds]
         return confusion_matrix(list(labels), pred, self.classes)
 
-    def calibrate(self, models: dict, params: HeldOutParams = HeldOutParams(), angular_resolution_rad: float | None = None) -> np.ndarray:
+    def calibrate(
+        self, models: dict, params: HeldOutParams = HeldOutParams(), angular_resolution_rad: float | None = None
+    ) -> np.ndarray:
         """Measure the SYN confusion on held-out views of ``models`` and use it as P(Z | X)."""
         res = angular_resolution_rad or ViewParams().angular_resolution_rad
         clouds, labels = held_out_views(models, params, res)
@@ -316,7 +326,7 @@ def default_recognizer(
     """A recogniser over the built-in CAD library (plus registered user models), calibrated on
     held-out synthetic views; the views and the SYN confusion are cached (by model content and
     parameters), so only the first call pays for rendering."""
-    from frontends.laser.recognition.views import builtin_models, load_database, registered_models, _read_mesh
+    from frontends.laser.recognition.views import _read_mesh, builtin_models, load_database, registered_models
 
     models = builtin_models() if models is None else dict(models)
     for name, entry in registered_models(cache_dir).items():

@@ -38,7 +38,9 @@ from frontends.laser.recognition.matching import principal_extents
 from frontends.laser.recognition.vfh import vfh
 from semslam.errors import SemslamError
 
-DESCRIPTOR_VERSION = "3"  # bump when a descriptor's definition changes: invalidates the cache (3: ESF bins rounded as PCL)
+DESCRIPTOR_VERSION = (
+    "3"  # bump when a descriptor's definition changes: invalidates the cache (3: ESF bins rounded as PCL)
+)
 CAD_SUFFIXES = (".stl", ".obj", ".ply")
 
 
@@ -58,7 +60,13 @@ class ViewParams:
     seed: int = 0
 
     def __post_init__(self):
-        if self.n_views < 1 or not self.distances_m or min(self.distances_m) <= 0 or self.angular_resolution_rad <= 0 or self.range_sigma_m < 0:
+        if (
+            self.n_views < 1
+            or not self.distances_m
+            or min(self.distances_m) <= 0
+            or self.angular_resolution_rad <= 0
+            or self.range_sigma_m < 0
+        ):
             raise RecognitionError(f"invalid view parameters: {self}")
 
 
@@ -350,7 +358,7 @@ def _read_mesh(path: Path, scale: float = 1.0) -> o3d.geometry.TriangleMesh:
 def builtin_models() -> dict[str, tuple[str, o3d.geometry.TriangleMesh, list]]:
     """The simulator's CAD library: name → (class, mesh, ports). Empty if it is unavailable."""
     try:
-        from semslam.sim.cad import library
+        from semslam.models.cad import library
     except ImportError:  # the simulator's CAD library is not installed in this build
         return {}
     return {name: (m.cls, m.mesh, list(m.ports)) for name, m in library().items() if m.source is None}
@@ -446,7 +454,10 @@ def load_database(
         from tqdm import tqdm
 
         items = tqdm(items, desc="CAD model views", unit="model")
-    views = [build_model_views(name, cls, mesh, params, ports=ports, cache_dir=cache_dir) for name, (cls, mesh, ports) in items]
+    views = [
+        build_model_views(name, cls, mesh, params, ports=ports, cache_dir=cache_dir)
+        for name, (cls, mesh, ports) in items
+    ]
     if include_user_models:
         for name, entry in registered_models(cache_dir).items():
             path = Path(entry["path"])
@@ -455,8 +466,13 @@ def load_database(
             ports = [(np.asarray(p, float), np.asarray(d, float)) for p, d in entry.get("ports", [])]
             views.append(
                 build_model_views(
-                    name, entry["cls"], mesh, params, ports=ports,
-                    file_bytes=path.read_bytes() + repr(entry.get("scale", 1.0)).encode(), cache_dir=cache_dir,
+                    name,
+                    entry["cls"],
+                    mesh,
+                    params,
+                    ports=ports,
+                    file_bytes=path.read_bytes() + repr(entry.get("scale", 1.0)).encode(),
+                    cache_dir=cache_dir,
                 )  # fmt: skip
             )
     if not views:

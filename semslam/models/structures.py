@@ -52,7 +52,7 @@ import numpy as np
 import open3d as o3d
 
 from semslam.errors import SemslamError
-from semslam.sim import cad
+from semslam.models import cad
 
 MANIFOLD = "manifold"
 PLET = "plet"
