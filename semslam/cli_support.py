@@ -24,3 +24,7 @@ def user_errors(fn):
             raise typer.Exit(130) from None
 
     return wrapper
+
+
+MissionArg = typer.Argument(..., help="ROS 1 .bag, ROS 2 bag directory or .mcap")
+ConfigOpt = typer.Option(None, "--config", "-c", help="YAML configuration (see `semslam config dump`)")

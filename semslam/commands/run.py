@@ -1,0 +1,43 @@
+"""`semslam run`: one estimator over a mission."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import typer
+
+from semslam.cli_support import ConfigOpt, MissionArg, user_errors
+
+
+@user_errors
+def run(
+    mission: Path = MissionArg,
+    out: Path = typer.Option(..., "--out", "-o", help="output directory"),
+    estimator: str = typer.Option("graph", "--estimator", "-e", help="graph, ekf or dr"),
+    batch: bool = typer.Option(False, "--batch", help="graph: re-optimise the whole mission at the end"),
+    frontends: str = typer.Option("", "--frontends", help="comma-separated front-end names"),
+    config: Path | None = ConfigOpt,
+):
+    """Run one estimator over a mission and write its trajectory, map and metrics."""
+    from semslam.config import load_config
+    from semslam.estimators import create_estimator
+    from semslam.eval.outputs import build_metrics, write_outputs
+    from semslam.mission.bag import read_mission
+    from semslam.pipeline import run_pipeline
+    from semslam.registry import create_frontends
+
+    cfg = load_config(config)
+    m = read_mission(mission, cfg.reader)
+    est = create_estimator(estimator, m.metadata, cfg, batch=batch)
+    names = [n.strip() for n in frontends.split(",") if n.strip()]
+    fes = create_frontends(names, m.metadata, cfg.frontends)
+    result = run_pipeline(m, [est], fes, progress=sys.stderr.isatty())
+    metrics = build_metrics(result, m.metadata)
+    write_outputs(out, cfg, result, metrics)
+    e = metrics["estimators"][est.name]
+    ate = "n/a" if e["ate_rmse_m"] is None else f"{e['ate_rmse_m']:.3f} m"
+    typer.echo(
+        f"{est.name}: ATE RMSE {ate}, {e['n_objects']} objects, {e['n_pipes']} pipes, "
+        f"{e['n_structures']} structures; outputs in {out}"
+    )
