@@ -10,8 +10,9 @@ from semslam.estimators import create_estimator
 from semslam.eval.outputs import build_metrics, write_outputs
 from semslam.eval.report import write_report
 from semslam.mission.mission import Mission, MissionMetadata
-from semslam.pipeline import PipelineResult, run_pipeline
+from semslam.pipeline import run_pipeline
 from semslam.registry import available_frontends, create_frontends
+from semslam.results import PipelineResult
 
 DEFAULT_ESTIMATORS = ("dr", "ekf", "graph")
 # Which registered front-end handles which sensor kind when the user names none.

@@ -6,39 +6,15 @@ from __future__ import annotations
 import time
 from collections import defaultdict, deque
 from collections.abc import Sequence
-from dataclasses import dataclass, field
 
 import numpy as np
 
-from semslam.estimation import Estimator, EstimatorResult, Trajectory
+from semslam.estimation import Estimator, Trajectory
 from semslam.frontend_process import FrontendProcess, default_workers, runs_in_process
 from semslam.mission.measurements import GroundTruthPose
 from semslam.mission.mission import Mission
-from semslam.observations import Observation
-from semslam.registry import Frontend, FrontendSummary
-
-
-@dataclass
-class ObservationRecord:
-    """One observation as a front-end produced it (kept for evaluation, e.g. recognition tables)."""
-
-    frontend: str
-    stamp: int
-    observation: Observation
-
-
-@dataclass
-class PipelineResult:
-    results: dict[str, EstimatorResult]
-    truth: Trajectory | None
-    observations: list[ObservationRecord] = field(default_factory=list)
-    # "read", "frontend:<name>", "estimator:<name>"; "wall" when front-ends ran in their own process
-    timing_s: dict[str, float] = field(default_factory=dict)
-    n_measurements: int = 0
-    duration_s: float = 0.0
-    frontend_summaries: dict[str, FrontendSummary] = field(default_factory=dict)
-    # Each front-end's configuration as it ran (its defaults filled in), for config.yaml.
-    frontend_configs: dict[str, dict] = field(default_factory=dict)
+from semslam.registry import Frontend
+from semslam.results import ObservationRecord, PipelineResult
 
 
 def _truth_trajectory(poses: list[GroundTruthPose]) -> Trajectory | None:

@@ -7,7 +7,7 @@ from semslam.estimation import EstimatorResult, Trajectory
 from semslam.eval.recognition import recognition_block
 from semslam.mission import GroundTruthMap, GtObject, MissionMetadata, SensorInfo
 from semslam.observations import Connectivity, PointObservation
-from semslam.pipeline import ObservationRecord, PipelineResult
+from semslam.results import ObservationRecord, PipelineResult
 
 CLASSES = ("A", "B")
 

@@ -18,7 +18,7 @@ from semslam.estimation import EstimatorResult, LandmarkEstimate
 from semslam.eval.metrics import estimator_metrics, sonar_metrics
 from semslam.eval.recognition import recognition_block
 from semslam.mission.mission import MissionMetadata
-from semslam.pipeline import PipelineResult
+from semslam.results import PipelineResult
 
 
 def _tolist(x):

@@ -8,7 +8,7 @@ import numpy as np
 
 from semslam.mission.mission import MissionMetadata
 from semslam.observations import PointObservation
-from semslam.pipeline import PipelineResult
+from semslam.results import PipelineResult
 from semslam.semantics.metrics import ObservationRecord, recognition_metrics
 
 MATCH_GATE_M = 0.10  # an object observation farther than this from every true object is a false segment

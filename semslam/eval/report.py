@@ -10,7 +10,7 @@ import matplotlib.pyplot as plt
 
 from semslam.eval import figures
 from semslam.mission.mission import MissionMetadata
-from semslam.pipeline import PipelineResult
+from semslam.results import PipelineResult
 
 ROWS = [
     ("ATE RMSE [m]", "ate_rmse_m", "{:.3f}"),
