@@ -1,5 +1,14 @@
 """User-facing errors: the CLI prints them as one line and exits non-zero, without a traceback."""
 
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any, TypeVar
+
+from pydantic import BaseModel, ValidationError
+
+M = TypeVar("M", bound=BaseModel)
+
 
 class SemslamError(Exception):
     """An error caused by the user's input (file, topic, message, configuration), not by a bug."""
@@ -11,3 +20,17 @@ class MissionError(SemslamError):
 
 class ConfigError(SemslamError):
     """A configuration file or value is invalid."""
+
+
+def validated(model: type[M], data: M | Mapping[str, Any] | None, where: str) -> M:
+    """``data`` validated as ``model`` (an instance of it is taken as it is); an invalid key is a
+    ConfigError naming it under ``where`` (e.g. ``frontends.laser.pipes.min_length: ...``)."""
+    if isinstance(data, model):
+        return data
+    try:
+        return model.model_validate(dict(data or {}))
+    except ValidationError as exc:
+        err = exc.errors()[0]
+        key = ".".join(str(x) for x in err["loc"])
+        msg = err["msg"].removeprefix("Value error, ")
+        raise ConfigError(f"{where}.{key}: {msg}" if key else f"{where}: {msg}") from None

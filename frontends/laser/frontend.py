@@ -12,7 +12,6 @@ from dataclasses import dataclass, field
 from typing import Any, ClassVar, Protocol
 
 import numpy as np
-from pydantic import ValidationError
 from scipy.spatial.transform import Rotation
 
 from frontends.laser.config import LaserConfig
@@ -21,7 +20,7 @@ from frontends.laser.objects import SegmentedObject, segment_objects
 from frontends.laser.pipes import Pipe, Rays, detect_pipes
 from frontends.laser.planes import PlaneResult, remove_planes
 from frontends.laser.preprocess import Preprocessed, hop_covariance_parts, preprocess, shape_of_parts
-from semslam.errors import ConfigError
+from semslam.errors import validated
 from semslam.mission.measurements import Attitude, PointCloud
 from semslam.observations import Connectivity, LineObservation, Observation, PointObservation
 from semslam.registry import FrontendSummary
@@ -151,6 +150,7 @@ class LaserFrontend:
     When the pipes' radius is known (the tank's 31.5 mm PVC), give it as ``pipes.radius_prior``.
     """
 
+    config_model: ClassVar[type] = LaserConfig  # its section of the configuration, frontends.<name>
     name: ClassVar[str] = "laser"
     # The AHRS gives "up" (roll and pitch), so the front-end never reads the estimate and may run in
     # a process of its own, ahead of the estimators (semslam.frontend_process).
@@ -161,12 +161,7 @@ class LaserFrontend:
     parallel_consumes: ClassVar[tuple[type, ...]] = (PointCloud,)
 
     def __init__(self, metadata: Any, config: dict | None = None, recognizer: Recognizer | None = None):
-        try:
-            self.config = LaserConfig.model_validate(dict(config or {}))
-        except ValidationError as exc:
-            err = exc.errors()[0]
-            key = ".".join(str(x) for x in err["loc"])
-            raise ConfigError(f"frontends.laser.{key}: {err['msg']}") from exc
+        self.config = validated(LaserConfig, config, "frontends.laser")
         self.metadata = metadata
         self._recognizer = recognizer
         self._latest_attitude: Attitude | None = None  # the latest AHRS reading (R_WB computed from it per scan)

@@ -11,11 +11,10 @@ from __future__ import annotations
 from typing import ClassVar
 
 import numpy as np
-from pydantic import ValidationError
 from scipy.spatial.transform import Rotation, Slerp
 
 from frontends.oracle.config import OracleConfig
-from semslam.errors import ConfigError
+from semslam.errors import ConfigError, validated
 from semslam.estimation import EstimateView
 from semslam.mission.measurements import GroundTruthPose, Measurement, PointCloud
 from semslam.mission.mission import MissionMetadata
@@ -23,16 +22,13 @@ from semslam.observations import Connectivity, LineObservation, Observation, Poi
 
 
 class OracleFrontend:
+    config_model: ClassVar[type] = OracleConfig  # its section of the configuration, frontends.<name>
     name: ClassVar[str] = "oracle"
     consumes: ClassVar[tuple[type[Measurement], ...]] = (PointCloud, GroundTruthPose)
     uses_view: ClassVar[bool] = False  # ground truth only: it may run in a process of its own
 
     def __init__(self, metadata: MissionMetadata, config: dict | None = None):
-        try:
-            self.config = OracleConfig.model_validate(config or {})
-        except ValidationError as exc:
-            err = exc.errors()[0]
-            raise ConfigError(f"frontends.oracle.{'.'.join(map(str, err['loc']))}: {err['msg']}") from exc
+        self.config = validated(OracleConfig, config, "frontends.oracle")
         if metadata.ground_truth is None:
             raise ConfigError(f"front-end 'oracle' needs a mission with ground truth ({metadata.name} has none)")
         self.metadata = metadata

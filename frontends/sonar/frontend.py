@@ -28,7 +28,6 @@ from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
 import numpy as np
-from pydantic import ValidationError
 
 from frontends.sonar.config import SonarConfig
 from frontends.sonar.grid import ElevationMap, GridSpec, estimate_ground
@@ -37,7 +36,7 @@ from frontends.sonar.pipes import PipeSegment, detect_pipes
 from frontends.sonar.recognition import Detection, Recogniser
 from frontends.sonar.registration import Registration, icp
 from frontends.sonar.swath_registration import register
-from semslam.errors import ConfigError
+from semslam.errors import ConfigError, validated
 from semslam.mission.measurements import SonarSwath
 from semslam.observations import LineObservation, Observation, OdometryObservation, StructureObservation
 from semslam.registry import FrontendSummary
@@ -69,17 +68,12 @@ def _wrap(a):
 class SonarFrontend:
     """Multibeam sonar front-end (``frontends.sonar`` section validated by :class:`SonarConfig`)."""
 
+    config_model: ClassVar[type] = SonarConfig  # its section of the configuration, frontends.<name>
     name: ClassVar[str] = "sonar"
     consumes: ClassVar[tuple[type, ...]] = (SonarSwath,)
 
     def __init__(self, metadata: Any, config: dict | None = None):
-        try:
-            self.config = SonarConfig.model_validate(dict(config or {}))
-        except ValidationError as exc:
-            err = exc.errors()[0]
-            key = ".".join(str(x) for x in err["loc"])
-            msg = err["msg"].removeprefix("Value error, ")
-            raise ConfigError(f"frontends.sonar.{key}: {msg}" if key else f"frontends.sonar: {msg}") from exc
+        self.config = validated(SonarConfig, config, "frontends.sonar")
         from semslam.models.structures import structure_library
 
         lib = structure_library()

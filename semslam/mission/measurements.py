@@ -112,10 +112,12 @@ class Depth(Measurement):
 
 @dataclass(frozen=True)
 class PointCloud(Measurement):
-    """Laser scan: N×3 float32 points in the sensor frame, optional N intensities."""
+    """Laser / stereo scan: N×3 float32 points in the sensor frame, optional N intensities and
+    optional N×3 uint8 colours (``rgb``, from a stereo camera's PointCloud2 ``rgb``/``rgba`` field)."""
 
     points: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), np.float32))
     intensity: np.ndarray | None = None
+    rgb: np.ndarray | None = None
 
     def __post_init__(self):
         pts = _frozen(self.points, dtype=np.float32)
@@ -124,6 +126,8 @@ class PointCloud(Measurement):
         object.__setattr__(self, "points", pts)
         if self.intensity is not None:
             object.__setattr__(self, "intensity", _frozen(self.intensity, dtype=np.float32, shape=(len(pts),)))
+        if self.rgb is not None:
+            object.__setattr__(self, "rgb", _frozen(self.rgb, dtype=np.uint8, shape=(len(pts), 3)))
 
 
 @dataclass(frozen=True)

@@ -8,6 +8,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from semslam.errors import MissionError
 from semslam.mission.ground_truth import GroundTruthMap
 from semslam.mission.measurements import Measurement
 
@@ -41,6 +42,17 @@ class MissionMetadata:
 
     def sensors_of_kind(self, kind: str) -> list[SensorInfo]:
         return [s for s in self.sensors.values() if s.kind == kind]
+
+    def extrinsic(self, sensor: str) -> np.ndarray:
+        """T_BS (4×4) of ``sensor``; a sensor the mission does not declare is an error, never an
+        identity silently assumed (an observation from it cannot be placed on the vehicle)."""
+        info = self.sensors.get(sensor)
+        if info is None:
+            known = ", ".join(sorted(self.sensors)) or "none"
+            raise MissionError(
+                f"mission {self.name}: sensor {sensor!r} is not declared (sensors: {known}); its extrinsic T_BS is unknown"
+            )
+        return info.T_BS
 
 
 @dataclass
