@@ -13,6 +13,8 @@ import numpy as np
 from rosbags.typesys import get_types_from_msg
 from scipy.spatial.transform import Rotation
 
+from semslam.mission.config import ReaderConfig
+from semslam.mission.conversions import Encoder
 from semslam.mission.geodesy import Geodetic, to_geodetic
 
 FORMATS = ("mcap", "sqlite3", "ros1")
@@ -54,6 +56,7 @@ class Recording:
             extra.update(get_types_from_msg(TF_MSG, "tf2_msgs/msg/TFMessage"))
         self.store.register(extra)
         self.T = self.store.types
+        self.pieces = Encoder(self.store, 1 if self.ros1 else 2, ReaderConfig())
         self.topics: dict[str, tuple[str, list]] = {}
         self.raw: dict[str, tuple[str, list]] = {}  # topic → (msgtype, [(t, bytes)]), written as they are
 
@@ -106,21 +109,18 @@ class Recording:
     def _ser(self, msg, msgtype):
         return self.store.serialize_ros1(msg, msgtype) if self.ros1 else self.store.serialize_cdr(msg, msgtype)
 
-    # -- message pieces ------------------------------------------------------------------------
+    # -- message pieces (the writer's) ---------------------------------------------------------
     def header(self, t: int, frame: str = "base_link"):
-        stamp = self.T["builtin_interfaces/msg/Time"](sec=t // S, nanosec=t % S)
-        if self.ros1:
-            return self.T["std_msgs/msg/Header"](seq=0, stamp=stamp, frame_id=frame)
-        return self.T["std_msgs/msg/Header"](stamp=stamp, frame_id=frame)
+        return self.pieces.header(t, frame)
 
     def vec3(self, v):
-        return self.T["geometry_msgs/msg/Vector3"](x=float(v[0]), y=float(v[1]), z=float(v[2]))
+        return self.pieces.vec3(v)
 
     def quat(self, q):
-        return self.T["geometry_msgs/msg/Quaternion"](x=float(q[0]), y=float(q[1]), z=float(q[2]), w=float(q[3]))
+        return self.pieces.quat(q)
 
     def point(self, p):
-        return self.T["geometry_msgs/msg/Point"](x=float(p[0]), y=float(p[1]), z=float(p[2]))
+        return self.pieces.point(p)
 
     # -- sensor messages -----------------------------------------------------------------------
     def imu(self, t, q, ocov=None, rate=(0.0, 0.0, 0.0), no_orientation=False):

@@ -33,7 +33,7 @@ def test_info_with_no_config_shows_the_binding_and_the_unread_topics(acceptance_
     assert r.exit_code == 0, r.output
     out = r.stdout
     for sensor, topic in CHOSEN.items():
-        assert f"  {sensor} ← {topic} (" in out and "chosen by the rule" in out
+        assert f"  {topic} → {sensor} (" in out and "chosen by the rule" in out
     assert "ahrs/data: receive time + offset (auto: header stamps are all zero)" in out
     assert "(-3.00 days)" in out  # the recorder's clock, days away from the vehicle's
     unread = out.split("unread topics (never read nor checked):")[1]

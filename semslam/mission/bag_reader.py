@@ -161,6 +161,7 @@ class BagMission(Mission):
                     fields[b.sensor][BACKWARDS] += 1
                     continue
                 last_stamp[topic] = stamp
+                ctx.pending.clear()
                 try:
                     if parsed is None:
                         m = b.codec.decode(msg, b.sensor, ctx)
@@ -199,6 +200,7 @@ class BagMission(Mission):
                         f"{where[topic]}: message stamped {stamp * 1e-9:.6f} s arrived after messages stamped more "
                         f"than reorder_window_s={cfg.reorder_window_s} s later (raise reorder_window_s)"
                     )
+                ctx.commit()
                 heapq.heappush(heap, (stamp, seq, m))
                 seq += 1
                 newest = max(newest, stamp)

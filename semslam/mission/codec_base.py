@@ -64,6 +64,14 @@ class DecodeContext:
     atmospheric_pressure_pa: float = STANDARD_ATMOSPHERE_PA
     datum: Geodetic | None = None
     notes: dict[str, Counter[str]] = field(default_factory=dict)  # sensor → note → count
+    pending: list[tuple[str, str]] = field(default_factory=list)  # the notes of the message being decoded
 
     def note(self, sensor: str, what: str) -> None:
-        self.notes.setdefault(sensor, Counter())[what] += 1
+        """Note an assumption made for the message being decoded; it counts once the reader keeps
+        the measurement (``commit``), not if the message is dropped."""
+        self.pending.append((sensor, what))
+
+    def commit(self) -> None:
+        for sensor, what in self.pending:
+            self.notes.setdefault(sensor, Counter())[what] += 1
+        self.pending.clear()

@@ -40,17 +40,22 @@ def _altitude(value: float) -> float | None:
     return float(value) if value >= 0 else None  # -1 (or NaN): unknown
 
 
-def decode_twist(msg, sensor: str, ctx: DecodeContext) -> DvlVelocity:
-    cov = np.asarray(msg.twist.covariance, dtype=float).reshape(6, 6)[:3, :3]
-    valid = not cov[0, 0] < 0  # -1 marks an invalid reading (same convention as cola2_msgs/DVL)
-    v = msg.twist.twist.linear
+def _marked(msg, v, cov: np.ndarray, valid: bool, sensor: str, ctx: DecodeContext, **beams) -> DvlVelocity:
+    """A reading of the UUV Simulator convention: covariance -1 when invalid, zeros when unknown."""
     return DvlVelocity(
         stamp_ns(msg.header),
         sensor,
         velocity=(v.x, v.y, v.z),
         covariance=_assumed(cov, sensor, ctx) if valid else _NAN33,
         valid=valid,
+        **beams,
     )
+
+
+def decode_twist(msg, sensor: str, ctx: DecodeContext) -> DvlVelocity:
+    cov = np.asarray(msg.twist.covariance, dtype=float).reshape(6, 6)[:3, :3]
+    valid = not cov[0, 0] < 0  # -1 marks an invalid reading (same convention as cola2_msgs/DVL)
+    return _marked(msg, msg.twist.twist.linear, cov, valid, sensor, ctx)
 
 
 def decode_uuv_dvl(msg, sensor: str, ctx: DecodeContext) -> DvlVelocity:
@@ -63,16 +68,7 @@ def decode_uuv_dvl(msg, sensor: str, ctx: DecodeContext) -> DvlVelocity:
             bool(b.range >= 0 and b.velocity_covariance >= 0 and np.isfinite(b.velocity)) for b in msg.beams
         )
     valid = not marked_invalid and (beam_valid is None or sum(beam_valid) >= ctx.cfg.dvl_min_valid_beams)
-    v = msg.velocity
-    return DvlVelocity(
-        stamp_ns(msg.header),
-        sensor,
-        velocity=(v.x, v.y, v.z),
-        covariance=_assumed(cov, sensor, ctx) if valid else _NAN33,
-        valid=valid,
-        beam_valid=beam_valid,
-        altitude=_altitude(msg.altitude),
-    )
+    return _marked(msg, msg.velocity, cov, valid, sensor, ctx, beam_valid=beam_valid, altitude=_altitude(msg.altitude))
 
 
 def decode_waterlinked_dvl(msg, sensor: str, ctx: DecodeContext) -> DvlVelocity:

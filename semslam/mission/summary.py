@@ -245,11 +245,11 @@ def reading_report(mission: Mission) -> list[str]:
         source = "header stamp" if c.source == "header" else "receive time + offset"
         lines.append(f"  {b.sensor}: {source} ({c.policy}: {c.reason})")
     origin = {"configured": "reader.sensors", "sidecar": "the mission's sidecar", "chosen": "chosen by the rule"}
-    lines += ["", "binding (sensor ← topic):"]
+    lines += ["", "binding (topic → sensor):"]
     for b in plan.binding.bindings:
         others = [u.topic for u in plan.binding.alternatives(b.kind)]
         alt = f"; alternatives: {', '.join(others)}" if others and b.origin == "chosen" else ""
-        lines.append(f"  {b.sensor} ← {b.topic} ({short_msgtype(b.msgtype)}, {origin[b.origin]}{alt})")
+        lines.append(f"  {b.topic} → {b.sensor} ({short_msgtype(b.msgtype)}, {origin[b.origin]}{alt})")
     if plan.binding.unread:
         lines += ["", "unread topics (never read nor checked):"]
         width = max(len(u.topic) for u in plan.binding.unread)
