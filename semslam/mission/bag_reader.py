@@ -43,7 +43,7 @@ from semslam.mission.config import ReaderConfig
 from semslam.mission.conversions import CODECS, ROS1_FAST, Ros1Fast
 from semslam.mission.measurements import Depth, Measurement, PointCloud
 from semslam.mission.mission import Mission, MissionMetadata, SensorInfo
-from semslam.mission.probe import probe_topics
+from semslam.mission.probe import LARGE, probe_topics
 from semslam.mission.stamps import ClockOffset, StampChoice, choose_stamp, estimate_offset
 from semslam.mission.surface import Resolved, resolve_atmosphere, resolve_datum
 from semslam.mission.typestore import add_missing_types, typestore
@@ -161,7 +161,8 @@ class BagMission(Mission):
                     fields[b.sensor][BACKWARDS] += 1
                     continue
                 last_stamp[topic] = stamp
-                ctx.pending.clear()
+                if ctx.pending:  # notes of a message dropped after decoding
+                    ctx.pending.clear()
                 try:
                     if parsed is None:
                         m = b.codec.decode(msg, b.sensor, ctx)
@@ -200,7 +201,8 @@ class BagMission(Mission):
                         f"{where[topic]}: message stamped {stamp * 1e-9:.6f} s arrived after messages stamped more "
                         f"than reorder_window_s={cfg.reorder_window_s} s later (raise reorder_window_s)"
                     )
-                ctx.commit()
+                if ctx.pending:
+                    ctx.commit()
                 heapq.heappush(heap, (stamp, seq, m))
                 seq += 1
                 newest = max(newest, stamp)
@@ -352,8 +354,11 @@ def read_mission(path: str | Path, config: ReaderConfig | None = None) -> BagMis
         }
         counts = {name: int(info.msgcount) for name, info in reader.topics.items()}
         known = {normalize_msgtype(t) for t in reader.typestore.fielddefs}
-        probes = probe_topics(reader, {t: m for t, m in topics.items() if m in CODECS}, version)
+        small = {t: m for t, m in topics.items() if m in CODECS and m not in LARGE}
+        probes = probe_topics(reader, small, version)
         binding = plan_bindings(path, topics, counts, known, cfg, side_meta, probes)
+        scans = {b.topic: b.msgtype for b in binding.bindings if b.msgtype in LARGE}
+        probes.update(probe_topics(reader, scans, version))  # their stamps, only for the scans read
         clock, foreign = estimate_offset(probes)
         stamps = {
             b.sensor: choose_stamp(b.stamp or cfg.stamp, probes.get(b.topic), foreign.get(b.topic))

@@ -1,7 +1,7 @@
 """A first look at a bag's sensor topics before they are read: the first messages of each.
 
-For every topic of a message type semslam reads, up to ``PROBE_MESSAGES`` messages (``PROBE_SCANS``
-for point clouds and scans, whose messages are large) are looked at: their header stamps (read
+For every topic of a message type semslam reads, up to ``PROBE_MESSAGES`` messages are looked at
+(point clouds and scans, whose messages are large: ``PROBE_SCANS``, and only for the topics read): their header stamps (read
 from the raw bytes: every supported message starts with a std_msgs/Header) beside the recorder's
 receive times, and, for Imu topics, whether they carry an orientation at all. The stamp policy
 (``semslam.mission.stamps``) and the choice of one topic per sensor kind
@@ -14,8 +14,8 @@ import struct
 from dataclasses import dataclass, field
 
 PROBE_MESSAGES = 64
-PROBE_SCANS = 8
-_LARGE = {"sensor_msgs/msg/PointCloud2", "sensor_msgs/msg/LaserScan"}
+PROBE_SCANS = 3
+LARGE = {"sensor_msgs/msg/PointCloud2", "sensor_msgs/msg/LaserScan"}
 _IMU = "sensor_msgs/msg/Imu"
 _TIME_LE = struct.Struct("<iI")
 _TIME_BE = struct.Struct(">iI")
@@ -58,7 +58,7 @@ def probe_topics(reader, topics: dict[str, str], ros_version: int) -> dict[str, 
     for topic, conns in by_topic.items():
         msgtype = topics[topic]
         p = out[topic] = TopicProbe(topic, msgtype)
-        limit = PROBE_SCANS if msgtype in _LARGE else PROBE_MESSAGES
+        limit = PROBE_SCANS if msgtype in LARGE else PROBE_MESSAGES
         try:
             for conn, t_bag, raw in reader.messages(connections=conns):
                 stamp = header_stamp(raw, ros_version)
