@@ -143,6 +143,8 @@ def test_configured_topic_of_unsupported_type(tmp_path, sample_mission):
 
 
 def test_stamps_going_backwards(tmp_path):
+    """Strict header stamps: an error naming file, topic and stamps. By default (auto) the topic is
+    read by receive time instead, and info says so."""
     from rosbags.rosbag1 import Writer
     from rosbags.typesys import Stores, get_typestore
 
@@ -158,9 +160,15 @@ def test_stamps_going_backwards(tmp_path):
             )
             msg = T["sensor_msgs/msg/FluidPressure"](header=hdr, fluid_pressure=101325.0, variance=1.0)
             w.write(conn, 10**9 + k * 10**8, store.serialize_ros1(msg, "sensor_msgs/msg/FluidPressure"))
+    cfg = tmp_path / "strict.yaml"
+    cfg.write_text("reader:\n  stamp: header\n")
     assert_one_line_error(
-        info(path), str(path), "topic /depth: header stamps go backwards (0.900000 s after 1.200000 s)"
+        info(path, "--config", cfg), str(path), "topic /depth: header stamps go backwards (0.900000 s after 1.200000 s)"
     )
+    r = info(path)
+    assert r.exit_code == 0, r.output
+    assert int(row(r.stdout, "depth")[4]) == 5
+    assert "depth: receive time + offset (auto: header stamps run backwards)" in r.stdout
 
 
 def test_malformed_sidecar(tmp_path, sample_mission):

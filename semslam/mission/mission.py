@@ -9,10 +9,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from semslam.errors import MissionError
+from semslam.mission.geodesy import Geodetic
 from semslam.mission.ground_truth import GroundTruthMap
 from semslam.mission.measurements import Measurement
 
-SENSOR_KINDS = ("dvl", "ahrs", "depth", "laser", "sonar", "ground_truth")
+SENSOR_KINDS = ("dvl", "ahrs", "depth", "gps", "laser", "sonar", "ground_truth")
 
 
 @dataclass
@@ -37,8 +38,9 @@ class MissionMetadata:
 
     name: str = "mission"
     sensors: dict[str, SensorInfo] = field(default_factory=dict)
-    ground_truth: GroundTruthMap | None = None
+    ground_truth: GroundTruthMap | None = None  # None: the mission has none (a real recording)
     extras: dict = field(default_factory=dict)  # e.g. the simulator's declared noise and scene
+    datum: Geodetic | None = None  # origin of the local NED frame of GPS fixes
 
     def sensors_of_kind(self, kind: str) -> list[SensorInfo]:
         return [s for s in self.sensors.values() if s.kind == kind]
