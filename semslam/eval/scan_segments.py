@@ -1,0 +1,105 @@
+"""A scan decimated for the replay, each point labelled with what the front-end made of it.
+
+The front-ends hand over observations, not per-point labels: a point is labelled from the
+observations drawn from its scan — an object's when it lies within ``tolerance_m`` of the object's
+segmented cloud, a pipe's when within the pipe's radius (+ tolerance) of its segment, a structure's
+when inside the CAD model's bounding box (+ tolerance) where the front-end placed it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from semslam.eval.replay_scene import PIPE_RGB, STRUCTURE_RGB, UNKNOWN_RGB, class_index, class_rgb, map_class
+from semslam.mission.measurements import PointCloud, SonarSwath
+from semslam.observations import LineObservation, Observation, PointObservation, StructureObservation
+
+SEGMENT_NONE, SEGMENT_PIPE, SEGMENT_OBJECT, SEGMENT_STRUCTURE = 0, 1, 2, 3
+SCAN_TYPES = (PointCloud, SonarSwath)
+DEFAULT_PIPE_RADIUS_M = 0.03
+
+
+@dataclass
+class SegmentedScan:
+    """Points (N, 3) in the sensor frame with their segment (SEGMENT_*), class index and colour."""
+
+    stamp: int
+    sensor: str
+    points: np.ndarray
+    segment: np.ndarray
+    cls: np.ndarray
+    rgb: np.ndarray
+
+
+def scan_points(measurement) -> np.ndarray:
+    """The points of a laser scan or a multibeam swath, in the sensor frame."""
+    pts = measurement.points() if isinstance(measurement, SonarSwath) else measurement.points
+    pts = np.asarray(pts, float).reshape(-1, 3)
+    return pts[np.all(np.isfinite(pts), axis=1)]
+
+
+def decimate(points: np.ndarray, voxel_m: float, max_points: int, seed: int) -> np.ndarray:
+    """One point per ``voxel_m`` cube (the first one met), then at most ``max_points`` of those
+    drawn at random (seeded: the same scan always gives the same points)."""
+    if len(points) == 0:
+        return points
+    if voxel_m > 0:
+        cells = np.floor((points - points.min(axis=0)) / voxel_m).astype(np.int64)
+        span = cells.max(axis=0) + 1
+        key = (cells[:, 0] * span[1] + cells[:, 1]) * span[2] + cells[:, 2]
+        _, first = np.unique(key, return_index=True)
+        points = points[np.sort(first)]
+    if len(points) > max_points:
+        pick = np.random.default_rng(seed).choice(len(points), max_points, replace=False)
+        points = points[np.sort(pick)]
+    return points
+
+
+def _rgb8(rgb) -> np.ndarray:
+    return np.round(np.asarray(rgb, float) * 255).astype(np.uint8)
+
+
+def _segment_distance(points: np.ndarray, p: np.ndarray, q: np.ndarray) -> np.ndarray:
+    d = q - p
+    t = np.clip((points - p) @ d / max(float(d @ d), 1e-12), 0.0, 1.0)
+    return np.linalg.norm(points - (p + t[:, None] * d), axis=1)
+
+
+def segment(
+    stamp: int,
+    sensor: str,
+    points: np.ndarray,
+    observations: Sequence[Observation],
+    tolerance_m: float,
+    structure_boxes: dict[str, tuple[np.ndarray, np.ndarray]] | None = None,
+) -> SegmentedScan:
+    """Label ``points`` (sensor frame) from the observations drawn from their scan. Objects win
+    over pipes (an object's cloud includes the pipe stubs it sits on), pipes over structures."""
+    n = len(points)
+    seg = np.full(n, SEGMENT_NONE, np.uint8)
+    cls = np.full(n, 255, np.uint8)
+    rgb = np.tile(_rgb8(UNKNOWN_RGB), (n, 1))
+    if n == 0:
+        return SegmentedScan(stamp, sensor, points.astype(np.float32), seg, cls, rgb)
+    for o in observations:  # lowest priority first: later labels overwrite
+        if isinstance(o, StructureObservation) and structure_boxes and o.model in structure_boxes:
+            lo, hi = structure_boxes[o.model]
+            local = (points - o.pose[:3, 3]) @ o.pose[:3, :3]  # into the model frame
+            inside = np.all((local >= lo - tolerance_m) & (local <= hi + tolerance_m), axis=1)
+            seg[inside], rgb[inside] = SEGMENT_STRUCTURE, _rgb8(STRUCTURE_RGB)
+    for o in observations:
+        if isinstance(o, LineObservation):
+            r = o.radius if o.radius is not None else DEFAULT_PIPE_RADIUS_M
+            on = _segment_distance(points, o.p, o.q) <= r + tolerance_m
+            seg[on], cls[on], rgb[on] = SEGMENT_PIPE, 255, _rgb8(PIPE_RGB)
+    for o in observations:
+        if isinstance(o, PointObservation) and o.cloud is not None and len(o.cloud):
+            dist, _ = cKDTree(np.asarray(o.cloud, float)).query(points, distance_upper_bound=tolerance_m)
+            on = np.isfinite(dist)
+            name, _ = map_class(o.class_likelihood)
+            seg[on], cls[on], rgb[on] = SEGMENT_OBJECT, class_index(name), _rgb8(class_rgb(name))
+    return SegmentedScan(stamp, sensor, points.astype(np.float32), seg, cls, rgb)
