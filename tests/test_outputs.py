@@ -153,3 +153,14 @@ def test_the_dead_reckoning_map_is_written_as_placed_observations(tmp_path):
     assert len(cloud.points) == 300 + 2 * 100
     assert np.allclose(np.asarray(cloud.points)[7], [7.0, 0.5, 2.0])
     assert (out / "map_dr.ply").stat().st_size < 20 * (300 + 200) + 8 * 100 + 400  # ~15 B a vertex, 8 an edge
+
+
+def test_an_empty_map_is_an_empty_ply_not_a_missing_file(tmp_path):
+    import open3d as o3d
+
+    traj = Trajectory(np.zeros(1, np.int64), np.zeros((1, 3)), np.array([[0.0, 0, 0, 1]]))
+    out = write_outputs(
+        tmp_path / "run", SemslamConfig(), PipelineResult({"graph": EstimatorResult("graph", traj)}, None), {}
+    )
+    mesh = o3d.io.read_triangle_mesh(str(out / "map_graph.ply"))
+    assert len(mesh.vertices) == 0 and (out / "map_graph.ply").read_text().startswith("ply\n")

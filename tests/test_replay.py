@@ -310,3 +310,24 @@ def test_scans_in_the_world_with_the_front_ends_segmentation(tmp_path):
         on_pipe &= np.abs(m.points[10:, 2]) <= 0.07
         assert np.array_equal(seg[10:] == 1, on_pipe)
         assert np.all(seg[10:][~on_pipe] == 0)
+
+
+def test_a_thinned_scan_keeps_what_the_front_end_labelled_first():
+    from semslam.eval.scan_segments import SEGMENT_OBJECT, SegmentedScan, keep_at_most
+
+    n = 1000
+    segment = np.zeros(n, np.uint8)
+    segment[[3, 500, 999]] = SEGMENT_OBJECT
+    scan = SegmentedScan(
+        0,
+        "laser",
+        np.arange(3 * n, dtype=np.float32).reshape(n, 3),
+        segment,
+        segment.copy(),
+        np.zeros((n, 3), np.uint8),
+    )
+    kept = keep_at_most(scan, 50, seed=7)
+    assert len(kept.points) == 50 and np.sum(kept.segment == SEGMENT_OBJECT) == 3
+    assert np.all(np.diff(kept.points[:, 0]) > 0)  # in scan order
+    assert np.array_equal(keep_at_most(scan, 50, seed=7).points, kept.points)  # the same scan, the same points
+    assert keep_at_most(scan, 2000, seed=7) is scan

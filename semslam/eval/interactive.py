@@ -45,23 +45,27 @@ def _thin(n: int, at_most: int) -> np.ndarray:
     return np.arange(n) if n <= at_most else np.unique(np.linspace(0, n - 1, at_most).round().astype(int))
 
 
-def _trajectory_trace(name: str, traj: Trajectory) -> dict:
-    xyz = _enu(traj.positions[_thin(len(traj), TRAJECTORY_POINTS)])
+def _trace(group: str, label: str, points_ned, mode: str, **style) -> dict:
+    """One scatter3d trace of a legend group (the truth or an estimator), shown east-north-up."""
+    xyz = _enu(points_ned)
     return dict(
         type="scatter3d",
-        mode="lines",
+        mode=mode,
         x=xyz[:, 0],
         y=xyz[:, 1],
         z=xyz[:, 2],
-        name=f"{name} trajectory",
-        legendgroup=name,
-        legendgrouptitle=dict(text=name),
-        line=dict(
-            color=COLORS.get(name, "#7f7f7f"),
-            width=4 if name == "truth" else 3,
-            dash="dash" if name == "truth" else "solid",
-        ),
-        hoverinfo="name",
+        name=f"{group} {label}",
+        legendgroup=group,
+        legendgrouptitle=dict(text=group),
+        **style,
+    )
+
+
+def _trajectory_trace(name: str, traj: Trajectory) -> dict:
+    truth = name == "truth"
+    line = dict(color=COLORS.get(name, "#7f7f7f"), width=4 if truth else 3, dash="dash" if truth else "solid")
+    return _trace(
+        name, "trajectory", traj.positions[_thin(len(traj), TRAJECTORY_POINTS)], "lines", line=line, hoverinfo="name"
     )
 
 
@@ -74,43 +78,18 @@ def _posterior_text(posterior) -> str:
 
 def _pipes_trace(name: str, segments: list[tuple[np.ndarray, np.ndarray, str]], color: str, width: int) -> dict:
     """Pipes as one line trace: segments separated by gaps, each end hovering its text."""
-    xyz, text = [], []
+    ned, text = [], []
     for p, q, t in segments:
-        xyz += [*_enu([p, q]), [np.nan] * 3]
+        ned += [p, q, [np.nan] * 3]
         text += [t, t, ""]
-    xyz = np.array(xyz)
-    return dict(
-        type="scatter3d",
-        mode="lines",
-        x=xyz[:, 0],
-        y=xyz[:, 1],
-        z=xyz[:, 2],
-        name=f"{name} pipes",
-        legendgroup=name,
-        legendgrouptitle=dict(text=name),
-        line=dict(color=color, width=width),
-        text=text,
-        hovertemplate="%{text}<extra></extra>",
-    )
+    style = dict(line=dict(color=color, width=width), text=text, hovertemplate="%{text}<extra></extra>")
+    return _trace(name, "pipes", np.array(ned, float), "lines", **style)
 
 
 def _points_trace(name: str, label: str, xyz: np.ndarray, colors: list[str], text: list[str]) -> dict:
-    xyz = _enu(xyz)
-    return dict(
-        type="scatter3d",
-        mode="markers",
-        x=xyz[:, 0],
-        y=xyz[:, 1],
-        z=xyz[:, 2],
-        name=f"{name} {label}",
-        legendgroup=name,
-        legendgrouptitle=dict(text=name),
-        marker=dict(
-            color=colors, size=6 if name != "dr" else 3, symbol=SYMBOLS.get(name, "circle"), line=dict(width=1)
-        ),
-        text=text,
-        hovertemplate="%{text}<extra></extra>",
-    )
+    size = 3 if name in OBSERVATION_MAPS else 6
+    marker = dict(color=colors, size=size, symbol=SYMBOLS.get(name, "circle"), line=dict(width=1))
+    return _trace(name, label, xyz, "markers", marker=marker, text=text, hovertemplate="%{text}<extra></extra>")
 
 
 def _map_traces(name: str, landmarks: list[LandmarkEstimate], truth: GroundTruthMap | None) -> list[dict]:

@@ -240,7 +240,6 @@ def build_metrics(pipeline: PipelineResult, metadata: MissionMetadata) -> dict:
 def write_results(directory: Path, config: SemslamConfig, pipeline: PipelineResult, metrics: dict) -> None:
     """Write config.yaml, trajectory_<est>.tum, map_<est>.json/.ply, the front-ends' files and
     metrics.json into ``directory`` (a staging directory: see :func:`staged_output`)."""
-    import open3d as o3d
 
     directory = Path(directory)
     # the resolved configuration: the front-ends' own sections with their defaults filled in
@@ -255,13 +254,28 @@ def write_results(directory: Path, config: SemslamConfig, pipeline: PipelineResu
             write_observation_ply(directory / f"map_{name}.ply", result.landmarks)
         else:
             (directory / f"map_{name}.json").write_text(json.dumps(map_to_dict(result), indent=1))
-            o3d.io.write_triangle_mesh(str(directory / f"map_{name}.ply"), map_geometry(result.landmarks))
+            write_mesh(directory / f"map_{name}.ply", map_geometry(result.landmarks))
     for summary in pipeline.frontend_summaries.values():
         for name, writer in summary.files.items():
             target = directory / name
             target.parent.mkdir(parents=True, exist_ok=True)
             writer(target)
     (directory / "metrics.json").write_text(json.dumps(metrics, indent=2, default=_json_default))
+
+
+EMPTY_PLY = (
+    "ply\nformat ascii 1.0\nelement vertex 0\nelement face 0\nproperty list uchar int vertex_indices\nend_header\n"
+)
+
+
+def write_mesh(path: Path, mesh) -> None:
+    """An open3d mesh as PLY; an empty one as an empty PLY (open3d writes no file for it)."""
+    import open3d as o3d
+
+    if len(mesh.vertices) == 0:
+        path.write_text(EMPTY_PLY)
+    elif not o3d.io.write_triangle_mesh(str(path), mesh):  # open3d reports a failure by returning False
+        raise OutputError(f"{path}: cannot write the output (open3d could not write the mesh)")
 
 
 def write_outputs(

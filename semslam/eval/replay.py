@@ -13,7 +13,7 @@ topic                                 type                                      
                                                                                      (at most ``pose_rate_hz``)
 /semslam/<est>/path                   nav_msgs/Path                                  every ``path_period_s``
                                                                                      and at the last stamp
-/semslam/<est>/map                    visualization_msgs/MarkerArray                 each map change
+/semslam/<est>/map                    visualization_msgs/MarkerArray                 each map change (below)
 /semslam/truth/pose                   geometry_msgs/PoseStamped                      as the poses above
 /semslam/truth/path, /truth/map       nav_msgs/Path, visualization_msgs/MarkerArray  path as above; map once
 /semslam/scan/<sensor>                sensor_msgs/PointCloud2                        each scan
@@ -25,9 +25,10 @@ for the ground truth) → ``<est>/<sensor>`` (each sensor's mount, T_BS).
 
 A pose, its transform and the path are each estimator's estimate at that time (a smoother's online
 estimate); at the last stamp the path is the final (smoothed) trajectory. The map of each
-estimator in ``map_estimators`` is published after every update that changed it by more than
-``map_tolerance_m``; the final map (with the covariances a smoother only computes at the end)
-follows at the last stamp. Scans are placed in {W} with the final trajectory of
+estimator in ``map_estimators`` is read after every step that fed observations and published when
+it changed (a landmark came or went, changed class, or moved or changed its σ by more than
+``map_tolerance_m``); the final map (with the covariances a smoother only computes at the end)
+follows at the last stamp if it differs. Scans are placed in {W} with the final trajectory of
 ``scan_estimator`` (else of the first estimator).
 """
 
@@ -49,7 +50,7 @@ from scipy.spatial.transform import Rotation, Slerp
 from semslam.estimation import EstimateView, LandmarkEstimate, Trajectory
 from semslam.eval import ros_messages as rm
 from semslam.eval.replay_scene import landmark_markers, truth_markers
-from semslam.eval.scan_segments import SCAN_TYPES, SegmentedScan, decimate, scan_points, segment
+from semslam.eval.scan_segments import SCAN_TYPES, SegmentedScan, keep_at_most, scan_points, segment
 from semslam.mission.mission import MissionMetadata
 from semslam.observations import LineObservation, Observation, StructureObservation
 from semslam.results import PipelineResult
@@ -69,8 +70,10 @@ class ReplayConfig(BaseModel):
     pose_rate_hz: float = Field(5.0, gt=0, description="poses and transforms of each estimator at most this often")
     path_period_s: float = Field(10.0, gt=0, description="each estimator's path so far, every this many seconds")
     path_spacing_s: float = Field(1.0, ge=0, description="poses in a path at least this far apart in time")
-    scan_points: int = Field(600, ge=0, description="at most this many points of each scan (0: no scans)")
-    scan_voxel_m: float = Field(0.02, ge=0, description="a scan is first thinned to one point per cube of this size")
+    scan_points: int = Field(
+        600, ge=0, description="at most this many points of each scan, the labelled ones first (0: no scans)"
+    )
+    scan_voxel_m: float = Field(0.02, ge=0, description="a scan is thinned to one point per cube of this size")
     label_tolerance_m: float = Field(
         0.02, gt=0, description="a scan point within this distance of an observation's geometry takes its label"
     )
@@ -116,10 +119,12 @@ class ReplayRecorder:
 
     def _record_scan(self, m, obs: list[Observation]) -> None:
         cfg = self.config
-        pts = decimate(scan_points(m), cfg.scan_voxel_m, cfg.scan_points, seed=m.stamp % 2**32)
+        seed = m.stamp % 2**32
+        pts = scan_points(m, cfg.scan_points, cfg.scan_voxel_m, seed)
         mine = [o for o in obs if o.sensor == m.sensor and o.stamp == m.stamp]
         boxes = _structure_boxes() if any(isinstance(o, StructureObservation) for o in mine) else None
-        self.scans.append(segment(m.stamp, m.sensor, pts, mine, cfg.label_tolerance_m, boxes))
+        labelled = segment(m.stamp, m.sensor, pts, mine, cfg.label_tolerance_m, boxes)
+        self.scans.append(keep_at_most(labelled, cfg.scan_points, seed))
 
     def _record_map(self, name: str, stamp: int, landmarks: list[LandmarkEstimate]) -> None:
         """Keep ``landmarks`` as a map update of ``name`` if it differs from the last one kept."""
@@ -336,5 +341,5 @@ def how_to_open(out_dir: str | Path) -> str:
     return (
         f"replay: {out / REPLAY_FILE}\n"
         f"  Foxglove: open that file, then Layouts > Import from file: {out / LAYOUT_FILE}\n"
-        f"  RViz: ros2 bag play {out / REPLAY_FILE} --clock  (fixed frame: map)"
+        f"  RViz: ros2 bag play {out / REPLAY_FILE} --clock  (Humble: add -s mcap; fixed frame: map)"
     )

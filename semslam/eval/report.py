@@ -174,7 +174,7 @@ def make_figures(
 REPLAY_NOTE = (
     "replay.mcap is the run as a ROS 2 bag: open it in Foxglove (Open local file, then import the layout "
     "foxglove_layout.json beside it) or play it with `ros2 bag play replay.mcap --clock` for RViz "
-    "(fixed frame `map`)."
+    "(fixed frame `map`; topics and frames: semslam's README)."
 )
 
 
