@@ -80,11 +80,12 @@ def test_a_file_in_the_way_or_an_unwritable_parent_is_a_one_line_error(tmp_path)
         check_output_dir("/proc/semslam-run")
 
 
-def test_a_failure_while_writing_leaves_nothing(tmp_path):
+@pytest.mark.parametrize("failure", [RuntimeError("figure failed"), KeyboardInterrupt()])
+def test_a_failure_or_an_interrupt_while_writing_leaves_nothing(tmp_path, failure):
     def boom(path):
-        raise RuntimeError("figure failed")
+        raise failure
 
-    with pytest.raises(RuntimeError):
+    with pytest.raises(type(failure)):
         _write(tmp_path / "run", files={"figures/x.png": boom})
     assert list(tmp_path.iterdir()) == []
 

@@ -266,12 +266,20 @@ def test_one_marker_update_per_map_change(tmp_path):
         [_obj(0, 1.02, "R-Tee", 0.6), pipe],  # 6: its class changed -> update
         [_obj(0, 1.02, "R-Tee", 0.6), pipe],  # 7: same
     ]
-    est = Scripted(maps)
-    rec = ReplayRecorder(_scripted_mission().metadata, ReplayConfig(map_tolerance_m=0.005, map_estimators=("graph",)))
-    result = run_pipeline(_scripted_mission(), [est], [Segmenting()], observers=[rec])
-    rec.write(tmp_path / "r.mcap", result)
-    updates = read_bag(tmp_path / "r.mcap")["/semslam/graph/map"]
-    assert [t // 1_000_000_000 for t, _ in updates] == [1, 4, 5, 6]  # scans 1, 4, 5, 6 changed the map
+
+    def updates(period_s):
+        cfg = ReplayConfig(map_tolerance_m=0.005, map_period_s=period_s, map_estimators=("graph",))
+        rec = ReplayRecorder(_scripted_mission().metadata, cfg)
+        result = run_pipeline(_scripted_mission(), [Scripted(maps)], [Segmenting()], observers=[rec])
+        rec.write(tmp_path / "r.mcap", result)
+        out = read_bag(tmp_path / "r.mcap")["/semslam/graph/map"]
+        (tmp_path / "r.mcap").unlink()
+        return out
+
+    assert [t // 1_000_000_000 for t, _ in updates(0.0)] == [1, 4, 5, 6]  # scans 1, 4, 5, 6 changed the map
+    # read every 2 s (scans 1, 3, 5, 7): changes seen at 1, 5 (moved, a pipe) and 7 (class)
+    assert [t // 1_000_000_000 for t, _ in updates(2.0)] == [1, 5, 7]
+    updates = updates(0.0)
     _, fourth = updates[-1]
     by_ns = defaultdict(list)
     for m in fourth.markers:

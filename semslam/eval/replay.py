@@ -25,8 +25,9 @@ for the ground truth) → ``<est>/<sensor>`` (each sensor's mount, T_BS).
 
 A pose, its transform and the path are each estimator's estimate at that time (a smoother's online
 estimate); at the last stamp the path is the final (smoothed) trajectory. The map of each
-estimator in ``map_estimators`` is read after every step that fed observations and published when
-it changed (a landmark came or went, changed class, or moved or changed its σ by more than
+estimator in ``map_estimators`` is read after steps that fed observations (at most every
+``map_period_s`` of mission time, and after the front-ends' last word) and published when it
+changed (a landmark came or went, changed class, or moved or changed its σ by more than
 ``map_tolerance_m``); the final map (with the covariances a smoother only computes at the end)
 follows at the last stamp if it differs. Scans are placed in {W} with the final trajectory of
 ``scan_estimator`` (else of the first estimator).
@@ -79,6 +80,9 @@ class ReplayConfig(BaseModel):
     )
     scan_estimator: str = Field("graph", description="whose final trajectory places the scans in the world")
     map_estimators: tuple[str, ...] = Field(("graph", "ekf"), description="estimators whose map is followed")
+    map_period_s: float = Field(
+        2.0, ge=0, description="the maps are read at most this often (mission time; reading a map costs)"
+    )
     map_tolerance_m: float = Field(
         0.005, ge=0, description="a map update is published when a landmark moved (or its σ changed) by more"
     )
@@ -97,6 +101,7 @@ class ReplayRecorder:
         self.maps: dict[str, list[tuple[int, list[LandmarkEstimate]]]] = defaultdict(list)
         self._signatures: dict[str, tuple] = {}
         self._radii: list[float] = []
+        self._map_read: int | None = None  # when the maps were last read
 
     # ------------------------------------------------------------------ the PipelineObserver
     def step(
@@ -112,7 +117,9 @@ class ReplayRecorder:
         self._radii += [o.radius for o in obs if isinstance(o, LineObservation) and o.radius is not None]
         if isinstance(measurement, SCAN_TYPES) and self.config.scan_points > 0:
             self._record_scan(measurement, obs)
-        if obs:  # a map changes with what the estimators are fed
+        due = self._map_read is None or stamp - self._map_read >= self.config.map_period_s * 1e9
+        if obs and (due or measurement is None):  # a map changes with what the estimators are fed
+            self._map_read = stamp
             for name in self.config.map_estimators:
                 if name in views:
                     self._record_map(name, stamp, list(views[name].landmarks()))

@@ -85,10 +85,27 @@ def _rgb8(rgb) -> np.ndarray:
     return np.round(np.asarray(rgb, float) * 255).astype(np.uint8)
 
 
-def _segment_distance(points: np.ndarray, p: np.ndarray, q: np.ndarray) -> np.ndarray:
-    d = q - p
-    t = np.clip((points - p) @ d / max(float(d @ d), 1e-12), 0.0, 1.0)
-    return np.linalg.norm(points - (p + t[:, None] * d), axis=1)
+def _on_pipes(points: np.ndarray, pipes: list[LineObservation], tolerance_m: float) -> np.ndarray:
+    """Which points lie within a pipe's radius (+ tolerance) of its segment: all pipes at once."""
+    p = np.array([o.p for o in pipes])  # (P, 3)
+    d = np.array([o.q for o in pipes]) - p
+    r = np.array([o.radius if o.radius is not None else DEFAULT_PIPE_RADIUS_M for o in pipes])
+    v = points[None, :, :] - p[:, None, :]  # (P, N, 3)
+    t = np.clip(np.einsum("pnc,pc->pn", v, d) / np.maximum(np.einsum("pc,pc->p", d, d), 1e-12)[:, None], 0, 1)
+    dist = np.linalg.norm(v - t[..., None] * d[:, None, :], axis=2)
+    return np.any(dist <= (r + tolerance_m)[:, None], axis=0)
+
+
+def _nearest_object(points: np.ndarray, objects: list[PointObservation], tolerance_m: float) -> np.ndarray:
+    """Per point, the index of the object whose segmented cloud has a point within ``tolerance_m``
+    of it (the nearest one), or -1: one KD-tree over every cloud of the scan, one query."""
+    clouds = [np.asarray(o.cloud, float).reshape(-1, 3) for o in objects]
+    owner = np.repeat(np.arange(len(clouds)), [len(c) for c in clouds])
+    dist, idx = cKDTree(np.vstack(clouds)).query(points, distance_upper_bound=tolerance_m)
+    found = np.isfinite(dist)
+    out = np.full(len(points), -1)
+    out[found] = owner[idx[found]]
+    return out
 
 
 def segment(
@@ -113,20 +130,15 @@ def segment(
             local = (points - o.pose[:3, 3]) @ o.pose[:3, :3]  # into the model frame
             inside = np.all((local >= lo - tolerance_m) & (local <= hi + tolerance_m), axis=1)
             seg[inside], rgb[inside] = SEGMENT_STRUCTURE, _rgb8(STRUCTURE_RGB)
-    for o in observations:
-        if isinstance(o, LineObservation):
-            r = o.radius if o.radius is not None else DEFAULT_PIPE_RADIUS_M
-            on = _segment_distance(points, o.p, o.q) <= r + tolerance_m
-            seg[on], cls[on], rgb[on] = SEGMENT_PIPE, 255, _rgb8(PIPE_RGB)
-    for o in observations:
-        if isinstance(o, PointObservation) and o.cloud is not None and len(o.cloud):
-            cloud = np.asarray(o.cloud, float)
-            # only points in the cloud's box (+ tolerance) can be near it: a KD-tree query for those alone
-            near = np.flatnonzero(
-                np.all((points >= cloud.min(0) - tolerance_m) & (points <= cloud.max(0) + tolerance_m), axis=1)
-            )
-            dist, _ = cKDTree(cloud).query(points[near], distance_upper_bound=tolerance_m)
-            on = near[np.isfinite(dist)]
+    pipes = [o for o in observations if isinstance(o, LineObservation)]
+    if pipes:
+        on = _on_pipes(points, pipes, tolerance_m)
+        seg[on], cls[on], rgb[on] = SEGMENT_PIPE, 255, _rgb8(PIPE_RGB)
+    objects = [o for o in observations if isinstance(o, PointObservation) and o.cloud is not None and len(o.cloud)]
+    if objects:
+        owner = _nearest_object(points, objects, tolerance_m)
+        for k, o in enumerate(objects):
+            on = owner == k
             name, _ = map_class(o.class_likelihood)
             seg[on], cls[on], rgb[on] = SEGMENT_OBJECT, class_index(name), _rgb8(class_rgb(name))
     return SegmentedScan(stamp, sensor, points.astype(np.float32), seg, cls, rgb)
