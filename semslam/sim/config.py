@@ -21,6 +21,7 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from semslam.errors import ConfigError
+from semslam.sim.vary import merge_into
 
 Vec3 = tuple[float, float, float]
 
@@ -255,8 +256,6 @@ def build_sim_config(
 ) -> _M:
     """``model`` from its defaults ← ``base`` ← ``data`` (a YAML file's mapping, named ``source`` in
     errors) ← ``overrides`` (dotted keys with ``__`` separators)."""
-    from semslam.sim.vary import merge_into
-
     where = source or "simulation config"
     data = merge_into(copy.deepcopy(base or {}), copy.deepcopy(data))
     for key, value in overrides.items():

@@ -83,6 +83,9 @@ def run_study(
                 _run(tasks, todo, results, store, scheduler, workers, info, progress, log)
         finally:  # interrupted too: what finished is in the study
             info["wall_s"] = time.perf_counter() - t0
+            for t in todo:  # a mission that completed while the study shut down, its result unheard
+                if t.mission not in results and (rec := store.finished(t.mission)) is not None:
+                    results[t.mission] = {"mission": t.mission, "status": "ok", "wall_s": None, "record": rec}
             study = build_study(tasks, results, {k: v for k, v in previous_failures.items() if v}, info)
             write_json(out / "study.json", study)
             write_study_report(out, study)
@@ -96,7 +99,7 @@ def _run(tasks, todo, results, store, scheduler, workers, info, progress, log) -
     enabled = sys.stderr.isatty() if progress is None else progress
     n_workers = local_workers(workers, len(todo))
     with dask_client(scheduler, n_workers) as client:
-        info["workers"] = len(client.scheduler_info().get("workers", {})) if scheduler else n_workers
+        info["workers"] = len(client.nthreads()) if scheduler else n_workers
         bar = _progress(len(tasks), len(tasks) - len(todo), enabled)
         failed = 0
         try:
