@@ -7,12 +7,12 @@ in, so that the same study gives the same file on any cluster.
 from __future__ import annotations
 
 import json
-import os
 from collections.abc import Sequence
 from pathlib import Path
 
 from semslam.study.plan import MissionTask
 from semslam.study.stats import study_statistics
+from semslam.study.store import write_atomic
 
 SCHEMA = 1
 WORST = 5  # missions the report lists as the worst (largest graph ATE)
@@ -90,7 +90,4 @@ def build_study(
 
 
 def write_json(path: Path, data: dict) -> None:
-    """Write ``data`` as JSON atomically (a reader never sees half a file)."""
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    tmp.write_text(json.dumps(data, indent=1))
-    tmp.replace(path)
+    write_atomic(path, json.dumps(data, indent=1))

@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from semslam.study.stats import CONFIDENCE
+from semslam.study.store import write_atomic
 
 #: (metric, label) shown as distributions, in this order
 FIGURE_METRICS = (
@@ -213,8 +214,5 @@ def write_study_report(out_dir: Path, study: dict) -> Path:
 table{{border-collapse:collapse;margin:1em 0}}td,th{{border:1px solid #ccc;padding:3px 8px;text-align:right}}
 td:first-child,th:first-child,td:nth-child(2){{text-align:left}}img{{max-width:100%}}</style></head>
 <body>{"".join(parts)}</body></html>"""
-    path = out_dir / "report.html"
-    tmp = out_dir / ".report.html.tmp"
-    tmp.write_text(page)
-    tmp.replace(path)
-    return path
+    write_atomic(out_dir / "report.html", page)
+    return out_dir / "report.html"

@@ -60,13 +60,7 @@ def run_study(
                     "(use another --out, or remove that mission to recompute it)"
                 )
             else:
-                results[t.mission] = {
-                    "mission": t.mission,
-                    "status": "ok",
-                    "wall_s": None,
-                    "record": rec,
-                    "reused": True,
-                }
+                results[t.mission] = _finished(t, rec, reused=True)
         info = {
             "title": out.name,
             **(description or {}),
@@ -85,7 +79,7 @@ def run_study(
             info["wall_s"] = time.perf_counter() - t0
             for t in todo:  # a mission that completed while the study shut down, its result unheard
                 if t.mission not in results and (rec := store.finished(t.mission)) is not None:
-                    results[t.mission] = {"mission": t.mission, "status": "ok", "wall_s": None, "record": rec}
+                    results[t.mission] = _finished(t, rec, reused=False)
             study = build_study(tasks, results, {k: v for k, v in previous_failures.items() if v}, info)
             write_json(out / "study.json", study)
             write_study_report(out, study)
@@ -93,6 +87,11 @@ def run_study(
         return study
     finally:
         store.unlock()
+
+
+def _finished(task: MissionTask, record: dict, reused: bool) -> dict:
+    """The result of a mission found finished on disk rather than heard from its task."""
+    return {"mission": task.mission, "status": "ok", "wall_s": None, "record": record, "reused": reused}
 
 
 def _run(tasks, todo, results, store, scheduler, workers, info, progress, log) -> None:

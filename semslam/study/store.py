@@ -21,6 +21,13 @@ from semslam.errors import SemslamError
 RECORD = "study_mission.json"
 
 
+def write_atomic(path: Path, text: str) -> None:
+    """Write ``text`` to ``path`` so that a reader never sees half a file."""
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    tmp.write_text(text)
+    tmp.replace(path)
+
+
 class StudyStore:
     def __init__(self, root: str | Path):
         self.root = Path(root)
@@ -93,7 +100,5 @@ class StudyStore:
         if log is not None and log.is_file():
             shutil.copyfile(log, self.failed / f"{mission}.log")
             record = {**record, "log": str((self.failed / f"{mission}.log").relative_to(self.root))}
-        tmp = self.failed / f".{mission}.json.tmp"
-        tmp.write_text(json.dumps(record, indent=1))
-        tmp.replace(self.failed / f"{mission}.json")
+        write_atomic(self.failed / f"{mission}.json", json.dumps(record, indent=1))
         return record
