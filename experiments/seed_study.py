@@ -9,7 +9,7 @@ RMSE and SE(3)-aligned ATE, the graph/EKF and graph/DR ATE ratios, graph objects
 object median error and the recognition's SEM F1. The absolute ATE carries the offset that both SLAM
 estimators inherit from the drift before the first landmark is seen; the aligned ATE shows the shape.
 
-    python experiments/seed_study.py [--seeds 0-3] [--vary none] [--out experiments/out/seed_study]
+    python experiments/seed_study.py [--seeds 0-3] [--vary none] [--out experiments/out/seed_study] [--sim-config F]
 """
 
 from __future__ import annotations
@@ -52,9 +52,11 @@ def main() -> None:
     )
     ap.add_argument("--out", type=Path, default=Path("experiments/out/seed_study"), help="the study folder (resumable)")
     ap.add_argument("--scheduler", help="a Dask scheduler's address (default: a LocalCluster)")
+    ap.add_argument("--sim-config", help="YAML over the simulator's defaults (e.g. shorter missions)")
     args = ap.parse_args()
     cmd = ["study", "--scenario", "tank", "--seeds", args.seeds, "--vary", args.vary, "--out", str(args.out)]
     cmd += ["--scheduler", args.scheduler] if args.scheduler else []
+    cmd += ["--sim-config", args.sim_config] if args.sim_config else []
     app(cmd, standalone_mode=False)
     for m in json.loads((args.out / "study.json").read_text())["missions"]:
         print(_line(m), flush=True)
