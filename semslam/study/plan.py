@@ -11,7 +11,7 @@ import hashlib
 import json
 import re
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 from semslam.errors import ConfigError, SemslamError
@@ -30,7 +30,6 @@ class MissionTask:
     frontends: list[str] | None = None
     timeout_s: float | None = None
     keep_bag: bool = False
-    extra: dict = field(default_factory=dict)
 
     def to_dict(self) -> dict:
         return asdict(self)
