@@ -3,7 +3,8 @@ the :class:`~semslam.study.plan.MissionTask` as JSON on stdin.
 
 Simulates the mission if it is a scenario's (into ``STAGE/mission.bag``, kept with ``--keep-bags``),
 reads the bag, compares dr / ekf / graph as ``semslam compare`` does
-(:func:`semslam.compare.compare_to_dir`) into ``STAGE``, and writes the mission's record
+(:func:`semslam.compare.run_comparison`, its results and report written into ``STAGE``, which is
+itself the study's transaction), and writes the mission's record
 (``study_mission.json``) last: a stage without it is incomplete. GTSAM and Open3D live only here.
 
 Why a process and not the Dask worker itself: a timeout can kill it (a Python thread cannot be
@@ -72,14 +73,19 @@ def _drop_bag(stage: Path) -> None:
 
 def compute(task: MissionTask, stage: Path) -> dict:
     """Compute the mission into ``stage``; returns its record (also written there, last)."""
-    from semslam.compare import compare_to_dir
+    from semslam.compare import run_comparison
     from semslam.config import SemslamConfig
+    from semslam.eval.outputs import write_results
+    from semslam.eval.report import write_report
 
     t0 = time.perf_counter()
     config = SemslamConfig.model_validate(task.config)
     mission = _mission(task, stage, config)
     t_mission = time.perf_counter() - t0
-    metrics, report = compare_to_dir(mission, config, stage, task.frontends)
+    # One front-end worker: the study already runs one mission per core.
+    result, metrics = run_comparison(mission, config, task.frontends, frontend_workers=1)
+    write_results(stage, config, result, metrics)
+    report = write_report(stage, result, mission.metadata, metrics)
     if not task.keep_bag:
         _drop_bag(stage)
     record = {
