@@ -144,6 +144,7 @@ class _Topic:
     def __init__(self, topic: str, clock: TopicClock):
         self.topic = topic
         self.clock = clock
+        self.crowd_ns = int(CROWDED * clock.period_ns) if clock.period_ns else -1  # a shorter interval is crowded
         self.last: int | None = None  # the last stamp taken, in this epoch
         self.last_tbag = 0
         self.last_raw = None
@@ -156,14 +157,20 @@ class _Topic:
         self.flagged = False
         self.repeating: int | None = None  # when flagged for repeats: the first repeated stamp in its window
 
-    def note(self, flags: int, stamp: int) -> None:
-        if len(self.window) == WINDOW:
-            old = self.window[0][0]
-            self.crowded -= old & 1
-            self.repeats -= old >> 1
-        self.window.append((flags, stamp))
+    def note(self, flags: int, stamp: int) -> bool:
+        """Slide the window on by one message; True if its counts grew."""
+        w = self.window
+        if len(w) == WINDOW:
+            old = w[0][0]
+            if old:
+                self.crowded -= old & 1
+                self.repeats -= old >> 1
+        w.append((flags, stamp))
+        if not flags:
+            return False
         self.crowded += flags & 1
         self.repeats += flags >> 1
+        return True
 
     def clear_window(self) -> None:
         self.window.clear()
@@ -204,7 +211,6 @@ class StampGuard:
         self.first_drop: dict[str, dict[str, int]] = {}
         self.problems: list[ClockProblem] = []
         self.segments: list[Segment] = [Segment()]
-        self.start: int | None = None  # the recording's first stamp: mission time 0
         self._topics = {t: _Topic(t, c) for t, c in clocks.items()}
         periods = [c.period_ns or S for c in clocks.values() if c.source == "header"]
         # Long enough for every header-stamped topic to show its jump and the message after it.
@@ -212,33 +218,34 @@ class StampGuard:
         self._open: _Jump | None = None
         self._shifts: list[tuple[int, int]] = []  # (receive time, clock change) of each reset
         self._crowd_since: int | None = None
+        self._interleaved = False
         self._reported: set[tuple[str, str]] = set()
 
     # -- the stream's side ---------------------------------------------------------------------
     def admit(self, topic: str, t_bag: int, header_stamp: int, raw, item) -> list[tuple[object, int]]:
         st = self._topics[topic]
         st.seen_tbag = t_bag
-        self._expire(t_bag)
-        epoch, shift = self._receive_clock(t_bag)
+        if self._open is not None or self._crowd_since is not None:
+            self._expire(t_bag)
         if st.clock.source == "receive":
+            epoch, shift = self._receive_clock(t_bag)
             return self._take(st, epoch, t_bag + self.offset + shift, t_bag, raw, item, ordered=False)
-        stamp = header_stamp or t_bag + self.offset + shift  # a lone zero stamp: its receive time
-        out = self._settle(st, stamp) if st.suspect is not None else []
-        if st.last is not None:
-            if stamp < st.last - self.jump:
+        stamp = header_stamp or t_bag + self.offset + self._receive_clock(t_bag)[1]  # a lone zero: receive time
+        out = self._settle(st, stamp) if st.suspect is not None else None
+        last = st.last
+        if last is not None and stamp <= last:
+            if stamp < last - self.jump:
                 st.suspect = (t_bag, stamp, raw, item)
-                return out
-            if stamp < st.last:
+            elif stamp < last:
                 self._late(st, stamp, BACKWARDS)
-                return out
-            if stamp == st.last:
-                if st.last_raw is not None and memoryview(raw)[self.skip :] == memoryview(st.last_raw)[self.skip :]:
-                    self._drop(st, DUPLICATE, stamp)
-                    return out
+            elif st.last_raw is not None and memoryview(raw)[self.skip :] == memoryview(st.last_raw)[self.skip :]:
+                self._drop(st, DUPLICATE, stamp)
+            else:
                 self._late(st, stamp, REPEATED)
                 self._note(st, 3, t_bag, stamp)
-                return out
-        return out + self._take(st, st.epoch, stamp, t_bag, raw, item)
+            return out or []
+        taken = self._take(st, st.epoch, stamp, t_bag, raw, item)
+        return out + taken if out else taken
 
     @property
     def done(self) -> bool:
@@ -268,18 +275,22 @@ class StampGuard:
     # -- stamps --------------------------------------------------------------------------------
     def _take(self, st: _Topic, epoch: int, stamp: int, t_bag: int, raw, item, ordered: bool = True):
         if ordered and st.last is not None:
-            period = st.clock.period_ns
-            self._note(st, 1 if period and stamp - st.last <= CROWDED * period else 0, t_bag, stamp)
+            self._note(st, 1 if stamp - st.last <= st.crowd_ns else 0, t_bag, stamp)
         st.last, st.last_tbag, st.last_raw = stamp, t_bag, raw
         while len(self.segments) <= epoch:
             self.segments.append(Segment())
         seg = self.segments[epoch]
         seg.count += 1
-        seg.first = stamp if seg.first is None else min(seg.first, stamp)
-        seg.last = stamp if seg.last is None else max(seg.last, stamp)
-        if epoch == 0 and (self.start is None or stamp < self.start):
-            self.start = stamp
+        if seg.first is None or stamp < seg.first:
+            seg.first = stamp
+        if seg.last is None or stamp > seg.last:
+            seg.last = stamp
         return [(item, stamp)] if epoch == self.want else []
+
+    @property
+    def start(self) -> int | None:
+        """The recording's first stamp: mission time 0."""
+        return self.segments[0].first
 
     def _late(self, st: _Topic, stamp: int, reason: str) -> None:
         if st.clock.strict:
@@ -363,8 +374,12 @@ class StampGuard:
 
     # -- crowding and repeats ------------------------------------------------------------------
     def _note(self, st: _Topic, flags: int, t_bag: int, stamp: int) -> None:
-        st.note(flags, stamp)
-        if st.flagged or not (st.crowded >= CROWDED_MIN and st.clock.period_ns or st.repeats >= REPEATS_MIN):
+        if (
+            not st.note(flags, stamp)
+            or st.flagged
+            or self._interleaved
+            or not (st.crowded >= CROWDED_MIN and st.clock.period_ns or st.repeats >= REPEATS_MIN)
+        ):
             return
         st.flagged = True
         if st.repeats >= REPEATS_MIN:
@@ -375,13 +390,12 @@ class StampGuard:
             self._crowd_since = None
             for x in self._topics.values():
                 x.clear_window()
-            if ("interleaved", "") not in self._reported:
-                self._reported.add(("interleaved", ""))
-                sensors = tuple(x.clock.sensor for x in regular)
-                self._problem(
-                    ClockProblem("interleaved", first, self._at(first), tuple(x.topic for x in regular), sensors),
-                    refuse=True,
-                )
+            self._interleaved = True  # the stamps mean nothing from here on: nothing more to find in them
+            sensors = tuple(x.clock.sensor for x in regular)
+            self._problem(
+                ClockProblem("interleaved", first, self._at(first), tuple(x.topic for x in regular), sensors),
+                refuse=True,
+            )
         elif self._crowd_since is None:
             self._crowd_since = t_bag
 

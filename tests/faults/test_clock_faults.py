@@ -141,7 +141,13 @@ def test_the_issues_clock_reset_through_write_mission(tmp_path, sample_mission):
     path = write_mission(Mission.from_measurements(m.metadata, shifted), tmp_path / "reset.mcap")
     with pytest.raises(MissionError, match=rf"^{path}: interleaved recording from mission time 10\.0"):
         list(read_mission(path))
-    assert_refused(info(path), "interleaved recording from mission time 10.0")
+    r = info(path)
+    assert_refused(r, "interleaved recording from mission time 10.0")
+    # Once interleaved, the stamps say nothing more: one refusal, and the repeats it caused, counted.
+    section = check_section(r.stdout)
+    assert [x for x in section if x.startswith("refused")] == [section[0]]
+    repeats = "warning: ahrs: 300 message(s) dropped: header stamp repeats the previous one"  # 15 s at 20 Hz
+    assert any(x.startswith(repeats) for x in section)
 
 
 def test_a_lone_repeated_stamp_a_duplicate_and_a_wild_stamp_are_dropped_and_reported(tmp_path):
