@@ -69,7 +69,7 @@ def test_numeric_surface_pressure_and_what_info_says(tmp_path):
     path, truth = pressure_bag(tmp_path, 90_000.0, 1000.0, descent, 30.0, gps=False)
     m = read_mission(path, ReaderConfig(atmospheric_pressure_pa=90_000.0, water_density_kg_m3=1000.0))
     assert m.plan.atmosphere.value == 90_000.0 and m.plan.atmosphere.how == "configured"
-    r = CliRunner().invoke(app, ["info", str(path)])
+    r = CliRunner().invoke(app, ["info", str(path), "--allow-missing", "dvl,ahrs"])
     assert r.exit_code == 0, r.output
     assert "atmospheric pressure: 900" in r.stdout and "(auto: median of " in r.stdout
     assert "pressure readings of the first 1" in r.stdout and "s, before the depth rose)" in r.stdout

@@ -4,8 +4,11 @@
   bag directory (sqlite3 or mcap storage), or a ``.mcap`` / ``.db3`` file, read with rosbags
   ``AnyReader``; one topic per sensor kind unless configured (``binding``); measurements stream
   in stamp order (``stamps``: header stamps, or receive time mapped onto the header clock);
-  NaN/inf and unusable messages are dropped and counted in ``mission.dropped``; every user error
-  is a one-line ``MissionError``; ``mission.plan`` says how it was read. See ``bag_reader``.
+  NaN/inf and unusable messages are dropped and counted in ``mission.dropped``; stamps out of order,
+  clock resets and interleaved recordings are ``clock_guard``'s; every user error is a one-line
+  ``MissionError``; ``mission.plan`` says how it was read. See ``bag_reader``. Before running a
+  mission, ``semslam.mission.check.check_mission`` says whether it can be (velocity and attitude
+  sources, extrinsics).
 * ``write_mission(mission, path, *, config=None, overwrite=False) -> Path`` — ``*.bag`` → ROS 1,
   ``*.mcap`` → a ROS 2 mcap file, anything else → a ROS 2 sqlite3 bag directory; written under a
   temporary name and renamed at the end. See ``bag_writer``.

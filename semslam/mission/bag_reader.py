@@ -31,6 +31,7 @@ import numpy as np
 from semslam.errors import MissionError
 from semslam.mission import sidecar
 from semslam.mission.binding import BindingPlan, plan_bindings
+from semslam.mission.clock_guard import ClockProblem, Segment, StampGuard, TopicClock, regular_period
 from semslam.mission.codec_base import (
     DecodeContext,
     MalformedMessage,
@@ -49,7 +50,6 @@ from semslam.mission.surface import Resolved, resolve_atmosphere, resolve_datum
 from semslam.mission.typestore import add_missing_types, typestore
 
 log = logging.getLogger("semslam.mission")
-BACKWARDS = "header stamp runs backwards"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -61,15 +61,20 @@ class ReadPlan:
     clock: ClockOffset
     atmosphere: Resolved  # the surface pressure (Pa) depth is computed with
     datum: Resolved  # the GPS fixes' origin (Geodetic | None)
+    clocks: dict[str, TopicClock]  # topic → what the stamp guard knows of it
+    extrinsics: dict[str, str]  # sensor → where its T_BS came from: reader.sensors | sidecar | assumed
 
 
 class BagMission(Mission):
     """A Mission streamed from a bag. Adds what ``semslam info`` reports beyond ``Mission``.
 
     ``dropped`` (sensor → count) and ``dropped_fields`` (sensor → field or reason → count) are those
-    of the last complete pass over the bag, as are ``notes`` (sensor → assumption → count, e.g. a
-    covariance a message left unknown) and ``warnings`` (sensor → what looks wrong → count, e.g. a
-    point cloud in millimetres); ``message_counts`` (topic → count) come from the bag's index.
+    of the last complete pass over the bag, as are ``first_dropped`` (sensor → stamp reason → first
+    stamp), ``notes`` (sensor → assumption → count, e.g. a covariance a message left unknown),
+    ``warnings`` (sensor → what looks wrong → count, e.g. a point cloud in millimetres),
+    ``clock_problems`` (clock resets, interleaved stretches, repeated stamps: ``clock_guard``) and
+    ``segments`` (the parts between clock resets); ``message_counts`` (topic → count) come from the
+    bag's index. ``survey``: clock problems are recorded, not raised (``semslam info``).
     """
 
     def __init__(
@@ -80,6 +85,7 @@ class BagMission(Mission):
         config: ReaderConfig,
         ros_version: int,
         message_counts: dict[str, int],
+        survey: bool = False,
     ):
         super().__init__(metadata, self._stream)
         self.path = path
@@ -88,7 +94,12 @@ class BagMission(Mission):
         self.config = config
         self.ros_version = ros_version
         self.message_counts = message_counts
+        self.survey = survey
         self.dropped_fields: dict[str, Counter[str]] = {}
+        self.first_dropped: dict[str, dict[str, int]] = {}
+        self.clock_problems: list[ClockProblem] = []
+        self.segments: list[Segment] = []
+        self.recording_start: int | None = None  # the first stamp: mission time 0 of clock_problems
         self.notes: dict[str, Counter[str]] = {}
         self.warnings: dict[str, Counter[str]] = {}
 
@@ -100,10 +111,7 @@ class BagMission(Mission):
     def _stream(self) -> Iterator[Measurement]:
         cfg = self.config
         window = int(cfg.reorder_window_s * 1e9)
-        offset = self.plan.clock.offset_ns
         by_topic = {b.topic: b for b in self.bindings}
-        receive = {b.topic for b in self.bindings if self.plan.stamps[b.sensor].source == "receive"}
-        strict = {b.topic for b in self.bindings if self.plan.stamps[b.sensor].policy == "header"}
         depth_topic = next((b.topic for b in self.bindings if b.kind == "depth"), None)
         # What the stream does with a topic's measurements beyond the common checks.
         role = {
@@ -116,7 +124,9 @@ class BagMission(Mission):
         clouds = _CloudCheck(cfg.cloud_range_m)
         dropped: Counter[str] = Counter()
         fields: dict[str, Counter[str]] = defaultdict(Counter)
-        last_stamp: dict[str, int] = {}
+        guard = StampGuard(
+            self.path, self.plan.clocks, self.plan.clock.offset_ns, cfg, self.ros_version, dropped, fields, self.survey
+        )
         last_depth: float | None = None
         released = -(2**63)
         newest = -(2**63)
@@ -127,7 +137,7 @@ class BagMission(Mission):
             fast = _fast_paths(reader, conns, self.ros_version)
             where = {t: f"{self.path}: topic {t}" for t in by_topic}  # every error's prefix, per topic
             messages = reader.messages(connections=conns)
-            while True:
+            while not guard.done:
                 try:
                     item = next(messages, None)
                 except Exception as exc:  # a damaged chunk / page / record: any rosbags or storage error
@@ -136,85 +146,82 @@ class BagMission(Mission):
                     break
                 conn, t_bag, raw = item
                 topic = conn.topic
-                b = by_topic[topic]
                 f = fast.get(topic)
                 parsed = f.parse(raw) if f is not None else None
                 if parsed is None:
                     try:
-                        msg = reader.deserialize(raw, conn.msgtype)
+                        parsed = reader.deserialize(raw, conn.msgtype)
                     except Exception as exc:
                         raise MissionError(
                             f"{where[topic]}: message at t={t_bag * 1e-9:.6f} s cannot be decoded as "
                             f"{short_msgtype(conn.msgtype)} ({_one_line(exc)})"
                         ) from None
-                    header_stamp = stamp_ns(msg.header)
+                    header_stamp = stamp_ns(parsed.header)
+                    admitted = guard.admit(topic, t_bag, header_stamp, raw, (header_stamp, None, parsed))
                 else:
-                    header_stamp, values = parsed
-                stamp = header_stamp if header_stamp and topic not in receive else t_bag + offset
-                if stamp < last_stamp.get(topic, stamp):
-                    if topic in strict:
+                    header_stamp = parsed[0]
+                    admitted = guard.admit(topic, t_bag, header_stamp, raw, (header_stamp, parsed[1], None))
+                b = by_topic[topic]
+                for (header_stamp, values, msg), stamp in admitted:
+                    if ctx.pending:  # notes of a message dropped after decoding
+                        ctx.pending.clear()
+                    try:
+                        if values is None:
+                            m = b.codec.decode(msg, b.sensor, ctx)
+                        else:
+                            m = f.build(header_stamp, values, b.sensor, ctx)
+                    except MalformedMessage as exc:
+                        raise MissionError(f"{where[topic]}: {exc} (message at t={stamp * 1e-9:.6f} s)") from None
+                    except Unusable as exc:  # e.g. an Imu without orientation: no AHRS reading in it
+                        dropped[b.sensor] += 1
+                        fields[b.sensor][exc.field] += 1
+                        continue
+                    if m.stamp != stamp:
+                        m = dataclasses.replace(m, stamp=stamp)
+                    bad = m.nonfinite_field()
+                    if bad is not None:
+                        if cfg.on_nonfinite == "error":
+                            raise MissionError(
+                                f"{where[topic]}: field {bad} is not finite (message at t={stamp * 1e-9:.6f} s)"
+                            )
+                        dropped[b.sensor] += 1
+                        fields[b.sensor][bad] += 1
+                        continue
+                    r = role[topic]
+                    if r is None:
+                        pass
+                    elif r == "depth" and isinstance(m, Depth):
+                        last_depth = m.depth
+                    elif r == "gps" and last_depth is not None and last_depth > cfg.gps_max_depth_m:
+                        dropped[b.sensor] += 1
+                        fields[b.sensor][f"taken below {cfg.gps_max_depth_m:g} m depth"] += 1
+                        continue
+                    elif r == "cloud" and isinstance(m, PointCloud):
+                        clouds.check(m, where[topic])
+                    if stamp < released:
                         raise MissionError(
-                            f"{where[topic]}: header stamps go backwards ({stamp * 1e-9:.6f} s after "
-                            f"{last_stamp[topic] * 1e-9:.6f} s)"
+                            f"{where[topic]}: message stamped {stamp * 1e-9:.6f} s arrived after messages stamped "
+                            f"more than reorder_window_s={cfg.reorder_window_s} s later (raise reorder_window_s)"
                         )
-                    dropped[b.sensor] += 1
-                    fields[b.sensor][BACKWARDS] += 1
-                    continue
-                last_stamp[topic] = stamp
-                if ctx.pending:  # notes of a message dropped after decoding
-                    ctx.pending.clear()
-                try:
-                    if parsed is None:
-                        m = b.codec.decode(msg, b.sensor, ctx)
-                    else:
-                        m = f.build(header_stamp, values, b.sensor, ctx)
-                except MalformedMessage as exc:
-                    raise MissionError(f"{where[topic]}: {exc} (message at t={stamp * 1e-9:.6f} s)") from None
-                except Unusable as exc:  # e.g. an Imu without orientation: no AHRS reading in it
-                    dropped[b.sensor] += 1
-                    fields[b.sensor][exc.field] += 1
-                    continue
-                if m.stamp != stamp:
-                    m = dataclasses.replace(m, stamp=stamp)
-                bad = m.nonfinite_field()
-                if bad is not None:
-                    if cfg.on_nonfinite == "error":
-                        raise MissionError(
-                            f"{where[topic]}: field {bad} is not finite (message at t={stamp * 1e-9:.6f} s)"
-                        )
-                    dropped[b.sensor] += 1
-                    fields[b.sensor][bad] += 1
-                    continue
-                r = role[topic]
-                if r is None:
-                    pass
-                elif r == "depth" and isinstance(m, Depth):
-                    last_depth = m.depth
-                elif r == "gps" and last_depth is not None and last_depth > cfg.gps_max_depth_m:
-                    dropped[b.sensor] += 1
-                    fields[b.sensor][f"taken below {cfg.gps_max_depth_m:g} m depth"] += 1
-                    continue
-                elif r == "cloud" and isinstance(m, PointCloud):
-                    clouds.check(m, where[topic])
-                if stamp < released:
-                    raise MissionError(
-                        f"{where[topic]}: message stamped {stamp * 1e-9:.6f} s arrived after messages stamped more "
-                        f"than reorder_window_s={cfg.reorder_window_s} s later (raise reorder_window_s)"
-                    )
-                if ctx.pending:
-                    ctx.commit()
-                heapq.heappush(heap, (stamp, seq, m))
-                seq += 1
-                newest = max(newest, stamp)
-                horizon = newest - window
-                while heap and heap[0][0] <= horizon:
-                    released, _, out = heapq.heappop(heap)
-                    yield out
+                    if ctx.pending:
+                        ctx.commit()
+                    heapq.heappush(heap, (stamp, seq, m))
+                    seq += 1
+                    newest = max(newest, stamp)
+                    horizon = newest - window
+                    while heap and heap[0][0] <= horizon:
+                        released, _, out = heapq.heappop(heap)
+                        yield out
+            guard.finish()
             while heap:
                 yield heapq.heappop(heap)[2]
         self.dropped.clear()
         self.dropped.update(dropped)
         self.dropped_fields = dict(fields)
+        self.first_dropped = guard.first_drop
+        self.clock_problems = guard.problems
+        self.segments = guard.segments
+        self.recording_start = guard.start
         self.notes = ctx.notes
         self.warnings = clouds.found
         if self.metadata.datum is None and ctx.datum is not None:
@@ -335,13 +342,15 @@ def open_bag(path: Path):
             pass
 
 
-def read_mission(path: str | Path, config: ReaderConfig | None = None) -> BagMission:
+def read_mission(path: str | Path, config: ReaderConfig | None = None, survey: bool = False) -> BagMission:
     """Open the mission recorded in ``path`` (ROS 1 ``.bag``, ROS 2 bag directory or ``.mcap``).
 
     Sensors are bound to topics by ``config.sensors``; without it, by the sidecar, and one topic
     per further sensor kind by the rule of ``semslam.mission.binding``. Extrinsics T_BS: the
-    configuration's, else the sidecar's (by sensor name, then by topic), else identity. Raises
-    MissionError (one line) for everything cheap to check up front.
+    configuration's, else the sidecar's (by sensor name, then by topic), else identity (assumed:
+    ``semslam.mission.check`` warns). Raises MissionError (one line) for everything cheap to check
+    up front. ``survey`` (``semslam info``): clock problems found while streaming are recorded in
+    ``clock_problems``, not raised.
     """
     cfg = config or ReaderConfig()
     path = Path(path)
@@ -377,19 +386,30 @@ def read_mission(path: str | Path, config: ReaderConfig | None = None) -> BagMis
     side_by_name = side_meta.sensors if side_meta else {}
     side_by_topic = {s.topic: s for s in side_by_name.values() if s.topic}
     sensors = {}
+    extrinsics = {}
     for b in binding.bindings:
         tb = cfg.sensors.get(b.sensor)
         if tb is not None and tb.T_BS is not None:
             T = np.asarray(tb.T_BS, dtype=float)
             if T.shape != (4, 4):
                 raise MissionError(f"configuration: reader.sensors.{b.sensor}.T_BS: expected 4×4, got {T.shape}")
-        elif b.sensor in side_by_name:
-            T = side_by_name[b.sensor].T_BS
-        elif b.topic in side_by_topic:
-            T = side_by_topic[b.topic].T_BS
+            extrinsics[b.sensor] = "reader.sensors"
+        elif b.sensor in side_by_name or b.topic in side_by_topic:
+            T = (side_by_name.get(b.sensor) or side_by_topic[b.topic]).T_BS
+            extrinsics[b.sensor] = "sidecar"
         else:
             T = np.eye(4)
+            extrinsics[b.sensor] = "assumed"
         sensors[b.sensor] = SensorInfo(name=b.sensor, kind=b.kind, topic=b.topic, msgtype=b.msgtype, T_BS=T)
+    clocks = {
+        b.topic: TopicClock(
+            b.sensor,
+            stamps[b.sensor].source,
+            stamps[b.sensor].policy == "header",
+            regular_period(probes[b.topic].header) if b.topic in probes else None,
+        )
+        for b in binding.bindings
+    }
     name = side_meta.name if side_meta else (path.stem if path.is_file() else path.name)
     meta = MissionMetadata(
         name=name,
@@ -398,5 +418,5 @@ def read_mission(path: str | Path, config: ReaderConfig | None = None) -> BagMis
         extras=dict(side_meta.extras) if side_meta else {},
         datum=datum.value,
     )
-    plan = ReadPlan(binding, stamps, clock, atmosphere, datum)
-    return BagMission(meta, path, plan, cfg, version, counts)
+    plan = ReadPlan(binding, stamps, clock, atmosphere, datum, clocks, extrinsics)
+    return BagMission(meta, path, plan, cfg, version, counts, survey)

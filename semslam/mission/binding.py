@@ -3,7 +3,8 @@
 Order of authority:
 
 1. ``reader.sensors`` (the configuration): exactly those sensors, nothing else is read.
-2. The mission's sidecar (our simulator's, or one a user wrote): its sensors and topics.
+2. The mission's sidecar (our simulator's, or one a user wrote): its sensors and topics; a sensor
+   whose topic is not in the bag is left out (``BindingPlan.absent``; the mission check names it).
 3. For each sensor kind the sidecar does not bind, **one topic chosen by this rule**, among the
    topics whose message type feeds that kind (``conversions.CODECS``):
 
@@ -82,10 +83,20 @@ class Unread:
     count: int = 0
 
 
+@dataclass(frozen=True)
+class Absent:
+    """A sensor the sidecar declares whose topic the bag does not hold (a bag cut down, a sensor off)."""
+
+    sensor: str
+    kind: str
+    topic: str
+
+
 @dataclass
 class BindingPlan:
     bindings: list[Binding]
     unread: list[Unread] = field(default_factory=list)
+    absent: list[Absent] = field(default_factory=list)  # the sidecar's sensors with no topic in the bag
 
     def alternatives(self, kind: str) -> list[Unread]:
         return [u for u in self.unread if u.kind == kind]
@@ -151,8 +162,10 @@ def plan_bindings(
         bound = [binding(name, tb.kind, tb.topic, "configured", tb.stamp) for name, tb in cfg.sensors.items()]
         return BindingPlan(bound, _unread(topics, counts, known_types, bound, {}, "not in reader.sensors"))
     bound = []
-    if side is not None:
-        bound = [binding(s.name, s.kind, s.topic, "sidecar") for s in side.sensors.values() if s.topic]
+    absent = []
+    if side is not None:  # a sensor whose topic is not in the bag is left out (semslam.mission.check says so)
+        bound = [binding(s.name, s.kind, s.topic, "sidecar") for s in side.sensors.values() if s.topic in topics]
+        absent = [Absent(s.name, s.kind, s.topic) for s in side.sensors.values() if s.topic and s.topic not in topics]
     taken = {b.topic for b in bound}
     names = {b.sensor for b in bound}
     kinds_bound = {b.kind for b in bound}
@@ -192,7 +205,7 @@ def plan_bindings(
             mine = _rank(t, kind, topics[t], counts.get(t, 0))
             lost = next(_LOST_ON[i] for i in range(len(top)) if mine[i] != top[i])
             why_not[t] = (kind, f"alternative {kind} (chosen: {best}; this one: {lost})")
-    return BindingPlan(bound, _unread(topics, counts, known_types, bound, why_not, None))
+    return BindingPlan(bound, _unread(topics, counts, known_types, bound, why_not, None), absent)
 
 
 def _unread(

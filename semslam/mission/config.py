@@ -93,6 +93,23 @@ class ReaderConfig(BaseModel):
     on_nonfinite: Literal["drop", "error"] = Field(
         "drop", description="a measurement with NaN/inf: drop it and count it (reported by info), or fail"
     )
+    on_clock_jump: Literal["error", "split"] = Field(
+        "error",
+        description="header stamps that go back on every topic at once (a clock reset): error refuses the "
+        "mission; split reads one part of it, reader.segment (see semslam.mission.clock_guard)",
+    )
+    segment: int = Field(
+        1,
+        ge=1,
+        description="with on_clock_jump: split, the part read: 1 = up to the first clock jump, 2 = from it "
+        "to the next, ... (semslam info lists them)",
+    )
+    clock_jump_s: float = Field(
+        1.0,
+        gt=0,
+        description="a topic's header stamp going back at least this much is a clock jump (when its next "
+        "message goes on from there); a smaller step back is one late message, dropped and counted",
+    )
 
     @model_validator(mode="after")
     def _ordered_range(self):

@@ -11,7 +11,7 @@ import numpy as np
 from semslam.errors import MissionError
 from semslam.mission.geodesy import Geodetic
 from semslam.mission.ground_truth import GroundTruthMap
-from semslam.mission.measurements import Measurement
+from semslam.mission.measurements import DvlVelocity, Measurement
 
 SENSOR_KINDS = ("dvl", "ahrs", "depth", "gps", "laser", "sonar", "ground_truth")
 
@@ -87,6 +87,7 @@ class Mission:
         self.metadata = metadata
         self._source = source
         self.dropped: Counter[str] = Counter()  # sensor -> measurements dropped as non-finite (filled by readers)
+        self.invalid: Counter[str] = Counter()  # sensor -> readings flagged invalid (DVL dropouts), last full pass
 
     @classmethod
     def from_measurements(cls, metadata: MissionMetadata, measurements: Iterable[Measurement]) -> Mission:
@@ -94,7 +95,12 @@ class Mission:
         return cls(metadata, lambda: iter(items))
 
     def __iter__(self) -> Iterator[Measurement]:
-        return iter(self._source())
+        invalid: Counter[str] = Counter()
+        for m in self._source():
+            if type(m) is DvlVelocity and not m.valid:
+                invalid[m.sensor] += 1
+            yield m
+        self.invalid = invalid
 
     def of_type(self, cls: type[Measurement]) -> Iterator[Measurement]:
         return (m for m in self if isinstance(m, cls))

@@ -8,8 +8,8 @@ The mission clock is the header clock (the vehicle's, usually). Per sensor (``re
 * ``receive``: the recorder's receive time mapped onto the header clock: t_receive + offset.
 * ``auto``: ``header``, except for a topic whose first messages (``semslam.mission.probe``) have
   header stamps that are all zero, constant, running backwards, or on a clock of their own (more
-  than ``FOREIGN_CLOCK_S`` away from the other topics' header clock): ``receive``. A header stamp
-  going backwards later in the stream drops that message (counted) instead of stopping the read.
+  than ``FOREIGN_CLOCK_S`` away from the other topics' header clock): ``receive``. What stamps
+  do later in the stream (a late message, a repeat, a clock reset) is ``semslam.mission.clock_guard``'s.
 
 The offset (header clock − receive clock) is estimated robustly from the topics that have both: per
 topic, the median of header − receive over its first messages (which absorbs its latency); over
