@@ -8,6 +8,7 @@ from pathlib import Path
 from semslam.config import SemslamConfig
 from semslam.estimators import create_estimator
 from semslam.eval.outputs import build_metrics, write_run
+from semslam.mission.check import input_block
 from semslam.mission.mission import Mission, MissionMetadata
 from semslam.pipeline import run_pipeline
 from semslam.registry import available_frontends, create_frontends
@@ -42,6 +43,7 @@ def run_comparison(
         mission, ests, fes, view_estimator="graph", progress=progress, frontend_workers=frontend_workers
     )
     metrics = build_metrics(result, mission.metadata)
+    metrics["input"] = input_block(mission)  # after the pipeline's complete pass over the mission
     metrics["frontends"] = names
     return result, metrics
 

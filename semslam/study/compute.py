@@ -73,14 +73,20 @@ def _drop_bag(stage: Path) -> None:
 
 def compute(task: MissionTask, stage: Path) -> dict:
     """Compute the mission into ``stage``; returns its record (also written there, last)."""
-    from semslam.compare import run_comparison
+    from semslam.compare import default_frontends, run_comparison
     from semslam.config import SemslamConfig
     from semslam.eval.outputs import write_results
     from semslam.eval.report import write_report
+    from semslam.mission.check import check_mission
 
     t0 = time.perf_counter()
     config = SemslamConfig.model_validate(task.config)
     mission = _mission(task, stage, config)
+    # The same check as `semslam compare`: a refusal is this mission's failure, warnings go to its log.
+    check = check_mission(mission, task.frontends or default_frontends(mission.metadata))
+    check.raise_if_refused()
+    for warning in check.warnings:
+        print(f"semslam: warning: {warning}", file=sys.stderr, flush=True)
     t_mission = time.perf_counter() - t0
     # One front-end worker: the study already runs one mission per core.
     result, metrics = run_comparison(mission, config, task.frontends, frontend_workers=1)
