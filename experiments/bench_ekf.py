@@ -21,6 +21,7 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
 import argparse  # noqa: E402
+import sys  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
@@ -33,9 +34,12 @@ from semslam.ekf import estimator as ekf_estimator  # noqa: E402
 from semslam.ekf import geometry as geo  # noqa: E402
 from semslam.ekf import models as mdl  # noqa: E402
 from semslam.ekf.estimator import _Extent, _Track  # noqa: E402
-from semslam.ekf.synthetic import simulate_circling  # noqa: E402
 from semslam.mission.measurements import Attitude, GroundTruthPose  # noqa: E402
 from semslam.observations import LineObservation, PointObservation  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository root: tests.support
+
+from tests.support.ekf_mission import simulate_circling  # noqa: E402
 
 
 def build(n_landmarks: int, seed: int = 0):

@@ -17,7 +17,9 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
+from pathlib import Path
 
 import gtsam
 import numpy as np
@@ -25,7 +27,11 @@ import numpy as np
 from frontends.oracle import OracleFrontend
 from semslam.backend.graph import GraphEstimator
 from semslam.backend.run import run_graph
-from semslam.backend.synthetic import (
+from semslam.config import SemslamConfig
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository root: tests.support
+
+from tests.support.synthetic_mission import (  # noqa: E402
     SyntheticConfig,
     dead_reckoning,
     ground_truth_positions,
@@ -33,7 +39,6 @@ from semslam.backend.synthetic import (
     position_errors,
     simulate,
 )
-from semslam.config import SemslamConfig
 
 
 def default_mission():

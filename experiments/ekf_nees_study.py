@@ -16,6 +16,7 @@ first estimates.
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -24,7 +25,10 @@ from scipy.stats import chi2
 from semslam.config import SemslamConfig
 from semslam.ekf import EkfEstimator
 from semslam.ekf import geometry as geo
-from semslam.ekf.synthetic import simulate_circling
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository root: tests.support
+
+from tests.support.ekf_mission import simulate_circling  # noqa: E402
 
 ACCEL, RATE = 0.01, 0.002
 

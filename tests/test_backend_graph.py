@@ -14,7 +14,10 @@ import pytest
 from frontends.oracle import OracleFrontend
 from semslam.backend.graph import GraphEstimator
 from semslam.backend.run import run_graph
-from semslam.backend.synthetic import (
+from semslam.config import SemslamConfig
+from semslam.estimation import EstimateView, Estimator
+from semslam.observations import PointObservation
+from tests.support.synthetic_mission import (
     SyntheticConfig,
     dead_reckoning,
     ground_truth_positions,
@@ -22,9 +25,6 @@ from semslam.backend.synthetic import (
     position_errors,
     simulate,
 )
-from semslam.config import SemslamConfig
-from semslam.estimation import EstimateView, Estimator
-from semslam.observations import PointObservation
 
 DROPOUTS = ((60.0, 20.0), (150.0, 15.0))
 

@@ -60,9 +60,9 @@ def test_landmark_report_keys_truth_ids_by_kind():
     landmarks of object 3 are."""
     import numpy as np
 
-    from semslam.backend.synthetic import landmark_report
     from semslam.estimation import EstimatorResult, LandmarkEstimate, Trajectory
     from semslam.mission.ground_truth import GroundTruthMap, GtObject, GtPipe
+    from tests.support.synthetic_mission import landmark_report
 
     gt = GroundTruthMap(
         objects=(GtObject(3, "Elbow", (0.0, 0.0, 1.0)),), pipes=(GtPipe(3, (1.0, 0, 1), (2.0, 0, 1), 0.03),)
@@ -87,9 +87,9 @@ def test_a_mapped_in_line_object_keeps_two_collinear_pipe_views_apart(monkeypatc
     import numpy as np
 
     from semslam.backend.graph import GraphEstimator
-    from semslam.backend.synthetic import SyntheticConfig, simulate
     from semslam.config import SemslamConfig
     from semslam.observations import LineObservation, PointObservation
+    from tests.support.synthetic_mission import SyntheticConfig, simulate
 
     mission = simulate(SyntheticConfig(duration_s=5.0, seed=0))
     est = GraphEstimator(mission.metadata, SemslamConfig())

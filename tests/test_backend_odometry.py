@@ -5,12 +5,12 @@ import numpy as np
 import pytest
 
 from semslam.backend.graph import GraphEstimator
-from semslam.backend.synthetic import SyntheticConfig, ground_truth_positions, position_errors, simulate
 from semslam.config import SemslamConfig
 from semslam.mission.measurements import GroundTruthPose, PointCloud
 from semslam.observations import OdometryObservation
 from semslam.pipeline import run_pipeline
 from semslam.registry import FrontendSummary
+from tests.support.synthetic_mission import SyntheticConfig, ground_truth_positions, position_errors, simulate
 
 
 class TrueRelativePose:

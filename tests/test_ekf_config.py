@@ -5,10 +5,10 @@ import pytest
 
 from semslam.config import SemslamConfig
 from semslam.ekf import EkfConfig, EkfEstimator
-from semslam.ekf.synthetic import simulate_circling
 from semslam.errors import ConfigError, SemslamError
 from semslam.mission.measurements import GroundTruthPose
 from semslam.observations import PointObservation
+from tests.support.ekf_mission import simulate_circling
 
 
 def test_every_default_is_documented():

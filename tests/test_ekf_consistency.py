@@ -9,7 +9,7 @@ from scipy.stats import chi2
 from semslam.config import SemslamConfig
 from semslam.ekf import DeadReckoning, EkfEstimator
 from semslam.ekf import geometry as geo
-from semslam.ekf.synthetic import simulate_circling
+from tests.support.ekf_mission import simulate_circling
 
 ACCEL, RATE = 0.01, 0.002
 N_RUNS = 6

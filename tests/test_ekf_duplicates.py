@@ -7,8 +7,8 @@ from semslam.config import SemslamConfig
 from semslam.ekf import EkfEstimator
 from semslam.ekf import geometry as geo
 from semslam.ekf import models as mdl
-from semslam.ekf.synthetic import simulate_circling
 from semslam.observations import LineObservation, PointObservation
+from tests.support.ekf_mission import simulate_circling
 
 SIGMA = 0.002
 

@@ -15,7 +15,8 @@ from semslam.ekf import models as mdl
 from semslam.ekf.estimator import EkfAssociationProblem, _ScanPairs
 from semslam.ekf.filter import EkfState, inv_small
 from semslam.ekf.jcbb import jcbb_dense
-from semslam.ekf.synthetic import simulate_circling
+from tests.support.ekf_mission import simulate_circling
+from tests.support.ekf_reference import predict_reference
 
 RNG = np.random.default_rng(11)
 R_BS = g.rot(0.05, np.pi / 2 - 0.2, 0.3)
@@ -28,7 +29,7 @@ def test_scalar_prediction_is_the_matrix_model():
         x = RNG.normal(size=9)
         x[4] = RNG.uniform(-1.2, 1.2)
         w = RNG.normal(size=3)
-        for a, b in zip(mdl.predict(x, w, 0.07, 0.05, 0.01), mdl.predict_reference(x, w, 0.07, 0.05, 0.01)):
+        for a, b in zip(mdl.predict(x, w, 0.07, 0.05, 0.01), predict_reference(x, w, 0.07, 0.05, 0.01)):
             np.testing.assert_allclose(a, b, atol=1e-13)
 
 

@@ -6,8 +6,8 @@ import pytest
 
 from semslam.config import SemslamConfig
 from semslam.ekf import DeadReckoning, EkfEstimator
-from semslam.ekf.synthetic import simulate_circling
 from semslam.estimation import Estimator
+from tests.support.ekf_mission import simulate_circling
 
 ACCEL, RATE = 0.03, 0.002
 

@@ -7,13 +7,13 @@ from typing import ClassVar
 import numpy as np
 import pytest
 
-from semslam.backend.synthetic import SyntheticConfig, simulate
 from semslam.config import SemslamConfig
 from semslam.ekf import EkfEstimator
 from semslam.mission.measurements import Attitude, Depth, Measurement, PointCloud
 from semslam.observations import PointObservation
 from semslam.pipeline import run_pipeline
 from semslam.registry import create_frontends
+from tests.support.synthetic_mission import SyntheticConfig, simulate
 
 
 def _run(mission, frontend_process: bool):

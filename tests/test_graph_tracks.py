@@ -6,9 +6,9 @@ import gtsam
 import numpy as np
 
 from semslam.backend import GraphEstimator
-from semslam.backend.synthetic import SyntheticConfig, simulate
 from semslam.config import SemslamConfig
 from semslam.observations import PointObservation
+from tests.support.synthetic_mission import SyntheticConfig, simulate
 
 ROW = [np.array([x, 0.0, 3.0]) for x in (0.0, 0.3, 0.6)]  # three objects 30 cm apart, seen from the origin
 

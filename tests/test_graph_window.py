@@ -11,9 +11,9 @@ from test_backend_graph import DROPOUTS, ate, dr_ate, indeterminate_landmark
 from frontends.oracle import OracleFrontend
 from semslam.backend.graph import GraphEstimator, X
 from semslam.backend.run import run_graph
-from semslam.backend.synthetic import SyntheticConfig, landmark_report, simulate
 from semslam.backend.window import marginal_factors, split_factors, subset
 from semslam.config import SemslamConfig
+from tests.support.synthetic_mission import SyntheticConfig, landmark_report, simulate
 
 
 def _chain(rng):

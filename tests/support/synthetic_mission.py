@@ -1,4 +1,4 @@
-"""A small synthetic mission generator for testing and benchmarking the graph back-end.
+"""A small synthetic mission generator for testing and benchmarking the graph back-end (test scaffolding).
 
 Not the tank simulator (``semslam.sim``): a smooth analytic trajectory (a circle, or a lawnmower
 for long missions) over a flat seabed with objects and pipes, and the navigation sensors the
