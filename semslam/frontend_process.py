@@ -46,6 +46,7 @@ from collections import deque
 from collections.abc import Sequence
 
 from semslam.mission.measurements import Measurement
+from semslam.registry import Frontend
 
 _FINISH = "finish"
 WORKER_NICE = 10
@@ -53,8 +54,8 @@ _STATE_BATCH = 256  # state-only measurements sent at the latest after this many
 
 
 def runs_in_process(frontend) -> bool:
-    """A front-end that never reads the estimate (``uses_view = False``)."""
-    return getattr(frontend, "uses_view", True) is False
+    """A :class:`~semslam.registry.Frontend` that never reads the estimate (``uses_view = False``)."""
+    return isinstance(frontend, Frontend) and not frontend.uses_view
 
 
 def default_workers() -> int:
@@ -81,11 +82,11 @@ class FrontendProcess:
     """Worker processes running ``frontends`` on the measurements submitted to them; results in
     submission order. ``workers`` > 1 only helps front-ends that declare ``parallel_consumes``."""
 
-    def __init__(self, frontends: Sequence, workers: int = 1):
+    def __init__(self, frontends: Sequence[Frontend], workers: int = 1):
         ctx = _context(frontends)
         self.names = [fe.name for fe in frontends]
         self._types = [tuple(fe.consumes) for fe in frontends]
-        self._parallel = [tuple(getattr(fe, "parallel_consumes", ())) for fe in frontends]
+        self._parallel = [tuple(fe.parallel_consumes) for fe in frontends]
         if not any(self._parallel):
             workers = 1  # replicas would all do the same work
         self._workers = [_Worker(ctx, list(frontends), i) for i in range(max(1, workers))]
@@ -276,7 +277,7 @@ def _process(frontends: list, item) -> dict[str, tuple[object, float]]:
     if isinstance(item, str) and item == _FINISH:
         for fe in frontends:
             t0 = time.perf_counter()
-            summary = fe.finish(None) if hasattr(fe, "finish") else None
+            summary = fe.finish(None)
             out[fe.name] = (summary, time.perf_counter() - t0)
         return out
     for fe in frontends:
@@ -284,7 +285,7 @@ def _process(frontends: list, item) -> dict[str, tuple[object, float]]:
             t0 = time.perf_counter()
             obs = fe.process(item, None)
             out[fe.name] = (obs, time.perf_counter() - t0)
-            par = tuple(getattr(fe, "parallel_consumes", ()))
+            par = tuple(fe.parallel_consumes)
             if obs and par and not isinstance(item, par):
                 raise RuntimeError(
                     f"front-end {fe.name!r} observed on a {type(item).__name__}, which it "

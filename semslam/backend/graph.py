@@ -49,13 +49,12 @@ from factors.navigation import (
     velocity_random_walk_factor,
 )
 from semslam.backend.association import PairLinearization, jcbb
-from semslam.backend.config import GraphConfig
 from semslam.backend.landmarks import Landmark, ObservationRecord, Track, merge_collinear, object_between
 from semslam.backend.marginal import marginal_covariance
 from semslam.backend.navigation import NavigationBuffer
 from semslam.backend.problem import Candidate, GraphAssociationProblem, possible_pairs
 from semslam.backend.window import LANDMARK_CHARS, marginal_factors, split_factors, subset, value_of
-from semslam.config import SemslamConfig
+from semslam.config import GraphConfig, SemslamConfig
 from semslam.estimation import EstimatorResult, LandmarkEstimate, Trajectory
 from semslam.mission.measurements import GroundTruthPose, Measurement
 from semslam.mission.mission import MissionMetadata
@@ -93,8 +92,8 @@ class GraphEstimator:
 
     def __init__(self, metadata: MissionMetadata, config: SemslamConfig | None = None, batch: bool | None = None):
         config = config or SemslamConfig()
-        g = config.graph
-        self.cfg: GraphConfig = g if isinstance(g, GraphConfig) else GraphConfig.model_validate(g or {})
+        self.cfg: GraphConfig = config.graph
+        self.initial = config.initial
         self.batch = self.cfg.batch if batch is None else bool(batch)
         self.assoc = config.association
         self.motion = config.motion
@@ -105,9 +104,7 @@ class GraphEstimator:
         params.relinearizeSkip = self.cfg.relinearize_skip
         self._new_isam(params)
         self.robust = robust_kernel(self.cfg.robust_kernel, self.cfg.robust_k)
-        self._wait_for_gt = self.cfg.initial_pose == "first_ground_truth" and bool(
-            metadata.sensors_of_kind("ground_truth")
-        )
+        self._wait_for_gt = self.initial.pose == "first_ground_truth" and bool(metadata.sensors_of_kind("ground_truth"))
         self._initial_gt: GroundTruthPose | None = None
         # Graph bookkeeping: every factor with its owner (None = navigation, else a landmark id),
         # and every variable's initial value, for batch optimisation and failure recovery.
@@ -221,17 +218,17 @@ class GraphEstimator:
     def _first_keyframe(self, stamp: int) -> None:
         t = stamp * 1e-9
         factors, R, v_prior = self._nav_factors_at(0, t)
-        if self._initial_gt is not None and self.cfg.initial_pose == "first_ground_truth":
+        if self._initial_gt is not None and self.initial.pose == "first_ground_truth":
             pos = np.asarray(self._initial_gt.position, float)
             R0 = Rotation.from_quat(self._initial_gt.orientation).as_matrix()
         else:
             pos, R0 = np.zeros(3), self._unbiased(R)
         pose0 = gtsam.Pose3(gtsam.Rot3(R0), pos)
-        sig = np.r_[[self.cfg.initial_rotation_sigma_rad] * 3, [self.cfg.initial_position_sigma_m] * 3]
+        sig = np.r_[[self.initial.attitude_sigma_rad] * 3, [self.initial.position_sigma_m] * 3]
         factors.append(gtsam.PriorFactorPose3(X(0), pose0, gtsam.noiseModel.Diagonal.Sigmas(sig)))
         v0 = v_prior if v_prior is not None else np.zeros(3)
         factors.append(
-            gtsam.PriorFactorVector(V(0), v0, gtsam.noiseModel.Isotropic.Sigma(3, self.cfg.initial_velocity_sigma_m_s))
+            gtsam.PriorFactorVector(V(0), v0, gtsam.noiseModel.Isotropic.Sigma(3, self.initial.velocity_sigma_m_s))
         )
         values = gtsam.Values()
         values.insert(X(0), pose0)
@@ -634,7 +631,7 @@ class GraphEstimator:
         # Coarse pre-gate on the cached spheres (O(map) in numpy only, so the cost stays flat).
         ids, centres, radii = self._spheres()
         dist = np.linalg.norm(obs_pts[:, None, :] - centres[None, :, :], axis=2) - radii[None, :]
-        near = np.flatnonzero((dist <= self.cfg.pre_gate_m + 1.0).any(axis=0))
+        near = np.flatnonzero((dist <= self.assoc.pre_gate_m + 1.0).any(axis=0))
         if near.size == 0:
             return none, none
         cand_lms = [self.landmarks[ids[j]] for j in near if ids[j] in self.landmarks]
@@ -646,7 +643,7 @@ class GraphEstimator:
                 dist[:, j] = _point_segment_distance(obs_pts, *_pipe_ends(lm))
         cands = [Candidate(lm, lm.covariance) for lm in cand_lms]
         gates = {d: _chi2(self.assoc.confidence, d) for d in (3, 4)}
-        allowed = (dist <= self.cfg.pre_gate_m) & possible_pairs(pose, pose_cov, obs, T_BS, cands, gates)
+        allowed = (dist <= self.assoc.pre_gate_m) & possible_pairs(pose, pose_cov, obs, T_BS, cands, gates)
         problem = GraphAssociationProblem(
             pose,
             pose_cov,
@@ -791,7 +788,7 @@ class GraphEstimator:
         """The largest :meth:`_track_cost` that continues a track."""
         if isinstance(z, LineObservation):
             return self.assoc.merge_distance_m
-        return _chi2(self.cfg.track_gate_confidence, 3)
+        return _chi2(self.assoc.track_gate_confidence, 3)
 
     def _track_cost(self, tr: Track, z, w, cov, k: int, objects: np.ndarray) -> float:
         """How well observation z (in {W}: w, cov) continues track tr; inf when it cannot.
@@ -951,7 +948,7 @@ class GraphEstimator:
         return values
 
     def _purge_tracks(self, stamp: int) -> None:
-        horizon = stamp - int(self.cfg.track_timeout_s * 1e9)
+        horizon = stamp - int(self.assoc.track_timeout_s * 1e9)
         self.tracks = [t for t in self.tracks if t.last_stamp >= horizon]
 
     def _spheres(self) -> tuple[list[int], np.ndarray, np.ndarray]:

@@ -73,38 +73,23 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
-from pydantic import ValidationError
 from scipy.spatial.transform import Rotation
 
 from semslam.backend.landmarks import cut_at_objects, robust_ends, small_median
-from semslam.config import SemslamConfig
+from semslam.config import EkfConfig, SemslamConfig
 from semslam.ekf import batch as bt
 from semslam.ekf import geometry as geo
 from semslam.ekf import models as mdl
-from semslam.ekf.config import EkfConfig
 from semslam.ekf.filter import EkfState
 from semslam.ekf.jcbb import Chi2Gate, jcbb_dense
 from semslam.ekf.models import ATT, BIAS, NX, POS, VEL
-from semslam.errors import ConfigError, MissionError
+from semslam.errors import MissionError
 from semslam.estimation import EstimatorResult, LandmarkEstimate, Trajectory
 from semslam.mission.measurements import Attitude, Depth, DvlVelocity, GroundTruthPose, Measurement
 from semslam.mission.mission import MissionMetadata
 from semslam.observations import LineObservation, Observation, PointObservation
 
 NS = 1e-9
-
-
-def ekf_config(config: SemslamConfig | None) -> EkfConfig:
-    """The ``ekf`` section as an :class:`EkfConfig` (a dict section is validated here)."""
-    section = getattr(config, "ekf", None) if config is not None else None
-    if isinstance(section, EkfConfig):
-        return section
-    try:
-        return EkfConfig.model_validate(section or {})
-    except ValidationError as exc:  # → one clear line
-        errs = exc.errors()
-        key = ".".join(str(x) for x in errs[0]["loc"])
-        raise ConfigError(f"ekf.{key}: {errs[0]['msg']}") from exc
 
 
 # ------------------------------------------------------------------------------ features
@@ -529,7 +514,8 @@ class EkfEstimator:
     ):
         config = config or SemslamConfig()
         self.metadata = metadata
-        self.cfg = ekf_config(config)
+        self.cfg: EkfConfig = config.ekf
+        self.initial = config.initial
         self.motion = config.motion
         self.assoc = config.association
         self._associate = associate
@@ -550,7 +536,7 @@ class EkfEstimator:
         self._tracks: list[_Track] = []
         self._next_id = 0
         has_gt = bool(metadata.sensors_of_kind("ground_truth"))
-        self._wait_gt = self.cfg.initial_pose == "first_ground_truth" and has_gt
+        self._wait_gt = self.initial.pose == "first_ground_truth" and has_gt
         # outputs
         self._traj: dict[str, list] = {k: [] for k in ("t", "x", "P")}  # vehicle state and covariance
         self._veh_hist: tuple[list, list] = ([], [])
@@ -578,12 +564,12 @@ class EkfEstimator:
         x0 = np.zeros(self.nv)  # the heading bias (if modelled) starts at 0
         x0[POS] = position
         x0[ATT] = geo.euler(R_WB)
-        c = self.cfg
+        c = self.initial
         P0 = np.diag(
             np.r_[
                 pos_sigma**2,
-                [c.initial_attitude_sigma_rad**2] * 3,
-                [c.initial_velocity_sigma_m_s**2] * 3,
+                [c.attitude_sigma_rad**2] * 3,
+                [c.velocity_sigma_m_s**2] * 3,
                 [self._bias_sigma0**2] * (self.nv - NX),
             ]
         )
@@ -659,14 +645,14 @@ class EkfEstimator:
             self._last_depth = m.depth
         if isinstance(m, GroundTruthPose) and self._wait_gt:
             R = Rotation.from_quat(m.orientation).as_matrix()
-            self._initialise(m.stamp, np.asarray(m.position), R, np.full(3, self.cfg.initial_position_sigma_m))
+            self._initialise(m.stamp, np.asarray(m.position), R, np.full(3, self.initial.position_sigma_m))
         elif isinstance(m, Attitude) and not self._wait_gt:
             R_BS, _ = self._extrinsic(m.sensor)
             R_WB = Rotation.from_quat(m.orientation).as_matrix() @ R_BS.T
             z = self._last_depth if self._last_depth is not None else 0.0
             sig = np.array(
-                [self.cfg.initial_position_sigma_m] * 2
-                + [self.cfg.initial_position_sigma_m if self._last_depth is not None else 10.0]
+                [self.initial.position_sigma_m] * 2
+                + [self.initial.position_sigma_m if self._last_depth is not None else 10.0]
             )
             self._initialise(m.stamp, np.array([0.0, 0.0, z]), R_WB, sig)
             self._attitude(m)
@@ -796,7 +782,7 @@ class EkfEstimator:
         if not feats or not obs:
             return near
         x, P = self.state.x, self.state.P
-        gate = self.cfg.pre_gate_m + 3.0 * math.sqrt(max(np.trace(P[POS, POS]), 0.0))
+        gate = self.assoc.pre_gate_m + 3.0 * math.sqrt(max(np.trace(P[POS, POS]), 0.0))
         kinds = np.array([f.kind for f in feats])
         starts = np.array([f.index for f in feats])
         obj, pip = np.flatnonzero(kinds == "object"), np.flatnonzero(kinds == "pipe")
@@ -866,7 +852,7 @@ class EkfEstimator:
         return self._associate(EkfAssociationProblem(self, obs), confidence=self.assoc.confidence)
 
     def _slam_update(self, stamp: int, obs: list[_Obs]) -> None:
-        scan = _ScanPairs(self, obs, max(self.assoc.confidence, self.cfg.track_gate_confidence))
+        scan = _ScanPairs(self, obs, max(self.assoc.confidence, self.assoc.track_gate_confidence))
         if self._associate is not None:
             pairs = self._associate_batch(obs)
             paired = [(o, self._features[j]) for o, j in zip(obs, pairs) if j is not None]
@@ -877,7 +863,7 @@ class EkfEstimator:
             lins = [scan.linearisation(i, j) for i, j in enumerate(pairs) if j is not None]
         # ambiguous rather than new: compatible with a mapped feature at the looser track gate, on
         # the linearisation the pairings were decided on
-        near = scan.near(self.cfg.track_gate_confidence)
+        near = scan.near(self.assoc.track_gate_confidence)
         if paired:
             self._joint_update(paired, lins)
         for o, f in paired:
@@ -913,7 +899,7 @@ class EkfEstimator:
         x, P = self.state.x, self.state.P
         idx = np.array([self._features[k].index for k in objs])[:, None] + np.arange(3)
         pos = x[idx]
-        close = np.linalg.norm(pos[rows][:, None] - pos[None], axis=2) < self.cfg.pre_gate_m
+        close = np.linalg.norm(pos[rows][:, None] - pos[None], axis=2) < self.assoc.pre_gate_m
         close &= rows[:, None] != np.arange(len(objs))[None, :]
         ra, b = np.nonzero(close)
         a = rows[ra]
@@ -990,9 +976,9 @@ class EkfEstimator:
 
     def _same_stretch(self, extent: _Extent, ends_b: np.ndarray, m: np.ndarray, d: np.ndarray) -> bool:
         """Segment ends_b shares over half of the shorter stretch with the seen extent of the pipe (m, d),
-        its ends within ``ekf.duplicate_pipe_distance_m`` of that pipe's axis."""
+        its ends within ``association.duplicate_pipe_distance_m`` of that pipe's axis."""
         return (
-            _off_axis(ends_b, m, d) <= self.cfg.duplicate_pipe_distance_m
+            _off_axis(ends_b, m, d) <= self.assoc.duplicate_pipe_distance_m
             and _overlap_fraction(extent, ends_b, m, d) >= 0.5
         )
 
@@ -1028,7 +1014,7 @@ class EkfEstimator:
         new: it is dropped rather than started as a duplicate feature."""
         if not self._features:
             return False
-        if _ScanPairs(self, [o], self.cfg.track_gate_confidence).near(self.cfg.track_gate_confidence)[0]:
+        if _ScanPairs(self, [o], self.assoc.track_gate_confidence).near(self.assoc.track_gate_confidence)[0]:
             return True
         return bool(self._on_mapped_pipe([o])[0])
 
@@ -1131,10 +1117,10 @@ class EkfEstimator:
 
     def _tentative(self, stamp: int, new: list[_Obs]) -> None:
         """Unpaired observations extend or start tentative features; confirmed ones join the state."""
-        horizon = self.cfg.track_timeout_s / NS
+        horizon = self.assoc.track_timeout_s / NS
         self._tracks = [t for t in self._tracks if stamp - t.last_stamp <= horizon]
         used: set[int] = set()
-        gate = Chi2Gate(self.cfg.track_gate_confidence)
+        gate = Chi2Gate(self.assoc.track_gate_confidence)
         memo: list = [None]  # the separators, recomputed only after an object changed
 
         def objects() -> np.ndarray:
