@@ -7,9 +7,9 @@ import pytest
 from scipy.stats import chi2
 
 from factors.landmarks import LineAnchor
-from semslam.backend.association import individual_nis
 from semslam.backend.landmarks import Landmark
 from semslam.backend.problem import Candidate, GraphAssociationProblem, possible_pairs
+from semslam.mapping.association import uncorrelated_candidates
 from semslam.observations import LineObservation, PointObservation
 
 GATES = {d: float(chi2.ppf(0.99, d)) for d in (3, 4)}
@@ -66,16 +66,13 @@ def test_never_rejects_an_individually_compatible_pair(seed):
     mask = possible_pairs(pose, pose_cov, obs, T_BS, cands, GATES)
     everything = np.ones_like(mask)
     problem = GraphAssociationProblem(pose, pose_cov, obs, T_BS, cands, 10.0, everything)
-    compatible = 0
-    for i in range(len(obs)):
-        for j in range(len(cands)):
-            p = problem.pair(i, j)
-            if p is None:
-                continue
-            if individual_nis(problem, i, j) < GATES[len(p.innovation)]:
-                compatible += 1
-                assert mask[i, j], (i, j)
-    assert compatible > 0
+    pairs = [(i, j, problem.pair(i, j)) for i in range(len(obs)) for j in range(len(cands))]
+    found = uncorrelated_candidates(
+        len(obs), [t for t in pairs if t[2] is not None], pose_cov, problem.landmark_covariance, 0.99
+    )
+    assert len(found.obs) > 0  # individually compatible at the exact gate
+    for i, j in zip(found.obs, found.lm):
+        assert mask[i, j], (i, j)
 
 
 def test_rejects_far_pairs_and_other_kinds():

@@ -273,7 +273,9 @@ def test_two_object_landmarks_on_one_place_are_merged():
     """A second landmark made from the same views as a mapped object (as when a first track's
     views were off and both end up fed by one object) converges onto it and is merged: the map
     keeps one object with both histories, and the graph (rebuild included) goes on."""
-    from semslam.backend.landmarks import Track
+    import bisect
+
+    from semslam.backend.landmarks import ObservationRecord, Track
 
     mission = simulate(
         SyntheticConfig(duration_s=60.0, n_objects=3, n_pipes=0, n_structures=0, ahrs_yaw_bias_rad=0.0, seed=2)
@@ -288,18 +290,20 @@ def test_two_object_landmarks_on_one_place_are_merged():
             if obs:
                 est.process_observations(m.stamp, obs)
         objects = [lm for lm in est.landmarks.values() if lm.kind == "object"]
-        if twin is None and objects and len(objects[0].history) >= 5:
+        if twin is None and objects and est.book.n_views(objects[0].id) >= 5:
             a = objects[0]
-            tr = Track("object", records=list(a.history), world=[np.asarray(a.estimate)] * len(a.history))
+            views = est.book.views[a.id]
+            records = [ObservationRecord(t, bisect.bisect_left(est.kf_stamps, t), z) for t, z in views]
+            tr = Track("object", records=records, world=[np.asarray(a.estimate)] * len(views))
             factors, values = [], gtsam.Values()
             est._promote(tr, factors, values, est._pose_cov)
             twin = max(est.landmarks)
             assert est._commit(factors, values)
             est._refresh_landmarks({a.id, twin})
-            n_before, n_hist = len(est.landmarks), len(a.history)
+            n_before, n_hist = len(est.landmarks), est.book.n_views(a.id)
             est._merge_twins({twin})
             assert twin not in est.landmarks and a.id in est.landmarks
-            assert len(est.landmarks) == n_before - 1 and len(a.history) == 2 * n_hist
+            assert len(est.landmarks) == n_before - 1 and est.book.n_views(a.id) == 2 * n_hist
             assert any(f"merged into {a.id}" in d for d in est.diagnostics)
             est._rebuild([], gtsam.Values(), [])  # the merged landmark's key stays in the graph
     res = est.finish()

@@ -3,7 +3,8 @@
 import numpy as np
 import pytest
 
-from semslam.backend.landmarks import class_posterior, collinear, merge_collinear
+from semslam.mapping.book import LandmarkBook
+from semslam.mapping.pipes import collinear, merge_collinear
 from semslam.observations import LineObservation
 
 
@@ -44,14 +45,24 @@ def test_merge_collinear_spans_all_members():
     )
 
 
+def _posterior(likelihoods):
+    """A landmark's class posterior in the shared book, from views with these likelihood vectors."""
+    from semslam.observations import PointObservation
+
+    book = LandmarkBook()
+    for k, lk in enumerate(likelihoods):
+        book.observe(1, k, PointObservation(k, "laser", class_likelihood=lk))
+    return book.class_posterior(1)
+
+
 def test_class_posterior_is_normalised_product():
     lk = [{"a": 0.8, "b": 0.1, "c": 0.1}, {"a": 0.1, "b": 0.8, "c": 0.1}, {"a": 0.8, "b": 0.1, "c": 0.1}]
-    post = class_posterior(lk)
+    post = _posterior(lk)
     expected = np.array([0.8 * 0.1 * 0.8, 0.1 * 0.8 * 0.1, 0.1 * 0.1 * 0.1])
     np.testing.assert_allclose([post["a"], post["b"], post["c"]], expected / expected.sum())
-    assert class_posterior([]) is None
+    assert _posterior([]) is None
     # Many confident views do not underflow.
-    post = class_posterior([{"a": 1e-200, "b": 1.0}] * 50 + [{"a": 1.0, "b": 1e-300}])
+    post = _posterior([{"a": 1e-200, "b": 1.0}] * 50 + [{"a": 1.0, "b": 1e-300}])
     assert np.isfinite(list(post.values())).all() and np.isclose(sum(post.values()), 1.0)
 
 

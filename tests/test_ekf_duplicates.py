@@ -64,7 +64,7 @@ def test_overconfident_views_of_a_mapped_pipe_start_no_duplicate():
     # criterion (0.175 rad, 0.3 m): dropped, not a second pipe
     est = _scene_run(extra_after_s=30.0, offset=np.array([0.0, 0.04, 0.0]))
     assert _kinds(est) == ["object", "object", "pipe", "pipe"]
-    assert est._features[0].n_obs < 20  # it was not paired after the shift
+    assert est.book.n_views(est._features[0].id) < 20  # it was not paired after the shift
 
 
 def test_new_pipes_beside_or_beyond_an_in_line_object_are_still_mapped():
@@ -95,12 +95,14 @@ def test_two_features_of_one_object_are_fused_and_the_younger_dropped():
     # a second feature 1 cm from the valve, as outlying views can start (it enters with their covariance)
     z = (est.state.x[valve.cols] + [0.01, 0.0, 0.0] - t) @ R
     (ob,) = est._prepare([PointObservation(0, "laser", position=z, covariance=np.eye(3) * 0.02**2)])
-    est._add_feature(ob, _Track("object", np.zeros(3), np.eye(3), 3, 0))
+    for _ in range(3):  # the track's three views
+        est.book.observe(("track", -1), 0, ob.obs)
+    est._add_feature(ob, _Track("object", np.zeros(3), np.eye(3), 3, 0, key=-1))
     assert len([f for f in est._features if f.kind == "object"]) == 3
-    n_before = valve.n_obs
+    n_before = est.book.n_views(valve.id)
     est._merge_duplicate_objects()
     objects = [f for f in est._features if f.kind == "object"]
-    assert len(objects) == 2 and objects[0] is valve and valve.n_obs == n_before + 3
+    assert len(objects) == 2 and objects[0] is valve and est.book.n_views(valve.id) == n_before + 3
     assert est.state.n == n_state
     assert np.linalg.eigvalsh(est.state.P).min() > -1e-12
     # the elbow, 1.8 m away, is another object: nothing more to fuse
@@ -120,7 +122,9 @@ def _add_pipe(est, a_W, b_W, sigma=0.01):
     )
     extent = _Extent()
     extent.add(ob.ends_W, sigma)
-    est._add_feature(ob, _Track("pipe", np.zeros(6), np.eye(4), 3, 0, extent))
+    for _ in range(3):  # the track's three views
+        est.book.observe(("track", -1), 0, ob.obs)
+    est._add_feature(ob, _Track("pipe", np.zeros(6), np.eye(4), 3, 0, extent, key=-1))
     return est._features[-1]
 
 
@@ -128,14 +132,14 @@ def test_two_features_of_one_pipe_are_fused_and_the_younger_dropped():
     est = _scene_run()
     n_state = est.state.n
     pipe_a = next(f for f in est._features if f.kind == "pipe")
-    n_views, n_ends = pipe_a.n_obs, len(pipe_a.extent)
+    n_views, n_ends = est.book.n_views(pipe_a.id), len(pipe_a.extent)
     # a second feature on the right half of pipe A, 1 cm off and reversed, as a track started on a
     # part of the pipe not yet seen can enter
     twin = _add_pipe(est, np.array([0.8, 0.01, 4.5]), np.array([0.2, 0.01, 4.5]))
     assert _kinds(est).count("pipe") == 3
     est._merge_duplicate_pipes({twin.id})
     assert _kinds(est) == ["object", "object", "pipe", "pipe"]
-    assert pipe_a in est._features and pipe_a.n_obs == n_views + 3 and len(pipe_a.extent) == n_ends + 1
+    assert pipe_a in est._features and est.book.n_views(pipe_a.id) == n_views + 3 and len(pipe_a.extent) == n_ends + 1
     assert est.state.n == n_state
     assert np.linalg.eigvalsh(est.state.P).min() > -1e-12
     # the kept line is still pipe A: its seen ends lie on the true axis within a centimetre

@@ -6,15 +6,15 @@ import pytest
 from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
-from semslam.backend.association import PairLinearization, individual_nis, jcbb, joint_nis
 from semslam.config import SemslamConfig
 from semslam.ekf import EkfEstimator
 from semslam.ekf import batch as bt
 from semslam.ekf import geometry as g
 from semslam.ekf import models as mdl
-from semslam.ekf.estimator import EkfAssociationProblem, _ScanPairs
+from semslam.ekf.estimator import _ScanPairs
 from semslam.ekf.filter import EkfState, inv_small
-from semslam.ekf.jcbb import jcbb_dense
+from semslam.mapping.association import PairLinearization
+from tests.support.association import individual_nis, joint_nis, solve
 from tests.support.ekf_mission import simulate_circling
 from tests.support.ekf_reference import predict_reference
 
@@ -172,7 +172,7 @@ def test_batch_models_equal_the_scalar_ones():
 
 
 class _DenseView:
-    """A generic association problem with a given joint covariance (for jcbb against jcbb_dense)."""
+    """An association problem with a given joint covariance (every block correlated)."""
 
     def __init__(self, Z, L, P, R):
         self.Z, self.L, self.P, self.R = Z, L, P, R
@@ -187,33 +187,10 @@ class _DenseView:
         return self.P[ia, ib]
 
 
-def _dense_from_problem(prob):
-    """Every pair's innovation, rows and the full joint covariance of the generic problem."""
-    n, m = prob.n_observations, prob.n_landmarks
-    obs, lm, lins = [], [], []
-    for i in range(n):
-        for j in range(m):
-            p = prob.pair(i, j)
-            if p is not None:
-                obs.append(i), lm.append(j), lins.append(p)
-    rows, r = [], 0
-    for p in lins:
-        rows.append(np.arange(r, r + len(p.innovation)))
-        r += len(p.innovation)
-    nu = np.concatenate([p.innovation for p in lins])
-    S = np.zeros((r, r))
-    for a, (pa, ja) in enumerate(zip(lins, lm)):
-        for b, (pb, jb) in enumerate(zip(lins, lm)):
-            blk = pa.H_x @ prob.covariance(None, None) @ pb.H_x.T + pa.H_x @ prob.covariance(None, jb) @ pb.H_l.T
-            blk = blk + pa.H_l @ prob.covariance(ja, None) @ pb.H_x.T + pa.H_l @ prob.covariance(ja, jb) @ pb.H_l.T
-            if a == b:
-                blk = blk + pa.R
-            S[np.ix_(rows[a], rows[b])] = blk
-    return np.array(obs), np.array(lm), rows, nu, S
-
-
 @pytest.mark.parametrize("seed", range(25))
-def test_dense_jcbb_is_jcbb(seed):
+def test_dense_joint_is_the_direct_joint(seed):
+    """The Schur-complement steps on slices of S give, node for node, the joint NIS solved afresh:
+    the one search finds the same hypothesis with either."""
     rng = np.random.default_rng(seed)
     m = int(rng.integers(3, 9))
     L = rng.uniform(-1, 1, (m, 3)) * rng.uniform(0.1, 1.0)  # sometimes crowded
@@ -224,12 +201,11 @@ def test_dense_jcbb_is_jcbb(seed):
     A = rng.normal(size=(3 + 3 * m, 3 + 3 * m)) * 0.02
     P = A @ A.T + np.diag([0.1**2] * 3 + [0.03**2] * (3 * m))  # correlated landmarks
     prob = _DenseView(np.array(Z), L, P, np.eye(3) * 0.02**2)
-    obs, lm, rows, nu, S = _dense_from_problem(prob)
-    out = jcbb_dense(len(Z), obs, lm, rows, nu, S, 0.99, by_nis=True)  # the shared jcbb's order
-    assert out == jcbb(prob, 0.99)
+    out = solve(prob, 0.99)
+    assert out == solve(prob, 0.99, joint="direct")
     # restarted from a greedy hypothesis at once: as many pairings, jointly compatible
     stats = {}
-    seeded = jcbb_dense(len(Z), obs, lm, rows, nu, S, 0.99, seed_after=1, stats=stats, by_nis=True)
+    seeded = solve(prob, 0.99, seed_after=1, stats=stats)
     pairs = [(i, j) for i, j in enumerate(seeded) if j is not None]
     assert len(pairs) == sum(j is not None for j in out)
     assert len({j for _, j in pairs}) == len(pairs)
@@ -237,43 +213,9 @@ def test_dense_jcbb_is_jcbb(seed):
         assert stats["seeded"] and joint_nis(prob, pairs) < chi2.ppf(0.99, 3 * len(pairs))
 
 
-class _Reordered:
-    """A generic problem with its observations permuted (for the shared jcbb in another order)."""
-
-    def __init__(self, prob, perm):
-        self.prob, self.perm = prob, perm
-        self.n_observations, self.n_landmarks = prob.n_observations, prob.n_landmarks
-
-    def pair(self, i, j):
-        return self.prob.pair(self.perm[i], j)
-
-    def covariance(self, a, b):
-        return self.prob.covariance(a, b)
-
-
-def _jcbb_most_certain_first(prob, confidence):
-    """The shared jcbb with the observations in order of increasing best individual NIS."""
-    gate = {d: chi2.ppf(confidence, d) for d in (3, 4)}
-
-    def best(i):
-        v = [individual_nis(prob, i, j) for j in range(prob.n_landmarks) if prob.pair(i, j) is not None]
-        v = [
-            x
-            for x, j in zip(v, [j for j in range(prob.n_landmarks) if prob.pair(i, j) is not None])
-            if x < gate[len(prob.pair(i, j).innovation)]
-        ]
-        return min(v) if v else np.inf
-
-    perm = sorted(range(prob.n_observations), key=best)
-    out = jcbb(_Reordered(prob, perm), confidence)
-    result = [None] * prob.n_observations
-    for k, j in enumerate(out):
-        result[perm[k]] = j
-    return result
-
-
 @pytest.mark.parametrize("seed", range(15))
-def test_dense_jcbb_most_certain_first_is_jcbb_in_that_order(seed):
+def test_the_order_of_the_observations_does_not_matter(seed):
+    """Observations are searched most certain first, whatever order the front-end gave them in."""
     rng = np.random.default_rng(100 + seed)
     m = int(rng.integers(3, 8))
     L = rng.uniform(-1, 1, (m, 3)) * rng.uniform(0.1, 1.0)
@@ -282,9 +224,29 @@ def test_dense_jcbb_most_certain_first_is_jcbb_in_that_order(seed):
     Z += [rng.uniform(-1, 1, 3) for _ in range(2)]
     A = rng.normal(size=(3 + 3 * m, 3 + 3 * m)) * 0.02
     P = A @ A.T + np.diag([0.1**2] * 3 + [0.03**2] * (3 * m))
-    prob = _DenseView(np.array(Z), L, P, np.eye(3) * 0.02**2)
-    obs, lm, rows, nu, S = _dense_from_problem(prob)
-    assert jcbb_dense(len(Z), obs, lm, rows, nu, S, 0.99, by_nis=True) == _jcbb_most_certain_first(prob, 0.99)
+    out = solve(_DenseView(np.array(Z), L, P, np.eye(3) * 0.02**2), 0.99)
+    perm = rng.permutation(len(Z))
+    shuffled = solve(_DenseView(np.array(Z)[perm], L, P, np.eye(3) * 0.02**2), 0.99)
+    assert shuffled == [out[k] for k in perm]
+
+
+class _PairwiseProblem:
+    """The filter's pairs one by one (its scalar models), as a callback problem."""
+
+    def __init__(self, est, obs):
+        self.est, self.obs = est, obs
+        self.n_observations, self.n_landmarks = len(obs), len(est._features)
+        self._near = est._pre_gate(obs)
+
+    def pair(self, i, j):
+        return self.est._pair(self.obs[i], self.est._features[j]) if self._near[i, j] else None
+
+    def covariance(self, a, b):
+        from semslam.ekf.models import NX
+
+        ia = np.arange(NX) if a is None else self.est._features[a].cols
+        ib = np.arange(NX) if b is None else self.est._features[b].cols
+        return self.est.state.P[np.ix_(ia, ib)]
 
 
 def _mapped_filter(seed=2):
@@ -304,7 +266,7 @@ def test_scan_linearisation_equals_the_pairwise_problem():
     assert len(est._features) > 5
     prepared = est._prepare(obs)
     scan = _ScanPairs(est, prepared, 0.999)
-    prob = EkfAssociationProblem(est, prepared)
+    prob = _PairwiseProblem(est, prepared)
     assert len(scan.obs) > 0
     for k, (i, j) in enumerate(zip(scan.obs, scan.feat)):
         p = prob.pair(int(i), int(j))
@@ -324,22 +286,21 @@ def test_scan_linearisation_equals_the_pairwise_problem():
     }
     assert generic == {(int(i), int(j)) for i, j in zip(scan.obs, scan.feat)}
     assert all(scan.nis[k] < gate[len(scan.nu[k])] for k in range(len(scan.obs)))
-    assert scan.associate(0.99) == _jcbb_most_certain_first(prob, 0.99)
+    assert scan.associate(0.99) == solve(prob, 0.99, joint="direct")
 
 
 def test_matching_bound_cuts_competing_observations():
     """Ten observations all compatible with the same three landmarks: the branches that cannot pair
     more than three are cut by the matching bound (the count of observations with a free candidate
-    alone lets the search expand ~700 nodes here), with the result of the shared jcbb."""
+    alone lets the search expand ~700 nodes here), with the reference's result."""
     rng = np.random.default_rng(3)
     L = np.array([[0.0, 0.0, 0.0], [0.02, 0.0, 0.0], [0.0, 0.02, 0.0]])
     Z = [L[k % 3] + rng.normal(0, 0.01, 3) for k in range(10)]
     P = np.diag([0.05**2] * 3 + [0.02**2] * 9)
     prob = _DenseView(np.array(Z), L, P, np.eye(3) * 0.02**2)
-    obs, lm, rows, nu, S = _dense_from_problem(prob)
     stats = {}
-    out = jcbb_dense(len(Z), obs, lm, rows, nu, S, 0.99, stats=stats, by_nis=True)
-    assert out == jcbb(prob, 0.99)
+    out = solve(prob, 0.99, stats=stats)
+    assert out == solve(prob, 0.99, joint="direct")
     assert sum(j is not None for j in out) == 3
     assert stats["nodes"] < 20 and not stats["capped"]
 

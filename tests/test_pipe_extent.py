@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from semslam.backend.landmarks import robust_ends
+from semslam.mapping.pipes import robust_ends
 
 
 def test_ends_of_many_noisy_views_are_not_biased_outwards():
@@ -25,7 +25,8 @@ def test_a_few_views_give_their_median_ends():
 
 
 def test_association_extent_stays_short_of_the_next_valve():
-    from semslam.backend.landmarks import Landmark, object_between
+    from semslam.backend.landmarks import Landmark
+    from semslam.mapping.pipes import object_between
 
     # pipe 18 of the tank: 0.40 m long, a 3-way valve 0.12 m beyond its end, then pipe 16
     rng = np.random.default_rng(5)

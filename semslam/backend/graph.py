@@ -19,13 +19,11 @@ import bisect
 import math
 import time
 from collections.abc import Sequence
-from functools import lru_cache
 
 import gtsam
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 from scipy.spatial.transform import Rotation
-from scipy.stats import chi2
 
 from factors.geometry import pose_point_jacobian
 from factors.landmarks import (
@@ -48,14 +46,16 @@ from factors.navigation import (
     heading_bias_walk_factor,
     velocity_random_walk_factor,
 )
-from semslam.backend.association import PairLinearization, jcbb
-from semslam.backend.landmarks import Landmark, ObservationRecord, Track, merge_collinear, object_between
+from semslam.backend.landmarks import Landmark, ObservationRecord, Track
 from semslam.backend.marginal import marginal_covariance
 from semslam.backend.navigation import NavigationBuffer
 from semslam.backend.problem import Candidate, GraphAssociationProblem, possible_pairs
 from semslam.backend.window import LANDMARK_CHARS, marginal_factors, split_factors, subset, value_of
 from semslam.config import GraphConfig, SemslamConfig
 from semslam.estimation import EstimatorResult, LandmarkEstimate, Trajectory
+from semslam.mapping.association import LowRankJoint, PairLinearization, chi2_gate, jcbb, uncorrelated_candidates
+from semslam.mapping.book import LandmarkBook
+from semslam.mapping.pipes import merge_collinear, object_between, point_segment_distance, segment_matches_line
 from semslam.mission.measurements import GroundTruthPose, Measurement
 from semslam.mission.mission import MissionMetadata
 from semslam.observations import LineObservation, OdometryObservation, PointObservation, StructureObservation
@@ -129,6 +129,7 @@ class GraphEstimator:
         self._bias = 0.0  # latest keyframe's bias estimate (rad)
         self.online: list[tuple[int, gtsam.Pose3, np.ndarray]] = []
         self.landmarks: dict[int, Landmark] = {}
+        self.book = LandmarkBook()  # views, class evidence and connectivity of the landmarks
         self.tracks: list[Track] = []
         self._next_id = 0
         self.update_times: list[float] = []
@@ -535,7 +536,7 @@ class GraphEstimator:
         object mapped twice, e.g. from a first track whose views were off: the younger is tied to
         the older by a stiff zero-offset factor and leaves the map, its views and class evidence
         going to the older one."""
-        gate = _chi2(self.assoc.confidence, 3)
+        gate = chi2_gate(self.assoc.confidence, 3)
         for lid in sorted(ids):
             a = self.landmarks.get(lid)
             if a is None or a.kind != "object":
@@ -557,8 +558,7 @@ class GraphEstimator:
                 tie = gtsam.BetweenFactorPoint3(
                     keep.key, drop.key, np.zeros(3), gtsam.noiseModel.Isotropic.Sigma(3, 1e-3)
                 )
-                keep.history += drop.history
-                keep.class_likelihoods += drop.class_likelihoods
+                self.book.merge(keep.id, drop.id)
                 if drop.information is not None:
                     keep.add_information(drop.information)
                 keep.connected |= drop.connected
@@ -640,9 +640,9 @@ class GraphEstimator:
         dist = np.linalg.norm(obs_pts[:, None, :] - anchor_pts[None, :, :], axis=2)
         for j, lm in enumerate(cand_lms):
             if lm.kind == "pipe":
-                dist[:, j] = _point_segment_distance(obs_pts, *_pipe_ends(lm))
+                dist[:, j] = point_segment_distance(obs_pts, *_pipe_ends(lm))
         cands = [Candidate(lm, lm.covariance) for lm in cand_lms]
-        gates = {d: _chi2(self.assoc.confidence, d) for d in (3, 4)}
+        gates = {d: chi2_gate(self.assoc.confidence, d) for d in (3, 4)}
         allowed = (dist <= self.assoc.pre_gate_m) & possible_pairs(pose, pose_cov, obs, T_BS, cands, gates)
         problem = GraphAssociationProblem(
             pose,
@@ -656,12 +656,15 @@ class GraphEstimator:
             separator_radius=self.assoc.inline_object_radius_m,
             cutters=self._mapped_object_points(),
         )
-        result = jcbb(problem, confidence=self.assoc.confidence)
+        pairs = [(i, int(j), problem.pair(i, int(j))) for i in range(len(obs)) for j in problem.candidate_landmarks(i)]
+        cov_of = problem.landmark_covariance
+        found = uncorrelated_candidates(
+            len(obs), [t for t in pairs if t[2] is not None], pose_cov, cov_of, self.assoc.confidence
+        )
+        result = jcbb(found, LowRankJoint(found, pose_cov, cov_of), self.assoc.confidence)
         paired = {j for j in result if j is not None}
         out: list[int | None] = []
         lins: list[PairLinearization | None] = []
-        from semslam.backend.association import individual_nis
-
         for i, j in enumerate(result):
             lins.append(None)
             if j is not None:
@@ -669,18 +672,12 @@ class GraphEstimator:
                 lins[i] = problem.pair(i, j)
                 continue
             # Left unpaired by JCBB: is it compatible with some landmark anyway?
-            best, best_j = np.inf, None
-            for jj in range(len(cands)):
-                if allowed[i, jj]:
-                    p = problem.pair(i, jj)
-                    if p is not None:
-                        nis = individual_nis(problem, i, jj)
-                        if nis < best:
-                            best, best_j = nis, jj
-            if best_j is not None and best < _chi2(self.assoc.confidence, len(problem.pair(i, best_j).innovation)):
+            best = found.best(i)
+            if best is not None:
+                best_j = int(found.lm[best])
                 if isinstance(obs[i], LineObservation) and best_j in paired:
                     out.append(cand_lms[best_j].id)  # a second segment of a pipe already paired
-                    lins[i] = problem.pair(i, best_j)
+                    lins[i] = found.lin[best]
                     continue
                 self._ambiguous.add(i)
             elif self._overlaps_mapped(obs[i], pose, T_BS[i], cand_lms):
@@ -714,13 +711,11 @@ class GraphEstimator:
         lin: PairLinearization | None = None,
     ) -> None:
         """``lin``: the observation's linearisation at (pose, lm.estimate), when the association has it."""
-        lm.history.append(ObservationRecord(stamp, k, z))
+        self.book.observe(lm.id, stamp, z)
         if lin is not None:
             lm.add_information(_information(lin.H_x, lin.H_l, lin.R, pose_cov))
         else:
             lm.add_information(_observation_information(lm, z, pose, pose_cov, T_BS))
-        if isinstance(z, PointObservation) and z.class_likelihood:
-            lm.class_likelihoods.append(dict(z.class_likelihood))
         if lm.kind == "pipe":
             T_WS = pose.compose(gtsam.Pose3(T_BS))
             s = lm.anchor.to_line_frame(lm.estimate, np.vstack([T_WS.transformFrom(z.p), T_WS.transformFrom(z.q)]))[
@@ -788,7 +783,7 @@ class GraphEstimator:
         """The largest :meth:`_track_cost` that continues a track."""
         if isinstance(z, LineObservation):
             return self.assoc.merge_distance_m
-        return _chi2(self.assoc.track_gate_confidence, 3)
+        return chi2_gate(self.assoc.track_gate_confidence, 3)
 
     def _track_cost(self, tr: Track, z, w, cov, k: int, objects: np.ndarray) -> float:
         """How well observation z (in {W}: w, cov) continues track tr; inf when it cannot.
@@ -802,7 +797,7 @@ class GraphEstimator:
             c, d = tr.line_fit()
             seen = np.vstack(tr.world)
             s_seen = (seen - c) @ d
-            if not _segment_matches_line(
+            if not segment_matches_line(
                 w, c, d, seen, self.assoc.merge_angle_rad, self.assoc.merge_distance_m, self.assoc.pipe_extent_gap_m
             ) or object_between((s_seen.min(), s_seen.max()), w, c, d, objects, self.assoc.inline_object_radius_m):
                 return np.inf
@@ -1025,10 +1020,10 @@ class GraphEstimator:
         for lm in self.landmarks.values():
             est = value_of(values, lm.key) if values is not None else self._landmark_value(lm)
             cov = covs.get(lm.id)
-            le = LandmarkEstimate(id=lm.id, kind=lm.kind, n_observations=len(lm.history), model=lm.model)
+            le = LandmarkEstimate(id=lm.id, kind=lm.kind, n_observations=self.book.n_views(lm.id), model=lm.model)
             if lm.kind == "object":
                 le.position, le.covariance = np.asarray(est, float), cov
-                le.class_posterior = lm.class_posterior()
+                le.class_posterior = self.book.class_posterior(lm.id)
             elif lm.kind == "pipe":
                 c, d = lm.anchor.point(est), lm.anchor.direction(est)
                 # extent was measured in the line frame centred at c0: project onto the new line
@@ -1140,19 +1135,13 @@ class GraphEstimator:
             position_cov=np.array([c for _, _, c in self.online]),
         )
         landmarks = self.landmark_estimates(self.cfg.covariance_in_result, values, marginals)
-        _connect(landmarks, self.landmarks, self.assoc.merge_distance_m)
+        self.book.connect(landmarks, self.assoc.merge_distance_m)
         history["landmark_kind"] = {lm.id: lm.kind for lm in self.landmarks.values()}
         history["landmark_volume"] = {
             lid: (np.array([s for s, _ in v], np.int64), np.array([x for _, x in v])) for lid, v in self._volume.items()
         }
         # which landmark each observation (by object identity) ended in, for the recognition tables
-        history["landmark_of_observation"] = {
-            id(r.observation): lm.id for lm in self.landmarks.values() for r in lm.history
-        }
-        history["landmark_observations"] = {
-            lm.id: [(r.stamp, getattr(r.observation, "truth_id", None)) for r in lm.history]
-            for lm in self.landmarks.values()
-        }
+        history.update(self.book.history(self.landmarks))
         if self.nav.unknown_sensors:
             self.diagnostics.append(
                 f"measurements from sensors missing in the metadata: {sorted(self.nav.unknown_sensors)}"
@@ -1196,33 +1185,6 @@ def _levenberg_marquardt(graph: gtsam.NonlinearFactorGraph, initial: gtsam.Value
             return gtsam.Values(opt.values())
 
 
-@lru_cache(maxsize=256)
-def _chi2(confidence: float, dof: int) -> float:
-    """χ² quantile (scipy's ppf costs ~0.1 ms: cached)."""
-    return float(chi2.ppf(confidence, dof))
-
-
-def _connect(estimates: list[LandmarkEstimate], landmarks: dict[int, Landmark], max_distance: float) -> None:
-    """Object ↔ pipe connectivity: an object whose views reported attached pipes is connected to
-    the pipe landmarks passing within ``max_distance`` of it (segment distance)."""
-    pipes = [e for e in estimates if e.kind == "pipe" and e.p is not None]
-    by_id = {e.id: e for e in estimates}
-    _connect_structures(pipes, [e for e in estimates if e.kind == "structure" and e.pose is not None], landmarks)
-    for e in estimates:
-        if e.kind != "object":
-            continue
-        seen_pipes = any(
-            getattr(r.observation, "connectivity", None) is not None and r.observation.connectivity.n_pipes > 0
-            for r in landmarks[e.id].history
-        )
-        if not seen_pipes:
-            continue
-        for pe in pipes:
-            if _point_segment_distance(e.position[None], pe.p, pe.q)[0] <= max_distance:
-                e.connected = tuple(sorted({*e.connected, pe.id}))
-                by_id[pe.id].connected = tuple(sorted({*by_id[pe.id].connected, e.id}))
-
-
 def _observation_information(lm: Landmark, z, pose: gtsam.Pose3, pose_cov: np.ndarray, T_BS: np.ndarray) -> np.ndarray:
     """Information H_lᵀ (R + H_x P H_xᵀ)⁻¹ H_l that one observation carries on the landmark's
     parameters, with the keyframe pose uncertainty P folded into the noise."""
@@ -1244,25 +1206,6 @@ def _information(H_x: np.ndarray, H_l: np.ndarray, R: np.ndarray, pose_cov: np.n
     return H_l.T @ np.linalg.solve(S, H_l)
 
 
-def _link(a: LandmarkEstimate, b: LandmarkEstimate) -> None:
-    a.connected = tuple(sorted({*a.connected, b.id}))
-    b.connected = tuple(sorted({*b.connected, a.id}))
-
-
-def _connect_structures(
-    pipes: list[LandmarkEstimate], structures: list[LandmarkEstimate], landmarks: dict[int, Landmark]
-) -> None:
-    """Pipe ↔ structure connectivity: a pipe whose views said it ends at a model (a pipeline leaving
-    a manifold) is linked to the structure landmark of that model nearest to its ends."""
-    for pe in pipes:
-        models = {m for r in landmarks[pe.id].history for m in getattr(r.observation, "connected_models", ())}
-        for model in models:
-            cands = [s for s in structures if s.model == model]
-            if cands:
-                ends = np.stack([pe.p, pe.q])
-                _link(pe, min(cands, key=lambda s: float(np.min(np.linalg.norm(ends - s.pose[:3, 3], axis=1)))))
-
-
 def _landmark_point(lm: Landmark) -> np.ndarray:
     if lm.kind == "object":
         return np.asarray(lm.estimate, float)
@@ -1276,26 +1219,3 @@ def _pipe_ends(lm: Landmark) -> tuple[np.ndarray, np.ndarray]:
     foot = (lm.anchor.c0 - c) @ d
     lo, hi = lm.extent
     return c + (foot + lo) * d, c + (foot + hi) * d
-
-
-def _point_segment_distance(pts: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    ab = b - a
-    s = np.clip((pts - a) @ ab / max(float(ab @ ab), 1e-12), 0.0, 1.0)
-    return np.linalg.norm(pts - (a + s[:, None] * ab), axis=1)
-
-
-def _segment_matches_line(
-    seg: np.ndarray, c: np.ndarray, d: np.ndarray, seen: np.ndarray, max_angle, max_dist, gap
-) -> bool:
-    """A world segment (2,3) on the line (c, d): angle, perpendicular offsets and extent overlap."""
-    u = seg[1] - seg[0]
-    u /= np.linalg.norm(u)
-    if np.arccos(min(1.0, abs(float(u @ d)))) > max_angle:
-        return False
-    r = seg - c
-    perp = r - np.outer(r @ d, d)
-    if np.linalg.norm(perp, axis=1).max() > max_dist:
-        return False
-    s = r @ d
-    s_seen = (seen - c) @ d
-    return not (s.max() < s_seen.min() - gap or s.min() > s_seen.max() + gap)

@@ -1,15 +1,14 @@
 """Landmark bookkeeping of the graph back-end: mapped landmarks, tentative tracks (not yet in the
-graph), class posteriors, and the merge of collinear pipe segments within one batch."""
+graph). Their views and class evidence are kept in the shared semslam.mapping.book."""
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from factors.landmarks import LineAnchor
-from semslam.observations import LineObservation
+from semslam.mapping.pipes import cut_at_objects, robust_ends, small_median
 
 
 @dataclass
@@ -29,8 +28,6 @@ class Landmark:
     id: int
     kind: str  # object | pipe | structure
     key: int
-    history: list[ObservationRecord] = field(default_factory=list)
-    class_likelihoods: list[Mapping[str, float]] = field(default_factory=list)
     anchor: LineAnchor | None = None
     extent: tuple[float, float] | None = None
     model: str | None = None
@@ -53,9 +50,6 @@ class Landmark:
         n = {"object": 3, "pipe": 4, "structure": 6}[self.kind]
         info = np.zeros((n, n)) if self.information is None else self.information
         return np.linalg.inv(info + np.eye(n) * 1e-9)
-
-    def class_posterior(self) -> dict[str, float] | None:
-        return class_posterior(self.class_likelihoods)
 
     def robust_extent(self) -> tuple[float, float]:
         """The pipe's ends along its axis (line frame), robust to endpoint noise (:func:`robust_ends`).
@@ -88,64 +82,6 @@ class Landmark:
         )
 
 
-def cut_at_objects(
-    seen: tuple[float, float],
-    c: np.ndarray,
-    d: np.ndarray,
-    objects: np.ndarray,
-    radius: float,
-    middle: float,
-    margin: float = 0.05,
-) -> tuple[float, float]:
-    """The stretch ``seen`` of the line (c, d) (positions along d from c) cut at the objects (N×3,
-    {W}) within ``radius`` of the line and more than ``margin`` inside it, keeping the side that
-    holds ``middle`` (the median of the views' middles)."""
-    lo, hi = seen
-    r = np.asarray(objects, float).reshape(-1, 3) - c
-    s = r @ d
-    inside = (np.linalg.norm(r - s[:, None] * d, axis=1) < radius) & (s > lo + margin) & (s < hi - margin)
-    if not inside.any():
-        return lo, hi
-    below, above = s[inside & (s <= middle)], s[inside & (s > middle)]
-    return (float(below.max()) if below.size else lo, float(above.min()) if above.size else hi)
-
-
-def robust_ends(lo: np.ndarray, hi: np.ndarray, window: float) -> tuple[float, float]:
-    """A pipe's ends along its axis from every view's ends (lo, hi), robust to endpoint noise.
-
-    Each view sees a stretch inside the pipe, its ends noisy along the axis (σ). Views that saw the
-    real end put their endpoint around it, clipped views lie further in, and the extreme one is
-    biased outwards by the noise (by about 3σ over a few hundred views), as is a mean of the ends
-    near it. Each end is the median of the view ends within ``window`` (6σ) of the extreme one:
-    the views around the real end, centred on it."""
-    lo_min, hi_max = float(lo.min()), float(hi.max())
-    a = small_median(lo[lo <= lo_min + window])
-    b = small_median(hi[hi >= hi_max - window])
-    return (a, b) if b > a else (lo_min, hi_max)
-
-
-def small_median(v: np.ndarray) -> float:
-    """np.median of a small 1-D array, without its per-call overhead."""
-    v = np.sort(v)
-    n = len(v)
-    return float(v[n // 2]) if n % 2 else 0.5 * float(v[n // 2 - 1] + v[n // 2])
-
-
-def class_posterior(likelihoods: Sequence[Mapping[str, float]]) -> dict[str, float] | None:
-    """Normalised product of the likelihood vectors P(Z|X) (uniform prior), computed in logs.
-    A class missing from a vector gets likelihood 0 for that view."""
-    likelihoods = [lk for lk in likelihoods if lk]
-    if not likelihoods:
-        return None
-    classes = sorted({c for lk in likelihoods for c in lk})
-    logp = np.zeros(len(classes))
-    for lk in likelihoods:
-        logp += np.log(np.maximum([float(lk.get(c, 0.0)) for c in classes], 1e-300))
-    p = np.exp(logp - logp.max())
-    p /= p.sum()
-    return dict(zip(classes, map(float, p)))
-
-
 @dataclass
 class Track:
     """A tentative landmark: consistent observations not yet in the graph (world-frame summaries
@@ -176,119 +112,3 @@ class Track:
         c = pts.mean(axis=0)
         _, _, vt = np.linalg.svd(pts - c)
         return c, vt[0]
-
-
-def segment_axis(p: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, float]:
-    d = q - p
-    n = float(np.linalg.norm(d))
-    return d / n, n
-
-
-def collinear(p1, q1, p2, q2, max_angle: float, max_distance: float) -> bool:
-    """Segments on one axis: directions within ``max_angle``, each one's endpoints within
-    ``max_distance`` of the other's line, and a gap along the axis below ``max_distance``."""
-    d1, l1 = segment_axis(p1, q1)
-    d2, l2 = segment_axis(p2, q2)
-    if np.arccos(min(1.0, abs(float(d1 @ d2)))) > max_angle:
-        return False
-    for a, d, pts in ((p1, d1, (p2, q2)), (p2, d2, (p1, q1))):
-        for x in pts:
-            r = x - a
-            if np.linalg.norm(r - (r @ d) * d) > max_distance:
-                return False
-    s = sorted([(p2 - p1) @ d1, (q2 - p1) @ d1])
-    gap = max(s[0] - l1, 0.0 - s[1], 0.0)
-    return gap <= max_distance
-
-
-def object_between(
-    seen: tuple[float, float],
-    seg: np.ndarray,
-    c: np.ndarray,
-    d: np.ndarray,
-    objects: np.ndarray,
-    radius: float,
-    margin: float = 0.1,
-) -> bool:
-    """True when an object lies on the line (c, d) between the stretch ``seen`` (axial interval)
-    and the segment ``seg`` (2×3): collinear pipes joined by an in-line part (a valve, a socket)
-    are different pipes. ``objects`` N×3 in the frame of c, d; ``radius`` how close to the line an
-    object must be; ``margin`` how far into either stretch the object may reach."""
-    if len(objects) == 0:
-        return False
-    r = np.asarray(objects, float).reshape(-1, 3) - c
-    s_obj = r @ d
-    on_line = np.linalg.norm(r - s_obj[:, None] * d, axis=1) < radius
-    if not on_line.any():
-        return False
-    a, b = seen
-    s = (np.asarray(seg) - c) @ d
-    if s.max() < a:  # the segment lies before the seen stretch
-        lo, hi = s.max() - margin, a + margin
-    elif s.min() > b:  # ... or after it
-        lo, hi = b - margin, s.min() + margin
-    else:  # overlapping: nothing can lie between
-        return False
-    return bool(np.any(on_line & (s_obj > lo) & (s_obj < hi)))
-
-
-def merge_collinear(
-    observations: Sequence[LineObservation],
-    max_angle: float,
-    max_distance: float,
-    separators: np.ndarray | None = None,
-    separator_radius: float = 0.15,
-) -> list[LineObservation]:
-    """Merge pipe segments of one batch that lie on one axis (the paper's 0.175 rad / 0.3 m).
-
-    Union-find over collinear pairs; a merged segment spans the extreme projections of all its
-    endpoints on the longest member's axis, each end keeping the covariance of the endpoint that
-    produced it. Same sensor only (segments are in its frame). Two segments with an object of the
-    batch (``separators``, N×3 in the sensor frame) on the axis between them stay apart.
-    """
-    n = len(observations)
-    seps = np.zeros((0, 3)) if separators is None else np.asarray(separators, float).reshape(-1, 3)
-    parent = list(range(n))
-
-    def find(i):
-        while parent[i] != i:
-            parent[i] = parent[parent[i]]
-            i = parent[i]
-        return i
-
-    for i in range(n):
-        for j in range(i + 1, n):
-            a, b = observations[i], observations[j]
-            if a.sensor == b.sensor and collinear(a.p, a.q, b.p, b.q, max_angle, max_distance):
-                d, length = segment_axis(a.p, a.q)
-                if not object_between((0.0, length), np.stack([b.p, b.q]), a.p, d, seps, separator_radius):
-                    parent[find(i)] = find(j)
-    groups: dict[int, list[int]] = {}
-    for i in range(n):
-        groups.setdefault(find(i), []).append(i)
-    out = []
-    for members in groups.values():
-        if len(members) == 1:
-            out.append(observations[members[0]])
-            continue
-        obs = [observations[i] for i in members]
-        longest = max(obs, key=lambda o: np.linalg.norm(o.q - o.p))
-        d, _ = segment_axis(longest.p, longest.q)
-        ends = [(o.p, o.covariance[:3, :3], o) for o in obs] + [(o.q, o.covariance[3:, 3:], o) for o in obs]
-        s = [float((e - longest.p) @ d) for e, _, _ in ends]
-        lo, hi = ends[int(np.argmin(s))], ends[int(np.argmax(s))]
-        cov = np.zeros((6, 6))
-        cov[:3, :3], cov[3:, 3:] = lo[1], hi[1]
-        truth = {o.truth_id for o in obs}
-        out.append(
-            LineObservation(
-                stamp=longest.stamp,
-                sensor=longest.sensor,
-                p=lo[0],
-                q=hi[0],
-                covariance=cov,
-                radius=longest.radius,
-                truth_id=longest.truth_id if len(truth) == 1 else longest.truth_id,
-            )
-        )
-    return out

@@ -1,4 +1,4 @@
-"""The graph back-end's data-association problem for :func:`semslam.backend.association.jcbb`.
+"""The graph back-end's data-association problem: the pairs it offers :func:`semslam.mapping.association.jcbb`.
 
 Vehicle block: the current keyframe pose X (6, tangent (ω, v)). Landmark blocks: point (3),
 line θ (4), structure pose (6). Covariances are iSAM2 marginals of single variables: the
@@ -22,8 +22,9 @@ from factors.landmarks import (
     point_residual,
     structure_residual,
 )
-from semslam.backend.association import PairLinearization
-from semslam.backend.landmarks import Landmark, object_between
+from semslam.backend.landmarks import Landmark
+from semslam.mapping.association import PairLinearization
+from semslam.mapping.pipes import object_between
 from semslam.observations import LineObservation, PointObservation, StructureObservation
 
 
@@ -35,8 +36,6 @@ class Candidate:
 
 class GraphAssociationProblem:
     """Observations of one batch against pre-gated candidate landmarks."""
-
-    uncorrelated_landmarks = True  # single-variable marginals: JCBB may use its low-rank joint NIS
 
     def __init__(
         self,
@@ -126,15 +125,9 @@ class GraphAssociationProblem:
             return PairLinearization(-r, H_x, H_l, z.covariance)
         return None
 
-    def covariance(self, a: int | None, b: int | None) -> np.ndarray:
-        if a is None and b is None:
-            return self.pose_cov
-        if a is None or b is None:
-            n = self.candidates[b if a is None else a].covariance.shape[0]
-            return np.zeros((6, n)) if a is None else np.zeros((n, 6))
-        if a == b:
-            return self.candidates[a].covariance
-        return np.zeros((self.candidates[a].covariance.shape[0], self.candidates[b].covariance.shape[0]))
+    def landmark_covariance(self, j: int) -> np.ndarray:
+        """Candidate j's gating covariance (uncorrelated with the pose and the other candidates)."""
+        return self.candidates[j].covariance
 
 
 def possible_pairs(

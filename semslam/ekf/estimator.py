@@ -35,10 +35,8 @@ evaluated at the propagated position and the landmark's first estimate; then F N
 hold exactly for that null space N (tested). The innovations stay at the current estimate.
 
 Association: every pair of a scan is linearised in one vectorised pass (:class:`_ScanPairs`), and
-JCBB (Neira & Tardós; :func:`semslam.ekf.jcbb.jcbb_dense`, node for node the shared
-:func:`semslam.backend.association.jcbb` on the same order) runs on their joint covariance, with the
-observations searched most certain first (every hypothesis on the search path must be jointly
-compatible, so the order decides which of two conflicting observations stays out).
+the shared JCBB (:func:`semslam.mapping.association.jcbb`) runs on their full joint covariance
+(:class:`~semslam.mapping.association.DenseJoint`).
 
 Pipe Jacobians are evaluated at each pipe's first estimate (FEJ, Huang, Mourikis & Roumeliotis
 2008; ``ekf.line_jacobians``): a pipe's world-origin line parameters change under a common
@@ -69,22 +67,23 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from semslam.backend.landmarks import cut_at_objects, robust_ends, small_median
 from semslam.config import EkfConfig, SemslamConfig
 from semslam.ekf import batch as bt
 from semslam.ekf import geometry as geo
 from semslam.ekf import models as mdl
 from semslam.ekf.filter import EkfState
-from semslam.ekf.jcbb import Chi2Gate, jcbb_dense
 from semslam.ekf.models import ATT, BIAS, NX, POS, VEL
 from semslam.errors import MissionError
 from semslam.estimation import EstimatorResult, LandmarkEstimate, Trajectory
+from semslam.mapping.association import Candidates, DenseJoint, PairLinearization, chi2_gate, jcbb
+from semslam.mapping.book import LandmarkBook
+from semslam.mapping.pipes import cut_at_objects, robust_ends, small_median
 from semslam.mission.measurements import Attitude, Depth, DvlVelocity, GroundTruthPose, Measurement
 from semslam.mission.mission import MissionMetadata
 from semslam.observations import LineObservation, Observation, PointObservation
@@ -101,9 +100,7 @@ class _Feature:
     kind: str  # "object" | "pipe"
     index: int  # first state index
     size: int
-    n_obs: int = 1
     extent: _Extent | None = None  # pipes: what was seen of them
-    class_log: dict[str, float] = field(default_factory=dict)
     vol_stamps: list[int] = field(default_factory=list)
     vol: list[float] = field(default_factory=list)
     l_first: np.ndarray | None = None  # the estimate it entered the state with (first-estimates Jacobians)
@@ -125,7 +122,7 @@ class _Track:
     n: int
     last_stamp: int
     extent: _Extent | None = None
-    class_log: dict[str, float] = field(default_factory=dict)
+    key: int = 0  # its views and class evidence in the shared LandmarkBook
     info: np.ndarray | None = None  # objects: Σ C⁻¹ and Σ C⁻¹ w of the observations
     info_vec: np.ndarray | None = None
 
@@ -141,23 +138,6 @@ class _Track:
         self.info_vec = self.info_vec + Ci @ mean
         self.cov = np.linalg.inv(self.info)
         self.mean = self.cov @ self.info_vec
-
-
-def _fuse_class(log: dict[str, float], likelihood) -> None:
-    """Bayesian class fusion with a uniform prior: log posterior += log likelihood."""
-    if not likelihood:
-        return
-    for cls, p in likelihood.items():
-        log[cls] = log.get(cls, 0.0) + math.log(max(float(p), 1e-12))
-
-
-def _posterior(log: dict[str, float]) -> dict[str, float] | None:
-    if not log:
-        return None
-    v = np.array(list(log.values()))
-    p = np.exp(v - v.max())
-    p /= p.sum()
-    return dict(zip(log.keys(), map(float, p)))
 
 
 class _Extent:
@@ -302,37 +282,9 @@ class _Obs:
         return "pipe" if isinstance(self.obs, LineObservation) else "object"
 
 
-class EkfAssociationProblem:
-    """The JCBB problem of one batch of observations against the mapped features (full joint
-    covariance: every cross block P_jk is the filter's own)."""
-
-    def __init__(self, est: EkfEstimator, obs: list[_Obs]):
-        self.est = est
-        self.obs = obs
-        self.n_observations = len(obs)
-        self.n_landmarks = len(est._features)
-        self._cache: dict[tuple[int, int], object] = {}
-        self._near = est._pre_gate(obs)  # (n_obs, n_landmarks) bool
-
-    def pair(self, i: int, j: int):
-        if not self._near[i, j]:
-            return None
-        key = (i, j)
-        if key not in self._cache:
-            self._cache[key] = self.est._pair(self.obs[i], self.est._features[j])
-        return self._cache[key]
-
-    def covariance(self, a: int | None, b: int | None) -> np.ndarray:
-        P = self.est.state.P
-        ia = np.arange(NX) if a is None else self.est._features[a].cols
-        ib = np.arange(NX) if b is None else self.est._features[b].cols
-        return P[np.ix_(ia, ib)]
-
-
 class _ScanPairs:
     """Every candidate pairing of one batch of observations with the mapped features, linearised at
-    the current state in one vectorised pass (the same numbers as :meth:`EkfEstimator._pair` and
-    :func:`semslam.backend.association.individual_nis`, pair by pair).
+    the current state in one vectorised pass (the same numbers as :meth:`EkfEstimator._pair`, pair by pair).
 
     A pair is a candidate when the observation and the feature are of one kind, the Euclidean
     pre-gate keeps it, its individual NIS passes the χ² gate at ``check_confidence`` (the loosest
@@ -353,7 +305,6 @@ class _ScanPairs:
             x = est.state.x
             P = est.state.P
             Pvv = P[:NX, :NX]
-            gate = Chi2Gate(check_confidence)
             objects = None
             for kind in ("object", "pipe"):
                 fidx = np.array([j for j, f in enumerate(feats) if f.kind == kind], int)
@@ -403,7 +354,7 @@ class _ScanPairs:
                     cross = Hx @ Pvl @ HlT
                     S = Hx @ Pvv @ HxT + cross + np.transpose(cross, (0, 2, 1)) + HlK @ Pll @ HlT + R
                     nis = np.einsum("ki,ki->k", nu, np.linalg.solve(S, nu[..., None])[..., 0])
-                    keep = nis < gate(size)
+                    keep = nis < chi2_gate(check_confidence, size)
                     if kind == "pipe":
                         if objects is None:
                             objects, mapped = est._object_positions(), est._mapped_object_positions()
@@ -425,9 +376,8 @@ class _ScanPairs:
 
     def _passing(self, confidence: float) -> np.ndarray:
         """Indices of the candidates individually compatible at ``confidence``."""
-        gate = Chi2Gate(confidence)
         dims = np.fromiter((len(v) for v in self.nu), int, len(self.nu))
-        return np.flatnonzero(self.nis < np.where(dims == 3, gate(3), gate(4)))
+        return np.flatnonzero(self.nis < np.where(dims == 3, chi2_gate(confidence, 3), chi2_gate(confidence, 4)))
 
     def near(self, confidence: float) -> np.ndarray:
         """Per observation: is some candidate feature individually compatible at ``confidence``?"""
@@ -437,7 +387,7 @@ class _ScanPairs:
 
     def associate(self, confidence: float) -> list[int | None]:
         """JCBB over the individually compatible candidates, with their full joint covariance, the
-        observations searched most certain first (:func:`semslam.ekf.jcbb.jcbb_dense`)."""
+        observations searched most certain first (:func:`semslam.mapping.association.jcbb`)."""
         ks = self._passing(confidence)
         if not len(ks):
             return [None] * self.n_obs
@@ -455,8 +405,6 @@ class _ScanPairs:
         D = sum(len(self.nu[k]) for k in ks)
         J = np.zeros((D, len(cols)))
         Rb = np.zeros((D, D))
-        nu = np.zeros(D)
-        rows = []
         r = 0
         for k in ks:
             d = len(self.nu[k])
@@ -464,29 +412,20 @@ class _ScanPairs:
             J[r : r + d, :NX] = self.H_x[k]
             J[r : r + d, col0[j] : col0[j] + feats[j].size] = self.H_l[k]
             Rb[r : r + d, r : r + d] = self.R[k]
-            nu[r : r + d] = self.nu[k]
-            rows.append(np.arange(r, r + d))
             r += d
         P = self.est.state.P
         S_all = J @ P[np.ix_(cols, cols)] @ J.T + Rb
-        return jcbb_dense(
-            self.n_obs,
-            self.obs[ks],
-            self.feat[ks],
-            rows,
-            nu,
-            S_all,
-            confidence,
-            individual_nis=self.nis[ks],
-            by_nis=True,
+        found = Candidates(
+            self.n_obs, self.obs[ks], self.feat[ks], [self.linearisation_at(k) for k in ks], self.nis[ks]
         )
+        return jcbb(found, DenseJoint(found, S_all), confidence)
 
-    def linearisation(self, i: int, j: int):
-        """The pair (observation i, feature j) as a PairLinearization (it must be a candidate)."""
-        from semslam.backend.association import PairLinearization
-
-        k = int(np.flatnonzero((self.obs == i) & (self.feat == j))[0])
+    def linearisation_at(self, k: int) -> PairLinearization:
         return PairLinearization(self.nu[k], self.H_x[k], self.H_l[k], self.R[k])
+
+    def linearisation(self, i: int, j: int) -> PairLinearization:
+        """The pair (observation i, feature j) as a PairLinearization (it must be a candidate)."""
+        return self.linearisation_at(int(np.flatnonzero((self.obs == i) & (self.feat == j))[0]))
 
 
 def _by_sensor(obs: list[_Obs], kind: str):
@@ -510,7 +449,6 @@ class EkfEstimator:
         self,
         metadata: MissionMetadata,
         config: SemslamConfig | None = None,
-        associate: Callable | None = None,
     ):
         config = config or SemslamConfig()
         self.metadata = metadata
@@ -518,7 +456,6 @@ class EkfEstimator:
         self.initial = config.initial
         self.motion = config.motion
         self.assoc = config.association
-        self._associate = associate
         self._fej = self.cfg.line_jacobians == "first_estimate"
         # AHRS heading bias (the shared sensor model; 0 = not modelled): a 10th vehicle state
         self._bias_walk = config.sensors.heading_bias_walk(metadata)
@@ -535,6 +472,8 @@ class EkfEstimator:
         self._features: list[_Feature] = []
         self._tracks: list[_Track] = []
         self._next_id = 0
+        self._next_track = 0
+        self.book = LandmarkBook()  # views, class evidence and connectivity of the features
         has_gt = bool(metadata.sensors_of_kind("ground_truth"))
         self._wait_gt = self.initial.pose == "first_ground_truth" and has_gt
         # outputs
@@ -747,8 +686,6 @@ class EkfEstimator:
     # ---------------------------------------------------------------- SLAM: association
     def _pair(self, o: _Obs, f: _Feature):
         """Linearisation of observation o against feature f, or None when they cannot pair."""
-        from semslam.backend.association import PairLinearization
-
         if o.kind != f.kind:
             return None
         x = self.state.xv
@@ -845,30 +782,18 @@ class EkfEstimator:
             return np.zeros((0, 3))
         return self.state.x[np.array(idx)[:, None] + np.arange(3)]
 
-    def _associate_batch(self, obs: list[_Obs]) -> list[int | None]:
-        """Custom association (``associate=``): the generic problem, pair by pair."""
-        if not self._features:
-            return [None] * len(obs)
-        return self._associate(EkfAssociationProblem(self, obs), confidence=self.assoc.confidence)
-
     def _slam_update(self, stamp: int, obs: list[_Obs]) -> None:
         scan = _ScanPairs(self, obs, max(self.assoc.confidence, self.assoc.track_gate_confidence))
-        if self._associate is not None:
-            pairs = self._associate_batch(obs)
-            paired = [(o, self._features[j]) for o, j in zip(obs, pairs) if j is not None]
-            lins = [self._pair(o, f) for o, f in paired]
-        else:
-            pairs = scan.associate(self.assoc.confidence)
-            paired = [(o, self._features[j]) for o, j in zip(obs, pairs) if j is not None]
-            lins = [scan.linearisation(i, j) for i, j in enumerate(pairs) if j is not None]
+        pairs = scan.associate(self.assoc.confidence)
+        paired = [(o, self._features[j]) for o, j in zip(obs, pairs) if j is not None]
+        lins = [scan.linearisation(i, j) for i, j in enumerate(pairs) if j is not None]
         # ambiguous rather than new: compatible with a mapped feature at the looser track gate, on
         # the linearisation the pairings were decided on
         near = scan.near(self.assoc.track_gate_confidence)
         if paired:
             self._joint_update(paired, lins)
         for o, f in paired:
-            f.n_obs += 1
-            _fuse_class(f.class_log, getattr(o.obs, "class_likelihood", None))
+            self.book.observe(f.id, stamp, o.obs)
             if f.kind == "pipe":  # save the segment seen now (placed with the updated pose)
                 R, t, _, _ = mdl.sensor_pose(self.state.xv, o.R_BS, o.t_BS)
                 f.extent.add(np.array([o.obs.p, o.obs.q]) @ R.T + t, _along_sigma(o.obs))
@@ -913,7 +838,7 @@ class EkfEstimator:
         S = S - Pab - np.transpose(Pab, (0, 2, 1))
         nis = np.einsum("ki,ki->k", D, np.linalg.solve(S, D[..., None])[..., 0])
         k = int(np.argmin(nis))
-        if not nis[k] < Chi2Gate(self.assoc.confidence)(3):
+        if not nis[k] < chi2_gate(self.assoc.confidence, 3):
             return
         fa, fb = self._features[objs[a[k]]], self._features[objs[b[k]]]
         keep, drop = (fa, fb) if fa.id < fb.id else (fb, fa)
@@ -937,7 +862,7 @@ class EkfEstimator:
         dirs, closest = U[:, :, 1], np.cross(U[:, :, 1], lp[:, 3:4] * U[:, :, 0])
         mids = np.array([f.extent.centre() for f in pipes])
         objects = None
-        gate = Chi2Gate(self.assoc.confidence)(4)
+        gate = chi2_gate(self.assoc.confidence, 4)
         best = None
         for a, fa in enumerate(pipes):
             if fa.id not in touched:
@@ -1003,9 +928,7 @@ class EkfEstimator:
         for f in self._features:
             if f.index > drop.index:
                 f.index -= drop.size
-        keep.n_obs += drop.n_obs
-        for cls, v in drop.class_log.items():
-            keep.class_log[cls] = keep.class_log.get(cls, 0.0) + v
+        self.book.merge(keep.id, drop.id)
         self._merged += 1
 
     def _near_mapped(self, o: _Obs) -> bool:
@@ -1118,9 +1041,11 @@ class EkfEstimator:
     def _tentative(self, stamp: int, new: list[_Obs]) -> None:
         """Unpaired observations extend or start tentative features; confirmed ones join the state."""
         horizon = self.assoc.track_timeout_s / NS
+        for t in self._tracks:
+            if stamp - t.last_stamp > horizon:
+                self.book.forget(("track", t.key))
         self._tracks = [t for t in self._tracks if stamp - t.last_stamp <= horizon]
         used: set[int] = set()
-        gate = Chi2Gate(self.assoc.track_gate_confidence)
         memo: list = [None]  # the separators, recomputed only after an object changed
 
         def objects() -> np.ndarray:
@@ -1130,7 +1055,7 @@ class EkfEstimator:
 
         for o in new:
             mean, cov = self._world(o)
-            best, best_nis = None, gate(3 if o.kind == "object" else 4)
+            best, best_nis = None, chi2_gate(self.assoc.track_gate_confidence, 3 if o.kind == "object" else 4)
             for k, tr in enumerate(self._tracks):
                 if k in used or tr.kind != o.kind:
                     continue
@@ -1138,7 +1063,8 @@ class EkfEstimator:
                 if nis < best_nis:
                     best, best_nis = k, nis
             if best is None:
-                tr = _Track(o.kind, mean, cov, 1, stamp, _Extent() if o.kind == "pipe" else None)
+                tr = _Track(o.kind, mean, cov, 1, stamp, _Extent() if o.kind == "pipe" else None, key=self._next_track)
+                self._next_track += 1
                 tr.fuse(mean, cov)
                 self._tracks.append(tr)
                 used.add(len(self._tracks) - 1)
@@ -1147,7 +1073,7 @@ class EkfEstimator:
                 used.add(best)
                 tr.fuse(mean, cov)
                 tr.n, tr.last_stamp = tr.n + 1, stamp
-            _fuse_class(tr.class_log, getattr(o.obs, "class_likelihood", None))
+            self.book.observe(("track", tr.key), stamp, o.obs)
             if tr.kind == "pipe":
                 tr.extent.add(o.ends_W, _along_sigma(o.obs))
             if tr.n >= self.assoc.min_observations:
@@ -1172,12 +1098,11 @@ class EkfEstimator:
                 o.kind,
                 idx,
                 len(l),
-                n_obs=tr.n,
                 extent=tr.extent,
-                class_log=dict(tr.class_log),
                 l_first=np.array(l_first, float),
             )
         )
+        self.book.merge(self._next_id, ("track", tr.key))
         self._next_id += 1
 
     # --------------------------------------------------------------------- dead reckoning
@@ -1210,13 +1135,14 @@ class EkfEstimator:
                 vols[size] = iter(np.linalg.slogdet(np.array(covs))[1])
         stamps = np.array([stamp], np.int64)
         for _, kind, val, cov, o in entries:
+            self.book.observe(self._next_id, stamp, o.obs)
             if kind == "object":
                 lm = LandmarkEstimate(
                     self._next_id,
                     "object",
                     position=val,
                     covariance=cov,
-                    class_posterior=_posterior(_class_log(o.obs)),
+                    class_posterior=self.book.class_posterior(self._next_id),
                     n_observations=1,
                 )
             else:
@@ -1253,11 +1179,11 @@ class EkfEstimator:
                 "object",
                 position=l,
                 covariance=cov,
-                class_posterior=_posterior(f.class_log),
-                n_observations=f.n_obs,
+                class_posterior=self.book.class_posterior(f.id),
+                n_observations=self.book.n_views(f.id),
             )
         p, q = f.extent.ends(*geo.line_plucker(l), self._mapped_object_positions(), self.assoc.inline_object_radius_m)
-        return LandmarkEstimate(f.id, "pipe", p=p, q=q, covariance=cov, n_observations=f.n_obs)
+        return LandmarkEstimate(f.id, "pipe", p=p, q=q, covariance=cov, n_observations=self.book.n_views(f.id))
 
     def landmarks(self) -> list[LandmarkEstimate]:
         if not self.feature_updates:
@@ -1315,25 +1241,23 @@ class EkfEstimator:
             "landmark_volume": volumes,
             "landmark_kind": kinds,
             "vehicle_cov": (np.array(self._veh_hist[0], np.int64), np.array(self._veh_hist[1])),
+            **self.book.history(kinds),
         }
+        landmarks = self.landmarks()
+        if self.feature_updates:  # dead reckoning's map is every observation on its own: nothing to connect
+            self.book.connect(landmarks, self.assoc.merge_distance_m)
         if self.nv > NX:  # the AHRS heading bias estimate and its σ (rad) over time
             history["heading_bias"] = (traj.stamps, X[:, BIAS].copy(), np.sqrt(P[:, BIAS, BIAS]))
         return EstimatorResult(
             name=self.name,
             trajectory=traj,
-            landmarks=self.landmarks(),
+            landmarks=landmarks,
             online_trajectory=traj,  # a filter's estimate at each time is its online estimate
             update_times_s=np.array(self._update_times),
             update_n_landmarks=np.array(self._update_n, int),
             history=history,
             diagnostics=list(self._diag),
         )
-
-
-def _class_log(o: Observation) -> dict[str, float]:
-    log: dict[str, float] = {}
-    _fuse_class(log, getattr(o, "class_likelihood", None))
-    return log
 
 
 # The last AHRS reading in {B}: DR and the EKF are fed the same measurement object one after the
