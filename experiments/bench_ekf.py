@@ -33,7 +33,8 @@ from semslam.ekf import EkfEstimator  # noqa: E402
 from semslam.ekf import estimator as ekf_estimator  # noqa: E402
 from semslam.ekf import geometry as geo  # noqa: E402
 from semslam.ekf import models as mdl  # noqa: E402
-from semslam.ekf.estimator import _Extent, _Track  # noqa: E402
+from semslam.ekf.estimator import _Track  # noqa: E402
+from semslam.mapping.extent import PipeExtent  # noqa: E402
 from semslam.mission.measurements import Attitude, GroundTruthPose  # noqa: E402
 from semslam.observations import LineObservation, PointObservation  # noqa: E402
 
@@ -75,7 +76,7 @@ def build(n_landmarks: int, seed: int = 0):
         (ob,) = est._prepare([o])
         extent = None
         if ob.kind == "pipe":
-            extent = _Extent()
+            extent = PipeExtent()
             extent.add(ob.ends_W, 0.02)
         est._add_feature(ob, _Track(ob.kind, np.zeros(3), np.eye(3), 3, 0, extent))
     near_obj = sorted(objects, key=lambda c: np.linalg.norm(c[:2]))[:2]

@@ -10,6 +10,7 @@ from factors.landmarks import LineAnchor
 from semslam.backend.landmarks import Landmark
 from semslam.backend.problem import Candidate, GraphAssociationProblem, possible_pairs
 from semslam.mapping.association import uncorrelated_candidates
+from semslam.mapping.extent import PipeExtent
 from semslam.observations import LineObservation, PointObservation
 
 GATES = {d: float(chi2.ppf(0.99, d)) for d in (3, 4)}
@@ -40,6 +41,9 @@ def scene(rng):
         d /= np.linalg.norm(d)
         anchor = LineAnchor.from_points(p, p + d)
         theta = rng.normal(0, 0.05, 4)
+        c, u = anchor.point(theta), anchor.direction(theta)
+        seen = PipeExtent()
+        seen.add(np.array([c - 5 * u, c + 5 * u]), 0.01)
         lm = Landmark(
             10 + k,
             "pipe",
@@ -47,10 +51,9 @@ def scene(rng):
             anchor=anchor,
             estimate=theta,
             covariance=random_spd(rng, 4, 0.02),
-            extent=(-5.0, 5.0),
+            extent=seen,
         )
         cands.append(Candidate(lm, lm.covariance))
-        c, u = anchor.point(theta), anchor.direction(theta)
         off = rng.normal(0, rng.choice([0.01, 0.05, 0.2]), 3)
         a, b = c + off + rng.uniform(-1, 0) * u, c + off + rng.uniform(0.2, 1) * u
         obs.append(

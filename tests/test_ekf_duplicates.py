@@ -113,14 +113,15 @@ def test_two_features_of_one_object_are_fused_and_the_younger_dropped():
 
 def _add_pipe(est, a_W, b_W, sigma=0.01):
     """Map a second pipe feature directly, seen once from the current pose (as a track would enter)."""
-    from semslam.ekf.estimator import _Extent, _Track
+    from semslam.ekf.estimator import _Track
+    from semslam.mapping.extent import PipeExtent
 
     T = est.metadata.sensors["laser"].T_BS
     R, t, _, _ = mdl.sensor_pose(est.state.xv, T[:3, :3], T[:3, 3])
     (ob,) = est._prepare(
         [LineObservation(0, "laser", p=(a_W - t) @ R, q=(b_W - t) @ R, covariance=np.eye(6) * sigma**2)]
     )
-    extent = _Extent()
+    extent = PipeExtent()
     extent.add(ob.ends_W, sigma)
     for _ in range(3):  # the track's three views
         est.book.observe(("track", -1), 0, ob.obs)
@@ -144,7 +145,7 @@ def test_two_features_of_one_pipe_are_fused_and_the_younger_dropped():
     assert np.linalg.eigvalsh(est.state.P).min() > -1e-12
     # the kept line is still pipe A: its seen ends lie on the true axis within a centimetre
     m, d = geo.line_plucker(est.state.x[pipe_a.cols])
-    ends = pipe_a.extent.ends(m, d)
+    ends = pipe_a.extent.ends(geo.closest_point(m, d), d)
     assert np.abs(ends[:, 1:] - [0.0, 4.5]).max() < 0.01
     assert np.abs(np.sort(ends[:, 0]) - [-0.8, 0.8]).max() < 0.05
 

@@ -55,6 +55,7 @@ from semslam.config import GraphConfig, SemslamConfig
 from semslam.estimation import EstimatorResult, LandmarkEstimate, Trajectory
 from semslam.mapping.association import LowRankJoint, PairLinearization, chi2_gate, jcbb, uncorrelated_candidates
 from semslam.mapping.book import LandmarkBook
+from semslam.mapping.extent import PipeExtent, along_sigma
 from semslam.mapping.pipes import merge_collinear, object_between, point_segment_distance, segment_matches_line
 from semslam.mission.measurements import GroundTruthPose, Measurement
 from semslam.mission.mission import MissionMetadata
@@ -718,15 +719,7 @@ class GraphEstimator:
             lm.add_information(_observation_information(lm, z, pose, pose_cov, T_BS))
         if lm.kind == "pipe":
             T_WS = pose.compose(gtsam.Pose3(T_BS))
-            s = lm.anchor.to_line_frame(lm.estimate, np.vstack([T_WS.transformFrom(z.p), T_WS.transformFrom(z.q)]))[
-                :, 2
-            ]
-            lo, hi = lm.extent
-            lm.extent = (min(lo, float(s.min())), max(hi, float(s.max())))
-            # Along-axis σ of the endpoints (their covariance projected on the segment direction).
-            u = (z.q - z.p) / np.linalg.norm(z.q - z.p)
-            sig = float(np.sqrt(max(u @ z.covariance[:3, :3] @ u, u @ z.covariance[3:, 3:] @ u, 1e-8)))
-            lm.seen_ends.append((float(s.min()), float(s.max()), sig))
+            lm.extent.add(np.vstack([T_WS.transformFrom(z.p), T_WS.transformFrom(z.q)]), along_sigma(z))
 
     def _extend_tracks(self, stamp, k, unpaired: list, pose, pose_cov, factors, values) -> None:
         """The scan's unpaired observations (z, T_BS) extend tentative landmarks or start new ones;
@@ -827,17 +820,17 @@ class GraphEstimator:
         for lm in landmarks:
             if lm.kind != "pipe":
                 continue
-            c0, d = lm.anchor.c0, lm.anchor.direction(lm.estimate)
-            r = seg - lm.anchor.point(lm.estimate)
+            c, d = lm.line()
+            r = seg - c
             if np.arccos(min(1.0, abs(float(u @ d)))) > self.assoc.merge_angle_rad:
                 continue
             if np.linalg.norm(r - np.outer(r @ d, d), axis=1).max() >= sep:
                 continue
-            s_ = (seg - c0) @ d
-            lo, hi = seen = lm.stretch(mapped, self.assoc.inline_object_radius_m)
+            s_ = r @ d
+            lo, hi = seen = lm.extent.interval(c, d, mapped, self.assoc.inline_object_radius_m)
             if min(s_.max(), hi) - max(s_.min(), lo) < 0.5 * (s_.max() - s_.min()):
                 continue  # mostly beyond what was seen: possibly the next pipe in line
-            if not object_between(seen, seg, c0, d, objects, self.assoc.inline_object_radius_m):
+            if not object_between(seen, seg, c, d, objects, self.assoc.inline_object_radius_m):
                 return True
         return False
 
@@ -908,20 +901,19 @@ class GraphEstimator:
             c = ends.mean(axis=0)
             _, _, vt = np.linalg.svd(ends - c)
             d = vt[0]
-            s = (ends - c) @ d
             lm.anchor = LineAnchor.from_points(c - d, c + d)
             lm.estimate = np.zeros(4)
-            lm.extent = (float(s.min()), float(s.max()))
+            lm.extent = PipeExtent()
             values.insert(key, lm.estimate)
         else:
             r, T = records[-1], Ts[-1]
             lm.estimate = poses[r.keyframe].compose(gtsam.Pose3(T @ r.observation.pose))
             values.insert(key, lm.estimate)
         self.landmarks[lid] = lm
-        self._update_sphere(lm)
         for r, T in zip(records, Ts):
             factors.append((self._landmark_factor(lm, r.keyframe, r.observation, T, poses[r.keyframe]), lid))
             self._record(lm, r.stamp, r.keyframe, r.observation, poses[r.keyframe], T, pose_cov)
+        self._update_sphere(lm)
 
     def _kf_pose(self, k: int) -> gtsam.Pose3:
         if k == len(self.kf_stamps) - 1 and self._pose is not None:
@@ -1025,11 +1017,8 @@ class GraphEstimator:
                 le.position, le.covariance = np.asarray(est, float), cov
                 le.class_posterior = self.book.class_posterior(lm.id)
             elif lm.kind == "pipe":
-                c, d = lm.anchor.point(est), lm.anchor.direction(est)
-                # extent was measured in the line frame centred at c0: project onto the new line
-                lo, hi = lm.stretch(mapped, self.assoc.inline_object_radius_m)
-                foot = (lm.anchor.c0 - c) @ d
-                le.p, le.q = c + (foot + lo) * d, c + (foot + hi) * d
+                c, d = lm.line(est)
+                le.p, le.q = lm.extent.ends(c, d, mapped, self.assoc.inline_object_radius_m)
                 le.covariance = cov
             else:
                 le.pose, le.covariance = est.matrix(), cov
@@ -1215,7 +1204,7 @@ def _landmark_point(lm: Landmark) -> np.ndarray:
 
 
 def _pipe_ends(lm: Landmark) -> tuple[np.ndarray, np.ndarray]:
-    c, d = lm.anchor.point(lm.estimate), lm.anchor.direction(lm.estimate)
-    foot = (lm.anchor.c0 - c) @ d
-    lo, hi = lm.extent
-    return c + (foot + lo) * d, c + (foot + hi) * d
+    """The extreme ends seen of a pipe, on its current line."""
+    c, d = lm.line()
+    lo, hi = lm.extent.outer(c, d)
+    return c + lo * d, c + hi * d

@@ -24,7 +24,6 @@ from factors.landmarks import (
 )
 from semslam.backend.landmarks import Landmark
 from semslam.mapping.association import PairLinearization
-from semslam.mapping.pipes import object_between
 from semslam.observations import LineObservation, PointObservation, StructureObservation
 
 
@@ -66,7 +65,6 @@ class GraphAssociationProblem:
         self._R, self._t = pose.rotation().matrix(), pose.translation()
         self._frames: dict[int, tuple] = {}
         self._segments: dict[int, tuple] = {}
-        self._stretches: dict[int, tuple[float, float]] = {}
 
     def _line_frame(self, j: int):
         """R_L, J_r columns and direction of pipe candidate j (once per problem)."""
@@ -75,12 +73,6 @@ class GraphAssociationProblem:
             RL, Jr2 = line_frame(lm.anchor, lm.estimate)
             self._frames[j] = (RL, Jr2, RL[:, 2])
         return self._frames[j]
-
-    def _stretch(self, j: int) -> tuple[float, float]:
-        """What has been seen of pipe candidate j along its line (once per problem)."""
-        if j not in self._stretches:
-            self._stretches[j] = self.candidates[j].landmark.stretch(self.cutters, self.separator_radius)
-        return self._stretches[j]
 
     def _segment(self, i: int):
         """Endpoints of line observation i in {B} (2×3) and in {W} (once per problem)."""
@@ -109,13 +101,10 @@ class GraphAssociationProblem:
             RL, Jr2, d = self._line_frame(j)
             e_B, seg = self._segment(i)
             # The segment must overlap what has been seen of the pipe (collinear pipes on either
-            # side of a valve share one infinite line) ...
-            s = (seg - lm.anchor.c0) @ d
-            lo, hi = seen = self._stretch(j)
-            if s.max() < lo - self.gap or s.min() > hi + self.gap:
-                return None
-            # ... and no in-line part (valve, socket) may lie between them: that is the next pipe
-            if object_between(seen, seg, lm.anchor.c0, d, self.separators, self.separator_radius):
+            # side of a valve share one infinite line), and no in-line part (valve, socket) may lie
+            # between them: that is the next pipe
+            c = lm.anchor.point(theta)
+            if lm.extent.excludes(seg, c, d, self.separators, self.cutters, self.separator_radius, self.gap):
                 return None
             r, H_x, H_l = line_residual_at(self._R, self._t, RL, Jr2, lm.anchor.c0, theta[2:4], e_B, jac=True)
             R = line_observation_covariance(self.pose, theta, lm.anchor, T_BS, z.covariance, RL=RL)

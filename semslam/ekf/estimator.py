@@ -83,7 +83,7 @@ from semslam.errors import MissionError
 from semslam.estimation import EstimatorResult, LandmarkEstimate, Trajectory
 from semslam.mapping.association import Candidates, DenseJoint, PairLinearization, chi2_gate, jcbb
 from semslam.mapping.book import LandmarkBook
-from semslam.mapping.pipes import cut_at_objects, robust_ends, small_median
+from semslam.mapping.extent import PipeExtent, along_sigma, off_axis
 from semslam.mission.measurements import Attitude, Depth, DvlVelocity, GroundTruthPose, Measurement
 from semslam.mission.mission import MissionMetadata
 from semslam.observations import LineObservation, Observation, PointObservation
@@ -100,7 +100,7 @@ class _Feature:
     kind: str  # "object" | "pipe"
     index: int  # first state index
     size: int
-    extent: _Extent | None = None  # pipes: what was seen of them
+    extent: PipeExtent | None = None  # pipes: what was seen of them
     vol_stamps: list[int] = field(default_factory=list)
     vol: list[float] = field(default_factory=list)
     l_first: np.ndarray | None = None  # the estimate it entered the state with (first-estimates Jacobians)
@@ -121,7 +121,7 @@ class _Track:
     cov: np.ndarray
     n: int
     last_stamp: int
-    extent: _Extent | None = None
+    extent: PipeExtent | None = None
     key: int = 0  # its views and class evidence in the shared LandmarkBook
     info: np.ndarray | None = None  # objects: Σ C⁻¹ and Σ C⁻¹ w of the observations
     info_vec: np.ndarray | None = None
@@ -138,132 +138,6 @@ class _Track:
         self.info_vec = self.info_vec + Ci @ mean
         self.cov = np.linalg.inv(self.info)
         self.mean = self.cov @ self.info_vec
-
-
-class _Extent:
-    """What was seen of a pipe: every view's endpoints in {W} (saved as seen) with their along-axis σ.
-
-    The saved endpoints are re-projected onto the current line estimate whenever the extent is used,
-    so they follow every update. Its ends follow the graph's rule (``robust_ends``). The interval of
-    the latest line asked for is kept, so that the checks of one scan against one pipe compute it once."""
-
-    def __init__(self):
-        self._pts = np.zeros((8, 2, 3))  # (2, 3) per view, in a buffer that grows by doubling
-        self._sig = np.zeros(8)
-        self._k = 0
-        self._memo: tuple | None = None  # (m, d, view count, interval)
-        self._w: tuple | None = None  # (view count, 6 × median σ)
-        self._sep_memo: tuple | None = None  # (objects key, m, d, on-line objects' positions along it)
-
-    def __len__(self) -> int:
-        return self._k
-
-    def add(self, ends_W: np.ndarray, sigma: float) -> None:
-        if self._k == len(self._sig):
-            self._pts = np.concatenate([self._pts, np.zeros_like(self._pts)])
-            self._sig = np.concatenate([self._sig, np.zeros_like(self._sig)])
-        self._pts[self._k] = ends_W
-        self._sig[self._k] = sigma
-        self._k += 1
-
-    def merge(self, other: _Extent) -> None:
-        for k in range(other._k):
-            self.add(other._pts[k], other._sig[k])
-
-    def interval(
-        self, m: np.ndarray, d: np.ndarray, cutters: np.ndarray | None = None, radius: float = 0.0
-    ) -> tuple[float, float]:
-        """Where the pipe (m, d) was seen, along d from its closest point to the origin; cut at the
-        mapped objects ``cutters`` on the line inside it (the graph's rule, ``cut_at_objects``)."""
-        out = self._robust(m, d)
-        if cutters is None or not len(cutters):
-            return out
-        c = geo.closest_point(m, d)
-        middle = small_median(((self._pts[: self._k] - c) @ d).mean(axis=1))
-        return cut_at_objects(out, c, d, cutters, radius, middle)
-
-    def _robust(self, m: np.ndarray, d: np.ndarray) -> tuple[float, float]:
-        memo = self._memo
-        if memo is not None and memo[2] == self._k and np.array_equal(memo[0], m) and np.array_equal(memo[1], d):
-            return memo[3]
-        c = geo.closest_point(m, d)
-        s = (self._pts[: self._k] - c) @ d  # (K, 2)
-        lo, hi = s.min(axis=1), s.max(axis=1)
-        if self._w is None or self._w[0] != self._k:
-            self._w = (self._k, 6.0 * small_median(self._sig[: self._k]))
-        out = robust_ends(lo, hi, self._w[1])
-        self._memo = (np.array(m, float), np.array(d, float), self._k, out)
-        return out
-
-    def centre(self) -> np.ndarray:
-        """Mean of the saved view ends in {W}: a point near the pipe, inside what was seen of it."""
-        return self._pts[: self._k].reshape(-1, 3).mean(axis=0)
-
-    def ends(self, m: np.ndarray, d: np.ndarray, cutters: np.ndarray | None = None, radius: float = 0.0) -> np.ndarray:
-        c = geo.closest_point(m, d)
-        a, b = self.interval(m, d, cutters, radius)
-        return np.array([c + a * d, c + b * d])
-
-    def gap(self, ends_W: np.ndarray, m: np.ndarray, d: np.ndarray, span: tuple[float, float]) -> float:
-        """Gap (m) along the line between the seen extent ``span`` (its :meth:`interval`) and a
-        segment; 0 when they overlap."""
-        a, b = span
-        s = (ends_W - geo.closest_point(m, d)) @ d
-        return max(0.0, s.min() - b, a - s.max())
-
-    def separated(
-        self,
-        ends_W: np.ndarray,
-        m: np.ndarray,
-        d: np.ndarray,
-        objects: np.ndarray,
-        radius: float,
-        span: tuple[float, float],
-        margin: float = 0.1,
-    ) -> bool:
-        """True when an object (N×3, in {W}) within ``radius`` of the line lies between the seen
-        extent ``span`` (its :meth:`interval`) and the segment: collinear pipes joined by an in-line
-        part (a valve, a socket) are different pipes."""
-        if len(objects) == 0:
-            return False
-        c = geo.closest_point(m, d)
-        key = (objects.shape, float(objects.sum()), radius)
-        memo = self._sep_memo
-        if memo is not None and memo[0] == key and np.array_equal(memo[1], m) and np.array_equal(memo[2], d):
-            s_on = memo[3]
-        else:  # the objects on the line, by their position along it (once per line and object set)
-            r = objects - c
-            s_obj = r @ d
-            s_on = s_obj[np.linalg.norm(r - s_obj[:, None] * d, axis=1) < radius]
-            self._sep_memo = (key, np.array(m, float), np.array(d, float), s_on)
-        if not len(s_on):
-            return False
-        a, b = span
-        s = (ends_W - c) @ d
-        lo, hi = (b - margin, s.min() + margin) if s.mean() > 0.5 * (a + b) else (s.max() - margin, a + margin)
-        return bool(np.any((s_on > lo) & (s_on < hi)))
-
-
-def _off_axis(points: np.ndarray, m: np.ndarray, d: np.ndarray) -> float:
-    """The largest distance of the points (N×3) from the line (m, d)."""
-    return float(np.linalg.norm(points - geo.project_on_line(points, m, d), axis=1).max())
-
-
-def _overlap_fraction(a: _Extent, ends_b: np.ndarray, m: np.ndarray, d: np.ndarray) -> float:
-    """Length shared by a's seen extent and the segment ends_b along the line (m, d) of a, over the
-    shorter one's length."""
-    a0, a1 = a.interval(m, d)
-    s = (ends_b - geo.closest_point(m, d)) @ d
-    b0, b1 = float(s.min()), float(s.max())
-    shorter = min(a1 - a0, b1 - b0)
-    return max(0.0, min(a1, b1) - max(a0, b0)) / shorter if shorter > 0 else 0.0
-
-
-def _along_sigma(o: LineObservation) -> float:
-    """Endpoint σ along the segment, from its 6×6 covariance."""
-    d = (o.q - o.p) / np.linalg.norm(o.q - o.p)
-    C = np.asarray(o.covariance)
-    return float(np.sqrt(0.5 * (d @ C[:3, :3] @ d + d @ C[3:, 3:] @ d)))
 
 
 # --------------------------------------------------------------------------- observations
@@ -758,7 +632,7 @@ class EkfEstimator:
 
     def _pipe_apart(
         self,
-        extent: _Extent,
+        extent: PipeExtent,
         ends_W: np.ndarray,
         m: np.ndarray,
         d: np.ndarray,
@@ -770,11 +644,9 @@ class EkfEstimator:
         when already known): a pipe seen through a socket or a tee must not keep the views of the
         pipe beyond it. (The cut extent is computed once, for both tests.)"""
         mapped = self._mapped_object_positions() if mapped is None else mapped
-        r = self.assoc.inline_object_radius_m
-        span = extent.interval(m, d, mapped, r)
-        return extent.gap(ends_W, m, d, span) > self.assoc.pipe_extent_gap_m or extent.separated(
-            ends_W, m, d, objects, r, span
-        )
+        a = self.assoc
+        c = geo.closest_point(m, d)
+        return extent.excludes(ends_W, c, d, objects, mapped, a.inline_object_radius_m, a.pipe_extent_gap_m)
 
     def _mapped_object_positions(self) -> np.ndarray:
         idx = [f.index for f in self._features if f.kind == "object"]
@@ -796,7 +668,7 @@ class EkfEstimator:
             self.book.observe(f.id, stamp, o.obs)
             if f.kind == "pipe":  # save the segment seen now (placed with the updated pose)
                 R, t, _, _ = mdl.sensor_pose(self.state.xv, o.R_BS, o.t_BS)
-                f.extent.add(np.array([o.obs.p, o.obs.q]) @ R.T + t, _along_sigma(o.obs))
+                f.extent.add(np.array([o.obs.p, o.obs.q]) @ R.T + t, along_sigma(o.obs))
         unpaired = [i for i, j in enumerate(pairs) if j is None and not near[i]]
         on_pipe = self._on_mapped_pipe([obs[i] for i in unpaired])
         n_before = len(self._features)
@@ -876,7 +748,7 @@ class EkfEstimator:
                 fb = pipes[b]
                 if fb is fa or (fb.id in touched and fb.id < fa.id):  # each pair once
                     continue
-                ends_b = fb.extent.ends(lp[b, 3] * U[b, :, 0], dirs[b])
+                ends_b = fb.extent.ends(closest[b], dirs[b])
                 objects = self._object_positions() if objects is None else objects
                 if not self._on_pipe(ends_b, fa.extent, m_a, d_a, objects):
                     continue
@@ -899,12 +771,13 @@ class EkfEstimator:
         x = self.state.x
         x[keep.index : keep.index + 3] = geo.wrap(x[keep.index : keep.index + 3])
 
-    def _same_stretch(self, extent: _Extent, ends_b: np.ndarray, m: np.ndarray, d: np.ndarray) -> bool:
+    def _same_stretch(self, extent: PipeExtent, ends_b: np.ndarray, m: np.ndarray, d: np.ndarray) -> bool:
         """Segment ends_b shares over half of the shorter stretch with the seen extent of the pipe (m, d),
         its ends within ``association.duplicate_pipe_distance_m`` of that pipe's axis."""
+        c = geo.closest_point(m, d)
         return (
-            _off_axis(ends_b, m, d) <= self.assoc.duplicate_pipe_distance_m
-            and _overlap_fraction(extent, ends_b, m, d) >= 0.5
+            off_axis(ends_b, c, d) <= self.assoc.duplicate_pipe_distance_m
+            and extent.overlap_fraction(ends_b, c, d) >= 0.5
         )
 
     def _fuse_duplicate(
@@ -931,16 +804,6 @@ class EkfEstimator:
         self.book.merge(keep.id, drop.id)
         self._merged += 1
 
-    def _near_mapped(self, o: _Obs) -> bool:
-        """An unpaired observation that is still compatible with a mapped feature at the looser track
-        gate, or (pipes) lies on a mapped pipe by the paper's collinearity criterion, is ambiguous, not
-        new: it is dropped rather than started as a duplicate feature."""
-        if not self._features:
-            return False
-        if _ScanPairs(self, [o], self.assoc.track_gate_confidence).near(self.assoc.track_gate_confidence)[0]:
-            return True
-        return bool(self._on_mapped_pipe([o])[0])
-
     def _on_mapped_pipe(self, obs: list[_Obs]) -> np.ndarray:
         """Per observation: a pipe view on a mapped pipe by :meth:`_on_pipe`."""
         out = np.zeros(len(obs), bool)
@@ -954,7 +817,9 @@ class EkfEstimator:
                 out[i] = any(self._on_pipe(obs[i].ends_W, f.extent, m, d, objects) for f, (m, d) in zip(pipes, lines))
         return out
 
-    def _on_pipe(self, ends_W: np.ndarray, extent: _Extent, m: np.ndarray, d: np.ndarray, objects: np.ndarray) -> bool:
+    def _on_pipe(
+        self, ends_W: np.ndarray, extent: PipeExtent, m: np.ndarray, d: np.ndarray, objects: np.ndarray
+    ) -> bool:
         """The paper's collinear merge (shared ``association.merge_angle_rad`` / ``merge_distance_m``): the
         segment is within that angle of the pipe's axis, both its ends within that distance of it, within
         the extent gap and not across an object."""
@@ -962,7 +827,7 @@ class EkfEstimator:
         u = u / np.linalg.norm(u)
         if abs(float(u @ d)) < math.cos(self.assoc.merge_angle_rad):
             return False
-        if _off_axis(ends_W, m, d) > self.assoc.merge_distance_m:
+        if off_axis(ends_W, geo.closest_point(m, d), d) > self.assoc.merge_distance_m:
             return False
         return not self._pipe_apart(extent, ends_W, m, d, objects)
 
@@ -1063,7 +928,9 @@ class EkfEstimator:
                 if nis < best_nis:
                     best, best_nis = k, nis
             if best is None:
-                tr = _Track(o.kind, mean, cov, 1, stamp, _Extent() if o.kind == "pipe" else None, key=self._next_track)
+                tr = _Track(
+                    o.kind, mean, cov, 1, stamp, PipeExtent() if o.kind == "pipe" else None, key=self._next_track
+                )
                 self._next_track += 1
                 tr.fuse(mean, cov)
                 self._tracks.append(tr)
@@ -1075,7 +942,7 @@ class EkfEstimator:
                 tr.n, tr.last_stamp = tr.n + 1, stamp
             self.book.observe(("track", tr.key), stamp, o.obs)
             if tr.kind == "pipe":
-                tr.extent.add(o.ends_W, _along_sigma(o.obs))
+                tr.extent.add(o.ends_W, along_sigma(o.obs))
             if tr.n >= self.assoc.min_observations:
                 self._add_feature(o, tr)
                 tr.n = -1  # consumed
@@ -1182,7 +1049,10 @@ class EkfEstimator:
                 class_posterior=self.book.class_posterior(f.id),
                 n_observations=self.book.n_views(f.id),
             )
-        p, q = f.extent.ends(*geo.line_plucker(l), self._mapped_object_positions(), self.assoc.inline_object_radius_m)
+        m, d = geo.line_plucker(l)
+        p, q = f.extent.ends(
+            geo.closest_point(m, d), d, self._mapped_object_positions(), self.assoc.inline_object_radius_m
+        )
         return LandmarkEstimate(f.id, "pipe", p=p, q=q, covariance=cov, n_observations=self.book.n_views(f.id))
 
     def landmarks(self) -> list[LandmarkEstimate]:
