@@ -163,11 +163,9 @@ def test_protocol_view_and_failure_recovery():
     injected = False
     for m in mission:
         est.process_measurement(m)
-        if not injected and len(est.kf_stamps) > 5:
+        if not injected and len(est.keyframes) > 5:
             # A point landmark constrained along one axis only: a zero pivot in the elimination.
-            len(est.kf_stamps) - 1
-            ok = est._commit(*indeterminate_landmark(999))
-            assert not ok
+            assert est.session.commit(*indeterminate_landmark(999), est.keyframes.anchor()) == [999]
             injected = True
     res = est.finish()
     assert injected and any("failed" in d for d in res.diagnostics)
@@ -186,35 +184,34 @@ def test_isam2_callbacks_get_theta_itself_not_a_copy():
     """CustomFactor callbacks inside iSAM2 receive the estimator's handle on iSAM2's θ (pybind11
     would otherwise copy all of θ for every callback: a per-update cost growing with the map),
     also after a rebuild replaces iSAM2."""
-    from semslam.backend.graph import X
+    from semslam.backend.window import X
 
     mission = simulate(SyntheticConfig(duration_s=20.0, n_objects=0, n_pipes=0, n_structures=0, seed=2))
     est = GraphEstimator(mission.metadata, SemslamConfig())
     seen = []
 
     def probe(this, values, H):
-        seen.append(values is est._theta)
+        seen.append(values is est.session.theta)
         if H is not None:
             H[0] = np.zeros((1, 6))
         return np.zeros(1)
 
     for m in mission:
         est.process_measurement(m)
-        if len(est.kf_stamps) == 5 and not seen:
-            est._commit(
-                [(gtsam.CustomFactor(gtsam.noiseModel.Isotropic.Sigma(1, 1.0), [X(2)], probe), None)], gtsam.Values()
-            )
+        if len(est.keyframes) == 5 and not seen:
+            factor = gtsam.CustomFactor(gtsam.noiseModel.Isotropic.Sigma(1, 1.0), [X(2)], probe)
+            assert est.session.commit([(factor, None)], gtsam.Values(), est.keyframes.anchor()) is None
     n_before = len(seen)
-    old = est._theta
-    est._rebuild([], gtsam.Values(), [])  # a fresh iSAM2 relinearises every factor
-    assert est._theta is not old and est._theta is est.isam.getLinearizationPoint()
+    old = est.session.theta
+    est.session.rebuild([], gtsam.Values(), est.keyframes.anchor())  # a fresh iSAM2 relinearises every factor
+    assert est.session.theta is not old and est.session.theta is est.session.isam.getLinearizationPoint()
     assert n_before > 0 and len(seen) > n_before and all(seen)
 
 
 def test_batch_levenberg_marquardt_is_gtsams():
     """The batch LM loop (iterated in Python to hold a handle on the values it linearises at) gives
     GTSAM's optimize() result: same error, same estimate."""
-    from semslam.backend.graph import _levenberg_marquardt
+    from semslam.backend.session import levenberg_marquardt
 
     rng = np.random.default_rng(0)
     graph, init = gtsam.NonlinearFactorGraph(), gtsam.Values()
@@ -235,14 +232,14 @@ def test_batch_levenberg_marquardt_is_gtsams():
     params = gtsam.LevenbergMarquardtParams()
     params.setMaxIterations(50)
     ref = gtsam.LevenbergMarquardtOptimizer(graph, init, params).optimize()
-    ours = _levenberg_marquardt(graph, init, params)
+    ours = levenberg_marquardt(graph, init, params)
     assert graph.error(ours) == pytest.approx(graph.error(ref), rel=1e-12, abs=1e-12)
     for k in range(31):
         assert ours.atPose3(k).equals(ref.atPose3(k), 1e-9)
     params.setMaxIterations(2)  # and the iteration limit
     ref2, ours2 = (
         gtsam.LevenbergMarquardtOptimizer(graph, init, params).optimize(),
-        _levenberg_marquardt(graph, init, params),
+        levenberg_marquardt(graph, init, params),
     )
     assert graph.error(ours2) == pytest.approx(graph.error(ref2), rel=1e-12) and graph.error(ref2) > graph.error(ref)
 
@@ -293,10 +290,10 @@ def test_two_object_landmarks_on_one_place_are_merged():
         if twin is None and objects and est.book.n_views(objects[0].id) >= 5:
             a = objects[0]
             views = est.book.views[a.id]
-            records = [ObservationRecord(t, bisect.bisect_left(est.kf_stamps, t), z) for t, z in views]
+            records = [ObservationRecord(t, bisect.bisect_left(est.keyframes.stamps, t), z) for t, z in views]
             tr = Track("object", records=records, world=[np.asarray(a.estimate)] * len(views))
             factors, values = [], gtsam.Values()
-            est._promote(tr, factors, values, est._pose_cov)
+            est._promote(tr, factors, values, est.keyframes.pose_cov)
             twin = max(est.landmarks)
             assert est._commit(factors, values)
             est._refresh_landmarks({a.id, twin})
@@ -305,7 +302,7 @@ def test_two_object_landmarks_on_one_place_are_merged():
             assert twin not in est.landmarks and a.id in est.landmarks
             assert len(est.landmarks) == n_before - 1 and est.book.n_views(a.id) == 2 * n_hist
             assert any(f"merged into {a.id}" in d for d in est.diagnostics)
-            est._rebuild([], gtsam.Values(), [])  # the merged landmark's key stays in the graph
+            est.session.rebuild([], gtsam.Values(), est.keyframes.anchor())  # the merged landmark's key stays
     res = est.finish()
     assert twin is not None
     rep = landmark_report(res, mission.metadata.ground_truth)

@@ -15,15 +15,12 @@ the batch re-optimisation spans the whole mission.
 
 from __future__ import annotations
 
-import bisect
-import math
 import time
 from collections.abc import Sequence
 
 import gtsam
 import numpy as np
 from scipy.optimize import linear_sum_assignment
-from scipy.spatial.transform import Rotation
 
 from factors.geometry import pose_point_jacobian
 from factors.landmarks import (
@@ -37,27 +34,19 @@ from factors.landmarks import (
     structure_factor,
     structure_residual,
 )
-from factors.navigation import (
-    attitude_factor,
-    biased_attitude_factor,
-    depth_factor,
-    displacement_factor,
-    dvl_velocity_factor,
-    heading_bias_walk_factor,
-    velocity_random_walk_factor,
-)
+from semslam.backend.keyframes import Keyframes
 from semslam.backend.landmarks import Landmark, ObservationRecord, Track
-from semslam.backend.marginal import marginal_covariance
-from semslam.backend.navigation import NavigationBuffer
 from semslam.backend.problem import Candidate, GraphAssociationProblem, possible_pairs
-from semslam.backend.window import LANDMARK_CHARS, marginal_factors, split_factors, subset, value_of
+from semslam.backend.result import final_values, keyframe_trajectory, online_trajectory
+from semslam.backend.session import IsamSession
+from semslam.backend.window import SlidingWindow, value_of
 from semslam.config import GraphConfig, SemslamConfig
 from semslam.estimation import EstimatorResult, LandmarkEstimate, Trajectory
 from semslam.mapping.association import LowRankJoint, PairLinearization, chi2_gate, jcbb, uncorrelated_candidates
 from semslam.mapping.book import LandmarkBook
 from semslam.mapping.extent import PipeExtent, along_sigma
 from semslam.mapping.pipes import merge_collinear, object_between, point_segment_distance, segment_matches_line
-from semslam.mission.measurements import GroundTruthPose, Measurement
+from semslam.mission.measurements import Measurement
 from semslam.mission.mission import MissionMetadata
 from semslam.observations import LineObservation, OdometryObservation, PointObservation, StructureObservation
 
@@ -79,7 +68,7 @@ class GraphView:
         self._est = est
 
     def pose_at(self, stamp: int) -> np.ndarray | None:
-        p = self._est.pose_at(stamp)
+        p = self._est.keyframes.pose_at(stamp)
         return None if p is None else p.matrix()
 
     def landmarks(self) -> Sequence[LandmarkEstimate]:
@@ -94,41 +83,14 @@ class GraphEstimator:
     def __init__(self, metadata: MissionMetadata, config: SemslamConfig | None = None, batch: bool | None = None):
         config = config or SemslamConfig()
         self.cfg: GraphConfig = config.graph
-        self.initial = config.initial
         self.batch = self.cfg.batch if batch is None else bool(batch)
         self.assoc = config.association
-        self.motion = config.motion
         self.metadata = metadata
-        self.nav = NavigationBuffer(metadata, config.motion.accel_sigma_m_s2, config.motion.angular_rate_sigma_rad_s)
-        params = gtsam.ISAM2Params()
-        params.setRelinearizeThreshold(self.cfg.relinearize_threshold)
-        params.relinearizeSkip = self.cfg.relinearize_skip
-        self._new_isam(params)
+        self.diagnostics: list[str] = []
+        self.session = IsamSession(self.cfg.relinearize_threshold, self.cfg.relinearize_skip, self.diagnostics)
+        self.window = SlidingWindow(self.cfg.window_s, self.diagnostics)
+        self.keyframes = Keyframes(metadata, config, self.session, self.window)
         self.robust = robust_kernel(self.cfg.robust_kernel, self.cfg.robust_k)
-        self._wait_for_gt = self.initial.pose == "first_ground_truth" and bool(metadata.sensors_of_kind("ground_truth"))
-        self._initial_gt: GroundTruthPose | None = None
-        # Graph bookkeeping: every factor with its owner (None = navigation, else a landmark id),
-        # and every variable's initial value, for batch optimisation and failure recovery.
-        self._factors: list[tuple[gtsam.NonlinearFactor, int | None]] = []
-        self._initial = gtsam.Values()
-        # The smoothing window (``GraphConfig.window_s``): the factors iSAM2 holds (those of
-        # ``_factors`` on window variables, the marginals of what left and the priors of landmarks
-        # that came back), the oldest keyframe in it, and the frozen estimates of what left.
-        self._window: list[tuple[gtsam.NonlinearFactor, int | None]] = []
-        self._first_active = 0
-        self._frozen = gtsam.Values()
-        self._slide_after = 0  # stamp before which no slide is tried (after a failed one)
-        self.slides: list[dict] = []  # one row per marginalisation, for benchmarks
-        self.returns = 0  # marginalised landmarks seen again
-        self.kf_stamps: list[int] = []
-        self._pose: gtsam.Pose3 | None = None  # latest keyframe pose estimate
-        self._vel: np.ndarray | None = None
-        self._pose_cov: np.ndarray | None = None
-        # AHRS heading bias as a random walk (0: not modelled, the AHRS heading taken as unbiased).
-        self._bias_walk = config.sensors.heading_bias_walk(metadata)
-        self._bias_sigma0 = config.sensors.heading_bias_sigma0(metadata)
-        self._bias = 0.0  # latest keyframe's bias estimate (rad)
-        self.online: list[tuple[int, gtsam.Pose3, np.ndarray]] = []
         self.landmarks: dict[int, Landmark] = {}
         self.book = LandmarkBook()  # views, class evidence and connectivity of the landmarks
         self.tracks: list[Track] = []
@@ -136,7 +98,6 @@ class GraphEstimator:
         self.update_times: list[float] = []
         self.update_n_landmarks: list[int] = []
         self.update_kinds: list[str] = []
-        self.diagnostics: list[str] = []
         self._ambiguous: set[int] = set()
         self._current_obs: list = []
         self._volume: dict[int, list[tuple[int, float]]] = {}  # landmark id → [(stamp, log det cov)]
@@ -152,24 +113,16 @@ class GraphEstimator:
         return GraphView(self)
 
     def process_measurement(self, measurement: Measurement) -> None:
-        if isinstance(measurement, GroundTruthPose):
-            if self._initial_gt is None:
-                self._initial_gt = measurement
-            return
-        self.nav.add(measurement)
-        if self.nav.attitude is None:
-            return
-        if not self.kf_stamps:
-            if not self._wait_for_gt or self._initial_gt is not None:
-                self._timed(lambda: self._first_keyframe(measurement.stamp), "keyframe")
-            return
-        if (measurement.stamp - self.kf_stamps[-1]) * 1e-9 >= self.cfg.keyframe_max_interval_s:
+        due = self.keyframes.add(measurement)
+        if due == "first":
+            self._timed(lambda: self.keyframes.first(measurement.stamp), "keyframe")
+        elif due == "next":
             self._timed(lambda: self._keyframe(measurement.stamp), "keyframe")
 
     def process_observations(self, stamp: int, observations: Sequence) -> None:
         if not observations:
             return
-        if not self.kf_stamps:
+        if not self.keyframes.stamps:
             self.diagnostics.append(f"{stamp}: {len(observations)} observations before the first keyframe, ignored")
             return
         self._timed(lambda: self._observations(stamp, list(observations)), "observations")
@@ -182,268 +135,12 @@ class GraphEstimator:
         self.update_n_landmarks.append(len(self.landmarks))
         self.update_kinds.append(kind)
 
-    def _nav_factors_at(self, k: int, t: float) -> tuple[list, np.ndarray, np.ndarray | None]:
-        """AHRS, depth and DVL factors of keyframe k at time t; returns (factors, R_WB, v_B prior mean)."""
-        factors = []
-        R, _ = self.nav.attitude_at(t)
-        fused = self.nav.take_fused_attitude(t)
-        if fused is not None and t - self.nav.attitude.t <= self.cfg.ahrs_max_age_s:
-            R_f, cov_f, _ = fused
-            factors.append(
-                biased_attitude_factor(X(k), B(k), R_f, cov_f)
-                if self._bias_walk > 0
-                else attitude_factor(X(k), R_f, cov_f)
-            )
-        v_prior = None
-        dvl = self.nav.dvl
-        # The newest DVL sample is the velocity factor when it is fresh, and also when it is the last
-        # knot of the interval that ends here (a dropout starting inside it): the displacement alone
-        # cannot pin V(k), and the σ_a²·age inflation is the motion model's growth over the gap.
-        in_interval = bool(self.kf_stamps) and dvl is not None and dvl.t > self.kf_stamps[-1] * 1e-9
-        if dvl is not None and 0 <= t - dvl.t and (t - dvl.t <= self.cfg.dvl_max_age_s or in_interval):
-            age = t - dvl.t
-            factors.append(
-                dvl_velocity_factor(
-                    V(k), dvl.v_S, dvl.cov_S, dvl.T_BS, dvl.omega_B, self.motion.accel_sigma_m_s2**2 * age
-                )
-            )
-            v_prior = dvl.v_B
-        dep = self.nav.depth
-        if dep is not None and 0 <= t - dep.t <= self.cfg.depth_max_age_s:
-            age = t - dep.t
-            # Bring the reading to t along the vertical velocity (from the DVL, else none).
-            vz = float((R @ (v_prior if v_prior is not None else np.zeros(3)))[2])
-            var = dep.variance + (self.motion.accel_sigma_m_s2 * age**1.5) ** 2 + (0.01 * age) ** 2
-            factors.append(depth_factor(X(k), dep.depth + vz * age, var, dep.t_BS))
-        return factors, R, v_prior
-
-    def _first_keyframe(self, stamp: int) -> None:
-        t = stamp * 1e-9
-        factors, R, v_prior = self._nav_factors_at(0, t)
-        if self._initial_gt is not None and self.initial.pose == "first_ground_truth":
-            pos = np.asarray(self._initial_gt.position, float)
-            R0 = Rotation.from_quat(self._initial_gt.orientation).as_matrix()
-        else:
-            pos, R0 = np.zeros(3), self._unbiased(R)
-        pose0 = gtsam.Pose3(gtsam.Rot3(R0), pos)
-        sig = np.r_[[self.initial.attitude_sigma_rad] * 3, [self.initial.position_sigma_m] * 3]
-        factors.append(gtsam.PriorFactorPose3(X(0), pose0, gtsam.noiseModel.Diagonal.Sigmas(sig)))
-        v0 = v_prior if v_prior is not None else np.zeros(3)
-        factors.append(
-            gtsam.PriorFactorVector(V(0), v0, gtsam.noiseModel.Isotropic.Sigma(3, self.initial.velocity_sigma_m_s))
-        )
-        values = gtsam.Values()
-        values.insert(X(0), pose0)
-        values.insert(V(0), v0)
-        if self._bias_walk > 0:
-            factors.append(
-                gtsam.PriorFactorVector(B(0), np.zeros(1), gtsam.noiseModel.Isotropic.Sigma(1, self._bias_sigma0))
-            )
-            values.insert(B(0), np.zeros(1))
-        self.kf_stamps.append(stamp)
-        self._commit([(f, None) for f in factors], values)
-        self._after_keyframe(t)
-
-    def _keyframe(self, stamp: int) -> int:
-        """Create keyframe k at ``stamp`` with its navigation factors; returns k."""
-        k = len(self.kf_stamps)
-        t = stamp * 1e-9
-        factors, R, v_prior = self._nav_factors_at(k, t)
-        # A DVL sample used as V(k)'s prior is removed from the displacement's knots (no double use).
-        drop_last = v_prior is not None and self.nav.preint.last_stamp == self.nav.dvl.t
-        if drop_last:
-            self.nav.preint.drop_last()
-        d = self.nav.preint.integrate(t, R)
-        factors.append(displacement_factor(X(k - 1), X(k), V(k - 1), V(k), d))
-        if d.n_samples == 0:  # no knot between the two velocity states: the process model links them
-            factors.append(velocity_random_walk_factor(V(k - 1), V(k), d.dt, self.motion.accel_sigma_m_s2))
-        v_init = v_prior if v_prior is not None else self._vel
-        p_init = self._pose.translation() + self._pose.rotation().matrix() @ (d.c + d.A @ self._vel + d.B @ v_init)
-        values = gtsam.Values()
-        values.insert(X(k), gtsam.Pose3(gtsam.Rot3(self._unbiased(R)), p_init))
-        values.insert(V(k), np.asarray(v_init, float))
-        if self._bias_walk > 0:
-            factors.append(heading_bias_walk_factor(B(k - 1), B(k), d.dt, self._bias_walk))
-            values.insert(B(k), np.array([self._bias]))
-        self.kf_stamps.append(stamp)
-        self._commit([(f, None) for f in factors], values)
-        self._after_keyframe(t)
-        self._slide_window()
-        return k
-
-    def _after_keyframe(self, t: float) -> None:
-        k = len(self.kf_stamps) - 1
-        self._refresh_current()
-        R, _ = self.nav.attitude_at(t)
-        att_sigma = float(np.sqrt(np.trace(self.nav.attitude.cov) / 3))
-        self.nav.start_interval(t, R, att_sigma)
-        R_pose = self._pose.rotation().matrix()
-        self.online.append((self.kf_stamps[k], self._pose, R_pose @ self._pose_cov[3:, 3:] @ R_pose.T))
-
-    def _unbiased(self, R_ahrs: np.ndarray) -> np.ndarray:
-        """An AHRS attitude with the current heading-bias estimate taken out: Rz(−b) R."""
-        if self._bias == 0.0:
-            return R_ahrs
-        c, s_ = np.cos(self._bias), np.sin(self._bias)
-        return np.array([[c, s_, 0.0], [-s_, c, 0.0], [0.0, 0.0, 1.0]]) @ R_ahrs
-
-    def _refresh_current(self) -> None:
-        k = len(self.kf_stamps) - 1
-        self._pose = self.isam.calculateEstimatePose3(X(k))
-        self._vel = np.asarray(self.isam.calculateEstimateVector(V(k)))
-        if self._bias_walk > 0:
-            self._bias = float(self.isam.calculateEstimateVector(B(k))[0])
-        try:
-            self._pose_cov = marginal_covariance(self.isam, X(k))  # from the root clique: it holds X(k)
-        except RuntimeError:
-            self._pose_cov = np.eye(6) * 1e2
-
-    # ------------------------------------------------------------------ graph updates
-    def _new_isam(self, params: gtsam.ISAM2Params) -> None:
-        """A fresh iSAM2, and a Python handle on its linearisation point, held for its lifetime.
-
-        A CustomFactor's callback receives the Values it is linearised at through pybind11, which
-        passes a C++ ``const Values&`` by copy unless that object already has a Python wrapper.
-        iSAM2 linearises at its internal θ, so without the handle every callback of a line,
-        displacement or biased-attitude factor copied the whole of θ (every keyframe, velocity
-        and landmark): a cost that grew with the mission (43 ms against 0.9 ms per update for 200
-        callbacks on a 20 000-variable θ). ``getLinearizationPoint`` returns θ by reference
-        (keeping iSAM2 alive), and pybind11 then hands that registered object to the callbacks."""
-        self.isam = gtsam.ISAM2(params)
-        self._theta = self.isam.getLinearizationPoint()
-
-    def _commit(self, factors: list[tuple], values: gtsam.Values, priors: list[tuple] = ()) -> bool:
-        """Add factors (with their owners) and new variables to iSAM2, and ``priors`` that only the
-        window holds (a returning landmark's); recover from a failure by dropping the landmark
-        factors of this update (and landmarks they would have created) and rebuilding iSAM2 from
-        the rest. Returns False if something was dropped."""
-        graph = gtsam.NonlinearFactorGraph()
-        for f, _ in [*factors, *priors]:
-            graph.add(f)
-        try:
-            self.isam.update(graph, values)
-            self._factors.extend(factors)
-            self._window.extend(factors)
-            self._window.extend(priors)
-            self._initial.insert_or_assign(values)  # a returning landmark's key is there already
-            return True
-        except RuntimeError as exc:
-            msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-            stamp = self.kf_stamps[-1] if self.kf_stamps else 0
-            owners = sorted({o for _, o in factors if o is not None})
-            self.diagnostics.append(f"{stamp}: iSAM2 update failed ({msg}); dropped the factors of landmarks {owners}")
-            kept = [(f, o) for f, o in factors if o is None]
-            self._rebuild(kept, values, owners)
-            return False
-
-    def _rebuild(self, new_nav: list[tuple], values: gtsam.Values, dropped_owners: list[int]) -> None:
-        try:
-            estimate = self.isam.calculateEstimate()
-        except RuntimeError:
-            estimate = gtsam.Values(self._initial)
-        for lid in dropped_owners:  # landmarks created in the failed update disappear
-            lm = self.landmarks.get(lid)
-            if lm is not None and not any(o == lid for _, o in self._factors):
-                del self.landmarks[lid]
-                row = self._sphere_row.pop(lid, None)
-                if row is not None:
-                    self._sphere_c[row] = np.inf  # never near again
-        self._factors.extend(new_nav)
-        self._window.extend(new_nav)
-        keep_keys = {k for f, _ in self._window for k in f.keys()}  # every variable a kept factor holds
-        for lm in self.landmarks.values():  # one that was coming back stays out
-            lm.active = lm.key in keep_keys
-        full = gtsam.Values()
-        for src in (estimate, values, self._initial):
-            for key in src.keys():
-                if key in keep_keys and not full.exists(key):
-                    full.insert(key, value_of(src, key))
-        graph = gtsam.NonlinearFactorGraph()
-        for f, _ in self._window:
-            graph.add(f)
-        params = self.isam.params()
-        self._new_isam(params)
-        try:
-            self.isam.update(graph, full)
-        except RuntimeError as exc:
-            # Last resort: a weak prior on the newest keyframe re-anchors the system.
-            k = len(self.kf_stamps) - 1
-            pose = full.atPose3(X(k))
-            prior = gtsam.PriorFactorPose3(X(k), pose, gtsam.noiseModel.Isotropic.Sigma(6, 10.0))
-            vprior = gtsam.PriorFactorVector(V(k), value_of(full, V(k)), gtsam.noiseModel.Isotropic.Sigma(3, 10.0))
-            self._factors += [(prior, None), (vprior, None)]
-            self._window += [(prior, None), (vprior, None)]
-            graph.add(prior)
-            graph.add(vprior)
-            self._new_isam(params)
-            self.isam.update(graph, full)
-            self.diagnostics.append(
-                f"rebuild needed a weak re-anchoring prior on keyframe {k} ({str(exc).splitlines()[0]})"
-            )
-        self._initial = full
-
-    def _slide_window(self) -> None:
-        """Once the window spans 1.5 × ``window_s``, marginalise the keyframes older than
-        ``window_s`` and the landmarks no kept keyframe observes (:mod:`semslam.backend.window`),
-        and restart iSAM2 on the rest with their marginal; the cost of that restart is a batch
-        elimination of the window, once per half window."""
-        w = self.cfg.window_s
-        now = self.kf_stamps[-1]
-        if w is None or now < self._slide_after or (now - self.kf_stamps[self._first_active]) * 1e-9 < 1.5 * w:
-            return
-        b = min(bisect.bisect_left(self.kf_stamps, now - int(w * 1e9)), len(self.kf_stamps) - 1)
-        kept_kf = {key for i in range(b, len(self.kf_stamps)) for key in (X(i), V(i), B(i))}
-        live, landmark_keys = set(), set()
-        for f, _ in self._window:
-            keys = f.keys()
-            lms = [k for k in keys if gtsam.Symbol(k).chr() in LANDMARK_CHARS]
-            landmark_keys.update(lms)
-            if lms and any(k in kept_kf for k in keys):
-                live.update(lms)
-        drop = {key for i in range(self._first_active, b) for key in (X(i), V(i), B(i))} | (landmark_keys - live)
-        t0 = time.perf_counter()
-        estimate = self.isam.calculateEstimate()
-        kept, leaving = split_factors(self._window, drop)
-        old = self.isam, self._theta
-        try:
-            marginal = marginal_factors(leaving, estimate, drop)
-            window = kept + [(m, None) for m in marginal]
-            graph = gtsam.NonlinearFactorGraph()
-            for f, _ in window:
-                graph.add(f)
-            self._new_isam(self.isam.params())
-            self.isam.update(graph, subset(estimate, {k for f, _ in window for k in f.keys()}))
-        except RuntimeError as exc:
-            self.isam, self._theta = old
-            self._slide_after = now + int(0.5 * w * 1e9)
-            self.diagnostics.append(
-                f"{now}: marginalising keyframes before {b} failed ({str(exc).splitlines()[0]}); retried in {0.5 * w:g} s"
-            )
-            return
-        self._window, self._first_active = window, b
-        self.slides.append(
-            {
-                "stamp": now,
-                "first_keyframe": b,
-                "left_landmarks": len(drop & landmark_keys),
-                "separator": len({k for m in marginal for k in m.keys()}),
-                "window_factors": len(window),
-                "seconds": time.perf_counter() - t0,
-            }
-        )
-        self._frozen.insert_or_assign(subset(estimate, [k for k in drop if estimate.exists(k)]))
-        for lm in self.landmarks.values():
-            if lm.active and lm.key in drop:
-                lm.active, lm.estimate = False, value_of(estimate, lm.key)
-                self._update_sphere(lm)
-        self._refresh_current()
-
     def _reactivate(self, lm: Landmark, priors: list, values: gtsam.Values) -> None:
         """A marginalised landmark seen again re-enters the window: its frozen estimate, with the
         covariance of its own views (pose uncertainty folded in) as a prior. Its correlation with
         the window's poses was lost when it left; the views' covariance is the conservative choice."""
         lm.active = True
-        self.returns += 1
+        self.window.returns += 1
         noise = gtsam.noiseModel.Gaussian.Covariance(lm.information_covariance())
         if lm.kind == "object":
             prior = gtsam.PriorFactorPoint3(lm.key, np.asarray(lm.estimate, float), noise)
@@ -454,28 +151,48 @@ class GraphEstimator:
         priors.append((prior, lm.id))
         values.insert(lm.key, lm.estimate)
 
+    def _keyframe(self, stamp: int) -> int:
+        """A new keyframe, then the window slides if it is due."""
+        k = self.keyframes.next(stamp)
+        slid = self.window.slide(self.session, self.keyframes.stamps)
+        if slid is not None:
+            drop, estimate = slid
+            for lm in self.landmarks.values():
+                if lm.active and lm.key in drop:
+                    lm.active, lm.estimate = False, value_of(estimate, lm.key)
+                    self._update_sphere(lm)
+            self.keyframes.refresh()
+        return k
+
+    def _commit(self, factors: list, values: gtsam.Values, priors: list = ()) -> bool:
+        """Commit to iSAM2; after a failure the landmarks created in the failed update disappear and
+        those that were coming back stay out of the window. False if something was dropped."""
+        dropped = self.session.commit(factors, values, self.keyframes.anchor(), priors, self.keyframes.stamps[-1])
+        if dropped is None:
+            return True
+        for lid in dropped:
+            lm = self.landmarks.get(lid)
+            if lm is not None and not self.session.owns(lid):
+                del self.landmarks[lid]
+                row = self._sphere_row.pop(lid, None)
+                if row is not None:
+                    self._sphere_c[row] = np.inf  # never near again
+        keep = self.session.window_keys()
+        for lm in self.landmarks.values():
+            lm.active = lm.key in keep
+        return False
+
     # ------------------------------------------------------------------ observations
     def _sensor_T(self, sensor: str) -> np.ndarray:
-        info = self.metadata.sensors.get(sensor)
-        if info is None:
-            msg = f"observations from unknown sensor {sensor!r}: identity extrinsic assumed"
-            if msg not in self.diagnostics:
-                self.diagnostics.append(msg)
-            return np.eye(4)
-        return info.T_BS
+        return self.metadata.extrinsic(sensor)
 
     def _keyframe_for(self, stamp: int) -> int | None:
-        if stamp == self.kf_stamps[-1]:
-            return len(self.kf_stamps) - 1
-        if stamp > self.kf_stamps[-1]:
+        stamps = self.keyframes.stamps
+        if stamp == stamps[-1]:
+            return len(stamps) - 1
+        if stamp > stamps[-1]:
             return self._keyframe(stamp)
-        i = bisect.bisect_left(self.kf_stamps, stamp)
-        i = min(range(max(i - 1, 0), min(i + 1, len(self.kf_stamps))), key=lambda j: abs(self.kf_stamps[j] - stamp))
-        if i < self._first_active:
-            self.diagnostics.append(f"{stamp}: observations older than the smoothing window, dropped")
-            return None
-        self.diagnostics.append(f"{stamp}: observations older than the newest keyframe, attached to keyframe {i}")
-        return i
+        return self.keyframes.older(stamp, self.diagnostics)
 
     def _valid(self, z) -> bool:
         arrays = [
@@ -493,10 +210,7 @@ class GraphEstimator:
         k = self._keyframe_for(stamp)
         if k is None:
             return
-        if k != len(self.kf_stamps) - 1:
-            pose, pose_cov = self.isam.calculateEstimatePose3(X(k)), marginal_covariance(self.isam, X(k))
-        else:
-            pose, pose_cov = self._pose, self._pose_cov
+        pose, pose_cov = self.keyframes.pose_and_cov(k)
         bad = [z for z in observations if not self._valid(z)]
         if bad:
             self.diagnostics.append(f"{stamp}: {len(bad)} degenerate or non-finite observations dropped")
@@ -504,7 +218,7 @@ class GraphEstimator:
         odom = [z for z in observations if isinstance(z, OdometryObservation)]
         lines = self._merged_lines(observations, pose)
         obs = [z for z in observations if isinstance(z, (PointObservation, StructureObservation))] + lines
-        factors: list[tuple] = [(f, None) for f in self._odometry_factors(odom, k)]
+        factors: list[tuple] = [(f, None) for f in self.keyframes.odometry_factors(odom, self.diagnostics)]
         priors: list[tuple] = []
         values = gtsam.Values()
         if obs:
@@ -523,10 +237,8 @@ class GraphEstimator:
         self._purge_tracks(stamp)
         if factors or values.size():
             self._commit(factors, values, priors)
-            self._refresh_current()
-            if k == len(self.kf_stamps) - 1:  # the online pose of this keyframe is the one after its landmarks
-                R = self._pose.rotation().matrix()
-                self.online[-1] = (self.online[-1][0], self._pose, R @ self._pose_cov[3:, 3:] @ R.T)
+            self.keyframes.refresh()
+            self.keyframes.renew_online(k)
             updated = {o for _, o in factors if o is not None}
             self._refresh_landmarks(updated)
             self._merge_twins(updated)
@@ -569,42 +281,12 @@ class GraphEstimator:
                     self._sphere_c[row] = np.inf  # never near again
                 self._volume.pop(drop.id, None)
                 self.diagnostics.append(
-                    f"{self.kf_stamps[-1]}: objects {keep.id} and {drop.id} converged on one place, merged into {keep.id}"
+                    f"{self.keyframes.stamps[-1]}: objects {keep.id} and {drop.id} converged on one place, merged into {keep.id}"
                 )
                 self._commit([(tie, keep.id)], gtsam.Values())
                 self._refresh_landmarks({keep.id})
                 if drop is a:
                     break
-
-    def _odometry_factors(self, odom: list, k: int) -> list:
-        """Relative-pose constraints (e.g. swath registrations). An end that is not a keyframe is
-        carried to the nearest keyframe with the estimated motion in between (short: at most half
-        a keyframe interval of dead reckoning, whose error is far below the constraint's)."""
-        out = []
-        for z in odom:
-            i, T_i_from = self._nearest_keyframe(z.stamp_from)
-            j, T_j_to = self._nearest_keyframe(z.stamp)
-            if i is None or j is None or i == j or min(i, j) < self._first_active:
-                self.diagnostics.append(
-                    f"{z.stamp}: odometry from {z.stamp_from} has no distinct keyframes in the window to join, dropped"
-                )
-                continue
-            meas = T_i_from.compose(gtsam.Pose3(z.relative_pose)).compose(T_j_to.inverse())
-            out.append(gtsam.BetweenFactorPose3(X(i), X(j), meas, gtsam.noiseModel.Gaussian.Covariance(z.covariance)))
-        return out
-
-    def _nearest_keyframe(self, stamp: int) -> tuple[int | None, gtsam.Pose3]:
-        """The keyframe nearest to ``stamp`` and T_B(keyframe),B(stamp) from the current estimate."""
-        if not self.kf_stamps:
-            return None, gtsam.Pose3()
-        i = bisect.bisect_left(self.kf_stamps, stamp)
-        i = min((c for c in (i - 1, i) if 0 <= c < len(self.kf_stamps)), key=lambda c: abs(self.kf_stamps[c] - stamp))
-        if self.kf_stamps[i] == stamp:
-            return i, gtsam.Pose3()
-        here = self.pose_at(stamp)
-        if here is None:
-            return None, gtsam.Pose3()
-        return i, self._kf_pose(i).between(here)
 
     # ------------------------------------------------------------------ association
     def _world_summary(self, z, pose: gtsam.Pose3, T_BS: np.ndarray) -> np.ndarray:
@@ -876,8 +558,10 @@ class GraphEstimator:
         self._next_id += 1
         key = KEY_OF_KIND[tr.kind](lid)
         lm = Landmark(lid, tr.kind, key, model=tr.model)
-        records = [r for r in tr.records if r.keyframe >= self._first_active]  # views from keyframes that left: dropped
-        poses = {r.keyframe: self._kf_pose(r.keyframe) for r in records}
+        records = [
+            r for r in tr.records if r.keyframe >= self.window.first_active
+        ]  # views from keyframes that left: dropped
+        poses = {r.keyframe: self.keyframes.pose_of(r.keyframe) for r in records}
         Ts = [self._sensor_T(r.observation.sensor) for r in records]
         if tr.kind == "object":
             pts = np.array(
@@ -915,24 +599,9 @@ class GraphEstimator:
             self._record(lm, r.stamp, r.keyframe, r.observation, poses[r.keyframe], T, pose_cov)
         self._update_sphere(lm)
 
-    def _kf_pose(self, k: int) -> gtsam.Pose3:
-        if k == len(self.kf_stamps) - 1 and self._pose is not None:
-            return self._pose
-        if k < self._first_active:
-            return self._frozen.atPose3(X(k))
-        return self.isam.calculateEstimatePose3(X(k))
-
     def _landmark_value(self, lm: Landmark):
         """A landmark's current estimate: iSAM2's in the window, else the frozen one."""
-        return value_of(self.isam, lm.key) if lm.active else lm.estimate
-
-    def _all_estimates(self) -> gtsam.Values:
-        """The window's estimate with the frozen estimates of everything that left it."""
-        values = self.isam.calculateEstimate()
-        for key in self._frozen.keys():
-            if not values.exists(key):  # not a landmark that came back
-                values.insert(key, value_of(self._frozen, key))
-        return values
+        return self.session.value(lm.key) if lm.active else lm.estimate
 
     def _purge_tracks(self, stamp: int) -> None:
         horizon = stamp - int(self.assoc.track_timeout_s * 1e9)
@@ -975,34 +644,14 @@ class GraphEstimator:
             lm.estimate = self._landmark_value(lm)
             self._update_sphere(lm)
             if covariance and lm.cov_stamp is None:
-                lm.cov_stamp = self.kf_stamps[-1]
+                lm.cov_stamp = self.keyframes.stamps[-1]
                 lm.covariance = lm.information_covariance()
                 ev = np.linalg.eigvalsh(lm.covariance)
                 self._volume.setdefault(lid, []).append(
-                    (self.kf_stamps[-1], float(np.sum(np.log(np.maximum(ev, 1e-300)))))
+                    (self.keyframes.stamps[-1], float(np.sum(np.log(np.maximum(ev, 1e-300)))))
                 )
 
     # ------------------------------------------------------------------ views and results
-    def pose_at(self, stamp: int) -> gtsam.Pose3 | None:
-        """T_WB at ``stamp``: interpolated between keyframe estimates, or predicted from the
-        newest keyframe with the DVL/AHRS integrated since."""
-        if not self.kf_stamps:
-            return None
-        if stamp >= self.kf_stamps[-1]:
-            if stamp == self.kf_stamps[-1] or self.nav.preint is None:
-                return self._pose
-            t = stamp * 1e-9
-            R, _ = self.nav.attitude_at(t)
-            d = self.nav.preint.integrate(t, R)
-            p = self._pose.translation() + self._pose.rotation().matrix() @ (d.c + (d.A + d.B) @ self._vel)
-            return gtsam.Pose3(gtsam.Rot3(self._unbiased(R)), p)
-        i = bisect.bisect_right(self.kf_stamps, stamp)
-        if i == 0:
-            return None
-        a, b = self._kf_pose(i - 1), self._kf_pose(i)
-        s = (stamp - self.kf_stamps[i - 1]) / (self.kf_stamps[i] - self.kf_stamps[i - 1])
-        return gtsam.Pose3(a.rotation().slerp(s, b.rotation()), (1 - s) * a.translation() + s * b.translation())
-
     def landmark_estimates(
         self, covariance: bool = True, values: gtsam.Values | None = None, marginals=None
     ) -> list[LandmarkEstimate]:
@@ -1027,119 +676,37 @@ class GraphEstimator:
             out.append(le)
         return out
 
-    def _joint_blocks(self, marginals, keys: list[int], chunk: int = 60) -> dict[int, np.ndarray]:
-        """Marginal covariances of ``keys``: from joint marginals over chunks of them (in a graph
-        where every landmark links to every pose, one joint marginal of 60 variables costs about as
-        much as one or two single ones), else iSAM2's one by one. A key that fails is left out."""
-        out: dict[int, np.ndarray] = {}
-        if marginals is not None:
-            for a in range(0, len(keys), chunk):
-                part = keys[a : a + chunk]
-                try:
-                    J = marginals.jointMarginalCovariance(gtsam.KeyVector(part))
-                    out.update({k: np.asarray(J.at(k, k)) for k in part})
-                except RuntimeError:
-                    pass
-        for k in keys:
-            if k not in out:
-                try:
-                    out[k] = self.isam.marginalCovariance(k)
-                except (RuntimeError, IndexError):  # indeterminate, or left the window
-                    pass
-        return out
-
     def _landmark_marginals(self, marginals) -> dict[int, np.ndarray]:
         """Marginal covariance of every landmark, by id."""
-        covs = self._joint_blocks(marginals, [lm.key for lm in self.landmarks.values()])
+        covs = self.session.joint_blocks(marginals, [lm.key for lm in self.landmarks.values()])
         return {lm.id: covs[lm.key] for lm in self.landmarks.values() if lm.key in covs}
 
-    def _marginals(self, values: gtsam.Values):
-        """Marginals of the final estimate from one batch factorisation of the whole graph (iSAM2's
-        per-variable marginals cost a partial re-elimination each: minutes for a mission's
-        keyframes); iSAM2 itself (``None``) if the batch system is indeterminate."""
-        graph = gtsam.NonlinearFactorGraph()
-        for f, _ in self._factors:
-            graph.add(f)
-        try:
-            return gtsam.Marginals(graph, values)
-        except RuntimeError as exc:
-            self.diagnostics.append(f"batch marginals failed ({str(exc).splitlines()[0]}); iSAM2 marginals used")
-            return None
-
     def finish(self) -> EstimatorResult:
-        n = len(self.kf_stamps)
+        n = len(self.keyframes)
         history: dict = {
             "update_kinds": list(self.update_kinds),
             "n_keyframes": n,
-            "window_slides": list(self.slides),
-            "window_returns": self.returns,
+            "window_slides": list(self.window.slides),
+            "window_returns": self.window.returns,
         }
         if n == 0:
             self.diagnostics.append("no keyframe: the mission had no AHRS (or no start pose)")
             empty = Trajectory(np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 4)))
             return EstimatorResult(self.name, empty, diagnostics=list(self.diagnostics))
-        values, marginals = None, None
-        if self.batch:
-            t0 = time.perf_counter()
-            graph = gtsam.NonlinearFactorGraph()
-            for f, _ in self._factors:
-                graph.add(f)
-            params = gtsam.LevenbergMarquardtParams()
-            params.setMaxIterations(self.cfg.batch_max_iterations)
-            try:
-                values = _levenberg_marquardt(graph, self._all_estimates(), params)
-            except RuntimeError as exc:
-                self.diagnostics.append(f"batch optimisation failed ({str(exc).splitlines()[0]}); online estimate kept")
-                values = None
-            history["batch_time_s"] = time.perf_counter() - t0
-        if values is None:
-            values = self._all_estimates()
-        if self.cfg.covariance_in_result and marginals is None:
-            marginals = self._marginals(values)
-        poses = [values.atPose3(X(i)) for i in range(n)]
-        vels = np.array([values.atVector(V(i)) for i in range(n)])
-        pos_cov = vel_cov = None
-        if self.cfg.covariance_in_result:
-            pos_cov = np.full((n, 3, 3), np.nan)
-            vel_cov = np.full((n, 3, 3), np.nan)
-            sample = np.unique(np.linspace(0, n - 1, min(n, self.cfg.result_covariance_keyframes)).round().astype(int))
-            covs = self._joint_blocks(marginals, [k for i in sample for k in (X(i), V(i))])
-            for i in sample:
-                if X(i) in covs and V(i) in covs:
-                    R = poses[i].rotation().matrix()
-                    pos_cov[i] = R @ covs[X(i)][3:, 3:] @ R.T
-                    vel_cov[i] = covs[V(i)]
-        traj = Trajectory(
-            stamps=np.array(self.kf_stamps, np.int64),
-            positions=np.array([p.translation() for p in poses]),
-            orientations=np.array([Rotation.from_matrix(p.rotation().matrix()).as_quat() for p in poses]),
-            position_cov=pos_cov,
-            velocities=vels,
-            velocity_cov=vel_cov,
-        )
-        online = Trajectory(
-            stamps=np.array([s for s, _, _ in self.online], np.int64),
-            positions=np.array([p.translation() for _, p, _ in self.online]),
-            orientations=np.array([Rotation.from_matrix(p.rotation().matrix()).as_quat() for _, p, _ in self.online]),
-            position_cov=np.array([c for _, _, c in self.online]),
-        )
+        values = final_values(self.session, self.window, self.cfg, self.batch, history)
+        marginals = self.session.marginals(values) if self.cfg.covariance_in_result else None
         landmarks = self.landmark_estimates(self.cfg.covariance_in_result, values, marginals)
         self.book.connect(landmarks, self.assoc.merge_distance_m)
         history["landmark_kind"] = {lm.id: lm.kind for lm in self.landmarks.values()}
         history["landmark_volume"] = {
             lid: (np.array([s for s, _ in v], np.int64), np.array([x for _, x in v])) for lid, v in self._volume.items()
         }
-        # which landmark each observation (by object identity) ended in, for the recognition tables
         history.update(self.book.history(self.landmarks))
-        if self.nav.unknown_sensors:
-            self.diagnostics.append(
-                f"measurements from sensors missing in the metadata: {sorted(self.nav.unknown_sensors)}"
-            )
         return EstimatorResult(
             name=self.name,
-            trajectory=traj,
+            trajectory=keyframe_trajectory(self.keyframes.stamps, values, marginals, self.session, self.cfg),
             landmarks=landmarks,
-            online_trajectory=online,
+            online_trajectory=online_trajectory(self.keyframes.online),
             update_times_s=np.array(self.update_times),
             update_n_landmarks=np.array(self.update_n_landmarks, int),
             history=history,
@@ -1148,30 +715,6 @@ class GraphEstimator:
 
 
 # ---------------------------------------------------------------------------------------------
-
-
-def _levenberg_marquardt(graph: gtsam.NonlinearFactorGraph, initial: gtsam.Values, params) -> gtsam.Values:
-    """GTSAM's Levenberg–Marquardt, iterated here exactly as ``optimize()`` does (its
-    ``defaultOptimize`` loop and stopping rules), holding a Python handle on the optimiser's current
-    values during each iteration: the iteration linearises at them, and its CustomFactor callbacks
-    then get that object instead of a copy of every variable (see :meth:`GraphEstimator._new_isam`).
-    The error evaluations of trial steps still copy."""
-    opt = gtsam.LevenbergMarquardtOptimizer(graph, initial, params)
-    new = opt.error()
-    if new <= params.getErrorTol() or opt.iterations() >= params.getMaxIterations():
-        return gtsam.Values(opt.values())
-    while True:
-        current = new
-        held = opt.values()  # alive while iterate() linearises at it
-        opt.iterate()
-        del held  # an accepted step replaced the values it pointed to
-        new = opt.error()
-        if not (
-            opt.iterations() < params.getMaxIterations()
-            and not gtsam.checkConvergence(params, current, new)
-            and math.isfinite(current)
-        ):
-            return gtsam.Values(opt.values())
 
 
 def _observation_information(lm: Landmark, z, pose: gtsam.Pose3, pose_cov: np.ndarray, T_BS: np.ndarray) -> np.ndarray:
