@@ -26,7 +26,6 @@ import numpy as np
 
 from frontends.oracle import OracleFrontend
 from semslam.backend.graph import GraphEstimator
-from semslam.backend.run import run_graph
 from semslam.config import SemslamConfig
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository root: tests.support
@@ -37,6 +36,7 @@ from tests.support.synthetic_mission import (  # noqa: E402
     ground_truth_positions,
     landmark_report,
     position_errors,
+    run_graph,
     simulate,
 )
 

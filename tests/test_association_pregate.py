@@ -9,11 +9,14 @@ from scipy.stats import chi2
 from factors.landmarks import LineAnchor
 from semslam.backend.landmarks import Landmark
 from semslam.backend.problem import Candidate, GraphAssociationProblem, possible_pairs
+from semslam.config import AssociationConfig
 from semslam.mapping.association import uncorrelated_candidates
-from semslam.mapping.extent import PipeExtent
+from semslam.mapping.book import LandmarkBook
+from semslam.mapping.builder import Scan
 from semslam.observations import LineObservation, PointObservation
 
 GATES = {d: float(chi2.ppf(0.99, d)) for d in (3, 4)}
+BOOK = LandmarkBook()  # what was seen of the pipes: 10 m of their lines
 
 
 def random_spd(rng, n, scale):
@@ -42,8 +45,7 @@ def scene(rng):
         anchor = LineAnchor.from_points(p, p + d)
         theta = rng.normal(0, 0.05, 4)
         c, u = anchor.point(theta), anchor.direction(theta)
-        seen = PipeExtent()
-        seen.add(np.array([c - 5 * u, c + 5 * u]), 0.01)
+        BOOK.extent(10 + k).add(np.array([c - 5 * u, c + 5 * u]), 0.01)
         lm = Landmark(
             10 + k,
             "pipe",
@@ -51,7 +53,6 @@ def scene(rng):
             anchor=anchor,
             estimate=theta,
             covariance=random_spd(rng, 4, 0.02),
-            extent=seen,
         )
         cands.append(Candidate(lm, lm.covariance))
         off = rng.normal(0, rng.choice([0.01, 0.05, 0.2]), 3)
@@ -68,7 +69,8 @@ def test_never_rejects_an_individually_compatible_pair(seed):
     pose, pose_cov, obs, T_BS, cands = scene(rng)
     mask = possible_pairs(pose, pose_cov, obs, T_BS, cands, GATES)
     everything = np.ones_like(mask)
-    problem = GraphAssociationProblem(pose, pose_cov, obs, T_BS, cands, 10.0, everything)
+    scan = Scan(BOOK, AssociationConfig(pipe_extent_gap_m=10.0), np.zeros((0, 3)), np.zeros((0, 3)))
+    problem = GraphAssociationProblem(pose, obs, T_BS, cands, everything, scan)
     pairs = [(i, j, problem.pair(i, j)) for i in range(len(obs)) for j in range(len(cands))]
     found = uncorrelated_candidates(
         len(obs), [t for t in pairs if t[2] is not None], pose_cov, problem.landmark_covariance, 0.99

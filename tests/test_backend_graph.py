@@ -13,16 +13,19 @@ import pytest
 
 from frontends.oracle import OracleFrontend
 from semslam.backend.graph import GraphEstimator
-from semslam.backend.run import run_graph
 from semslam.config import SemslamConfig
 from semslam.estimation import EstimateView, Estimator
+from semslam.mission.measurements import PointCloud
 from semslam.observations import PointObservation
+from semslam.pipeline import run_pipeline
+from tests.support.replay import probe
 from tests.support.synthetic_mission import (
     SyntheticConfig,
     dead_reckoning,
     ground_truth_positions,
     landmark_report,
     position_errors,
+    run_graph,
     simulate,
 )
 
@@ -261,7 +264,7 @@ def test_landmark_needs_min_observations():
                 m.stamp, [PointObservation(m.stamp, "laser", position=z, covariance=np.eye(3) * 1e-4)]
             )
             sent += 1
-            assert len(est.landmarks) == (0 if sent < 3 else 1)
+            assert len(est.map) == (0 if sent < 3 else 1)
     res = est.finish()
     assert len(res.landmarks) == 1 and res.landmarks[0].n_observations == sent
 
@@ -270,40 +273,38 @@ def test_two_object_landmarks_on_one_place_are_merged():
     """A second landmark made from the same views as a mapped object (as when a first track's
     views were off and both end up fed by one object) converges onto it and is merged: the map
     keeps one object with both histories, and the graph (rebuild included) goes on."""
-    import bisect
-
-    from semslam.backend.landmarks import ObservationRecord, Track
+    from semslam.mapping.tracks import Track, TrackView
 
     mission = simulate(
         SyntheticConfig(duration_s=60.0, n_objects=3, n_pipes=0, n_structures=0, ahrs_yaw_bias_rad=0.0, seed=2)
     )
-    fe = OracleFrontend(mission.metadata, {"seed": 0})
     est = GraphEstimator(mission.metadata, SemslamConfig())
-    view, twin = est.view(), None
-    for m in mission:
-        est.process_measurement(m)
-        if isinstance(m, fe.consumes):
-            obs = fe.process(m, view)
-            if obs:
-                est.process_observations(m.stamp, obs)
-        objects = [lm for lm in est.landmarks.values() if lm.kind == "object"]
-        if twin is None and objects and est.book.n_views(objects[0].id) >= 5:
-            a = objects[0]
-            views = est.book.views[a.id]
-            records = [ObservationRecord(t, bisect.bisect_left(est.keyframes.stamps, t), z) for t, z in views]
-            tr = Track("object", records=records, world=[np.asarray(a.estimate)] * len(views))
-            factors, values = [], gtsam.Values()
-            est._promote(tr, factors, values, est.keyframes.pose_cov)
-            twin = max(est.landmarks)
-            assert est._commit(factors, values)
-            est._refresh_landmarks({a.id, twin})
-            n_before, n_hist = len(est.landmarks), est.book.n_views(a.id)
-            est._merge_twins({twin})
-            assert twin not in est.landmarks and a.id in est.landmarks
-            assert len(est.landmarks) == n_before - 1 and est.book.n_views(a.id) == 2 * n_hist
-            assert any(f"merged into {a.id}" in d for d in est.diagnostics)
-            est.session.rebuild([], gtsam.Values(), est.keyframes.anchor())  # the merged landmark's key stays
-    res = est.finish()
+    twin = None
+
+    def inject(m):  # once an object has five views, a twin from the same views
+        nonlocal twin
+        objects = [lm for lm in est.map.landmarks.values() if lm.kind == "object"]
+        if twin is not None or not objects or est.book.n_views(objects[0].id) < 5:
+            return
+        a = objects[0]
+        views = [
+            TrackView(t, z, np.asarray(a.estimate), np.eye(3) * 1e-4, est.keyframes.older(t, []) or 0)
+            for t, z in est.book.views[a.id]
+        ]
+        est.map.begin(est.keyframes.newest)
+        twin = est.map.promote(Track(-1, "object", views=views))
+        est.map.settle()
+        for t, z in est.book.views[a.id][: len(views)]:
+            est.book.observe(twin, t, z)
+        n_before, n_hist = len(est.map), est.book.n_views(a.id)
+        est.mapper.merge_duplicates({twin})
+        assert twin not in est.map.landmarks and a.id in est.map.landmarks
+        assert len(est.map) == n_before - 1 and est.book.n_views(a.id) == 2 * n_hist
+        assert any(f"merged into {a.id}" in d for d in est.diagnostics)
+        est.session.rebuild([], gtsam.Values(), est.keyframes.anchor())  # the merged landmark's key stays
+
+    fe = OracleFrontend(mission.metadata, {"seed": 0})
+    res = run_pipeline(mission, [est], [fe, probe((PointCloud,), inject)], frontend_process=False).results["graph"]
     assert twin is not None
     rep = landmark_report(res, mission.metadata.ground_truth)
     # no duplicate, and the map as good as without the twin (its views were counted twice)

@@ -90,35 +90,35 @@ def test_landmark_report_keys_truth_ids_by_kind():
     assert landmark_report(res, gt).duplicated == [("object", 3)]
 
 
-def test_a_mapped_in_line_object_keeps_two_collinear_pipe_views_apart(monkeypatch):
+class _SensorAt:
+    """The one thing merging a batch's segments asks of an estimator: where the sensor is."""
+
+    def __init__(self, T_WS):
+        self.T_WS = T_WS
+
+    def sensor_pose(self, sensor):
+        return self.T_WS
+
+
+def test_a_mapped_in_line_object_keeps_two_collinear_pipe_views_apart():
     """Two collinear segments 0.2 m apart (closer than the paper's 0.3 m merge distance) merge into
     one pipe view, unless an object lies between them: one seen in the same scan or, when the
-    scan missed it, one already mapped there."""
-    import gtsam
-    import numpy as np
-
-    from semslam.backend.graph import GraphEstimator
-    from semslam.config import SemslamConfig
+    scan missed it, one already mapped (or tracked) there."""
+    from semslam.config import AssociationConfig
+    from semslam.mapping.builder import MapBuilder
     from semslam.observations import LineObservation, PointObservation
-    from tests.support.synthetic_mission import SyntheticConfig, simulate
 
-    mission = simulate(SyntheticConfig(duration_s=5.0, seed=0))
-    est = GraphEstimator(mission.metadata, SemslamConfig())
-    pose = gtsam.Pose3(gtsam.Rot3.Yaw(0.3), gtsam.Point3(1.0, 2.0, 3.0))
-    cov = np.eye(3) * 1e-4
-    a = LineObservation(
-        0, "laser", p=np.array([-0.6, 0.0, 2.0]), q=np.array([-0.1, 0.0, 2.0]), covariance=np.eye(6) * 1e-4
-    )
-    b = LineObservation(
-        0, "laser", p=np.array([0.1, 0.0, 2.0]), q=np.array([0.6, 0.0, 2.0]), covariance=np.eye(6) * 1e-4
-    )
-    assert len(est._merged_lines([a, b], pose)) == 1
+    T_WS = np.eye(4)
+    T_WS[:3, :3] = [[np.cos(0.3), -np.sin(0.3), 0], [np.sin(0.3), np.cos(0.3), 0], [0, 0, 1]]
+    T_WS[:3, 3] = [1.0, 2.0, 3.0]
+    builder = MapBuilder(_SensorAt(T_WS), AssociationConfig(), LandmarkBook(), [])
+    a = LineObservation(0, "laser", p=[-0.6, 0.0, 2.0], q=[-0.1, 0.0, 2.0], covariance=np.eye(6) * 1e-4)
+    b = LineObservation(0, "laser", p=[0.1, 0.0, 2.0], q=[0.6, 0.0, 2.0], covariance=np.eye(6) * 1e-4)
+    none = np.zeros((0, 3))
+    assert len(builder.merge_lines([a, b], none)) == 1
     valve_S = np.array([0.0, 0.02, 2.0])
-    seen = PointObservation(0, "laser", position=valve_S, covariance=cov)
-    assert len(est._merged_lines([a, b, seen], pose)) == 2
-    T_WS = pose.compose(gtsam.Pose3(est._sensor_T("laser"))).matrix()
+    seen = PointObservation(0, "laser", position=valve_S, covariance=np.eye(3) * 1e-4)
+    assert len([z for z in builder.merge_lines([a, b, seen], none) if isinstance(z, LineObservation)]) == 2
     valve_W = T_WS[:3, :3] @ valve_S + T_WS[:3, 3]
-    monkeypatch.setattr(est, "_object_points", lambda: valve_W[None])
-    assert len(est._merged_lines([a, b], pose)) == 2
-    monkeypatch.setattr(est, "_object_points", lambda: valve_W[None] + 0.5)  # mapped elsewhere
-    assert len(est._merged_lines([a, b], pose)) == 1
+    assert len(builder.merge_lines([a, b], valve_W[None])) == 2
+    assert len(builder.merge_lines([a, b], valve_W[None] + 0.5)) == 1  # mapped elsewhere

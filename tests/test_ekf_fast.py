@@ -11,9 +11,10 @@ from semslam.ekf import EkfEstimator
 from semslam.ekf import batch as bt
 from semslam.ekf import geometry as g
 from semslam.ekf import models as mdl
-from semslam.ekf.estimator import _ScanPairs
+from semslam.ekf.features import ScanPairs, pre_gate
 from semslam.ekf.filter import EkfState, inv_small
-from semslam.mapping.association import PairLinearization
+from semslam.mapping.association import PairLinearization, jcbb
+from semslam.mapping.builder import Scan
 from tests.support.association import individual_nis, joint_nis, solve
 from tests.support.ekf_mission import simulate_circling
 from tests.support.ekf_reference import predict_reference
@@ -231,62 +232,76 @@ def test_the_order_of_the_observations_does_not_matter(seed):
 
 
 class _PairwiseProblem:
-    """The filter's pairs one by one (its scalar models), as a callback problem."""
+    """The filter's pairs one by one, with the scalar models, as a callback problem."""
 
-    def __init__(self, est, obs):
-        self.est, self.obs = est, obs
-        self.n_observations, self.n_landmarks = len(obs), len(est._features)
-        self._near = est._pre_gate(obs)
+    def __init__(self, est, obs, scan):
+        self.est, self.obs, self.scan = est, obs, scan
+        self.feats = est.map.features
+        self.n_observations, self.n_landmarks = len(obs), len(self.feats)
+        self._near = pre_gate(est.map, obs)
 
     def pair(self, i, j):
-        return self.est._pair(self.obs[i], self.est._features[j]) if self._near[i, j] else None
+        o, f, nav = self.obs[i], self.feats[j], self.est.nav
+        if not self._near[i, j] or o.kind != f.kind:
+            return None
+        x, l = nav.state.xv, nav.state.x[f.index : f.index + f.size]
+        if f.kind == "object":
+            h, H_x, H_l = mdl.point_measurement(x, l, o.R_BS, o.t_BS)
+            if nav.fej_yaw:
+                H_x = mdl.point_measurement(nav.x_lin(), f.l_first, o.R_BS, o.t_BS)[1]
+            return PairLinearization(o.obs.position - h, H_x, H_l, np.asarray(o.obs.covariance))
+        m_W, d_W = g.line_plucker(l)
+        if self.scan.excludes(f.id, o.ends_W, g.closest_point(m_W, d_W), d_W):
+            return None
+        l_first = f.l_first if self.est.map.fej_lines or nav.fej_yaw else None
+        x_lin = nav.x_lin() if nav.fej_yaw else None
+        return PairLinearization(*mdl.line_innovation(x, l, o.line, o.R_BS, o.t_BS, l_first, x_lin))
 
     def covariance(self, a, b):
-        from semslam.ekf.models import NX
-
-        ia = np.arange(NX) if a is None else self.est._features[a].cols
-        ib = np.arange(NX) if b is None else self.est._features[b].cols
-        return self.est.state.P[np.ix_(ia, ib)]
+        ia = np.arange(mdl.NX) if a is None else self.feats[a].cols
+        ib = np.arange(mdl.NX) if b is None else self.feats[b].cols
+        return self.est.nav.state.P[np.ix_(ia, ib)]
 
 
 def _mapped_filter(seed=2):
     sim = simulate_circling(seed=seed, duration_s=40.0)
     est = EkfEstimator(sim.metadata, SemslamConfig())
-    last = None
-    for m, obs in sim.stream():
-        est.process_measurement(m)
-        if obs:
-            est.process_observations(m.stamp, obs)
-            last = (m.stamp, obs)
-    return est, last
+    sim.run([est])
+    return est, sim.observations[max(sim.observations)]
 
 
 def test_scan_linearisation_equals_the_pairwise_problem():
-    est, (stamp, obs) = _mapped_filter()
-    assert len(est._features) > 5
-    prepared = est._prepare(obs)
-    scan = _ScanPairs(est, prepared, 0.999)
-    prob = _PairwiseProblem(est, prepared)
-    assert len(scan.obs) > 0
-    for k, (i, j) in enumerate(zip(scan.obs, scan.feat)):
+    est, obs = _mapped_filter()
+    assert len(est.map) > 5
+    est.map.begin()
+    prepared = est.map.prepared(obs)
+    _, mapped = est.map.objects()
+    scan = Scan(est.book, est.assoc, mapped, mapped)
+    pairs = ScanPairs(est.map, prepared, 0.999, scan)
+    prob = _PairwiseProblem(est, prepared, scan)
+    assert len(pairs.obs) > 0
+    for k, (i, j) in enumerate(zip(pairs.obs, pairs.feat)):
         p = prob.pair(int(i), int(j))
         assert p is not None
-        np.testing.assert_allclose(scan.nu[k], p.innovation, atol=1e-12)
-        np.testing.assert_allclose(scan.H_x[k], p.H_x, atol=1e-12)
-        np.testing.assert_allclose(scan.H_l[k], p.H_l, atol=1e-12)
-        assert scan.nis[k] == pytest.approx(individual_nis(prob, int(i), int(j)), rel=1e-9)
-    # every pair the generic problem accepts within the gate is in the scan (the extent checks of
+        np.testing.assert_allclose(pairs.nu[k], p.innovation, atol=1e-12)
+        np.testing.assert_allclose(pairs.H_x[k], p.H_x, atol=1e-12)
+        np.testing.assert_allclose(pairs.H_l[k], p.H_l, atol=1e-12)
+        assert pairs.nis[k] == pytest.approx(individual_nis(prob, int(i), int(j)), rel=1e-9)
+    # every pair the pairwise problem accepts within the gate is in the scan's (the extent checks of
     # pipes are made only within it)
     gate = {3: chi2.ppf(0.999, 3), 4: chi2.ppf(0.999, 4)}
-    generic = {
+    pairwise = {
         (i, j)
         for i in range(len(prepared))
         for j in range(prob.n_landmarks)
         if prob.pair(i, j) is not None and individual_nis(prob, i, j) < gate[len(prob.pair(i, j).innovation)]
     }
-    assert generic == {(int(i), int(j)) for i, j in zip(scan.obs, scan.feat)}
-    assert all(scan.nis[k] < gate[len(scan.nu[k])] for k in range(len(scan.obs)))
-    assert scan.associate(0.99) == solve(prob, 0.99, joint="direct")
+    assert pairwise == {(int(i), int(j)) for i, j in zip(pairs.obs, pairs.feat)}
+    assert all(pairs.nis[k] < gate[len(pairs.nu[k])] for k in range(len(pairs.obs)))
+    # the association the map building runs on them: the reference's on the pairwise problem
+    found, _ = est.map.candidates([o.obs for o in prepared], 0.999, scan)
+    strict = found.subset(found.passing(0.99))
+    assert jcbb(strict, est.map.joint(strict), 0.99) == solve(prob, 0.99, joint="direct")
 
 
 def test_matching_bound_cuts_competing_observations():

@@ -10,10 +10,9 @@ from test_backend_graph import DROPOUTS, ate, dr_ate, indeterminate_landmark
 
 from frontends.oracle import OracleFrontend
 from semslam.backend.graph import GraphEstimator
-from semslam.backend.run import run_graph
 from semslam.backend.window import X, marginal_factors, split_factors, subset
 from semslam.config import SemslamConfig
-from tests.support.synthetic_mission import SyntheticConfig, landmark_report, simulate
+from tests.support.synthetic_mission import SyntheticConfig, landmark_report, run_graph, simulate
 
 
 def _chain(rng):
@@ -148,7 +147,7 @@ def test_failed_update_after_a_slide_rebuilds_the_window_only():
     for m in mission:
         est.process_measurement(m)
         if not injected and est.window.slides:
-            assert not est._commit(*indeterminate_landmark(999))
+            assert est.session.commit(*indeterminate_landmark(999), est.keyframes.anchor()) == [999]
             injected = True
             assert not est.session.isam.valueExists(X(0))  # rebuilt from the window, not the whole mission
             assert est.session.isam.valueExists(X(len(est.keyframes.stamps) - 1))

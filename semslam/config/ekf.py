@@ -35,7 +35,6 @@ class EkfConfig(BaseModel):
         "Roumeliotis 2009), which keeps it unobservable; current: the textbook EKF, whose Jacobians at the "
         "updated estimates observe it spuriously (the heading wanders and the bias with it)",
     )
-    line_min_length_m: float = Field(0.05, gt=0, description="shorter pipe segments are ignored (no direction)")
     line_min_distance_m: float = Field(
         0.05, gt=0, description="pipe observations whose line passes closer than this to the sensor are ignored (ρ ≈ 0)"
     )

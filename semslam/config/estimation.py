@@ -95,6 +95,9 @@ class AssociationConfig(BaseModel):
         "saves work on large maps; must exceed the plausible landmark position error",
     )
     min_observations: int = Field(3, ge=1, description="consistent observations before a landmark enters the map")
+    min_segment_length_m: float = Field(
+        0.05, gt=0, description="pipe segments shorter than this are dropped (no usable direction)"
+    )
     track_timeout_s: float = Field(
         60.0, gt=0, description="a tentative landmark not seen again within this time is forgotten (false positive)"
     )

@@ -1,6 +1,7 @@
-"""What both estimators record of their landmarks, whatever their state: each landmark's views, its
-class evidence fused with the pipe connectivity seen at it (the paper's SEM stage, semslam.semantics),
-and at the end how the mapped objects, pipes and structures connect."""
+"""What both estimators record of their landmarks, whatever their state: each landmark's views, what was
+seen of each pipe, the class evidence fused with the pipe connectivity seen at each object (the
+paper's SEM stage, semslam.semantics), and at the end how the mapped objects, pipes and structures
+connect."""
 
 from __future__ import annotations
 
@@ -9,6 +10,7 @@ from collections.abc import Hashable, Iterable
 import numpy as np
 
 from semslam.estimation import LandmarkEstimate
+from semslam.mapping.extent import PipeExtent
 from semslam.mapping.pipes import point_segment_distance
 from semslam.observations import LineObservation, Observation, PointObservation
 from semslam.semantics.fusion import ClassFusion
@@ -20,6 +22,13 @@ class LandmarkBook:
     def __init__(self):
         self.classes = ClassFusion(None)  # the class set grows with the likelihoods received
         self.views: dict[Hashable, list[tuple[int, Observation]]] = {}
+        self.extents: dict[Hashable, PipeExtent] = {}  # pipes: what was seen of them
+
+    def extent(self, key: Hashable) -> PipeExtent:
+        """What was seen of pipe ``key`` (empty for a pipe not seen yet)."""
+        if key not in self.extents:
+            self.extents[key] = PipeExtent()
+        return self.extents[key]
 
     def observe(self, key: Hashable, stamp: int, z: Observation) -> None:
         """One view of landmark ``key``: its class likelihood and the pipe configuration seen with it."""
@@ -32,9 +41,12 @@ class LandmarkBook:
         """``drop`` turned out to be ``keep`` (a promoted track, a duplicate): its views and evidence go to it."""
         self.views.setdefault(keep, []).extend(self.views.pop(drop, []))
         self.classes.merge(keep, drop)
+        if drop in self.extents:
+            self.extent(keep).merge(self.extents.pop(drop))
 
     def forget(self, key: Hashable) -> None:
         self.views.pop(key, None)
+        self.extents.pop(key, None)
         self.classes.forget(key)
 
     def n_views(self, key: Hashable) -> int:

@@ -101,10 +101,12 @@ class PipeExtent:
         s = (ends_W - c) @ d
         return max(0.0, float(s.min()) - b, a - float(s.max()))
 
-    def overlap_fraction(self, ends_b: np.ndarray, c: np.ndarray, d: np.ndarray) -> float:
-        """Length shared by the seen extent and the segment ends_b along the line (c, d), over the
-        shorter one's length."""
-        a0, a1 = self.interval(c, d)
+    def overlap_fraction(
+        self, ends_b: np.ndarray, c: np.ndarray, d: np.ndarray, cutters: np.ndarray | None = None, radius: float = 0.0
+    ) -> float:
+        """Length shared by the seen extent (cut at ``cutters``, see :meth:`interval`) and the segment
+        ends_b along the line (c, d), over the shorter one's length."""
+        a0, a1 = self.interval(c, d, cutters, radius)
         s = (ends_b - c) @ d
         b0, b1 = float(s.min()), float(s.max())
         shorter = min(a1 - a0, b1 - b0)

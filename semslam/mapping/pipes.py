@@ -41,13 +41,19 @@ def merge_collinear(
     max_distance: float,
     separators: np.ndarray | None = None,
     separator_radius: float = 0.15,
-) -> list[LineObservation]:
+    side_by_side: float = 0.08,
+    members: bool = False,
+) -> list[LineObservation] | list[tuple[LineObservation, list[int]]]:
     """Merge pipe segments of one batch that lie on one axis (the paper's 0.175 rad / 0.3 m).
 
     Union-find over collinear pairs; a merged segment spans the extreme projections of all its
     endpoints on the longest member's axis, each end keeping the covariance of the endpoint that
     produced it. Same sensor only (segments are in its frame). Two segments with an object of the
-    batch (``separators``, N×3 in the sensor frame) on the axis between them stay apart.
+    batch (``separators``, N×3 in the sensor frame) on the axis between them stay apart, and so do two
+    that overlap along the axis with their axes farther apart than ``side_by_side``: fragments of one
+    pipe follow each other, they do not run side by side (parallel pipes of a rack, 15 cm apart, are
+    collinear by the paper's distance). With ``members``: (segment, indices of the segments it stands
+    for) pairs, in the order of their first member.
     """
     n = len(observations)
     seps = np.zeros((0, 3)) if separators is None else np.asarray(separators, float).reshape(-1, 3)
@@ -64,37 +70,45 @@ def merge_collinear(
             a, b = observations[i], observations[j]
             if a.sensor == b.sensor and collinear(a.p, a.q, b.p, b.q, max_angle, max_distance):
                 d, length = segment_axis(a.p, a.q)
-                if not object_between((0.0, length), np.stack([b.p, b.q]), a.p, d, seps, separator_radius):
+                seg = np.stack([b.p, b.q])
+                r = seg - a.p
+                s_b = r @ d
+                overlap = min(length, float(s_b.max())) - max(0.0, float(s_b.min()))
+                apart = np.linalg.norm(r - np.outer(s_b, d), axis=1).max()
+                if overlap > 0 and apart > side_by_side:
+                    continue
+                if not object_between((0.0, length), seg, a.p, d, seps, separator_radius):
                     parent[find(i)] = find(j)
     groups: dict[int, list[int]] = {}
     for i in range(n):
         groups.setdefault(find(i), []).append(i)
     out = []
-    for members in groups.values():
-        if len(members) == 1:
-            out.append(observations[members[0]])
-            continue
-        obs = [observations[i] for i in members]
-        longest = max(obs, key=lambda o: np.linalg.norm(o.q - o.p))
-        d, _ = segment_axis(longest.p, longest.q)
-        ends = [(o.p, o.covariance[:3, :3], o) for o in obs] + [(o.q, o.covariance[3:, 3:], o) for o in obs]
-        s = [float((e - longest.p) @ d) for e, _, _ in ends]
-        lo, hi = ends[int(np.argmin(s))], ends[int(np.argmax(s))]
-        cov = np.zeros((6, 6))
-        cov[:3, :3], cov[3:, 3:] = lo[1], hi[1]
-        truth = {o.truth_id for o in obs}
-        out.append(
-            LineObservation(
-                stamp=longest.stamp,
-                sensor=longest.sensor,
-                p=lo[0],
-                q=hi[0],
-                covariance=cov,
-                radius=longest.radius,
-                truth_id=longest.truth_id if len(truth) == 1 else longest.truth_id,
-            )
-        )
-    return out
+    for group in groups.values():
+        out.append((_merged([observations[i] for i in group]), group))
+    return out if members else [m for m, _ in out]
+
+
+def _merged(obs: list[LineObservation]) -> LineObservation:
+    """The segment spanning the members' extreme ends on the longest member's axis, each end keeping
+    the covariance of the endpoint that produced it."""
+    if len(obs) == 1:
+        return obs[0]
+    longest = max(obs, key=lambda o: np.linalg.norm(o.q - o.p))
+    d, _ = segment_axis(longest.p, longest.q)
+    ends = [(o.p, o.covariance[:3, :3]) for o in obs] + [(o.q, o.covariance[3:, 3:]) for o in obs]
+    s = [float((e - longest.p) @ d) for e, _ in ends]
+    lo, hi = ends[int(np.argmin(s))], ends[int(np.argmax(s))]
+    cov = np.zeros((6, 6))
+    cov[:3, :3], cov[3:, 3:] = lo[1], hi[1]
+    return LineObservation(
+        stamp=longest.stamp,
+        sensor=longest.sensor,
+        p=lo[0],
+        q=hi[0],
+        covariance=cov,
+        radius=longest.radius,
+        truth_id=longest.truth_id,
+    )
 
 
 def object_between(
@@ -107,9 +121,11 @@ def object_between(
     margin: float = 0.1,
 ) -> bool:
     """True when an object lies on the line (c, d) between the stretch ``seen`` (axial interval)
-    and the segment ``seg`` (2×3): collinear pipes joined by an in-line part (a valve, a socket)
-    are different pipes. ``objects`` N×3 in the frame of c, d; ``radius`` how close to the line an
-    object must be; ``margin`` how far into either stretch the object may reach."""
+    and the segment ``seg`` (2×3), on the segment's side: collinear pipes joined by an in-line part (a
+    valve, a socket) are different pipes. ``objects`` N×3 in the frame of c, d; ``radius`` how close to
+    the line an object must be; ``margin`` how far into either stretch the object may reach, so that
+    two fits overlapping by less than it (a laser fit runs a few cm into a socket) at an object are
+    still apart."""
     if len(objects) == 0:
         return False
     r = np.asarray(objects, float).reshape(-1, 3) - c
@@ -119,12 +135,10 @@ def object_between(
         return False
     a, b = seen
     s = (np.asarray(seg) - c) @ d
-    if s.max() < a:  # the segment lies before the seen stretch
-        lo, hi = s.max() - margin, a + margin
-    elif s.min() > b:  # ... or after it
+    if s.mean() > 0.5 * (a + b):  # the segment lies after the seen stretch (or reaches beyond its end)
         lo, hi = b - margin, s.min() + margin
-    else:  # overlapping: nothing can lie between
-        return False
+    else:  # ... or before it
+        lo, hi = s.max() - margin, a + margin
     return bool(np.any(on_line & (s_obj > lo) & (s_obj < hi)))
 
 

@@ -20,7 +20,7 @@ from scipy.spatial.transform import Rotation
 from semslam.ekf import geometry as geo
 from semslam.mission.ground_truth import GroundTruthMap, GtObject, GtPipe
 from semslam.mission.measurements import Attitude, Depth, DvlVelocity, GroundTruthPose, Measurement, PointCloud
-from semslam.mission.mission import MissionMetadata, SensorInfo
+from semslam.mission.mission import Mission, MissionMetadata, SensorInfo
 from semslam.observations import LineObservation, Observation, PointObservation
 
 
@@ -44,6 +44,18 @@ class SyntheticMission:
         """(measurement, observations or None) in stamp order, as the pipeline would feed them."""
         for m in self.measurements:
             yield m, self.observations.get(m.stamp) if m.sensor == "laser" else None
+
+    def mission(self) -> Mission:
+        return Mission.from_measurements(self.metadata, self.measurements)
+
+    def run(self, estimators, frontends=(), observations: bool = True, before=()) -> dict:
+        """Every estimator through the one driver, with the scans' observations (``observations``),
+        ``frontends`` after them and ``before`` them; their results by name."""
+        from semslam.pipeline import run_pipeline
+        from tests.support.replay import Replay
+
+        fes = [*before, *([Replay(self.observations)] if observations else []), *frontends]
+        return run_pipeline(self.mission(), list(estimators), fes, frontend_process=False).results
 
 
 def simulate_circling(
