@@ -147,7 +147,7 @@ def bench_long(hours: float) -> dict:
             i0 = len(est.update_times)
             w = {
                 "t_s": next_report,
-                "landmarks": len(est.landmarks),
+                "landmarks": len(est.map),
                 "n_updates": len(recent),
                 "ms_median": float(np.median(recent)),
                 "ms_p95": float(np.percentile(recent, 95)),

@@ -68,16 +68,16 @@ def run(
             est.process_observations(m.stamp, obs)
         if m.sensor == "ahrs" and m.stamp % 1_000_000_000 == 0 and m.stamp > 0:
             i = np.searchsorted(ts, m.stamp)
-            e = est.state.xv.copy()
+            e = est.nav.state.xv.copy()
             e[:9] -= sim.truth_states[i]
-            if est.nv > 9:
+            if est.nav.nv > 9:
                 e[9] -= sim.extras["heading_bias"][i]
             e[3:6] = geo.wrap(e[3:6])
-            P = est.state.Pvv
+            P = est.nav.state.Pvv
             out_t.append(m.stamp * 1e-9)
             out_nees.append(float(e @ np.linalg.solve(P, e)))
             out_yaw.append(e[5] ** 2 / P[5, 5])
-            out_b.append(e[9] ** 2 / P[9, 9] if est.nv > 9 else np.nan)
+            out_b.append(e[9] ** 2 / P[9, 9] if est.nav.nv > 9 else np.nan)
     return np.array(out_t), np.array(out_nees), np.array(out_yaw), np.array(out_b)
 
 

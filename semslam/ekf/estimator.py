@@ -14,6 +14,7 @@ observation on its own with its pose (:class:`~semslam.ekf.dead_reckoning.Placed
 from __future__ import annotations
 
 import time
+from abc import abstractmethod
 from collections.abc import Sequence
 
 import numpy as np
@@ -72,8 +73,9 @@ class _Filter(Estimator):
         self.update_times.append(time.perf_counter() - t0)
         self.update_n_landmarks.append(len(self.map))
 
+    @abstractmethod
     def _observe(self, stamp: int, observations: list[Observation]) -> bool:
-        raise NotImplementedError
+        """Map (or place) a batch; True if any of it reached the map."""
 
     def _observed(self, stamp: int) -> None:
         """After a batch that reached the map (the EKF records its features' uncertainty)."""
@@ -105,8 +107,9 @@ class _Filter(Estimator):
             diagnostics=list(self.diagnostics),
         )
 
+    @abstractmethod
     def _volumes(self) -> dict:
-        raise NotImplementedError
+        """Each map entry's uncertainty volume over time, by id."""
 
     def _finish_map(self, landmarks: list[LandmarkEstimate], history: dict) -> None:
         """The map's last word at the end of the mission."""

@@ -10,8 +10,8 @@ and with the pipe configurations seen at it (Table 2),
 
 A configuration counts as seen once it makes up at least ``min_configuration_fraction`` (10 %) of
 the configurations reported for the landmark. The paper's rule takes every configuration at face
-value, so one wrong view (a pipe passing near an elbow counted as its third; on the tank mission
-1–4 % of an object's views) would rule out the true class for good; a rare configuration is noise,
+value, so one wrong view (a pipe passing near an elbow counted as its third, a few per cent of an
+object's views on the tank mission) would rule out the true class for good; a rare configuration is noise,
 a real one recurs. With few views a single one still counts (1 of 1 is 100 %), as in the paper.
 
 Accumulated in log space so that long sequences neither underflow nor lose resolution. If the
