@@ -10,7 +10,7 @@ from semslam.config import SemslamConfig
 from semslam.ekf import DeadReckoning, EkfEstimator
 from semslam.ekf import geometry as geo
 from semslam.mission.measurements import Attitude, Depth, DvlVelocity, GroundTruthPose, PointCloud
-from tests.support.ekf_mission import simulate_circling
+from tests.support.ekf_mission import seen_from_truth, simulate_circling
 from tests.support.replay import Scanner, probe
 
 ACCEL, RATE = 0.01, 0.002
@@ -89,12 +89,9 @@ def test_dead_reckoning_is_the_same_filter_without_features():
 def _pipes_only_run(mode: str, seed: int = 1, sigma: float = 0.002):
     """A slow circle near the world origin's vertical, seeing mm-precise vertical pipes close to it (small
     ρ, as in the tank); returns (horizontal σ when the first pipe entered the map, the smallest after)."""
-    from semslam.ekf import models as mdl
-    from semslam.observations import LineObservation
 
     sim = simulate_circling(seed=seed, duration_s=60.0, dropouts=(), with_features=False, radius_m=1.0, speed_m_s=0.1)
     rng = np.random.default_rng(seed + 100)
-    T = sim.metadata.sensors["laser"].T_BS
     pipes = [
         (np.array([x, y, 3.5]), np.array([x, y, 4.5]))
         for x, y in ((0.3, 0.2), (-0.25, 0.4), (0.2, -0.3), (-0.3, -0.2), (0.6, 0.9))
@@ -106,18 +103,7 @@ def _pipes_only_run(mode: str, seed: int = 1, sigma: float = 0.002):
     def scan(m):  # every 2 s, every pipe seen from the true pose
         if m.stamp % 2_000_000_000 or m.stamp == 0:
             return []
-        xt = sim.truth_states[np.searchsorted(sim.truth_stamps, m.stamp)]
-        R, t, _, _ = mdl.sensor_pose(xt, T[:3, :3], T[:3, 3])
-        return [
-            LineObservation(
-                m.stamp,
-                "laser",
-                p=(a - t) @ R + rng.normal(0, sigma, 3),
-                q=(b - t) @ R + rng.normal(0, sigma, 3),
-                covariance=np.eye(6) * sigma**2,
-            )
-            for a, b in pipes
-        ]
+        return seen_from_truth(sim, m.stamp, pipes, [], rng, sigma)
 
     def look(m):  # after the scan's update
         if m.stamp % 2_000_000_000 == 0 and m.stamp and len(est.map):

@@ -11,7 +11,7 @@ from semslam.ekf import models as mdl
 from semslam.mapping.tracks import Track, TrackView
 from semslam.mission.measurements import Attitude
 from semslam.observations import LineObservation, PointObservation
-from tests.support.ekf_mission import simulate_circling
+from tests.support.ekf_mission import seen_from_truth, simulate_circling
 from tests.support.replay import Scanner
 
 SIGMA = 0.002
@@ -22,7 +22,6 @@ def _scene_run(extra_after_s: float | None = None, extra=None, offset=np.zeros(3
     ``offset`` (m, in {W}) with its mm covariance (χ² incompatible), and ``extra`` segments appear."""
     sim = simulate_circling(seed=seed, duration_s=60.0, dropouts=(), with_features=False, radius_m=1.0, speed_m_s=0.1)
     rng = np.random.default_rng(seed)
-    T = sim.metadata.sensors["laser"].T_BS
     pipe_a = (np.array([-0.8, 0.0, 4.5]), np.array([0.8, 0.0, 4.5]))
     pipe_b = (np.array([0.0, -0.8, 4.0]), np.array([0.0, 0.8, 4.0]))
     objects = [np.array([1.0, 0.0, 4.5]), np.array([-0.6, 0.7, 4.2])]  # an in-line valve, an elbow
@@ -30,29 +29,10 @@ def _scene_run(extra_after_s: float | None = None, extra=None, offset=np.zeros(3
     def scan(m):  # every 2 s, from the true pose
         if m.stamp % 2_000_000_000 or m.stamp == 0:
             return []
-        t_s = m.stamp * 1e-9
-        xt = sim.truth_states[np.searchsorted(sim.truth_stamps, m.stamp)]
-        R, t, _, _ = mdl.sensor_pose(xt, T[:3, :3], T[:3, 3])
-        late = extra_after_s is not None and t_s >= extra_after_s
+        late = extra_after_s is not None and m.stamp * 1e-9 >= extra_after_s
         segs = [(pipe_a[0] + (offset if late else 0), pipe_a[1] + (offset if late else 0)), pipe_b]
         segs += list(extra or []) if late else []
-        obs = [
-            LineObservation(
-                m.stamp,
-                "laser",
-                p=(a - t) @ R + rng.normal(0, SIGMA, 3),
-                q=(b - t) @ R + rng.normal(0, SIGMA, 3),
-                covariance=np.eye(6) * SIGMA**2,
-            )
-            for a, b in segs
-        ]
-        obs += [
-            PointObservation(
-                m.stamp, "laser", position=(c - t) @ R + rng.normal(0, 0.005, 3), covariance=np.eye(3) * 0.005**2
-            )
-            for c in objects
-        ]
-        return obs
+        return seen_from_truth(sim, m.stamp, segs, objects, rng, SIGMA, 0.005)
 
     est = EkfEstimator(sim.metadata, SemslamConfig())
     sim.run([est], [Scanner((Attitude,), scan)], observations=False)

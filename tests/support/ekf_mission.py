@@ -272,3 +272,32 @@ def simulate_circling(
         truth[idx],
         extras={"heading_bias": bias[idx]},
     )
+
+
+def seen_from_truth(
+    sim: SyntheticMission, stamp: int, segments, points, rng, line_sigma: float, point_sigma: float = 0.0
+):
+    """Pipe segments ((a, b) in {W}) and object points ({W}) as the laser sees them at ``stamp`` from the
+    true pose, with white noise of the given σ per coordinate and that σ as their covariance."""
+    from semslam.ekf.models import sensor_pose
+
+    T = sim.metadata.sensors["laser"].T_BS
+    xt = sim.truth_states[np.searchsorted(sim.truth_stamps, stamp)]
+    R, t, _, _ = sensor_pose(xt, T[:3, :3], T[:3, 3])
+    obs: list[Observation] = [
+        LineObservation(
+            stamp,
+            "laser",
+            p=(a - t) @ R + rng.normal(0, line_sigma, 3),
+            q=(b - t) @ R + rng.normal(0, line_sigma, 3),
+            covariance=np.eye(6) * line_sigma**2,
+        )
+        for a, b in segments
+    ]
+    obs += [
+        PointObservation(
+            stamp, "laser", position=(c - t) @ R + rng.normal(0, point_sigma, 3), covariance=np.eye(3) * point_sigma**2
+        )
+        for c in points
+    ]
+    return obs
