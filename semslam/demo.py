@@ -55,15 +55,30 @@ def demo_config() -> SemslamConfig:
     return SemslamConfig(frontends={"laser": {"pipes": {"radius_prior": radius}}})
 
 
-def run_demo(out: Path | None = None, progress: bool = False):
-    from semslam.compare import compare_to_dir
+def run_demo(
+    out: Path | None = None,
+    progress: bool = False,
+    record: bool = True,
+    overwrite: bool = False,
+    record_points: int | None = None,
+):
+    """Compare dr, ekf and graph on the default tank mission into ``out``; with ``record`` (the
+    default) the run's replay too. Returns metrics.json's content (plus the wall time) and the
+    output directory."""
+    from semslam.compare import run_comparison
+    from semslam.eval.outputs import check_output_dir, write_run
+    from semslam.eval.replay import make_recorder
     from semslam.mission.bag import read_mission
+    from semslam.pipeline import observed_by
 
+    out = check_output_dir(out or default_out_dir(), overwrite)
     cfg = demo_config()
     path = demo_mission(progress)
     mission = read_mission(path, cfg.reader)
-    out = out or default_out_dir()
+    recorder = make_recorder(record, mission.metadata, record_points)
     t0 = time.perf_counter()
-    metrics, report = compare_to_dir(mission, cfg, out, progress=progress)
+    with observed_by(*([recorder] if recorder is not None else [])):
+        result, metrics = run_comparison(mission, cfg, progress=progress)
+    write_run(out, cfg, result, metrics, mission.metadata, overwrite=overwrite, report=True, recorder=recorder)
     metrics["wall_time_s"] = time.perf_counter() - t0
-    return metrics, report
+    return metrics, out

@@ -3,7 +3,6 @@
 A front-end that declares ``uses_view = False`` (it never reads the ``EstimateView``: the laser
 takes "up" from the AHRS, the oracle reads ground truth) depends on nothing but the measurements,
 so it can work a few scans ahead while the estimators work through the measurements before them.
-On the tank mission that is the laser's ~50 s beside the ~45 s of reading and estimating, on two cores.
 
 The front-ends are pickled into worker processes and fed every measurement they consume, in order; they keep their state
 there. Results come back in the same order: the observations of each front-end and the time it
@@ -18,19 +17,19 @@ other measurement to all of them (so that each replica keeps the same state). A 
 front-end observes only on its parallel types: its other types feed its state, nobody answers for
 them, and the estimators go on without waiting (the laser's 9800 AHRS readings). Such state-only
 measurements travel in batches, pickled once for all the workers, ahead of the next measurement
-that is answered (one queue item per worker instead of one per reading and worker: ~1.2 s of CPU
-on the tank mission, 2 workers). A replica's ``finish()`` must not depend on the parallel
+that is answered (one queue item per worker instead of one per reading and worker). A replica's ``finish()`` must not depend on the parallel
 measurements (the first one's is used).
 On 2 cores the laser's scans then take what CPU the estimators leave on both cores.
 
 Start: a fork of this process would inherit its OpenMP and GTSAM threads, so the workers are forked
 from multiprocessing's fork server instead, a fresh interpreter (no threads) that has imported the
-front-ends' modules once (``set_forkserver_preload``): a spawned worker imported them itself (open3d
-and all, ~2.2 s of CPU each before its first message); a forked one starts in ~0.25 s, after the
-server's ~2.1 s once per process (tank mission, 2 workers: ~1.8 s of CPU less per run, the next
-runs in the same process ~4 s less). The server lives until this process exits, with the
+front-ends' modules once (``set_forkserver_preload``): a spawned worker would import them itself
+(open3d and all) before its first message, a forked one starts at once after the server's import,
+once per process. The server lives until this process exits, with the
 environment it started with: each worker is handed this process's environment as it is when the
 worker is created (a front-end may read it at use, e.g. the recogniser's cache folder).
+
+What each of these saves on the tank mission: experiments/estimators/README.md.
 """
 
 from __future__ import annotations
@@ -46,6 +45,7 @@ from collections import deque
 from collections.abc import Sequence
 
 from semslam.mission.measurements import Measurement
+from semslam.registry import Frontend
 
 _FINISH = "finish"
 WORKER_NICE = 10
@@ -53,8 +53,8 @@ _STATE_BATCH = 256  # state-only measurements sent at the latest after this many
 
 
 def runs_in_process(frontend) -> bool:
-    """A front-end that never reads the estimate (``uses_view = False``)."""
-    return getattr(frontend, "uses_view", True) is False
+    """A :class:`~semslam.registry.Frontend` that never reads the estimate (``uses_view = False``)."""
+    return isinstance(frontend, Frontend) and not frontend.uses_view
 
 
 def default_workers() -> int:
@@ -81,11 +81,11 @@ class FrontendProcess:
     """Worker processes running ``frontends`` on the measurements submitted to them; results in
     submission order. ``workers`` > 1 only helps front-ends that declare ``parallel_consumes``."""
 
-    def __init__(self, frontends: Sequence, workers: int = 1):
+    def __init__(self, frontends: Sequence[Frontend], workers: int = 1):
         ctx = _context(frontends)
         self.names = [fe.name for fe in frontends]
         self._types = [tuple(fe.consumes) for fe in frontends]
-        self._parallel = [tuple(getattr(fe, "parallel_consumes", ())) for fe in frontends]
+        self._parallel = [tuple(fe.parallel_consumes) for fe in frontends]
         if not any(self._parallel):
             workers = 1  # replicas would all do the same work
         self._workers = [_Worker(ctx, list(frontends), i) for i in range(max(1, workers))]
@@ -238,8 +238,7 @@ def _work(frontends: list, inq, outq, environ: dict[str, str]) -> None:
     os.environ.update(environ)
 
     # Below the estimators' priority: they consume the results in order, so on a machine with
-    # fewer cores than processes a worker should take the CPU they leave, not the reverse
-    # (tank mission, 2 cores, 2 workers: 58.8 -> 53.3 s median wall).
+    # fewer cores than processes a worker should take the CPU they leave, not the reverse.
     os.nice(WORKER_NICE)
 
     unreported: dict[str, float] = {}  # time spent on measurements without a reply, told with the next
@@ -276,7 +275,7 @@ def _process(frontends: list, item) -> dict[str, tuple[object, float]]:
     if isinstance(item, str) and item == _FINISH:
         for fe in frontends:
             t0 = time.perf_counter()
-            summary = fe.finish(None) if hasattr(fe, "finish") else None
+            summary = fe.finish(None)
             out[fe.name] = (summary, time.perf_counter() - t0)
         return out
     for fe in frontends:
@@ -284,7 +283,7 @@ def _process(frontends: list, item) -> dict[str, tuple[object, float]]:
             t0 = time.perf_counter()
             obs = fe.process(item, None)
             out[fe.name] = (obs, time.perf_counter() - t0)
-            par = tuple(getattr(fe, "parallel_consumes", ()))
+            par = tuple(fe.parallel_consumes)
             if obs and par and not isinstance(item, par):
                 raise RuntimeError(
                     f"front-end {fe.name!r} observed on a {type(item).__name__}, which it "

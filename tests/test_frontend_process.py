@@ -7,13 +7,13 @@ from typing import ClassVar
 import numpy as np
 import pytest
 
-from semslam.backend.synthetic import SyntheticConfig, simulate
 from semslam.config import SemslamConfig
 from semslam.ekf import EkfEstimator
 from semslam.mission.measurements import Attitude, Depth, Measurement, PointCloud
 from semslam.observations import PointObservation
 from semslam.pipeline import run_pipeline
-from semslam.registry import create_frontends
+from semslam.registry import Frontend, create_frontends
+from tests.support.synthetic_mission import SyntheticConfig, simulate
 
 
 def _run(mission, frontend_process: bool):
@@ -39,7 +39,7 @@ def test_the_oracle_in_its_own_process_gives_the_same_stream_and_estimate():
     np.testing.assert_allclose(ta.positions, tb.positions, atol=1e-12)
 
 
-class FailingFrontend:
+class FailingFrontend(Frontend):
     """Fails on its third scan, in the front-end process."""
 
     name: ClassVar[str] = "failing"
@@ -100,7 +100,7 @@ def test_a_dead_front_end_process_is_an_error_and_the_run_exits():
     assert "raised: the front-end process (dying) died (exit code 3" in out.stdout
 
 
-class ScanWithAttitude:
+class ScanWithAttitude(Frontend):
     """Reports, per scan, the stamp of the latest AHRS reading it kept: a replica that missed one
     would tell. Scans are independent given that (``parallel_consumes``), as the laser's are."""
 
@@ -169,7 +169,7 @@ def test_a_replicated_front_end_observing_on_a_state_type_is_an_error():
         )
 
 
-class EnvFrontend:
+class EnvFrontend(Frontend):
     """Answers each depth reading with the value of SEMSLAM_TEST_ENV in its process."""
 
     name: ClassVar[str] = "env"

@@ -9,6 +9,18 @@ import typer
 
 from semslam.cli_support import ConfigOpt, MissionArg, user_errors
 
+# Output options that `compare` and `demo` share.
+OverwriteOpt = typer.Option(False, "--overwrite", help="replace an existing output directory whole")
+RecordPointsOpt = typer.Option(
+    None, "--record-points", min=0, help="replay: points kept of each scan (0: no scans; default 600)"
+)
+
+
+def record_option(default: bool):
+    return typer.Option(
+        default, "--record/--no-record", help="also write replay.mcap, a ROS 2 bag of the run for Foxglove and RViz"
+    )
+
 
 @user_errors
 def run(
@@ -18,26 +30,37 @@ def run(
     batch: bool = typer.Option(False, "--batch", help="graph: re-optimise the whole mission at the end"),
     frontends: str = typer.Option("", "--frontends", help="comma-separated front-end names"),
     config: Path | None = ConfigOpt,
+    record: bool = record_option(False),
+    record_points: int | None = RecordPointsOpt,
+    overwrite: bool = OverwriteOpt,
 ):
     """Run one estimator over a mission and write its trajectory, map and metrics."""
     from semslam.config import load_config
     from semslam.estimators import create_estimator
-    from semslam.eval.outputs import build_metrics, write_outputs
+    from semslam.eval.outputs import build_metrics, check_output_dir, write_run
+    from semslam.eval.replay import make_recorder
     from semslam.mission.bag import read_mission
     from semslam.pipeline import run_pipeline
     from semslam.registry import create_frontends
 
+    check_output_dir(out, overwrite)
     cfg = load_config(config)
     m = read_mission(mission, cfg.reader)
     est = create_estimator(estimator, m.metadata, cfg, batch=batch)
     names = [n.strip() for n in frontends.split(",") if n.strip()]
     fes = create_frontends(names, m.metadata, cfg.frontends)
-    result = run_pipeline(m, [est], fes, progress=sys.stderr.isatty())
+    recorder = make_recorder(record, m.metadata, record_points)
+    observers = [recorder] if recorder is not None else []
+    result = run_pipeline(m, [est], fes, progress=sys.stderr.isatty(), observers=observers)
     metrics = build_metrics(result, m.metadata)
-    write_outputs(out, cfg, result, metrics)
+    write_run(out, cfg, result, metrics, m.metadata, overwrite=overwrite, recorder=recorder)
     e = metrics["estimators"][est.name]
     ate = "n/a" if e["ate_rmse_m"] is None else f"{e['ate_rmse_m']:.3f} m"
     typer.echo(
         f"{est.name}: ATE RMSE {ate}, {e['n_objects']} objects, {e['n_pipes']} pipes, "
         f"{e['n_structures']} structures; outputs in {out}"
     )
+    if recorder is not None:
+        from semslam.eval.replay import how_to_open
+
+        typer.echo(how_to_open(out))
