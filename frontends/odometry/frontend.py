@@ -16,7 +16,7 @@ from semslam.errors import validated
 from semslam.mission.measurements import Attitude, Depth, DvlVelocity, Measurement, PointCloud
 from semslam.mission.mission import MissionMetadata
 from semslam.observations import Observation, OdometryObservation
-from semslam.registry import FrontendSummary
+from semslam.registry import Frontend, FrontendSummary
 
 
 class _Track:
@@ -31,7 +31,7 @@ class _Track:
         self.rejections = 0  # rejected registrations since the last accepted one
 
 
-class OdometryFrontend:
+class OdometryFrontend(Frontend):
     """Consumes point clouds (and the navigation sensors, for its prior); emits one
     :class:`OdometryObservation` per accepted registration: the body's motion from the last
     accepted scan to this one, with the registration's covariance in the body frame."""
