@@ -13,7 +13,7 @@ from semslam.cli import app
 from semslam.config import SemslamConfig
 from semslam.estimators import create_estimator
 from semslam.mission.bag import write_mission
-from semslam.mission.measurements import GroundTruthPose, PointCloud
+from semslam.mission.measurements import DvlVelocity, GroundTruthPose, PointCloud
 from semslam.mission.mission import Mission
 from semslam.observations import OdometryObservation
 from semslam.pipeline import run_pipeline
@@ -146,3 +146,40 @@ def test_odometry_observations_are_body_motion(mission):
         true_S = np.linalg.inv(T_BS) @ np.linalg.inv(truth(z.stamp_from)) @ truth(z.stamp) @ T_BS
         sensor_err.append(np.linalg.norm(true_S[:3, 3] - z.relative_pose[:3, 3]))
     assert np.median(np.linalg.norm(err[:, 3:], axis=1)) < np.median(sensor_err)
+
+
+def _with_outage(mission, start_s: float, length_s: float):
+    """The mission with every DVL reading in [start, start + length] s invalid (bottom lock lost)."""
+    items = list(mission)
+    lo = items[0].stamp + int(start_s * 1e9)
+    hi = lo + int(length_s * 1e9)
+    nan3 = np.full(3, np.nan)
+    return Mission.from_measurements(
+        mission.metadata,
+        [
+            dataclasses.replace(m, valid=False, velocity=nan3, covariance=np.full((3, 3), np.nan))
+            if isinstance(m, DvlVelocity) and lo <= m.stamp <= hi
+            else m
+            for m in items
+        ],
+    ), (lo, hi)
+
+
+def test_every_estimator_keeps_its_track_through_a_dvl_outage(mission):
+    """40 s without the DVL and without landmarks: each estimator drifts on its prediction alone,
+    with the odometry it keeps within a fraction of that (the EKF and dead reckoning take it as a
+    velocity measurement, the graph as relative poses between keyframes)."""
+    outage, (lo, hi) = _with_outage(mission, 25.0, 40.0)
+    truth = _truth(mission)
+    cfg = SemslamConfig()
+    rms = {}
+    for frontends in ([], ["odometry"]):
+        ests = [create_estimator(n, outage.metadata, cfg) for n in ("dr", "ekf", "graph")]
+        results = run_pipeline(outage, ests, create_frontends(frontends, outage.metadata, {})).results
+        for name, r in results.items():
+            t = r.trajectory
+            inside = (t.stamps >= lo) & (t.stamps <= hi)
+            err = [np.linalg.norm(p - truth(s)[:3, 3]) for s, p in zip(t.stamps[inside], t.positions[inside])]
+            rms[name, bool(frontends)] = float(np.sqrt(np.mean(np.square(err))))
+    for name in ("dr", "ekf", "graph"):
+        assert rms[name, True] < 0.5 * rms[name, False], rms

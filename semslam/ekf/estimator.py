@@ -28,7 +28,7 @@ from semslam.mapping.book import LandmarkBook
 from semslam.mapping.builder import MapBuilder
 from semslam.mission.measurements import Measurement
 from semslam.mission.mission import MissionMetadata
-from semslam.observations import LineObservation, Observation, PointObservation
+from semslam.observations import LineObservation, Observation, OdometryObservation, PointObservation
 
 
 class FilterView(EstimateView):
@@ -67,7 +67,12 @@ class _Filter(Estimator):
         t0 = time.perf_counter()
         if stamp > self.nav.t:
             self.nav.predict_to(stamp)
-        if self._observe(stamp, list(observations)):
+        observations = list(observations)
+        for z in observations:  # motion, not map: for the EKF and dead reckoning alike
+            if isinstance(z, OdometryObservation):
+                self.nav.odometry(z)
+        observations = [z for z in observations if not isinstance(z, OdometryObservation)]
+        if self._observe(stamp, observations):
             self.nav.record(max(stamp, self.nav.t))
             self._observed(stamp)
         self.update_times.append(time.perf_counter() - t0)

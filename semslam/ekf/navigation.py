@@ -32,6 +32,7 @@ from semslam.ekf.models import ATT, BIAS, NX, POS, VEL
 from semslam.estimation import Trajectory
 from semslam.mission.measurements import Attitude, Depth, DvlVelocity, GroundTruthPose, Measurement
 from semslam.mission.mission import MissionMetadata
+from semslam.observations import OdometryObservation
 
 NS = 1e-9
 
@@ -170,6 +171,25 @@ class FilterNavigation:
             _, t_BS = self.extrinsic(m.sensor)
             self._nav_update(mdl.depth_update(self.state.xv, m.depth, m.variance, t_BS))
         self.record(m.stamp)
+
+    def odometry(self, z: OdometryObservation) -> None:
+        """Laser odometry as the filter can take it: a pseudo-measurement of the body velocity, the
+        mean over the registration's interval (the state holds no past pose to relate the relative
+        pose to). Under the constant-velocity model a body turning at a steady rate moves by
+        Δt·R_half·v_B, R_half the rotation halfway; the covariance is the relative translation's over
+        Δt², plus how far the velocity may wander from its mean in Δt (σ_a²·Δt/3). The rotation it
+        measures is not used: the AHRS observes the attitude directly."""
+        dt = (z.stamp - z.stamp_from) * NS
+        if dt <= 0 or z.stamp < self.t:
+            return
+        self.predict_to(z.stamp)
+        R_half = Rotation.from_rotvec(0.5 * Rotation.from_matrix(z.relative_pose[:3, :3]).as_rotvec()).as_matrix()
+        v = R_half.T @ z.relative_pose[:3, 3] / dt
+        cov = R_half.T @ z.covariance[3:, 3:] @ R_half / dt**2 + np.eye(3) * self.motion.accel_sigma_m_s2**2 * dt / 3
+        H = np.zeros((3, NX))
+        H[:, VEL] = np.eye(3)
+        self._nav_update(mdl.NavUpdate(v - self.state.xv[VEL], H, cov))
+        self.record(z.stamp)
 
     def _attitude(self, m: Attitude) -> None:
         R_BS, _ = self.extrinsic(m.sensor)
