@@ -94,7 +94,7 @@ def _context(frontends: Sequence):
     if START_METHOD != "forkserver":
         return mp.get_context(START_METHOD)
     ctx = mp.get_context("forkserver")
-    modules = {__name__, "threadpoolctl"} | {type(fe).__module__ for fe in frontends}
+    modules = {__name__, "threadpoolctl", "tqdm"} | {type(fe).__module__ for fe in frontends}
     modules.discard("__main__")
     ctx.set_forkserver_preload(sorted(modules))
     return ctx

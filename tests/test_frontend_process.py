@@ -299,3 +299,51 @@ def test_a_replicated_and_a_sequential_front_end_on_the_same_scans(sample_missio
     assert [count for _, _, count in sequential] == list(range(1, n_scans + 1))
     assert apart.frontend_summaries["sequential"].metrics == inline.frontend_summaries["sequential"].metrics
     assert apart.timing_s["frontend:sequential"] > 0 and apart.timing_s["frontend:counting"] > 0
+
+
+class SlowScans(Frontend):
+    """Takes 0.2 s a scan and notes each one it finished in a file."""
+
+    name: ClassVar[str] = "slow"
+    consumes: ClassVar[tuple] = (PointCloud,)
+    uses_view: ClassVar[bool] = False
+
+    def __init__(self, log):
+        self.log = str(log)
+
+    def process(self, measurement, view):
+        import time
+
+        time.sleep(0.2)
+        with open(self.log, "a") as f:
+            f.write(f"{measurement.stamp}\n")
+        return []
+
+
+class FailsAtSecondScan(Deaf):
+    name = "fails"
+
+    def __init__(self):
+        self.scans = 0
+
+    def process_measurement(self, m):
+        self.scans += isinstance(m, PointCloud)
+        if self.scans == 2:
+            raise RuntimeError("estimator failed")
+
+
+def test_an_error_in_the_driver_kills_the_workers_instead_of_letting_them_finish_the_queue(sample_mission, tmp_path):
+    """All 24 scans are queued for the worker at once (the driver reads ahead); when the estimator
+    fails at the second, the worker is killed: it does not work through the rest, and nothing is left."""
+    import multiprocessing as mp
+    import time
+
+    mission = sample_mission(seconds=12.0)
+    log = tmp_path / "scans.txt"
+    with pytest.raises(RuntimeError, match="estimator failed"):
+        run_pipeline(mission, [FailsAtSecondScan()], [SlowScans(log)])
+    assert mp.active_children() == []
+    done = log.read_text().split()
+    time.sleep(0.5)
+    assert log.read_text().split() == done  # nobody is still working
+    assert len(done) <= 6 < sum(isinstance(m, PointCloud) for m in mission)
