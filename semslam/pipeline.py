@@ -76,11 +76,13 @@ def run_pipeline(
 
     Front-ends see the estimate of ``view_estimator`` (default: "graph" if present, else the first
     estimator) — the semantic feedback of the paper (global ids for class fusion). Front-ends that
-    never read it (``uses_view = False``) run in a process of their own a few scans ahead
+    never read it (``uses_view = False``) run in worker processes a few scans ahead
     (``frontend_process``; see :mod:`semslam.frontend_process`): the same observations, in the same
-    order, in less wall time; front-ends that declare ``parallel_consumes`` (the laser's scans) run
-    in ``frontend_workers`` replicas (default: one per core, at most 4). ``observers`` (and those of
-    an enclosing :func:`observed_by`) see every step; without any, nothing is collected for them.
+    order, in less wall time. Of ``frontend_workers`` workers (default: one per core, at most 4),
+    front-ends that declare ``parallel_consumes`` (the laser's scans) have a replica in each, sharing
+    those measurements; the others live in one each. On any exception (Ctrl-C included) the workers
+    are killed before it propagates. ``observers`` (and those of an enclosing :func:`observed_by`)
+    see every step; without any, nothing is collected for them.
 
     BLAS runs single-threaded meanwhile: the matrices here are small (an EKF of a few hundred
     states, 3×3 to 100×100 blocks), and OpenBLAS's threads spinning against GTSAM's and each other
@@ -93,12 +95,16 @@ def run_pipeline(
     worker = FrontendProcess(apart, frontend_workers or default_workers()) if apart else None
     try:
         with threadpool_limits(limits=1, user_api="blas"):
-            return _run_pipeline(
+            result = _run_pipeline(
                 mission, estimators, frontends, view_estimator, progress, keep_observations, worker, watchers
             )
-    finally:
+    except BaseException:  # an error, Ctrl-C or SIGTERM: the workers' work is of no use, kill them now
         if worker is not None:
-            worker.close()
+            worker.abort()
+        raise
+    if worker is not None:
+        worker.close()
+    return result
 
 
 def _notify(watchers, stamp: int, measurement, fed: list, estimators) -> None:

@@ -165,3 +165,21 @@ def test_an_empty_map_is_an_empty_ply_not_a_missing_file(tmp_path):
     )
     mesh = o3d.io.read_triangle_mesh(str(out / "map_graph.ply"))
     assert len(mesh.vertices) == 0 and (out / "map_graph.ply").read_text().startswith("ply\n")
+
+
+def test_the_map_mesh_reads_back_in_open3d_as_written(tmp_path):
+    import open3d as o3d
+
+    from semslam.eval.outputs import map_geometry, write_mesh
+
+    lms = [
+        LandmarkEstimate(0, "object", position=np.array([1.0, 2, 3])),
+        LandmarkEstimate(1, "pipe", p=np.zeros(3), q=np.array([1.0, 0, 0])),
+    ]
+    mesh = map_geometry(lms)
+    write_mesh(tmp_path / "m.ply", mesh)
+    back = o3d.io.read_triangle_mesh(str(tmp_path / "m.ply"))
+    assert len(back.triangles) == len(mesh.triangles) > 100
+    np.testing.assert_allclose(np.asarray(back.vertices), np.asarray(mesh.vertices), atol=1e-6)  # float32
+    np.testing.assert_array_equal(np.asarray(back.triangles), np.asarray(mesh.triangles))
+    np.testing.assert_allclose(np.asarray(back.vertex_colors), np.asarray(mesh.vertex_colors), atol=1 / 255)

@@ -48,9 +48,9 @@ def quat(q) -> np.ndarray:
 def synthetic_run(tmp_path_factory):
     """dr, ekf and graph with the oracle front-end on a 60 s synthetic mission with ground truth,
     recorded and written as a replay."""
-    from semslam.backend.synthetic import SyntheticConfig, simulate
     from semslam.estimators import create_estimator
     from semslam.registry import create_frontends
+    from tests.support.synthetic_mission import SyntheticConfig, simulate
 
     mission = simulate(SyntheticConfig(duration_s=60.0, seed=4))
     cfg = SemslamConfig()

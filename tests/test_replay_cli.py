@@ -8,8 +8,8 @@ from semslam.cli import app
 
 
 def test_run_records_a_replay_and_overwrite_replaces_the_whole_directory(tmp_path):
-    from semslam.backend.synthetic import SyntheticConfig, simulate
     from semslam.mission.bag import write_mission
+    from tests.support.synthetic_mission import SyntheticConfig, simulate
 
     bag = write_mission(simulate(SyntheticConfig(duration_s=30.0, seed=2)), tmp_path / "m.bag")
     out = tmp_path / "run"

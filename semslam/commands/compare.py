@@ -8,14 +8,14 @@ from pathlib import Path
 import typer
 
 from semslam.cli_support import ConfigOpt, MissionArg, user_errors
-from semslam.commands.run import OverwriteOpt, RecordPointsOpt, record_option
+from semslam.commands.run import FrontendsOpt, OverwriteOpt, RecordPointsOpt, choose_frontends, record_option
 
 
 @user_errors
 def compare(
     mission: Path = MissionArg,
     out: Path = typer.Option(..., "--out", "-o", help="output directory"),
-    frontends: str | None = typer.Option(None, "--frontends", help="comma-separated; default: by sensor kind"),
+    frontends: str | None = FrontendsOpt,
     config: Path | None = ConfigOpt,
     record: bool = record_option(False),
     record_points: int | None = RecordPointsOpt,
@@ -33,7 +33,7 @@ def compare(
     check_output_dir(out, overwrite)
     cfg = load_config(config)
     m = read_mission(mission, cfg.reader)
-    names = None if frontends is None else [n.strip() for n in frontends.split(",") if n.strip()]
+    names = choose_frontends(frontends, m.metadata, mission)
     recorder = make_recorder(record, m.metadata, record_points)
     with observed_by(*([recorder] if recorder is not None else [])):
         result, metrics = run_comparison(m, cfg, names, progress=sys.stderr.isatty())

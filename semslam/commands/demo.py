@@ -22,6 +22,7 @@ def demo(
     from semslam.eval.report import metrics_table, recognition_table, text_table
 
     metrics, out = run_demo(out, progress=True, record=record, overwrite=overwrite, record_points=record_points)
+    typer.echo(f"front-ends: {', '.join(metrics['frontends']) or 'none'} (by sensor kind)")
     typer.echo(text_table(metrics_table(metrics)))
     rec = recognition_table(metrics)
     if rec:

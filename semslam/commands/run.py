@@ -9,7 +9,10 @@ import typer
 
 from semslam.cli_support import ConfigOpt, MissionArg, user_errors
 
-# Output options that `compare` and `demo` share.
+# Options that `compare` and `demo` share.
+FrontendsOpt = typer.Option(
+    None, "--frontends", help='comma-separated front-end names ("" for none); default: by sensor kind'
+)
 OverwriteOpt = typer.Option(False, "--overwrite", help="replace an existing output directory whole")
 RecordPointsOpt = typer.Option(
     None, "--record-points", min=0, help="replay: points kept of each scan (0: no scans; default 600)"
@@ -22,13 +25,41 @@ def record_option(default: bool):
     )
 
 
+def choose_frontends(option: str | None, metadata, mission: object) -> list[str]:
+    """The front-ends a command runs, said on stdout: those named by ``--frontends`` (comma-separated;
+    "" for none) or, without the option, those of the mission's sensor kinds
+    (:func:`semslam.compare.default_frontends`). A named front-end that consumes nothing the
+    mission's sensors give is an error naming it, what it consumes and the sensors there are."""
+    from semslam.compare import default_frontends
+    from semslam.errors import ConfigError
+    from semslam.mission.conversions import KIND_OF
+    from semslam.registry import load_frontend_class
+
+    kinds = sorted({s.kind for s in metadata.sensors.values()})
+    if option is None:
+        names = default_frontends(metadata)
+        typer.echo(f"front-ends: {', '.join(names) or 'none'} (by sensor kind; --frontends chooses)")
+        return names
+    names = [n.strip() for n in option.split(",") if n.strip()]
+    given = tuple(t for t, kind in KIND_OF.items() if kind in kinds)
+    for name in names:
+        consumes = tuple(load_frontend_class(name).consumes)
+        if not any(issubclass(t, consumes) for t in given):
+            raise ConfigError(
+                f"--frontends {name}: it consumes {', '.join(t.__name__ for t in consumes)}, which no sensor of "
+                f"{mission} gives (sensors: {', '.join(kinds) or 'none'})"
+            )
+    typer.echo(f"front-ends: {', '.join(names) or 'none'} (--frontends)")
+    return names
+
+
 @user_errors
 def run(
     mission: Path = MissionArg,
     out: Path = typer.Option(..., "--out", "-o", help="output directory"),
     estimator: str = typer.Option("graph", "--estimator", "-e", help="graph, ekf or dr"),
     batch: bool = typer.Option(False, "--batch", help="graph: re-optimise the whole mission at the end"),
-    frontends: str = typer.Option("", "--frontends", help="comma-separated front-end names"),
+    frontends: str | None = FrontendsOpt,
     config: Path | None = ConfigOpt,
     record: bool = record_option(False),
     record_points: int | None = RecordPointsOpt,
@@ -47,8 +78,7 @@ def run(
     cfg = load_config(config)
     m = read_mission(mission, cfg.reader)
     est = create_estimator(estimator, m.metadata, cfg, batch=batch)
-    names = [n.strip() for n in frontends.split(",") if n.strip()]
-    fes = create_frontends(names, m.metadata, cfg.frontends)
+    fes = create_frontends(choose_frontends(frontends, m.metadata, mission), m.metadata, cfg.frontends)
     recorder = make_recorder(record, m.metadata, record_points)
     observers = [recorder] if recorder is not None else []
     result = run_pipeline(m, [est], fes, progress=sys.stderr.isatty(), observers=observers)

@@ -40,10 +40,21 @@ class OutputError(SemslamError):
     """The output directory cannot be written (a file in the way, no permission, disk full, ...)."""
 
 
-def _os_error(path: Path, exc: OSError) -> OutputError:
-    where = exc.filename or path
+def _os_error(path: Path, exc: OSError, stage: Path | None = None) -> OutputError:
+    """One line naming the file (as the user will know it: inside ``path``, not the hidden ``stage``
+    it was written into) and the reason."""
+    where = Path(exc.filename) if exc.filename else path
+    if not exc.filename and stage is not None:  # a failed write() (a full disk) names no file: the
+        where = _newest_file(stage) or path  # one being written is the last one opened
+    if stage is not None and where.is_relative_to(stage):
+        where = path / where.relative_to(stage)
     reason = exc.strerror or str(exc)
     return OutputError(f"{where}: cannot write the output ({reason})")
+
+
+def _newest_file(directory: Path) -> Path | None:
+    files = [p for p in directory.rglob("*") if p.is_file()]
+    return max(files, key=lambda p: p.stat().st_mtime_ns, default=None)
 
 
 def check_output_dir(out_dir: str | Path, overwrite: bool = False) -> Path:
@@ -58,6 +69,9 @@ def check_output_dir(out_dir: str | Path, overwrite: bool = False) -> Path:
             raise OutputError(f"{out_dir}: exists already (--overwrite replaces it)")
         if any(out_dir.iterdir()) and not (out_dir / MARKER_FILE).is_file():
             raise OutputError(f"{out_dir}: not a semslam output directory (no {MARKER_FILE}); not replacing it")
+    ancestor = next(p for p in out_dir.parents if p.exists() or p.is_symlink())
+    if not ancestor.is_dir():  # mkdir would only say "File exists"
+        raise OutputError(f"{ancestor}: exists and is not a directory")
     try:
         out_dir.parent.mkdir(parents=True, exist_ok=True)
         probe = tempfile.mkdtemp(prefix=f".{out_dir.name}.", suffix=".probe", dir=out_dir.parent)
@@ -85,7 +99,7 @@ def staged_output(out_dir: str | Path, overwrite: bool = False) -> Iterator[Path
             stage.chmod(0o777 & ~umask)  # mkdtemp's 0700 would make a private output
             _commit(stage, out_dir, overwrite)
         except OSError as exc:
-            raise _os_error(out_dir, exc) from None
+            raise _os_error(out_dir, exc, stage) from None
     finally:
         shutil.rmtree(stage, ignore_errors=True)
 
@@ -101,14 +115,17 @@ def _commit(stage: Path, out_dir: Path, overwrite: bool) -> None:
             raise
     check_output_dir(out_dir, overwrite)  # it appeared during the run: the same rules as before it
     old = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", suffix=".old", dir=out_dir.parent))
-    os.rename(out_dir, old / out_dir.name)
+    moved = old / out_dir.name
     try:
+        os.rename(out_dir, moved)
         os.rename(stage, out_dir)
-    except OSError:
-        os.rename(old / out_dir.name, out_dir)  # put the old one back
+    except BaseException:  # an error, or a signal between the two renames: the old one goes back
+        if moved.exists() and not out_dir.exists():
+            os.rename(moved, out_dir)
         raise
     finally:
-        shutil.rmtree(old, ignore_errors=True)
+        if out_dir.exists() or not moved.exists():  # never delete the only copy of the old output
+            shutil.rmtree(old, ignore_errors=True)
 
 
 def _tolist(x):
@@ -263,19 +280,41 @@ def write_results(directory: Path, config: SemslamConfig, pipeline: PipelineResu
     (directory / "metrics.json").write_text(json.dumps(metrics, indent=2, default=_json_default))
 
 
-EMPTY_PLY = (
-    "ply\nformat ascii 1.0\nelement vertex 0\nelement face 0\nproperty list uchar int vertex_indices\nend_header\n"
-)
-
-
 def write_mesh(path: Path, mesh) -> None:
-    """An open3d mesh as PLY; an empty one as an empty PLY (open3d writes no file for it)."""
-    import open3d as o3d
+    """An open3d triangle mesh (vertices, colours, triangles) as binary PLY, written here rather
+    than by open3d: its writer prints every failed element to stderr and may still report success
+    (a full disk), and writes no file at all for an empty mesh."""
+    colors = np.asarray(mesh.vertex_colors) if mesh.has_vertex_colors() else np.full((len(mesh.vertices), 3), 0.7)
+    write_ply(path, np.asarray(mesh.vertices), colors, faces=np.asarray(mesh.triangles))
 
-    if len(mesh.vertices) == 0:
-        path.write_text(EMPTY_PLY)
-    elif not o3d.io.write_triangle_mesh(str(path), mesh):  # open3d reports a failure by returning False
-        raise OutputError(f"{path}: cannot write the output (open3d could not write the mesh)")
+
+def write_ply(path: Path, points, colors, faces=(), edges=(), comment: str = "") -> None:
+    """Binary PLY: vertices (N×3) with RGB colours in [0, 1] (N×3), triangles (M×3 vertex indices)
+    and edges (K×2); an OSError (a full disk) is raised as any file write's."""
+    xyz = np.asarray(points, float).reshape(-1, 3)
+    rgb = (255 * np.clip(np.asarray(colors, float).reshape(-1, 3), 0, 1)).round()
+    vertex = np.zeros(len(xyz), [("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("r", "u1"), ("g", "u1"), ("b", "u1")])
+    for k, c in enumerate("xyz"):
+        vertex[c] = xyz[:, k]
+    for k, c in enumerate("rgb"):
+        vertex[c] = rgb[:, k]
+    tri = np.asarray(faces, "<i4").reshape(-1, 3)
+    face = np.zeros(len(tri), [("n", "u1"), ("i", "<i4", (3,))])
+    face["n"], face["i"] = 3, tri
+    edge = np.asarray(edges, "<i4").reshape(-1, 2)
+    header = (
+        "ply\nformat binary_little_endian 1.0\n"
+        + (f"comment {comment}\n" if comment else "")
+        + f"element vertex {len(vertex)}\nproperty float x\nproperty float y\nproperty float z\n"
+        "property uchar red\nproperty uchar green\nproperty uchar blue\n"
+        f"element face {len(face)}\nproperty list uchar int vertex_indices\n"
+        f"element edge {len(edge)}\nproperty int vertex1\nproperty int vertex2\nend_header\n"
+    )
+    with open(path, "wb") as f:
+        f.write(header.encode("ascii"))
+        f.write(vertex.tobytes())
+        f.write(face.tobytes())
+        f.write(edge.tobytes())
 
 
 def write_outputs(
@@ -351,23 +390,7 @@ def write_observation_ply(path: Path, landmarks: list[LandmarkEstimate]) -> None
             edges.append((len(points), len(points) + 1))
             points += [lm.p, lm.q]
             colors += [PIPE_RGB, PIPE_RGB]
-    vertex = np.zeros(len(points), [("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("r", "u1"), ("g", "u1"), ("b", "u1")])
-    xyz, rgb = np.asarray(points, float).reshape(-1, 3), (255 * np.asarray(colors, float).reshape(-1, 3)).round()
-    for k, c in enumerate("xyz"):
-        vertex[c] = xyz[:, k]
-    for k, c in enumerate("rgb"):
-        vertex[c] = rgb[:, k]
-    edge = np.asarray(edges, "<i4").reshape(-1, 2)
-    header = (
-        "ply\nformat binary_little_endian 1.0\ncomment semslam: observations placed with the estimator's pose\n"
-        f"element vertex {len(vertex)}\nproperty float x\nproperty float y\nproperty float z\n"
-        "property uchar red\nproperty uchar green\nproperty uchar blue\n"
-        f"element edge {len(edge)}\nproperty int vertex1\nproperty int vertex2\nend_header\n"
-    )
-    with open(path, "wb") as f:
-        f.write(header.encode("ascii"))
-        f.write(vertex.tobytes())
-        f.write(edge.tobytes())
+    write_ply(path, points, colors, edges=edges, comment="semslam: observations placed with the estimator's pose")
 
 
 def _json_default(x):
