@@ -313,3 +313,22 @@ def test_preview_without_ground_truth(tmp_path, short_mission):
     bare = Mission.from_measurements(MissionMetadata(name="real"), list(short_mission))
     render_preview(bare, tmp_path / "bare.png")
     assert (tmp_path / "bare.png").stat().st_size > 10_000
+
+
+def test_a_long_dvl_outage_where_configured():
+    """``dvl.outage_s``: every reading in [start, start + length) is invalid, the interval is
+    labelled, and the random bursts are the same as without it (same seed)."""
+    base = TankSimConfig()
+    _, scene, traj = _world(base)
+    st, t = S.sample_times(0, base.dvl.rate_hz, base.trajectory.duration_s)
+    with_outage = TankSimConfig(dvl={"outage_s": (100.0, 90.0)})
+
+    def dvl(cfg):
+        return S.simulate_dvl(cfg.dvl, traj, scene, st, t, np.random.default_rng(0), np.random.default_rng(1))
+
+    plain, out = dvl(base), dvl(with_outage)
+    inside = (t >= 100.0) & (t < 190.0 - 1e-9)
+    assert inside.sum() > 400 and not out.valid[inside].any()
+    assert (out.valid[~inside] == plain.valid[~inside]).all()
+    assert any("outage" in c and s <= 100.0 and e >= 190.0 - 1e-9 for s, e, c in out.intervals)
+    assert out.invalid_fraction > plain.invalid_fraction + 90.0 / t[-1] * 0.5

@@ -133,6 +133,11 @@ class DvlConfig(_Section):
         description="fraction of the mission lost to random dropout bursts (placed ≥ 1 s clear of the wall dropouts)",
     )
     burst_s: tuple[float, float] = Field((2.0, 10.0), description="min and max duration of a dropout burst (s)")
+    outage_s: tuple[float, float] | None = Field(
+        None,
+        description="one long loss of bottom lock, [start, length] in mission seconds (e.g. [60, 90]: working near "
+        "the structure); none by default",
+    )
     mount: Mount = Field(
         default_factory=lambda: Mount(xyz=(-0.25, 0.0, 0.30)),
         description="behind and below the body origin, axes as {B}",

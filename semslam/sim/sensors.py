@@ -157,6 +157,9 @@ def simulate_dvl(
         rnd = random_bursts(cfg.random_dropout_rate, cfg.burst_s, duration, rng_dropout)
         if all(s >= we + 1.0 or e <= ws - 1.0 for s, e in rnd for ws, we, _ in intervals):
             break
+    if cfg.outage_s is not None:  # after the bursts' draw: the same seed gives the same bursts with or without it
+        start, length = cfg.outage_s
+        intervals.append((start, min(start + length, duration + dt), "outage"))
     intervals = _merge(intervals + [(s, e, "random") for s, e in rnd])
     valid = np.ones(len(t), bool)
     for s, e, _ in intervals:
