@@ -18,7 +18,8 @@ from scipy.stats import chi2
 
 from frontends.odometry import OdometryFrontend
 from semslam.mission.measurements import GroundTruthPose, PointCloud
-from semslam.sim.config import TankSimConfig
+from semslam.sim.scenarios import resolve_config
+from semslam.sim.vary import ASPECTS
 from semslam.sim.simulate import simulate_tank
 
 
@@ -94,7 +95,7 @@ def main() -> None:
     args = ap.parse_args()
     for seed in (int(s) for s in args.seeds.split(",")):
         loops = max(args.duration - 20.0, 10.0) / 156.6667  # the default speed, not the default loops squeezed
-        cfg = TankSimConfig.model_validate({"seed": seed, "trajectory": {"loops": loops}})
+        cfg = resolve_config("tank", seed, vary=ASPECTS, data={"trajectory": {"loops": loops}})  # each seed its world
         r = evaluate(simulate_tank(cfg), json.loads(args.config))
         print(f"seed {seed}: " + json.dumps(r), flush=True)
 

@@ -17,9 +17,9 @@ from pathlib import Path
 from typing import TypeVar
 
 import numpy as np
-import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
+from semslam.config import read_yaml_mapping
 from semslam.errors import ConfigError
 from semslam.sim.vary import merge_into
 
@@ -239,21 +239,6 @@ def load_sim_config(model: type[_M], path: str | Path | None = None, base: dict 
     :class:`ConfigError` naming the file and the key."""
     data = read_yaml_mapping(path, "simulation configuration") if path is not None else {}
     return build_sim_config(model, data, source=None if path is None else str(path), base=base, **overrides)
-
-
-def read_yaml_mapping(path: str | Path, what: str = "configuration") -> dict:
-    """The mapping at the top of a YAML file (empty file: ``{}``); a one-line :class:`ConfigError`
-    naming the file otherwise."""
-    path = Path(path)
-    if not path.is_file():
-        raise ConfigError(f"{path}: {what} file not found")
-    try:
-        data = yaml.safe_load(path.read_text()) or {}
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"{path}: not valid YAML ({str(exc).splitlines()[0]})") from exc
-    if not isinstance(data, dict):
-        raise ConfigError(f"{path}: expected a mapping at the top level")
-    return data
 
 
 def build_sim_config(
