@@ -32,7 +32,6 @@ Everything here is deterministic: the same call gives the same vertices, byte fo
 from __future__ import annotations
 
 import copy
-import functools
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -40,6 +39,7 @@ import numpy as np
 import open3d as o3d
 
 from semslam.errors import SemslamError
+from semslam.models.registry import ModelRegistry
 
 BALL_VALVE = "Ball-Valve"
 ELBOW = "Elbow"
@@ -290,24 +290,17 @@ def _build(cls: str) -> CadModel:
     return CadModel(name=cls, cls=cls, mesh=mesh, ports=ports, size=tuple(map(float, target)))
 
 
-@functools.cache
-def _builtins() -> dict[str, CadModel]:
-    return {c: _build(c) for c in CLASSES}
-
-
-_USER_MODELS: dict[str, CadModel] = {}
+_LIBRARY: ModelRegistry[CadModel] = ModelRegistry(lambda: {c: _build(c) for c in CLASSES})
 
 
 def library() -> dict[str, CadModel]:
     """Every known model by name: the six built-ins (named after their class) and registered ones."""
-    out = dict(_builtins())
-    out.update(_USER_MODELS)
-    return out
+    return _LIBRARY.all()
 
 
 def builtin(cls: str) -> CadModel:
     """The built-in model of a class."""
-    return _builtins()[cls]
+    return _LIBRARY.builtin(cls)
 
 
 def register_model(
@@ -353,10 +346,10 @@ def register_model(
     )
     if model.name in CLASSES:
         raise CadError(f"{path}: model name {model.name!r} is a built-in model; choose another name")
-    _USER_MODELS[model.name] = model
+    _LIBRARY.add(model.name, model)
     return model
 
 
 def unregister_model(name: str) -> None:
     """Forget a user-registered model (no-op if unknown)."""
-    _USER_MODELS.pop(name, None)
+    _LIBRARY.remove(name)

@@ -44,7 +44,6 @@ Public API::
 from __future__ import annotations
 
 import copy
-import functools
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -53,6 +52,7 @@ import open3d as o3d
 
 from semslam.errors import SemslamError
 from semslam.models import cad
+from semslam.models.registry import ModelRegistry
 
 MANIFOLD = "manifold"
 PLET = "plet"
@@ -306,19 +306,12 @@ def _build(name: str) -> StructureModel:
     return _model(name, mesh, symmetry, hubs, description)
 
 
-@functools.cache
-def _builtins() -> dict[str, StructureModel]:
-    return {n: _build(n) for n in STRUCTURES}
-
-
-_USER_MODELS: dict[str, StructureModel] = {}
+_LIBRARY: ModelRegistry[StructureModel] = ModelRegistry(lambda: {n: _build(n) for n in STRUCTURES})
 
 
 def structure_library() -> dict[str, StructureModel]:
     """Every known structure model by name: the built-ins (:data:`STRUCTURES`) and registered ones."""
-    out = dict(_builtins())
-    out.update(_USER_MODELS)
-    return out
+    return _LIBRARY.all()
 
 
 def register_structure(
@@ -369,10 +362,10 @@ def register_structure(
             h = Hub(np.asarray(p, float), d / np.linalg.norm(d), float(r))
         hub_list.append(h)
     model = _model(name, mesh, symmetry, hub_list, f"user model from {path.name}", str(path))
-    _USER_MODELS[name] = model
+    _LIBRARY.add(name, model)
     return model
 
 
 def unregister_structure(name: str) -> None:
     """Forget a user-registered structure model (no-op if unknown)."""
-    _USER_MODELS.pop(name, None)
+    _LIBRARY.remove(name)
