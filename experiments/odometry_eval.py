@@ -19,8 +19,8 @@ from scipy.stats import chi2
 from frontends.odometry import OdometryFrontend
 from semslam.mission.measurements import GroundTruthPose, PointCloud
 from semslam.sim.scenarios import resolve_config
-from semslam.sim.vary import ASPECTS
 from semslam.sim.simulate import simulate_tank
+from semslam.sim.vary import ASPECTS
 
 
 class TruthInterpolator:

@@ -1,5 +1,5 @@
 """What laser odometry buys during a long DVL outage (issue 23): the tank mission with the DVL
-silenced for ``--outage`` seconds while the vehicle works by the structure, run through the graph
+silenced for ``--outage`` seconds (``dvl.outage_s``) while the vehicle works by the structure, run through the graph
 with and without the odometry front-end, beside the laser front-end's landmarks and without them
 (navigation only). Prints the relative position error over
 ``--delta`` seconds inside the outage (RPE), the ATE over the mission and inside the outage, and
@@ -11,35 +11,18 @@ the odometry's NEES over the mission.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 
 import numpy as np
 
 from semslam.demo import demo_config
 from semslam.estimators import create_estimator
-from semslam.mission.measurements import DvlVelocity
 from semslam.mission.mission import Mission
 from semslam.pipeline import run_pipeline
 from semslam.registry import create_frontends
-from semslam.sim.config import TankSimConfig
+from semslam.sim.scenarios import resolve_config
 from semslam.sim.simulate import simulate_tank
-
-NAN3 = np.full(3, np.nan)
-
-
-def with_outage(mission: Mission, start_s: float, length_s: float) -> Mission:
-    """The mission with every DVL reading in [start, start + length] s (from its first stamp) invalid."""
-    items = list(mission)
-    t0 = items[0].stamp
-    lo, hi = t0 + int(start_s * 1e9), t0 + int((start_s + length_s) * 1e9)
-    out = [
-        dataclasses.replace(m, valid=False, velocity=NAN3, covariance=np.full((3, 3), np.nan))
-        if isinstance(m, DvlVelocity) and lo <= m.stamp <= hi
-        else m
-        for m in items
-    ]
-    return Mission.from_measurements(mission.metadata, out)
+from semslam.sim.vary import ASPECTS
 
 
 def _interp(stamps, positions, t):
@@ -84,8 +67,13 @@ def main() -> None:
     )
     args = ap.parse_args()
     for seed in (int(s) for s in args.seeds.split(",")):
-        sim = simulate_tank(TankSimConfig.model_validate({"seed": seed, "trajectory": {"loops": args.loops}}))
-        mission = with_outage(sim, args.start, args.outage)
+        cfg = resolve_config(  # each seed its world, with the simulator's long DVL outage
+            "tank",
+            seed,
+            ASPECTS,
+            data={"trajectory": {"loops": args.loops}, "dvl": {"outage_s": [args.start, args.outage]}},
+        )
+        mission = simulate_tank(cfg)
         t0 = next(iter(mission)).stamp
         lo, hi = t0 + int(args.start * 1e9), t0 + int((args.start + args.outage) * 1e9)
         row = {}
