@@ -534,11 +534,3 @@ class TankScene(LabelledScene):
         parts = [(FLOOR, -1, tm["floor"]), (WALL, -1, tm["walls"])]
         parts += [(kind, ident, mesh) for (kind, ident), mesh in layout.meshes().items()]
         super().__init__(parts)
-
-
-def simulate_tank(config=None, *, progress: bool = False):
-    """The whole tank mission: forwards to :func:`semslam.sim.simulate.simulate_tank` (also importable
-    from here, next to the scene it simulates)."""
-    from semslam.sim.simulate import simulate_tank as _simulate
-
-    return _simulate(config, progress=progress)
