@@ -8,6 +8,7 @@ from semslam.eval.map_quality import (
     align_position_yaw,
     ate_position_yaw,
     landmark_quality,
+    moved,
     nees_consistency,
 )
 from semslam.eval.metrics import match_landmarks
@@ -54,10 +55,14 @@ def test_position_yaw_alignment_removes_a_yaw_and_shift_but_not_a_tilt():
     Rz = np.array([[np.cos(yaw), -np.sin(yaw), 0], [np.sin(yaw), np.cos(yaw), 0], [0, 0, 1]])
     est = truth @ Rz.T + [0.3, -0.2, 0.1]
     np.testing.assert_allclose(align_position_yaw(est, truth), truth, atol=1e-9)
-    assert ate_position_yaw(_trajectory(est), _trajectory(truth)) < 1e-9
+    ate, T = ate_position_yaw(_trajectory(est), _trajectory(truth))
+    assert ate < 1e-9
+    # a map turned with the trajectory is right once moved by the same alignment
+    valve = LandmarkEstimate(1, "object", position=Rz @ np.array([1.0, 0.0, 4.5]) + [0.3, -0.2, 0.1])
+    np.testing.assert_allclose(moved([valve], T)[0].position, [1.0, 0.0, 4.5], atol=1e-9)
     tilt = np.radians(5.0)
     Rx = np.array([[1, 0, 0], [0, np.cos(tilt), -np.sin(tilt)], [0, np.sin(tilt), np.cos(tilt)]])
-    assert ate_position_yaw(_trajectory(truth @ Rx.T), _trajectory(truth)) > 0.05  # not a gauge freedom
+    assert ate_position_yaw(_trajectory(truth @ Rx.T), _trajectory(truth))[0] > 0.05  # not a gauge freedom
 
 
 def _random_walk_errors(n, sigma, rng):

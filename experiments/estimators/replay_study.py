@@ -22,6 +22,7 @@ from collections import defaultdict
 from pathlib import Path
 from typing import ClassVar
 
+import numpy as np
 from pydantic import BaseModel
 
 from semslam.config import SemslamConfig, load_config
@@ -111,7 +112,7 @@ def record(args) -> None:
 
 
 def run_one(bag: Path, obs_path: Path, config: SemslamConfig, estimators: list[str]):
-    """The estimators on one recorded mission: (pipeline result, metrics.json's dict)."""
+    """The estimators on one recorded mission: (pipeline result, metrics.json's dict, the mission's metadata)."""
     from semslam.estimators import create_estimator
     from semslam.eval.outputs import build_metrics
     from semslam.mission.bag import read_mission
@@ -124,7 +125,7 @@ def run_one(bag: Path, obs_path: Path, config: SemslamConfig, estimators: list[s
     ]
     ests = [create_estimator(n, mission.metadata, config) for n in estimators]
     result = run_pipeline(mission, ests, fes, view_estimator=estimators[0], frontend_process=False)
-    return result, build_metrics(result, mission.metadata)
+    return result, build_metrics(result, mission.metadata), mission.metadata
 
 
 def _fmt(v, spec=".3f") -> str:
@@ -145,7 +146,63 @@ def line(name: str, metrics: dict, estimators: list[str]) -> str:
             f"{'' if e.get('nees_in_band') else '!'}{_fmt((e.get('nees_band95') or [None])[0], '.1f')}-"
             f"{_fmt((e.get('nees_band95') or [None, None])[1], '.1f')}"
         )
+        al = e.get("map_aligned")
+        if al:
+            parts[-1] += (
+                f" [aligned: obj d{al['object_duplicates']} m{al['object_missed']} f{al['object_false']} "
+                f"pipes d{al['pipe_duplicates']} m{al['pipe_missed']} f{al['pipe_false']} err o/p "
+                f"{_fmt(al['object_median_error_m'], '.4f')}/{_fmt(al['pipe_median_error_m'], '.4f')}]"
+            )
     return " | ".join(parts)
+
+
+def twins_and_misses(landmarks, truth, gate_m: float = 0.5) -> list[str]:
+    """What a map got wrong, one line each: two estimates of one true object or pipe (how far apart,
+    views each), true pipes seen but not mapped (length; the nearest estimate's cost)."""
+    from semslam.eval.metrics import match_landmarks
+
+    rows = []
+    for kind, gts in (("object", truth.objects), ("pipe", truth.pipes)):
+        mine = [lm for lm in landmarks if lm.kind == kind]
+        if not mine:
+            continue
+        matches, _ = match_landmarks(mine, truth, gate_m)
+        by_truth = defaultdict(list)
+        for lm in mine:
+            if kind == "object":
+                d = [float(np.linalg.norm(lm.position - np.array(g.position))) for g in gts]
+            else:
+                d = [_pipe_cost(lm, g) for g in gts]
+            j = int(np.argmin(d))
+            if d[j] <= gate_m:
+                by_truth[gts[j].id].append((lm, d[j]))
+        for tid, ests in by_truth.items():
+            if len(ests) > 1:
+                at = [lm.position if kind == "object" else 0.5 * (lm.p + lm.q) for lm, _ in ests]
+                rows.append(
+                    f"twin {kind} truth {tid}: estimates {[lm.id for lm, _ in ests]} errors "
+                    f"{[round(e, 3) for _, e in ests]} views {[lm.n_observations for lm, _ in ests]} "
+                    f"apart {np.linalg.norm(at[0] - at[1]):.3f}"
+                )
+        seen = truth.seen_pipes if kind == "pipe" else truth.seen_objects
+        seen = {g.id for g in gts} if seen is None else set(seen)
+        got = {m.truth_id for m in matches}
+        for g in gts:
+            if g.id in seen and g.id not in got:
+                extra = f" length {np.linalg.norm(np.subtract(g.q, g.p)):.2f}" if kind == "pipe" else f" {g.cls}"
+                rows.append(f"missed {kind} truth {g.id}{extra}")
+    return rows
+
+
+def _pipe_cost(lm, g) -> float:
+    p, q = np.array(g.p), np.array(g.q)
+    d = (q - p) / np.linalg.norm(q - p)
+    L = np.linalg.norm(q - p)
+    cost = 0.0
+    for e in (lm.p, lm.q):
+        t = (e - p) @ d
+        cost += 0.5 * np.linalg.norm(e - p - t * d) + 0.5 * max(0.0, -t, t - L)
+    return float(cost)
 
 
 def run(args) -> None:
@@ -158,9 +215,17 @@ def run(args) -> None:
             print(f"{bag.stem}: not recorded", file=sys.stderr)
             continue
         t0 = time.perf_counter()
-        _, metrics = run_one(bag, obs_path, config, estimators)
+        result, metrics, metadata = run_one(bag, obs_path, config, estimators)
         out[bag.stem] = metrics
         print(line(bag.stem, metrics, estimators) + f" ({time.perf_counter() - t0:.0f} s)", flush=True)
+        if args.dump:
+            keep = {n: (r.trajectory, r.landmarks) for n, r in result.results.items()}
+            (Path(args.dump) / f"{bag.stem}.result.pkl").write_bytes(pickle.dumps((keep, result.truth)))
+        if args.detail:
+            truth = metadata.ground_truth
+            for est in estimators:
+                for row in twins_and_misses(result.results[est].landmarks, truth):
+                    print(f"    {est}: {row}", flush=True)
     if args.out:
         Path(args.out).write_text(json.dumps(out, indent=1, default=float))
 
@@ -177,6 +242,8 @@ def main() -> None:
     ap.add_argument("--config", help="semslam configuration YAML (default: the study's for the scenario)")
     ap.add_argument("--estimators", default="graph,ekf")
     ap.add_argument("--out", help="run: write the metrics of every mission here (JSON)")
+    ap.add_argument("--dump", help="run: pickle each mission's trajectories, maps and true trajectory here")
+    ap.add_argument("--detail", action="store_true", help="run: list twins and missed landmarks per estimator")
     args = ap.parse_args()
     args.cache.mkdir(parents=True, exist_ok=True)
     (record if args.step == "record" else run)(args)

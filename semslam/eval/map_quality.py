@@ -10,7 +10,10 @@ Definitions (per class: object, pipe, structure):
 - ``<kind>_false``: estimates with no truth within the gate;
 - ``<kind>_missed``: truths the sensors saw (``seen_*``; all of them when the mission does not say)
   that no estimate was matched to; ``<kind>_seen``: how many they saw;
-- ``objects_once``: every seen object mapped, none twice, none false.
+- ``objects_once``: every seen object mapped, none twice, none false;
+- ``map_aligned``: the same counts and the per-class median errors after moving the map by the
+  trajectory's position+yaw alignment: a map right in itself but turned with the vehicle's heading
+  (the gauge) is told from one with twins and misses.
 
 NEES: the per-pose NEES of the 3-D position is χ²(3) for a consistent estimator, whatever the
 correlation between poses. The mission's mean NEES is tested against the 95 % band of one χ²(3) value
@@ -35,6 +38,9 @@ from semslam.mission.ground_truth import GroundTruthMap
 Matcher = Callable[[list, GroundTruthMap, float], tuple[list, dict]]
 
 KINDS = ("object", "pipe", "structure")
+#: what ``map_aligned`` repeats after moving the map by the trajectory's position+yaw alignment
+ALIGNED_KEYS = ("object_duplicates", "object_missed", "object_false", "pipe_duplicates", "pipe_missed", "pipe_false")
+ALIGNED_KEYS += ("object_median_error_m", "pipe_median_error_m", "objects_once")
 NEES_DOF = 3
 CONFIDENCE = 0.95
 
@@ -44,7 +50,7 @@ def landmark_quality(
     landmarks: list[LandmarkEstimate], truth: GroundTruthMap, match: Matcher, gate_m: float = 0.5
 ) -> dict:
     """Per class: ``<kind>_mapped``, ``_seen``, ``_matched``, ``_duplicates``, ``_missed``, ``_false``,
-    ``_p90_error_m`` (the median is metrics.py's ``<kind>_median_error_m``); and ``objects_once``."""
+    ``_median_error_m``, ``_p90_error_m``; and ``objects_once``."""
     out: dict = {}
     truths = {"object": truth.objects, "pipe": truth.pipes, "structure": truth.structures}
     seen_ids = {"object": truth.seen_objects, "pipe": truth.seen_pipes, "structure": truth.seen_structures}
@@ -59,6 +65,7 @@ def landmark_quality(
         out[f"{kind}_duplicates"] = counts["duplicates"]
         out[f"{kind}_false"] = counts["spurious"]
         out[f"{kind}_missed"] = len(seen - {m.truth_id for m in matches})
+        out[f"{kind}_median_error_m"] = float(np.median(errors)) if errors.size else None
         out[f"{kind}_p90_error_m"] = float(np.percentile(errors, 90)) if errors.size else None
     out["objects_once"] = out["object_duplicates"] == 0 and out["object_missed"] == 0 and out["object_false"] == 0
     return out
@@ -74,26 +81,49 @@ def _associate(estimate: Trajectory, truth: Trajectory, max_dt_s: float = 0.05) 
     return np.flatnonzero(ok), idx[ok]
 
 
-def align_position_yaw(est: np.ndarray, ref: np.ndarray) -> np.ndarray:
-    """``est`` (N×3) moved by the rotation about the vertical and the translation that bring it closest
-    to ``ref`` in the least-squares sense (4-DoF Umeyama without scale)."""
+def position_yaw_transform(est: np.ndarray, ref: np.ndarray) -> np.ndarray:
+    """The rotation about the vertical and translation (4×4) that bring ``est`` (N×3) closest to
+    ``ref`` in the least-squares sense (4-DoF Umeyama without scale)."""
     me, mr = est.mean(axis=0), ref.mean(axis=0)
     e, r = est - me, ref - mr
     yaw = np.arctan2(np.sum(e[:, 0] * r[:, 1] - e[:, 1] * r[:, 0]), np.sum(e[:, 0] * r[:, 0] + e[:, 1] * r[:, 1]))
     c, s = np.cos(yaw), np.sin(yaw)
-    R = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-    return e @ R.T + mr
+    T = np.eye(4)
+    T[:3, :3] = [[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]
+    T[:3, 3] = mr - T[:3, :3] @ me
+    return T
 
 
-def ate_position_yaw(estimate: Trajectory, truth: Trajectory) -> float | None:
-    """ATE RMSE (m) after the position+yaw alignment; None without three associated poses."""
+def align_position_yaw(est: np.ndarray, ref: np.ndarray) -> np.ndarray:
+    """``est`` (N×3) moved by :func:`position_yaw_transform` onto ``ref``."""
+    T = position_yaw_transform(est, ref)
+    return est @ T[:3, :3].T + T[:3, 3]
+
+
+def ate_position_yaw(estimate: Trajectory, truth: Trajectory) -> tuple[float, np.ndarray] | None:
+    """ATE RMSE (m) after the position+yaw alignment, and that alignment (4×4); None without three
+    associated poses."""
     if len(estimate) == 0 or len(truth) < 2:
         return None
     rows, truth_rows = _associate(estimate, truth)
     if rows.size < 3:
         return None
-    aligned = align_position_yaw(estimate.positions[rows], truth.positions[truth_rows])
-    return float(np.sqrt(np.mean(np.sum((aligned - truth.positions[truth_rows]) ** 2, axis=1))))
+    T = position_yaw_transform(estimate.positions[rows], truth.positions[truth_rows])
+    aligned = estimate.positions[rows] @ T[:3, :3].T + T[:3, 3]
+    return float(np.sqrt(np.mean(np.sum((aligned - truth.positions[truth_rows]) ** 2, axis=1)))), T
+
+
+def moved(landmarks: list[LandmarkEstimate], T: np.ndarray) -> list[LandmarkEstimate]:
+    """The landmarks moved by T (4×4; positions, pipe ends and structure poses)."""
+    from dataclasses import replace
+
+    def f(x):
+        return None if x is None else T[:3, :3] @ np.asarray(x, float) + T[:3, 3]
+
+    return [
+        replace(lm, position=f(lm.position), p=f(lm.p), q=f(lm.q), pose=None if lm.pose is None else T @ lm.pose)
+        for lm in landmarks
+    ]
 
 
 # ------------------------------------------------------------------ consistency
@@ -142,9 +172,14 @@ def map_quality(
 ) -> dict:
     """The issue-21 keys of an estimator's block of metrics.json (see the module)."""
     out: dict = {"ate_rmse_pos_yaw_m": None}
+    aligned = None
     if truth_trajectory is not None:
-        out["ate_rmse_pos_yaw_m"] = ate_position_yaw(result.trajectory, truth_trajectory)
+        aligned = ate_position_yaw(result.trajectory, truth_trajectory)
+        out["ate_rmse_pos_yaw_m"] = None if aligned is None else aligned[0]
         out.update(nees_consistency(result.trajectory, truth_trajectory))
     if truth_map is not None:
         out.update(landmark_quality(result.landmarks, truth_map, match))
+        if aligned is not None:  # the map's own errors, without the gauge (yaw and shift) of the trajectory
+            q = landmark_quality(moved(result.landmarks, aligned[1]), truth_map, match)
+            out["map_aligned"] = {k: q[k] for k in ALIGNED_KEYS}
     return out
