@@ -31,3 +31,14 @@ def test_what_the_pose_had_when_the_map_started_is_taken_out_whatever_the_headin
     rel = g.relative(_pose(1.4), _body(start_world + grown_world, 1.4))
     np.testing.assert_allclose(rel, _body(grown_world, 1.4), atol=1e-9)
     assert np.linalg.eigvalsh(g.relative(_pose(0.2), _body(start_world, 0.2))).min() > 0  # clipped, not singular
+
+
+def test_the_common_part_shrinks_when_the_pose_becomes_surer():
+    start_world = np.diag([1e-4, 1e-4, 1e-3, 25.0, 25.0, 1e-4])
+    g = GaugeFreeCovariance()
+    g.start(_pose(0.0), _body(start_world, 0.0))
+    relocked = np.diag([1e-4, 1e-4, 1e-3, 2.25, 2.25, 1e-4])  # the DVL back: 1.5 m
+    g.relative(_pose(0.0), _body(relocked, 0.0))
+    later = relocked + np.diag([0, 0, 0, 0.01, 0.01, 0])  # 10 cm more since the relock
+    rel = g.relative(_pose(0.0), _body(later, 0.0))
+    np.testing.assert_allclose(np.sqrt(np.diag(rel)[3:5]), [0.1, 0.1], rtol=1e-6)

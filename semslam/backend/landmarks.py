@@ -94,7 +94,9 @@ class Landmark:
 class GaugeFreeCovariance:
     """A pose covariance (6×6, GTSAM's body-frame tangent: rotation, translation) relative to the map:
     less what it had when the map was started, in the world-aligned frame, clipped to stay positive
-    (semi)definite. Until a landmark is mapped, the pose's own."""
+    (semi)definite. Until a landmark is mapped, the pose's own. Where a later pose is surer than that
+    common part (the first DVL velocities after the descent shrink the position's σ from metres), the
+    common part shrinks to it: never more certain relative to the map than absolutely."""
 
     FLOOR = 1e-10
 
@@ -116,6 +118,8 @@ class GaugeFreeCovariance:
         B = self._world(pose.rotation().matrix())
         d = B @ cov @ B.T - self.gauge
         w, V = np.linalg.eigh(0.5 * (d + d.T))
+        if w.min() < 0:  # the pose is surer than the map's common part (the DVL back after the descent)
+            self.gauge += (V * np.minimum(w, 0.0)) @ V.T  # the common part shrinks with it
         return B.T @ (V * np.maximum(w, self.FLOOR)) @ V.T @ B
 
 
