@@ -163,3 +163,25 @@ def test_an_incompatible_twin_sharing_the_stretch_of_a_pipe_is_dropped_not_fused
     est.mapper.merge_duplicates({twin})
     assert _kinds(est) == ["object", "object", "pipe", "pipe"] and pipe_a in est.map.features
     np.testing.assert_allclose(est.nav.state.x[pipe_a.cols], l_before, atol=1e-12)  # not pulled by the twin
+
+
+def test_an_incompatible_object_twin_within_a_body_is_dropped_and_one_beyond_it_kept():
+    from semslam.mapping.builder import OBJECT_BODY_M
+
+    est = _scene_run()
+    valve = _valve(est)
+    x_before = est.nav.state.x[valve.cols].copy()
+    R, t = _sensor_pose(est)
+    # the valve seen 9 cm off with 1 mm covariances (a partial surface's centre): χ²-incompatible, yet
+    # two object centres cannot be that close
+    z = (x_before + [0.09, 0.0, 0.0] - t) @ R
+    twin = _add_twin(est, PointObservation(0, "laser", position=z, covariance=np.eye(3) * 0.001**2))
+    assert est.map.difference_nis(valve.id, twin) > 100
+    est.mapper.merge_duplicates({twin})
+    assert _kinds(est).count("object") == 2 and valve in est.map.features
+    np.testing.assert_allclose(est.nav.state.x[valve.cols], x_before, atol=1e-12)  # not pulled by the twin
+    # an object a little more than a body away is another object
+    z = (x_before + [0.0, OBJECT_BODY_M + 0.03, 0.0] - t) @ R
+    other = _add_twin(est, PointObservation(0, "laser", position=z, covariance=np.eye(3) * 0.001**2))
+    est.mapper.merge_duplicates({other})
+    assert _kinds(est).count("object") == 3

@@ -12,6 +12,7 @@ from semslam.cli import app
 from semslam.errors import ConfigError
 from semslam.study.plan import parse_seeds, scenario_tasks
 from semslam.study.stats import bootstrap_ci, distribution, paired_ratio, study_statistics
+from semslam.study.summary import mission_summary
 
 runner = CliRunner()
 
@@ -84,6 +85,19 @@ def test_study_statistics_per_estimator_and_pair():
     assert s["ratios"]["graph/ekf"]["ate_rmse_m"]["values"] == [0.5, None, 0.4]
     assert s["ratios"]["ekf/dr"]["ate_rmse_m"]["median"] == 0.5
     assert set(s["ratios"]) == {"graph/ekf", "ekf/dr"}
+
+
+def test_shares_and_seen_pipe_ratios_per_mission():
+    def metrics(once, dup, missed):
+        e = {"objects_once": once, "nees_in_band": True, "pipe_seen": 20, "pipe_missed": missed, "pipe_duplicates": dup}
+        return {"mission": {"gt_pipes": 25}, "estimators": {"graph": e}}
+
+    rows = [mission_summary(metrics(*a)) for a in ((True, 0, 1), (False, 2, 0), (True, 0, 0))]
+    assert rows[0]["estimators"]["graph"]["pipes_seen_mapped_ratio"] == pytest.approx(0.95)
+    assert rows[1]["estimators"]["graph"]["pipe_duplicate_ratio"] == pytest.approx(0.1)
+    s = study_statistics(rows + [None])
+    assert s["shares"]["graph"]["objects_once"] == {"n": 3, "share": pytest.approx(2 / 3)}
+    assert s["distributions"]["graph"]["pipes_seen_mapped_ratio"]["min"] == pytest.approx(0.95)
 
 
 @pytest.mark.parametrize(

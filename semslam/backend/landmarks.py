@@ -6,8 +6,14 @@ their update, their initialisation from a tentative landmark, and the merge of o
 A landmark's gating covariance is the inverse of the information its own observations carry, each with
 the pose uncertainty of its keyframe folded into the noise (no iSAM2 marginal: in a map seen from
 everywhere those cost up to a fraction of a second each). It ignores the pose–landmark correlation,
-like the association problem does; both make the innovation covariance larger, never smaller, than the
-joint one in practice.
+like the association problem does, which makes the innovation covariance larger than the joint one.
+
+That pose uncertainty is taken relative to the map (:class:`GaugeFreeCovariance`): what the vehicle's
+pose had accumulated when the first landmark was mapped (every tank mission starts ~15 s without DVL
+at the surface: metres of horizontal σ) moves the whole map with it and is common to the pose and every
+landmark; folded into both sides of every gate it made every observation compatible with every
+landmark within the pre-gate, hence "ambiguous": the graph mapped 3 of tank seed 1's 11 objects.
+The absolute information is kept for the prior of a landmark that re-enters the window.
 """
 
 from __future__ import annotations
@@ -64,22 +70,57 @@ class Landmark:
     covariance: np.ndarray | None = None  # gating covariance (see ``information_covariance``)
     cov_stamp: int | None = None  # when ``covariance`` was last computed (None: new information since)
     information: np.ndarray | None = None  # Σ information of its observations on its parameters
+    gate_information: np.ndarray | None = None  # the same with the pose uncertainty relative to the map
     active: bool = True  # in the smoother's window; False: marginalised out, ``estimate`` frozen
 
-    def add_information(self, info: np.ndarray) -> None:
+    def add_information(self, info: np.ndarray, gate_info: np.ndarray) -> None:
         self.information = info if self.information is None else self.information + info
+        self.gate_information = gate_info if self.gate_information is None else self.gate_information + gate_info
         self.cov_stamp = None
 
-    def information_covariance(self) -> np.ndarray:
-        """Inverse of the accumulated information (a tiny ridge keeps it finite)."""
+    def information_covariance(self, gate: bool = False) -> np.ndarray:
+        """Inverse of the accumulated information (``gate``: with the pose relative to the map; a tiny
+        ridge keeps it finite)."""
         n = DIM_OF_KIND[self.kind]
-        info = np.zeros((n, n)) if self.information is None else self.information
-        return np.linalg.inv(info + np.eye(n) * 1e-9)
+        info = self.gate_information if gate else self.information
+        return np.linalg.inv((np.zeros((n, n)) if info is None else info) + np.eye(n) * 1e-9)
 
     def line(self, estimate=None) -> tuple[np.ndarray, np.ndarray]:
         """A pipe's line (point, unit direction) at ``estimate`` (default: its current one)."""
         theta = self.estimate if estimate is None else estimate
         return self.anchor.point(theta), self.anchor.direction(theta)
+
+
+class GaugeFreeCovariance:
+    """A pose covariance (6×6, GTSAM's body-frame tangent: rotation, translation) relative to the map:
+    less what it had when the map was started, in the world-aligned frame, clipped to stay positive
+    (semi)definite. Until a landmark is mapped, the pose's own. Where a later pose is surer than that
+    common part (the first DVL velocities after the descent shrink the position's σ from metres), the
+    common part shrinks to it: never more certain relative to the map than absolutely."""
+
+    FLOOR = 1e-10
+
+    def __init__(self):
+        self.gauge: np.ndarray | None = None  # world-aligned pose covariance when the map started
+
+    @staticmethod
+    def _world(R: np.ndarray) -> np.ndarray:
+        return np.kron(np.eye(2), R)
+
+    def start(self, pose: gtsam.Pose3, cov: np.ndarray) -> None:
+        if self.gauge is None:
+            B = self._world(pose.rotation().matrix())
+            self.gauge = B @ cov @ B.T
+
+    def relative(self, pose: gtsam.Pose3, cov: np.ndarray) -> np.ndarray:
+        if self.gauge is None:
+            return cov
+        B = self._world(pose.rotation().matrix())
+        d = B @ cov @ B.T - self.gauge
+        w, V = np.linalg.eigh(0.5 * (d + d.T))
+        if w.min() < 0:  # the pose is surer than the map's common part (the DVL back after the descent)
+            self.gauge += (V * np.minimum(w, 0.0)) @ V.T  # the common part shrinks with it
+        return B.T @ (V * np.maximum(w, self.FLOOR)) @ V.T @ B
 
 
 class GraphLandmarks:
@@ -117,7 +158,9 @@ class GraphLandmarks:
         # the batch under way
         self._k = 0
         self._pose = gtsam.Pose3()
-        self._pose_cov = np.eye(6)
+        self._pose_cov = np.eye(6)  # relative to the map (gating)
+        self._abs_pose_cov = np.eye(6)
+        self.gauge = GaugeFreeCovariance()
         self._factors: list[Owned] = []
         self._priors: list[Owned] = []
         self._values = gtsam.Values()
@@ -129,7 +172,8 @@ class GraphLandmarks:
     def begin(self, k: int, factors: list[Owned] = ()) -> None:
         """A batch observed at keyframe k; ``factors`` (e.g. odometry) go into its iSAM2 update."""
         self._k = k
-        self._pose, self._pose_cov = self.keyframes.pose_and_cov(k)
+        self._pose, self._abs_pose_cov = self.keyframes.pose_and_cov(k)
+        self._pose_cov = self.gauge.relative(self._pose, self._abs_pose_cov)
         self._factors = list(factors)
         self._priors = []
         self._values = gtsam.Values()
@@ -252,7 +296,10 @@ class GraphLandmarks:
                 self._reactivate(lm)
             T_BS = self.metadata.extrinsic(z.sensor)
             self._factors.append((self._factor(lm, self._k, z, T_BS, self._pose, lin), lm.id))
-            lm.add_information(_information(lin.H_x, lin.H_l, lin.R, self._pose_cov))
+            lm.add_information(
+                _information(lin.H_x, lin.H_l, lin.R, self._abs_pose_cov),
+                _information(lin.H_x, lin.H_l, lin.R, self._pose_cov),
+            )
 
     def _reactivate(self, lm: Landmark) -> None:
         """A marginalised landmark seen again re-enters the window: its frozen estimate, with the
@@ -274,6 +321,9 @@ class GraphLandmarks:
         """A tentative landmark enters the graph: its initial value from its views re-expressed with
         the current keyframe estimates (views from keyframes that left the window are dropped), and
         one factor per view."""
+        if self.gauge.gauge is None:  # the map starts: what the pose has accumulated so far moves it all
+            self.gauge.start(self._pose, self._abs_pose_cov)
+            self._pose_cov = self.gauge.relative(self._pose, self._abs_pose_cov)
         lid = self._next_id
         self._next_id += 1
         key = KEY_OF_KIND[track.kind](lid)
@@ -297,7 +347,10 @@ class GraphLandmarks:
         for v, T in zip(views, Ts):
             pose = poses[v.payload]
             self._factors.append((self._factor(lm, v.payload, v.z, T, pose), lid))
-            lm.add_information(_observation_information(lm, v.z, pose, self._pose_cov, T))
+            lm.add_information(
+                _observation_information(lm, v.z, pose, self._abs_pose_cov, T),
+                _observation_information(lm, v.z, pose, self._pose_cov, T),
+            )
         return lid
 
     def _factor(self, lm: Landmark, k: int, z, T_BS, pose: gtsam.Pose3, lin: PairLinearization | None = None):
@@ -321,7 +374,7 @@ class GraphLandmarks:
         if la.kind != "object" or lb.kind != "object" or not lb.active:
             return None
         d = np.asarray(la.estimate, float) - np.asarray(lb.estimate, float)
-        S = la.information_covariance() + lb.information_covariance()
+        S = la.information_covariance(gate=True) + lb.information_covariance(gate=True)
         return float(d @ np.linalg.solve(S, d))
 
     def merge(self, keep: int, drop: int, constrain: bool) -> None:
@@ -329,7 +382,7 @@ class GraphLandmarks:
         zero-offset factor. An unconstrained one stays in the graph with its factors, unmapped."""
         lk, ld = self.landmarks[keep], self.landmarks[drop]
         if ld.information is not None:
-            lk.add_information(ld.information)
+            lk.add_information(ld.information, ld.gate_information)
         self._remove(drop)
         if constrain and lk.kind == "object":
             tie = gtsam.BetweenFactorPoint3(lk.key, ld.key, np.zeros(3), gtsam.noiseModel.Isotropic.Sigma(3, 1e-3))
@@ -359,7 +412,7 @@ class GraphLandmarks:
             if covariance and lm.cov_stamp is None:
                 stamp = self.keyframes.stamps[-1]
                 lm.cov_stamp = stamp
-                lm.covariance = lm.information_covariance()
+                lm.covariance = lm.information_covariance(gate=True)
                 ev = np.linalg.eigvalsh(lm.covariance)
                 self.volume.setdefault(lid, []).append((stamp, float(np.sum(np.log(np.maximum(ev, 1e-300))))))
 

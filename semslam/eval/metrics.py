@@ -10,6 +10,7 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from semslam.estimation import EstimatorResult, LandmarkEstimate, Trajectory
+from semslam.eval.map_quality import map_quality
 from semslam.mission.ground_truth import GroundTruthMap
 
 ALIGNMENTS = ("none", "se3", "origin")
@@ -209,6 +210,8 @@ def estimator_metrics(
             errs_k = [m.error_m for m in matches if m.kind == kind]
             out[f"{kind}_median_error_m"] = float(np.median(errs_k)) if errs_k else None
         out.update({f"landmark_{k}": v for k, v in counts.items()})
+    # per class duplicates/misses/false, the NEES band, position+yaw ATE (semslam.eval.map_quality)
+    out.update(map_quality(result, truth_trajectory, truth_map, match_landmarks))
     return out
 
 

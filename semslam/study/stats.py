@@ -27,9 +27,31 @@ DISTRIBUTION_METRICS = (
     "objects_mapped_ratio",
     "pipes_mapped_ratio",
     "runtime_s",
+    "ate_rmse_pos_yaw_m",
+    "object_median_error_m",
+    "pipe_median_error_m",
+    "nees_share_in_pose_band",
+    "object_duplicates",
+    "object_missed",
+    "object_false",
+    "pipes_seen_mapped_ratio",
+    "pipe_duplicate_ratio",
+    "pipe_false",
+    "structure_missed",
+    "structure_false",
 )
+#: yes/no per mission whose share of missions study.json gives per estimator (``shares``)
+SHARE_METRICS = ("objects_once", "nees_in_band")
 #: error metrics whose paired ratios study.json gives
-RATIO_METRICS = ("ate_rmse_m", "ate_rmse_se3_m", "rpe_rmse_m", "landmark_median_error_m")
+RATIO_METRICS = (
+    "ate_rmse_m",
+    "ate_rmse_se3_m",
+    "ate_rmse_pos_yaw_m",
+    "rpe_rmse_m",
+    "landmark_median_error_m",
+    "object_median_error_m",
+    "pipe_median_error_m",
+)
 #: the pairs (numerator, denominator)
 RATIO_PAIRS = (("graph", "ekf"), ("ekf", "dr"))
 CONFIDENCE = 0.95
@@ -117,10 +139,17 @@ def paired_ratio(num: Sequence, den: Sequence) -> dict:
     return out
 
 
+def share(values: Sequence) -> dict:
+    """How many missions have a yes/no value (``n``) and the share of them where it is yes."""
+    known = [bool(v) for v in values if v is not None]
+    return {"n": len(known), "share": float(np.mean(known)) if known else None}
+
+
 def study_statistics(summaries: Sequence[dict | None]) -> dict:
-    """``distributions`` (estimator → metric → :func:`distribution`), ``recognition`` (stage → F1
-    distribution) and ``ratios`` ("graph/ekf" → metric → :func:`paired_ratio`) over the missions'
-    summaries (None for a mission without one: it counts as missing everywhere)."""
+    """``distributions`` (estimator → metric → :func:`distribution`), ``shares`` (estimator → yes/no
+    metric → :func:`share`), ``recognition`` (stage → F1 distribution) and ``ratios`` ("graph/ekf" →
+    metric → :func:`paired_ratio`) over the missions' summaries (None for a mission without one: it
+    counts as missing everywhere)."""
     estimators = list(dict.fromkeys(e for s in summaries if s for e in s["estimators"]))
     stages = list(dict.fromkeys(st for s in summaries if s for st in s["recognition_f1"]))
 
@@ -134,4 +163,5 @@ def study_statistics(summaries: Sequence[dict | None]) -> dict:
         for a, b in RATIO_PAIRS
         if a in estimators and b in estimators
     }
-    return {"distributions": dists, "recognition": rec, "ratios": ratios}
+    shares = {e: {k: share(column(e, k)) for k in SHARE_METRICS} for e in estimators}
+    return {"distributions": dists, "shares": shares, "recognition": rec, "ratios": ratios}

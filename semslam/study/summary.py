@@ -13,6 +13,23 @@ ESTIMATOR_KEYS = (
     "landmark_duplicates",
     "landmark_spurious",
     "nees_mean",
+    # issue 21: what a median hides (semslam.eval.map_quality)
+    "ate_rmse_pos_yaw_m",
+    "nees_in_band",
+    "nees_share_in_pose_band",
+    "objects_once",
+    "object_seen",
+    "object_duplicates",
+    "object_missed",
+    "object_false",
+    "object_p90_error_m",
+    "pipe_seen",
+    "pipe_duplicates",
+    "pipe_missed",
+    "pipe_false",
+    "pipe_p90_error_m",
+    "structure_missed",
+    "structure_false",
     "n_objects",
     "n_pipes",
     "n_structures",
@@ -27,7 +44,8 @@ def _ratio(n, truth):
 def mission_summary(metrics: dict) -> dict:
     """The per-mission summary of ``study.json`` from a mission's ``metrics.json``: mission size,
     per estimator its :data:`ESTIMATOR_KEYS` plus ``objects_mapped_ratio`` / ``pipes_mapped_ratio``
-    (landmarks mapped over those the sensors saw), recognition F1 per stage, sonar structures found."""
+    (landmarks mapped over the true ones), ``pipes_seen_mapped_ratio`` (seen pipes matched by an
+    estimate over those seen) and ``pipe_duplicate_ratio`` (duplicate pipes over those seen), recognition F1 per stage, sonar structures found."""
     mission = metrics.get("mission") or {}
     out = {
         "duration_s": mission.get("duration_s"),
@@ -45,6 +63,9 @@ def mission_summary(metrics: dict) -> dict:
         row = {k: e.get(k) for k in ESTIMATOR_KEYS}
         row["objects_mapped_ratio"] = _ratio(e.get("n_objects"), mission.get("gt_objects"))
         row["pipes_mapped_ratio"] = _ratio(e.get("n_pipes"), mission.get("gt_pipes"))
+        seen, missed = e.get("pipe_seen"), e.get("pipe_missed")
+        row["pipes_seen_mapped_ratio"] = None if missed is None else _ratio(seen - missed, seen)
+        row["pipe_duplicate_ratio"] = _ratio(e.get("pipe_duplicates"), seen)
         out["estimators"][name] = row
     sonar = metrics.get("sonar")
     if sonar and sonar.get("structures") is not None:
