@@ -113,6 +113,29 @@ class SonarConfig(_Section):
     )
 
 
+class GpsConfig(_Section):
+    """GPS receiver on a mast: fixes of its antenna in {W}, only while the vehicle is at the surface.
+
+    The fixes are written as ``sensor_msgs/NavSatFix`` about the datum below, their declared
+    covariance exactly the noise added. Noise is drawn for every sample, at the surface or not, so
+    that the depth profile does not reshuffle it.
+    """
+
+    rate_hz: float = Field(1.0, gt=0, description="fixes per second while at the surface")
+    time_offset_s: float = Field(0.37, ge=0, lt=1, description="first fix this long after the mission start")
+    horizontal_sigma_m: float = Field(1.0, gt=0, description="white noise of north and east (m)")
+    vertical_sigma_m: float = Field(2.0, gt=0, description="white noise of the antenna's height (m)")
+    surface_depth_m: float = Field(
+        0.2, ge=0, description="a fix only while the body origin is shallower than this (the antenna above water) (m)"
+    )
+    datum_deg: tuple[float, float] = Field(
+        (41.9876, 3.2131), description="latitude, longitude (WGS84, deg) of the world origin, height 0"
+    )
+    mount: Mount = Field(
+        default_factory=lambda: Mount(xyz=(-0.4, 0.0, -0.6)), description="antenna 0.4 m aft, 0.6 m above the origin"
+    )
+
+
 def _field_dvl() -> DvlConfig:
     return DvlConfig(random_dropout_rate=0.02, burst_s=(1.0, 4.0))
 
