@@ -4,7 +4,7 @@ The vehicle follows the field's east–west lawnmower (:mod:`semslam.sim.lawnmow
 the first second to the last, at its speed; only its depth changes: ``surface_start_s`` at the
 surface (GPS fixes), a descent to the working depth over ``descent_s`` (quintic smoothstep), the
 pattern submerged, an ascent over ``ascent_s`` and ``surface_end_s`` at the surface again. The DVL has its
-random dropouts (5 % of the time in 2–8 s bursts by default) and the AHRS heading bias drifts 1.5°:
+random dropouts (5 % of the time in 2–8 s bursts by default) and the AHRS heading bias drifts 3°:
 what a navigation-only run has to bridge between the fixes. No sonar is simulated (``dive.sonar``
 adds it). Sensor names, topics and message types as in the field, plus:
 
@@ -23,7 +23,7 @@ from semslam.errors import ConfigError
 from semslam.mission.geodesy import Geodetic
 from semslam.mission.mission import Mission, MissionMetadata
 from semslam.sim import sensors as S
-from semslam.sim.config import DvlConfig, _Section
+from semslam.sim.config import AhrsConfig, DvlConfig, _Section
 from semslam.sim.field import PIPE, STRUCTURE, FieldScene, make_field
 from semslam.sim.field_config import FieldSimConfig, FieldTrajectoryConfig, GpsConfig
 from semslam.sim.field_mission import REFLECTIVITY
@@ -57,6 +57,14 @@ def _dive_dvl() -> DvlConfig:
     return DvlConfig(random_dropout_rate=0.05, burst_s=(2.0, 8.0))
 
 
+def _dive_ahrs() -> AhrsConfig:
+    return AhrsConfig(heading_bias_drift_deg=3.0)
+
+
+def _dive_gps() -> GpsConfig:
+    return GpsConfig(horizontal_sigma_m=0.5, vertical_sigma_m=1.0)
+
+
 class DiveSimConfig(FieldSimConfig):
     """A field mission (:class:`FieldSimConfig`) as a dive from and back to the surface, with a GPS:
     seven survey lines (≈ 13.5 min, ≈ 11.5 min of it submerged by default)."""
@@ -64,8 +72,9 @@ class DiveSimConfig(FieldSimConfig):
     name: str | None = Field(None, description="mission name (default dive-seed<N>)")
     trajectory: FieldTrajectoryConfig = Field(default_factory=_dive_trajectory, description="seven lines")
     dvl: DvlConfig = Field(default_factory=_dive_dvl, description="dropouts 5 % of the time, 2–8 s bursts")
+    ahrs: AhrsConfig = Field(default_factory=_dive_ahrs, description="a magnetic heading: its bias drifts 3°")
     dive: DiveProfileConfig = Field(default_factory=DiveProfileConfig)
-    gps: GpsConfig = Field(default_factory=GpsConfig)
+    gps: GpsConfig = Field(default_factory=_dive_gps, description="an SBAS-class receiver: σ 0.5 m, 1 m vertical")
 
     @property
     def mission_name(self) -> str:
