@@ -223,6 +223,12 @@ def simulate_ahrs(
     ]
 
 
+def mounted_point(traj: MotionModel, t: np.ndarray, t_BS: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The body origin p_WB and the point at lever arm t_BS, p_WB + R_WB t_BS, in {W} (N×3 each)."""
+    p, _ = traj.position_velocity(t)
+    return p, p + traj.rotation(t).as_matrix() @ t_BS
+
+
 def simulate_depth(
     cfg: DepthConfig,
     traj: MotionModel,
@@ -232,9 +238,8 @@ def simulate_depth(
     sensor: str = "depth",
 ) -> list[Depth]:
     """Depth of the pressure sensor (z of p_WB + R_WB t_BS) plus white noise."""
-    t_BS = cfg.mount.matrix()[:3, 3]
-    p, _ = traj.position_velocity(t)
-    z = (p + traj.rotation(t).as_matrix() @ t_BS)[:, 2] + rng.normal(0.0, cfg.sigma_m, size=len(t))
+    _, at = mounted_point(traj, t, cfg.mount.matrix()[:3, 3])
+    z = at[:, 2] + rng.normal(0.0, cfg.sigma_m, size=len(t))
     var = cfg.sigma_m**2
     return [Depth(stamp=int(stamps[i]), sensor=sensor, depth=float(z[i]), variance=var) for i in range(len(t))]
 
@@ -249,9 +254,7 @@ def simulate_gps(
 ) -> list[GpsFix]:
     """Fixes of the antenna (p_WB + R_WB t_BA) plus white noise (σ horizontal, vertical), kept only
     at the samples where the body origin is shallower than ``surface_depth_m``."""
-    t_BA = cfg.mount.matrix()[:3, 3]
-    p, _ = traj.position_velocity(t)
-    antenna = p + traj.rotation(t).as_matrix() @ t_BA
+    p, antenna = mounted_point(traj, t, cfg.mount.matrix()[:3, 3])
     sig = np.array([cfg.horizontal_sigma_m, cfg.horizontal_sigma_m, cfg.vertical_sigma_m])
     noisy = antenna + rng.normal(size=(len(t), 3)) * sig
     cov = np.diag(sig**2)
