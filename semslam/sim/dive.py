@@ -49,20 +49,29 @@ class DiveProfileConfig(_Section):
     sonar: bool = Field(False, description="also simulate the multibeam (slow: a navigation dive needs none)")
 
 
-def _dive_trajectory() -> FieldTrajectoryConfig:
-    return FieldTrajectoryConfig(lines=7)
+# The dive's own defaults live in its sections' classes: a section given in part (a YAML file, a
+# seed's draws) is built from its class's defaults, not from the parent's default instance.
+class DiveTrajectoryConfig(FieldTrajectoryConfig):
+    """The field's lawnmower, seven lines by default (≈ 13.5 min at 0.5 m/s)."""
+
+    lines: int = Field(7, ge=1, description="survey lines (the first at the south, heading east)")
 
 
-def _dive_dvl() -> DvlConfig:
-    return DvlConfig(random_dropout_rate=0.05, burst_s=(2.0, 8.0))
+class DiveDvlConfig(DvlConfig):
+    """The field's DVL with dropouts 5 % of the time, in 2–8 s bursts."""
+
+    random_dropout_rate: float = Field(
+        0.05, ge=0, lt=0.9, description="fraction of the mission lost to random dropout bursts"
+    )
+    burst_s: tuple[float, float] = Field((2.0, 8.0), description="min, max length of a random dropout burst (s)")
 
 
-def _dive_ahrs() -> AhrsConfig:
-    return AhrsConfig(heading_bias_drift_deg=3.0)
+class DiveAhrsConfig(AhrsConfig):
+    """A magnetic heading: its bias drifts 3° over the mission."""
 
-
-def _dive_gps() -> GpsConfig:
-    return GpsConfig(horizontal_sigma_m=0.5, vertical_sigma_m=1.0)
+    heading_bias_drift_deg: float = Field(
+        3.0, ge=0, description="the heading bias drifts linearly by this much over the mission (sign from the seed)"
+    )
 
 
 class DiveSimConfig(FieldSimConfig):
@@ -70,11 +79,11 @@ class DiveSimConfig(FieldSimConfig):
     seven survey lines (≈ 13.5 min, ≈ 11.5 min of it submerged by default)."""
 
     name: str | None = Field(None, description="mission name (default dive-seed<N>)")
-    trajectory: FieldTrajectoryConfig = Field(default_factory=_dive_trajectory, description="seven lines")
-    dvl: DvlConfig = Field(default_factory=_dive_dvl, description="dropouts 5 % of the time, 2–8 s bursts")
-    ahrs: AhrsConfig = Field(default_factory=_dive_ahrs, description="a magnetic heading: its bias drifts 3°")
+    trajectory: DiveTrajectoryConfig = Field(default_factory=DiveTrajectoryConfig)
+    dvl: DiveDvlConfig = Field(default_factory=DiveDvlConfig)
+    ahrs: DiveAhrsConfig = Field(default_factory=DiveAhrsConfig)
     dive: DiveProfileConfig = Field(default_factory=DiveProfileConfig)
-    gps: GpsConfig = Field(default_factory=_dive_gps, description="an SBAS-class receiver: σ 0.5 m, 1 m vertical")
+    gps: GpsConfig = Field(default_factory=GpsConfig)
 
     @property
     def mission_name(self) -> str:

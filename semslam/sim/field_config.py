@@ -123,8 +123,8 @@ class GpsConfig(_Section):
 
     rate_hz: float = Field(1.0, gt=0, description="fixes per second while at the surface")
     time_offset_s: float = Field(0.37, ge=0, lt=1, description="first fix this long after the mission start")
-    horizontal_sigma_m: float = Field(1.0, gt=0, description="white noise of north and east (m)")
-    vertical_sigma_m: float = Field(2.0, gt=0, description="white noise of the antenna's height (m)")
+    horizontal_sigma_m: float = Field(0.5, gt=0, description="white noise of north and east (m): an SBAS-class fix")
+    vertical_sigma_m: float = Field(1.0, gt=0, description="white noise of the antenna's height (m)")
     surface_depth_m: float = Field(
         0.2, ge=0, description="a fix only while the body origin is shallower than this (the antenna above water) (m)"
     )
