@@ -45,7 +45,7 @@ def run_comparison(
     reference = GpsReference.hold_out(mission, hold_out_gps) if hold_out_gps is not None else None
     seen = reference.estimators_see(mission) if reference is not None else mission
     result = run_pipeline(seen, ests, fes, view_estimator="graph", progress=progress, frontend_workers=frontend_workers)
-    metrics = add_gps_reference(build_metrics(result, mission.metadata), reference, result.results, mission.metadata)
+    metrics = add_gps_reference(build_metrics(result, mission.metadata), reference, result, mission.metadata)
     metrics["input"] = input_block(mission)  # after the pipeline's complete pass over the mission
     metrics["frontends"] = names
     return result, metrics

@@ -89,7 +89,7 @@ def run(
     ref = GpsReference.hold_out(m, HoldOut.parse(hold_out_gps)) if hold_out_gps is not None else None
     seen = ref.estimators_see(m) if ref is not None else m
     result = run_pipeline(seen, [est], fes, progress=sys.stderr.isatty(), observers=observers)
-    metrics = add_gps_reference(build_metrics(result, m.metadata), ref, result.results, m.metadata)
+    metrics = add_gps_reference(build_metrics(result, m.metadata), ref, result, m.metadata)
     write_run(out, cfg, result, metrics, m.metadata, overwrite=overwrite, recorder=recorder)
     e = metrics["estimators"][est.name]
     ate = "n/a" if e["ate_rmse_m"] is None else f"{e['ate_rmse_m']:.3f} m"

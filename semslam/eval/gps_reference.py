@@ -22,6 +22,7 @@ from semslam.errors import ConfigError
 from semslam.estimation import Trajectory
 from semslam.mission.measurements import GpsFix
 from semslam.mission.mission import Mission
+from semslam.results import PipelineResult
 
 _EVERY = re.compile(r"every:(\d+)")
 MAX_EXTRAPOLATION_S = 2.0  # a held-out fix this far past an estimate's ends is still compared (s)
@@ -132,11 +133,11 @@ class GpsReference:
         }
 
 
-def add_gps_reference(metrics: dict, reference: GpsReference | None, results: dict, metadata) -> dict:
-    """metrics.json's ``reference`` ("gps" with held-out fixes, else "ground_truth" when the mission has
+def add_gps_reference(metrics: dict, reference: GpsReference | None, pipeline: PipelineResult, metadata) -> dict:
+    """metrics.json's ``reference`` ("gps" with held-out fixes, else "ground_truth" when the run had
     it, else None), ``gps_reference`` and, per estimator, the errors at the held-out fixes."""
-    has_truth = any(e.get("ate_rmse_m") is not None for e in metrics["estimators"].values())
-    metrics["reference"] = "gps" if reference is not None else ("ground_truth" if has_truth else None)
+    results = pipeline.results
+    metrics["reference"] = "gps" if reference is not None else ("ground_truth" if pipeline.truth is not None else None)
     metrics["gps_reference"] = reference.block() if reference is not None else None
     if reference is None:
         return metrics
