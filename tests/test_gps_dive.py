@@ -149,6 +149,8 @@ def test_held_out_fixes_are_not_seen_and_are_the_reference(dive):
     assert not {f.stamp for f in ref.fixes} & {f.stamp for f in seen}
     with pytest.raises(ConfigError, match="no GPS fix to hold out"):
         GpsReference.hold_out(Mission(dive.metadata, lambda: iter(())), HoldOut())
+    with pytest.raises(ConfigError, match=r"no GPS fix to hold out \(\d+ fixes\)"):
+        GpsReference.hold_out(dive, HoldOut(len(all_fixes) + 1))
 
 
 @pytest.mark.parametrize("seed", [0, 1])

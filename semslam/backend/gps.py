@@ -57,6 +57,8 @@ class GraphGps:
         if not kf.stamps:
             if not self.start.holds(fix) and self.start.is_start(fix) and kf.nav.attitude is not None:
                 self._start_at(fix.stamp)
+            elif not self.start.waits:
+                self.diagnostics.append(f"{fix.stamp}: GPS fix before the first keyframe, not used")
             return
         k = keyframe_for(fix.stamp)
         if k is None:

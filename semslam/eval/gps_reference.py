@@ -72,11 +72,15 @@ class GpsReference:
 
     @classmethod
     def hold_out(cls, mission: Mission, policy: HoldOut) -> GpsReference:
-        """The fixes ``policy`` holds out of ``mission``; a mission without fixes is a ConfigError."""
+        """The fixes ``policy`` holds out of ``mission``; none to hold out is a ConfigError."""
         fixes = mission_fixes(mission)
-        if not fixes:
-            raise ConfigError(f"--hold-out-gps {policy}: mission {mission.metadata.name} has no GPS fix to hold out")
-        return cls(policy, policy.choose(fixes))
+        held = policy.choose(fixes)
+        if not held:
+            raise ConfigError(
+                f"--hold-out-gps {policy}: mission {mission.metadata.name} has no GPS fix to hold out "
+                f"({len(fixes)} fixes)"
+            )
+        return cls(policy, held)
 
     def estimators_see(self, mission: Mission) -> Mission:
         """``mission`` without the held-out fixes."""
