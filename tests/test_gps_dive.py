@@ -189,3 +189,29 @@ def test_compare_hold_out_on_a_bag_and_no_reference_at_all(tmp_path):
         assert (tmp_path / "none" / f).is_file(), f
     r = runner.invoke(app, ["run", str(bag), "--out", str(tmp_path / "bad"), "--hold-out-gps", "every:1"])
     assert r.exit_code == 1 and "--hold-out-gps 'every:1'" in r.output and "Traceback" not in r.output
+
+
+def test_simulate_dive_command_writes_the_fixes_and_a_preview(tmp_path):
+    import yaml
+
+    from semslam.mission.bag import read_mission
+
+    cfg = tmp_path / "tiny.yaml"
+    cfg.write_text(
+        yaml.safe_dump(
+            {
+                "trajectory": {"lines": 1, "line_length_m": 30.0},
+                "dive": {"surface_start_s": 10.0, "surface_end_s": 10.0, "descent_s": 10.0, "ascent_s": 10.0},
+            }
+        )
+    )
+    out, png = tmp_path / "d.mcap", tmp_path / "d.png"
+    r = runner.invoke(
+        app, ["simulate", "dive", "--seed", "3", "--sim-config", str(cfg), "--out", str(out), "--preview", str(png)]
+    )
+    assert r.exit_code == 0, r.output
+    assert "min submerged" in r.output and png.stat().st_size > 10_000
+    m = read_mission(out)
+    fixes = [x for x in m if isinstance(x, GpsFix)]
+    assert len(fixes) == m.metadata.extras["dive"]["gps_fixes"] >= 20 and m.dropped.get("gps", 0) == 0
+    assert m.metadata.sensors["gps"].msgtype == "sensor_msgs/msg/NavSatFix"
