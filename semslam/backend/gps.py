@@ -40,7 +40,6 @@ class GraphGps:
         self.keyframes = keyframes
         self.session = session
         self.diagnostics = diagnostics
-        self.n_factors = 0
 
     def starts(self, m: Measurement) -> bool:
         """When the first keyframe is due at ``m``: True if the GPS took it (waits for the first fix,
@@ -66,7 +65,6 @@ class GraphGps:
             return
         factor = gps_factor(X(k), fix, self.start.lever(fix.sensor))
         self.session.commit([(factor, None)], gtsam.Values(), kf.anchor(), stamp=fix.stamp)
-        self.n_factors += 1
         kf.refresh()
         kf.renew_online(k)
 
