@@ -215,3 +215,27 @@ def test_simulate_dive_command_writes_the_fixes_and_a_preview(tmp_path):
     fixes = [x for x in m if isinstance(x, GpsFix)]
     assert len(fixes) == m.metadata.extras["dive"]["gps_fixes"] >= 20 and m.dropped.get("gps", 0) == 0
     assert m.metadata.sensors["gps"].msgtype == "sensor_msgs/msg/NavSatFix"
+
+
+def test_the_start_waits_ten_seconds_for_a_first_fix_then_takes_the_origin():
+    from semslam.mission.gps_start import START_WAIT_S, GpsStart
+    from semslam.mission.measurements import Attitude
+    from semslam.mission.mission import SensorInfo
+
+    T_BA = np.eye(4)
+    T_BA[:3, 3] = [-0.4, 0.0, -0.6]
+    sensors = {"ahrs": SensorInfo("ahrs", "ahrs"), "gps": SensorInfo("gps", "gps", T_BS=T_BA)}
+    meta = MissionMetadata("m", sensors)
+    S = 1_000_000_000
+    late = GpsStart(meta, "first_ground_truth")
+    assert late.holds(Attitude(0, "ahrs")) and late.holds(Attitude(int(START_WAIT_S * S), "ahrs"))
+    assert not late.holds(Attitude(int((START_WAIT_S + 0.1) * S), "ahrs")) and late.pose(np.eye(3)) is None
+    assert not late.holds(GpsFix(int(11 * S), "gps"))  # too late: the run started at the origin
+    fix = GpsFix(3 * S, "gps", position=(10.0, 20.0, -0.5), covariance=np.diag([0.25, 0.25, 1.0]))
+    soon = GpsStart(meta, "first_ground_truth")
+    assert soon.holds(Attitude(0, "ahrs")) and not soon.holds(fix) and soon.is_start(fix)
+    R = Rotation.from_euler("z", 90, degrees=True).as_matrix()  # heading east: the antenna 0.4 m west
+    position, sigma = soon.pose(R)
+    np.testing.assert_allclose(position, [10.0, 20.4, 0.1], atol=1e-12)
+    np.testing.assert_allclose(sigma, [0.5, 0.5, 1.0])
+    assert not GpsStart(meta, "origin").holds(Attitude(0, "ahrs"))  # the user's choice: no wait
