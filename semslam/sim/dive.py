@@ -23,9 +23,15 @@ from semslam.errors import ConfigError
 from semslam.mission.geodesy import Geodetic
 from semslam.mission.mission import Mission, MissionMetadata
 from semslam.sim import sensors as S
-from semslam.sim.config import AhrsConfig, DvlConfig, _Section
+from semslam.sim.config import _Section
 from semslam.sim.field import PIPE, STRUCTURE, FieldScene, make_field
-from semslam.sim.field_config import FieldSimConfig, FieldTrajectoryConfig, GpsConfig
+from semslam.sim.field_config import (
+    FieldAhrsConfig,
+    FieldDvlConfig,
+    FieldSimConfig,
+    FieldTrajectoryConfig,
+    GpsConfig,
+)
 from semslam.sim.field_mission import REFLECTIVITY
 from semslam.sim.field_mission import SENSORS as FIELD_SENSORS
 from semslam.sim.field_mission import declared_noise as field_noise
@@ -57,7 +63,7 @@ class DiveTrajectoryConfig(FieldTrajectoryConfig):
     lines: int = Field(7, ge=1, description="survey lines (the first at the south, heading east)")
 
 
-class DiveDvlConfig(DvlConfig):
+class DiveDvlConfig(FieldDvlConfig):
     """The field's DVL with dropouts 5 % of the time, in 2–8 s bursts."""
 
     random_dropout_rate: float = Field(
@@ -66,7 +72,7 @@ class DiveDvlConfig(DvlConfig):
     burst_s: tuple[float, float] = Field((2.0, 8.0), description="min, max length of a random dropout burst (s)")
 
 
-class DiveAhrsConfig(AhrsConfig):
+class DiveAhrsConfig(FieldAhrsConfig):
     """A magnetic heading: its bias drifts 3° over the mission."""
 
     heading_bias_drift_deg: float = Field(

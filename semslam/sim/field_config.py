@@ -136,16 +136,29 @@ class GpsConfig(_Section):
     )
 
 
-def _field_dvl() -> DvlConfig:
-    return DvlConfig(random_dropout_rate=0.02, burst_s=(1.0, 4.0))
+# The field's own defaults live in its sections' classes: a section given in part (a YAML file, a
+# seed's draws of some aspects) is built from its class's defaults, not from a default instance.
+class FieldDvlConfig(DvlConfig):
+    """The tank's DVL with occasional short dropouts: 2 % of the time, 1–4 s bursts."""
+
+    random_dropout_rate: float = Field(
+        0.02, ge=0, lt=0.9, description="fraction of the mission lost to random dropout bursts"
+    )
+    burst_s: tuple[float, float] = Field((1.0, 4.0), description="min and max duration of a dropout burst (s)")
 
 
-def _field_ahrs() -> AhrsConfig:
-    return AhrsConfig(heading_bias_drift_deg=1.5)
+class FieldAhrsConfig(AhrsConfig):
+    """The tank's AHRS with the heading bias drifting 1.5° over the mission."""
+
+    heading_bias_drift_deg: float = Field(
+        1.5, ge=0, description="the heading bias drifts linearly by this much over the mission (sign from the seed)"
+    )
 
 
-def _field_ground_truth() -> GroundTruthConfig:
-    return GroundTruthConfig(rate_hz=25.0)
+class FieldGroundTruthConfig(GroundTruthConfig):
+    """True body poses at 25 Hz, a multiple of the sonar's 12.5 Hz (it keeps the bag small)."""
+
+    rate_hz: float = Field(25.0, ge=20, description="rate of the true body poses (Hz)")
 
 
 class FieldSimConfig(_Section):
@@ -163,12 +176,12 @@ class FieldSimConfig(_Section):
     seabed: SeabedConfig = Field(default_factory=SeabedConfig)
     layout: FieldLayoutConfig = Field(default_factory=FieldLayoutConfig)
     trajectory: FieldTrajectoryConfig = Field(default_factory=FieldTrajectoryConfig)
-    dvl: DvlConfig = Field(default_factory=_field_dvl)
-    ahrs: AhrsConfig = Field(default_factory=_field_ahrs)
+    dvl: FieldDvlConfig = Field(default_factory=FieldDvlConfig)
+    ahrs: FieldAhrsConfig = Field(default_factory=FieldAhrsConfig)
     depth: DepthConfig = Field(default_factory=DepthConfig)
     sonar: SonarConfig = Field(default_factory=SonarConfig)
-    ground_truth: GroundTruthConfig = Field(
-        default_factory=_field_ground_truth, description="25 Hz: every swath stamp is a ground-truth stamp"
+    ground_truth: FieldGroundTruthConfig = Field(
+        default_factory=FieldGroundTruthConfig, description="25 Hz: every swath stamp is a ground-truth stamp"
     )
 
     @model_validator(mode="after")
