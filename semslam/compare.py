@@ -7,6 +7,7 @@ from pathlib import Path
 
 from semslam.config import SemslamConfig
 from semslam.estimators import create_estimator
+from semslam.eval.gps_reference import GpsReference, HoldOut, add_gps_reference
 from semslam.eval.outputs import build_metrics, write_run
 from semslam.mission.check import input_block
 from semslam.mission.mission import Mission, MissionMetadata
@@ -32,17 +33,19 @@ def run_comparison(
     estimators: Sequence[str] = DEFAULT_ESTIMATORS,
     progress: bool = False,
     frontend_workers: int | None = None,
+    hold_out_gps: HoldOut | None = None,
 ) -> tuple[PipelineResult, dict]:
     """Run every estimator on the identical measurement and observation stream; return the
     pipeline result and metrics.json's content. ``frontend_workers``: processes for the front-ends
-    that run apart (default one per core; a study running one mission per core wants 1)."""
+    that run apart (default one per core; a study running one mission per core wants 1).
+    ``hold_out_gps``: GPS fixes kept from the estimators as the reference (semslam.eval.gps_reference)."""
     names = list(frontends) if frontends is not None else default_frontends(mission.metadata)
     fes = create_frontends(names, mission.metadata, config.frontends)
     ests = [create_estimator(n, mission.metadata, config) for n in estimators]
-    result = run_pipeline(
-        mission, ests, fes, view_estimator="graph", progress=progress, frontend_workers=frontend_workers
-    )
-    metrics = build_metrics(result, mission.metadata)
+    reference = GpsReference.hold_out(mission, hold_out_gps) if hold_out_gps is not None else None
+    seen = reference.estimators_see(mission) if reference is not None else mission
+    result = run_pipeline(seen, ests, fes, view_estimator="graph", progress=progress, frontend_workers=frontend_workers)
+    metrics = add_gps_reference(build_metrics(result, mission.metadata), reference, result, mission.metadata)
     metrics["input"] = input_block(mission)  # after the pipeline's complete pass over the mission
     metrics["frontends"] = names
     return result, metrics

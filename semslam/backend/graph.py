@@ -17,6 +17,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from semslam.backend.gps import GraphGps
 from semslam.backend.keyframes import Keyframes
 from semslam.backend.landmarks import GraphLandmarks
 from semslam.backend.result import final_values, keyframe_trajectory, online_trajectory
@@ -26,7 +27,7 @@ from semslam.config import GraphConfig, SemslamConfig
 from semslam.estimation import EstimateView, Estimator, EstimatorResult, LandmarkEstimate, Trajectory
 from semslam.mapping.book import LandmarkBook
 from semslam.mapping.builder import MapBuilder
-from semslam.mission.measurements import Measurement
+from semslam.mission.measurements import GpsFix, Measurement
 from semslam.mission.mission import MissionMetadata
 from semslam.observations import Observation, OdometryObservation
 
@@ -64,6 +65,7 @@ class GraphEstimator(Estimator):
             metadata, config, self.session, self.keyframes, self.window, self.book, self.diagnostics
         )
         self.mapper = MapBuilder(self.map, self.assoc, self.book, self.diagnostics)
+        self.gps = GraphGps(metadata, config.initial.pose, self.keyframes, self.session, self.diagnostics)
         self.update_times: list[float] = []
         self.update_n_landmarks: list[int] = []
         self.update_kinds: list[str] = []
@@ -73,8 +75,11 @@ class GraphEstimator(Estimator):
         return GraphView(self)
 
     def process_measurement(self, measurement: Measurement) -> None:
+        if isinstance(measurement, GpsFix):  # a position factor, or the start (semslam.backend.gps)
+            self._timed(lambda: self.gps.take(measurement, self._keyframe_for), "gps")
+            return
         due = self.keyframes.add(measurement)
-        if due == "first":
+        if due == "first" and not self.gps.starts(measurement):
             self._timed(lambda: self.keyframes.first(measurement.stamp), "keyframe")
         elif due == "next":
             self._timed(lambda: self._keyframe(measurement.stamp), "keyframe")

@@ -8,7 +8,14 @@ from pathlib import Path
 import typer
 
 from semslam.cli_support import ConfigOpt, MissionArg, user_errors
-from semslam.commands.run import FrontendsOpt, OverwriteOpt, RecordPointsOpt, choose_frontends, record_option
+from semslam.commands.run import (
+    FrontendsOpt,
+    HoldOutGpsOpt,
+    OverwriteOpt,
+    RecordPointsOpt,
+    choose_frontends,
+    record_option,
+)
 
 
 @user_errors
@@ -19,11 +26,13 @@ def compare(
     config: Path | None = ConfigOpt,
     record: bool = record_option(False),
     record_points: int | None = RecordPointsOpt,
+    hold_out_gps: str | None = HoldOutGpsOpt,
     overwrite: bool = OverwriteOpt,
 ):
     """dr, ekf and graph on identical inputs, with a report."""
     from semslam.compare import run_comparison
     from semslam.config import load_config
+    from semslam.eval.gps_reference import HoldOut
     from semslam.eval.outputs import check_output_dir, write_run
     from semslam.eval.replay import make_recorder
     from semslam.eval.report import metrics_table, text_table
@@ -32,11 +41,12 @@ def compare(
 
     check_output_dir(out, overwrite)
     cfg = load_config(config)
+    hold_out = HoldOut.parse(hold_out_gps) if hold_out_gps is not None else None
     m = read_mission(mission, cfg.reader)
     names = choose_frontends(frontends, m.metadata, mission)
     recorder = make_recorder(record, m.metadata, record_points)
     with observed_by(*([recorder] if recorder is not None else [])):
-        result, metrics = run_comparison(m, cfg, names, progress=sys.stderr.isatty())
+        result, metrics = run_comparison(m, cfg, names, progress=sys.stderr.isatty(), hold_out_gps=hold_out)
     write_run(out, cfg, result, metrics, m.metadata, overwrite=overwrite, report=True, recorder=recorder)
     typer.echo(text_table(metrics_table(metrics)))
     typer.echo(f"report: {Path(out) / 'report.html'}")

@@ -14,6 +14,9 @@ FrontendsOpt = typer.Option(
     None, "--frontends", help='comma-separated front-end names ("" for none); default: by sensor kind'
 )
 OverwriteOpt = typer.Option(False, "--overwrite", help="replace an existing output directory whole")
+HoldOutGpsOpt = typer.Option(
+    None, "--hold-out-gps", help="last | every:N: GPS fixes kept from the estimators, the reference of metrics.json"
+)
 RecordPointsOpt = typer.Option(
     None, "--record-points", min=0, help="replay: points kept of each scan (0: no scans; default 600)"
 )
@@ -63,11 +66,13 @@ def run(
     config: Path | None = ConfigOpt,
     record: bool = record_option(False),
     record_points: int | None = RecordPointsOpt,
+    hold_out_gps: str | None = HoldOutGpsOpt,
     overwrite: bool = OverwriteOpt,
 ):
     """Run one estimator over a mission and write its trajectory, map and metrics."""
     from semslam.config import load_config
     from semslam.estimators import create_estimator
+    from semslam.eval.gps_reference import GpsReference, HoldOut, add_gps_reference
     from semslam.eval.outputs import build_metrics, check_output_dir, write_run
     from semslam.eval.replay import make_recorder
     from semslam.mission.bag import read_mission
@@ -81,8 +86,10 @@ def run(
     fes = create_frontends(choose_frontends(frontends, m.metadata, mission), m.metadata, cfg.frontends)
     recorder = make_recorder(record, m.metadata, record_points)
     observers = [recorder] if recorder is not None else []
-    result = run_pipeline(m, [est], fes, progress=sys.stderr.isatty(), observers=observers)
-    metrics = build_metrics(result, m.metadata)
+    ref = GpsReference.hold_out(m, HoldOut.parse(hold_out_gps)) if hold_out_gps is not None else None
+    seen = ref.estimators_see(m) if ref is not None else m
+    result = run_pipeline(seen, [est], fes, progress=sys.stderr.isatty(), observers=observers)
+    metrics = add_gps_reference(build_metrics(result, m.metadata), ref, result, m.metadata)
     write_run(out, cfg, result, metrics, m.metadata, overwrite=overwrite, recorder=recorder)
     e = metrics["estimators"][est.name]
     ate = "n/a" if e["ate_rmse_m"] is None else f"{e['ate_rmse_m']:.3f} m"

@@ -155,6 +155,7 @@ class DeadReckoning(_Filter):
 
     def __init__(self, metadata: MissionMetadata, config: SemslamConfig | None = None):
         super().__init__(metadata, config)
+        self.nav.gps.updates = False  # dead reckoning takes only its start from the GPS
         self.map = PlacedMap(self.nav, config or SemslamConfig(), self.book)
 
     def _observe(self, stamp: int, observations: list[Observation]) -> bool:

@@ -28,9 +28,10 @@ from semslam.config import SemslamConfig
 from semslam.ekf import geometry as geo
 from semslam.ekf import models as mdl
 from semslam.ekf.filter import EkfState
+from semslam.ekf.gps import FilterGps
 from semslam.ekf.models import ATT, BIAS, NX, POS, VEL
 from semslam.estimation import Trajectory
-from semslam.mission.measurements import Attitude, Depth, DvlVelocity, GroundTruthPose, Measurement
+from semslam.mission.measurements import Attitude, Depth, DvlVelocity, GpsFix, GroundTruthPose, Measurement
 from semslam.mission.mission import MissionMetadata
 from semslam.observations import OdometryObservation
 
@@ -61,6 +62,7 @@ class FilterNavigation:
         self._last_att: tuple[int, np.ndarray] | None = None  # for a rate by differences
         self._last_depth: float | None = None
         self._wait_gt = self.initial.pose == "first_ground_truth" and bool(metadata.sensors_of_kind("ground_truth"))
+        self.gps = FilterGps(metadata, self.initial.pose)  # the start from the first fix; the EKF's updates
         self._traj: dict[str, list] = {k: [] for k in ("t", "x", "P")}  # vehicle state and covariance
         self._history: tuple[list, list] = ([], [])  # (stamps, vehicle covariance) every history_period_s
 
@@ -96,10 +98,11 @@ class FilterNavigation:
     def _try_initialise(self, m: Measurement) -> None:
         if isinstance(m, Depth):
             self._last_depth = m.depth
+        waits_for_fix = self.gps.start.holds(m)
         if isinstance(m, GroundTruthPose) and self._wait_gt:
             R = Rotation.from_quat(m.orientation).as_matrix()
             self._initialise(m.stamp, np.asarray(m.position), R, np.full(3, self.initial.position_sigma_m))
-        elif isinstance(m, Attitude) and not self._wait_gt:
+        elif isinstance(m, Attitude) and not self._wait_gt and not waits_for_fix:
             R_BS, _ = self.extrinsic(m.sensor)
             R_WB = Rotation.from_quat(m.orientation).as_matrix() @ R_BS.T
             z = self._last_depth if self._last_depth is not None else 0.0
@@ -107,7 +110,8 @@ class FilterNavigation:
                 [self.initial.position_sigma_m] * 2
                 + [self.initial.position_sigma_m if self._last_depth is not None else 10.0]
             )
-            self._initialise(m.stamp, np.array([0.0, 0.0, z]), R_WB, sig)
+            pos, sig = self.gps.start.pose(R_WB) or (np.array([0.0, 0.0, z]), sig)
+            self._initialise(m.stamp, pos, R_WB, sig)
             self._attitude(m)
 
     # ---------------------------------------------------------------------- prediction
@@ -155,8 +159,8 @@ class FilterNavigation:
         if self.state is None:
             self._try_initialise(m)
             return
-        if isinstance(m, GroundTruthPose):
-            return
+        if isinstance(m, GroundTruthPose) or (isinstance(m, GpsFix) and not self.gps.uses(m)):
+            return  # dead reckoning takes no fix; nor does the EKF take the one it started from again
         if m.stamp < self.t:
             self.warn_once("late", f"measurement older than the filter state dropped ({m.sensor})")
             return
@@ -170,6 +174,8 @@ class FilterNavigation:
         elif isinstance(m, Depth):
             _, t_BS = self.extrinsic(m.sensor)
             self._nav_update(mdl.depth_update(self.state.xv, m.depth, m.variance, t_BS))
+        elif isinstance(m, GpsFix):
+            self._nav_update(self.gps.update(self.state.xv, m))
         self.record(m.stamp)
 
     def odometry(self, z: OdometryObservation) -> None:

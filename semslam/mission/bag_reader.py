@@ -108,6 +108,14 @@ class BagMission(Mission):
         """Messages on the bound topics (from the index): the length of a full pass, for progress bars."""
         return sum(self.message_counts.get(b.topic, 0) for b in self.bindings)
 
+    def only(self, sensors) -> BagMission:
+        """The same bag reading only the topics of ``sensors`` (a cheap pass, e.g. over the GPS fixes
+        and the depth that decides which fixes are kept)."""
+        keep = set(sensors)
+        binding = dataclasses.replace(self.plan.binding, bindings=[b for b in self.bindings if b.sensor in keep])
+        plan = dataclasses.replace(self.plan, binding=binding)
+        return BagMission(self.metadata, self.path, plan, self.config, self.ros_version, self.message_counts)
+
     def _stream(self) -> Iterator[Measurement]:
         cfg = self.config
         window = int(cfg.reorder_window_s * 1e9)

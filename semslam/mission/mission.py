@@ -104,3 +104,13 @@ class Mission:
 
     def of_type(self, cls: type[Measurement]) -> Iterator[Measurement]:
         return (m for m in self if isinstance(m, cls))
+
+    def only(self, sensors: Iterable[str]) -> Mission:
+        """The measurements of ``sensors`` alone, as a mission (a bag reads only their topics)."""
+        keep = set(sensors)
+        return Mission(self.metadata, lambda: (m for m in self._source() if m.sensor in keep))
+
+    def without(self, leave_out: Callable[[Measurement], bool]) -> Mission:
+        """The mission without the measurements ``leave_out`` picks (e.g. GPS fixes held out as the
+        reference); a pass over it is a pass over this mission (its counts are this one's)."""
+        return Mission(self.metadata, lambda: (m for m in self if not leave_out(m)))

@@ -113,16 +113,52 @@ class SonarConfig(_Section):
     )
 
 
-def _field_dvl() -> DvlConfig:
-    return DvlConfig(random_dropout_rate=0.02, burst_s=(1.0, 4.0))
+class GpsConfig(_Section):
+    """GPS receiver on a mast: fixes of its antenna in {W}, only while the vehicle is at the surface.
+
+    The fixes are written as ``sensor_msgs/NavSatFix`` about the datum below, their declared
+    covariance exactly the noise added. Noise is drawn for every sample, at the surface or not, so
+    that the depth profile does not reshuffle it.
+    """
+
+    rate_hz: float = Field(1.0, gt=0, description="fixes per second while at the surface")
+    time_offset_s: float = Field(0.37, ge=0, lt=1, description="first fix this long after the mission start")
+    horizontal_sigma_m: float = Field(0.5, gt=0, description="white noise of north and east (m): an SBAS-class fix")
+    vertical_sigma_m: float = Field(1.0, gt=0, description="white noise of the antenna's height (m)")
+    surface_depth_m: float = Field(
+        0.2, ge=0, description="a fix only while the body origin is shallower than this (the antenna above water) (m)"
+    )
+    datum_deg: tuple[float, float] = Field(
+        (41.9876, 3.2131), description="latitude, longitude (WGS84, deg) of the world origin, height 0"
+    )
+    mount: Mount = Field(
+        default_factory=lambda: Mount(xyz=(-0.4, 0.0, -0.6)), description="antenna 0.4 m aft, 0.6 m above the origin"
+    )
 
 
-def _field_ahrs() -> AhrsConfig:
-    return AhrsConfig(heading_bias_drift_deg=1.5)
+# The field's own defaults live in its sections' classes: a section given in part (a YAML file, a
+# seed's draws of some aspects) is built from its class's defaults, not from a default instance.
+class FieldDvlConfig(DvlConfig):
+    """The tank's DVL with occasional short dropouts: 2 % of the time, 1–4 s bursts."""
+
+    random_dropout_rate: float = Field(
+        0.02, ge=0, lt=0.9, description="fraction of the mission lost to random dropout bursts"
+    )
+    burst_s: tuple[float, float] = Field((1.0, 4.0), description="min and max duration of a dropout burst (s)")
 
 
-def _field_ground_truth() -> GroundTruthConfig:
-    return GroundTruthConfig(rate_hz=25.0)
+class FieldAhrsConfig(AhrsConfig):
+    """The tank's AHRS with the heading bias drifting 1.5° over the mission."""
+
+    heading_bias_drift_deg: float = Field(
+        1.5, ge=0, description="the heading bias drifts linearly by this much over the mission (sign from the seed)"
+    )
+
+
+class FieldGroundTruthConfig(GroundTruthConfig):
+    """True body poses at 25 Hz, a multiple of the sonar's 12.5 Hz (it keeps the bag small)."""
+
+    rate_hz: float = Field(25.0, ge=20, description="rate of the true body poses (Hz)")
 
 
 class FieldSimConfig(_Section):
@@ -140,12 +176,12 @@ class FieldSimConfig(_Section):
     seabed: SeabedConfig = Field(default_factory=SeabedConfig)
     layout: FieldLayoutConfig = Field(default_factory=FieldLayoutConfig)
     trajectory: FieldTrajectoryConfig = Field(default_factory=FieldTrajectoryConfig)
-    dvl: DvlConfig = Field(default_factory=_field_dvl)
-    ahrs: AhrsConfig = Field(default_factory=_field_ahrs)
+    dvl: FieldDvlConfig = Field(default_factory=FieldDvlConfig)
+    ahrs: FieldAhrsConfig = Field(default_factory=FieldAhrsConfig)
     depth: DepthConfig = Field(default_factory=DepthConfig)
     sonar: SonarConfig = Field(default_factory=SonarConfig)
-    ground_truth: GroundTruthConfig = Field(
-        default_factory=_field_ground_truth, description="25 Hz: every swath stamp is a ground-truth stamp"
+    ground_truth: FieldGroundTruthConfig = Field(
+        default_factory=FieldGroundTruthConfig, description="25 Hz: every swath stamp is a ground-truth stamp"
     )
 
     @model_validator(mode="after")

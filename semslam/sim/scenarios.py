@@ -46,6 +46,7 @@ class Scenario:
     preview: str  # "module:function" (mission, png)
     describe: Callable = field(repr=False)  # mission -> one line for the user
     options: tuple[str, ...] = ()  # the simulate command's scenario-specific options it accepts
+    varies_as: str | None = None  # the scenario whose seeded draws (semslam.sim.vary) it takes
 
     def model(self) -> type[BaseModel]:
         return _load(self.config_model)
@@ -71,6 +72,15 @@ SCENARIOS: dict[str, Scenario] = {
         "semslam.sim.field_mission:simulate_field",
         "semslam.sim.field_preview:render_field_preview",
         _describe_field,
+    ),
+    "dive": Scenario(
+        "dive",
+        "navigation dive from and back to the surface (GPS at the surface)",
+        "semslam.sim.dive:DiveSimConfig",
+        "semslam.sim.dive:simulate_dive",
+        "semslam.sim.dive:render_preview",
+        lambda mission: _load("semslam.sim.dive:describe")(mission),
+        varies_as="field",
     ),
 }
 
@@ -113,7 +123,8 @@ def resolve_config(
     ``vary`` aspects (:mod:`semslam.sim.vary`; nothing for seed 0) ← ``data`` (the user's YAML
     mapping, named ``source`` in errors) ← ``overrides`` (dotted keys with ``__``)."""
     sc = scenario(name)
-    return build_sim_config(sc.model(), data or {}, source=source, base=draws(name, seed, vary), seed=seed, **overrides)
+    base = draws(sc.varies_as or name, seed, vary)
+    return build_sim_config(sc.model(), data or {}, source=source, base=base, seed=seed, **overrides)
 
 
 def simulate_to_bag(

@@ -1,4 +1,4 @@
-"""Sensor models of the simulated vehicle: DVL, AHRS, pressure (depth), laser scanner, ground truth.
+"""Sensor models of the simulated vehicle: DVL, AHRS, pressure (depth), GPS, laser scanner, ground truth.
 
 Each model samples the true trajectory at its own stamps (integer ns), expresses the quantity in its
 sensor frame {S} through the extrinsic T_BS, and adds the declared noise: the covariances written in
@@ -14,8 +14,9 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from semslam.mission.measurements import Attitude, Depth, DvlVelocity, GroundTruthPose, PointCloud
+from semslam.mission.measurements import Attitude, Depth, DvlVelocity, GpsFix, GroundTruthPose, PointCloud
 from semslam.sim.config import AhrsConfig, DepthConfig, DvlConfig, LaserConfig
+from semslam.sim.field_config import GpsConfig
 from semslam.sim.raycast import NO_HIT, LabelledScene
 from semslam.sim.tank import OBJECT, PIPE, WALL, TankScene
 from semslam.sim.trajectory import MotionModel, Trajectory
@@ -225,6 +226,12 @@ def simulate_ahrs(
     ]
 
 
+def mounted_point(traj: MotionModel, t: np.ndarray, t_BS: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The body origin p_WB and the point at lever arm t_BS, p_WB + R_WB t_BS, in {W} (N×3 each)."""
+    p, _ = traj.position_velocity(t)
+    return p, p + traj.rotation(t).as_matrix() @ t_BS
+
+
 def simulate_depth(
     cfg: DepthConfig,
     traj: MotionModel,
@@ -234,11 +241,28 @@ def simulate_depth(
     sensor: str = "depth",
 ) -> list[Depth]:
     """Depth of the pressure sensor (z of p_WB + R_WB t_BS) plus white noise."""
-    t_BS = cfg.mount.matrix()[:3, 3]
-    p, _ = traj.position_velocity(t)
-    z = (p + traj.rotation(t).as_matrix() @ t_BS)[:, 2] + rng.normal(0.0, cfg.sigma_m, size=len(t))
+    _, at = mounted_point(traj, t, cfg.mount.matrix()[:3, 3])
+    z = at[:, 2] + rng.normal(0.0, cfg.sigma_m, size=len(t))
     var = cfg.sigma_m**2
     return [Depth(stamp=int(stamps[i]), sensor=sensor, depth=float(z[i]), variance=var) for i in range(len(t))]
+
+
+def simulate_gps(
+    cfg: GpsConfig,
+    traj: MotionModel,
+    stamps: np.ndarray,
+    t: np.ndarray,
+    rng: np.random.Generator,
+    sensor: str = "gps",
+) -> list[GpsFix]:
+    """Fixes of the antenna (p_WB + R_WB t_BA) plus white noise (σ horizontal, vertical), kept only
+    at the samples where the body origin is shallower than ``surface_depth_m``."""
+    p, antenna = mounted_point(traj, t, cfg.mount.matrix()[:3, 3])
+    sig = np.array([cfg.horizontal_sigma_m, cfg.horizontal_sigma_m, cfg.vertical_sigma_m])
+    noisy = antenna + rng.normal(size=(len(t), 3)) * sig
+    cov = np.diag(sig**2)
+    up = np.flatnonzero(p[:, 2] <= cfg.surface_depth_m)
+    return [GpsFix(stamp=int(stamps[i]), sensor=sensor, position=noisy[i], covariance=cov) for i in up]
 
 
 def ground_truth_poses(traj: MotionModel, stamps: np.ndarray, t: np.ndarray, sensor: str = "ground_truth"):
