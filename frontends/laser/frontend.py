@@ -14,9 +14,12 @@ from typing import Any, ClassVar, Protocol
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from frontends.laser.config import LaserConfig
+from frontends.laser.config import LaserConfig, PipeConfig
 from frontends.laser.grid import VoxelGrid, adjacency_of
+from frontends.laser.ground import GroundModel, fit_ground
+from frontends.laser.noise import NoiseModel, measure_noise
 from frontends.laser.objects import SegmentedObject, segment_objects
+from frontends.laser.pipe_shape import color_contrast, lies_like_a_pipe
 from frontends.laser.pipes import Pipe, Rays, detect_pipes
 from frontends.laser.planes import PlaneResult, remove_planes
 from frontends.laser.preprocess import Preprocessed, hop_covariance_parts, preprocess, shape_of_parts
@@ -39,7 +42,8 @@ class ScanSegmentation:
     """Everything one scan went through, in {S}.
 
     ``pre`` is the coarse cloud of the plane segmentation and ``planes`` its result; ``structure``
-    indexes the coarse voxels kept. ``structure_points`` is the structure re-sampled finely from the
+    indexes the coarse voxels kept. ``ground`` models the ground under the scan (a height field;
+    ``on_ground`` marks the structure points on it: they seed no pipe and join no object). ``structure_points`` is the structure re-sampled finely from the
     raw points (``raw_to_structure`` maps every raw point to its fine voxel, −1 if not structure),
     with ``normals``; pipe inliers and object indices index ``structure_points``.
     """
@@ -54,23 +58,35 @@ class ScanSegmentation:
     objects: list[SegmentedObject]
     up: np.ndarray
     timings: dict[str, float] = field(default_factory=dict)
+    noise: NoiseModel | None = None  # the scan's measured noise
+    ground: GroundModel | None = None  # the ground under the scan (None: not modelled)
+    on_ground: np.ndarray | None = None  # (M,) structure points on the ground
+    pipe_config: PipeConfig | None = None  # the pipe stage's configuration, scaled to this scan's noise
 
     def raw_indices(self, structure_indices: np.ndarray) -> np.ndarray:
         """Raw scan points that fell in the given fine structure voxels (sorted)."""
-        if not hasattr(self, "_raw_by_voxel"):
-            # Raw points grouped by structure voxel, once per scan (not a pass over the raw scan
-            # per object): voxel v's raw points are order[start[v]:start[v + 1]].
-            inside = np.flatnonzero(self.raw_to_structure >= 0)
-            order = inside[np.argsort(self.raw_to_structure[inside], kind="stable")]
-            start = np.r_[
-                0, np.cumsum(np.bincount(self.raw_to_structure[inside], minlength=len(self.structure_points)))
-            ]
-            self._raw_by_voxel = (order, start)
-        order, start = self._raw_by_voxel
+        if not hasattr(self, "_raw_index"):
+            self._raw_index = RawIndex(self.raw_to_structure, len(self.structure_points))
+        return self._raw_index(structure_indices)
+
+
+class RawIndex:
+    """The raw points of fine structure voxels: ``raw_to_structure`` (N,) each raw point's voxel
+    (−1: none), ``n`` voxels. The raw points are grouped by voxel once (not a pass over the raw scan
+    per query): voxel v's raw points are order[start[v]:start[v + 1]]."""
+
+    def __init__(self, raw_to_structure: np.ndarray, n: int):
+        inside = np.flatnonzero(raw_to_structure >= 0)
+        self.order = inside[np.argsort(raw_to_structure[inside], kind="stable")]
+        self.start = np.r_[0, np.cumsum(np.bincount(raw_to_structure[inside], minlength=n))]
+
+    def __call__(self, structure_indices: np.ndarray) -> np.ndarray:
+        """Raw scan points that fell in the given voxels (sorted)."""
+        start = self.start
         v = np.unique(structure_indices)
         counts = start[v + 1] - start[v]
         offsets = np.repeat(start[v] - np.r_[0, np.cumsum(counts)[:-1]], counts)
-        return np.sort(order[np.arange(counts.sum()) + offsets])
+        return np.sort(self.order[np.arange(counts.sum()) + offsets])
 
 
 def structure_cloud(raw: np.ndarray, pre: Preprocessed, planes: PlaneResult, cfg: LaserConfig):
@@ -114,31 +130,76 @@ class _StageClock:
         self.timings["cpu_" + name] = time.process_time() - self.c0
 
 
-def segment_scan(points: np.ndarray, cfg: LaserConfig, up: np.ndarray | None = None) -> ScanSegmentation:
-    """Run all stages on a raw scan (N×3, {S}). ``up`` is the unit up direction in {S}; when None the
-    direction towards the sensor is used (the scanner looks down at the structure)."""
+def scan_pipe_config(cfg: PipeConfig, noise: NoiseModel | None, points: np.ndarray) -> PipeConfig:
+    """The pipe stage's configuration for one scan: the inlier tolerance at least ``distance_sigmas``
+    × the scan's noise σ at the median range of ``points`` (the structure that may hold pipes)."""
+    if noise is None or not len(points) or cfg.distance_sigmas <= 0:
+        return cfg
+    sigma = float(noise.at(np.median(np.sqrt(np.einsum("ij,ij->i", points, points)))))
+    tol = max(cfg.distance_tolerance, cfg.distance_sigmas * sigma)
+    return cfg if tol == cfg.distance_tolerance else cfg.model_copy(update={"distance_tolerance": tol})
+
+
+def _pipe_test(cfg: PipeConfig, spts, ground, raw, rgb, raw_index: RawIndex):
+    """The test of a pipe lying on the ground (:func:`lies_like_a_pipe`), with the colour cue when
+    the scan has colours (the ground's raw points found once, when first needed)."""
+    if ground is None:
+        return None
+    contrast = None
+    if rgb is not None and cfg.min_color_contrast > 0:
+        cache: list[np.ndarray] = []
+
+        def contrast(pipe: Pipe):
+            if not cache:
+                finite = np.isfinite(raw).all(axis=1)
+                on = np.zeros(len(raw), bool)
+                on[finite] = ground.is_ground(raw[finite])
+                cache.append(on)
+            return color_contrast(pipe, raw_index, raw, np.asarray(rgb, float), cache[0], cfg.color_reach)
+
+    return lambda pipe: lies_like_a_pipe(pipe, spts, ground, cfg, contrast)
+
+
+def segment_scan(
+    points: np.ndarray, cfg: LaserConfig, up: np.ndarray | None = None, rgb: np.ndarray | None = None
+) -> ScanSegmentation:
+    """Run all stages on a raw scan (N×3, {S}; NaN points are dropped). ``up`` is the unit up
+    direction in {S} (from the AHRS); when None the direction towards the sensor is used (the
+    scanner looks down at the structure) and the ground is not modelled. ``rgb`` (N×3 uint8, or
+    None): the points' colours, an optional cue of the pipe test on a natural seabed."""
     tm: dict[str, float] = {}
     clock = _StageClock(tm)
     raw = np.asarray(points, dtype=np.float64)
     pre = preprocess(raw, cfg.preprocess, cfg.planes)
+    noise = measure_noise(raw, pre)
     clock.lap("preprocess")
     planes = remove_planes(pre, cfg.planes, cfg.preprocess.voxel_size)
     structure = np.flatnonzero(planes.structure)
     clock.lap("planes")
+    ground = None
+    if up is not None and cfg.ground.enabled:
+        sigma = float(noise.at(noise.range_ref)) if noise is not None else 0.0
+        ground = fit_ground(pre.points, pre.counts, up, cfg.ground, sigma)
+    clock.lap("ground")
     grid, raw_to_s, normals = structure_cloud(raw, pre, planes, cfg)
     spts = grid.points if grid is not None else np.zeros((0, 3))
+    on_ground = ground.is_ground(spts) if ground is not None else np.zeros(len(spts), bool)
     clock.lap("structure")
     if up is None:
         up = -spts.mean(axis=0) if len(spts) else -UP_NED
         up = up / max(np.linalg.norm(up), 1e-12)
     pipes: list[Pipe] = []
-    if len(spts) >= cfg.pipes.min_points:
-        pipes = detect_pipes(spts, normals, grid, cfg.pipes, Rays(raw))
+    pcfg = scan_pipe_config(cfg.pipes, noise, spts[~on_ground])
+    if int((~on_ground).sum()) >= cfg.pipes.min_points:
+        accept = _pipe_test(pcfg, spts, ground, raw, rgb, RawIndex(raw_to_s, len(spts)))
+        pipes = detect_pipes(spts, normals, grid, pcfg, Rays(raw), ~on_ground, ~on_ground, accept)
     clock.lap("pipes")
-    objects = segment_objects(spts, pipes, up, cfg.objects)
+    objects = segment_objects(spts, pipes, up, cfg.objects, exclude=on_ground, ground=ground)
     clock.lap("objects")
     clock.total()
-    return ScanSegmentation(pre, planes, structure, spts, raw_to_s, normals, pipes, objects, up, tm)
+    return ScanSegmentation(
+        pre, planes, structure, spts, raw_to_s, normals, pipes, objects, up, tm, noise, ground, on_ground, pcfg
+    )
 
 
 class LaserFrontend:
@@ -206,13 +267,13 @@ class LaserFrontend:
             # (~40 AHRS readings a scan in the tank mission; the conversion was most of their cost).
             self._latest_attitude = measurement
             return []
-        seg = segment_scan(measurement.points, self.config, self._up(measurement.sensor))
+        seg = segment_scan(measurement.points, self.config, self._up(measurement.sensor), measurement.rgb)
         self.last = seg
         stamp, sensor = measurement.stamp, measurement.sensor
         obs: list[Observation] = [
             LineObservation(stamp, sensor, p=pp.p, q=pp.q, covariance=pp.covariance, radius=pp.radius)
             for pp in seg.pipes
-            if pp.reported(self.config.pipes)
+            if pp.reported(seg.pipe_config)
         ]
         spts = seg.structure_points
         conns, clouds = [], []

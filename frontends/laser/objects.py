@@ -277,6 +277,12 @@ def _outermost_end(ends: np.ndarray, dirs: np.ndarray, d: np.ndarray, collinear_
     return ends[same[np.argmax(ends[same] @ d)]]
 
 
+def _local_up(up: np.ndarray, ground, at: np.ndarray) -> np.ndarray:
+    """The ground's normal under ``at`` where the ground model knows it, else ``up``."""
+    n = ground.normal(at) if ground is not None else None
+    return up if n is None else n
+
+
 def _site(members, ends, out, guess, up, cfg: ObjectConfig) -> _Site:
     dirs = -out[members]
     e = ends[members]
@@ -359,12 +365,22 @@ def position_covariance(config: int, R: np.ndarray, cfg: ObjectConfig) -> np.nda
 
 
 @single_threaded_blas
-def segment_objects(points: np.ndarray, pipes: list[Pipe], up: np.ndarray, cfg: ObjectConfig) -> list[SegmentedObject]:
+def segment_objects(
+    points: np.ndarray,
+    pipes: list[Pipe],
+    up: np.ndarray,
+    cfg: ObjectConfig,
+    exclude: np.ndarray | None = None,
+    ground=None,
+) -> list[SegmentedObject]:
     """Objects at the ends of ``pipes`` among the structure ``points`` (N×3, {S}); ``up`` is the
-    unit up direction (against gravity) in {S}."""
+    unit up direction (against gravity) in {S}. ``exclude`` (mask): points that belong to no object
+    (the ground); ``ground`` (a :class:`~frontends.laser.ground.GroundModel` or None): where it
+    knows the ground under an object, the ground's normal is the object's "up" (on a slope, a valve
+    stands square to the seabed, not to gravity)."""
     if not pipes:
         return []
-    is_pipe = np.zeros(len(points), bool)
+    is_pipe = np.zeros(len(points), bool) if exclude is None else np.array(exclude, bool)
     for p in pipes:
         is_pipe[p.inliers] = True
     rest = np.flatnonzero(~is_pipe)
@@ -379,7 +395,9 @@ def segment_objects(points: np.ndarray, pipes: list[Pipe], up: np.ndarray, cfg: 
     group = join_ends(ends, out, owner, cfg)
 
     handle = np.asarray(cfg.handle_size)
-    sites = [_site(members, ends, out, guess, up, cfg) for members in _groups(group)]
+    sites = [
+        _site(members, ends, out, guess, _local_up(up, ground, guess[members[0]]), cfg) for members in _groups(group)
+    ]
     # Points within reach of each site (all sites at once), then the exact boxes on those only.
     reach = np.linalg.norm(np.maximum(body, handle) / 2 + [0, 0, body[2] / 2 + handle[2] / 2])
     centres = np.array([site.center for site in sites])
@@ -397,7 +415,8 @@ def segment_objects(points: np.ndarray, pipes: list[Pipe], up: np.ndarray, cfg: 
         site = sites[group[0]]
         crop = crops[group[0]]
         if len(group) > 1:
-            site = _site(np.concatenate([sites[k].members for k in group]), ends, out, guess, up, cfg)
+            members = np.concatenate([sites[k].members for k in group])
+            site = _site(members, ends, out, guess, _local_up(up, ground, guess[members[0]]), cfg)
             crop = np.unique(np.concatenate([crops[k] for k in group]))
         if len(crop) < cfg.min_points:
             continue

@@ -57,7 +57,7 @@ class Pipe:
 
     def reported(self, cfg: PipeConfig) -> bool:
         """Long enough to be an observation (shorter ones only serve segmentation and connectivity)."""
-        return self.length >= cfg.min_length
+        return self.length >= cfg.min_partial_length
 
 
 def hypotheses(p1, n1, p2, n2, cfg: PipeConfig):
@@ -529,9 +529,10 @@ def _refine(free: _Points, c, a, r, cfg: PipeConfig):
             return c, a, r, free.index[near[inl]]
 
 
-def _cut_into_segments(points, normals, sq, cb, ab, rb, idx, cfg: PipeConfig) -> list[Pipe]:
+def _cut_into_segments(points, normals, sq, cb, ab, rb, idx, cfg: PipeConfig, foreign=None) -> list[Pipe]:
     """The pipe segments of a refined cylinder's inliers ``idx``: cut at fittings (foreign points
-    just outside its surface, wider sockets), keep the runs long enough."""
+    just outside its surface, wider sockets; only the points of the mask ``foreign`` count, all when
+    None), keep the runs long enough."""
     t = np.take(points, idx, axis=0) @ ab
     if len(idx) < cfg.min_points or t.max() - t.min() < cfg.min_detect_length:
         return []  # no run of these inliers can be a segment
@@ -541,6 +542,8 @@ def _cut_into_segments(points, normals, sq, cb, ab, rb, idx, cfg: PipeConfig) ->
     t, residual = t_all[idx], res_all[idx]
     span = (t_all > t.min() - cfg.max_gap) & (t_all < t.max() + cfg.max_gap)
     outside = (res_all > cfg.distance_tolerance) & span
+    if foreign is not None:
+        outside &= foreign
     near = outside & (res_all < cfg.fitting_reach)
     around = outside & (res_all < cfg.gap_reach)
     out = []
@@ -554,13 +557,35 @@ def _cut_into_segments(points, normals, sq, cb, ab, rb, idx, cfg: PipeConfig) ->
     return out
 
 
+def failure_budget(n_seedable: int, cfg: PipeConfig) -> int:
+    """Rounds in a row without a pipe before the search ends: enough for a pipe of ``min_points``
+    among ``n_seedable`` points to have seeded one of the ``hypotheses`` of some round with
+    probability ``detection_confidence`` (at least ``max_failures``, at most ``max_failures_cap``)."""
+    share = min(cfg.min_points / max(n_seedable, 1), 1.0)
+    if share >= 1.0 or cfg.detection_confidence <= 0:
+        return cfg.max_failures
+    rounds = np.log(1.0 - cfg.detection_confidence) / (cfg.hypotheses * np.log1p(-share))
+    return int(np.clip(np.ceil(rounds), cfg.max_failures, max(cfg.max_failures_cap, cfg.max_failures)))
+
+
 @single_threaded_blas
 def detect_pipes(
-    points: np.ndarray, normals: np.ndarray, grid, cfg: PipeConfig, rays: Rays | None = None
+    points: np.ndarray,
+    normals: np.ndarray,
+    grid,
+    cfg: PipeConfig,
+    rays: Rays | None = None,
+    seedable: np.ndarray | None = None,
+    foreign: np.ndarray | None = None,
+    accept=None,
 ) -> list[Pipe]:
     """Pipes among ``points`` (N×3, {S}) with outward ``normals``; ``grid`` the
     :class:`~frontends.laser.grid.VoxelGrid` whose cells they are, to draw point pairs; ``rays``
-    the scan's rays for the see-through test (none when None). Returns merged pipe segments.
+    the scan's rays for the see-through test (none when None). ``seedable`` (mask, all when None):
+    the points that may seed hypotheses (not the ground); ``foreign`` (mask, all when None): the
+    points that may tell a fitting next to a pipe (not the ground); ``accept`` (a callable on a
+    :class:`Pipe`, all accepted when None): the test a segment must pass to be a pipe (one lying on
+    a natural seabed, :mod:`frontends.laser.pipe_shape`). Returns merged pipe segments.
 
     Two masks: ``free`` points may still be inliers; ``seedable`` points may still seed hypotheses.
     A model that yields a pipe consumes its inliers; one that does not (an object's curved part, a
@@ -569,14 +594,15 @@ def detect_pipes(
     n = len(points)
     rng = np.random.default_rng(cfg.seed)
     free = np.ones(n, bool)
-    seedable = np.ones(n, bool)
+    seedable = np.ones(n, bool) if seedable is None else np.array(seedable, bool)
+    max_failures = failure_budget(int(seedable.sum()), cfg)
     sq = row_dot(points, points)
     pipes: list[Pipe] = []
     failures = 0
     cand = None  # the free points, narrowed when a pipe takes some
     stale = False
     for _ in range(3 * cfg.max_pipes):
-        if len(pipes) >= cfg.max_pipes or failures >= cfg.max_failures:
+        if len(pipes) >= cfg.max_pipes or failures >= max_failures:
             break
         seeds = np.flatnonzero(seedable & free)
         if len(seeds) < cfg.min_points:
@@ -622,7 +648,9 @@ def detect_pipes(
             failures += 1
             continue
         cb, ab, rb, idx = refined
-        found = _cut_into_segments(points, normals, sq, cb, ab, rb, idx, cfg)
+        found = _cut_into_segments(points, normals, sq, cb, ab, rb, idx, cfg, foreign)
+        if accept is not None:
+            found = [pipe for pipe in found if accept(pipe)]
         for pipe in found:
             free[pipe.inliers] = False
             stale = True
