@@ -161,7 +161,7 @@ class PipeConfig(_Section):
         "extent over views), when it passes every shape test (arc, radius profile)",
     )
     ground_clearance: float = Field(
-        1.75,
+        2.5,
         ge=0,
         description="a segment whose axis lies less than this many radii above the ground model lies on the ground "
         "and must pass the tests of frontends.laser.pipe_shape (sand crests, mounds and stones fit cylinders too); "
@@ -175,12 +175,12 @@ class PipeConfig(_Section):
         "most half buried; a crest fitted by a cylinder has its axis below the sand)",
     )
     min_arc_deg: float = Field(
-        120.0,
+        60.0,
         ge=0,
         le=360,
         description="on the ground: the inliers span at least this arc about the axis (5th-95th percentile of "
-        "their angles; measured on the simulated pipeline: pipes on the sand 140-170°, crests, mounds and stones "
-        "50-130°; the sparser scans of a laser at 3-6 m show pipes over only 110-135°, but those stand clear)",
+        "their angles; measured on the simulated pipeline: pipes on the sand mostly 140-170°, down to 60° where "
+        "the stereo pair loses a flank; crests, mounds and stones 30-130°)",
     )
     min_color_contrast: float = Field(
         15.0,
@@ -240,6 +240,12 @@ class PipeConfig(_Section):
         gt=0,
         description="a bin whose median distance to the axis exceeds the pipe's by this is a fitting (sockets are "
         "≥ 6 mm wider than their pipe) and cuts the pipe",
+    )
+    bump_sigmas: float = Field(
+        3.0,
+        ge=0,
+        description="... and at least this many times the scatter of the pipe's own bin medians about its level "
+        "(measured per pipe: stereo noise and a rough seabed make the profile itself bumpy); 0: off",
     )
     bump_smooth: bool = Field(
         True, description="a bin also stands out when the mean residual over it and its two neighbours does"

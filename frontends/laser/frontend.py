@@ -19,7 +19,7 @@ from frontends.laser.grid import VoxelGrid, adjacency_of
 from frontends.laser.ground import GroundModel, fit_ground
 from frontends.laser.noise import NoiseModel, measure_noise
 from frontends.laser.objects import SegmentedObject, segment_objects
-from frontends.laser.pipe_shape import color_contrast, lies_like_a_pipe
+from frontends.laser.pipe_shape import axis_height, color_contrast, lies_like_a_pipe
 from frontends.laser.pipes import Pipe, Rays, detect_pipes
 from frontends.laser.planes import PlaneResult, remove_planes
 from frontends.laser.preprocess import Preprocessed, hop_covariance_parts, preprocess, shape_of_parts
@@ -190,11 +190,16 @@ def segment_scan(
         up = up / max(np.linalg.norm(up), 1e-12)
     pipes: list[Pipe] = []
     pcfg = scan_pipe_config(cfg.pipes, noise, spts[~on_ground])
+    rays = Rays(raw)
     if int((~on_ground).sum()) >= cfg.pipes.min_points:
         accept = _pipe_test(pcfg, spts, ground, raw, rgb, RawIndex(raw_to_s, len(spts)))
-        pipes = detect_pipes(spts, normals, grid, pcfg, Rays(raw), ~on_ground, ~on_ground, accept)
+        pipes = detect_pipes(spts, normals, grid, pcfg, rays, ~on_ground, ~on_ground, accept)
     clock.lap("pipes")
-    objects = segment_objects(spts, pipes, up, cfg.objects, exclude=on_ground, ground=ground)
+    lying = None
+    if ground is not None:
+        heights = [axis_height(p, ground) for p in pipes]
+        lying = np.array([h is not None and h < pcfg.ground_clearance * p.radius for h, p in zip(heights, pipes)])
+    objects = segment_objects(spts, pipes, up, cfg.objects, on_ground, ground, lying, rays.seen_at)
     clock.lap("objects")
     clock.total()
     return ScanSegmentation(

@@ -148,6 +148,15 @@ def along_and_off_axis(points: np.ndarray, origin: np.ndarray, axis: np.ndarray)
     return t, np.sqrt(np.maximum(row_dot(x, x) - t * t, 0.0))
 
 
+def stands_over(points: np.ndarray, end: np.ndarray, R: np.ndarray, radius: float, cfg: ObjectConfig) -> int:
+    """How many of an object's ``points`` stand over the pipe ending at ``end``: above its top (by
+    ``own_margin``, along the box frame ``R``'s up) and over its axis (within its radius plus
+    ``own_margin`` across). A fitting on a pipe lying on the seabed rises over it (a valve's body,
+    stem and handle); the seabed's clutter around a pipe's end (sand, stones) lies beside it."""
+    x = (points - end) @ R
+    return int(((x[:, 2] > radius + cfg.own_margin) & (np.abs(x[:, 1]) <= radius + cfg.own_margin)).sum())
+
+
 def own_points(points: np.ndarray, end: np.ndarray, out: np.ndarray, radius: float, cfg: ObjectConfig) -> int:
     """How many of an object's ``points`` are its own rather than the pipe's that ends at ``end``
     (outward unit ``out``, pipe ``radius``): off the pipe's cylinder by more than ``own_margin``
@@ -372,12 +381,18 @@ def segment_objects(
     cfg: ObjectConfig,
     exclude: np.ndarray | None = None,
     ground=None,
+    lying: np.ndarray | None = None,
+    seen_beyond=None,
 ) -> list[SegmentedObject]:
     """Objects at the ends of ``pipes`` among the structure ``points`` (N×3, {S}); ``up`` is the
     unit up direction (against gravity) in {S}. ``exclude`` (mask): points that belong to no object
     (the ground); ``ground`` (a :class:`~frontends.laser.ground.GroundModel` or None): where it
     knows the ground under an object, the ground's normal is the object's "up" (on a slope, a valve
-    stands square to the seabed, not to gravity)."""
+    stands square to the seabed, not to gravity). ``lying`` (bool per pipe, or None): the pipes
+    lying on the ground, where the seabed's clutter (sand, stones) surrounds a pipe's end, so an
+    object at a lone end of one must stand over it (``stands_over``). ``seen_beyond`` (a callable
+    (point, radius) → bool, or None): whether the scan saw the space at a point; a lone end beyond
+    which it saw nothing (the view, a hole in it) is where the view stops, not an object."""
     if not pipes:
         return []
     is_pipe = np.zeros(len(points), bool) if exclude is None else np.array(exclude, bool)
@@ -437,6 +452,14 @@ def segment_objects(
             if own_points(P, e[0], -dirs[0], pipe.radius, cfg) < cfg.min_own_points:
                 continue
             if pipe_continues(P, e[0], -dirs[0], pipe, points, cfg):
+                continue
+            if seen_beyond is not None and not seen_beyond(e[0] - dirs[0] * cfg.own_beyond, pipe.radius):
+                continue
+            if (
+                lying is not None
+                and lying[site.members[0] // 2]
+                and stands_over(P, e[0], site.R, pipe.radius, cfg) < cfg.min_own_points
+            ):
                 continue
         if len(crop) < cfg.min_points:
             continue

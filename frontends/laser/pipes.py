@@ -254,6 +254,12 @@ class Rays:
         (sel,) = self._cones((c + a * 0.5 * (t0 + t1))[None], np.array([np.hypot(0.5 * (t1 - t0), r)]))
         return self._count(sel, c, a, r, t0, t1, cfg)
 
+    def seen_at(self, point: np.ndarray, radius: float, min_rays: int = 3) -> bool:
+        """Whether at least ``min_rays`` of the scan's rays pass within ``radius`` of ``point``
+        (seen there: outside the field of view, or in a hole of a stereo cloud, none do)."""
+        (sel,) = self._cones(np.asarray(point, float)[None], np.array([radius]))
+        return len(sel) >= min_rays
+
     def solid(self, pipes: list[Pipe], cfg: PipeConfig) -> np.ndarray:
         """Per pipe segment: whether the rays crossing its cylinder end on it (``see_through``)."""
         if not pipes:
@@ -406,6 +412,11 @@ def split_at_fittings(
         np.lib.stride_tricks.as_strided(padded, (n_bins, 2 * w + 1), padded.strides * 2, writeable=False)
     )
     height = cfg.bump_height if cfg.radius_prior is None else cfg.bump_height_known_radius
+    # ... but a profile as noisy as the bump itself cuts nothing: the height is at least bump_sigmas
+    # × the bins' own scatter about the level (1.4826 × their median absolute deviation)
+    dev = np.abs(med - level)[(cnt >= 3) & np.isfinite(level)]
+    if len(dev) >= 5 and cfg.bump_sigmas > 0:
+        height = max(height, cfg.bump_sigmas * 1.4826 * float(np.median(dev)))
     bad_bin = (med - level > height) & (cnt >= 3)
     if cfg.bump_smooth:
         # ... or its neighbourhood does: the mean residual over the bin and its two neighbours (a

@@ -109,7 +109,7 @@ class StereoConfig(_Section):
     resolution: tuple[int, int] = Field(
         (240, 180), description="pixels across and down (organised cloud of width × height points)"
     )
-    fov_deg: tuple[float, float] = Field((24.0, 18.0), description="horizontal and vertical field of view (deg)")
+    fov_deg: tuple[float, float] = Field((20.0, 15.0), description="horizontal and vertical field of view (deg)")
     baseline_m: float = Field(0.12, gt=0, description="distance between the two cameras (m)")
     disparity_sigma_px: float = Field(
         0.15,
@@ -138,26 +138,44 @@ class StereoConfig(_Section):
     rgb_noise: float = Field(6.0, ge=0, description="σ of the colour noise (0-255 scale)")
     mount: Mount = Field(
         default_factory=lambda: Mount(xyz=(0.5, 0.0, 0.3), rpy_deg=(35.0, 0.0, 90.0)),
-        description="under the bow, looking forward and 55° down (sensor z = body x pitched down)",
+        description="under the bow, looking forward and 55° down (sensor z = body x pitched down): at 1.4 m "
+        "above a pipe its view holds ~0.55 m of it along the track and ~0.6 m across",
     )
 
 
 class PipelineTrajectoryConfig(_Section):
-    """The vehicle weaves across the pipeline: a sine about its line, at constant altitude above it."""
+    """The vehicle (a hovering AUV) inspects the main line there and back, facing along it: its
+    position along the line goes from before the start to past the end and back (s = centre −
+    half span · cos(π t / pass time)), with a slow sideways sway and a heading wobble that vary
+    the views, at constant altitude above the line's axis (following its slope)."""
 
-    speed_m_s: float = Field(0.15, gt=0, le=2, description="speed along the pipeline (m/s)")
-    altitude_m: float = Field(1.4, gt=0.3, description="height of the body origin above the pipeline's axis (m)")
-    weave_amplitude_m: float = Field(0.45, ge=0, description="lateral amplitude of the weave (m)")
-    weave_wavelength_m: float = Field(2.4, gt=0, description="along-pipeline wavelength of the weave (m)")
-    start_before_m: float = Field(0.8, description="the vehicle starts this far before the main line's start (m)")
+    passes: int = Field(2, ge=1, description="passes along the line (2: there and back; the return sees it again)")
+    speed_m_s: float = Field(0.17, gt=0, le=2, description="top speed along the line, mid-pass (m/s)")
+    altitude_m: float = Field(1.4, gt=0.3, description="height of the body origin above the line's axis (m)")
+    margin_m: float = Field(0.3, ge=0, description="the view reaches this far beyond the line's ends (m)")
+    view_lead_m: float = Field(
+        1.5,
+        description="the camera's view lies this far ahead of the body origin (the default mount at 1.4 m: 0.5 m "
+        "forward, then 1 m to where its axis meets the seabed); the passes are centred on the view, not the body",
+    )
+    sway_amplitude_m: float = Field(0.25, ge=0, description="amplitude of the sideways sway (m)")
+    sway_period_s: float = Field(23.0, gt=0, description="period of the sideways sway (s)")
+    yaw_amplitude_deg: float = Field(
+        20.0, ge=0, description="amplitude of the heading wobble about the line's direction (deg)"
+    )
+    yaw_period_s: float = Field(17.0, gt=0, description="period of the heading wobble (s)")
     roll_pitch_amplitude_deg: float = Field(1.0, ge=0, description="amplitude of the roll/pitch wobble (deg)")
     duration_s: float | None = Field(
-        None, gt=0, description="mission length (s); default the main line's length (plus the start) at the speed"
+        None, gt=0, description="mission length (s); default all the passes (a shorter one ends mid-pass)"
     )
 
 
 def _pipeline_dvl() -> DvlConfig:
     return DvlConfig(random_dropout_rate=0.03, burst_s=(1.0, 4.0), mount=Mount(xyz=(-0.25, 0.0, 0.30)))
+
+
+def _pipeline_ahrs() -> AhrsConfig:
+    return AhrsConfig(heading_bias_drift_deg=0.75)
 
 
 def _pipeline_ground_truth() -> GroundTruthConfig:
@@ -169,7 +187,7 @@ class PipelineSimConfig(_Section):
 
     The DVL, AHRS and depth sections are the tank's (:mod:`semslam.sim.config`); over the seabed the
     DVL has no walls to lose (``wall_beams_lost`` has no effect) and short random dropouts (3 % of the
-    time, 1-4 s bursts).
+    time, 1-4 s bursts); the heading bias drifts at the tank's rate (0.75° over the ~3 minutes).
     """
 
     seed: int = Field(0, ge=0, description="random seed of the seabed, the pipeline and every sensor's noise")
@@ -180,7 +198,7 @@ class PipelineSimConfig(_Section):
     trajectory: PipelineTrajectoryConfig = Field(default_factory=PipelineTrajectoryConfig)
     stereo: StereoConfig = Field(default_factory=StereoConfig)
     dvl: DvlConfig = Field(default_factory=_pipeline_dvl)
-    ahrs: AhrsConfig = Field(default_factory=AhrsConfig)
+    ahrs: AhrsConfig = Field(default_factory=_pipeline_ahrs)
     depth: DepthConfig = Field(default_factory=DepthConfig)
     ground_truth: GroundTruthConfig = Field(default_factory=_pipeline_ground_truth)
 

@@ -1,8 +1,8 @@
 """``simulate_pipeline``: the simulated pipeline mission (stereo camera, DVL, AHRS, depth) with ground truth.
 
 A pipeline on a natural seabed (:mod:`semslam.sim.pipeline_scene`) seen by a down/forward-looking
-stereo camera (:mod:`semslam.sim.stereo`) from a vehicle that weaves across the main line
-(:class:`WeaveTrack`). Sensor names / topics / message types (the navigation sensors as in the tank):
+stereo camera (:mod:`semslam.sim.stereo`) from a vehicle that inspects the main line there and
+back (:class:`InspectionTrack`). Sensor names / topics / message types (the navigation sensors as in the tank):
 
 ================  ==========================  ==============================
 ``dvl``           /sim/dvl                    cola2_msgs/msg/DVL
@@ -52,21 +52,24 @@ def _stream(seed: int, purpose: str) -> np.random.Generator:
     return np.random.default_rng(np.random.SeedSequence([seed, _STREAMS[purpose]]))
 
 
-class WeaveTrack(MotionModel):
-    """T_WB(t): along the main line at ``speed_m_s``, weaving across it on a sine of
-    ``weave_amplitude_m`` and ``weave_wavelength_m``, ``altitude_m`` above its axis (following its
-    slope), heading along the path, with a small roll/pitch wobble. Position and velocity analytic."""
+class InspectionTrack(MotionModel):
+    """T_WB(t) of the inspection (:class:`~semslam.sim.pipeline_config.PipelineTrajectoryConfig`):
+    along the main line there and back, swaying sideways, facing along it with a heading wobble.
+    Position and velocity analytic."""
 
     def __init__(self, cfg: PipelineTrajectoryConfig, line: Line):
         self.cfg = cfg
         d = line.direction
-        self.u = np.array([d[0], d[1], 0.0]) / np.hypot(d[0], d[1])  # horizontal along the line
+        horizontal = np.hypot(d[0], d[1])
+        self.u = np.array([d[0], d[1], 0.0]) / horizontal  # horizontal along the line
         self.w = np.array([-self.u[1], self.u[0], 0.0])
-        self.slope = d[2] / np.hypot(d[0], d[1])  # dz per horizontal metre
-        self.start = line.origin - cfg.start_before_m * self.u - cfg.start_before_m * self.slope * np.array([0, 0, 1.0])
-        self.start = self.start - np.array([0.0, 0.0, cfg.altitude_m])
-        horizontal = np.hypot(d[0], d[1]) * line.length
-        self.T = cfg.duration_s if cfg.duration_s is not None else (horizontal + cfg.start_before_m) / cfg.speed_m_s
+        self.slope = d[2] / horizontal  # dz per horizontal metre
+        self.heading = float(np.arctan2(self.u[1], self.u[0]))
+        self.half_span = 0.5 * horizontal * line.length + cfg.margin_m
+        self.centre = line.origin + 0.5 * line.length * d - np.array([0.0, 0.0, cfg.altitude_m])
+        self.centre = self.centre - cfg.view_lead_m * (self.u + self.slope * np.array([0.0, 0.0, 1.0]))
+        self.pass_s = np.pi * self.half_span / cfg.speed_m_s  # top speed mid-pass
+        self.T = cfg.duration_s if cfg.duration_s is not None else cfg.passes * self.pass_s
 
     @property
     def duration(self) -> float:
@@ -74,20 +77,19 @@ class WeaveTrack(MotionModel):
 
     def position_velocity(self, t) -> tuple[np.ndarray, np.ndarray]:
         t = np.atleast_1d(np.asarray(t, float))
-        c, v = self.cfg, self.cfg.speed_m_s
-        s = v * t
-        k = 2 * np.pi / c.weave_wavelength_m
-        y, dy = c.weave_amplitude_m * np.sin(k * s), c.weave_amplitude_m * k * np.cos(k * s) * v
-        vertical = np.array([0.0, 0.0, 1.0])
-        pos = self.start + np.outer(s, self.u + self.slope * vertical) + np.outer(y, self.w)
-        vel = np.outer(np.full_like(s, v), self.u + self.slope * vertical) + np.outer(dy, self.w)
-        return pos, vel
+        c = self.cfg
+        w_s = np.pi / self.pass_s
+        s, ds = -self.half_span * np.cos(w_s * t), self.half_span * w_s * np.sin(w_s * t)
+        w_y = 2 * np.pi / c.sway_period_s
+        y, dy = c.sway_amplitude_m * np.sin(w_y * t), c.sway_amplitude_m * w_y * np.cos(w_y * t)
+        along = self.u + self.slope * np.array([0.0, 0.0, 1.0])
+        return self.centre + np.outer(s, along) + np.outer(y, self.w), np.outer(ds, along) + np.outer(dy, self.w)
 
     def rotation(self, t) -> Rotation:
         t = np.atleast_1d(np.asarray(t, float))
-        _, vel = self.position_velocity(t)
-        yaw = np.arctan2(vel[:, 1], vel[:, 0])
-        A = np.deg2rad(self.cfg.roll_pitch_amplitude_deg)
+        c = self.cfg
+        yaw = self.heading + np.radians(c.yaw_amplitude_deg) * np.sin(2 * np.pi * t / c.yaw_period_s)
+        A = np.deg2rad(c.roll_pitch_amplitude_deg)
         roll = A * np.sin(2 * np.pi * t / 7.3)
         pitch = A * np.sin(2 * np.pi * t / 11.1 + 0.7)
         return Rotation.from_euler("ZYX", np.stack([yaw, pitch, roll], 1))
@@ -133,7 +135,7 @@ def simulate_pipeline(config: PipelineSimConfig | None = None, *, progress: bool
     layout = make_pipeline(cfg.layout, seabed, heading, length, lay_rng)
     rocks = make_rocks(cfg.seabed, seabed, layout, _stream(cfg.seed, "pipeline_rocks"))
     scene = PipelineScene(seabed, rocks, layout, cfg.seabed.roughness_m, _stream(cfg.seed, "scene"))
-    traj = WeaveTrack(cfg.trajectory, layout.lines[0])
+    traj = InspectionTrack(cfg.trajectory, layout.lines[0])
     start_ns = int(round(cfg.start_time_s * 1e9))
     T = traj.duration
     nav = simulate_nav(cfg, traj, scene, start_ns, T, lost_kinds=(), lost_cause="no bottom lock")
@@ -166,7 +168,7 @@ def simulate_pipeline(config: PipelineSimConfig | None = None, *, progress: bool
             "geometry_kinds": list(KIND_NAMES),
         },
         "scans": [s.to_dict() for s in stereo.scans],
-        "trajectory": {"kind": "weave", "duration_s": T, "speed_m_s": cfg.trajectory.speed_m_s},
+        "trajectory": {"kind": "inspection", "duration_s": T, "passes": cfg.trajectory.passes},
         "dvl_dropouts": dvl_dropout_extras(nav.dvl),
         "heading_bias_final_rad": float(nav.heading_bias[-1]) if len(nav.heading_bias) else 0.0,
     }
