@@ -37,7 +37,7 @@ import numpy as np
 sys.path.insert(0, os.environ.get("BENCH_LASER_ROOT") or str(Path(__file__).resolve().parents[1]))
 
 from frontends.laser import LaserConfig, segment_scan  # noqa: E402
-from frontends.laser.synthetic import default_scene, raycast, viewpoint  # noqa: E402
+from tests.support.synthetic import default_scene, raycast, viewpoint  # noqa: E402
 
 
 def _bench_process(scans, overrides: dict, repeat: int) -> dict:

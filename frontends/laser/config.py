@@ -244,8 +244,8 @@ class PipeConfig(_Section):
     bump_sigmas: float = Field(
         3.0,
         ge=0,
-        description="... and at least this many times the scatter of the pipe's own bin medians about its level "
-        "(measured per pipe: stereo noise and a rough seabed make the profile itself bumpy); 0: off",
+        description="... and at least this many times the noise of a bin's median (from the scatter of the pipe's "
+        "points about their bins' medians, measured per pipe: stereo noise makes the profile itself bumpy); 0: off",
     )
     bump_smooth: bool = Field(
         True, description="a bin also stands out when the mean residual over it and its two neighbours does"

@@ -7,6 +7,7 @@ protocol of ``semslam.registry``.
 
 from __future__ import annotations
 
+import logging
 import time
 from dataclasses import dataclass, field
 from typing import Any, ClassVar, Protocol
@@ -29,6 +30,36 @@ from semslam.observations import Connectivity, LineObservation, Observation, Poi
 from semslam.registry import FrontendSummary
 
 UP_NED = np.array([0.0, 0.0, -1.0])  # against gravity in the world frame (NED: z down)
+
+
+# One line on stderr (logging's last-resort handler) unless the application configures logging.
+log = logging.getLogger(__name__)
+_RANGE_SAMPLE = 2000  # points of a cloud whose ranges are checked (evenly strided)
+
+
+def range_problem(points: np.ndarray, min_range: float, max_range: float) -> str | None:
+    """What is wrong with a cloud most of whose finite points lie outside [min_range, max_range]
+    (m, from the sensor), with the likely cause; None when most lie inside (or it is empty)."""
+    pts = np.asarray(points, dtype=np.float64)
+    pts = pts[:: max(len(pts) // _RANGE_SAMPLE, 1)]
+    r = np.sqrt(np.einsum("ij,ij->i", pts, pts))
+    r = r[np.isfinite(r)]
+    if len(r) < 10:
+        return None
+    inside = float(np.mean((r >= min_range) & (r <= max_range)))
+    if inside >= 0.5:
+        return None
+    med = float(np.median(r))
+    if min_range <= med / 1000.0 <= max_range:
+        cause = "a cloud in millimetres? (points must be in metres)"
+    elif med > max_range:
+        cause = "a cloud in the world frame, or another sensor's? (points must be in the sensor's frame, metres)"
+    else:
+        cause = "a cloud in the wrong units? (points must be in metres, in the sensor's frame)"
+    return (
+        f"{100 * (1 - inside):.0f}% of the points lie outside preprocess.min_range..max_range "
+        f"({min_range:g}-{max_range:g} m; median range {med:.4g} m): {cause} They are dropped."
+    )
 
 
 class Recognizer(Protocol):
@@ -232,6 +263,7 @@ class LaserFrontend:
         self._recognizer = recognizer
         self._latest_attitude: Attitude | None = None  # the latest AHRS reading (R_WB computed from it per scan)
         self.last: ScanSegmentation | None = None  # the latest scan's stages, for inspection
+        self._warned: set[str] = set()  # sensors whose clouds were found out of range (warned once each)
 
     @property
     def recognizer(self) -> Recognizer | None:
@@ -272,6 +304,7 @@ class LaserFrontend:
             # (~40 AHRS readings a scan in the tank mission; the conversion was most of their cost).
             self._latest_attitude = measurement
             return []
+        self._check_range(measurement)
         seg = segment_scan(measurement.points, self.config, self._up(measurement.sensor), measurement.rgb)
         self.last = seg
         stamp, sensor = measurement.stamp, measurement.sensor
@@ -305,6 +338,18 @@ class LaserFrontend:
                 )
             )
         return obs
+
+    def _check_range(self, m: PointCloud) -> None:
+        """Warn once per sensor (one line on stderr, through ``logging``) when most of a cloud lies
+        outside the configured range: a cloud in millimetres, or in the world frame, would otherwise
+        give nothing, silently. (Once per front-end: with replicas in several worker processes,
+        once per worker that meets such a cloud.)"""
+        if m.sensor in self._warned:
+            return
+        message = range_problem(m.points, self.config.preprocess.min_range, self.config.preprocess.max_range)
+        if message is not None:
+            self._warned.add(m.sensor)
+            log.warning("semslam: warning: laser front-end, sensor %r: %s", m.sensor, message)
 
     def _classify(self, clouds: list[np.ndarray], conns: list[Connectivity]) -> list[dict[str, float] | None]:
         """Class likelihoods of a scan's object clouds (None without a recogniser): all at once

@@ -34,7 +34,7 @@ _MIN_FIT = 6  # fewest candidates for a cell's plane
 _LOW_SHARE = 0.1  # a cell's low height: below it lie this share of its raw points
 _MAX_CELLS = 2_000_000  # a grid larger than this (a cloud in the wrong units) gets no ground model
 _REFITS = 2
-_MIN_SPREAD = 0.25  # × fit_radius: the σ of a cell's candidates across their narrowest direction
+_MIN_SPREAD = 0.2  # × fit_radius: the σ of a cell's candidates across their narrowest direction
 _REFIT_SIGMAS = 3.0  # the refit keeps the candidates within this many σ (or ``height``) of the first fit
 
 
@@ -183,7 +183,7 @@ def fit_ground(
     cand = np.isfinite(above) & (above <= cfg.band)
     # voxels weighted by their points, up to the typical voxel's (the nearest ground must not rule)
     w = np.minimum(counts, np.median(counts))
-    fit = (shape, k_fit, 0.25 * cfg.cell**2, np.tan(np.radians(cfg.max_slope_deg)), _MIN_SPREAD * cfg.fit_radius)
+    fit = (shape, k_fit, 0.05 * cfg.cell**2, np.tan(np.radians(cfg.max_slope_deg)), _MIN_SPREAD * cfg.fit_radius)
 
     def planes(sel):
         return _fit_planes(x[sel, 0], x[sel, 1], x[sel, 2], w[sel], ij[sel], *fit)

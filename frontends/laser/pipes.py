@@ -412,11 +412,12 @@ def split_at_fittings(
         np.lib.stride_tricks.as_strided(padded, (n_bins, 2 * w + 1), padded.strides * 2, writeable=False)
     )
     height = cfg.bump_height if cfg.radius_prior is None else cfg.bump_height_known_radius
-    # ... but a profile as noisy as the bump itself cuts nothing: the height is at least bump_sigmas
-    # × the bins' own scatter about the level (1.4826 × their median absolute deviation)
-    dev = np.abs(med - level)[(cnt >= 3) & np.isfinite(level)]
-    if len(dev) >= 5 and cfg.bump_sigmas > 0:
-        height = max(height, cfg.bump_sigmas * 1.4826 * float(np.median(dev)))
+    # ... but no less than bump_sigmas × the noise of a bin's median: the points' own scatter about
+    # their bin's median (1.4826 × the median absolute deviation, a fitting's offset left out) ×
+    # 1.2533 / √n for a median of n points (stereo noise, or few points in a bin)
+    if cfg.bump_sigmas > 0 and len(t) >= 10:
+        sigma = 1.4826 * float(np.median(np.abs(residual - med[b])))
+        height = np.maximum(height, cfg.bump_sigmas * 1.2533 * sigma / np.sqrt(np.maximum(cnt, 1)))
     bad_bin = (med - level > height) & (cnt >= 3)
     if cfg.bump_smooth:
         # ... or its neighbourhood does: the mean residual over the bin and its two neighbours (a
