@@ -227,6 +227,15 @@ class PipeConfig(_Section):
     fitting_points: int = Field(
         6, ge=1, description="this many such points in one bin along the axis mark a fitting (a body, a branch)"
     )
+    fitting_window_deg: float = Field(
+        60.0,
+        gt=0,
+        le=180,
+        description="along a pipe lying on the ground (see ground_clearance), fitting evidence (the points of "
+        "fitting_points and gap_reach) lies within this angle about the direction from its axis towards the "
+        "sensor: a fitting surrounds its pipe and shows over it, while stones beside it and a stereo camera's "
+        "mixed pixels along its silhouette do not (180: all around)",
+    )
     gap_reach: float = Field(
         0.10, gt=0, description="a gap in a pipe's inliers with points this close to its surface holds a fitting (m)"
     )

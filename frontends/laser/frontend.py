@@ -20,7 +20,7 @@ from frontends.laser.grid import VoxelGrid, adjacency_of
 from frontends.laser.ground import GroundModel, fit_ground
 from frontends.laser.noise import NoiseModel, measure_noise
 from frontends.laser.objects import SegmentedObject, segment_objects
-from frontends.laser.pipe_shape import axis_height, color_contrast, lies_like_a_pipe
+from frontends.laser.pipe_shape import Seabed, axis_height
 from frontends.laser.pipes import Pipe, Rays, detect_pipes
 from frontends.laser.planes import PlaneResult, remove_planes
 from frontends.laser.preprocess import Preprocessed, hop_covariance_parts, preprocess, shape_of_parts
@@ -171,26 +171,6 @@ def scan_pipe_config(cfg: PipeConfig, noise: NoiseModel | None, points: np.ndarr
     return cfg if tol == cfg.distance_tolerance else cfg.model_copy(update={"distance_tolerance": tol})
 
 
-def _pipe_test(cfg: PipeConfig, spts, ground, raw, rgb, raw_index: RawIndex):
-    """The test of a pipe lying on the ground (:func:`lies_like_a_pipe`), with the colour cue when
-    the scan has colours (the ground's raw points found once, when first needed)."""
-    if ground is None:
-        return None
-    contrast = None
-    if rgb is not None and cfg.min_color_contrast > 0:
-        cache: list[np.ndarray] = []
-
-        def contrast(pipe: Pipe):
-            if not cache:
-                finite = np.isfinite(raw).all(axis=1)
-                on = np.zeros(len(raw), bool)
-                on[finite] = ground.is_ground(raw[finite])
-                cache.append(on)
-            return color_contrast(pipe, raw_index, raw, np.asarray(rgb, float), cache[0], cfg.color_reach)
-
-    return lambda pipe: lies_like_a_pipe(pipe, spts, ground, cfg, contrast)
-
-
 def segment_scan(
     points: np.ndarray, cfg: LaserConfig, up: np.ndarray | None = None, rgb: np.ndarray | None = None
 ) -> ScanSegmentation:
@@ -223,8 +203,10 @@ def segment_scan(
     pcfg = scan_pipe_config(cfg.pipes, noise, spts[~on_ground])
     rays = Rays(raw)
     if int((~on_ground).sum()) >= cfg.pipes.min_points:
-        accept = _pipe_test(pcfg, spts, ground, raw, rgb, RawIndex(raw_to_s, len(spts)))
-        pipes = detect_pipes(spts, normals, grid, pcfg, rays, ~on_ground, ~on_ground, accept)
+        seabed = None
+        if ground is not None:
+            seabed = Seabed(ground, spts, pcfg, raw, rgb, RawIndex(raw_to_s, len(spts)))
+        pipes = detect_pipes(spts, normals, grid, pcfg, rays, ~on_ground, ~on_ground, seabed)
     clock.lap("pipes")
     lying = None
     if ground is not None:

@@ -148,13 +148,20 @@ def along_and_off_axis(points: np.ndarray, origin: np.ndarray, axis: np.ndarray)
     return t, np.sqrt(np.maximum(row_dot(x, x) - t * t, 0.0))
 
 
-def stands_over(points: np.ndarray, end: np.ndarray, R: np.ndarray, radius: float, cfg: ObjectConfig) -> int:
-    """How many of an object's ``points`` stand over the pipe ending at ``end``: above its top (by
-    ``own_margin``, along the box frame ``R``'s up) and over its axis (within its radius plus
-    ``own_margin`` across). A fitting on a pipe lying on the seabed rises over it (a valve's body,
-    stem and handle); the seabed's clutter around a pipe's end (sand, stones) lies beside it."""
-    x = (points - end) @ R
-    return int(((x[:, 2] > radius + cfg.own_margin) & (np.abs(x[:, 1]) <= radius + cfg.own_margin)).sum())
+def stands_over(
+    points: np.ndarray, end: np.ndarray, out: np.ndarray, up: np.ndarray, radius: float, reach: float, cfg: ObjectConfig
+) -> int:
+    """How many of an object's ``points`` stand over the pipe ending at ``end`` (outward unit
+    ``out``, ``up`` the unit up across it): above its top (by ``own_margin``), over its axis (within
+    its radius plus ``own_margin`` across) and from ``own_beyond`` before the end to ``reach``
+    beyond it. A fitting on a pipe lying on the seabed rises over it, where the pipe enters it (a
+    valve's body, stem and handle); the seabed's clutter around a pipe's end (sand, stones) lies
+    beside it, or farther on."""
+    x = points - end
+    t, h = x @ out, x @ up
+    across = np.sqrt(np.maximum(row_dot(x, x) - t * t - h * h, 0.0))
+    over = (h > radius + cfg.own_margin) & (across <= radius + cfg.own_margin)
+    return int((over & (t >= -cfg.own_beyond) & (t <= reach)).sum())
 
 
 def own_points(points: np.ndarray, end: np.ndarray, out: np.ndarray, radius: float, cfg: ObjectConfig) -> int:
@@ -390,7 +397,7 @@ def segment_objects(
     knows the ground under an object, the ground's normal is the object's "up" (on a slope, a valve
     stands square to the seabed, not to gravity). ``lying`` (bool per pipe, or None): the pipes
     lying on the ground, where the seabed's clutter (sand, stones) surrounds a pipe's end, so an
-    object at a lone end of one must stand over it (``stands_over``). ``seen_beyond`` (a callable
+    object at a lone end of one, or between two in line, must stand over them (``stands_over``). ``seen_beyond`` (a callable
     (point, radius) → bool, or None): whether the scan saw the space at a point; a lone end beyond
     which it saw nothing (the view, a hole in it) is where the view stops, not an object."""
     if not pipes:
@@ -455,11 +462,15 @@ def segment_objects(
                 continue
             if seen_beyond is not None and not seen_beyond(e[0] - dirs[0] * cfg.own_beyond, pipe.radius):
                 continue
-            if (
-                lying is not None
-                and lying[site.members[0] // 2]
-                and stands_over(P, e[0], site.R, pipe.radius, cfg) < cfg.min_own_points
-            ):
+        if lying is not None and all(lying[m // 2] for m in site.members) and site.config <= 2:
+            # on the seabed: something must rise over the pipe where it ends (config 1), or in the
+            # gap between the two ends (config 2), and the scan must have seen that place
+            pipe = pipes[site.members[0] // 2]
+            reach = cfg.attach_distance if site.config == 1 else float(np.ptp((e - e[0]) @ dirs[0])) + cfg.own_beyond
+            P = np.take(points, crop, axis=0)
+            if stands_over(P, e[0], -dirs[0], site.R[:, 2], pipe.radius, reach, cfg) < cfg.min_own_points:
+                continue
+            if seen_beyond is not None and not seen_beyond(center, pipe.radius):
                 continue
         if len(crop) < cfg.min_points:
             continue

@@ -42,8 +42,14 @@ def arc_span_deg(pipe: Pipe, points: np.ndarray) -> float:
 
 def axis_height(pipe: Pipe, ground) -> float | None:
     """Median height (m) of the pipe's axis above the ground model, None where it knows no ground."""
-    t = np.linspace(0.0, pipe.length, _AXIS_SAMPLES)
-    h = ground.height(pipe.p + np.outer(t, pipe.axis))
+    return axis_height_of(pipe.p, pipe.axis, pipe.length, ground)
+
+
+def axis_height_of(p: np.ndarray, axis: np.ndarray, length: float, ground) -> float | None:
+    """Median height (m) above the ground model of the axis from ``p`` along ``axis`` over
+    ``length``, None where it knows no ground."""
+    t = np.linspace(0.0, length, _AXIS_SAMPLES)
+    h = ground.height(p + np.outer(t, axis))
     h = h[np.isfinite(h)]
     return float(np.median(h)) if len(h) else None
 
@@ -66,6 +72,38 @@ def color_contrast(
     return float(np.linalg.norm(np.median(rgb[own], axis=0) - np.median(rgb[ground], axis=0)))
 
 
+class Seabed:
+    """What the pipe stage knows of the seabed under a scan: its ground model, the structure
+    ``points``, and, with an RGB scan, the colour cue (the ground's raw points found once, when
+    first needed). ``raw_index`` maps structure indices to raw point indices."""
+
+    def __init__(self, ground, points: np.ndarray, cfg: PipeConfig, raw=None, rgb=None, raw_index=None):
+        self.ground, self.points, self.cfg = ground, points, cfg
+        self._raw, self._rgb, self._raw_index = raw, rgb, raw_index
+        self._raw_ground: np.ndarray | None = None
+
+    def on_or_unknown(self, c: np.ndarray, a: np.ndarray, r: float, t0: float, t1: float) -> bool:
+        """Whether the cylinder (axis point c, unit a, radius r) between t0 and t1 along a lies on
+        the ground (axis less than ``ground_clearance`` radii above it) or over unknown ground."""
+        h = axis_height_of(c + t0 * a, a, t1 - t0, self.ground)
+        return h is None or h < self.cfg.ground_clearance * r
+
+    def _contrast(self, pipe: Pipe) -> float | None:
+        if self._raw_ground is None:
+            raw = self._raw
+            finite = np.isfinite(raw).all(axis=1)
+            self._raw_ground = np.zeros(len(raw), bool)
+            self._raw_ground[finite] = self.ground.is_ground(raw[finite])
+        return color_contrast(
+            pipe, self._raw_index, self._raw, np.asarray(self._rgb, float), self._raw_ground, self.cfg.color_reach
+        )
+
+    def accept(self, pipe: Pipe) -> bool:
+        """The tests of a pipe on the seabed (:func:`lies_like_a_pipe`), with colour when the scan has it."""
+        colour = self._rgb is not None and self._raw is not None and self.cfg.min_color_contrast > 0
+        return lies_like_a_pipe(pipe, self.points, self.ground, self.cfg, self._contrast if colour else None)
+
+
 def lies_like_a_pipe(pipe: Pipe, points: np.ndarray, ground, cfg: PipeConfig, contrast=None) -> bool:
     """Whether a segment passes the tests of a pipe lying on the ground (True for one standing clear
     of it, or where there is no ground model). ``contrast``: a callable giving the segment's colour
@@ -73,9 +111,11 @@ def lies_like_a_pipe(pipe: Pipe, points: np.ndarray, ground, cfg: PipeConfig, co
     if ground is None:
         return True
     h = axis_height(pipe, ground)
-    if h is None or h >= cfg.ground_clearance * pipe.radius:
+    if h is not None and h >= cfg.ground_clearance * pipe.radius:
         return True
-    if h < cfg.min_axis_height * pipe.radius:
+    # on the ground, or where the scan's ground model knows no ground (a boulder's top, a strip
+    # between stones): the tests of a pipe on the seabed, those that can be made
+    if h is not None and h < cfg.min_axis_height * pipe.radius:
         return False
     if arc_span_deg(pipe, points) < cfg.min_arc_deg:
         return False

@@ -541,10 +541,23 @@ def _refine(free: _Points, c, a, r, cfg: PipeConfig):
             return c, a, r, free.index[near[inl]]
 
 
-def _cut_into_segments(points, normals, sq, cb, ab, rb, idx, cfg: PipeConfig, foreign=None) -> list[Pipe]:
+def _facing_sensor(P: np.ndarray, c: np.ndarray, a: np.ndarray, cfg: PipeConfig) -> np.ndarray:
+    """Which points lie on the side of the axis (c, a) that faces the sensor (at the origin), within
+    ``fitting_window_deg`` about the direction from the axis towards it: a fitting surrounds its pipe,
+    so the sensor sees it over the pipe, where clutter beside the pipe (stones, the seabed, mixed
+    pixels along its silhouette) does not lie."""
+    toward = -(c - (c @ a) * a)  # from the axis towards the sensor, across it
+    toward /= max(np.linalg.norm(toward), 1e-12)
+    v = P - c
+    v -= np.outer(v @ a, a)
+    return v @ toward >= np.cos(np.radians(cfg.fitting_window_deg)) * np.sqrt(row_dot(v, v))
+
+
+def _cut_into_segments(points, normals, sq, cb, ab, rb, idx, cfg: PipeConfig, foreign=None, seabed=None) -> list[Pipe]:
     """The pipe segments of a refined cylinder's inliers ``idx``: cut at fittings (foreign points
     just outside its surface, wider sockets; only the points of the mask ``foreign`` count, all when
-    None), keep the runs long enough."""
+    None; along a pipe lying on the ``seabed``, only those over it, :func:`_facing_sensor`), keep
+    the runs long enough."""
     t = np.take(points, idx, axis=0) @ ab
     if len(idx) < cfg.min_points or t.max() - t.min() < cfg.min_detect_length:
         return []  # no run of these inliers can be a segment
@@ -556,6 +569,8 @@ def _cut_into_segments(points, normals, sq, cb, ab, rb, idx, cfg: PipeConfig, fo
     outside = (res_all > cfg.distance_tolerance) & span
     if foreign is not None:
         outside &= foreign
+    if seabed is not None and cfg.fitting_window_deg < 180.0 and seabed.on_or_unknown(cb, ab, rb, t.min(), t.max()):
+        outside[outside] = _facing_sensor(np.take(points, np.flatnonzero(outside), axis=0), cb, ab, cfg)
     near = outside & (res_all < cfg.fitting_reach)
     around = outside & (res_all < cfg.gap_reach)
     out = []
@@ -589,15 +604,16 @@ def detect_pipes(
     rays: Rays | None = None,
     seedable: np.ndarray | None = None,
     foreign: np.ndarray | None = None,
-    accept=None,
+    seabed=None,
 ) -> list[Pipe]:
     """Pipes among ``points`` (N×3, {S}) with outward ``normals``; ``grid`` the
     :class:`~frontends.laser.grid.VoxelGrid` whose cells they are, to draw point pairs; ``rays``
     the scan's rays for the see-through test (none when None). ``seedable`` (mask, all when None):
     the points that may seed hypotheses (not the ground); ``foreign`` (mask, all when None): the
-    points that may tell a fitting next to a pipe (not the ground); ``accept`` (a callable on a
-    :class:`Pipe`, all accepted when None): the test a segment must pass to be a pipe (one lying on
-    a natural seabed, :mod:`frontends.laser.pipe_shape`). Returns merged pipe segments.
+    points that may tell a fitting next to a pipe (not the ground); ``seabed`` (a
+    :class:`frontends.laser.pipe_shape.Seabed`, or None off a natural seabed): the tests a segment
+    lying on the seabed must pass, and where fitting evidence is looked for along such a pipe.
+    Returns merged pipe segments.
 
     Two masks: ``free`` points may still be inliers; ``seedable`` points may still seed hypotheses.
     A model that yields a pipe consumes its inliers; one that does not (an object's curved part, a
@@ -660,9 +676,9 @@ def detect_pipes(
             failures += 1
             continue
         cb, ab, rb, idx = refined
-        found = _cut_into_segments(points, normals, sq, cb, ab, rb, idx, cfg, foreign)
-        if accept is not None:
-            found = [pipe for pipe in found if accept(pipe)]
+        found = _cut_into_segments(points, normals, sq, cb, ab, rb, idx, cfg, foreign, seabed)
+        if seabed is not None:
+            found = [pipe for pipe in found if seabed.accept(pipe)]
         for pipe in found:
             free[pipe.inliers] = False
             stale = True

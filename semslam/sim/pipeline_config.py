@@ -158,10 +158,10 @@ class PipelineTrajectoryConfig(_Section):
         description="the camera's view lies this far ahead of the body origin (the default mount at 1.4 m: 0.5 m "
         "forward, then 1 m to where its axis meets the seabed); the passes are centred on the view, not the body",
     )
-    sway_amplitude_m: float = Field(0.25, ge=0, description="amplitude of the sideways sway (m)")
+    sway_amplitude_m: float = Field(0.15, ge=0, description="amplitude of the sideways sway (m)")
     sway_period_s: float = Field(23.0, gt=0, description="period of the sideways sway (s)")
     yaw_amplitude_deg: float = Field(
-        20.0, ge=0, description="amplitude of the heading wobble about the line's direction (deg)"
+        8.0, ge=0, description="amplitude of the heading wobble about the line's direction (deg)"
     )
     yaw_period_s: float = Field(17.0, gt=0, description="period of the heading wobble (s)")
     roll_pitch_amplitude_deg: float = Field(1.0, ge=0, description="amplitude of the roll/pitch wobble (deg)")
