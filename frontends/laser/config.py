@@ -209,11 +209,14 @@ class PipeConfig(_Section):
         4, ge=1, description="RANSAC stops after this many rounds in a row without a pipe, at the least ..."
     )
     detection_confidence: float = Field(
-        0.95,
+        0.0,
         ge=0,
         lt=1,
-        description="... or after as many as it takes for a pipe of min_points among the seedable points to have "
-        "seeded a hypothesis with this probability (the budget grows as pipes get rare among the points) ...",
+        description="... or after as many as it takes for a pipe as rare among the seedable points as the rarest "
+        "found so far (its inliers' share: the inlier ratio) to have seeded a hypothesis with this probability "
+        "(adaptive RANSAC; e.g. 0.95: pipes that are 1 % of the points need ~8 rounds). Off (0) by default: "
+        "measured, with the ground model taking the seabed out of the seeds no stereo view of the simulated "
+        "pipeline gained a pipe, while on the tank the extra rounds split pipes and cost 20 % more CPU ...",
     )
     max_failures_cap: int = Field(12, ge=1, description="... but never more than this many rounds in a row")
     max_gap: float = Field(
@@ -253,8 +256,9 @@ class PipeConfig(_Section):
     bump_sigmas: float = Field(
         3.0,
         ge=0,
-        description="... and at least this many times the noise of a bin's median (from the scatter of the pipe's "
-        "points about their bins' medians, measured per pipe: stereo noise makes the profile itself bumpy); 0: off",
+        description="... and, without radius_prior, at least this many times the noise of a bin's median (from the "
+        "scatter of the pipe's points about their bins' medians, measured per pipe: stereo noise makes the profile "
+        "itself bumpy; with the radius known, bump_height_known_radius alone, as tuned on the tank); 0: off",
     )
     bump_smooth: bool = Field(
         True, description="a bin also stands out when the mean residual over it and its two neighbours does"

@@ -412,10 +412,11 @@ def split_at_fittings(
         np.lib.stride_tricks.as_strided(padded, (n_bins, 2 * w + 1), padded.strides * 2, writeable=False)
     )
     height = cfg.bump_height if cfg.radius_prior is None else cfg.bump_height_known_radius
-    # ... but no less than bump_sigmas × the noise of a bin's median: the points' own scatter about
+    # ... but, where the radius is fitted (no prior), no less than bump_sigmas × the noise of a bin's
+    # median: the points' own scatter about
     # their bin's median (1.4826 × the median absolute deviation, a fitting's offset left out) ×
     # 1.2533 / √n for a median of n points (stereo noise, or few points in a bin)
-    if cfg.bump_sigmas > 0 and len(t) >= 10:
+    if cfg.bump_sigmas > 0 and cfg.radius_prior is None and len(t) >= 10:
         sigma = 1.4826 * float(np.median(np.abs(residual - med[b])))
         height = np.maximum(height, cfg.bump_sigmas * 1.2533 * sigma / np.sqrt(np.maximum(cnt, 1)))
     bad_bin = (med - level > height) & (cnt >= 3)
@@ -584,14 +585,14 @@ def _cut_into_segments(points, normals, sq, cb, ab, rb, idx, cfg: PipeConfig, fo
     return out
 
 
-def failure_budget(n_seedable: int, cfg: PipeConfig) -> int:
-    """Rounds in a row without a pipe before the search ends: enough for a pipe of ``min_points``
-    among ``n_seedable`` points to have seeded one of the ``hypotheses`` of some round with
-    probability ``detection_confidence`` (at least ``max_failures``, at most ``max_failures_cap``)."""
-    share = min(cfg.min_points / max(n_seedable, 1), 1.0)
-    if share >= 1.0 or cfg.detection_confidence <= 0:
+def failure_budget(inlier_share: float, cfg: PipeConfig) -> int:
+    """Rounds in a row without a pipe before the search ends, from the inlier ratio (adaptive
+    RANSAC): enough for a pipe holding ``inlier_share`` of the seedable points (the smallest share
+    of a pipe found so far) to have seeded one of a round's ``hypotheses`` with probability
+    ``detection_confidence``; at least ``max_failures``, at most ``max_failures_cap``."""
+    if inlier_share >= 1.0 or inlier_share <= 0.0 or cfg.detection_confidence <= 0:
         return cfg.max_failures
-    rounds = np.log(1.0 - cfg.detection_confidence) / (cfg.hypotheses * np.log1p(-share))
+    rounds = np.log(1.0 - cfg.detection_confidence) / (cfg.hypotheses * np.log1p(-inlier_share))
     return int(np.clip(np.ceil(rounds), cfg.max_failures, max(cfg.max_failures_cap, cfg.max_failures)))
 
 
@@ -623,7 +624,7 @@ def detect_pipes(
     rng = np.random.default_rng(cfg.seed)
     free = np.ones(n, bool)
     seedable = np.ones(n, bool) if seedable is None else np.array(seedable, bool)
-    max_failures = failure_budget(int(seedable.sum()), cfg)
+    max_failures = cfg.max_failures  # until a pipe tells how rare pipes are among the seeds
     sq = row_dot(points, points)
     pipes: list[Pipe] = []
     failures = 0
@@ -684,6 +685,9 @@ def detect_pipes(
             stale = True
         pipes += found
         seedable[idx] = False
+        if found:
+            share = min(len(pipe.inliers) for pipe in found) / max(int((seedable & free).sum()) + len(idx), 1)
+            max_failures = max(max_failures, failure_budget(share, cfg))
         failures = 0 if found else failures + 1
     if rays is not None:  # no segment the sensor sees through (all tested at once)
         pipes = [p for p, ok in zip(pipes, rays.solid(pipes, cfg)) if ok]
