@@ -23,8 +23,8 @@ GEOMETRY_ONLY = {"recognition": {"enabled": False}}
 
 @pytest.fixture(scope="module")
 def pipeline():
-    """The first minute of pipeline mission 7 (not a seed the front-end was tuned on)."""
-    return simulate_pipeline(PipelineSimConfig.model_validate({"seed": 7, "trajectory": {"duration_s": 60}}))
+    """The first 40 s (80 clouds) of pipeline mission 7 (not a seed the front-end was tuned on)."""
+    return simulate_pipeline(PipelineSimConfig.model_validate({"seed": 7, "trajectory": {"duration_s": 40}}))
 
 
 def _lines(obs):

@@ -12,8 +12,11 @@ from semslam.sim.pipeline_mission import simulate_pipeline
 from semslam.sim.stereo import depth_sigma, focal_px, pixel_rays
 
 
-def short_config(seed: int = 0, seconds: float = 30.0) -> PipelineSimConfig:
-    """The first ``seconds`` of the default mission (one cloud a second)."""
+SECONDS = 15.0
+
+
+def short_config(seed: int = 0, seconds: float = SECONDS) -> PipelineSimConfig:
+    """The first ``seconds`` of the default mission (two clouds a second)."""
     return PipelineSimConfig.model_validate({"seed": seed, "trajectory": {"duration_s": seconds}})
 
 
@@ -35,7 +38,7 @@ def test_same_config_same_clouds_other_seed_other_world():
 def test_clouds_are_organised_stereo_with_nans_and_colour(mission):
     w, h = StereoConfig().resolution
     clouds = list(mission.of_type(PointCloud))
-    assert len(clouds) == 30
+    assert len(clouds) == int(SECONDS * StereoConfig().rate_hz)
     for c in clouds:
         assert c.sensor == "stereo" and c.points.shape == (w * h, 3) and c.rgb.shape == (w * h, 3)
         valid = np.isfinite(c.points).all(axis=1)
@@ -67,7 +70,7 @@ def test_the_front_end_measures_the_declared_noise(mission):
     cfg = LaserConfig()
     declared = mission.metadata.extras["noise"]["stereo"]
     ratios = []
-    for c in list(mission.of_type(PointCloud))[::6]:
+    for c in list(mission.of_type(PointCloud))[::5]:
         raw = c.points[np.isfinite(c.points).all(axis=1)].astype(float)
         model = measure_noise(raw, preprocess(raw, cfg.preprocess, cfg.planes))
         z = model.range_ref * 0.97  # depth ≈ range near the optical axis
@@ -91,7 +94,7 @@ def test_ground_truth_of_the_scene(mission):
             ends = np.array([gt.pipes[pid].p, gt.pipes[pid].q])
             assert np.linalg.norm(ends[:, None] - ports[None], axis=2).min() < 1e-6
     scans = mission.metadata.extras["scans"]
-    assert len(scans) == 30
+    assert len(scans) == int(SECONDS * StereoConfig().rate_hz)
     seen = {int(k) for s in scans for k in s["pipe_visible_m"]}
     assert seen <= set(gt.seen_pipes) and set(gt.seen_pipes) <= {p.id for p in gt.pipes}
     assert all(0.0 <= v <= 1.5 for s in scans for v in s["pipe_visible_m"].values())
@@ -99,10 +102,10 @@ def test_ground_truth_of_the_scene(mission):
 
 def test_navigation_sensors_like_the_tank(mission):
     counts = {t: sum(1 for _ in mission.of_type(t)) for t in (DvlVelocity, Attitude, Depth, GroundTruthPose)}
-    assert counts[DvlVelocity] == pytest.approx(5 * 30, abs=2)
-    assert counts[Attitude] == pytest.approx(20 * 30, abs=2)
-    assert counts[Depth] == pytest.approx(8 * 30, abs=2)
-    assert counts[GroundTruthPose] == pytest.approx(20 * 30, abs=2)
+    assert counts[DvlVelocity] == pytest.approx(5 * SECONDS, abs=2)
+    assert counts[Attitude] == pytest.approx(20 * SECONDS, abs=2)
+    assert counts[Depth] == pytest.approx(8 * SECONDS, abs=2)
+    assert counts[GroundTruthPose] == pytest.approx(20 * SECONDS, abs=2)
     # the vehicle flies ~1.4 m above the line, ~15 m down
     z = np.array([g.position[2] for g in mission.of_type(GroundTruthPose)])
     assert 12.5 < z.min() and z.max() < 15.0

@@ -160,14 +160,15 @@ class PipeConfig(_Section):
         "of a pipe (its ends are where the view, a burial or an occlusion cut it; the back-end grows a pipe's "
         "extent over views), when it passes every shape test (arc, radius profile)",
     )
-    ground_clearance: float = Field(
-        2.5,
+    ground_gap: float = Field(
+        0.07,
         ge=0,
-        description="a segment whose axis lies less than this many radii above the ground model lies on the ground "
-        "and must pass the tests of frontends.laser.pipe_shape (sand crests, mounds and stones fit cylinders too); "
-        "one standing clear of the ground (a tank's pipes: ≥ 2.8 radii) is not tested. Measured on the simulated "
-        "pipeline: pipes resting on the sand 0.6-1.9 radii (the ground model is the sand's mean level), crests, "
-        "mounds and stones fitted by cylinders -1.5-0.8",
+        description="a segment whose underside lies less than this above the ground model lies on the ground (m; "
+        "resting on it, buried in part, or spanning a hollow) and must pass the tests of "
+        "frontends.laser.pipe_shape (sand crests, mounds and stones fit cylinders too), and objects at its ends "
+        "must stand over it; one standing clear of the ground (the tank's lowest pipes: 8.9 cm) is not tested. "
+        "Measured on the simulated pipeline: pipes resting on the sand 0-3 cm (the ground model is the sand's "
+        "mean level), spanning up to ~6 cm",
     )
     min_axis_height: float = Field(
         0.0,
@@ -234,7 +235,7 @@ class PipeConfig(_Section):
         60.0,
         gt=0,
         le=180,
-        description="along a pipe lying on the ground (see ground_clearance), fitting evidence (the points of "
+        description="along a pipe lying on the ground (see ground_gap), fitting evidence (the points of "
         "fitting_points and gap_reach) lies within this angle about the direction from its axis towards the "
         "sensor: a fitting surrounds its pipe and shows over it, while stones beside it and a stereo camera's "
         "mixed pixels along its silhouette do not (180: all around)",

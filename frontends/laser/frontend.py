@@ -20,7 +20,7 @@ from frontends.laser.grid import VoxelGrid, adjacency_of
 from frontends.laser.ground import GroundModel, fit_ground
 from frontends.laser.noise import NoiseModel, measure_noise
 from frontends.laser.objects import SegmentedObject, segment_objects
-from frontends.laser.pipe_shape import Seabed, axis_height
+from frontends.laser.pipe_shape import Seabed, axis_height, lies_on_ground
 from frontends.laser.pipes import Pipe, Rays, detect_pipes
 from frontends.laser.planes import PlaneResult, remove_planes
 from frontends.laser.preprocess import Preprocessed, hop_covariance_parts, preprocess, shape_of_parts
@@ -171,6 +171,24 @@ def scan_pipe_config(cfg: PipeConfig, noise: NoiseModel | None, points: np.ndarr
     return cfg if tol == cfg.distance_tolerance else cfg.model_copy(update={"distance_tolerance": tol})
 
 
+def _objects(spts, pipes: list[Pipe], up, cfg: LaserConfig, pcfg: PipeConfig, on_ground, ground, rays: Rays):
+    """The objects at the pipes' ends (:func:`segment_objects`). On the seabed, a segment lying on
+    the ground and shorter than ``min_partial_length`` (not reported: a valve's lever or body, a
+    stone's flank fitted as a pipe) connects no object: its points go to the objects instead (in the
+    tank, where no pipe lies on the ground, the short pipes between fittings do connect them)."""
+    if ground is None:
+        return segment_objects(spts, pipes, up, cfg.objects, on_ground, None, None, rays.seen_at)
+    heights = [axis_height(p, ground) for p in pipes]
+    lying = np.array([h is not None and lies_on_ground(h, p.radius, pcfg) for h, p in zip(heights, pipes)])
+    arms = [k for k, p in enumerate(pipes) if not (lying[k] and p.length < pcfg.min_partial_length)]
+    objects = segment_objects(
+        spts, [pipes[k] for k in arms], up, cfg.objects, on_ground, ground, lying[arms], rays.seen_at
+    )
+    for o in objects:  # the attached pipes' indices into the scan's pipe list
+        o.pipes = tuple(arms[k] for k in o.pipes)
+    return objects
+
+
 def segment_scan(
     points: np.ndarray, cfg: LaserConfig, up: np.ndarray | None = None, rgb: np.ndarray | None = None
 ) -> ScanSegmentation:
@@ -208,11 +226,7 @@ def segment_scan(
             seabed = Seabed(ground, spts, pcfg, raw, rgb, RawIndex(raw_to_s, len(spts)))
         pipes = detect_pipes(spts, normals, grid, pcfg, rays, ~on_ground, ~on_ground, seabed)
     clock.lap("pipes")
-    lying = None
-    if ground is not None:
-        heights = [axis_height(p, ground) for p in pipes]
-        lying = np.array([h is not None and h < pcfg.ground_clearance * p.radius for h, p in zip(heights, pipes)])
-    objects = segment_objects(spts, pipes, up, cfg.objects, on_ground, ground, lying, rays.seen_at)
+    objects = _objects(spts, pipes, up, cfg, pcfg, on_ground, ground, rays)
     clock.lap("objects")
     clock.total()
     return ScanSegmentation(

@@ -399,7 +399,8 @@ def segment_objects(
     lying on the ground, where the seabed's clutter (sand, stones) surrounds a pipe's end, so an
     object at a lone end of one, or between two in line, must stand over them (``stands_over``). ``seen_beyond`` (a callable
     (point, radius) → bool, or None): whether the scan saw the space at a point; a lone end beyond
-    which it saw nothing (the view, a hole in it) is where the view stops, not an object."""
+    which it saw nothing within ``attach_distance`` (the view's edge, a hole in it) is where the
+    view stops: an object there would be cut by it, and placed by half of its extent."""
     if not pipes:
         return []
     is_pipe = np.zeros(len(points), bool) if exclude is None else np.array(exclude, bool)
@@ -460,7 +461,7 @@ def segment_objects(
                 continue
             if pipe_continues(P, e[0], -dirs[0], pipe, points, cfg):
                 continue
-            if seen_beyond is not None and not seen_beyond(e[0] - dirs[0] * cfg.own_beyond, pipe.radius):
+            if seen_beyond is not None and not seen_beyond(e[0] - dirs[0] * cfg.attach_distance, pipe.radius):
                 continue
         if lying is not None and all(lying[m // 2] for m in site.members) and site.config <= 2:
             # on the seabed: something must rise over the pipe where it ends (config 1), or in the

@@ -3,7 +3,7 @@
 A cylinder fit finds more than pipes on a natural seabed: a sand ripple's crest or a mound's flank
 turns its normals like a pipe of a few cm radius, a stone's flank too. Off the ground nothing but
 structure stands (the tank's pipes stand ≥ 9 cm clear of its floor), so only a segment lying on
-the ground (its axis less than ``ground_clearance`` radii above the ground model) is tested, for
+the ground (its underside less than ``ground_gap`` above the ground model) is tested, for
 what a pipe has and those shapes lack:
 
 * it is at most half buried: its axis lies at least ``min_axis_height`` radii above the ground
@@ -72,6 +72,12 @@ def color_contrast(
     return float(np.linalg.norm(np.median(rgb[own], axis=0) - np.median(rgb[ground], axis=0)))
 
 
+def lies_on_ground(axis_height: float, radius: float, cfg: PipeConfig) -> bool:
+    """A cylinder whose axis lies ``axis_height`` above the ground lies on it: its underside is less
+    than ``ground_gap`` above the ground."""
+    return axis_height - radius < cfg.ground_gap
+
+
 class Seabed:
     """What the pipe stage knows of the seabed under a scan: its ground model, the structure
     ``points``, and, with an RGB scan, the colour cue (the ground's raw points found once, when
@@ -84,9 +90,9 @@ class Seabed:
 
     def on_or_unknown(self, c: np.ndarray, a: np.ndarray, r: float, t0: float, t1: float) -> bool:
         """Whether the cylinder (axis point c, unit a, radius r) between t0 and t1 along a lies on
-        the ground (axis less than ``ground_clearance`` radii above it) or over unknown ground."""
+        the ground (its underside less than ``ground_gap`` above it) or over unknown ground."""
         h = axis_height_of(c + t0 * a, a, t1 - t0, self.ground)
-        return h is None or h < self.cfg.ground_clearance * r
+        return h is None or lies_on_ground(h, r, self.cfg)
 
     def _contrast(self, pipe: Pipe) -> float | None:
         if self._raw_ground is None:
@@ -111,7 +117,7 @@ def lies_like_a_pipe(pipe: Pipe, points: np.ndarray, ground, cfg: PipeConfig, co
     if ground is None:
         return True
     h = axis_height(pipe, ground)
-    if h is not None and h >= cfg.ground_clearance * pipe.radius:
+    if h is not None and not lies_on_ground(h, pipe.radius, cfg):
         return True
     # on the ground, or where the scan's ground model knows no ground (a boulder's top, a strip
     # between stones): the tests of a pipe on the seabed, those that can be made

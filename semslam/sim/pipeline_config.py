@@ -104,7 +104,7 @@ class StereoConfig(_Section):
     the camera). RGB: lamp-lit colours attenuated towards the water colour with range.
     """
 
-    rate_hz: float = Field(1.0, gt=0, description="stereo clouds per second")
+    rate_hz: float = Field(2.0, gt=0, description="stereo clouds per second")
     time_offset_s: float = Field(0.0, ge=0, lt=1, description="first cloud one period plus this after the start")
     resolution: tuple[int, int] = Field(
         (240, 180), description="pixels across and down (organised cloud of width × height points)"
