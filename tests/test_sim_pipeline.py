@@ -11,7 +11,6 @@ from semslam.sim.pipeline_config import PipelineSimConfig, StereoConfig, load_pi
 from semslam.sim.pipeline_mission import simulate_pipeline
 from semslam.sim.stereo import depth_sigma, focal_px, pixel_rays
 
-
 SECONDS = 15.0
 
 
