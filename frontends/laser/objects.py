@@ -467,7 +467,10 @@ def segment_objects(
             # on the seabed: something must rise over the pipe where it ends (config 1), or in the
             # gap between the two ends (config 2), and the scan must have seen that place
             pipe = pipes[site.members[0] // 2]
-            reach = cfg.attach_distance if site.config == 1 else float(np.ptp((e - e[0]) @ dirs[0])) + cfg.own_beyond
+            # (a fitting starts at the end, or up to attach_distance beyond where the end is seen short)
+            reach = float(np.ptp((e - e[0]) @ dirs[0])) + cfg.own_beyond
+            if site.config == 1:
+                reach = cfg.attach_distance + cfg.body_size[0] / 2
             P = np.take(points, crop, axis=0)
             if stands_over(P, e[0], -dirs[0], site.R[:, 2], pipe.radius, reach, cfg) < cfg.min_own_points:
                 continue
