@@ -13,9 +13,12 @@ PYTHON=${PYTHON:-$(command -v python3.11 || command -v python3)}
 SYSTEM_LIBS="libusb-1.0.so.0:libusb-1.0-0 libGL.so.1:libgl1 libEGL.so.1:libegl1 libX11.so.6:libx11-6 libudev.so.1:libudev1 libgomp.so.1:libgomp1"
 
 install_system_libs() {
-    local missing=()
+    local missing=() have
+    # Read the cache once: `ldconfig -p | grep -q` fails now and then under pipefail (grep exits at
+    # its first match, ldconfig gets SIGPIPE), which made present libraries look missing.
+    have=$(ldconfig -p 2>/dev/null || true)
     for pair in $SYSTEM_LIBS; do
-        ldconfig -p 2>/dev/null | grep -q "${pair%%:*}" || missing+=("${pair#*:}")
+        grep -qF "${pair%%:*}" <<<"$have" || missing+=("${pair#*:}")
     done
     "$PYTHON" -c "import ensurepip, venv" 2>/dev/null || missing+=("python3-venv")
     [ ${#missing[@]} -eq 0 ] && return 0
@@ -24,8 +27,8 @@ install_system_libs() {
         exit 1
     fi
     echo "dev.sh: installing system packages: ${missing[*]}" >&2
-    apt-get update -qq
-    DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null
+    apt-get -o DPkg::Lock::Timeout=300 update -qq
+    DEBIAN_FRONTEND=noninteractive apt-get -o DPkg::Lock::Timeout=300 install -y -qq --no-install-recommends "${missing[@]}" >/dev/null
 }
 
 install_python_env() {

@@ -21,6 +21,7 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
 import argparse  # noqa: E402
+import sys  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
@@ -29,13 +30,16 @@ from scipy.spatial.transform import Rotation  # noqa: E402
 
 from semslam.config import SemslamConfig  # noqa: E402
 from semslam.ekf import EkfEstimator  # noqa: E402
-from semslam.ekf import estimator as ekf_estimator  # noqa: E402
 from semslam.ekf import geometry as geo  # noqa: E402
 from semslam.ekf import models as mdl  # noqa: E402
-from semslam.ekf.estimator import _Extent, _Track  # noqa: E402
-from semslam.ekf.synthetic import simulate_circling  # noqa: E402
+from semslam.mapping import association as assoc_module  # noqa: E402
+from semslam.mapping.tracks import Track, TrackView  # noqa: E402
 from semslam.mission.measurements import Attitude, GroundTruthPose  # noqa: E402
 from semslam.observations import LineObservation, PointObservation  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository root: tests.support
+
+from tests.support.ekf_mission import simulate_circling  # noqa: E402
 
 
 def build(n_landmarks: int, seed: int = 0):
@@ -48,7 +52,7 @@ def build(n_landmarks: int, seed: int = 0):
     )
     T = meta.sensors["laser"].T_BS
     R_BS, t_BS = T[:3, :3], T[:3, 3]
-    R, t, _, _ = mdl.sensor_pose(est.state.xv, R_BS, t_BS)
+    R, t, _, _ = mdl.sensor_pose(est.nav.state.xv, R_BS, t_BS)
     n_pipes = n_landmarks // 3
     side = np.sqrt(n_landmarks) * 1.5  # ~1.5 m between features
     # two objects and two pipes under the sensor (re-observed by the timed scans), the rest spread out
@@ -68,12 +72,11 @@ def build(n_landmarks: int, seed: int = 0):
         else:
             o = PointObservation(0, "laser", position=(c - t) @ R, covariance=np.eye(3) * 9e-4)
             objects.append(c)
-        (ob,) = est._prepare([o])
-        extent = None
-        if ob.kind == "pipe":
-            extent = _Extent()
-            extent.add(ob.ends_W, 0.02)
-        est._add_feature(ob, _Track(ob.kind, np.zeros(3), np.eye(3), 3, 0, extent))
+        est.map.begin()
+        world, cov, prepared = est.map.place(o)
+        lid = est.map.promote(Track(-1, prepared.kind, views=[TrackView(0, o, world, cov, prepared)]))
+        if prepared.kind == "pipe":
+            est.book.extent(lid).add(world, 0.02)
     near_obj = sorted(objects, key=lambda c: np.linalg.norm(c[:2]))[:2]
     near_pipe = sorted(pipes, key=lambda pq: np.linalg.norm((pq[0] + pq[1])[:2]))[:2]
     return est, (R, t), near_obj, near_pipe, rng
@@ -99,22 +102,24 @@ def batch(stamp, R, t, objs, pipes, rng):
 
 def bench(n_landmarks: int, reps: int) -> dict:
     est, (R, t), objs, pipes, rng = build(n_landmarks)
-    n_state = est.state.n
+    n_state = est.nav.state.n
     t_assoc, t_update = [], []
-    orig_scan, orig_update = ekf_estimator._ScanPairs.associate, est._joint_update
+    orig_jcbb, orig_update = assoc_module.jcbb, est.map.update
 
-    def timed_assoc(scan, confidence):  # the scan's linearisation is timed with the update, not here
+    def timed_assoc(*args, **kwargs):  # the scan's linearisation is timed with the update, not here
         t0 = time.perf_counter()
-        r = orig_scan(scan, confidence)
+        r = orig_jcbb(*args, **kwargs)
         t_assoc.append(time.perf_counter() - t0)
         return r
 
-    def timed_update(paired, lins=None):
+    def timed_update(paired):
         t0 = time.perf_counter()
-        orig_update(paired, lins)
+        orig_update(paired)
         t_update.append(time.perf_counter() - t0)
 
-    ekf_estimator._ScanPairs.associate, est._joint_update = timed_assoc, timed_update
+    import semslam.mapping.builder as builder_module
+
+    builder_module.jcbb, est.map.update = timed_assoc, timed_update
     totals, paired, preds = [], [], []
     q = Rotation.from_matrix(geo.rot(0.0, 0.0, 0.0) @ est.metadata.sensors["ahrs"].T_BS[:3, :3]).as_quat()
     for k in range(reps):
@@ -124,12 +129,12 @@ def bench(n_landmarks: int, reps: int) -> dict:
         t0 = time.perf_counter()
         est.process_measurement(m)
         preds.append(time.perf_counter() - t0)
-        before = sum(f.n_obs for f in est._features)
+        before = sum(est.book.n_views(f.id) for f in est.map.features)
         t0 = time.perf_counter()
         est.process_observations(m.stamp, batch(m.stamp, R, t, objs, pipes, rng))
         totals.append(time.perf_counter() - t0)
-        paired.append(sum(f.n_obs for f in est._features) - before)
-    ekf_estimator._ScanPairs.associate = orig_scan
+        paired.append(sum(est.book.n_views(f.id) for f in est.map.features) - before)
+    builder_module.jcbb = orig_jcbb
     return {
         "landmarks": n_landmarks,
         "state": n_state,

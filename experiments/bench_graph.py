@@ -17,23 +17,28 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
+from pathlib import Path
 
 import gtsam
 import numpy as np
 
 from frontends.oracle import OracleFrontend
 from semslam.backend.graph import GraphEstimator
-from semslam.backend.run import run_graph
-from semslam.backend.synthetic import (
+from semslam.config import SemslamConfig
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository root: tests.support
+
+from tests.support.synthetic_mission import (  # noqa: E402
     SyntheticConfig,
     dead_reckoning,
     ground_truth_positions,
     landmark_report,
     position_errors,
+    run_graph,
     simulate,
 )
-from semslam.config import SemslamConfig
 
 
 def default_mission():
@@ -142,7 +147,7 @@ def bench_long(hours: float) -> dict:
             i0 = len(est.update_times)
             w = {
                 "t_s": next_report,
-                "landmarks": len(est.landmarks),
+                "landmarks": len(est.map),
                 "n_updates": len(recent),
                 "ms_median": float(np.median(recent)),
                 "ms_p95": float(np.percentile(recent, 95)),

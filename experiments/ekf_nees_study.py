@@ -16,6 +16,7 @@ first estimates.
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -24,7 +25,10 @@ from scipy.stats import chi2
 from semslam.config import SemslamConfig
 from semslam.ekf import EkfEstimator
 from semslam.ekf import geometry as geo
-from semslam.ekf.synthetic import simulate_circling
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository root: tests.support
+
+from tests.support.ekf_mission import simulate_circling  # noqa: E402
 
 ACCEL, RATE = 0.01, 0.002
 
@@ -64,16 +68,16 @@ def run(
             est.process_observations(m.stamp, obs)
         if m.sensor == "ahrs" and m.stamp % 1_000_000_000 == 0 and m.stamp > 0:
             i = np.searchsorted(ts, m.stamp)
-            e = est.state.xv.copy()
+            e = est.nav.state.xv.copy()
             e[:9] -= sim.truth_states[i]
-            if est.nv > 9:
+            if est.nav.nv > 9:
                 e[9] -= sim.extras["heading_bias"][i]
             e[3:6] = geo.wrap(e[3:6])
-            P = est.state.Pvv
+            P = est.nav.state.Pvv
             out_t.append(m.stamp * 1e-9)
             out_nees.append(float(e @ np.linalg.solve(P, e)))
             out_yaw.append(e[5] ** 2 / P[5, 5])
-            out_b.append(e[9] ** 2 / P[9, 9] if est.nv > 9 else np.nan)
+            out_b.append(e[9] ** 2 / P[9, 9] if est.nav.nv > 9 else np.nan)
     return np.array(out_t), np.array(out_nees), np.array(out_yaw), np.array(out_b)
 
 

@@ -1,79 +1,65 @@
-"""How far issue 9's acceptance numbers on the default tank mission (seed 0) carry to other
-simulator seeds: each seed draws its own pipe rack, noise and DVL dropouts.
+"""How far issue 9's acceptance numbers on the default tank mission (seed 0) carry to other seeds:
+a thin caller of `semslam study` that prints, per seed, what that issue measured.
 
-For each seed the tank mission is simulated (into a temporary folder, or read from ``--cache``),
-run through the laser front-end and dr / ekf / graph as `semslam demo` runs them (the demo's
-configuration), and the acceptance quantities are printed: ATE RMSE and SE(3)-aligned ATE, the
-graph/EKF and graph/DR ratios, object median error, duplicates and the recognition's SEM F1. The
-absolute ATE carries the offset that both SLAM estimators inherit from the drift before the first
-landmark is seen, which no later measurement observes; the aligned ATE shows the shape of the
-trajectory without it.
+The study simulates each seed's tank mission (``--vary none``: as before issue 20, a seed draws the
+pipe rack on the default lattice, the noise realisations and the DVL dropouts; ``--vary all`` also
+draws the world's parameters, see semslam/sim/vary.py), compares dr / ekf / graph on it with the
+demo's configuration, and writes ``OUT/study.json`` and ``OUT/report.html``. Printed per seed: ATE
+RMSE and SE(3)-aligned ATE, the graph/EKF and graph/DR ATE ratios, graph objects and pipes, duplicates,
+object median error and the recognition's SEM F1. The absolute ATE carries the offset that both SLAM
+estimators inherit from the drift before the first landmark is seen; the aligned ATE shows the shape.
 
-    python experiments/seed_study.py [--seeds 0,1,2,3] [--cache DIR] [--json experiments/out/seed_study.json]
+    python experiments/seed_study.py [--seeds 0-3] [--vary none] [--out experiments/out/seed_study] [--sim-config F]
 """
 
 from __future__ import annotations
 
 import argparse
-import contextlib
 import json
-import tempfile
 from pathlib import Path
 
-from semslam.compare import DEFAULT_ESTIMATORS, run_comparison
-from semslam.demo import demo_config, simulator_fingerprint
-from semslam.mission.bag import read_mission, write_mission
-from semslam.sim.config import TankSimConfig
-from semslam.sim.simulate import simulate_tank
-
-KEYS = ("ate_rmse_m", "ate_rmse_se3_m", "object_median_error_m", "landmark_duplicates", "n_objects", "n_pipes")
+from semslam.cli import app
 
 
-def run_seed(seed: int, folder: Path) -> dict:
-    path = folder / f"tank-seed{seed}-{simulator_fingerprint()}.bag"  # never a stale simulator's
-    if not path.exists():
-        write_mission(simulate_tank(TankSimConfig(seed=seed)), path)
-    cfg = demo_config()
-    _, metrics = run_comparison(read_mission(path, cfg.reader), cfg, ["laser"])
-    est = metrics["estimators"]
-    out = {n: {k: est[n][k] for k in KEYS} for n in DEFAULT_ESTIMATORS}
-    out["sem_f1"] = (metrics.get("recognition") or {}).get("SEM", {}).get("f1")
-    g, e, d = (out[n] for n in ("graph", "ekf", "dr"))
-    out["ratios"] = {
-        "graph/ekf ATE": g["ate_rmse_m"] / e["ate_rmse_m"],
-        "graph/dr ATE": g["ate_rmse_m"] / d["ate_rmse_m"],
-        "graph/ekf aligned ATE": g["ate_rmse_se3_m"] / e["ate_rmse_se3_m"],
-    }
-    return out
+def _line(m: dict) -> str:
+    if m["status"] != "ok":
+        return f"{m['mission']}: {m['status']}: {m['error']}"
+    e = m["summary"]["estimators"]
+    g, k, d = e["graph"], e["ekf"], e["dr"]
+    f1 = m["summary"]["recognition_f1"].get("SEM")
+
+    def f(v, fmt=".3f"):
+        return "n/a" if v is None else format(v, fmt)
+
+    def ratio(a, b):
+        return None if a is None or not b else a / b
+
+    return (
+        f"{m['mission']}: ATE dr {f(d['ate_rmse_m'])} ekf {f(k['ate_rmse_m'])} graph {f(g['ate_rmse_m'])} | "
+        f"aligned ekf {f(k['ate_rmse_se3_m'], '.4f')} graph {f(g['ate_rmse_se3_m'], '.4f')} | "
+        f"graph/ekf {f(ratio(g['ate_rmse_m'], k['ate_rmse_m']), '.2f')}, "
+        f"graph/dr {f(ratio(g['ate_rmse_m'], d['ate_rmse_m']), '.2f')} | "
+        f"graph objects {g['n_objects']}, pipes {g['n_pipes']}, duplicates {g['landmark_duplicates']} "
+        f"(ekf {k['landmark_duplicates']}), object median error {f(g['object_median_error_m'])} m, SEM F1 {f(f1)}"
+    )
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--seeds", default="0,1,2,3", help="simulator seeds, comma-separated (0: the default mission)")
+    ap.add_argument("--seeds", default="0-3", help="simulator seeds, e.g. 0-3 or 0,5 (0: the default mission)")
     ap.add_argument(
-        "--cache", type=Path, help="folder keeping the simulated missions between runs (default: a temporary one)"
+        "--vary", default="none", help="what a seed draws besides layout and noise (see --help of semslam study)"
     )
-    ap.add_argument("--json", default="experiments/out/seed_study.json")
+    ap.add_argument("--out", type=Path, default=Path("experiments/out/seed_study"), help="the study folder (resumable)")
+    ap.add_argument("--scheduler", help="a Dask scheduler's address (default: a LocalCluster)")
+    ap.add_argument("--sim-config", help="YAML over the simulator's defaults (e.g. shorter missions)")
     args = ap.parse_args()
-    seeds = [int(s) for s in args.seeds.split(",")]
-    with contextlib.ExitStack() as stack:
-        folder = args.cache or Path(stack.enter_context(tempfile.TemporaryDirectory()))
-        folder.mkdir(parents=True, exist_ok=True)
-        results = {}
-        for s in seeds:
-            results[s] = r = run_seed(s, folder)
-            print(
-                f"seed {s}: ATE dr {r['dr']['ate_rmse_m']:.3f} ekf {r['ekf']['ate_rmse_m']:.3f} "
-                f"graph {r['graph']['ate_rmse_m']:.3f} | aligned ekf {r['ekf']['ate_rmse_se3_m']:.4f} "
-                f"graph {r['graph']['ate_rmse_se3_m']:.4f} | "
-                + ", ".join(f"{k} {v:.2f}" for k, v in r["ratios"].items())
-                + f" | graph objects {r['graph']['n_objects']}, pipes {r['graph']['n_pipes']}, "
-                f"duplicates {r['graph']['landmark_duplicates']} (ekf {r['ekf']['landmark_duplicates']}), "
-                f"object median error {r['graph']['object_median_error_m']:.3f} m, SEM F1 {r['sem_f1']:.3f}",
-                flush=True,
-            )
-    Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-    Path(args.json).write_text(json.dumps(results, indent=1))
+    cmd = ["study", "--scenario", "tank", "--seeds", args.seeds, "--vary", args.vary, "--out", str(args.out)]
+    cmd += ["--scheduler", args.scheduler] if args.scheduler else []
+    cmd += ["--sim-config", args.sim_config] if args.sim_config else []
+    app(cmd, standalone_mode=False)
+    for m in json.loads((args.out / "study.json").read_text())["missions"]:
+        print(_line(m), flush=True)
 
 
 if __name__ == "__main__":

@@ -22,6 +22,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import sys
 import time
 from pathlib import Path
 
@@ -31,8 +32,11 @@ from frontends.sonar.config import RecognitionConfig, StructureRegistrationConfi
 from frontends.sonar.grid import ElevationMap, estimate_ground
 from frontends.sonar.patches import top_points
 from frontends.sonar.recognition import Recogniser
-from frontends.sonar.synthetic import true_points, true_structure_pose, yaw_error
 from semslam.models.structures import structure_library
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository root: tests.support
+
+from tests.support.sonar_survey import true_points, true_structure_pose, yaw_error  # noqa: E402
 
 
 class Buckets:

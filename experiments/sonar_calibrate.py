@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
 from pathlib import Path
 
@@ -30,11 +31,14 @@ import numpy as np
 from frontends.sonar.config import RecognitionConfig, StructureRegistrationConfig
 from frontends.sonar.descriptor import search
 from frontends.sonar.recognition import Recogniser
-from frontends.sonar.synthetic import true_points
 from semslam.models.structures import structure_library
 from semslam.sim.drift import dead_reckoning
 from semslam.sim.field_config import FieldSimConfig
 from semslam.sim.field_mission import simulate_field
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository root: tests.support
+
+from tests.support.sonar_survey import true_points  # noqa: E402
 
 
 def dr_points(mission) -> np.ndarray:

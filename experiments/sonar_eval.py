@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
 from pathlib import Path
 
@@ -32,12 +33,15 @@ from scipy.spatial.transform import Rotation, Slerp
 
 from frontends.sonar import SonarFrontend
 from frontends.sonar.summary import overlapping_pairs, swath_disagreement
-from frontends.sonar.synthetic import true_structure_pose
 from semslam.config import SemslamConfig
 from semslam.estimators import create_estimator
 from semslam.eval.outputs import build_metrics, write_outputs
 from semslam.mission.measurements import GroundTruthPose
 from semslam.pipeline import run_pipeline
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository root: tests.support
+
+from tests.support.sonar_survey import true_structure_pose  # noqa: E402
 
 
 def pose_interpolator(stamps, positions, quats):

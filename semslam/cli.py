@@ -6,7 +6,7 @@ from __future__ import annotations
 import typer
 
 from semslam import __version__
-from semslam.commands import compare, config, demo, info, run, simulate
+from semslam.commands import compare, config, demo, info, run, simulate, study
 
 app = typer.Typer(
     name="semslam",
@@ -37,6 +37,7 @@ app.command("simulate")(simulate.simulate)
 app.command("run")(run.run)
 app.command("compare")(compare.compare)
 app.command("demo")(demo.demo)
+app.command("study")(study.study)
 config_app.command("dump")(config.dump)
 
 

@@ -7,8 +7,8 @@ from pathlib import Path
 
 from semslam.config import SemslamConfig
 from semslam.estimators import create_estimator
-from semslam.eval.outputs import build_metrics, write_outputs
-from semslam.eval.report import write_report
+from semslam.eval.outputs import build_metrics, write_run
+from semslam.mission.check import input_block
 from semslam.mission.mission import Mission, MissionMetadata
 from semslam.pipeline import run_pipeline
 from semslam.registry import available_frontends, create_frontends
@@ -31,14 +31,19 @@ def run_comparison(
     frontends: Sequence[str] | None = None,
     estimators: Sequence[str] = DEFAULT_ESTIMATORS,
     progress: bool = False,
+    frontend_workers: int | None = None,
 ) -> tuple[PipelineResult, dict]:
     """Run every estimator on the identical measurement and observation stream; return the
-    pipeline result and metrics.json's content."""
+    pipeline result and metrics.json's content. ``frontend_workers``: processes for the front-ends
+    that run apart (default one per core; a study running one mission per core wants 1)."""
     names = list(frontends) if frontends is not None else default_frontends(mission.metadata)
     fes = create_frontends(names, mission.metadata, config.frontends)
     ests = [create_estimator(n, mission.metadata, config) for n in estimators]
-    result = run_pipeline(mission, ests, fes, view_estimator="graph", progress=progress)
+    result = run_pipeline(
+        mission, ests, fes, view_estimator="graph", progress=progress, frontend_workers=frontend_workers
+    )
     metrics = build_metrics(result, mission.metadata)
+    metrics["input"] = input_block(mission)  # after the pipeline's complete pass over the mission
     metrics["frontends"] = names
     return result, metrics
 
@@ -49,8 +54,10 @@ def compare_to_dir(
     out: str | Path,
     frontends: Sequence[str] | None = None,
     progress: bool = False,
+    overwrite: bool = False,
 ) -> tuple[dict, Path]:
+    """:func:`run_comparison`, its results and report written to ``out`` as one transaction;
+    returns metrics.json's content and the report's path."""
     result, metrics = run_comparison(mission, config, frontends, progress=progress)
-    out = write_outputs(out, config, result, metrics)
-    report = write_report(out, result, mission.metadata, metrics)
-    return metrics, report
+    out = write_run(out, config, result, metrics, mission.metadata, overwrite=overwrite, report=True)
+    return metrics, Path(out) / "report.html"

@@ -6,9 +6,10 @@ through an :class:`EstimateView`, and at the end returns an :class:`EstimatorRes
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Protocol, runtime_checkable
+from typing import ClassVar
 
 import numpy as np
 
@@ -78,27 +79,36 @@ class EstimatorResult:
     diagnostics: list[str] = field(default_factory=list)  # recovered failures, warnings
 
 
-@runtime_checkable
-class EstimateView(Protocol):
+class EstimateView(ABC):
     """Read-only view of an estimator's current estimate, handed to front-ends."""
 
+    @abstractmethod
     def pose_at(self, stamp: int) -> np.ndarray | None:
         """Current estimate of T_WB (4×4) at ``stamp`` (ns), or None if the estimator cannot tell."""
 
+    @abstractmethod
     def landmarks(self) -> Sequence[LandmarkEstimate]:
         """The current map, with global ids."""
 
 
-@runtime_checkable
-class Estimator(Protocol):
-    name: str
+class Estimator(ABC):
+    """The base class of every estimator: it consumes measurements and observations in time order,
+    answers its current estimate through :meth:`view`, and returns its result at the end."""
 
+    name: ClassVar[str]
+
+    @abstractmethod
     def process_measurement(self, measurement: Measurement) -> None:
         """Navigation (and ground-truth) measurements, in stamp order."""
 
+    @abstractmethod
     def process_observations(self, stamp: int, observations: Sequence[Observation]) -> None:
         """All observations a front-end drew from one measurement at ``stamp`` (associated jointly)."""
 
-    def view(self) -> EstimateView: ...
+    @abstractmethod
+    def view(self) -> EstimateView:
+        """The current estimate, for the front-ends."""
 
-    def finish(self) -> EstimatorResult: ...
+    @abstractmethod
+    def finish(self) -> EstimatorResult:
+        """The trajectory, the map and the timings, at the end of the mission."""

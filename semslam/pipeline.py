@@ -5,16 +5,50 @@ from __future__ import annotations
 
 import time
 from collections import defaultdict, deque
-from collections.abc import Sequence
+from collections.abc import Iterator, Mapping, Sequence
+from contextlib import contextmanager
+from contextvars import ContextVar
+from typing import Protocol
 
 import numpy as np
 
-from semslam.estimation import Estimator, Trajectory
+from semslam.estimation import EstimateView, Estimator, Trajectory
 from semslam.frontend_process import FrontendProcess, default_workers, runs_in_process
-from semslam.mission.measurements import GroundTruthPose
+from semslam.mission.measurements import GroundTruthPose, Measurement
 from semslam.mission.mission import Mission
+from semslam.observations import Observation
 from semslam.registry import Frontend
 from semslam.results import ObservationRecord, PipelineResult
+
+
+class PipelineObserver(Protocol):
+    """Watches a run as it happens (e.g. :class:`semslam.eval.replay.ReplayRecorder`). It only
+    reads: what it is handed must not be changed, so a run gives the same result with or without it."""
+
+    def step(
+        self,
+        stamp: int,
+        measurement: Measurement | None,
+        observations: Sequence[tuple[str, Sequence[Observation]]],
+        views: Mapping[str, EstimateView],
+    ) -> None:
+        """After every estimator took ``measurement`` and the observations the front-ends drew from
+        it, as (front-end name, observations) in the order fed; ``views`` are the estimators' current
+        estimates, by name. ``measurement`` is None for the front-ends' last word at the mission's end."""
+
+
+_AMBIENT: ContextVar[tuple[PipelineObserver, ...]] = ContextVar("semslam_pipeline_observers", default=())
+
+
+@contextmanager
+def observed_by(*observers: PipelineObserver) -> Iterator[None]:
+    """Every pipeline run inside the block is watched by ``observers`` too: for callers that reach
+    :func:`run_pipeline` through a function that does not pass observers on (``compare.run_comparison``)."""
+    token = _AMBIENT.set(_AMBIENT.get() + tuple(observers))
+    try:
+        yield
+    finally:
+        _AMBIENT.reset(token)
 
 
 def _truth_trajectory(poses: list[GroundTruthPose]) -> Trajectory | None:
@@ -36,15 +70,19 @@ def run_pipeline(
     keep_observations: bool = True,
     frontend_process: bool = True,
     frontend_workers: int | None = None,
+    observers: Sequence[PipelineObserver] = (),
 ) -> PipelineResult:
     """Feed ``mission`` through ``frontends`` into every estimator.
 
     Front-ends see the estimate of ``view_estimator`` (default: "graph" if present, else the first
     estimator) — the semantic feedback of the paper (global ids for class fusion). Front-ends that
-    never read it (``uses_view = False``) run in a process of their own a few scans ahead
+    never read it (``uses_view = False``) run in worker processes a few scans ahead
     (``frontend_process``; see :mod:`semslam.frontend_process`): the same observations, in the same
-    order, in less wall time; front-ends that declare ``parallel_consumes`` (the laser's scans) run
-    in ``frontend_workers`` replicas (default: one per core, at most 4).
+    order, in less wall time. Of ``frontend_workers`` workers (default: one per core, at most 4),
+    front-ends that declare ``parallel_consumes`` (the laser's scans) have a replica in each, sharing
+    those measurements; the others live in one each. On any exception (Ctrl-C included) the workers
+    are killed before it propagates. ``observers`` (and those of an enclosing :func:`observed_by`)
+    see every step; without any, nothing is collected for them.
 
     BLAS runs single-threaded meanwhile: the matrices here are small (an EKF of a few hundred
     states, 3×3 to 100×100 blocks), and OpenBLAS's threads spinning against GTSAM's and each other
@@ -52,14 +90,30 @@ def run_pipeline(
     """
     from threadpoolctl import threadpool_limits
 
+    watchers = (*observers, *_AMBIENT.get())
     apart = [fe for fe in frontends if frontend_process and runs_in_process(fe)]
     worker = FrontendProcess(apart, frontend_workers or default_workers()) if apart else None
     try:
         with threadpool_limits(limits=1, user_api="blas"):
-            return _run_pipeline(mission, estimators, frontends, view_estimator, progress, keep_observations, worker)
-    finally:
+            result = _run_pipeline(
+                mission, estimators, frontends, view_estimator, progress, keep_observations, worker, watchers
+            )
+    except BaseException:  # an error, Ctrl-C or SIGTERM: the workers' work is of no use, kill them now
         if worker is not None:
-            worker.close()
+            worker.abort()
+        raise
+    if worker is not None:
+        worker.close()
+    return result
+
+
+def _notify(watchers, stamp: int, measurement, fed: list, estimators) -> None:
+    """Hand one step to every watcher, then start the next step's list of observations."""
+    views = {est.name: est.view() for est in estimators}
+    step = tuple(fed)
+    for w in watchers:
+        w.step(stamp, measurement, step, views)
+    fed.clear()
 
 
 # Measurements read ahead of the estimators when front-ends run apart: ~12 s of the tank mission
@@ -89,7 +143,7 @@ def _in_order(mission: Mission, worker: FrontendProcess | None, timing: dict):
 
 
 def _run_pipeline(
-    mission, estimators, frontends, view_estimator, progress, keep_observations, worker
+    mission, estimators, frontends, view_estimator, progress, keep_observations, worker, watchers
 ) -> PipelineResult:
     if not estimators:
         raise ValueError("at least one estimator is needed")
@@ -102,7 +156,11 @@ def _run_pipeline(
     consumers = [(fe, tuple(fe.consumes)) for fe in frontends]
     apart = set(worker.names) if worker is not None else set()
 
+    fed: list[tuple[str, list]] = []  # this step's observations, for the watchers
+
     def feed(fe_name: str, stamp: int, obs) -> None:
+        if watchers:
+            fed.append((fe_name, obs))
         if keep_observations:
             records.extend(ObservationRecord(fe_name, stamp, o) for o in obs)
         for est in estimators:
@@ -148,6 +206,8 @@ def _run_pipeline(
             timing[f"frontend:{fe.name}"] += dt
             if obs:
                 feed(fe.name, m.stamp, obs)
+        if watchers:
+            _notify(watchers, m.stamp, m, fed, estimators)
         if bar is not None:
             bar.update(1)
             if n % 200 == 0:
@@ -172,6 +232,8 @@ def _run_pipeline(
         summaries[fe.name] = summary
         if summary.observations and last is not None:
             feed(fe.name, last, summary.observations)
+    if watchers and fed:
+        _notify(watchers, last, None, fed, estimators)
     results = {}
     for est in estimators:
         t0 = time.perf_counter()

@@ -1,4 +1,4 @@
-"""JCBB against hand-built problems and against brute-force enumeration."""
+"""The one JCBB (semslam.mapping.association) against hand-built problems and brute-force enumeration."""
 
 import itertools
 
@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from semslam.backend.association import PairLinearization, individual_nis, jcbb, joint_nis
+from semslam.mapping.association import DenseJoint, PairLinearization, jcbb
+from tests.support.association import candidates, individual_nis, joint_nis, solve
 
 
 class PointProblem:
@@ -52,21 +53,21 @@ def test_correlation_resolves_what_individual_gates_cannot():
     R = np.eye(3) * 0.01**2
     prob = PointProblem(x_est, L, _joint_cov(3, 0.5, 0.001), Z, R)
     assert individual_nis(prob, 0, 0) == pytest.approx(individual_nis(prob, 0, 1))
-    assert jcbb(prob) == [1, 2]
+    assert solve(prob) == [1, 2]
 
 
 def test_one_to_one_and_new_landmark():
     L = [[0, 0, 0], [3, 0, 0]]
     Z = [[0.01, 0, 0], [-0.01, 0.0, 0], [10, 10, 0]]  # two observations of landmark 0, one of nothing
     prob = PointProblem(np.zeros(3), L, _joint_cov(2, 0.01, 0.01), Z, np.eye(3) * 0.01**2)
-    out = jcbb(prob)
+    out = solve(prob)
     assert out.count(0) == 1 and out[2] is None and 1 not in out
 
 
 def test_kinds_never_pair_across():
     L = [[0, 0, 0]]
     prob = PointProblem(np.zeros(3), L, _joint_cov(1, 0.01, 0.01), [[0, 0, 0]], np.eye(3) * 1e-4, ["pipe"], ["object"])
-    assert jcbb(prob) == [None]
+    assert solve(prob) == [None]
 
 
 def _brute_force(prob, confidence):
@@ -103,7 +104,7 @@ def test_matches_brute_force_on_random_cluttered_scenes(seed):
     Z.append(rng.uniform(-1, 1, 3))  # clutter
     P = _joint_cov(m, 0.2, 0.02)
     prob = PointProblem(np.zeros(3), L, P, Z, np.eye(3) * 0.02**2)
-    out = jcbb(prob, 0.99)
+    out = solve(prob, 0.99)
     n_best, nis_best, _ = _brute_force(prob, 0.99)
     pairs = [(i, j) for i, j in enumerate(out) if j is not None]
     assert len(pairs) == n_best
@@ -117,21 +118,20 @@ def test_optional_candidate_pre_gate_limits_the_pairs_tested():
     tested = []
     original = prob.pair
     prob.pair = lambda i, j: tested.append(j) or original(i, j)
-    assert jcbb(prob) == [1]
+    assert solve(prob) == [1]
     prob.candidate_landmarks = lambda i: [0, 2]  # a pre-gate that (wrongly) left out landmark 1
     tested.clear()
-    assert jcbb(prob) == [0] and 1 not in tested
+    assert solve(prob) == [0] and 1 not in tested
 
 
 class UncorrelatedPointProblem(PointProblem):
-    """PointProblem whose joint covariance has no vehicle–landmark or landmark–landmark terms."""
-
-    uncorrelated_landmarks = True
+    """PointProblem whose joint covariance has no vehicle–landmark or landmark–landmark terms (the
+    graph's case: the low-rank joint applies)."""
 
 
 @pytest.mark.parametrize("seed", range(6))
 def test_low_rank_joint_nis_equals_the_direct_one(seed):
-    from semslam.backend.association import _Blocks, _LowRankJoint
+    from semslam.mapping.association import LowRankJoint
 
     rng = np.random.default_rng(seed)
     m = 6
@@ -141,13 +141,14 @@ def test_low_rank_joint_nis_equals_the_direct_one(seed):
     P[:3, :3] = A @ A.T * 0.01 + np.eye(3) * 1e-4  # a full vehicle block
     Z = L + rng.normal(0, 0.05, (m, 3))
     prob = UncorrelatedPointProblem(np.zeros(3), L, P, Z, np.eye(3) * 0.02**2)
-    joint = _LowRankJoint(_Blocks(prob))
+    found, _ = candidates(prob)
+    joint = LowRankJoint(found, P[:3, :3], lambda j: P[3 + 3 * j : 6 + 3 * j, 3 + 3 * j : 6 + 3 * j])
     node = joint.root()
     pairs = []
     for i in rng.permutation(m):
-        j = int(i)
-        node = joint.extend(node, int(i), j, prob.pair(int(i), j))
-        pairs.append((int(i), j))
+        i = j = int(i)
+        node = joint.extend(node, found.pair(i, j), np.inf)
+        pairs.append((i, j))
         assert node.nis == pytest.approx(joint_nis(prob, pairs), rel=1e-9)
 
 
@@ -162,7 +163,7 @@ def test_low_rank_path_finds_the_same_hypothesis(seed):
     P = _joint_cov(m, 0.2, 0.02)
     general = PointProblem(np.zeros(3), L, P, Z, np.eye(3) * 0.02**2)
     fast = UncorrelatedPointProblem(np.zeros(3), L, P, Z, np.eye(3) * 0.02**2)
-    assert jcbb(fast) == jcbb(general)
+    assert solve(fast, joint="low_rank") == solve(general, joint="dense") == solve(general, joint="direct")
 
 
 def test_many_landmarks_and_numpy_candidate_indices():
@@ -172,4 +173,6 @@ def test_many_landmarks_and_numpy_candidate_indices():
     Z = [L[j] + [0.001, 0, 0] for j in (3, 70, 99)]
     prob = UncorrelatedPointProblem(np.zeros(3), L, _joint_cov(m, 0.01, 0.01), Z, np.eye(3) * 0.01**2)
     prob.candidate_landmarks = lambda i: np.arange(m, dtype=np.int64)
-    assert jcbb(prob) == [3, 70, 99]
+    assert solve(prob, joint="low_rank") == [3, 70, 99]
+    found, S = candidates(prob)
+    assert jcbb(found, DenseJoint(found, S)) == [3, 70, 99]

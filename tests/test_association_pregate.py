@@ -7,12 +7,16 @@ import pytest
 from scipy.stats import chi2
 
 from factors.landmarks import LineAnchor
-from semslam.backend.association import individual_nis
 from semslam.backend.landmarks import Landmark
 from semslam.backend.problem import Candidate, GraphAssociationProblem, possible_pairs
+from semslam.config import AssociationConfig
+from semslam.mapping.association import uncorrelated_candidates
+from semslam.mapping.book import LandmarkBook
+from semslam.mapping.builder import Scan
 from semslam.observations import LineObservation, PointObservation
 
 GATES = {d: float(chi2.ppf(0.99, d)) for d in (3, 4)}
+BOOK = LandmarkBook()  # what was seen of the pipes: 10 m of their lines
 
 
 def random_spd(rng, n, scale):
@@ -40,6 +44,8 @@ def scene(rng):
         d /= np.linalg.norm(d)
         anchor = LineAnchor.from_points(p, p + d)
         theta = rng.normal(0, 0.05, 4)
+        c, u = anchor.point(theta), anchor.direction(theta)
+        BOOK.extent(10 + k).add(np.array([c - 5 * u, c + 5 * u]), 0.01)
         lm = Landmark(
             10 + k,
             "pipe",
@@ -47,10 +53,8 @@ def scene(rng):
             anchor=anchor,
             estimate=theta,
             covariance=random_spd(rng, 4, 0.02),
-            extent=(-5.0, 5.0),
         )
         cands.append(Candidate(lm, lm.covariance))
-        c, u = anchor.point(theta), anchor.direction(theta)
         off = rng.normal(0, rng.choice([0.01, 0.05, 0.2]), 3)
         a, b = c + off + rng.uniform(-1, 0) * u, c + off + rng.uniform(0.2, 1) * u
         obs.append(
@@ -65,17 +69,15 @@ def test_never_rejects_an_individually_compatible_pair(seed):
     pose, pose_cov, obs, T_BS, cands = scene(rng)
     mask = possible_pairs(pose, pose_cov, obs, T_BS, cands, GATES)
     everything = np.ones_like(mask)
-    problem = GraphAssociationProblem(pose, pose_cov, obs, T_BS, cands, 10.0, everything)
-    compatible = 0
-    for i in range(len(obs)):
-        for j in range(len(cands)):
-            p = problem.pair(i, j)
-            if p is None:
-                continue
-            if individual_nis(problem, i, j) < GATES[len(p.innovation)]:
-                compatible += 1
-                assert mask[i, j], (i, j)
-    assert compatible > 0
+    scan = Scan(BOOK, AssociationConfig(pipe_extent_gap_m=10.0), np.zeros((0, 3)), np.zeros((0, 3)))
+    problem = GraphAssociationProblem(pose, obs, T_BS, cands, everything, scan)
+    pairs = [(i, j, problem.pair(i, j)) for i in range(len(obs)) for j in range(len(cands))]
+    found = uncorrelated_candidates(
+        len(obs), [t for t in pairs if t[2] is not None], pose_cov, problem.landmark_covariance, 0.99
+    )
+    assert len(found.obs) > 0  # individually compatible at the exact gate
+    for i, j in zip(found.obs, found.lm):
+        assert mask[i, j], (i, j)
 
 
 def test_rejects_far_pairs_and_other_kinds():

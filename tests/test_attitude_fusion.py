@@ -5,9 +5,10 @@ from scipy.spatial.transform import Rotation
 
 from semslam.backend.navigation import NavigationBuffer
 from semslam.mission.measurements import Attitude
-from semslam.mission.mission import MissionMetadata
+from semslam.mission.mission import MissionMetadata, SensorInfo
 
 SIG = np.deg2rad([0.1, 0.1, 0.5])  # the tank's AHRS: roll, pitch, heading σ per reading
+AHRS_ONLY = MissionMetadata(sensors={"ahrs": SensorInfo("ahrs", "ahrs")})  # mounted with the body's axes
 
 
 def _readings(rng, n, rate_z=0.0, hz=20.0, rate_sigma=0.01):
@@ -37,7 +38,7 @@ def _fused_errors(rate_z, runs=200, n=20, rate_sigma=0.01):
     rng = np.random.default_rng(1)
     errs, covs = [], []
     for _ in range(runs):
-        nav = NavigationBuffer(MissionMetadata(), accel_sigma=0.05, rate_sigma=rate_sigma)
+        nav = NavigationBuffer(AHRS_ONLY, accel_sigma=0.05, rate_sigma=rate_sigma)
         readings, truth = _readings(rng, n, rate_z, rate_sigma=rate_sigma)
         for m in readings:
             nav.add(m)

@@ -13,18 +13,21 @@ import pytest
 
 from frontends.oracle import OracleFrontend
 from semslam.backend.graph import GraphEstimator
-from semslam.backend.run import run_graph
-from semslam.backend.synthetic import (
+from semslam.config import SemslamConfig
+from semslam.estimation import EstimateView, Estimator
+from semslam.mission.measurements import PointCloud
+from semslam.observations import PointObservation
+from semslam.pipeline import run_pipeline
+from tests.support.replay import probe
+from tests.support.synthetic_mission import (
     SyntheticConfig,
     dead_reckoning,
     ground_truth_positions,
     landmark_report,
     position_errors,
+    run_graph,
     simulate,
 )
-from semslam.config import SemslamConfig
-from semslam.estimation import EstimateView, Estimator
-from semslam.observations import PointObservation
 
 DROPOUTS = ((60.0, 20.0), (150.0, 15.0))
 
@@ -163,11 +166,9 @@ def test_protocol_view_and_failure_recovery():
     injected = False
     for m in mission:
         est.process_measurement(m)
-        if not injected and len(est.kf_stamps) > 5:
+        if not injected and len(est.keyframes) > 5:
             # A point landmark constrained along one axis only: a zero pivot in the elimination.
-            len(est.kf_stamps) - 1
-            ok = est._commit(*indeterminate_landmark(999))
-            assert not ok
+            assert est.session.commit(*indeterminate_landmark(999), est.keyframes.anchor()) == [999]
             injected = True
     res = est.finish()
     assert injected and any("failed" in d for d in res.diagnostics)
@@ -186,35 +187,34 @@ def test_isam2_callbacks_get_theta_itself_not_a_copy():
     """CustomFactor callbacks inside iSAM2 receive the estimator's handle on iSAM2's θ (pybind11
     would otherwise copy all of θ for every callback: a per-update cost growing with the map),
     also after a rebuild replaces iSAM2."""
-    from semslam.backend.graph import X
+    from semslam.backend.window import X
 
     mission = simulate(SyntheticConfig(duration_s=20.0, n_objects=0, n_pipes=0, n_structures=0, seed=2))
     est = GraphEstimator(mission.metadata, SemslamConfig())
     seen = []
 
     def probe(this, values, H):
-        seen.append(values is est._theta)
+        seen.append(values is est.session.theta)
         if H is not None:
             H[0] = np.zeros((1, 6))
         return np.zeros(1)
 
     for m in mission:
         est.process_measurement(m)
-        if len(est.kf_stamps) == 5 and not seen:
-            est._commit(
-                [(gtsam.CustomFactor(gtsam.noiseModel.Isotropic.Sigma(1, 1.0), [X(2)], probe), None)], gtsam.Values()
-            )
+        if len(est.keyframes) == 5 and not seen:
+            factor = gtsam.CustomFactor(gtsam.noiseModel.Isotropic.Sigma(1, 1.0), [X(2)], probe)
+            assert est.session.commit([(factor, None)], gtsam.Values(), est.keyframes.anchor()) is None
     n_before = len(seen)
-    old = est._theta
-    est._rebuild([], gtsam.Values(), [])  # a fresh iSAM2 relinearises every factor
-    assert est._theta is not old and est._theta is est.isam.getLinearizationPoint()
+    old = est.session.theta
+    est.session.rebuild([], gtsam.Values(), est.keyframes.anchor())  # a fresh iSAM2 relinearises every factor
+    assert est.session.theta is not old and est.session.theta is est.session.isam.getLinearizationPoint()
     assert n_before > 0 and len(seen) > n_before and all(seen)
 
 
 def test_batch_levenberg_marquardt_is_gtsams():
     """The batch LM loop (iterated in Python to hold a handle on the values it linearises at) gives
     GTSAM's optimize() result: same error, same estimate."""
-    from semslam.backend.graph import _levenberg_marquardt
+    from semslam.backend.session import levenberg_marquardt
 
     rng = np.random.default_rng(0)
     graph, init = gtsam.NonlinearFactorGraph(), gtsam.Values()
@@ -235,14 +235,14 @@ def test_batch_levenberg_marquardt_is_gtsams():
     params = gtsam.LevenbergMarquardtParams()
     params.setMaxIterations(50)
     ref = gtsam.LevenbergMarquardtOptimizer(graph, init, params).optimize()
-    ours = _levenberg_marquardt(graph, init, params)
+    ours = levenberg_marquardt(graph, init, params)
     assert graph.error(ours) == pytest.approx(graph.error(ref), rel=1e-12, abs=1e-12)
     for k in range(31):
         assert ours.atPose3(k).equals(ref.atPose3(k), 1e-9)
     params.setMaxIterations(2)  # and the iteration limit
     ref2, ours2 = (
         gtsam.LevenbergMarquardtOptimizer(graph, init, params).optimize(),
-        _levenberg_marquardt(graph, init, params),
+        levenberg_marquardt(graph, init, params),
     )
     assert graph.error(ours2) == pytest.approx(graph.error(ref2), rel=1e-12) and graph.error(ref2) > graph.error(ref)
 
@@ -264,7 +264,7 @@ def test_landmark_needs_min_observations():
                 m.stamp, [PointObservation(m.stamp, "laser", position=z, covariance=np.eye(3) * 1e-4)]
             )
             sent += 1
-            assert len(est.landmarks) == (0 if sent < 3 else 1)
+            assert len(est.map) == (0 if sent < 3 else 1)
     res = est.finish()
     assert len(res.landmarks) == 1 and res.landmarks[0].n_observations == sent
 
@@ -273,36 +273,38 @@ def test_two_object_landmarks_on_one_place_are_merged():
     """A second landmark made from the same views as a mapped object (as when a first track's
     views were off and both end up fed by one object) converges onto it and is merged: the map
     keeps one object with both histories, and the graph (rebuild included) goes on."""
-    from semslam.backend.landmarks import Track
+    from semslam.mapping.tracks import Track, TrackView
 
     mission = simulate(
         SyntheticConfig(duration_s=60.0, n_objects=3, n_pipes=0, n_structures=0, ahrs_yaw_bias_rad=0.0, seed=2)
     )
-    fe = OracleFrontend(mission.metadata, {"seed": 0})
     est = GraphEstimator(mission.metadata, SemslamConfig())
-    view, twin = est.view(), None
-    for m in mission:
-        est.process_measurement(m)
-        if isinstance(m, fe.consumes):
-            obs = fe.process(m, view)
-            if obs:
-                est.process_observations(m.stamp, obs)
-        objects = [lm for lm in est.landmarks.values() if lm.kind == "object"]
-        if twin is None and objects and len(objects[0].history) >= 5:
-            a = objects[0]
-            tr = Track("object", records=list(a.history), world=[np.asarray(a.estimate)] * len(a.history))
-            factors, values = [], gtsam.Values()
-            est._promote(tr, factors, values, est._pose_cov)
-            twin = max(est.landmarks)
-            assert est._commit(factors, values)
-            est._refresh_landmarks({a.id, twin})
-            n_before, n_hist = len(est.landmarks), len(a.history)
-            est._merge_twins({twin})
-            assert twin not in est.landmarks and a.id in est.landmarks
-            assert len(est.landmarks) == n_before - 1 and len(a.history) == 2 * n_hist
-            assert any(f"merged into {a.id}" in d for d in est.diagnostics)
-            est._rebuild([], gtsam.Values(), [])  # the merged landmark's key stays in the graph
-    res = est.finish()
+    twin = None
+
+    def inject(m):  # once an object has five views, a twin from the same views
+        nonlocal twin
+        objects = [lm for lm in est.map.landmarks.values() if lm.kind == "object"]
+        if twin is not None or not objects or est.book.n_views(objects[0].id) < 5:
+            return
+        a = objects[0]
+        views = [
+            TrackView(t, z, np.asarray(a.estimate), np.eye(3) * 1e-4, est.keyframes.older(t, []) or 0)
+            for t, z in est.book.views[a.id]
+        ]
+        est.map.begin(est.keyframes.newest)
+        twin = est.map.promote(Track(-1, "object", views=views))
+        est.map.settle()
+        for t, z in est.book.views[a.id][: len(views)]:
+            est.book.observe(twin, t, z)
+        n_before, n_hist = len(est.map), est.book.n_views(a.id)
+        est.mapper.merge_duplicates({twin})
+        assert twin not in est.map.landmarks and a.id in est.map.landmarks
+        assert len(est.map) == n_before - 1 and est.book.n_views(a.id) == 2 * n_hist
+        assert any(f"merged into {a.id}" in d for d in est.diagnostics)
+        est.session.rebuild([], gtsam.Values(), est.keyframes.anchor())  # the merged landmark's key stays
+
+    fe = OracleFrontend(mission.metadata, {"seed": 0})
+    res = run_pipeline(mission, [est], [fe, probe((PointCloud,), inject)], frontend_process=False).results["graph"]
     assert twin is not None
     rep = landmark_report(res, mission.metadata.ground_truth)
     # no duplicate, and the map as good as without the twin (its views were counted twice)

@@ -3,7 +3,8 @@
 import numpy as np
 import pytest
 
-from semslam.backend.landmarks import class_posterior, collinear, merge_collinear
+from semslam.mapping.book import LandmarkBook
+from semslam.mapping.pipes import collinear, merge_collinear
 from semslam.observations import LineObservation
 
 
@@ -44,14 +45,24 @@ def test_merge_collinear_spans_all_members():
     )
 
 
+def _posterior(likelihoods):
+    """A landmark's class posterior in the shared book, from views with these likelihood vectors."""
+    from semslam.observations import PointObservation
+
+    book = LandmarkBook()
+    for k, lk in enumerate(likelihoods):
+        book.observe(1, k, PointObservation(k, "laser", class_likelihood=lk))
+    return book.class_posterior(1)
+
+
 def test_class_posterior_is_normalised_product():
     lk = [{"a": 0.8, "b": 0.1, "c": 0.1}, {"a": 0.1, "b": 0.8, "c": 0.1}, {"a": 0.8, "b": 0.1, "c": 0.1}]
-    post = class_posterior(lk)
+    post = _posterior(lk)
     expected = np.array([0.8 * 0.1 * 0.8, 0.1 * 0.8 * 0.1, 0.1 * 0.1 * 0.1])
     np.testing.assert_allclose([post["a"], post["b"], post["c"]], expected / expected.sum())
-    assert class_posterior([]) is None
+    assert _posterior([]) is None
     # Many confident views do not underflow.
-    post = class_posterior([{"a": 1e-200, "b": 1.0}] * 50 + [{"a": 1.0, "b": 1e-300}])
+    post = _posterior([{"a": 1e-200, "b": 1.0}] * 50 + [{"a": 1.0, "b": 1e-300}])
     assert np.isfinite(list(post.values())).all() and np.isclose(sum(post.values()), 1.0)
 
 
@@ -60,9 +71,9 @@ def test_landmark_report_keys_truth_ids_by_kind():
     landmarks of object 3 are."""
     import numpy as np
 
-    from semslam.backend.synthetic import landmark_report
     from semslam.estimation import EstimatorResult, LandmarkEstimate, Trajectory
     from semslam.mission.ground_truth import GroundTruthMap, GtObject, GtPipe
+    from tests.support.synthetic_mission import landmark_report
 
     gt = GroundTruthMap(
         objects=(GtObject(3, "Elbow", (0.0, 0.0, 1.0)),), pipes=(GtPipe(3, (1.0, 0, 1), (2.0, 0, 1), 0.03),)
@@ -79,35 +90,35 @@ def test_landmark_report_keys_truth_ids_by_kind():
     assert landmark_report(res, gt).duplicated == [("object", 3)]
 
 
-def test_a_mapped_in_line_object_keeps_two_collinear_pipe_views_apart(monkeypatch):
+class _SensorAt:
+    """The one thing merging a batch's segments asks of an estimator: where the sensor is."""
+
+    def __init__(self, T_WS):
+        self.T_WS = T_WS
+
+    def sensor_pose(self, sensor):
+        return self.T_WS
+
+
+def test_a_mapped_in_line_object_keeps_two_collinear_pipe_views_apart():
     """Two collinear segments 0.2 m apart (closer than the paper's 0.3 m merge distance) merge into
     one pipe view, unless an object lies between them: one seen in the same scan or, when the
-    scan missed it, one already mapped there."""
-    import gtsam
-    import numpy as np
-
-    from semslam.backend.graph import GraphEstimator
-    from semslam.backend.synthetic import SyntheticConfig, simulate
-    from semslam.config import SemslamConfig
+    scan missed it, one already mapped (or tracked) there."""
+    from semslam.config import AssociationConfig
+    from semslam.mapping.builder import MapBuilder
     from semslam.observations import LineObservation, PointObservation
 
-    mission = simulate(SyntheticConfig(duration_s=5.0, seed=0))
-    est = GraphEstimator(mission.metadata, SemslamConfig())
-    pose = gtsam.Pose3(gtsam.Rot3.Yaw(0.3), gtsam.Point3(1.0, 2.0, 3.0))
-    cov = np.eye(3) * 1e-4
-    a = LineObservation(
-        0, "laser", p=np.array([-0.6, 0.0, 2.0]), q=np.array([-0.1, 0.0, 2.0]), covariance=np.eye(6) * 1e-4
-    )
-    b = LineObservation(
-        0, "laser", p=np.array([0.1, 0.0, 2.0]), q=np.array([0.6, 0.0, 2.0]), covariance=np.eye(6) * 1e-4
-    )
-    assert len(est._merged_lines([a, b], pose)) == 1
+    T_WS = np.eye(4)
+    T_WS[:3, :3] = [[np.cos(0.3), -np.sin(0.3), 0], [np.sin(0.3), np.cos(0.3), 0], [0, 0, 1]]
+    T_WS[:3, 3] = [1.0, 2.0, 3.0]
+    builder = MapBuilder(_SensorAt(T_WS), AssociationConfig(), LandmarkBook(), [])
+    a = LineObservation(0, "laser", p=[-0.6, 0.0, 2.0], q=[-0.1, 0.0, 2.0], covariance=np.eye(6) * 1e-4)
+    b = LineObservation(0, "laser", p=[0.1, 0.0, 2.0], q=[0.6, 0.0, 2.0], covariance=np.eye(6) * 1e-4)
+    none = np.zeros((0, 3))
+    assert len(builder.merge_lines([a, b], none)) == 1
     valve_S = np.array([0.0, 0.02, 2.0])
-    seen = PointObservation(0, "laser", position=valve_S, covariance=cov)
-    assert len(est._merged_lines([a, b, seen], pose)) == 2
-    T_WS = pose.compose(gtsam.Pose3(est._sensor_T("laser"))).matrix()
+    seen = PointObservation(0, "laser", position=valve_S, covariance=np.eye(3) * 1e-4)
+    assert len([z for z in builder.merge_lines([a, b, seen], none) if isinstance(z, LineObservation)]) == 2
     valve_W = T_WS[:3, :3] @ valve_S + T_WS[:3, 3]
-    monkeypatch.setattr(est, "_object_points", lambda: valve_W[None])
-    assert len(est._merged_lines([a, b], pose)) == 2
-    monkeypatch.setattr(est, "_object_points", lambda: valve_W[None] + 0.5)  # mapped elsewhere
-    assert len(est._merged_lines([a, b], pose)) == 1
+    assert len(builder.merge_lines([a, b], valve_W[None])) == 2
+    assert len(builder.merge_lines([a, b], valve_W[None] + 0.5)) == 1  # mapped elsewhere

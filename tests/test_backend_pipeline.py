@@ -5,12 +5,12 @@ import json
 
 import numpy as np
 
-from semslam.backend.synthetic import SyntheticConfig, simulate
 from semslam.config import SemslamConfig
 from semslam.estimators import create_estimator
 from semslam.eval.outputs import build_metrics, write_outputs
 from semslam.pipeline import run_pipeline
 from semslam.registry import create_frontends
+from tests.support.synthetic_mission import SyntheticConfig, simulate
 
 KEYS = (
     "ate_rmse_m",

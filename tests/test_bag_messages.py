@@ -318,11 +318,17 @@ def _latency_bag(path: Path, late_s: float, clock_offset_s: float = 0.0) -> Path
     return path
 
 
+def both_pressures(**kw) -> ReaderConfig:
+    """Both depth topics of ``_latency_bag`` bound (unbound, only one depth sensor would be read)."""
+    topics = {"slow": "/slow", "fast": "/fast"}
+    return ReaderConfig(sensors={n: {"topic": t, "kind": "depth"} for n, t in topics.items()}, **kw)
+
+
 @pytest.mark.parametrize("clock_offset_s", [0.0, 1.7e9])
 def test_reorder_buffer_releases_in_header_stamp_order(tmp_path, clock_offset_s):
     """Recording time ≠ header stamp (latency differs per sensor): the stream follows header stamps."""
     path = _latency_bag(tmp_path / "lat.bag", late_s=0.5, clock_offset_s=clock_offset_s)
-    stamps = [m.stamp for m in read_mission(path)]
+    stamps = [m.stamp for m in read_mission(path, both_pressures())]
     assert len(stamps) == 80 and stamps == sorted(stamps)
 
 
@@ -333,8 +339,8 @@ def test_message_later_than_reorder_window_is_an_error(tmp_path):
         match=r"topic /slow: message stamped 1.000000 s arrived after messages "
         r"stamped more than reorder_window_s=0.5 s later",
     ):
-        list(read_mission(path, ReaderConfig(reorder_window_s=0.5)))
-    assert len(list(read_mission(path))) == 80  # the default 2 s window absorbs it
+        list(read_mission(path, both_pressures(reorder_window_s=0.5)))
+    assert len(list(read_mission(path, both_pressures()))) == 80  # the default 2 s window absorbs it
 
 
 def test_ros2_directory_with_mcap_storage(tmp_path, sample_mission):
@@ -358,8 +364,11 @@ def test_ros2_directory_with_mcap_storage(tmp_path, sample_mission):
             w.write(conns[m.sensor], m.stamp, store.serialize_cdr(enc.encode(m, m.sensor), msgtype))
     assert any(path.glob("*.mcap"))
     back = read_mission(path)
-    assert sorted(back.metadata.sensors) == sorted(mission.metadata.sensors)
-    assert len(list(back)) == len(list(mission))
+    # Without a sidecar, an Odometry topic is the vehicle's navigation, never ground truth.
+    assert sorted(back.metadata.sensors) == sorted(set(mission.metadata.sensors) - {"gt"})
+    assert len(list(back)) == len([m for m in mission if m.sensor != "gt"])
+    (gt,) = back.plan.binding.alternatives("ground_truth")
+    assert gt.topic == "/gt" and "not ground truth" in gt.reason
 
 
 @pytest.mark.parametrize(
@@ -460,13 +469,14 @@ def _ros1_odometry_imu_bag(path: Path, broken: bytes | None = None) -> Path:
     return path
 
 
-def _read_all(path: Path, fast: bool, cfg: ReaderConfig | None = None):
+def _read_all(path: Path, fast: bool, on_nonfinite: str = "drop"):
     import semslam.mission.bag_reader as bag_reader
 
     saved = bag_reader.ROS1_FAST
     bag_reader.ROS1_FAST = saved if fast else {}
+    bound = {"imu": {"topic": "/imu", "kind": "ahrs"}, "odom": {"topic": "/odom", "kind": "ground_truth"}}
     try:
-        m = read_mission(path, cfg)
+        m = read_mission(path, ReaderConfig(sensors=bound, on_nonfinite=on_nonfinite))
         exact = lambda v: (v.dtype.str, v.shape, v.tobytes()) if isinstance(v, np.ndarray) else repr(v)  # noqa: E731
         return [(type(x), [(k, exact(v)) for k, v in vars(x).items()]) for x in m], dict(m.dropped_fields)
     except MissionError as exc:
@@ -489,8 +499,7 @@ def test_ros1_fast_path_gives_the_general_paths_measurements_and_errors(tmp_path
         "imu": {"orientation_covariance": 1, "orientation": 1},
         "odom": {"position": 1},
     }
-    strict = ReaderConfig(on_nonfinite="error")
-    assert "field position is not finite" in _read_all(path, True, strict) == _read_all(path, False, strict)
+    assert "field position is not finite" in _read_all(path, True, "error") == _read_all(path, False, "error")
 
     raw = _first_raw(path, "/odom")  # broken variants: truncated, too long, cut in the header, a frame id
     bad_utf8 = raw.replace(b"base", b"ba\xffe")

@@ -71,7 +71,7 @@ def test_info_reports_dvl_dropouts_and_stream_gaps(tmp_path):
     # DVL at 5 Hz for 10 s; bottom lock lost from 3.0 s to 5.0 s, and silent from 7.0 s to 8.0 s
     dvl = [(10**9 + k * 200_000_000, not 15 <= k < 25) for k in range(50) if not 35 < k < 40]
     depth = [Depth(10**9 + k * 125_000_000, "depth", depth=1.0, variance=0.01) for k in range(80) if not 40 <= k < 60]
-    r = info(write_mission(_dvl_mission(dvl, depth), tmp_path / "d.bag"))
+    r = info(write_mission(_dvl_mission(dvl, depth), tmp_path / "d.bag"), "--allow-missing", "ahrs")
     assert r.exit_code == 0, r.output
     assert row(r.stdout, "dvl")[9] == "10"  # invalid readings
     assert "dvl: DVL dropout at 2.800 s for 2.200 s (period 0.200 s)" in r.stdout
@@ -84,7 +84,7 @@ def test_info_drops_and_reports_nonfinite_messages(tmp_path):
     ms.append(DvlVelocity(10**9, "dvl", velocity=(np.inf, 0, 0), valid=True))
     ms.append(DvlVelocity(2 * 10**9, "dvl", velocity=(np.nan,) * 3, valid=False))  # a dropout, not a bad message
     path = write_mission(Mission.from_measurements(MissionMetadata(name="nan"), ms), tmp_path / "nan")
-    r = info(path)
+    r = info(path, "--allow-missing", "ahrs")
     assert r.exit_code == 0, r.output
     assert row(r.stdout, "depth")[4] == "8" and row(r.stdout, "depth")[10] == "2"
     assert row(r.stdout, "dvl")[4] == "1" and row(r.stdout, "dvl")[10] == "1"
@@ -94,7 +94,7 @@ def test_info_drops_and_reports_nonfinite_messages(tmp_path):
     # strict reading turns the first one into an error naming file, topic and field
     cfg = tmp_path / "strict.yaml"
     cfg.write_text("reader:\n  on_nonfinite: error\n")
-    r = info(path, "--config", cfg)
+    r = info(path, "--config", cfg, "--allow-missing", "ahrs")
     assert_one_line_error(r, str(path), "topic /dvl", "field velocity is not finite", "t=1.000000 s")
 
 
@@ -143,6 +143,8 @@ def test_configured_topic_of_unsupported_type(tmp_path, sample_mission):
 
 
 def test_stamps_going_backwards(tmp_path):
+    """Strict header stamps: an error naming file, topic and stamps. By default (auto) the topic is
+    read by receive time instead, and info says so."""
     from rosbags.rosbag1 import Writer
     from rosbags.typesys import Stores, get_typestore
 
@@ -158,9 +160,15 @@ def test_stamps_going_backwards(tmp_path):
             )
             msg = T["sensor_msgs/msg/FluidPressure"](header=hdr, fluid_pressure=101325.0, variance=1.0)
             w.write(conn, 10**9 + k * 10**8, store.serialize_ros1(msg, "sensor_msgs/msg/FluidPressure"))
+    cfg = tmp_path / "strict.yaml"
+    cfg.write_text("reader:\n  stamp: header\n")
     assert_one_line_error(
-        info(path), str(path), "topic /depth: header stamps go backwards (0.900000 s after 1.200000 s)"
+        info(path, "--config", cfg), str(path), "topic /depth: header stamps go backwards (0.900000 s after 1.200000 s)"
     )
+    r = info(path, "--allow-missing", "dvl,ahrs")
+    assert r.exit_code == 0, r.output
+    assert int(row(r.stdout, "depth")[4]) == 5
+    assert "depth: receive time + offset (auto: header stamps run backwards)" in r.stdout
 
 
 def test_malformed_sidecar(tmp_path, sample_mission):

@@ -1,10 +1,12 @@
 """Configuration: defaults, YAML overrides, and one-line errors naming the key."""
 
 import yaml
+from pydantic import BaseModel, ValidationError
 from typer.testing import CliRunner
 
 from semslam.cli import app
 from semslam.config import SemslamConfig, load_config
+from semslam.registry import available_frontends, frontend_sections
 
 runner = CliRunner()
 
@@ -23,8 +25,101 @@ def test_config_dump_round_trips_through_load(tmp_path):
     assert res.exit_code == 0
     f = tmp_path / "dumped.yaml"
     f.write_text(res.output)
-    assert load_config(f) == SemslamConfig()
+    loaded = load_config(f)
+    assert loaded.model_copy(update={"frontends": {}}) == SemslamConfig()
+    assert frontend_sections(loaded.frontends) == frontend_sections()  # every front-end key, at its default
     assert "water_density_kg_m3" in yaml.safe_load(res.output)["reader"]
+    again = runner.invoke(app, ["config", "dump", "--config", str(f)])
+    assert again.exit_code == 0 and again.output == res.output
+
+
+def _sections(model: type[BaseModel], path: tuple[str, ...] = ()):
+    """(path, model) of every section of a configuration model, nested ones included."""
+    yield path, model
+    for name, info in model.model_fields.items():
+        t = info.annotation
+        if isinstance(t, type) and issubclass(t, BaseModel):
+            yield from _sections(t, (*path, name))
+
+
+def _changed(model: type[BaseModel]):
+    """A key of ``model`` and a valid value for it other than its default (None: no scalar key)."""
+    defaults = model()
+    for name in model.model_fields:
+        old = getattr(defaults, name)
+        if old is None:  # an optional number
+            candidates = [0.5, 1]
+        elif isinstance(old, bool):
+            candidates = [not old]
+        elif isinstance(old, (int, float)):
+            candidates = [old * 0.5, old + 1, old * 2, old - 1] if old else [1, 0.5]
+            candidates = [type(old)(c) for c in candidates if type(old)(c) != old]
+        else:
+            continue
+        for new in candidates:
+            try:
+                model.model_validate({name: new})
+            except ValidationError:
+                continue
+            return name, new
+    return None
+
+
+def _set(tree: dict, path: tuple[str, ...], key: str, value) -> None:
+    for p in path:
+        tree = tree.setdefault(p, {})
+    tree[key] = value
+
+
+def _get(tree: dict, path: tuple[str, ...], key: str):
+    for p in path:
+        tree = tree[p]
+    return tree[key]
+
+
+def test_a_key_of_every_section_round_trips_through_a_yaml_file(tmp_path):
+    """One key of every section, front-ends' included, changed in a YAML file: `config dump --config`
+    prints the changed value, and every section has a key that can be changed."""
+    sections = [(("",) + path, model) for path, model in _sections(SemslamConfig)]
+    for name, model in frontend_sections().items():
+        sections += [(("frontends", name, *path), m) for path, m in _sections(type(model))]
+    data, expected = {}, []
+    for path, model in sections:
+        path = tuple(p for p in path if p)
+        change = _changed(model)
+        if change is None:  # a section of sections, lists and mappings only
+            assert not any(isinstance(getattr(model(), k), (bool, int, float)) for k in model.model_fields), path
+            continue
+        _set(data, path, *change)
+        expected.append((path, *change))
+    assert {p[:2] for p, *_ in expected if p[:1] == ("frontends",)} == {("frontends", n) for n in available_frontends()}
+    f = tmp_path / "changed.yaml"
+    f.write_text(yaml.safe_dump(data))
+    res = runner.invoke(app, ["config", "dump", "--config", str(f)])
+    assert res.exit_code == 0, res.output
+    dumped = yaml.safe_load(res.output)
+    for path, key, value in expected:
+        assert _get(dumped, path, key) == value, (path, key)
+
+
+def test_every_key_of_the_estimators_and_the_oracle_says_what_it_does():
+    from frontends.oracle import OracleConfig
+
+    for path, model in [*_sections(SemslamConfig), ((), OracleConfig)]:
+        if path == ("reader",):
+            continue  # the bag reader's section (semslam.mission) is documented with the reader
+        for name, info in model.model_fields.items():
+            assert info.description, (path, name)
+
+
+def test_a_section_for_an_unregistered_front_end_is_an_error(tmp_path):
+    f = tmp_path / "c.yaml"
+    f.write_text("frontends:\n  lazer: {}\n")
+    res = runner.invoke(app, ["config", "dump", "--config", str(f)])
+    assert res.exit_code == 1 and "frontends.lazer" in res.output
+    f.write_text("frontends:\n  oracle:\n    max_range: 3\n")  # the key is max_range_m
+    res = runner.invoke(app, ["config", "dump", "--config", str(f)])
+    assert res.exit_code == 1 and "frontends.oracle.max_range" in res.output
 
 
 def test_invalid_config_is_one_line_naming_file_and_key(tmp_path):

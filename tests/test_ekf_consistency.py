@@ -9,7 +9,9 @@ from scipy.stats import chi2
 from semslam.config import SemslamConfig
 from semslam.ekf import DeadReckoning, EkfEstimator
 from semslam.ekf import geometry as geo
-from semslam.ekf.synthetic import simulate_circling
+from semslam.mission.measurements import Attitude, Depth, DvlVelocity, GroundTruthPose, PointCloud
+from tests.support.ekf_mission import seen_from_truth, simulate_circling
+from tests.support.replay import Scanner, probe
 
 ACCEL, RATE = 0.01, 0.002
 N_RUNS = 6
@@ -32,21 +34,24 @@ def nees_run(seed: int, duration_s: float = 50.0, sample_every_s: float = 1.0, b
     cfg = SemslamConfig(motion={"accel_sigma_m_s2": ACCEL, "angular_rate_sigma_rad_s": RATE})
     est = EkfEstimator(sim.metadata, cfg)
     nv = 10 if bias_walk > 0 else 9
-    assert est.nv == nv
+    assert est.nav.nv == nv
     ts = sim.truth_stamps
     period = int(sample_every_s * 1e9)
     nees, sd, times = [], [], []
-    for m in sim.measurements:
-        est.process_measurement(m)
-        if m.sensor == "ahrs" and m.stamp % period == 0 and m.stamp > 0:
-            i = np.searchsorted(ts, m.stamp)
-            truth = sim.truth_states[i] if nv == 9 else np.r_[sim.truth_states[i], sim.extras["heading_bias"][i]]
-            e = est.state.x[:nv] - truth
-            e[3:6] = geo.wrap(e[3:6])
-            P = est.state.P[:nv, :nv]
-            nees.append(e @ np.linalg.solve(P, e))
-            sd.append(np.sqrt(np.trace(P[:2, :2])))
-            times.append(m.stamp * 1e-9)
+
+    def look(m):  # after the filter took the AHRS reading
+        if m.stamp % period or m.stamp == 0:
+            return
+        i = np.searchsorted(ts, m.stamp)
+        truth = sim.truth_states[i] if nv == 9 else np.r_[sim.truth_states[i], sim.extras["heading_bias"][i]]
+        e = est.nav.state.x[:nv] - truth
+        e[3:6] = geo.wrap(e[3:6])
+        P = est.nav.state.P[:nv, :nv]
+        nees.append(e @ np.linalg.solve(P, e))
+        sd.append(np.sqrt(np.trace(P[:2, :2])))
+        times.append(m.stamp * 1e-9)
+
+    sim.run([est], [probe((Attitude,), look)], observations=False)
     return np.array(times), np.array(nees), np.array(sd)
 
 
@@ -72,15 +77,8 @@ def test_navigation_filter_is_consistent(bias_walk):
 def test_dead_reckoning_is_the_same_filter_without_features():
     sim = simulate_circling(seed=3, duration_s=20.0, with_features=True, accel_sigma=ACCEL, rate_sigma=RATE)
     cfg = SemslamConfig(motion={"accel_sigma_m_s2": ACCEL, "angular_rate_sigma_rad_s": RATE})
-    dr, ekf = DeadReckoning(sim.metadata, cfg), EkfEstimator(sim.metadata, cfg)
-    nav_only = EkfEstimator(sim.metadata, cfg)
-    for m, obs in sim.stream():
-        for est in (dr, ekf, nav_only):
-            est.process_measurement(m)
-        if obs:
-            dr.process_observations(m.stamp, obs)
-            ekf.process_observations(m.stamp, obs)
-    r_dr, r_nav = dr.finish(), nav_only.finish()
+    r_dr = sim.run([DeadReckoning(sim.metadata, cfg), EkfEstimator(sim.metadata, cfg)])["dr"]
+    r_nav = sim.run([EkfEstimator(sim.metadata, cfg)], observations=False)["ekf"]
     np.testing.assert_allclose(r_dr.trajectory.positions, r_nav.trajectory.positions)
     np.testing.assert_allclose(r_dr.trajectory.position_cov, r_nav.trajectory.position_cov)
     # DR's map is every observation placed with the DR pose
@@ -91,44 +89,31 @@ def test_dead_reckoning_is_the_same_filter_without_features():
 def _pipes_only_run(mode: str, seed: int = 1, sigma: float = 0.002):
     """A slow circle near the world origin's vertical, seeing mm-precise vertical pipes close to it (small
     ρ, as in the tank); returns (horizontal σ when the first pipe entered the map, the smallest after)."""
-    from semslam.ekf import models as mdl
-    from semslam.observations import LineObservation
 
     sim = simulate_circling(seed=seed, duration_s=60.0, dropouts=(), with_features=False, radius_m=1.0, speed_m_s=0.1)
     rng = np.random.default_rng(seed + 100)
-    T = sim.metadata.sensors["laser"].T_BS
     pipes = [
         (np.array([x, y, 3.5]), np.array([x, y, 4.5]))
         for x, y in ((0.3, 0.2), (-0.25, 0.4), (0.2, -0.3), (-0.3, -0.2), (0.6, 0.9))
     ]
     pipes.append((np.array([-1.0, -0.5, 4.5]), np.array([1.0, -0.2, 4.5])))
     est = EkfEstimator(sim.metadata, SemslamConfig(ekf={"line_jacobians": mode}))
-    first, sig = None, []
-    for m in sim.measurements:
-        est.process_measurement(m)
-        if m.sensor != "ahrs" or m.stamp % 2_000_000_000 or m.stamp == 0:
-            continue
-        xt = sim.truth_states[np.searchsorted(sim.truth_stamps, m.stamp)]
-        R, t, _, _ = mdl.sensor_pose(xt, T[:3, :3], T[:3, 3])
-        est.process_observations(
-            m.stamp,
-            [
-                LineObservation(
-                    m.stamp,
-                    "laser",
-                    p=(a - t) @ R + rng.normal(0, sigma, 3),
-                    q=(b - t) @ R + rng.normal(0, sigma, 3),
-                    covariance=np.eye(6) * sigma**2,
-                )
-                for a, b in pipes
-            ],
-        )
-        if est._features:
-            s = np.sqrt(np.trace(est.state.Pvv[:2, :2]))
-            first = first or s
+    first, sig = [], []
+
+    def scan(m):  # every 2 s, every pipe seen from the true pose
+        if m.stamp % 2_000_000_000 or m.stamp == 0:
+            return []
+        return seen_from_truth(sim, m.stamp, pipes, [], rng, sigma)
+
+    def look(m):  # after the scan's update
+        if m.stamp % 2_000_000_000 == 0 and m.stamp and len(est.map):
+            s = np.sqrt(np.trace(est.nav.state.Pvv[:2, :2]))
+            first.append(first[0] if first else s)
             sig.append(s)
-    assert len(est._features) == len(pipes)
-    return first, min(sig)
+
+    sim.run([est], [Scanner((Attitude,), scan), probe((Attitude,), look)], observations=False)
+    assert len(est.map) == len(pipes)
+    return first[0], min(sig)
 
 
 def test_pipes_give_no_absolute_position_information():
@@ -150,11 +135,11 @@ def _yaw_null_space(est, nv):
 
     ez = np.array([0.0, 0.0, 1.0])
     N_x = np.zeros(nv)
-    N_x[:3] = np.cross(ez, est._p_fe)
+    N_x[:3] = np.cross(ez, est.nav.p_fe)
     N_x[5] = 1.0
     N_x[9] = -1.0
     N_l = {}
-    for f in est._features:
+    for f in est.map.features:
         if f.kind == "object":
             N_l[f.id] = np.cross(ez, f.l_first)
         else:  # the line rotated by δ about the vertical through the origin, numerically
@@ -173,7 +158,8 @@ def test_heading_first_estimates_keep_the_rotation_about_the_vertical_unobservab
     linearisation must not observe it: the prediction Jacobians carry the null space of one step to the
     next (F N_k = N_k+1) and every landmark Jacobian annihilates it (H N = 0), in first estimates — with
     heading_jacobians = first_estimate exactly, with the textbook Jacobians not."""
-    from semslam.ekf.estimator import _ScanPairs
+    from semslam.ekf.features import ScanPairs
+    from semslam.mapping.builder import Scan
 
     sim = simulate_circling(seed=4, duration_s=40.0, accel_sigma=ACCEL, rate_sigma=RATE, heading_bias_walk=0.003)
     cfg = SemslamConfig(
@@ -181,27 +167,31 @@ def test_heading_first_estimates_keep_the_rotation_about_the_vertical_unobservab
     )
     est = EkfEstimator(sim.metadata, cfg)
     steps, worst_H, kinds, n_pairs = [], 0.0, set(), 0
-    for m, obs in sim.stream():
-        est.process_measurement(m)
-        if est.state is not None and not steps:
-            predict = est.state.predict_vehicle
+    state = est.nav
+
+    def look(m):  # after the filter took m, before the scan's observations
+        nonlocal worst_H, n_pairs
+        if state.state is not None and not steps:
+            predict = state.state.predict_vehicle
 
             def spy(xv, F, Q, _predict=predict):
                 steps.append((xv[:3].copy(), F.copy()))  # the propagated position, the step's Jacobian
                 _predict(xv, F, Q)
 
-            est.state.predict_vehicle = spy
-            steps.append((est._p_fe.copy(), None))
-        if obs and est._features:  # the scan's landmark Jacobians against the null space in first estimates
-            scan = _ScanPairs(est, est._prepare(obs), 0.999)
+            state.state.predict_vehicle = spy
+            steps.append((state.p_fe.copy(), None))
+        obs = sim.observations.get(m.stamp) if isinstance(m, PointCloud) else None
+        if obs and len(est.map):  # the scan's landmark Jacobians against the null space in first estimates
+            est.map.begin()
+            pairs = ScanPairs(est.map, est.map.prepared(obs), 0.999, Scan(est.book, est.assoc, *[np.zeros((0, 3))] * 2))
             N_x, N_l = _yaw_null_space(est, 10)
-            for k, j in enumerate(scan.feat):
-                f = est._features[j]
-                worst_H = max(worst_H, np.abs(scan.H_x[k] @ N_x[:9] + scan.H_l[k] @ N_l[f.id]).max())
+            for k, j in enumerate(pairs.feat):
+                f = est.map.features[j]
+                worst_H = max(worst_H, np.abs(pairs.H_x[k] @ N_x[:9] + pairs.H_l[k] @ N_l[f.id]).max())
                 kinds.add(f.kind)
                 n_pairs += 1
-        if obs:
-            est.process_observations(m.stamp, obs)
+
+    sim.run([est], before=[probe((Attitude, Depth, DvlVelocity, GroundTruthPose, PointCloud), look)])
     # propagation: F N(p_k) = N(p_k+1), N at the positions the Jacobians are taken at
     ez = np.array([0.0, 0.0, 1.0])
     worst_F = 0.0

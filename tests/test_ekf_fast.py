@@ -6,16 +6,18 @@ import pytest
 from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
-from semslam.backend.association import PairLinearization, individual_nis, jcbb, joint_nis
 from semslam.config import SemslamConfig
 from semslam.ekf import EkfEstimator
 from semslam.ekf import batch as bt
 from semslam.ekf import geometry as g
 from semslam.ekf import models as mdl
-from semslam.ekf.estimator import EkfAssociationProblem, _ScanPairs
+from semslam.ekf.features import ScanPairs, pre_gate
 from semslam.ekf.filter import EkfState, inv_small
-from semslam.ekf.jcbb import jcbb_dense
-from semslam.ekf.synthetic import simulate_circling
+from semslam.mapping.association import PairLinearization, jcbb
+from semslam.mapping.builder import Scan
+from tests.support.association import individual_nis, joint_nis, solve
+from tests.support.ekf_mission import simulate_circling
+from tests.support.ekf_reference import predict_reference
 
 RNG = np.random.default_rng(11)
 R_BS = g.rot(0.05, np.pi / 2 - 0.2, 0.3)
@@ -28,7 +30,7 @@ def test_scalar_prediction_is_the_matrix_model():
         x = RNG.normal(size=9)
         x[4] = RNG.uniform(-1.2, 1.2)
         w = RNG.normal(size=3)
-        for a, b in zip(mdl.predict(x, w, 0.07, 0.05, 0.01), mdl.predict_reference(x, w, 0.07, 0.05, 0.01)):
+        for a, b in zip(mdl.predict(x, w, 0.07, 0.05, 0.01), predict_reference(x, w, 0.07, 0.05, 0.01)):
             np.testing.assert_allclose(a, b, atol=1e-13)
 
 
@@ -171,7 +173,7 @@ def test_batch_models_equal_the_scalar_ones():
 
 
 class _DenseView:
-    """A generic association problem with a given joint covariance (for jcbb against jcbb_dense)."""
+    """An association problem with a given joint covariance (every block correlated)."""
 
     def __init__(self, Z, L, P, R):
         self.Z, self.L, self.P, self.R = Z, L, P, R
@@ -186,33 +188,10 @@ class _DenseView:
         return self.P[ia, ib]
 
 
-def _dense_from_problem(prob):
-    """Every pair's innovation, rows and the full joint covariance of the generic problem."""
-    n, m = prob.n_observations, prob.n_landmarks
-    obs, lm, lins = [], [], []
-    for i in range(n):
-        for j in range(m):
-            p = prob.pair(i, j)
-            if p is not None:
-                obs.append(i), lm.append(j), lins.append(p)
-    rows, r = [], 0
-    for p in lins:
-        rows.append(np.arange(r, r + len(p.innovation)))
-        r += len(p.innovation)
-    nu = np.concatenate([p.innovation for p in lins])
-    S = np.zeros((r, r))
-    for a, (pa, ja) in enumerate(zip(lins, lm)):
-        for b, (pb, jb) in enumerate(zip(lins, lm)):
-            blk = pa.H_x @ prob.covariance(None, None) @ pb.H_x.T + pa.H_x @ prob.covariance(None, jb) @ pb.H_l.T
-            blk = blk + pa.H_l @ prob.covariance(ja, None) @ pb.H_x.T + pa.H_l @ prob.covariance(ja, jb) @ pb.H_l.T
-            if a == b:
-                blk = blk + pa.R
-            S[np.ix_(rows[a], rows[b])] = blk
-    return np.array(obs), np.array(lm), rows, nu, S
-
-
 @pytest.mark.parametrize("seed", range(25))
-def test_dense_jcbb_is_jcbb(seed):
+def test_dense_joint_is_the_direct_joint(seed):
+    """The Schur-complement steps on slices of S give, node for node, the joint NIS solved afresh:
+    the one search finds the same hypothesis with either."""
     rng = np.random.default_rng(seed)
     m = int(rng.integers(3, 9))
     L = rng.uniform(-1, 1, (m, 3)) * rng.uniform(0.1, 1.0)  # sometimes crowded
@@ -223,12 +202,11 @@ def test_dense_jcbb_is_jcbb(seed):
     A = rng.normal(size=(3 + 3 * m, 3 + 3 * m)) * 0.02
     P = A @ A.T + np.diag([0.1**2] * 3 + [0.03**2] * (3 * m))  # correlated landmarks
     prob = _DenseView(np.array(Z), L, P, np.eye(3) * 0.02**2)
-    obs, lm, rows, nu, S = _dense_from_problem(prob)
-    out = jcbb_dense(len(Z), obs, lm, rows, nu, S, 0.99, by_nis=True)  # the shared jcbb's order
-    assert out == jcbb(prob, 0.99)
+    out = solve(prob, 0.99)
+    assert out == solve(prob, 0.99, joint="direct")
     # restarted from a greedy hypothesis at once: as many pairings, jointly compatible
     stats = {}
-    seeded = jcbb_dense(len(Z), obs, lm, rows, nu, S, 0.99, seed_after=1, stats=stats, by_nis=True)
+    seeded = solve(prob, 0.99, seed_after=1, stats=stats)
     pairs = [(i, j) for i, j in enumerate(seeded) if j is not None]
     assert len(pairs) == sum(j is not None for j in out)
     assert len({j for _, j in pairs}) == len(pairs)
@@ -236,43 +214,9 @@ def test_dense_jcbb_is_jcbb(seed):
         assert stats["seeded"] and joint_nis(prob, pairs) < chi2.ppf(0.99, 3 * len(pairs))
 
 
-class _Reordered:
-    """A generic problem with its observations permuted (for the shared jcbb in another order)."""
-
-    def __init__(self, prob, perm):
-        self.prob, self.perm = prob, perm
-        self.n_observations, self.n_landmarks = prob.n_observations, prob.n_landmarks
-
-    def pair(self, i, j):
-        return self.prob.pair(self.perm[i], j)
-
-    def covariance(self, a, b):
-        return self.prob.covariance(a, b)
-
-
-def _jcbb_most_certain_first(prob, confidence):
-    """The shared jcbb with the observations in order of increasing best individual NIS."""
-    gate = {d: chi2.ppf(confidence, d) for d in (3, 4)}
-
-    def best(i):
-        v = [individual_nis(prob, i, j) for j in range(prob.n_landmarks) if prob.pair(i, j) is not None]
-        v = [
-            x
-            for x, j in zip(v, [j for j in range(prob.n_landmarks) if prob.pair(i, j) is not None])
-            if x < gate[len(prob.pair(i, j).innovation)]
-        ]
-        return min(v) if v else np.inf
-
-    perm = sorted(range(prob.n_observations), key=best)
-    out = jcbb(_Reordered(prob, perm), confidence)
-    result = [None] * prob.n_observations
-    for k, j in enumerate(out):
-        result[perm[k]] = j
-    return result
-
-
 @pytest.mark.parametrize("seed", range(15))
-def test_dense_jcbb_most_certain_first_is_jcbb_in_that_order(seed):
+def test_the_order_of_the_observations_does_not_matter(seed):
+    """Observations are searched most certain first, whatever order the front-end gave them in."""
     rng = np.random.default_rng(100 + seed)
     m = int(rng.integers(3, 8))
     L = rng.uniform(-1, 1, (m, 3)) * rng.uniform(0.1, 1.0)
@@ -281,64 +225,97 @@ def test_dense_jcbb_most_certain_first_is_jcbb_in_that_order(seed):
     Z += [rng.uniform(-1, 1, 3) for _ in range(2)]
     A = rng.normal(size=(3 + 3 * m, 3 + 3 * m)) * 0.02
     P = A @ A.T + np.diag([0.1**2] * 3 + [0.03**2] * (3 * m))
-    prob = _DenseView(np.array(Z), L, P, np.eye(3) * 0.02**2)
-    obs, lm, rows, nu, S = _dense_from_problem(prob)
-    assert jcbb_dense(len(Z), obs, lm, rows, nu, S, 0.99, by_nis=True) == _jcbb_most_certain_first(prob, 0.99)
+    out = solve(_DenseView(np.array(Z), L, P, np.eye(3) * 0.02**2), 0.99)
+    perm = rng.permutation(len(Z))
+    shuffled = solve(_DenseView(np.array(Z)[perm], L, P, np.eye(3) * 0.02**2), 0.99)
+    assert shuffled == [out[k] for k in perm]
+
+
+class _PairwiseProblem:
+    """The filter's pairs one by one, with the scalar models, as a callback problem."""
+
+    def __init__(self, est, obs, scan):
+        self.est, self.obs, self.scan = est, obs, scan
+        self.feats = est.map.features
+        self.n_observations, self.n_landmarks = len(obs), len(self.feats)
+        self._near = pre_gate(est.map, obs)
+
+    def pair(self, i, j):
+        o, f, nav = self.obs[i], self.feats[j], self.est.nav
+        if not self._near[i, j] or o.kind != f.kind:
+            return None
+        x, l = nav.state.xv, nav.state.x[f.index : f.index + f.size]
+        if f.kind == "object":
+            h, H_x, H_l = mdl.point_measurement(x, l, o.R_BS, o.t_BS)
+            if nav.fej_yaw:
+                H_x = mdl.point_measurement(nav.x_lin(), f.l_first, o.R_BS, o.t_BS)[1]
+            return PairLinearization(o.obs.position - h, H_x, H_l, np.asarray(o.obs.covariance))
+        m_W, d_W = g.line_plucker(l)
+        if self.scan.excludes(f.id, o.ends_W, g.closest_point(m_W, d_W), d_W):
+            return None
+        l_first = f.l_first if self.est.map.fej_lines or nav.fej_yaw else None
+        x_lin = nav.x_lin() if nav.fej_yaw else None
+        return PairLinearization(*mdl.line_innovation(x, l, o.line, o.R_BS, o.t_BS, l_first, x_lin))
+
+    def covariance(self, a, b):
+        ia = np.arange(mdl.NX) if a is None else self.feats[a].cols
+        ib = np.arange(mdl.NX) if b is None else self.feats[b].cols
+        return self.est.nav.state.P[np.ix_(ia, ib)]
 
 
 def _mapped_filter(seed=2):
     sim = simulate_circling(seed=seed, duration_s=40.0)
     est = EkfEstimator(sim.metadata, SemslamConfig())
-    last = None
-    for m, obs in sim.stream():
-        est.process_measurement(m)
-        if obs:
-            est.process_observations(m.stamp, obs)
-            last = (m.stamp, obs)
-    return est, last
+    sim.run([est])
+    return est, sim.observations[max(sim.observations)]
 
 
 def test_scan_linearisation_equals_the_pairwise_problem():
-    est, (stamp, obs) = _mapped_filter()
-    assert len(est._features) > 5
-    prepared = est._prepare(obs)
-    scan = _ScanPairs(est, prepared, 0.999)
-    prob = EkfAssociationProblem(est, prepared)
-    assert len(scan.obs) > 0
-    for k, (i, j) in enumerate(zip(scan.obs, scan.feat)):
+    est, obs = _mapped_filter()
+    assert len(est.map) > 5
+    est.map.begin()
+    prepared = est.map.prepared(obs)
+    _, mapped = est.map.objects()
+    scan = Scan(est.book, est.assoc, mapped, mapped)
+    pairs = ScanPairs(est.map, prepared, 0.999, scan)
+    prob = _PairwiseProblem(est, prepared, scan)
+    assert len(pairs.obs) > 0
+    for k, (i, j) in enumerate(zip(pairs.obs, pairs.feat)):
         p = prob.pair(int(i), int(j))
         assert p is not None
-        np.testing.assert_allclose(scan.nu[k], p.innovation, atol=1e-12)
-        np.testing.assert_allclose(scan.H_x[k], p.H_x, atol=1e-12)
-        np.testing.assert_allclose(scan.H_l[k], p.H_l, atol=1e-12)
-        assert scan.nis[k] == pytest.approx(individual_nis(prob, int(i), int(j)), rel=1e-9)
-    # every pair the generic problem accepts within the gate is in the scan (the extent checks of
+        np.testing.assert_allclose(pairs.nu[k], p.innovation, atol=1e-12)
+        np.testing.assert_allclose(pairs.H_x[k], p.H_x, atol=1e-12)
+        np.testing.assert_allclose(pairs.H_l[k], p.H_l, atol=1e-12)
+        assert pairs.nis[k] == pytest.approx(individual_nis(prob, int(i), int(j)), rel=1e-9)
+    # every pair the pairwise problem accepts within the gate is in the scan's (the extent checks of
     # pipes are made only within it)
     gate = {3: chi2.ppf(0.999, 3), 4: chi2.ppf(0.999, 4)}
-    generic = {
+    pairwise = {
         (i, j)
         for i in range(len(prepared))
         for j in range(prob.n_landmarks)
         if prob.pair(i, j) is not None and individual_nis(prob, i, j) < gate[len(prob.pair(i, j).innovation)]
     }
-    assert generic == {(int(i), int(j)) for i, j in zip(scan.obs, scan.feat)}
-    assert all(scan.nis[k] < gate[len(scan.nu[k])] for k in range(len(scan.obs)))
-    assert scan.associate(0.99) == _jcbb_most_certain_first(prob, 0.99)
+    assert pairwise == {(int(i), int(j)) for i, j in zip(pairs.obs, pairs.feat)}
+    assert all(pairs.nis[k] < gate[len(pairs.nu[k])] for k in range(len(pairs.obs)))
+    # the association the map building runs on them: the reference's on the pairwise problem
+    found, _ = est.map.candidates([o.obs for o in prepared], 0.999, scan)
+    strict = found.subset(found.passing(0.99))
+    assert jcbb(strict, est.map.joint(strict), 0.99) == solve(prob, 0.99, joint="direct")
 
 
 def test_matching_bound_cuts_competing_observations():
     """Ten observations all compatible with the same three landmarks: the branches that cannot pair
     more than three are cut by the matching bound (the count of observations with a free candidate
-    alone lets the search expand ~700 nodes here), with the result of the shared jcbb."""
+    alone lets the search expand ~700 nodes here), with the reference's result."""
     rng = np.random.default_rng(3)
     L = np.array([[0.0, 0.0, 0.0], [0.02, 0.0, 0.0], [0.0, 0.02, 0.0]])
     Z = [L[k % 3] + rng.normal(0, 0.01, 3) for k in range(10)]
     P = np.diag([0.05**2] * 3 + [0.02**2] * 9)
     prob = _DenseView(np.array(Z), L, P, np.eye(3) * 0.02**2)
-    obs, lm, rows, nu, S = _dense_from_problem(prob)
     stats = {}
-    out = jcbb_dense(len(Z), obs, lm, rows, nu, S, 0.99, stats=stats, by_nis=True)
-    assert out == jcbb(prob, 0.99)
+    out = solve(prob, 0.99, stats=stats)
+    assert out == solve(prob, 0.99, joint="direct")
     assert sum(j is not None for j in out) == 3
     assert stats["nodes"] < 20 and not stats["capped"]
 

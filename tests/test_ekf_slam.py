@@ -6,8 +6,8 @@ import pytest
 
 from semslam.config import SemslamConfig
 from semslam.ekf import DeadReckoning, EkfEstimator
-from semslam.ekf.synthetic import simulate_circling
 from semslam.estimation import Estimator
+from tests.support.ekf_mission import simulate_circling
 
 ACCEL, RATE = 0.03, 0.002
 
@@ -27,13 +27,7 @@ def runs():
         seed=1, duration_s=150.0, accel_sigma=ACCEL, rate_sigma=RATE, dropouts=((30.0, 20.0), (90.0, 20.0))
     )
     cfg = SemslamConfig(motion={"accel_sigma_m_s2": ACCEL, "angular_rate_sigma_rad_s": RATE})
-    ests = [DeadReckoning(sim.metadata, cfg), EkfEstimator(sim.metadata, cfg)]
-    for m, obs in sim.stream():
-        for est in ests:
-            est.process_measurement(m)
-            if obs:
-                est.process_observations(m.stamp, obs)
-    return sim, {e.name: e.finish() for e in ests}
+    return sim, sim.run([DeadReckoning(sim.metadata, cfg), EkfEstimator(sim.metadata, cfg)])
 
 
 def test_estimators_follow_the_protocol():
@@ -111,13 +105,8 @@ def test_heading_bias_is_estimated_from_the_map_and_grows_in_dead_reckoning():
     assert cfg.sensors.heading_bias_walk(sim.metadata) == pytest.approx(walk)
     ests = [DeadReckoning(sim.metadata, cfg), EkfEstimator(sim.metadata, cfg)]
     plain = EkfEstimator(sim.metadata, SemslamConfig(sensors={"heading_bias_walk_rad_per_sqrt_s": 0.0}))
-    assert [e.nv for e in ests] == [10, 10] and plain.nv == 9
-    for m, obs in sim.stream():
-        for est in ests:
-            est.process_measurement(m)
-            if obs:
-                est.process_observations(m.stamp, obs)
-    res = {e.name: e.finish() for e in ests}
+    assert [e.nav.nv for e in ests] == [10, 10] and plain.nav.nv == 9
+    res = sim.run(ests)
     truth = sim.extras["heading_bias"]
     for name, r in res.items():
         stamps, b, sb = r.history["heading_bias"]

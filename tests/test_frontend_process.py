@@ -7,13 +7,13 @@ from typing import ClassVar
 import numpy as np
 import pytest
 
-from semslam.backend.synthetic import SyntheticConfig, simulate
 from semslam.config import SemslamConfig
 from semslam.ekf import EkfEstimator
 from semslam.mission.measurements import Attitude, Depth, Measurement, PointCloud
 from semslam.observations import PointObservation
 from semslam.pipeline import run_pipeline
-from semslam.registry import create_frontends
+from semslam.registry import Frontend, create_frontends
+from tests.support.synthetic_mission import SyntheticConfig, simulate
 
 
 def _run(mission, frontend_process: bool):
@@ -39,7 +39,7 @@ def test_the_oracle_in_its_own_process_gives_the_same_stream_and_estimate():
     np.testing.assert_allclose(ta.positions, tb.positions, atol=1e-12)
 
 
-class FailingFrontend:
+class FailingFrontend(Frontend):
     """Fails on its third scan, in the front-end process."""
 
     name: ClassVar[str] = "failing"
@@ -100,7 +100,7 @@ def test_a_dead_front_end_process_is_an_error_and_the_run_exits():
     assert "raised: the front-end process (dying) died (exit code 3" in out.stdout
 
 
-class ScanWithAttitude:
+class ScanWithAttitude(Frontend):
     """Reports, per scan, the stamp of the latest AHRS reading it kept: a replica that missed one
     would tell. Scans are independent given that (``parallel_consumes``), as the laser's are."""
 
@@ -169,7 +169,7 @@ def test_a_replicated_front_end_observing_on_a_state_type_is_an_error():
         )
 
 
-class EnvFrontend:
+class EnvFrontend(Frontend):
     """Answers each depth reading with the value of SEMSLAM_TEST_ENV in its process."""
 
     name: ClassVar[str] = "env"
@@ -197,3 +197,153 @@ def test_a_worker_sees_the_callers_environment_of_its_start(monkeypatch):
         finally:
             proc.close()
     assert seen == [["first"], ["second"]]
+
+
+class Deaf:
+    """An estimator that only listens: the routing tests look at the observation stream."""
+
+    name = "deaf"
+
+    def process_measurement(self, m):
+        pass
+
+    def process_observations(self, stamp, obs):
+        pass
+
+    def view(self):
+        return None
+
+    def finish(self):
+        from semslam.estimation import EstimatorResult, Trajectory
+
+        return EstimatorResult(self.name, Trajectory(np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 4))))
+
+
+class CountingScans(ScanWithAttitude):
+    """Replicated over the scans (as the laser): each observation says which AHRS reading it had,
+    which process drew it and how many scans that process's replica has processed so far."""
+
+    name: ClassVar[str] = "counting"
+
+    def __init__(self):
+        super().__init__()
+        self.scans = 0
+
+    def process(self, measurement, view):
+        import os
+
+        if isinstance(measurement, Attitude):
+            self.latest = measurement.stamp
+            return []
+        self.scans += 1
+        return [PointObservation(measurement.stamp, "laser", position=np.array([self.latest, os.getpid(), self.scans]))]
+
+
+class SequentialScans(Frontend):
+    """Sequential, on the same scans (as the laser odometry): each observation carries the latest
+    depth stamp it kept, its process and how many scans it has seen, all of which depend on its
+    seeing every scan and every depth reading in order, in one process."""
+
+    name: ClassVar[str] = "sequential"
+    consumes: ClassVar[tuple] = (PointCloud, Depth)
+    uses_view: ClassVar[bool] = False
+
+    def __init__(self):
+        self.depth, self.scans = 0, 0
+
+    def process(self, measurement, view):
+        import os
+
+        if isinstance(measurement, Depth):
+            self.depth = measurement.stamp
+            return []
+        self.scans += 1
+        return [PointObservation(measurement.stamp, "laser", position=np.array([self.depth, os.getpid(), self.scans]))]
+
+    def finish(self, view=None):
+        from semslam.registry import FrontendSummary
+
+        return FrontendSummary(section="sequential", metrics={"scans": self.scans, "depth": self.depth})
+
+
+def test_a_replicated_and_a_sequential_front_end_on_the_same_scans(sample_mission):
+    """The replicas share the scans (each scan processed once, not once per worker), the sequential
+    front-end lives in one worker and sees every scan and depth reading there, and the stream is
+    the one of both front-ends inline: same observations, same order."""
+    mission = sample_mission(seconds=12.0)
+    n_scans = sum(isinstance(m, PointCloud) for m in mission)
+
+    def run(**kw):
+        return run_pipeline(mission, [Deaf()], [CountingScans(), SequentialScans()], **kw)
+
+    inline, apart = run(frontend_process=False), run(frontend_workers=2)
+
+    def stream(result):  # what does not depend on where it ran: front-end, stamp, state it kept
+        return [(r.frontend, r.stamp, r.observation.position[0]) for r in result.observations]
+
+    assert stream(apart) == stream(inline)
+    assert [r.frontend for r in apart.observations[:2]] == ["counting", "sequential"]  # the front-ends' order
+    assert len(apart.observations) == 2 * n_scans == 48
+
+    counting = [r.observation.position for r in apart.observations if r.frontend == "counting"]
+    by_process: dict[float, list[float]] = {}
+    for _, pid, count in counting:
+        by_process.setdefault(pid, []).append(count)
+    assert len(by_process) == 2  # both workers took scans ...
+    for counts in by_process.values():  # ... and each processed only its own
+        assert counts == list(range(1, len(counts) + 1))
+    assert sum(len(c) for c in by_process.values()) == n_scans
+
+    sequential = [r.observation.position for r in apart.observations if r.frontend == "sequential"]
+    assert len({pid for _, pid, _ in sequential}) == 1
+    assert [count for _, _, count in sequential] == list(range(1, n_scans + 1))
+    assert apart.frontend_summaries["sequential"].metrics == inline.frontend_summaries["sequential"].metrics
+    assert apart.timing_s["frontend:sequential"] > 0 and apart.timing_s["frontend:counting"] > 0
+
+
+class SlowScans(Frontend):
+    """Takes 0.2 s a scan and notes each one it finished in a file."""
+
+    name: ClassVar[str] = "slow"
+    consumes: ClassVar[tuple] = (PointCloud,)
+    uses_view: ClassVar[bool] = False
+
+    def __init__(self, log):
+        self.log = str(log)
+
+    def process(self, measurement, view):
+        import time
+
+        time.sleep(0.2)
+        with open(self.log, "a") as f:
+            f.write(f"{measurement.stamp}\n")
+        return []
+
+
+class FailsAtSecondScan(Deaf):
+    name = "fails"
+
+    def __init__(self):
+        self.scans = 0
+
+    def process_measurement(self, m):
+        self.scans += isinstance(m, PointCloud)
+        if self.scans == 2:
+            raise RuntimeError("estimator failed")
+
+
+def test_an_error_in_the_driver_kills_the_workers_instead_of_letting_them_finish_the_queue(sample_mission, tmp_path):
+    """All 24 scans are queued for the worker at once (the driver reads ahead); when the estimator
+    fails at the second, the worker is killed: it does not work through the rest, and nothing is left."""
+    import multiprocessing as mp
+    import time
+
+    mission = sample_mission(seconds=12.0)
+    log = tmp_path / "scans.txt"
+    with pytest.raises(RuntimeError, match="estimator failed"):
+        run_pipeline(mission, [FailsAtSecondScan()], [SlowScans(log)])
+    assert mp.active_children() == []
+    done = log.read_text().split()
+    time.sleep(0.5)
+    assert log.read_text().split() == done  # nobody is still working
+    assert len(done) <= 6 < sum(isinstance(m, PointCloud) for m in mission)

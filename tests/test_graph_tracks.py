@@ -1,32 +1,50 @@
-"""Tentative landmarks (tracks) of the graph: a scan's unpaired views continue them one-to-one by
-the assignment of least total cost, so that a missed object in a row of them does not shift every
-view into its neighbour's track."""
+"""Tentative landmarks (semslam.mapping.tracks, both estimators' rule): a scan's unpaired views continue
+tracks one-to-one by the assignment of least total cost, so that a missed object in a row of them does
+not shift every view into its neighbour's track; objects keep the weighted mean of their views."""
 
-import gtsam
 import numpy as np
 
-from semslam.backend import GraphEstimator
-from semslam.backend.synthetic import SyntheticConfig, simulate
-from semslam.config import SemslamConfig
+from semslam.config import AssociationConfig
+from semslam.mapping.tracks import Track, TrackSet, TrackView
 from semslam.observations import PointObservation
 
 ROW = [np.array([x, 0.0, 3.0]) for x in (0.0, 0.3, 0.6)]  # three objects 30 cm apart, seen from the origin
+POSE_COV = np.eye(3) * 0.06**2 + np.eye(3) * 0.03**2  # the first seconds' 6 cm pose σ, and the views' 3 cm
 
 
-def _scan(est, k, seen):
-    obs = [PointObservation(k, "laser", position=ROW[i], covariance=np.eye(3) * 0.03**2, truth_id=i) for i in seen]
-    est._current_obs, est._ambiguous = obs, set()
-    pose_cov = np.diag([1e-6] * 3 + [0.06**2] * 3)  # the first seconds' pose σ: 6 cm
-    est._extend_tracks(k, k, [(z, np.eye(4)) for z in obs], gtsam.Pose3(), pose_cov, [], gtsam.Values())
+def _scan(tracks, stamp, seen):
+    views = [
+        TrackView(stamp, PointObservation(stamp, "laser", position=ROW[i], truth_id=i), ROW[i], POSE_COV) for i in seen
+    ]
+    return tracks.extend(views, np.zeros((0, 3)))
 
 
 def test_a_missed_object_does_not_shift_the_row_of_tracks():
-    mission = simulate(SyntheticConfig(duration_s=5.0, seed=0))
-    est = GraphEstimator(mission.metadata, SemslamConfig(association={"min_observations": 10}))
-    _scan(est, 1, [1, 2])  # object 0 missed
+    tracks = TrackSet(AssociationConfig(min_observations=10))
+    _scan(tracks, 1, [1, 2])  # object 0 missed
     # object 2 missed: both views fit the two tracks shifted by one (each 30 cm, inside the gate);
     # greedily, or by an assignment that must pair as many as it can, 0 takes 1's track, 1 takes 2's
-    _scan(est, 2, [0, 1])
-    _scan(est, 3, [0, 1, 2])
-    tracks = {tuple(sorted({r.observation.truth_id for r in tr.records})): len(tr.records) for tr in est.tracks}
-    assert tracks == {(0,): 2, (1,): 3, (2,): 2}
+    _scan(tracks, 2, [0, 1])
+    went, promoted = _scan(tracks, 3, [0, 1, 2])
+    assert not promoted and len(went) == 3
+    rows = {tuple(sorted({v.z.truth_id for v in tr.views})): len(tr.views) for tr in tracks.tracks}
+    assert rows == {(0,): 2, (1,): 3, (2,): 2}
+
+
+def test_a_track_is_promoted_at_min_observations_and_forgotten_after_the_timeout():
+    tracks = TrackSet(AssociationConfig(min_observations=3, track_timeout_s=60.0))
+    assert _scan(tracks, 1, [0])[1] == [] and _scan(tracks, 2, [0])[1] == []
+    _, promoted = _scan(tracks, 3, [0])
+    assert len(promoted) == 1 and len(promoted[0].views) == 3 and len(tracks) == 0
+    _scan(tracks, 4, [1])
+    assert tracks.purge(4 + 59_000_000_000) == [] and len(tracks) == 1
+    assert len(tracks.purge(4 + 61_000_000_000)) == 1 and len(tracks) == 0
+
+
+def test_object_tracks_keep_the_weighted_mean_of_their_views():
+    z = PointObservation(0, "laser")
+    tr = Track(0, "object", views=[TrackView(0, z, np.zeros(3), np.eye(3) * 0.01)])
+    tr.views.append(TrackView(1, z, np.array([0.3, 0.0, 0.0]), np.eye(3) * 0.02))
+    mean, cov = tr.mean_position()
+    np.testing.assert_allclose(mean, [0.1, 0.0, 0.0])
+    np.testing.assert_allclose(cov, np.eye(3) * (1 / (100 + 50)))

@@ -9,11 +9,10 @@ import pytest
 from test_backend_graph import DROPOUTS, ate, dr_ate, indeterminate_landmark
 
 from frontends.oracle import OracleFrontend
-from semslam.backend.graph import GraphEstimator, X
-from semslam.backend.run import run_graph
-from semslam.backend.synthetic import SyntheticConfig, landmark_report, simulate
-from semslam.backend.window import marginal_factors, split_factors, subset
+from semslam.backend.graph import GraphEstimator
+from semslam.backend.window import X, marginal_factors, split_factors, subset
 from semslam.config import SemslamConfig
+from tests.support.synthetic_mission import SyntheticConfig, landmark_report, run_graph, simulate
 
 
 def _chain(rng):
@@ -147,27 +146,27 @@ def test_failed_update_after_a_slide_rebuilds_the_window_only():
     injected = False
     for m in mission:
         est.process_measurement(m)
-        if not injected and est.slides:
-            assert not est._commit(*indeterminate_landmark(999))
+        if not injected and est.window.slides:
+            assert est.session.commit(*indeterminate_landmark(999), est.keyframes.anchor()) == [999]
             injected = True
-            assert not est.isam.valueExists(X(0))  # rebuilt from the window, not the whole mission
-            assert est.isam.valueExists(X(len(est.kf_stamps) - 1))
+            assert not est.session.isam.valueExists(X(0))  # rebuilt from the window, not the whole mission
+            assert est.session.isam.valueExists(X(len(est.keyframes.stamps) - 1))
     res = est.finish()
     assert injected and any("failed" in d for d in res.diagnostics)
-    assert len(res.trajectory) == len(est.kf_stamps) and np.isfinite(res.trajectory.positions).all()
+    assert len(res.trajectory) == len(est.keyframes.stamps) and np.isfinite(res.trajectory.positions).all()
 
 
 def test_failed_marginalisation_keeps_the_full_smoother(monkeypatch):
-    import semslam.backend.graph as graph_module
+    import semslam.backend.window as window_module
 
     def fail(*args):
         raise RuntimeError("indeterminant system")
 
-    monkeypatch.setattr(graph_module, "marginal_factors", fail)
+    monkeypatch.setattr(window_module, "marginal_factors", fail)
     mission, est = _circle_with_window()
     for m in mission:
         est.process_measurement(m)
     res = est.finish()
-    assert not est.slides and est._first_active == 0
+    assert not est.window.slides and est.window.first_active == 0
     assert sum("marginalising" in d for d in res.diagnostics) == 1  # retried after half a window, not at every keyframe
-    assert est.isam.valueExists(X(0)) and len(res.trajectory) == len(est.kf_stamps)
+    assert est.session.isam.valueExists(X(0)) and len(res.trajectory) == len(est.keyframes.stamps)

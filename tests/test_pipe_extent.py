@@ -1,9 +1,11 @@
-"""A pipe's ends from many noisy, partly clipped views (the graph's and the EKF's shared rule)."""
+"""What was seen of a pipe (semslam.mapping.extent, both estimators' rule): robust ends from many noisy,
+partly clipped views, cuts at in-line objects, gaps and separation by an in-line object."""
 
 import numpy as np
 import pytest
 
-from semslam.backend.landmarks import robust_ends
+from semslam.mapping.extent import PipeExtent
+from semslam.mapping.pipes import object_between, robust_ends
 
 
 def test_ends_of_many_noisy_views_are_not_biased_outwards():
@@ -24,65 +26,110 @@ def test_a_few_views_give_their_median_ends():
     assert (a, b) == (0.0, 0.4)
 
 
-def test_association_extent_stays_short_of_the_next_valve():
-    from semslam.backend.landmarks import Landmark, object_between
+def _views(ranges, sigma=0.01, y=0.0, z=0.0):
+    """A PipeExtent of views along the x axis (world ends), each (lo, hi) in x."""
+    ext = PipeExtent()
+    for lo, hi in ranges:
+        ext.add(np.array([[lo, y, z], [hi, y, z]]), sigma)
+    return ext
 
+
+def test_association_extent_stays_short_of_the_next_valve():
     # pipe 18 of the tank: 0.40 m long, a 3-way valve 0.12 m beyond its end, then pipe 16
     rng = np.random.default_rng(5)
-    lm = Landmark(1, "pipe", 0)
-    for _ in range(220):  # views along the axis (line frame: s), endpoint σ 5 cm
-        lo, hi = rng.normal(0.0, 0.05), rng.normal(0.40, 0.05)
-        lm.seen_ends.append((lo, hi, 0.05))
-    lm.extent = (min(e[0] for e in lm.seen_ends), max(e[1] for e in lm.seen_ends))
+    ext = _views([(rng.normal(0.0, 0.05), rng.normal(0.40, 0.05)) for _ in range(220)], sigma=0.05)
     c, d = np.zeros(3), np.array([1.0, 0.0, 0.0])
     valve = np.array([[0.52, 0.0, 0.0]])
     next_pipe = np.array([[0.53, 0.0, 0.0], [1.05, 0.0, 0.0]])  # a view of pipe 16 (from 0.64), its near end 2σ long
-    # every view's extreme reaches into the valve: the next pipe's view overlaps it, nothing between
-    assert lm.extent[1] > 0.52
-    assert not object_between(lm.extent, next_pipe, c, d, valve, 0.15)
-    lo, hi = lm.robust_extent()
+    # every view's extreme reaches into the valve and the next pipe's view overlaps it: only the margin
+    # around the facing ends (fits run a few cm into a socket) still finds the valve between them
+    assert ext.outer(c, d)[1] > 0.52
+    assert object_between(ext.outer(c, d), next_pipe, c, d, valve, 0.15)
+    assert not object_between(ext.outer(c, d), next_pipe, c, d, valve, 0.15, margin=0.0)
+    lo, hi = ext.interval(c, d)
     assert abs(hi - 0.40) < 0.02
     assert object_between((lo, hi), next_pipe, c, d, valve, 0.15)
+    assert ext.excludes(next_pipe, c, d, valve, np.zeros((0, 3)), 0.15, 0.3)
+    assert not ext.excludes(next_pipe, c, d, np.zeros((0, 3)), np.zeros((0, 3)), 0.15, 0.3)
 
 
 def test_a_pipe_seen_through_a_mapped_tee_is_cut_at_it_on_the_side_of_its_views():
-    from factors.landmarks import LineAnchor
-    from semslam.backend.landmarks import Landmark
-
-    # a landmark started by laser fits through an in-line tee at s = 0.5: most views then see the
+    # a landmark started by laser fits through an in-line tee at x = 0.5: most views then see the
     # part before it, a few the whole 1 m
-    lm = Landmark(
-        1, "pipe", 0, anchor=LineAnchor.from_points(np.zeros(3), np.array([1.0, 0.0, 0.0])), estimate=np.zeros(4)
-    )
-    lm.seen_ends = [(0.0, 0.45, 0.01)] * 30 + [(0.0, 1.0, 0.01)] * 5
-    lm.extent = (0.0, 1.0)
-    d = lm.anchor.direction(lm.estimate)
-    c0 = lm.anchor.c0
-    tee = c0 + 0.5 * d + np.array([0.0, 0.02, 0.0])  # 2 cm off the axis, as estimated
-    elbow = c0 + 1.05 * d  # at the end: not inside
-    assert lm.stretch(np.zeros((0, 3)), 0.15) == lm.robust_extent()
-    lo, hi = lm.stretch(np.array([tee, elbow]), 0.15)
-    assert lo == pytest.approx(lm.robust_extent()[0]) and hi == pytest.approx(0.5, abs=1e-9)
+    ext = _views([(0.0, 0.45)] * 30 + [(0.0, 1.0)] * 5, y=1.0, z=4.0)
+    c, d = np.array([0.0, 1.0, 4.0]), np.array([1.0, 0.0, 0.0])
+    tee = np.array([0.5, 1.02, 4.0])  # 2 cm off the axis, as estimated
+    elbow = np.array([1.05, 1.0, 4.0])  # at the end: not inside
+    assert ext.interval(c, d, np.zeros((0, 3)), 0.15) == ext.interval(c, d)
+    lo, hi = ext.interval(c, d, np.array([tee, elbow]), 0.15)
+    assert lo == pytest.approx(ext.interval(c, d)[0]) and hi == pytest.approx(0.5, abs=1e-9)
+    np.testing.assert_allclose(ext.ends(c, d, np.array([tee]), 0.15), [[0.0, 1.0, 4.0], [0.5, 1.0, 4.0]], atol=1e-9)
     # the views mostly beyond the tee keep that side instead
-    other = Landmark(2, "pipe", 0, anchor=lm.anchor, estimate=lm.estimate, extent=(0.0, 1.0))
-    other.seen_ends = [(0.55, 1.0, 0.01)] * 30 + [(0.0, 1.0, 0.01)] * 5
-    lo, hi = other.stretch(np.array([tee]), 0.15)
+    other = _views([(0.55, 1.0)] * 30 + [(0.0, 1.0)] * 5, y=1.0, z=4.0)
+    lo, hi = other.interval(c, d, np.array([tee]), 0.15)
     assert lo == pytest.approx(0.5, abs=1e-9) and hi == pytest.approx(1.0, abs=1e-9)
 
 
-def test_the_ekf_extent_is_cut_at_a_mapped_tee_like_the_graphs():
-    from semslam.ekf.estimator import _Extent
+def _seg(a, b, rng=None, sigma=0.0):
+    e = np.array([[a, 2.0, 4.0], [b, 2.0, 4.0]])
+    if rng is not None:
+        e[:, 0] += rng.normal(scale=sigma, size=2)
+        e[:, 1:] += rng.normal(scale=0.02, size=(2, 2))  # off-line noise: re-projection removes it
+    return e
 
-    ext = _Extent()
-    for _ in range(30):
-        ext.add(np.array([[0.0, 1.0, 4.0], [0.45, 1.0, 4.0]]), 0.01)  # the part before the tee
-    for _ in range(5):
-        ext.add(np.array([[0.0, 1.0, 4.0], [1.0, 1.0, 4.0]]), 0.01)  # fits through the tee
-    d = np.array([1.0, 0.0, 0.0])
-    m = np.cross(np.array([0.0, 1.0, 4.0]), d)
-    c = np.cross(d, m)  # the line's closest point to the origin: positions are along d from it
-    a, b = ext.interval(m, d)
-    assert b - a == pytest.approx(1.0, abs=1e-9)
-    a, b = ext.interval(m, d, np.array([[0.5, 1.02, 4.0]]), 0.15)
-    np.testing.assert_allclose(c + b * d, [0.5, 1.0, 4.0], atol=1e-9)
-    np.testing.assert_allclose(c + a * d, [0.0, 1.0, 4.0], atol=1e-9)
+
+C, D = np.array([0.0, 2.0, 4.0]), np.array([1.0, 0.0, 0.0])  # the line y = 2, z = 4 along x
+
+
+def test_robust_ends_are_not_biased_outwards_by_noise():
+    rng = np.random.default_rng(0)
+    ext = PipeExtent()
+    for _ in range(200):  # views that all reach the true ends 0 and 3, noisy along the axis
+        ext.add(_seg(0.0, 3.0, rng, 0.05), 0.05)
+    lo, hi = ext.interval(C, D)
+    assert abs(lo) < 0.03 and abs(hi - 3.0) < 0.03  # the extremes alone would be ~±0.14 out
+    p, q = ext.ends(C, D)
+    np.testing.assert_allclose(p[1:], [2.0, 4.0], atol=1e-12)  # on the line
+    # the positions are along d from the point given: another point on the line gives the same ends
+    np.testing.assert_allclose(ext.ends(C + 5 * D, D), ext.ends(C, D), atol=1e-12)
+
+
+def test_gap_and_separation_by_an_in_line_object():
+    ext = PipeExtent()
+    ext.add(_seg(0.0, 2.0), 0.05)
+    span = ext.interval(C, D)
+    assert ext.gap(_seg(1.0, 2.5), C, D, span) == 0.0
+    assert abs(ext.gap(_seg(2.4, 3.5), C, D, span) - 0.4) < 1e-9
+    valve = np.array([[2.2, 2.0, 4.0]])
+    off_line = np.array([[2.2, 2.5, 4.0]])
+    assert ext.separated(_seg(2.3, 3.5), C, D, valve, 0.15, span)  # pipe B beyond the valve
+    assert not ext.separated(_seg(2.3, 3.5), C, D, off_line, 0.15, span)
+    assert not ext.separated(_seg(0.5, 1.8), C, D, valve, 0.15, span)  # a view inside pipe A
+    elbow_at_end = np.array([[2.08, 2.0, 4.0]])
+    assert not ext.separated(_seg(1.0, 1.9), C, D, elbow_at_end, 0.15, span)
+
+
+def test_pipe_extent_gap_and_inline_object_radius_are_the_shared_association_settings(tmp_path):
+    """Both estimators pair a pipe view with a pipe by one rule, with the gap beyond its seen extent
+    and the radius of an in-line object from ``association``; the ``ekf`` section has neither."""
+    from semslam.config import SemslamConfig, load_config
+    from semslam.errors import ConfigError
+
+    ext = PipeExtent()
+    ext.add(np.array([[0.0, 2.0, 4.0], [2.0, 2.0, 4.0]]), 0.01)
+    beyond = np.array([[2.4, 2.0, 4.0], [3.0, 2.0, 4.0]])  # 0.4 m beyond what was seen
+    valve = np.array([[2.2, 2.1, 4.0]])  # 0.1 m off the axis, in between
+    none = np.zeros((0, 3))
+    for gap, radius, apart, apart_valve in (
+        (0.5, 0.05, False, False),
+        (0.3, 0.05, True, True),
+        (0.5, 0.15, False, True),
+    ):
+        a = SemslamConfig(association={"pipe_extent_gap_m": gap, "inline_object_radius_m": radius}).association
+        assert ext.excludes(beyond, C, D, none, none, a.inline_object_radius_m, a.pipe_extent_gap_m) == apart
+        assert ext.excludes(beyond, C, D, valve, none, a.inline_object_radius_m, a.pipe_extent_gap_m) == apart_valve
+    for key in ("pipe_extent_gap_m", "pipe_object_radius_m"):
+        f = tmp_path / "old.yaml"
+        f.write_text(f"ekf:\n  {key}: 0.5\n")
+        with pytest.raises(ConfigError, match=rf"ekf\.{key}"):
+            load_config(f)

@@ -235,3 +235,62 @@ def test_semantic_map_lists_every_link_once():
     m = map_to_dict(EstimatorResult("graph", none, lms))
     assert m["connectivity"] == [[1, 2], [2, 3]]
     assert m["structures"][0]["connected"] == [2] and m["objects"][0]["connected_pipes"] == [2]
+
+
+class Watcher:
+    """A pipeline observer that notes each step and what the estimators had taken by then."""
+
+    def __init__(self, estimator):
+        self.estimator, self.steps = estimator, []
+
+    def step(self, stamp, measurement, observations, views):
+        taken = len(self.estimator.stream)  # measurements and observation batches processed so far
+        self.steps.append((stamp, measurement, [(fe, len(obs)) for fe, obs in observations], taken, dict(views)))
+
+
+def test_observers_see_every_step_after_the_estimators_took_it():
+    from semslam.pipeline import observed_by
+
+    a, b = Recorder("a", 0.1), Recorder("b", 0.2)
+    w, ambient = Watcher(a), Watcher(a)
+    with observed_by(ambient):
+        res = run_pipeline(_mission(), [a, b], [FinishingFrontend()], observers=[w])
+    assert w.steps == ambient.steps  # observed_by reaches a run that passes no observers itself
+    measured = [s for s in w.steps if s[1] is not None]
+    assert [s[0] for s in measured] == sorted(m.stamp for m in _mission())  # every measurement, in order
+    assert all(s[0] == s[1].stamp for s in measured)
+    # each step comes after every estimator took the measurement and the observations drawn from it
+    assert all(a.stream[s[3] - 1][1] == s[0] for s in measured)
+    scans = [s for s in measured if isinstance(s[1], PointCloud)]
+    assert len(scans) == 5 and all(s[2] == [("finishing", 1)] for s in scans)
+    assert all(s[2] == [] for s in measured if not isinstance(s[1], PointCloud))
+    assert set(measured[0][4]) == {"a", "b"} and measured[0][4]["b"] is b
+    assert len(w.steps) == res.n_measurements  # a summary without observations adds no step
+    # outside the block, nothing is watched
+    run_pipeline(_mission(), [Recorder("a")], [CountingFrontend()])
+    assert len(ambient.steps) == res.n_measurements
+
+
+def test_the_frontends_last_word_is_a_step_without_measurement():
+    from semslam.registry import FrontendSummary
+
+    class LastWord(CountingFrontend):
+        name = "last"
+
+        def finish(self, view):
+            return FrontendSummary(observations=[PointObservation(0, "laser", position=np.ones(3))] * 2)
+
+    a = Recorder("a")
+    w = Watcher(a)
+    run_pipeline(_mission(), [a], [LastWord()], observers=[w])
+    stamp, measurement, observations, taken, _ = w.steps[-1]
+    assert measurement is None and observations == [("last", 2)]
+    assert stamp == w.steps[-2][0] and taken == len(a.stream)  # at the last stamp, after the estimators
+
+
+def test_a_watched_run_gives_the_same_result():
+    plain = run_pipeline(_mission(), [Recorder("a", 0.1)], [CountingFrontend()])
+    watched_est = Recorder("a", 0.1)
+    watched = run_pipeline(_mission(), [watched_est], [CountingFrontend()], observers=[Watcher(watched_est)])
+    assert np.array_equal(plain.results["a"].trajectory.positions, watched.results["a"].trajectory.positions)
+    assert [(r.frontend, r.stamp) for r in plain.observations] == [(r.frontend, r.stamp) for r in watched.observations]

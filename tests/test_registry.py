@@ -7,7 +7,7 @@ import pytest
 
 from semslam.errors import ConfigError
 from semslam.mission import MissionMetadata, PointCloud
-from semslam.registry import available_frontends, create_frontends, load_frontend_class
+from semslam.registry import Frontend, available_frontends, create_frontends, load_frontend_class
 
 
 @pytest.fixture
@@ -18,15 +18,24 @@ def throwaway_distribution(tmp_path, monkeypatch):
     (pkg / "__init__.py").write_text(
         textwrap.dedent(
             """
+            from pydantic import BaseModel
+
+            from semslam.errors import validated
             from semslam.mission import PointCloud
             from semslam.observations import PointObservation
+            from semslam.registry import Frontend
 
-            class CentroidFrontend:
+            class CentroidConfig(BaseModel):
+                scale: float = 1.0
+
+            class CentroidFrontend(Frontend):
                 name = "centroid"
                 consumes = (PointCloud,)
+                config_model = CentroidConfig
 
                 def __init__(self, metadata, config):
-                    self.scale = config.get("scale", 1.0)
+                    self.config = validated(CentroidConfig, config, "frontends.centroid")
+                    self.scale = self.config.scale
 
                 def process(self, measurement, view):
                     c = measurement.points.mean(axis=0) * self.scale
@@ -61,10 +70,22 @@ def test_builtin_frontends_are_registered_by_entry_point():
     assert {"oracle", "laser", "sonar"} <= set(available_frontends())
 
 
+def test_every_loaded_frontend_is_a_frontend_with_its_hooks(throwaway_distribution):
+    """A plug-in derives from Frontend, or declares every member; one written before the base class
+    gets the base class's defaults for the hooks it lacks, so that the driver never asks for them."""
+    for name in ("oracle", "laser", "sonar", "centroid"):
+        cls = load_frontend_class(name)
+        assert issubclass(cls, Frontend)
+        assert isinstance(cls.uses_view, bool) and isinstance(tuple(cls.parallel_consumes), tuple)
+        assert callable(cls.finish)
+    (fe,) = create_frontends(["centroid"], MissionMetadata(), {})
+    assert fe.finish(None) is None and fe.uses_view and fe.parallel_consumes == ()
+
+
 def test_unknown_broken_and_unloadable_frontends_are_user_errors(throwaway_distribution):
     with pytest.raises(ConfigError, match="unknown front-end 'nope'"):
         load_frontend_class("nope")
-    with pytest.raises(ConfigError, match="'broken'.*lacks name, consumes, process"):
+    with pytest.raises(ConfigError, match="'broken'.*lacks name, consumes, config_model, process"):
         load_frontend_class("broken")
     with pytest.raises(ConfigError, match="'missing'.*failed to load"):
         load_frontend_class("missing")

@@ -117,6 +117,24 @@ def test_conflicting_connectivity_is_dropped_not_a_zero_posterior():
     assert fusion.posterior(0) == pytest.approx({"A": 0.9, "B": 0.1})
 
 
+def test_an_open_class_set_grows_with_the_likelihoods():
+    """An estimator knows the classes only from the likelihoods it gets: a class named later enters
+    with likelihood 0 (floored) in the views fused before, as a class a view does not name."""
+    fusion = ClassFusion(None)
+    assert fusion.posterior(1) == {}
+    fusion.update(1, {"A": 0.7, "B": 0.3})
+    fusion.update(1, {"A": 0.6, "B": 0.4}, configuration=1)
+    fusion.update(2, {"C": 0.9, "A": 0.1})
+    closed = ClassFusion(["A", "B", "C"])
+    for lid, lik in ((1, {"A": 0.7, "B": 0.3}), (1, {"A": 0.6, "B": 0.4}), (2, {"C": 0.9, "A": 0.1})):
+        closed.update(lid, lik)
+    for lid in (1, 2):
+        assert fusion.posterior(lid) == pytest.approx(closed.posterior(lid))
+    assert fusion.posterior(1)["C"] < 1e-20 and fusion.n_observations(1) == 2
+    with pytest.raises(ValueError):
+        ClassFusion(None, prior={"A": 1.0})
+
+
 def test_merge_pools_evidence():
     fusion = ClassFusion(CLASSES)
     fusion.update("a", {c: (0.9 if c == "Elbow" else 0.02) for c in CLASSES})

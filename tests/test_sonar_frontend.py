@@ -6,7 +6,6 @@ import numpy as np
 import pytest
 
 from frontends.sonar import SonarFrontend
-from frontends.sonar.synthetic import survey_config, true_structure_pose
 from semslam.config import SemslamConfig
 from semslam.errors import ConfigError
 from semslam.estimators import create_estimator
@@ -14,6 +13,7 @@ from semslam.observations import OdometryObservation, StructureObservation
 from semslam.pipeline import run_pipeline
 from semslam.registry import create_frontends
 from semslam.sim.field_mission import simulate_field
+from tests.support.sonar_survey import survey_config, true_structure_pose
 
 
 @pytest.fixture(scope="module")

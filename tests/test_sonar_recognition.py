@@ -9,9 +9,9 @@ from frontends.sonar.config import RecognitionConfig, StructureRegistrationConfi
 from frontends.sonar.grid import ElevationMap, estimate_ground
 from frontends.sonar.recognition import Recogniser
 from frontends.sonar.registration import icp, model_data, register_structure
-from frontends.sonar.synthetic import survey_config, true_points, true_structure_pose, yaw_error
 from semslam.models.structures import structure_library
 from semslam.sim.field_mission import simulate_field
+from tests.support.sonar_survey import survey_config, true_points, true_structure_pose, yaw_error
 
 
 @pytest.fixture(scope="module")

@@ -19,9 +19,10 @@ from semslam.estimation import EstimateView
 from semslam.mission.measurements import GroundTruthPose, Measurement, PointCloud
 from semslam.mission.mission import MissionMetadata
 from semslam.observations import Connectivity, LineObservation, Observation, PointObservation, StructureObservation
+from semslam.registry import Frontend
 
 
-class OracleFrontend:
+class OracleFrontend(Frontend):
     config_model: ClassVar[type] = OracleConfig  # its section of the configuration, frontends.<name>
     name: ClassVar[str] = "oracle"
     consumes: ClassVar[tuple[type[Measurement], ...]] = (PointCloud, GroundTruthPose)
@@ -49,9 +50,7 @@ class OracleFrontend:
             return []
         if not isinstance(measurement, PointCloud) or not self._gt:
             return []
-        sensor = self.metadata.sensors.get(measurement.sensor)
-        T_BS = sensor.T_BS if sensor is not None else np.eye(4)
-        T_WS = self._true_pose(measurement.stamp) @ T_BS
+        T_WS = self._true_pose(measurement.stamp) @ self.metadata.extrinsic(measurement.sensor)
         R_WS, t_WS = T_WS[:3, :3], T_WS[:3, 3]
         obs: list[Observation] = []
         obs += self._objects(measurement, R_WS, t_WS)

@@ -1,18 +1,6 @@
-"""Graph back-end: iSAM2 online and batch estimation, keyframes, data association, landmarks.
+"""Graph back-end: iSAM2 online and batch estimation over keyframes with navigation factors, and the
+landmark map it smooths (its map-building rules are semslam.mapping's, shared with the EKF)."""
 
-``GraphEstimator`` is imported lazily so that ``semslam.backend.config`` (imported by
-``semslam.config``) and ``semslam.backend.association`` (used by the EKF) do not pull in GTSAM
-or create an import cycle.
-"""
+from semslam.backend.graph import GraphEstimator
 
-from semslam.backend.config import GraphConfig
-
-__all__ = ["GraphConfig", "GraphEstimator"]
-
-
-def __getattr__(name):
-    if name == "GraphEstimator":
-        from semslam.backend.graph import GraphEstimator
-
-        return GraphEstimator
-    raise AttributeError(name)
+__all__ = ["GraphEstimator"]

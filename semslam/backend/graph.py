@@ -1,1304 +1,159 @@
 """The graph back-end: iSAM2 online (and Levenberg–Marquardt batch) smoothing over keyframes with
 navigation factors between them and object / pipe / structure landmarks.
 
-State (see factors.navigation): per keyframe k, X(k) = T_WB (Pose3) and V(k) = body velocity.
-Keyframes are created at every observation batch and at least every
-``GraphConfig.keyframe_max_interval_s``. Between consecutive keyframes: the preintegrated
-DVL/AHRS displacement (with the velocity motion model across dropouts) and, over intervals with no
-DVL at all, the velocity random walk. At each keyframe: the AHRS attitude, the depth and the latest
-DVL velocity. Landmarks: object points L(id), pipe lines P(id) (4-vector, anchored chart),
-structures S(id) (Pose3), with robust kernels, data association by JCBB against the current
-estimate, and initialisation after ``association.min_observations`` consistent observations.
-Online, iSAM2 holds a window of ``GraphConfig.window_s`` seconds (see :mod:`semslam.backend.window`);
-the batch re-optimisation spans the whole mission.
+The parts: :class:`~semslam.backend.session.IsamSession` (iSAM2 with recovery from a failed update,
+the batch, marginals), :class:`~semslam.backend.keyframes.Keyframes` (keyframes at every observation
+batch and at least every ``graph.keyframe_max_interval_s``, their navigation factors),
+:class:`~semslam.backend.window.SlidingWindow` (online, iSAM2 holds ``graph.window_s`` seconds; the
+batch spans the whole mission), :class:`~semslam.backend.landmarks.GraphLandmarks` (the landmarks
+as iSAM2 variables), the map-building rules both estimators share
+(:class:`semslam.mapping.builder.MapBuilder`), and the result (:mod:`semslam.backend.result`).
 """
 
 from __future__ import annotations
 
-import bisect
-import math
 import time
 from collections.abc import Sequence
-from functools import lru_cache
 
-import gtsam
 import numpy as np
-from scipy.optimize import linear_sum_assignment
-from scipy.spatial.transform import Rotation
-from scipy.stats import chi2
 
-from factors.geometry import pose_point_jacobian
-from factors.landmarks import (
-    LineAnchor,
-    line_factor,
-    line_observation_covariance,
-    line_residual,
-    point_factor,
-    point_residual,
-    robust_kernel,
-    structure_factor,
-    structure_residual,
-)
-from factors.navigation import (
-    attitude_factor,
-    biased_attitude_factor,
-    depth_factor,
-    displacement_factor,
-    dvl_velocity_factor,
-    heading_bias_walk_factor,
-    velocity_random_walk_factor,
-)
-from semslam.backend.association import PairLinearization, jcbb
-from semslam.backend.config import GraphConfig
-from semslam.backend.landmarks import Landmark, ObservationRecord, Track, merge_collinear, object_between
-from semslam.backend.marginal import marginal_covariance
-from semslam.backend.navigation import NavigationBuffer
-from semslam.backend.problem import Candidate, GraphAssociationProblem, possible_pairs
-from semslam.backend.window import LANDMARK_CHARS, marginal_factors, split_factors, subset, value_of
-from semslam.config import SemslamConfig
-from semslam.estimation import EstimatorResult, LandmarkEstimate, Trajectory
-from semslam.mission.measurements import GroundTruthPose, Measurement
+from semslam.backend.keyframes import Keyframes
+from semslam.backend.landmarks import GraphLandmarks
+from semslam.backend.result import final_values, keyframe_trajectory, online_trajectory
+from semslam.backend.session import IsamSession
+from semslam.backend.window import SlidingWindow
+from semslam.config import GraphConfig, SemslamConfig
+from semslam.estimation import EstimateView, Estimator, EstimatorResult, LandmarkEstimate, Trajectory
+from semslam.mapping.book import LandmarkBook
+from semslam.mapping.builder import MapBuilder
+from semslam.mission.measurements import Measurement
 from semslam.mission.mission import MissionMetadata
-from semslam.observations import LineObservation, OdometryObservation, PointObservation, StructureObservation
-
-X = gtsam.symbol_shorthand.X
-V = gtsam.symbol_shorthand.V
-B = gtsam.symbol_shorthand.B  # AHRS heading bias (1-vector), when modelled
-KEY_OF_KIND = {
-    "object": gtsam.symbol_shorthand.L,
-    "pipe": gtsam.symbol_shorthand.P,
-    "structure": gtsam.symbol_shorthand.S,
-}
-KIND_OF_OBS = {PointObservation: "object", LineObservation: "pipe", StructureObservation: "structure"}
+from semslam.observations import Observation, OdometryObservation
 
 
-class GraphView:
+class GraphView(EstimateView):
     """Read-only view of the graph estimate handed to front-ends."""
 
     def __init__(self, est: GraphEstimator):
         self._est = est
 
     def pose_at(self, stamp: int) -> np.ndarray | None:
-        p = self._est.pose_at(stamp)
+        p = self._est.keyframes.pose_at(stamp)
         return None if p is None else p.matrix()
 
     def landmarks(self) -> Sequence[LandmarkEstimate]:
-        return self._est.landmark_estimates(covariance=False)
+        return self._est.map.estimates(covariance=False)
 
 
-class GraphEstimator:
-    """iSAM2 graph estimator (name ``graph``) implementing :class:`semslam.estimation.Estimator`."""
+class GraphEstimator(Estimator):
+    """iSAM2 graph estimator (name ``graph``): the facade over its parts (see the module)."""
 
     name = "graph"
 
     def __init__(self, metadata: MissionMetadata, config: SemslamConfig | None = None, batch: bool | None = None):
         config = config or SemslamConfig()
-        g = config.graph
-        self.cfg: GraphConfig = g if isinstance(g, GraphConfig) else GraphConfig.model_validate(g or {})
+        self.cfg: GraphConfig = config.graph
         self.batch = self.cfg.batch if batch is None else bool(batch)
         self.assoc = config.association
-        self.motion = config.motion
-        self.metadata = metadata
-        self.nav = NavigationBuffer(metadata, config.motion.accel_sigma_m_s2, config.motion.angular_rate_sigma_rad_s)
-        params = gtsam.ISAM2Params()
-        params.setRelinearizeThreshold(self.cfg.relinearize_threshold)
-        params.relinearizeSkip = self.cfg.relinearize_skip
-        self._new_isam(params)
-        self.robust = robust_kernel(self.cfg.robust_kernel, self.cfg.robust_k)
-        self._wait_for_gt = self.cfg.initial_pose == "first_ground_truth" and bool(
-            metadata.sensors_of_kind("ground_truth")
+        self.diagnostics: list[str] = []
+        self.session = IsamSession(self.cfg.relinearize_threshold, self.cfg.relinearize_skip, self.diagnostics)
+        self.window = SlidingWindow(self.cfg.window_s, self.diagnostics)
+        self.keyframes = Keyframes(metadata, config, self.session, self.window)
+        self.book = LandmarkBook()  # views, class evidence and extents of the landmarks
+        self.map = GraphLandmarks(
+            metadata, config, self.session, self.keyframes, self.window, self.book, self.diagnostics
         )
-        self._initial_gt: GroundTruthPose | None = None
-        # Graph bookkeeping: every factor with its owner (None = navigation, else a landmark id),
-        # and every variable's initial value, for batch optimisation and failure recovery.
-        self._factors: list[tuple[gtsam.NonlinearFactor, int | None]] = []
-        self._initial = gtsam.Values()
-        # The smoothing window (``GraphConfig.window_s``): the factors iSAM2 holds (those of
-        # ``_factors`` on window variables, the marginals of what left and the priors of landmarks
-        # that came back), the oldest keyframe in it, and the frozen estimates of what left.
-        self._window: list[tuple[gtsam.NonlinearFactor, int | None]] = []
-        self._first_active = 0
-        self._frozen = gtsam.Values()
-        self._slide_after = 0  # stamp before which no slide is tried (after a failed one)
-        self.slides: list[dict] = []  # one row per marginalisation, for benchmarks
-        self.returns = 0  # marginalised landmarks seen again
-        self.kf_stamps: list[int] = []
-        self._pose: gtsam.Pose3 | None = None  # latest keyframe pose estimate
-        self._vel: np.ndarray | None = None
-        self._pose_cov: np.ndarray | None = None
-        # AHRS heading bias as a random walk (0: not modelled, the AHRS heading taken as unbiased).
-        self._bias_walk = config.sensors.heading_bias_walk(metadata)
-        self._bias_sigma0 = config.sensors.heading_bias_sigma0(metadata)
-        self._bias = 0.0  # latest keyframe's bias estimate (rad)
-        self.online: list[tuple[int, gtsam.Pose3, np.ndarray]] = []
-        self.landmarks: dict[int, Landmark] = {}
-        self.tracks: list[Track] = []
-        self._next_id = 0
+        self.mapper = MapBuilder(self.map, self.assoc, self.book, self.diagnostics)
         self.update_times: list[float] = []
         self.update_n_landmarks: list[int] = []
         self.update_kinds: list[str] = []
-        self.diagnostics: list[str] = []
-        self._ambiguous: set[int] = set()
-        self._current_obs: list = []
-        self._volume: dict[int, list[tuple[int, float]]] = {}  # landmark id → [(stamp, log det cov)]
-        # Bounding sphere (centre, radius) of every landmark, refreshed with its estimate.
-        self._sphere_row: dict[int, int] = {}
-        self._sphere_ids: list[int] = []
-        self._sphere_c = np.zeros((0, 3))
-        self._sphere_r = np.zeros(0)
-        self._sphere_obj = np.zeros(0, bool)  # the row is an object landmark (its centre is its point)
 
     # ------------------------------------------------------------------ protocol
     def view(self) -> GraphView:
         return GraphView(self)
 
     def process_measurement(self, measurement: Measurement) -> None:
-        if isinstance(measurement, GroundTruthPose):
-            if self._initial_gt is None:
-                self._initial_gt = measurement
-            return
-        self.nav.add(measurement)
-        if self.nav.attitude is None:
-            return
-        if not self.kf_stamps:
-            if not self._wait_for_gt or self._initial_gt is not None:
-                self._timed(lambda: self._first_keyframe(measurement.stamp), "keyframe")
-            return
-        if (measurement.stamp - self.kf_stamps[-1]) * 1e-9 >= self.cfg.keyframe_max_interval_s:
+        due = self.keyframes.add(measurement)
+        if due == "first":
+            self._timed(lambda: self.keyframes.first(measurement.stamp), "keyframe")
+        elif due == "next":
             self._timed(lambda: self._keyframe(measurement.stamp), "keyframe")
 
-    def process_observations(self, stamp: int, observations: Sequence) -> None:
+    def process_observations(self, stamp: int, observations: Sequence[Observation]) -> None:
         if not observations:
             return
-        if not self.kf_stamps:
+        if not self.keyframes.stamps:
             self.diagnostics.append(f"{stamp}: {len(observations)} observations before the first keyframe, ignored")
             return
         self._timed(lambda: self._observations(stamp, list(observations)), "observations")
 
-    # ------------------------------------------------------------------ keyframes
     def _timed(self, fn, kind: str) -> None:
         t0 = time.perf_counter()
         fn()
         self.update_times.append(time.perf_counter() - t0)
-        self.update_n_landmarks.append(len(self.landmarks))
+        self.update_n_landmarks.append(len(self.map))
         self.update_kinds.append(kind)
 
-    def _nav_factors_at(self, k: int, t: float) -> tuple[list, np.ndarray, np.ndarray | None]:
-        """AHRS, depth and DVL factors of keyframe k at time t; returns (factors, R_WB, v_B prior mean)."""
-        factors = []
-        R, _ = self.nav.attitude_at(t)
-        fused = self.nav.take_fused_attitude(t)
-        if fused is not None and t - self.nav.attitude.t <= self.cfg.ahrs_max_age_s:
-            R_f, cov_f, _ = fused
-            factors.append(
-                biased_attitude_factor(X(k), B(k), R_f, cov_f)
-                if self._bias_walk > 0
-                else attitude_factor(X(k), R_f, cov_f)
-            )
-        v_prior = None
-        dvl = self.nav.dvl
-        # The newest DVL sample is the velocity factor when it is fresh, and also when it is the last
-        # knot of the interval that ends here (a dropout starting inside it): the displacement alone
-        # cannot pin V(k), and the σ_a²·age inflation is the motion model's growth over the gap.
-        in_interval = bool(self.kf_stamps) and dvl is not None and dvl.t > self.kf_stamps[-1] * 1e-9
-        if dvl is not None and 0 <= t - dvl.t and (t - dvl.t <= self.cfg.dvl_max_age_s or in_interval):
-            age = t - dvl.t
-            factors.append(
-                dvl_velocity_factor(
-                    V(k), dvl.v_S, dvl.cov_S, dvl.T_BS, dvl.omega_B, self.motion.accel_sigma_m_s2**2 * age
-                )
-            )
-            v_prior = dvl.v_B
-        dep = self.nav.depth
-        if dep is not None and 0 <= t - dep.t <= self.cfg.depth_max_age_s:
-            age = t - dep.t
-            # Bring the reading to t along the vertical velocity (from the DVL, else none).
-            vz = float((R @ (v_prior if v_prior is not None else np.zeros(3)))[2])
-            var = dep.variance + (self.motion.accel_sigma_m_s2 * age**1.5) ** 2 + (0.01 * age) ** 2
-            factors.append(depth_factor(X(k), dep.depth + vz * age, var, dep.t_BS))
-        return factors, R, v_prior
-
-    def _first_keyframe(self, stamp: int) -> None:
-        t = stamp * 1e-9
-        factors, R, v_prior = self._nav_factors_at(0, t)
-        if self._initial_gt is not None and self.cfg.initial_pose == "first_ground_truth":
-            pos = np.asarray(self._initial_gt.position, float)
-            R0 = Rotation.from_quat(self._initial_gt.orientation).as_matrix()
-        else:
-            pos, R0 = np.zeros(3), self._unbiased(R)
-        pose0 = gtsam.Pose3(gtsam.Rot3(R0), pos)
-        sig = np.r_[[self.cfg.initial_rotation_sigma_rad] * 3, [self.cfg.initial_position_sigma_m] * 3]
-        factors.append(gtsam.PriorFactorPose3(X(0), pose0, gtsam.noiseModel.Diagonal.Sigmas(sig)))
-        v0 = v_prior if v_prior is not None else np.zeros(3)
-        factors.append(
-            gtsam.PriorFactorVector(V(0), v0, gtsam.noiseModel.Isotropic.Sigma(3, self.cfg.initial_velocity_sigma_m_s))
-        )
-        values = gtsam.Values()
-        values.insert(X(0), pose0)
-        values.insert(V(0), v0)
-        if self._bias_walk > 0:
-            factors.append(
-                gtsam.PriorFactorVector(B(0), np.zeros(1), gtsam.noiseModel.Isotropic.Sigma(1, self._bias_sigma0))
-            )
-            values.insert(B(0), np.zeros(1))
-        self.kf_stamps.append(stamp)
-        self._commit([(f, None) for f in factors], values)
-        self._after_keyframe(t)
-
+    # ------------------------------------------------------------------ updates
     def _keyframe(self, stamp: int) -> int:
-        """Create keyframe k at ``stamp`` with its navigation factors; returns k."""
-        k = len(self.kf_stamps)
-        t = stamp * 1e-9
-        factors, R, v_prior = self._nav_factors_at(k, t)
-        # A DVL sample used as V(k)'s prior is removed from the displacement's knots (no double use).
-        drop_last = v_prior is not None and self.nav.preint.last_stamp == self.nav.dvl.t
-        if drop_last:
-            self.nav.preint.drop_last()
-        d = self.nav.preint.integrate(t, R)
-        factors.append(displacement_factor(X(k - 1), X(k), V(k - 1), V(k), d))
-        if d.n_samples == 0:  # no knot between the two velocity states: the process model links them
-            factors.append(velocity_random_walk_factor(V(k - 1), V(k), d.dt, self.motion.accel_sigma_m_s2))
-        v_init = v_prior if v_prior is not None else self._vel
-        p_init = self._pose.translation() + self._pose.rotation().matrix() @ (d.c + d.A @ self._vel + d.B @ v_init)
-        values = gtsam.Values()
-        values.insert(X(k), gtsam.Pose3(gtsam.Rot3(self._unbiased(R)), p_init))
-        values.insert(V(k), np.asarray(v_init, float))
-        if self._bias_walk > 0:
-            factors.append(heading_bias_walk_factor(B(k - 1), B(k), d.dt, self._bias_walk))
-            values.insert(B(k), np.array([self._bias]))
-        self.kf_stamps.append(stamp)
-        self._commit([(f, None) for f in factors], values)
-        self._after_keyframe(t)
-        self._slide_window()
+        """A new keyframe, then the window slides if it is due."""
+        k = self.keyframes.next(stamp)
+        slid = self.window.slide(self.session, self.keyframes.stamps)
+        if slid is not None:
+            self.map.left_window(*slid)
+            self.keyframes.refresh()
         return k
 
-    def _after_keyframe(self, t: float) -> None:
-        k = len(self.kf_stamps) - 1
-        self._refresh_current()
-        R, _ = self.nav.attitude_at(t)
-        att_sigma = float(np.sqrt(np.trace(self.nav.attitude.cov) / 3))
-        self.nav.start_interval(t, R, att_sigma)
-        R_pose = self._pose.rotation().matrix()
-        self.online.append((self.kf_stamps[k], self._pose, R_pose @ self._pose_cov[3:, 3:] @ R_pose.T))
-
-    def _unbiased(self, R_ahrs: np.ndarray) -> np.ndarray:
-        """An AHRS attitude with the current heading-bias estimate taken out: Rz(−b) R."""
-        if self._bias == 0.0:
-            return R_ahrs
-        c, s_ = np.cos(self._bias), np.sin(self._bias)
-        return np.array([[c, s_, 0.0], [-s_, c, 0.0], [0.0, 0.0, 1.0]]) @ R_ahrs
-
-    def _refresh_current(self) -> None:
-        k = len(self.kf_stamps) - 1
-        self._pose = self.isam.calculateEstimatePose3(X(k))
-        self._vel = np.asarray(self.isam.calculateEstimateVector(V(k)))
-        if self._bias_walk > 0:
-            self._bias = float(self.isam.calculateEstimateVector(B(k))[0])
-        try:
-            self._pose_cov = marginal_covariance(self.isam, X(k))  # from the root clique: it holds X(k)
-        except RuntimeError:
-            self._pose_cov = np.eye(6) * 1e2
-
-    # ------------------------------------------------------------------ graph updates
-    def _new_isam(self, params: gtsam.ISAM2Params) -> None:
-        """A fresh iSAM2, and a Python handle on its linearisation point, held for its lifetime.
-
-        A CustomFactor's callback receives the Values it is linearised at through pybind11, which
-        passes a C++ ``const Values&`` by copy unless that object already has a Python wrapper.
-        iSAM2 linearises at its internal θ, so without the handle every callback of a line,
-        displacement or biased-attitude factor copied the whole of θ (every keyframe, velocity
-        and landmark): a cost that grew with the mission (43 ms against 0.9 ms per update for 200
-        callbacks on a 20 000-variable θ). ``getLinearizationPoint`` returns θ by reference
-        (keeping iSAM2 alive), and pybind11 then hands that registered object to the callbacks."""
-        self.isam = gtsam.ISAM2(params)
-        self._theta = self.isam.getLinearizationPoint()
-
-    def _commit(self, factors: list[tuple], values: gtsam.Values, priors: list[tuple] = ()) -> bool:
-        """Add factors (with their owners) and new variables to iSAM2, and ``priors`` that only the
-        window holds (a returning landmark's); recover from a failure by dropping the landmark
-        factors of this update (and landmarks they would have created) and rebuilding iSAM2 from
-        the rest. Returns False if something was dropped."""
-        graph = gtsam.NonlinearFactorGraph()
-        for f, _ in [*factors, *priors]:
-            graph.add(f)
-        try:
-            self.isam.update(graph, values)
-            self._factors.extend(factors)
-            self._window.extend(factors)
-            self._window.extend(priors)
-            self._initial.insert_or_assign(values)  # a returning landmark's key is there already
-            return True
-        except RuntimeError as exc:
-            msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-            stamp = self.kf_stamps[-1] if self.kf_stamps else 0
-            owners = sorted({o for _, o in factors if o is not None})
-            self.diagnostics.append(f"{stamp}: iSAM2 update failed ({msg}); dropped the factors of landmarks {owners}")
-            kept = [(f, o) for f, o in factors if o is None]
-            self._rebuild(kept, values, owners)
-            return False
-
-    def _rebuild(self, new_nav: list[tuple], values: gtsam.Values, dropped_owners: list[int]) -> None:
-        try:
-            estimate = self.isam.calculateEstimate()
-        except RuntimeError:
-            estimate = gtsam.Values(self._initial)
-        for lid in dropped_owners:  # landmarks created in the failed update disappear
-            lm = self.landmarks.get(lid)
-            if lm is not None and not any(o == lid for _, o in self._factors):
-                del self.landmarks[lid]
-                row = self._sphere_row.pop(lid, None)
-                if row is not None:
-                    self._sphere_c[row] = np.inf  # never near again
-        self._factors.extend(new_nav)
-        self._window.extend(new_nav)
-        keep_keys = {k for f, _ in self._window for k in f.keys()}  # every variable a kept factor holds
-        for lm in self.landmarks.values():  # one that was coming back stays out
-            lm.active = lm.key in keep_keys
-        full = gtsam.Values()
-        for src in (estimate, values, self._initial):
-            for key in src.keys():
-                if key in keep_keys and not full.exists(key):
-                    full.insert(key, value_of(src, key))
-        graph = gtsam.NonlinearFactorGraph()
-        for f, _ in self._window:
-            graph.add(f)
-        params = self.isam.params()
-        self._new_isam(params)
-        try:
-            self.isam.update(graph, full)
-        except RuntimeError as exc:
-            # Last resort: a weak prior on the newest keyframe re-anchors the system.
-            k = len(self.kf_stamps) - 1
-            pose = full.atPose3(X(k))
-            prior = gtsam.PriorFactorPose3(X(k), pose, gtsam.noiseModel.Isotropic.Sigma(6, 10.0))
-            vprior = gtsam.PriorFactorVector(V(k), value_of(full, V(k)), gtsam.noiseModel.Isotropic.Sigma(3, 10.0))
-            self._factors += [(prior, None), (vprior, None)]
-            self._window += [(prior, None), (vprior, None)]
-            graph.add(prior)
-            graph.add(vprior)
-            self._new_isam(params)
-            self.isam.update(graph, full)
-            self.diagnostics.append(
-                f"rebuild needed a weak re-anchoring prior on keyframe {k} ({str(exc).splitlines()[0]})"
-            )
-        self._initial = full
-
-    def _slide_window(self) -> None:
-        """Once the window spans 1.5 × ``window_s``, marginalise the keyframes older than
-        ``window_s`` and the landmarks no kept keyframe observes (:mod:`semslam.backend.window`),
-        and restart iSAM2 on the rest with their marginal; the cost of that restart is a batch
-        elimination of the window, once per half window."""
-        w = self.cfg.window_s
-        now = self.kf_stamps[-1]
-        if w is None or now < self._slide_after or (now - self.kf_stamps[self._first_active]) * 1e-9 < 1.5 * w:
-            return
-        b = min(bisect.bisect_left(self.kf_stamps, now - int(w * 1e9)), len(self.kf_stamps) - 1)
-        kept_kf = {key for i in range(b, len(self.kf_stamps)) for key in (X(i), V(i), B(i))}
-        live, landmark_keys = set(), set()
-        for f, _ in self._window:
-            keys = f.keys()
-            lms = [k for k in keys if gtsam.Symbol(k).chr() in LANDMARK_CHARS]
-            landmark_keys.update(lms)
-            if lms and any(k in kept_kf for k in keys):
-                live.update(lms)
-        drop = {key for i in range(self._first_active, b) for key in (X(i), V(i), B(i))} | (landmark_keys - live)
-        t0 = time.perf_counter()
-        estimate = self.isam.calculateEstimate()
-        kept, leaving = split_factors(self._window, drop)
-        old = self.isam, self._theta
-        try:
-            marginal = marginal_factors(leaving, estimate, drop)
-            window = kept + [(m, None) for m in marginal]
-            graph = gtsam.NonlinearFactorGraph()
-            for f, _ in window:
-                graph.add(f)
-            self._new_isam(self.isam.params())
-            self.isam.update(graph, subset(estimate, {k for f, _ in window for k in f.keys()}))
-        except RuntimeError as exc:
-            self.isam, self._theta = old
-            self._slide_after = now + int(0.5 * w * 1e9)
-            self.diagnostics.append(
-                f"{now}: marginalising keyframes before {b} failed ({str(exc).splitlines()[0]}); retried in {0.5 * w:g} s"
-            )
-            return
-        self._window, self._first_active = window, b
-        self.slides.append(
-            {
-                "stamp": now,
-                "first_keyframe": b,
-                "left_landmarks": len(drop & landmark_keys),
-                "separator": len({k for m in marginal for k in m.keys()}),
-                "window_factors": len(window),
-                "seconds": time.perf_counter() - t0,
-            }
-        )
-        self._frozen.insert_or_assign(subset(estimate, [k for k in drop if estimate.exists(k)]))
-        for lm in self.landmarks.values():
-            if lm.active and lm.key in drop:
-                lm.active, lm.estimate = False, value_of(estimate, lm.key)
-                self._update_sphere(lm)
-        self._refresh_current()
-
-    def _reactivate(self, lm: Landmark, priors: list, values: gtsam.Values) -> None:
-        """A marginalised landmark seen again re-enters the window: its frozen estimate, with the
-        covariance of its own views (pose uncertainty folded in) as a prior. Its correlation with
-        the window's poses was lost when it left; the views' covariance is the conservative choice."""
-        lm.active = True
-        self.returns += 1
-        noise = gtsam.noiseModel.Gaussian.Covariance(lm.information_covariance())
-        if lm.kind == "object":
-            prior = gtsam.PriorFactorPoint3(lm.key, np.asarray(lm.estimate, float), noise)
-        elif lm.kind == "pipe":
-            prior = gtsam.PriorFactorVector(lm.key, np.asarray(lm.estimate, float), noise)
-        else:
-            prior = gtsam.PriorFactorPose3(lm.key, lm.estimate, noise)
-        priors.append((prior, lm.id))
-        values.insert(lm.key, lm.estimate)
-
-    # ------------------------------------------------------------------ observations
-    def _sensor_T(self, sensor: str) -> np.ndarray:
-        info = self.metadata.sensors.get(sensor)
-        if info is None:
-            msg = f"observations from unknown sensor {sensor!r}: identity extrinsic assumed"
-            if msg not in self.diagnostics:
-                self.diagnostics.append(msg)
-            return np.eye(4)
-        return info.T_BS
-
     def _keyframe_for(self, stamp: int) -> int | None:
-        if stamp == self.kf_stamps[-1]:
-            return len(self.kf_stamps) - 1
-        if stamp > self.kf_stamps[-1]:
+        stamps = self.keyframes.stamps
+        if stamp == stamps[-1]:
+            return len(stamps) - 1
+        if stamp > stamps[-1]:
             return self._keyframe(stamp)
-        i = bisect.bisect_left(self.kf_stamps, stamp)
-        i = min(range(max(i - 1, 0), min(i + 1, len(self.kf_stamps))), key=lambda j: abs(self.kf_stamps[j] - stamp))
-        if i < self._first_active:
-            self.diagnostics.append(f"{stamp}: observations older than the smoothing window, dropped")
-            return None
-        self.diagnostics.append(f"{stamp}: observations older than the newest keyframe, attached to keyframe {i}")
-        return i
+        return self.keyframes.older(stamp, self.diagnostics)
 
-    def _valid(self, z) -> bool:
-        arrays = [
-            np.asarray(getattr(z, a))
-            for a in ("position", "p", "q", "pose", "covariance", "relative_pose")
-            if hasattr(z, a)
-        ]
-        if not all(np.all(np.isfinite(a)) for a in arrays):
-            return False
-        if isinstance(z, LineObservation) and np.linalg.norm(z.q - z.p) < 1e-3:
-            return False
-        return True
-
-    def _observations(self, stamp: int, observations: list) -> None:
+    def _observations(self, stamp: int, observations: list[Observation]) -> None:
         k = self._keyframe_for(stamp)
         if k is None:
             return
-        if k != len(self.kf_stamps) - 1:
-            pose, pose_cov = self.isam.calculateEstimatePose3(X(k)), marginal_covariance(self.isam, X(k))
-        else:
-            pose, pose_cov = self._pose, self._pose_cov
-        bad = [z for z in observations if not self._valid(z)]
-        if bad:
-            self.diagnostics.append(f"{stamp}: {len(bad)} degenerate or non-finite observations dropped")
-        observations = [z for z in observations if self._valid(z)]
         odom = [z for z in observations if isinstance(z, OdometryObservation)]
-        lines = self._merged_lines(observations, pose)
-        obs = [z for z in observations if isinstance(z, (PointObservation, StructureObservation))] + lines
-        factors: list[tuple] = [(f, None) for f in self._odometry_factors(odom, k)]
-        priors: list[tuple] = []
-        values = gtsam.Values()
-        if obs:
-            T_BS = [self._sensor_T(z.sensor) for z in obs]
-            self._current_obs = obs
-            pairing, lins = self._associate(pose, pose_cov, obs, T_BS)
-            for i, z in enumerate(obs):
-                if pairing[i] is not None:
-                    lm = self.landmarks[pairing[i]]
-                    if not lm.active:
-                        self._reactivate(lm, priors, values)
-                    factors.append((self._landmark_factor(lm, k, z, T_BS[i], pose, lins[i]), lm.id))
-                    self._record(lm, stamp, k, z, pose, T_BS[i], pose_cov, lins[i])
-            unpaired = [(z, T_BS[i]) for i, z in enumerate(obs) if pairing[i] is None]
-            self._extend_tracks(stamp, k, unpaired, pose, pose_cov, factors, values)
-        self._purge_tracks(stamp)
-        if factors or values.size():
-            self._commit(factors, values, priors)
-            self._refresh_current()
-            if k == len(self.kf_stamps) - 1:  # the online pose of this keyframe is the one after its landmarks
-                R = self._pose.rotation().matrix()
-                self.online[-1] = (self.online[-1][0], self._pose, R @ self._pose_cov[3:, 3:] @ R.T)
-            updated = {o for _, o in factors if o is not None}
-            self._refresh_landmarks(updated)
-            self._merge_twins(updated)
+        factors = [(f, None) for f in self.keyframes.odometry_factors(odom, self.diagnostics)]
+        self.map.begin(k, factors)
+        self.mapper.process(stamp, observations)
+        self.map.settle()  # the odometry alone, when no landmark was observed
 
-    def _merge_twins(self, ids) -> None:
-        """Two object landmarks that have converged on one place (closer than
-        ``association.min_separation_m`` and compatible at the association's χ² confidence) are one
-        object mapped twice, e.g. from a first track whose views were off: the younger is tied to
-        the older by a stiff zero-offset factor and leaves the map, its views and class evidence
-        going to the older one."""
-        gate = _chi2(self.assoc.confidence, 3)
-        for lid in sorted(ids):
-            a = self.landmarks.get(lid)
-            if a is None or a.kind != "object":
-                continue
-            # Neighbours from the landmarks' cached bounding spheres (an object's is its point):
-            # numpy over the map, not a Python loop, as this runs after every update.
-            sphere_ids, centres, _ = self._spheres()
-            near = np.flatnonzero(
-                np.linalg.norm(centres - np.asarray(a.estimate, float), axis=1) < self.assoc.min_separation_m
-            )
-            for b in [self.landmarks.get(sphere_ids[r]) for r in near]:
-                if b is None or b.kind != "object" or b.id == a.id or not b.active:
-                    continue
-                d = np.asarray(a.estimate, float) - np.asarray(b.estimate, float)
-                S = a.information_covariance() + b.information_covariance()
-                if d @ np.linalg.solve(S, d) > gate:
-                    continue
-                keep, drop = (a, b) if a.id < b.id else (b, a)
-                tie = gtsam.BetweenFactorPoint3(
-                    keep.key, drop.key, np.zeros(3), gtsam.noiseModel.Isotropic.Sigma(3, 1e-3)
-                )
-                keep.history += drop.history
-                keep.class_likelihoods += drop.class_likelihoods
-                if drop.information is not None:
-                    keep.add_information(drop.information)
-                keep.connected |= drop.connected
-                del self.landmarks[drop.id]
-                row = self._sphere_row.pop(drop.id, None)
-                if row is not None:
-                    self._sphere_c[row] = np.inf  # never near again
-                self._volume.pop(drop.id, None)
-                self.diagnostics.append(
-                    f"{self.kf_stamps[-1]}: objects {keep.id} and {drop.id} converged on one place, merged into {keep.id}"
-                )
-                self._commit([(tie, keep.id)], gtsam.Values())
-                self._refresh_landmarks({keep.id})
-                if drop is a:
-                    break
-
-    def _odometry_factors(self, odom: list, k: int) -> list:
-        """Relative-pose constraints (e.g. swath registrations). An end that is not a keyframe is
-        carried to the nearest keyframe with the estimated motion in between (short: at most half
-        a keyframe interval of dead reckoning, whose error is far below the constraint's)."""
-        out = []
-        for z in odom:
-            i, T_i_from = self._nearest_keyframe(z.stamp_from)
-            j, T_j_to = self._nearest_keyframe(z.stamp)
-            if i is None or j is None or i == j or min(i, j) < self._first_active:
-                self.diagnostics.append(
-                    f"{z.stamp}: odometry from {z.stamp_from} has no distinct keyframes in the window to join, dropped"
-                )
-                continue
-            meas = T_i_from.compose(gtsam.Pose3(z.relative_pose)).compose(T_j_to.inverse())
-            out.append(gtsam.BetweenFactorPose3(X(i), X(j), meas, gtsam.noiseModel.Gaussian.Covariance(z.covariance)))
-        return out
-
-    def _nearest_keyframe(self, stamp: int) -> tuple[int | None, gtsam.Pose3]:
-        """The keyframe nearest to ``stamp`` and T_B(keyframe),B(stamp) from the current estimate."""
-        if not self.kf_stamps:
-            return None, gtsam.Pose3()
-        i = bisect.bisect_left(self.kf_stamps, stamp)
-        i = min((c for c in (i - 1, i) if 0 <= c < len(self.kf_stamps)), key=lambda c: abs(self.kf_stamps[c] - stamp))
-        if self.kf_stamps[i] == stamp:
-            return i, gtsam.Pose3()
-        here = self.pose_at(stamp)
-        if here is None:
-            return None, gtsam.Pose3()
-        return i, self._kf_pose(i).between(here)
-
-    # ------------------------------------------------------------------ association
-    def _world_summary(self, z, pose: gtsam.Pose3, T_BS: np.ndarray) -> np.ndarray:
-        """A world point standing for the observation (object / segment midpoint / structure origin)."""
-        T_WS = pose.compose(gtsam.Pose3(T_BS))
-        if isinstance(z, PointObservation):
-            return T_WS.transformFrom(z.position)
-        if isinstance(z, LineObservation):
-            return T_WS.transformFrom(0.5 * (z.p + z.q))
-        return T_WS.transformFrom(z.pose[:3, 3])
-
-    def _associate(self, pose, pose_cov, obs, T_BS) -> tuple[list[int | None], list[PairLinearization | None]]:
-        """JCBB over the pre-gated landmarks; returns the landmark id of each observation or None,
-        and the linearisation of each pairing at (pose, landmark estimate), which the association
-        computed and the factor and the landmark's information reuse.
-
-        Unpaired observations individually compatible with a landmark are left unpaired too, but
-        flagged: pipes attach to it (two segments of one pipe), others are discarded rather than
-        allowed to start a duplicate."""
-        self._ambiguous: set[int] = set()
-        none = [None] * len(obs)
-        if not self.landmarks:
-            return none, none
-        obs_pts = np.array([self._world_summary(z, pose, T) for z, T in zip(obs, T_BS)])
-        # Coarse pre-gate on the cached spheres (O(map) in numpy only, so the cost stays flat).
-        ids, centres, radii = self._spheres()
-        dist = np.linalg.norm(obs_pts[:, None, :] - centres[None, :, :], axis=2) - radii[None, :]
-        near = np.flatnonzero((dist <= self.cfg.pre_gate_m + 1.0).any(axis=0))
-        if near.size == 0:
-            return none, none
-        cand_lms = [self.landmarks[ids[j]] for j in near if ids[j] in self.landmarks]
-        self._refresh_landmarks({lm.id for lm in cand_lms}, covariance=True)
-        anchor_pts = np.array([_landmark_point(lm) for lm in cand_lms])
-        dist = np.linalg.norm(obs_pts[:, None, :] - anchor_pts[None, :, :], axis=2)
-        for j, lm in enumerate(cand_lms):
-            if lm.kind == "pipe":
-                dist[:, j] = _point_segment_distance(obs_pts, *_pipe_ends(lm))
-        cands = [Candidate(lm, lm.covariance) for lm in cand_lms]
-        gates = {d: _chi2(self.assoc.confidence, d) for d in (3, 4)}
-        allowed = (dist <= self.cfg.pre_gate_m) & possible_pairs(pose, pose_cov, obs, T_BS, cands, gates)
-        problem = GraphAssociationProblem(
-            pose,
-            pose_cov,
-            obs,
-            T_BS,
-            cands,
-            self.assoc.pipe_extent_gap_m,
-            allowed,
-            separators=self._object_points(),
-            separator_radius=self.assoc.inline_object_radius_m,
-            cutters=self._mapped_object_points(),
-        )
-        result = jcbb(problem, confidence=self.assoc.confidence)
-        paired = {j for j in result if j is not None}
-        out: list[int | None] = []
-        lins: list[PairLinearization | None] = []
-        from semslam.backend.association import individual_nis
-
-        for i, j in enumerate(result):
-            lins.append(None)
-            if j is not None:
-                out.append(cand_lms[j].id)
-                lins[i] = problem.pair(i, j)
-                continue
-            # Left unpaired by JCBB: is it compatible with some landmark anyway?
-            best, best_j = np.inf, None
-            for jj in range(len(cands)):
-                if allowed[i, jj]:
-                    p = problem.pair(i, jj)
-                    if p is not None:
-                        nis = individual_nis(problem, i, jj)
-                        if nis < best:
-                            best, best_j = nis, jj
-            if best_j is not None and best < _chi2(self.assoc.confidence, len(problem.pair(i, best_j).innovation)):
-                if isinstance(obs[i], LineObservation) and best_j in paired:
-                    out.append(cand_lms[best_j].id)  # a second segment of a pipe already paired
-                    lins[i] = problem.pair(i, best_j)
-                    continue
-                self._ambiguous.add(i)
-            elif self._overlaps_mapped(obs[i], pose, T_BS[i], cand_lms):
-                self._ambiguous.add(i)
-            out.append(None)
-        return out, lins
-
-    # ------------------------------------------------------------------ landmarks
-    def _landmark_factor(self, lm: Landmark, k: int, z, T_BS, pose: gtsam.Pose3, lin: PairLinearization | None = None):
-        """``lin``: the pairing's linearisation at (pose, lm.estimate), when the association has it."""
-        if lm.kind == "object":
-            return point_factor(X(k), lm.key, z.position, z.covariance, T_BS, self.robust)
-        if lm.kind == "pipe":
-            cov4 = (
-                lin.R
-                if lin is not None
-                else line_observation_covariance(pose, lm.estimate, lm.anchor, T_BS, z.covariance)
-            )
-            return line_factor(X(k), lm.key, lm.anchor, z.p, z.q, cov4, T_BS, self.robust)
-        return structure_factor(X(k), lm.key, z.pose, z.covariance, T_BS, self.robust)
-
-    def _record(
-        self,
-        lm: Landmark,
-        stamp: int,
-        k: int,
-        z,
-        pose: gtsam.Pose3,
-        T_BS,
-        pose_cov: np.ndarray,
-        lin: PairLinearization | None = None,
-    ) -> None:
-        """``lin``: the observation's linearisation at (pose, lm.estimate), when the association has it."""
-        lm.history.append(ObservationRecord(stamp, k, z))
-        if lin is not None:
-            lm.add_information(_information(lin.H_x, lin.H_l, lin.R, pose_cov))
-        else:
-            lm.add_information(_observation_information(lm, z, pose, pose_cov, T_BS))
-        if isinstance(z, PointObservation) and z.class_likelihood:
-            lm.class_likelihoods.append(dict(z.class_likelihood))
-        if lm.kind == "pipe":
-            T_WS = pose.compose(gtsam.Pose3(T_BS))
-            s = lm.anchor.to_line_frame(lm.estimate, np.vstack([T_WS.transformFrom(z.p), T_WS.transformFrom(z.q)]))[
-                :, 2
-            ]
-            lo, hi = lm.extent
-            lm.extent = (min(lo, float(s.min())), max(hi, float(s.max())))
-            # Along-axis σ of the endpoints (their covariance projected on the segment direction).
-            u = (z.q - z.p) / np.linalg.norm(z.q - z.p)
-            sig = float(np.sqrt(max(u @ z.covariance[:3, :3] @ u, u @ z.covariance[3:, 3:] @ u, 1e-8)))
-            lm.seen_ends.append((float(s.min()), float(s.max()), sig))
-
-    def _extend_tracks(self, stamp, k, unpaired: list, pose, pose_cov, factors, values) -> None:
-        """The scan's unpaired observations (z, T_BS) extend tentative landmarks or start new ones;
-        a track reaching ``min_observations`` is promoted to the graph. One-to-one, by the
-        assignment of least total cost over the scan (Hungarian), not observation by observation:
-        in a row of objects 25–35 cm apart, with a missed object and the first seconds' 6 cm of
-        pose σ, the greedy choice let each view take its neighbour's track and the shift ran down
-        the row (tank, 10 % misses: views of three objects in the wrong tracks)."""
-        items = [(z, *self._in_world(z, T_BS, pose, pose_cov)) for z, T_BS in unpaired if not self._is_ambiguous(z)]
-        tracks = list(self.tracks)
-        objects = self._object_points()  # the separators of collinear pipes, once for the scan
-        cost = np.full((len(items), len(tracks)), np.inf)
-        for i, (z, w, cov) in enumerate(items):
-            for j, tr in enumerate(tracks):
-                cost[i, j] = self._track_cost(tr, z, w, cov, k, objects)
-        chosen: dict[int, Track] = {}
-        if np.isfinite(cost).any():
-            # each observation may also start a track, at the price of its gate: two near misses
-            # must not beat one good continuation and one new track
-            new = np.full((len(items), len(items)), 1e12)
-            np.fill_diagonal(new, [self._track_gate(z) for z, _, _ in items])
-            rows, cols = linear_sum_assignment(np.hstack([np.where(np.isfinite(cost), cost, 1e12), new]))
-            chosen = {r: tracks[c] for r, c in zip(rows, cols) if c < len(tracks) and np.isfinite(cost[r, c])}
-        for i, (z, w, cov) in enumerate(items):
-            tr = chosen.get(i)
-            if tr is None:
-                tr = Track(KIND_OF_OBS[type(z)], model=getattr(z, "model", None))
-                self.tracks.append(tr)
-            tr.records.append(ObservationRecord(stamp, k, z))
-            tr.world.append(w)
-            if cov is not None:
-                tr.world_cov.append(cov)
-            tr.last_stamp = stamp
-            if len(tr.records) >= self.assoc.min_observations:
-                self.tracks.remove(tr)
-                self._promote(tr, factors, values, pose_cov)
-
-    def _in_world(self, z, T_BS, pose: gtsam.Pose3, pose_cov: np.ndarray):
-        """An observation in {W} with the pose (point: (3,), pipe: (2, 3), structure: 4×4) and, for
-        points and structures, its position covariance there (observation and pose)."""
-        T_WS = pose.compose(gtsam.Pose3(T_BS))
-        R = pose.rotation().matrix()
-        if isinstance(z, LineObservation):
-            return np.vstack([T_WS.transformFrom(z.p), T_WS.transformFrom(z.q)]), None
-        if isinstance(z, PointObservation):
-            w, p_S, C_S = T_WS.transformFrom(z.position), z.position, z.covariance
-        else:
-            w, p_S, C_S = T_WS.compose(gtsam.Pose3(z.pose)).matrix(), z.pose[:3, 3], z.covariance[3:, 3:]
-        e_B = T_BS[:3, :3] @ p_S + T_BS[:3, 3]
-        J = pose_point_jacobian(R, e_B)
-        return w, R @ T_BS[:3, :3] @ C_S @ T_BS[:3, :3].T @ R.T + J @ pose_cov @ J.T
-
-    def _track_gate(self, z) -> float:
-        """The largest :meth:`_track_cost` that continues a track."""
-        if isinstance(z, LineObservation):
-            return self.assoc.merge_distance_m
-        return _chi2(self.cfg.track_gate_confidence, 3)
-
-    def _track_cost(self, tr: Track, z, w, cov, k: int, objects: np.ndarray) -> float:
-        """How well observation z (in {W}: w, cov) continues track tr; inf when it cannot.
-        Points and structures: the Mahalanobis distance² within the track gate; pipes: the
-        distance of the segment's middle from the track's line, when the paper's collinearity
-        criterion holds and no in-line object (``objects``, N×3 in {W}) lies between."""
-        kind = KIND_OF_OBS[type(z)]
-        if tr.kind != kind or tr.records[-1].keyframe == k:
-            return np.inf
-        if kind == "pipe":
-            c, d = tr.line_fit()
-            seen = np.vstack(tr.world)
-            s_seen = (seen - c) @ d
-            if not _segment_matches_line(
-                w, c, d, seen, self.assoc.merge_angle_rad, self.assoc.merge_distance_m, self.assoc.pipe_extent_gap_m
-            ) or object_between((s_seen.min(), s_seen.max()), w, c, d, objects, self.assoc.inline_object_radius_m):
-                return np.inf
-            return float(np.linalg.norm(np.cross(w.mean(axis=0) - c, d)))
-        if kind == "structure" and tr.model != z.model:
-            return np.inf
-        mean, mcov = tr.mean_position()
-        r = (w if kind == "object" else w[:3, 3]) - mean
-        d2 = float(r @ np.linalg.solve(cov + mcov, r))
-        return d2 if d2 < self._track_gate(z) else np.inf
-
-    def _overlaps_mapped(self, z, pose: gtsam.Pose3, T_BS: np.ndarray, landmarks: list[Landmark]) -> bool:
-        """An observation that failed the χ² gates but lies where a mapped landmark of its kind
-        physically is (objects: closer than ``min_separation_m``; pipes: both ends that close to the
-        line, nearly parallel, half of it within what was seen of it) is that
-        landmark seen badly: it must not start a second one."""
-        sep = self.assoc.min_separation_m
-        T_WS = pose.compose(gtsam.Pose3(T_BS))
-        if isinstance(z, PointObservation):
-            w = T_WS.transformFrom(z.position)
-            return any(lm.kind == "object" and np.linalg.norm(w - lm.estimate) < sep for lm in landmarks)
-        if not isinstance(z, LineObservation):
-            return False
-        seg = np.vstack([T_WS.transformFrom(z.p), T_WS.transformFrom(z.q)])
-        u = (seg[1] - seg[0]) / np.linalg.norm(seg[1] - seg[0])
-        objects, mapped = self._object_points(), self._mapped_object_points()
-        for lm in landmarks:
-            if lm.kind != "pipe":
-                continue
-            c0, d = lm.anchor.c0, lm.anchor.direction(lm.estimate)
-            r = seg - lm.anchor.point(lm.estimate)
-            if np.arccos(min(1.0, abs(float(u @ d)))) > self.assoc.merge_angle_rad:
-                continue
-            if np.linalg.norm(r - np.outer(r @ d, d), axis=1).max() >= sep:
-                continue
-            s_ = (seg - c0) @ d
-            lo, hi = seen = lm.stretch(mapped, self.assoc.inline_object_radius_m)
-            if min(s_.max(), hi) - max(s_.min(), lo) < 0.5 * (s_.max() - s_.min()):
-                continue  # mostly beyond what was seen: possibly the next pipe in line
-            if not object_between(seen, seg, c0, d, objects, self.assoc.inline_object_radius_m):
-                return True
-        return False
-
-    def _merged_lines(self, observations: list, pose: gtsam.Pose3) -> list[LineObservation]:
-        """The batch's pipe segments merged along shared axes, sensor by sensor. Objects of the batch
-        and objects already mapped or tracked (placed in the sensor frame with the current pose) keep
-        the segments on either side of them apart: a missed in-line valve must not join its two pipes."""
-        out: list[LineObservation] = []
-        objects_W = self._object_points()
-        for sensor in dict.fromkeys(z.sensor for z in observations if isinstance(z, LineObservation)):
-            T_SW = pose.compose(gtsam.Pose3(self._sensor_T(sensor))).inverse().matrix()
-            seps = [z.position for z in observations if isinstance(z, PointObservation) and z.sensor == sensor]
-            seps = np.vstack([np.array(seps).reshape(-1, 3), objects_W @ T_SW[:3, :3].T + T_SW[:3, 3]])
-            out += merge_collinear(
-                [z for z in observations if isinstance(z, LineObservation) and z.sensor == sensor],
-                self.assoc.merge_angle_rad,
-                self.assoc.merge_distance_m,
-                separators=seps,
-                separator_radius=self.assoc.inline_object_radius_m,
-            )
-        return out
-
-    def _mapped_object_points(self) -> np.ndarray:
-        """Mapped objects in {W} (N×3), from the cached spheres (an object's centre is its estimate;
-        rows of landmarks that left the map are at infinity), in map order: numpy, not a loop."""
-        n = len(self._sphere_ids)
-        c = self._sphere_c[:n]
-        return c[self._sphere_obj[:n] & np.isfinite(c[:, 0])]
-
-    def _object_points(self) -> np.ndarray:
-        """Mapped and tentative objects in {W} (N×3): the in-line parts that separate collinear pipes."""
-        mapped = self._mapped_object_points()
-        tentative = [tr.world[-1] for tr in self.tracks if tr.kind == "object" and tr.world]
-        return np.vstack([mapped, np.array(tentative).reshape(-1, 3)]) if tentative else mapped.copy()
-
-    def _is_ambiguous(self, z) -> bool:
-        return any(self._current_obs[i] is z for i in self._ambiguous)
-
-    def _promote(self, tr: Track, factors: list, values: gtsam.Values, pose_cov: np.ndarray) -> None:
-        """A track becomes a landmark: initial value from its observations, re-expressed with the
-        current keyframe estimates, and one factor per observation."""
-        lid = self._next_id
-        self._next_id += 1
-        key = KEY_OF_KIND[tr.kind](lid)
-        lm = Landmark(lid, tr.kind, key, model=tr.model)
-        records = [r for r in tr.records if r.keyframe >= self._first_active]  # views from keyframes that left: dropped
-        poses = {r.keyframe: self._kf_pose(r.keyframe) for r in records}
-        Ts = [self._sensor_T(r.observation.sensor) for r in records]
-        if tr.kind == "object":
-            pts = np.array(
-                [
-                    poses[r.keyframe].compose(gtsam.Pose3(T)).transformFrom(r.observation.position)
-                    for r, T in zip(records, Ts)
-                ]
-            )
-            lm.estimate = pts.mean(axis=0)
-            values.insert(key, lm.estimate)
-        elif tr.kind == "pipe":
-            ends = np.vstack(
-                [
-                    [
-                        poses[r.keyframe].compose(gtsam.Pose3(T)).transformFrom(e)
-                        for e in (r.observation.p, r.observation.q)
-                    ]
-                    for r, T in zip(records, Ts)
-                ]
-            )
-            c = ends.mean(axis=0)
-            _, _, vt = np.linalg.svd(ends - c)
-            d = vt[0]
-            s = (ends - c) @ d
-            lm.anchor = LineAnchor.from_points(c - d, c + d)
-            lm.estimate = np.zeros(4)
-            lm.extent = (float(s.min()), float(s.max()))
-            values.insert(key, lm.estimate)
-        else:
-            r, T = records[-1], Ts[-1]
-            lm.estimate = poses[r.keyframe].compose(gtsam.Pose3(T @ r.observation.pose))
-            values.insert(key, lm.estimate)
-        self.landmarks[lid] = lm
-        self._update_sphere(lm)
-        for r, T in zip(records, Ts):
-            factors.append((self._landmark_factor(lm, r.keyframe, r.observation, T, poses[r.keyframe]), lid))
-            self._record(lm, r.stamp, r.keyframe, r.observation, poses[r.keyframe], T, pose_cov)
-
-    def _kf_pose(self, k: int) -> gtsam.Pose3:
-        if k == len(self.kf_stamps) - 1 and self._pose is not None:
-            return self._pose
-        if k < self._first_active:
-            return self._frozen.atPose3(X(k))
-        return self.isam.calculateEstimatePose3(X(k))
-
-    def _landmark_value(self, lm: Landmark):
-        """A landmark's current estimate: iSAM2's in the window, else the frozen one."""
-        return value_of(self.isam, lm.key) if lm.active else lm.estimate
-
-    def _all_estimates(self) -> gtsam.Values:
-        """The window's estimate with the frozen estimates of everything that left it."""
-        values = self.isam.calculateEstimate()
-        for key in self._frozen.keys():
-            if not values.exists(key):  # not a landmark that came back
-                values.insert(key, value_of(self._frozen, key))
-        return values
-
-    def _purge_tracks(self, stamp: int) -> None:
-        horizon = stamp - int(self.cfg.track_timeout_s * 1e9)
-        self.tracks = [t for t in self.tracks if t.last_stamp >= horizon]
-
-    def _spheres(self) -> tuple[list[int], np.ndarray, np.ndarray]:
-        n = len(self._sphere_ids)
-        return self._sphere_ids, self._sphere_c[:n], self._sphere_r[:n]
-
-    def _update_sphere(self, lm: Landmark) -> None:
-        if lm.kind == "pipe":
-            a, b = _pipe_ends(lm)
-            c, r = 0.5 * (a + b), 0.5 * float(np.linalg.norm(b - a))
-        else:
-            c, r = _landmark_point(lm), 0.0
-        row = self._sphere_row.get(lm.id)
-        if row is None:
-            row = len(self._sphere_ids)
-            if row >= len(self._sphere_r):  # amortised growth
-                self._sphere_c = np.vstack([self._sphere_c, np.zeros((max(64, row), 3))])
-                self._sphere_r = np.concatenate([self._sphere_r, np.zeros(max(64, row))])
-                self._sphere_obj = np.concatenate([self._sphere_obj, np.zeros(max(64, row), bool)])
-            self._sphere_row[lm.id] = row
-            self._sphere_ids.append(lm.id)
-        self._sphere_c[row], self._sphere_r[row], self._sphere_obj[row] = c, r, lm.kind == "object"
-
-    def _refresh_landmarks(self, ids, covariance: bool = False) -> None:
-        """Current estimates of the landmarks and, with ``covariance``, their gating covariances.
-
-        A landmark's gating covariance is the inverse of the information its own observations
-        carry, each with the pose uncertainty of its keyframe folded into the noise (no iSAM2
-        marginal: in a map seen from everywhere those cost up to a fraction of a second each).
-        It ignores the pose–landmark correlation, like the association problem does; both make the
-        innovation covariance larger, never smaller, than the joint one in practice.
-        """
-        for lid in ids:
-            lm = self.landmarks.get(lid)
-            if lm is None:
-                continue
-            lm.estimate = self._landmark_value(lm)
-            self._update_sphere(lm)
-            if covariance and lm.cov_stamp is None:
-                lm.cov_stamp = self.kf_stamps[-1]
-                lm.covariance = lm.information_covariance()
-                ev = np.linalg.eigvalsh(lm.covariance)
-                self._volume.setdefault(lid, []).append(
-                    (self.kf_stamps[-1], float(np.sum(np.log(np.maximum(ev, 1e-300)))))
-                )
-
-    # ------------------------------------------------------------------ views and results
-    def pose_at(self, stamp: int) -> gtsam.Pose3 | None:
-        """T_WB at ``stamp``: interpolated between keyframe estimates, or predicted from the
-        newest keyframe with the DVL/AHRS integrated since."""
-        if not self.kf_stamps:
-            return None
-        if stamp >= self.kf_stamps[-1]:
-            if stamp == self.kf_stamps[-1] or self.nav.preint is None:
-                return self._pose
-            t = stamp * 1e-9
-            R, _ = self.nav.attitude_at(t)
-            d = self.nav.preint.integrate(t, R)
-            p = self._pose.translation() + self._pose.rotation().matrix() @ (d.c + (d.A + d.B) @ self._vel)
-            return gtsam.Pose3(gtsam.Rot3(self._unbiased(R)), p)
-        i = bisect.bisect_right(self.kf_stamps, stamp)
-        if i == 0:
-            return None
-        a, b = self._kf_pose(i - 1), self._kf_pose(i)
-        s = (stamp - self.kf_stamps[i - 1]) / (self.kf_stamps[i] - self.kf_stamps[i - 1])
-        return gtsam.Pose3(a.rotation().slerp(s, b.rotation()), (1 - s) * a.translation() + s * b.translation())
-
-    def landmark_estimates(
-        self, covariance: bool = True, values: gtsam.Values | None = None, marginals=None
-    ) -> list[LandmarkEstimate]:
-        out = []
-        covs = self._landmark_marginals(marginals) if covariance else {}
-        mapped = self._mapped_object_points()
-        for lm in self.landmarks.values():
-            est = value_of(values, lm.key) if values is not None else self._landmark_value(lm)
-            cov = covs.get(lm.id)
-            le = LandmarkEstimate(id=lm.id, kind=lm.kind, n_observations=len(lm.history), model=lm.model)
-            if lm.kind == "object":
-                le.position, le.covariance = np.asarray(est, float), cov
-                le.class_posterior = lm.class_posterior()
-            elif lm.kind == "pipe":
-                c, d = lm.anchor.point(est), lm.anchor.direction(est)
-                # extent was measured in the line frame centred at c0: project onto the new line
-                lo, hi = lm.stretch(mapped, self.assoc.inline_object_radius_m)
-                foot = (lm.anchor.c0 - c) @ d
-                le.p, le.q = c + (foot + lo) * d, c + (foot + hi) * d
-                le.covariance = cov
-            else:
-                le.pose, le.covariance = est.matrix(), cov
-                le.position = est.translation()
-            le.connected = tuple(sorted(lm.connected))
-            out.append(le)
-        return out
-
-    def _joint_blocks(self, marginals, keys: list[int], chunk: int = 60) -> dict[int, np.ndarray]:
-        """Marginal covariances of ``keys``: from joint marginals over chunks of them (in a graph
-        where every landmark links to every pose, one joint marginal of 60 variables costs about as
-        much as one or two single ones), else iSAM2's one by one. A key that fails is left out."""
-        out: dict[int, np.ndarray] = {}
-        if marginals is not None:
-            for a in range(0, len(keys), chunk):
-                part = keys[a : a + chunk]
-                try:
-                    J = marginals.jointMarginalCovariance(gtsam.KeyVector(part))
-                    out.update({k: np.asarray(J.at(k, k)) for k in part})
-                except RuntimeError:
-                    pass
-        for k in keys:
-            if k not in out:
-                try:
-                    out[k] = self.isam.marginalCovariance(k)
-                except (RuntimeError, IndexError):  # indeterminate, or left the window
-                    pass
-        return out
-
-    def _landmark_marginals(self, marginals) -> dict[int, np.ndarray]:
-        """Marginal covariance of every landmark, by id."""
-        covs = self._joint_blocks(marginals, [lm.key for lm in self.landmarks.values()])
-        return {lm.id: covs[lm.key] for lm in self.landmarks.values() if lm.key in covs}
-
-    def _marginals(self, values: gtsam.Values):
-        """Marginals of the final estimate from one batch factorisation of the whole graph (iSAM2's
-        per-variable marginals cost a partial re-elimination each: minutes for a mission's
-        keyframes); iSAM2 itself (``None``) if the batch system is indeterminate."""
-        graph = gtsam.NonlinearFactorGraph()
-        for f, _ in self._factors:
-            graph.add(f)
-        try:
-            return gtsam.Marginals(graph, values)
-        except RuntimeError as exc:
-            self.diagnostics.append(f"batch marginals failed ({str(exc).splitlines()[0]}); iSAM2 marginals used")
-            return None
-
+    # ------------------------------------------------------------------ result
     def finish(self) -> EstimatorResult:
-        n = len(self.kf_stamps)
+        n = len(self.keyframes)
         history: dict = {
             "update_kinds": list(self.update_kinds),
             "n_keyframes": n,
-            "window_slides": list(self.slides),
-            "window_returns": self.returns,
+            "window_slides": list(self.window.slides),
+            "window_returns": self.window.returns,
         }
         if n == 0:
             self.diagnostics.append("no keyframe: the mission had no AHRS (or no start pose)")
             empty = Trajectory(np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 4)))
             return EstimatorResult(self.name, empty, diagnostics=list(self.diagnostics))
-        values, marginals = None, None
-        if self.batch:
-            t0 = time.perf_counter()
-            graph = gtsam.NonlinearFactorGraph()
-            for f, _ in self._factors:
-                graph.add(f)
-            params = gtsam.LevenbergMarquardtParams()
-            params.setMaxIterations(self.cfg.batch_max_iterations)
-            try:
-                values = _levenberg_marquardt(graph, self._all_estimates(), params)
-            except RuntimeError as exc:
-                self.diagnostics.append(f"batch optimisation failed ({str(exc).splitlines()[0]}); online estimate kept")
-                values = None
-            history["batch_time_s"] = time.perf_counter() - t0
-        if values is None:
-            values = self._all_estimates()
-        if self.cfg.covariance_in_result and marginals is None:
-            marginals = self._marginals(values)
-        poses = [values.atPose3(X(i)) for i in range(n)]
-        vels = np.array([values.atVector(V(i)) for i in range(n)])
-        pos_cov = vel_cov = None
-        if self.cfg.covariance_in_result:
-            pos_cov = np.full((n, 3, 3), np.nan)
-            vel_cov = np.full((n, 3, 3), np.nan)
-            sample = np.unique(np.linspace(0, n - 1, min(n, self.cfg.result_covariance_keyframes)).round().astype(int))
-            covs = self._joint_blocks(marginals, [k for i in sample for k in (X(i), V(i))])
-            for i in sample:
-                if X(i) in covs and V(i) in covs:
-                    R = poses[i].rotation().matrix()
-                    pos_cov[i] = R @ covs[X(i)][3:, 3:] @ R.T
-                    vel_cov[i] = covs[V(i)]
-        traj = Trajectory(
-            stamps=np.array(self.kf_stamps, np.int64),
-            positions=np.array([p.translation() for p in poses]),
-            orientations=np.array([Rotation.from_matrix(p.rotation().matrix()).as_quat() for p in poses]),
-            position_cov=pos_cov,
-            velocities=vels,
-            velocity_cov=vel_cov,
-        )
-        online = Trajectory(
-            stamps=np.array([s for s, _, _ in self.online], np.int64),
-            positions=np.array([p.translation() for _, p, _ in self.online]),
-            orientations=np.array([Rotation.from_matrix(p.rotation().matrix()).as_quat() for _, p, _ in self.online]),
-            position_cov=np.array([c for _, _, c in self.online]),
-        )
-        landmarks = self.landmark_estimates(self.cfg.covariance_in_result, values, marginals)
-        _connect(landmarks, self.landmarks, self.assoc.merge_distance_m)
-        history["landmark_kind"] = {lm.id: lm.kind for lm in self.landmarks.values()}
+        values = final_values(self.session, self.window, self.cfg, self.batch, history)
+        marginals = self.session.marginals(values) if self.cfg.covariance_in_result else None
+        landmarks = self.map.estimates(self.cfg.covariance_in_result, values, marginals)
+        self.book.connect(landmarks, self.assoc.merge_distance_m)
+        ids = [lm.id for lm in landmarks]
+        history["landmark_kind"] = {lm.id: lm.kind for lm in landmarks}
         history["landmark_volume"] = {
-            lid: (np.array([s for s, _ in v], np.int64), np.array([x for _, x in v])) for lid, v in self._volume.items()
+            lid: (np.array([s for s, _ in v], np.int64), np.array([x for _, x in v]))
+            for lid, v in self.map.volume.items()
         }
-        # which landmark each observation (by object identity) ended in, for the recognition tables
-        history["landmark_of_observation"] = {
-            id(r.observation): lm.id for lm in self.landmarks.values() for r in lm.history
-        }
-        history["landmark_observations"] = {
-            lm.id: [(r.stamp, getattr(r.observation, "truth_id", None)) for r in lm.history]
-            for lm in self.landmarks.values()
-        }
-        if self.nav.unknown_sensors:
-            self.diagnostics.append(
-                f"measurements from sensors missing in the metadata: {sorted(self.nav.unknown_sensors)}"
-            )
+        history["duplicates_merged"] = self.mapper.merged
+        history.update(self.book.history(ids))
         return EstimatorResult(
             name=self.name,
-            trajectory=traj,
+            trajectory=keyframe_trajectory(self.keyframes.stamps, values, marginals, self.session, self.cfg),
             landmarks=landmarks,
-            online_trajectory=online,
+            online_trajectory=online_trajectory(self.keyframes.online),
             update_times_s=np.array(self.update_times),
             update_n_landmarks=np.array(self.update_n_landmarks, int),
             history=history,
             diagnostics=list(self.diagnostics),
         )
-
-
-# ---------------------------------------------------------------------------------------------
-
-
-def _levenberg_marquardt(graph: gtsam.NonlinearFactorGraph, initial: gtsam.Values, params) -> gtsam.Values:
-    """GTSAM's Levenberg–Marquardt, iterated here exactly as ``optimize()`` does (its
-    ``defaultOptimize`` loop and stopping rules), holding a Python handle on the optimiser's current
-    values during each iteration: the iteration linearises at them, and its CustomFactor callbacks
-    then get that object instead of a copy of every variable (see :meth:`GraphEstimator._new_isam`).
-    The error evaluations of trial steps still copy."""
-    opt = gtsam.LevenbergMarquardtOptimizer(graph, initial, params)
-    new = opt.error()
-    if new <= params.getErrorTol() or opt.iterations() >= params.getMaxIterations():
-        return gtsam.Values(opt.values())
-    while True:
-        current = new
-        held = opt.values()  # alive while iterate() linearises at it
-        opt.iterate()
-        del held  # an accepted step replaced the values it pointed to
-        new = opt.error()
-        if not (
-            opt.iterations() < params.getMaxIterations()
-            and not gtsam.checkConvergence(params, current, new)
-            and math.isfinite(current)
-        ):
-            return gtsam.Values(opt.values())
-
-
-@lru_cache(maxsize=256)
-def _chi2(confidence: float, dof: int) -> float:
-    """χ² quantile (scipy's ppf costs ~0.1 ms: cached)."""
-    return float(chi2.ppf(confidence, dof))
-
-
-def _connect(estimates: list[LandmarkEstimate], landmarks: dict[int, Landmark], max_distance: float) -> None:
-    """Object ↔ pipe connectivity: an object whose views reported attached pipes is connected to
-    the pipe landmarks passing within ``max_distance`` of it (segment distance)."""
-    pipes = [e for e in estimates if e.kind == "pipe" and e.p is not None]
-    by_id = {e.id: e for e in estimates}
-    _connect_structures(pipes, [e for e in estimates if e.kind == "structure" and e.pose is not None], landmarks)
-    for e in estimates:
-        if e.kind != "object":
-            continue
-        seen_pipes = any(
-            getattr(r.observation, "connectivity", None) is not None and r.observation.connectivity.n_pipes > 0
-            for r in landmarks[e.id].history
-        )
-        if not seen_pipes:
-            continue
-        for pe in pipes:
-            if _point_segment_distance(e.position[None], pe.p, pe.q)[0] <= max_distance:
-                e.connected = tuple(sorted({*e.connected, pe.id}))
-                by_id[pe.id].connected = tuple(sorted({*by_id[pe.id].connected, e.id}))
-
-
-def _observation_information(lm: Landmark, z, pose: gtsam.Pose3, pose_cov: np.ndarray, T_BS: np.ndarray) -> np.ndarray:
-    """Information H_lᵀ (R + H_x P H_xᵀ)⁻¹ H_l that one observation carries on the landmark's
-    parameters, with the keyframe pose uncertainty P folded into the noise."""
-    if lm.kind == "object":
-        _, H_x, H_l = point_residual(pose, lm.estimate, T_BS, z.position, jac=True)
-        R = z.covariance
-    elif lm.kind == "pipe":
-        _, H_x, H_l = line_residual(pose, lm.estimate, lm.anchor, T_BS, z.p, z.q, jac=True)
-        R = line_observation_covariance(pose, lm.estimate, lm.anchor, T_BS, z.covariance)
-    else:
-        _, H_x, H_l = structure_residual(pose, lm.estimate, T_BS, z.pose, jac=True)
-        R = z.covariance
-    return _information(H_x, H_l, R, pose_cov)
-
-
-def _information(H_x: np.ndarray, H_l: np.ndarray, R: np.ndarray, pose_cov: np.ndarray) -> np.ndarray:
-    """H_lᵀ (R + H_x P H_xᵀ)⁻¹ H_l."""
-    S = R + H_x @ pose_cov @ H_x.T
-    return H_l.T @ np.linalg.solve(S, H_l)
-
-
-def _link(a: LandmarkEstimate, b: LandmarkEstimate) -> None:
-    a.connected = tuple(sorted({*a.connected, b.id}))
-    b.connected = tuple(sorted({*b.connected, a.id}))
-
-
-def _connect_structures(
-    pipes: list[LandmarkEstimate], structures: list[LandmarkEstimate], landmarks: dict[int, Landmark]
-) -> None:
-    """Pipe ↔ structure connectivity: a pipe whose views said it ends at a model (a pipeline leaving
-    a manifold) is linked to the structure landmark of that model nearest to its ends."""
-    for pe in pipes:
-        models = {m for r in landmarks[pe.id].history for m in getattr(r.observation, "connected_models", ())}
-        for model in models:
-            cands = [s for s in structures if s.model == model]
-            if cands:
-                ends = np.stack([pe.p, pe.q])
-                _link(pe, min(cands, key=lambda s: float(np.min(np.linalg.norm(ends - s.pose[:3, 3], axis=1)))))
-
-
-def _landmark_point(lm: Landmark) -> np.ndarray:
-    if lm.kind == "object":
-        return np.asarray(lm.estimate, float)
-    if lm.kind == "pipe":
-        return np.mean(_pipe_ends(lm), axis=0)
-    return lm.estimate.translation()
-
-
-def _pipe_ends(lm: Landmark) -> tuple[np.ndarray, np.ndarray]:
-    c, d = lm.anchor.point(lm.estimate), lm.anchor.direction(lm.estimate)
-    foot = (lm.anchor.c0 - c) @ d
-    lo, hi = lm.extent
-    return c + (foot + lo) * d, c + (foot + hi) * d
-
-
-def _point_segment_distance(pts: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    ab = b - a
-    s = np.clip((pts - a) @ ab / max(float(ab @ ab), 1e-12), 0.0, 1.0)
-    return np.linalg.norm(pts - (a + s[:, None] * ab), axis=1)
-
-
-def _segment_matches_line(
-    seg: np.ndarray, c: np.ndarray, d: np.ndarray, seen: np.ndarray, max_angle, max_dist, gap
-) -> bool:
-    """A world segment (2,3) on the line (c, d): angle, perpendicular offsets and extent overlap."""
-    u = seg[1] - seg[0]
-    u /= np.linalg.norm(u)
-    if np.arccos(min(1.0, abs(float(u @ d)))) > max_angle:
-        return False
-    r = seg - c
-    perp = r - np.outer(r @ d, d)
-    if np.linalg.norm(perp, axis=1).max() > max_dist:
-        return False
-    s = r @ d
-    s_seen = (seen - c) @ d
-    return not (s.max() < s_seen.min() - gap or s.min() > s_seen.max() + gap)

@@ -1,47 +1,69 @@
-"""Landmark bookkeeping of the graph back-end: mapped landmarks, tentative tracks (not yet in the
-graph), class posteriors, and the merge of collinear pipe segments within one batch."""
+"""The graph back-end's landmarks: object points L(id), pipe lines P(id) (4-vector, anchored chart) and
+structures S(id) (Pose3) as iSAM2 variables with robust factors, and what the shared map building
+(:mod:`semslam.mapping.builder`) asks of them: the pairs a batch of observations could make with them,
+their update, their initialisation from a tentative landmark, and the merge of one mapped twice.
+
+A landmark's gating covariance is the inverse of the information its own observations carry, each with
+the pose uncertainty of its keyframe folded into the noise (no iSAM2 marginal: in a map seen from
+everywhere those cost up to a fraction of a second each). It ignores the pose–landmark correlation,
+like the association problem does; both make the innovation covariance larger, never smaller, than the
+joint one in practice.
+"""
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
+import gtsam
 import numpy as np
 
-from factors.landmarks import LineAnchor
-from semslam.observations import LineObservation
+from factors.geometry import pose_point_jacobian
+from factors.landmarks import (
+    LineAnchor,
+    line_factor,
+    line_observation_covariance,
+    line_residual,
+    point_factor,
+    point_residual,
+    robust_kernel,
+    structure_factor,
+    structure_residual,
+)
+from semslam.backend.keyframes import Keyframes
+from semslam.backend.problem import Candidate, GraphAssociationProblem, possible_pairs
+from semslam.backend.session import IsamSession, Owned
+from semslam.backend.window import SlidingWindow, X, value_of
+from semslam.config import SemslamConfig
+from semslam.estimation import LandmarkEstimate
+from semslam.mapping.association import Candidates, LowRankJoint, PairLinearization, chi2_gate, uncorrelated_candidates
+from semslam.mapping.book import LandmarkBook
+from semslam.mapping.builder import Scan
+from semslam.mapping.pipes import point_segment_distance
+from semslam.mapping.tracks import Track
+from semslam.mission.mission import MissionMetadata
+from semslam.observations import LineObservation, Observation, PointObservation
 
-
-@dataclass
-class ObservationRecord:
-    """One observation of a landmark: when, at which keyframe, and the observation itself."""
-
-    stamp: int
-    keyframe: int
-    observation: object
+KEY_OF_KIND = {
+    "object": gtsam.symbol_shorthand.L,
+    "pipe": gtsam.symbol_shorthand.P,
+    "structure": gtsam.symbol_shorthand.S,
+}
+DIM_OF_KIND = {"object": 3, "pipe": 4, "structure": 6}
 
 
 @dataclass
 class Landmark:
-    """A mapped landmark. ``key`` is its gtsam key; lines carry their fixed chart ``anchor`` and
-    the extent (s_min, s_max) of everything seen along the axis, in the line frame."""
+    """A mapped landmark. ``key`` is its gtsam key; lines carry their fixed chart ``anchor``."""
 
     id: int
     kind: str  # object | pipe | structure
     key: int
-    history: list[ObservationRecord] = field(default_factory=list)
-    class_likelihoods: list[Mapping[str, float]] = field(default_factory=list)
     anchor: LineAnchor | None = None
-    extent: tuple[float, float] | None = None
     model: str | None = None
     estimate: object = None  # Point3 (3,), θ (4,), or gtsam.Pose3
     covariance: np.ndarray | None = None  # gating covariance (see ``information_covariance``)
     cov_stamp: int | None = None  # when ``covariance`` was last computed (None: new information since)
     information: np.ndarray | None = None  # Σ information of its observations on its parameters
-    seen_ends: list[tuple[float, float, float]] = field(default_factory=list)  # pipes: (s_lo, s_hi, σ_along) per view
-    _robust: tuple | None = field(default=None, repr=False)  # (views, robust_extent()) cached
-    _middle: tuple | None = field(default=None, repr=False)  # (views, median of the views' middles)
-    connected: set[int] = field(default_factory=set)
     active: bool = True  # in the smoother's window; False: marginalised out, ``estimate`` frozen
 
     def add_information(self, info: np.ndarray) -> None:
@@ -50,245 +72,389 @@ class Landmark:
 
     def information_covariance(self) -> np.ndarray:
         """Inverse of the accumulated information (a tiny ridge keeps it finite)."""
-        n = {"object": 3, "pipe": 4, "structure": 6}[self.kind]
+        n = DIM_OF_KIND[self.kind]
         info = np.zeros((n, n)) if self.information is None else self.information
         return np.linalg.inv(info + np.eye(n) * 1e-9)
 
-    def class_posterior(self) -> dict[str, float] | None:
-        return class_posterior(self.class_likelihoods)
+    def line(self, estimate=None) -> tuple[np.ndarray, np.ndarray]:
+        """A pipe's line (point, unit direction) at ``estimate`` (default: its current one)."""
+        theta = self.estimate if estimate is None else estimate
+        return self.anchor.point(theta), self.anchor.direction(theta)
 
-    def robust_extent(self) -> tuple[float, float]:
-        """The pipe's ends along its axis (line frame), robust to endpoint noise (:func:`robust_ends`).
-        What association tests against: the plain extent (every view's extreme) grows with the
-        endpoint noise, 3σ beyond each end after a few hundred views, until it reaches across the
-        in-line valve that separates this pipe from the next one in line."""
-        if not self.seen_ends:
-            return self.extent
-        n = len(self.seen_ends)
-        if self._robust is None or self._robust[0] != n:
-            e = np.array(self.seen_ends)
-            self._robust = (n, robust_ends(e[:, 0], e[:, 1], 6.0 * small_median(e[:, 2])))
-        return self._robust[1]
 
-    def stretch(self, objects: np.ndarray, radius: float, margin: float = 0.05) -> tuple[float, float]:
-        """What of its line this pipe is (line frame): the robust extent, cut at the mapped objects
-        (N×3, {W}) that lie on the line inside it, keeping the side that holds most of its views.
-        A laser fit through an in-line socket or tee sees two pipes as one segment (2 % of the
-        tank's segments); once the part between them is mapped, the other pipe's views must stop
-        pairing with the landmark those fits started, and the map must not draw it through."""
-        lo, hi = self.robust_extent()
-        if len(objects) == 0 or not self.seen_ends:
-            return lo, hi
-        n = len(self.seen_ends)
-        if self._middle is None or self._middle[0] != n:
-            e = np.array(self.seen_ends)
-            self._middle = (n, small_median(0.5 * (e[:, 0] + e[:, 1])))
-        return cut_at_objects(
-            (lo, hi), self.anchor.c0, self.anchor.direction(self.estimate), objects, radius, self._middle[1], margin
+class GraphLandmarks:
+    """The graph's landmarks (:class:`semslam.mapping.builder.LandmarkState`). A batch of observations
+    runs between :meth:`begin` (its keyframe and pose) and :meth:`settle` (one iSAM2 update with
+    every factor of the batch)."""
+
+    def __init__(
+        self,
+        metadata: MissionMetadata,
+        config: SemslamConfig,
+        session: IsamSession,
+        keyframes: Keyframes,
+        window: SlidingWindow,
+        book: LandmarkBook,
+        diagnostics: list[str],
+    ):
+        self.metadata = metadata
+        self.assoc = config.association
+        self.robust = robust_kernel(config.graph.robust_kernel, config.graph.robust_k)
+        self.session = session
+        self.keyframes = keyframes
+        self.window = window
+        self.book = book
+        self.diagnostics = diagnostics
+        self.landmarks: dict[int, Landmark] = {}
+        self._next_id = 0
+        self.volume: dict[int, list[tuple[int, float]]] = {}  # landmark id → [(stamp, log det cov)]
+        # Bounding sphere (centre, radius) of every landmark, refreshed with its estimate.
+        self._sphere_row: dict[int, int] = {}
+        self._sphere_ids: list[int] = []
+        self._sphere_c = np.zeros((0, 3))
+        self._sphere_r = np.zeros(0)
+        self._sphere_obj = np.zeros(0, bool)  # the row is an object landmark (its centre is its point)
+        # the batch under way
+        self._k = 0
+        self._pose = gtsam.Pose3()
+        self._pose_cov = np.eye(6)
+        self._factors: list[Owned] = []
+        self._priors: list[Owned] = []
+        self._values = gtsam.Values()
+
+    def __len__(self) -> int:
+        return len(self.landmarks)
+
+    # ------------------------------------------------------------------ the batch
+    def begin(self, k: int, factors: list[Owned] = ()) -> None:
+        """A batch observed at keyframe k; ``factors`` (e.g. odometry) go into its iSAM2 update."""
+        self._k = k
+        self._pose, self._pose_cov = self.keyframes.pose_and_cov(k)
+        self._factors = list(factors)
+        self._priors = []
+        self._values = gtsam.Values()
+
+    def settle(self) -> None:
+        """One iSAM2 update with the batch's factors and new variables; the estimates refreshed."""
+        if not self._factors and not self._values.size():
+            return
+        self._commit(self._factors, self._values, self._priors)
+        self.keyframes.refresh()
+        self.keyframes.renew_online(self._k)
+        self.refresh({o for _, o in self._factors if o is not None})
+        self._factors, self._priors, self._values = [], [], gtsam.Values()
+
+    def _commit(self, factors: list[Owned], values: gtsam.Values, priors: list[Owned] = ()) -> bool:
+        """Commit to iSAM2; after a failure the landmarks created in the failed update disappear and
+        those that were coming back stay out of the window. False if something was dropped."""
+        stamp = self.keyframes.stamps[-1]
+        dropped = self.session.commit(factors, values, self.keyframes.anchor(), priors, stamp)
+        if dropped is None:
+            return True
+        for lid in dropped:
+            if lid in self.landmarks and not self.session.owns(lid):
+                self._remove(lid)
+        keep = self.session.window_keys()
+        for lm in self.landmarks.values():
+            lm.active = lm.key in keep
+        return False
+
+    def _remove(self, lid: int) -> None:
+        del self.landmarks[lid]
+        row = self._sphere_row.pop(lid, None)
+        if row is not None:
+            self._sphere_c[row] = np.inf  # never near again
+        self.volume.pop(lid, None)
+
+    # ------------------------------------------------------------------ for the map building
+    def usable(self, z: Observation) -> bool:
+        return True
+
+    def sensor_pose(self, sensor: str) -> np.ndarray:
+        return self._pose.compose(gtsam.Pose3(self.metadata.extrinsic(sensor))).matrix()
+
+    def place(self, z: Observation) -> tuple[np.ndarray, np.ndarray | None, int]:
+        """An observation in {W} with the batch's keyframe as estimated now (point: (3,), pipe: (2, 3),
+        structure: 4×4) and, for points and structures, its position covariance there (observation
+        and pose); the keyframe, for the landmark's factors."""
+        T_BS = self.metadata.extrinsic(z.sensor)
+        pose = self.keyframes.pose_of(self._k)
+        T_WS = pose.compose(gtsam.Pose3(T_BS))
+        R = pose.rotation().matrix()
+        if isinstance(z, LineObservation):
+            return np.vstack([T_WS.transformFrom(z.p), T_WS.transformFrom(z.q)]), None, self._k
+        if isinstance(z, PointObservation):
+            w, p_S, C_S = T_WS.transformFrom(z.position), z.position, z.covariance
+        else:
+            w, p_S, C_S = T_WS.compose(gtsam.Pose3(z.pose)).matrix(), z.pose[:3, 3], z.covariance[3:, 3:]
+        e_B = T_BS[:3, :3] @ p_S + T_BS[:3, 3]
+        J = pose_point_jacobian(R, e_B)
+        return w, R @ T_BS[:3, :3] @ C_S @ T_BS[:3, :3].T @ R.T + J @ self._pose_cov @ J.T, self._k
+
+    def objects(self) -> tuple[list[int], np.ndarray]:
+        """Mapped objects and their positions (N×3, {W}), from the cached spheres (an object's centre
+        is its estimate; rows of landmarks that left the map are at infinity): numpy, not a loop."""
+        n = len(self._sphere_ids)
+        c = self._sphere_c[:n]
+        rows = np.flatnonzero(self._sphere_obj[:n] & np.isfinite(c[:, 0]))
+        return [self._sphere_ids[r] for r in rows], c[rows]
+
+    def pipes(self) -> list[tuple[int, np.ndarray, np.ndarray]]:
+        return [(lm.id, *lm.line()) for lm in self.landmarks.values() if lm.kind == "pipe"]
+
+    def candidates(
+        self, observations: list[Observation], confidence: float, scan: Scan
+    ) -> tuple[Candidates, list[int]]:
+        """The pairs individually compatible at ``confidence``, among the landmarks the coarse pre-gates
+        keep: the cached bounding spheres (O(map) in numpy only, so the cost stays flat), then
+        ``association.pre_gate_m`` and a conservative bound of the χ² gate (``possible_pairs``)."""
+        none = Candidates.empty(len(observations))
+        if not self.landmarks:
+            return none, []
+        T_BS = [self.metadata.extrinsic(z.sensor) for z in observations]
+        pose, pose_cov = self._pose, self._pose_cov
+        obs_pts = np.array([_summary(z, pose, T) for z, T in zip(observations, T_BS)])
+        ids, centres, radii = self._spheres()
+        dist = np.linalg.norm(obs_pts[:, None, :] - centres[None, :, :], axis=2) - radii[None, :]
+        near = np.flatnonzero((dist <= self.assoc.pre_gate_m + 1.0).any(axis=0))
+        if near.size == 0:
+            return none, []
+        cand_lms = [self.landmarks[ids[j]] for j in near if ids[j] in self.landmarks]
+        self.refresh({lm.id for lm in cand_lms}, covariance=True)
+        dist = np.empty((len(obs_pts), len(cand_lms)))
+        for j, lm in enumerate(cand_lms):
+            if lm.kind == "pipe":
+                dist[:, j] = point_segment_distance(obs_pts, *_pipe_ends(lm, self.book))
+            else:
+                dist[:, j] = np.linalg.norm(obs_pts - _point(lm), axis=1)
+        cands = [Candidate(lm, lm.covariance) for lm in cand_lms]
+        gates = {d: chi2_gate(confidence, d) for d in (3, 4)}
+        allowed = (dist <= self.assoc.pre_gate_m) & possible_pairs(pose, pose_cov, observations, T_BS, cands, gates)
+        problem = GraphAssociationProblem(pose, observations, T_BS, cands, allowed, scan)
+        pairs = [
+            (i, int(j), problem.pair(i, int(j))) for i in range(len(observations)) for j in np.flatnonzero(allowed[i])
+        ]
+        found = uncorrelated_candidates(
+            len(observations), [t for t in pairs if t[2] is not None], pose_cov, problem.landmark_covariance, confidence
         )
+        self._problem = problem
+        return found, [lm.id for lm in cand_lms]
 
+    def joint(self, found: Candidates) -> LowRankJoint:
+        return LowRankJoint(found, self._pose_cov, self._problem.landmark_covariance)
 
-def cut_at_objects(
-    seen: tuple[float, float],
-    c: np.ndarray,
-    d: np.ndarray,
-    objects: np.ndarray,
-    radius: float,
-    middle: float,
-    margin: float = 0.05,
-) -> tuple[float, float]:
-    """The stretch ``seen`` of the line (c, d) (positions along d from c) cut at the objects (N×3,
-    {W}) within ``radius`` of the line and more than ``margin`` inside it, keeping the side that
-    holds ``middle`` (the median of the views' middles)."""
-    lo, hi = seen
-    r = np.asarray(objects, float).reshape(-1, 3) - c
-    s = r @ d
-    inside = (np.linalg.norm(r - s[:, None] * d, axis=1) < radius) & (s > lo + margin) & (s < hi - margin)
-    if not inside.any():
-        return lo, hi
-    below, above = s[inside & (s <= middle)], s[inside & (s > middle)]
-    return (float(below.max()) if below.size else lo, float(above.min()) if above.size else hi)
+    def update(self, paired: list[tuple[Observation, int, PairLinearization]]) -> None:
+        """A factor for each pairing (a landmark that had left the window comes back with a prior),
+        and the information it carries on the landmark."""
+        for z, lid, lin in paired:
+            lm = self.landmarks[lid]
+            if not lm.active:
+                self._reactivate(lm)
+            T_BS = self.metadata.extrinsic(z.sensor)
+            self._factors.append((self._factor(lm, self._k, z, T_BS, self._pose, lin), lm.id))
+            lm.add_information(_information(lin.H_x, lin.H_l, lin.R, self._pose_cov))
 
+    def _reactivate(self, lm: Landmark) -> None:
+        """A marginalised landmark seen again re-enters the window: its frozen estimate, with the
+        covariance of its own views (pose uncertainty folded in) as a prior. Its correlation with
+        the window's poses was lost when it left; the views' covariance is the conservative choice."""
+        lm.active = True
+        self.window.returns += 1
+        noise = gtsam.noiseModel.Gaussian.Covariance(lm.information_covariance())
+        if lm.kind == "object":
+            prior = gtsam.PriorFactorPoint3(lm.key, np.asarray(lm.estimate, float), noise)
+        elif lm.kind == "pipe":
+            prior = gtsam.PriorFactorVector(lm.key, np.asarray(lm.estimate, float), noise)
+        else:
+            prior = gtsam.PriorFactorPose3(lm.key, lm.estimate, noise)
+        self._priors.append((prior, lm.id))
+        self._values.insert(lm.key, lm.estimate)
 
-def robust_ends(lo: np.ndarray, hi: np.ndarray, window: float) -> tuple[float, float]:
-    """A pipe's ends along its axis from every view's ends (lo, hi), robust to endpoint noise.
+    def promote(self, track: Track) -> int:
+        """A tentative landmark enters the graph: its initial value from its views re-expressed with
+        the current keyframe estimates (views from keyframes that left the window are dropped), and
+        one factor per view."""
+        lid = self._next_id
+        self._next_id += 1
+        key = KEY_OF_KIND[track.kind](lid)
+        lm = Landmark(lid, track.kind, key, model=track.model)
+        views = [v for v in track.views if v.payload >= self.window.first_active]
+        poses = {v.payload: self.keyframes.pose_of(v.payload) for v in views}
+        Ts = [self.metadata.extrinsic(v.z.sensor) for v in views]
+        T_WS = [poses[v.payload].compose(gtsam.Pose3(T)) for v, T in zip(views, Ts)]
+        if track.kind == "object":
+            lm.estimate = np.array([T.transformFrom(v.z.position) for v, T in zip(views, T_WS)]).mean(axis=0)
+        elif track.kind == "pipe":
+            ends = np.vstack([[T.transformFrom(e) for e in (v.z.p, v.z.q)] for v, T in zip(views, T_WS)])
+            c = ends.mean(axis=0)
+            _, _, vt = np.linalg.svd(ends - c)
+            lm.anchor = LineAnchor.from_points(c - vt[0], c + vt[0])
+            lm.estimate = np.zeros(4)
+        else:
+            lm.estimate = T_WS[-1].compose(gtsam.Pose3(views[-1].z.pose))
+        self._values.insert(key, lm.estimate)
+        self.landmarks[lid] = lm
+        for v, T in zip(views, Ts):
+            pose = poses[v.payload]
+            self._factors.append((self._factor(lm, v.payload, v.z, T, pose), lid))
+            lm.add_information(_observation_information(lm, v.z, pose, self._pose_cov, T))
+        return lid
 
-    Each view sees a stretch inside the pipe, its ends noisy along the axis (σ). Views that saw the
-    real end put their endpoint around it, clipped views lie further in, and the extreme one is
-    biased outwards by the noise (by about 3σ over a few hundred views), as is a mean of the ends
-    near it. Each end is the median of the view ends within ``window`` (6σ) of the extreme one:
-    the views around the real end, centred on it."""
-    lo_min, hi_max = float(lo.min()), float(hi.max())
-    a = small_median(lo[lo <= lo_min + window])
-    b = small_median(hi[hi >= hi_max - window])
-    return (a, b) if b > a else (lo_min, hi_max)
-
-
-def small_median(v: np.ndarray) -> float:
-    """np.median of a small 1-D array, without its per-call overhead."""
-    v = np.sort(v)
-    n = len(v)
-    return float(v[n // 2]) if n % 2 else 0.5 * float(v[n // 2 - 1] + v[n // 2])
-
-
-def class_posterior(likelihoods: Sequence[Mapping[str, float]]) -> dict[str, float] | None:
-    """Normalised product of the likelihood vectors P(Z|X) (uniform prior), computed in logs.
-    A class missing from a vector gets likelihood 0 for that view."""
-    likelihoods = [lk for lk in likelihoods if lk]
-    if not likelihoods:
-        return None
-    classes = sorted({c for lk in likelihoods for c in lk})
-    logp = np.zeros(len(classes))
-    for lk in likelihoods:
-        logp += np.log(np.maximum([float(lk.get(c, 0.0)) for c in classes], 1e-300))
-    p = np.exp(logp - logp.max())
-    p /= p.sum()
-    return dict(zip(classes, map(float, p)))
-
-
-@dataclass
-class Track:
-    """A tentative landmark: consistent observations not yet in the graph (world-frame summaries
-    at the time of observation, for gating)."""
-
-    kind: str
-    records: list[ObservationRecord] = field(default_factory=list)
-    world: list[np.ndarray] = field(default_factory=list)  # point: (3,), pipe: (2,3), structure: (4,4)
-    world_cov: list[np.ndarray] = field(default_factory=list)  # point/structure: 3×3 position covariance
-    model: str | None = None
-    last_stamp: int = 0
-
-    def mean_position(self) -> tuple[np.ndarray, np.ndarray]:
-        """Information-weighted mean of the world positions and its covariance."""
-        info = np.zeros((3, 3))
-        vec = np.zeros(3)
-        for w, c in zip(self.world, self.world_cov):
-            pos = w if w.shape == (3,) else w[:3, 3]
-            Ci = np.linalg.inv(c)
-            info += Ci
-            vec += Ci @ pos
-        cov = np.linalg.inv(info)
-        return cov @ vec, cov
-
-    def line_fit(self) -> tuple[np.ndarray, np.ndarray]:
-        """Principal axis of all world endpoints: (point, unit direction)."""
-        pts = np.vstack(self.world)
-        c = pts.mean(axis=0)
-        _, _, vt = np.linalg.svd(pts - c)
-        return c, vt[0]
-
-
-def segment_axis(p: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, float]:
-    d = q - p
-    n = float(np.linalg.norm(d))
-    return d / n, n
-
-
-def collinear(p1, q1, p2, q2, max_angle: float, max_distance: float) -> bool:
-    """Segments on one axis: directions within ``max_angle``, each one's endpoints within
-    ``max_distance`` of the other's line, and a gap along the axis below ``max_distance``."""
-    d1, l1 = segment_axis(p1, q1)
-    d2, l2 = segment_axis(p2, q2)
-    if np.arccos(min(1.0, abs(float(d1 @ d2)))) > max_angle:
-        return False
-    for a, d, pts in ((p1, d1, (p2, q2)), (p2, d2, (p1, q1))):
-        for x in pts:
-            r = x - a
-            if np.linalg.norm(r - (r @ d) * d) > max_distance:
-                return False
-    s = sorted([(p2 - p1) @ d1, (q2 - p1) @ d1])
-    gap = max(s[0] - l1, 0.0 - s[1], 0.0)
-    return gap <= max_distance
-
-
-def object_between(
-    seen: tuple[float, float],
-    seg: np.ndarray,
-    c: np.ndarray,
-    d: np.ndarray,
-    objects: np.ndarray,
-    radius: float,
-    margin: float = 0.1,
-) -> bool:
-    """True when an object lies on the line (c, d) between the stretch ``seen`` (axial interval)
-    and the segment ``seg`` (2×3): collinear pipes joined by an in-line part (a valve, a socket)
-    are different pipes. ``objects`` N×3 in the frame of c, d; ``radius`` how close to the line an
-    object must be; ``margin`` how far into either stretch the object may reach."""
-    if len(objects) == 0:
-        return False
-    r = np.asarray(objects, float).reshape(-1, 3) - c
-    s_obj = r @ d
-    on_line = np.linalg.norm(r - s_obj[:, None] * d, axis=1) < radius
-    if not on_line.any():
-        return False
-    a, b = seen
-    s = (np.asarray(seg) - c) @ d
-    if s.max() < a:  # the segment lies before the seen stretch
-        lo, hi = s.max() - margin, a + margin
-    elif s.min() > b:  # ... or after it
-        lo, hi = b - margin, s.min() + margin
-    else:  # overlapping: nothing can lie between
-        return False
-    return bool(np.any(on_line & (s_obj > lo) & (s_obj < hi)))
-
-
-def merge_collinear(
-    observations: Sequence[LineObservation],
-    max_angle: float,
-    max_distance: float,
-    separators: np.ndarray | None = None,
-    separator_radius: float = 0.15,
-) -> list[LineObservation]:
-    """Merge pipe segments of one batch that lie on one axis (the paper's 0.175 rad / 0.3 m).
-
-    Union-find over collinear pairs; a merged segment spans the extreme projections of all its
-    endpoints on the longest member's axis, each end keeping the covariance of the endpoint that
-    produced it. Same sensor only (segments are in its frame). Two segments with an object of the
-    batch (``separators``, N×3 in the sensor frame) on the axis between them stay apart.
-    """
-    n = len(observations)
-    seps = np.zeros((0, 3)) if separators is None else np.asarray(separators, float).reshape(-1, 3)
-    parent = list(range(n))
-
-    def find(i):
-        while parent[i] != i:
-            parent[i] = parent[parent[i]]
-            i = parent[i]
-        return i
-
-    for i in range(n):
-        for j in range(i + 1, n):
-            a, b = observations[i], observations[j]
-            if a.sensor == b.sensor and collinear(a.p, a.q, b.p, b.q, max_angle, max_distance):
-                d, length = segment_axis(a.p, a.q)
-                if not object_between((0.0, length), np.stack([b.p, b.q]), a.p, d, seps, separator_radius):
-                    parent[find(i)] = find(j)
-    groups: dict[int, list[int]] = {}
-    for i in range(n):
-        groups.setdefault(find(i), []).append(i)
-    out = []
-    for members in groups.values():
-        if len(members) == 1:
-            out.append(observations[members[0]])
-            continue
-        obs = [observations[i] for i in members]
-        longest = max(obs, key=lambda o: np.linalg.norm(o.q - o.p))
-        d, _ = segment_axis(longest.p, longest.q)
-        ends = [(o.p, o.covariance[:3, :3], o) for o in obs] + [(o.q, o.covariance[3:, 3:], o) for o in obs]
-        s = [float((e - longest.p) @ d) for e, _, _ in ends]
-        lo, hi = ends[int(np.argmin(s))], ends[int(np.argmax(s))]
-        cov = np.zeros((6, 6))
-        cov[:3, :3], cov[3:, 3:] = lo[1], hi[1]
-        truth = {o.truth_id for o in obs}
-        out.append(
-            LineObservation(
-                stamp=longest.stamp,
-                sensor=longest.sensor,
-                p=lo[0],
-                q=hi[0],
-                covariance=cov,
-                radius=longest.radius,
-                truth_id=longest.truth_id if len(truth) == 1 else longest.truth_id,
+    def _factor(self, lm: Landmark, k: int, z, T_BS, pose: gtsam.Pose3, lin: PairLinearization | None = None):
+        """The factor of observation z of landmark lm at keyframe k (``lin``: the pairing's
+        linearisation at (pose, lm.estimate), when the association has it)."""
+        if lm.kind == "object":
+            return point_factor(X(k), lm.key, z.position, z.covariance, T_BS, self.robust)
+        if lm.kind == "pipe":
+            cov4 = (
+                lin.R
+                if lin is not None
+                else line_observation_covariance(pose, lm.estimate, lm.anchor, T_BS, z.covariance)
             )
-        )
-    return out
+            return line_factor(X(k), lm.key, lm.anchor, z.p, z.q, cov4, T_BS, self.robust)
+        return structure_factor(X(k), lm.key, z.pose, z.covariance, T_BS, self.robust)
+
+    def difference_nis(self, a: int, b: int) -> float | None:
+        """Objects: the χ² of their difference with their gating covariances (the correlation between
+        them ignored, which only overstates it). Pipes: None (no test between two anchored charts)."""
+        la, lb = self.landmarks[a], self.landmarks[b]
+        if la.kind != "object" or lb.kind != "object" or not lb.active:
+            return None
+        d = np.asarray(la.estimate, float) - np.asarray(lb.estimate, float)
+        S = la.information_covariance() + lb.information_covariance()
+        return float(d @ np.linalg.solve(S, d))
+
+    def merge(self, keep: int, drop: int, constrain: bool) -> None:
+        """``drop`` leaves the map; with ``constrain`` (objects) it is first tied to ``keep`` by a stiff
+        zero-offset factor. An unconstrained one stays in the graph with its factors, unmapped."""
+        lk, ld = self.landmarks[keep], self.landmarks[drop]
+        if ld.information is not None:
+            lk.add_information(ld.information)
+        self._remove(drop)
+        if constrain and lk.kind == "object":
+            tie = gtsam.BetweenFactorPoint3(lk.key, ld.key, np.zeros(3), gtsam.noiseModel.Isotropic.Sigma(3, 1e-3))
+            self._commit([(tie, keep)], gtsam.Values())
+            self.refresh({keep})
+
+    # ------------------------------------------------------------------ estimates
+    def left_window(self, drop: set[int], estimate: gtsam.Values) -> None:
+        """The landmarks whose keys left the smoothing window keep their estimate then, frozen."""
+        for lm in self.landmarks.values():
+            if lm.active and lm.key in drop:
+                lm.active, lm.estimate = False, value_of(estimate, lm.key)
+                self._update_sphere(lm)
+
+    def value(self, lm: Landmark):
+        """A landmark's current estimate: iSAM2's in the window, else the frozen one."""
+        return self.session.value(lm.key) if lm.active else lm.estimate
+
+    def refresh(self, ids, covariance: bool = False) -> None:
+        """Current estimates of the landmarks and, with ``covariance``, their gating covariances."""
+        for lid in ids:
+            lm = self.landmarks.get(lid)
+            if lm is None:
+                continue
+            lm.estimate = self.value(lm)
+            self._update_sphere(lm)
+            if covariance and lm.cov_stamp is None:
+                stamp = self.keyframes.stamps[-1]
+                lm.cov_stamp = stamp
+                lm.covariance = lm.information_covariance()
+                ev = np.linalg.eigvalsh(lm.covariance)
+                self.volume.setdefault(lid, []).append((stamp, float(np.sum(np.log(np.maximum(ev, 1e-300))))))
+
+    def _spheres(self) -> tuple[list[int], np.ndarray, np.ndarray]:
+        n = len(self._sphere_ids)
+        return self._sphere_ids, self._sphere_c[:n], self._sphere_r[:n]
+
+    def _update_sphere(self, lm: Landmark) -> None:
+        if lm.kind == "pipe":
+            a, b = _pipe_ends(lm, self.book)
+            c, r = 0.5 * (a + b), 0.5 * float(np.linalg.norm(b - a))
+        else:
+            c, r = _point(lm), 0.0
+        row = self._sphere_row.get(lm.id)
+        if row is None:
+            row = len(self._sphere_ids)
+            if row >= len(self._sphere_r):  # amortised growth
+                self._sphere_c = np.vstack([self._sphere_c, np.zeros((max(64, row), 3))])
+                self._sphere_r = np.concatenate([self._sphere_r, np.zeros(max(64, row))])
+                self._sphere_obj = np.concatenate([self._sphere_obj, np.zeros(max(64, row), bool)])
+            self._sphere_row[lm.id] = row
+            self._sphere_ids.append(lm.id)
+        self._sphere_c[row], self._sphere_r[row], self._sphere_obj[row] = c, r, lm.kind == "object"
+
+    def estimates(
+        self, covariance: bool = True, values: gtsam.Values | None = None, marginals=None
+    ) -> list[LandmarkEstimate]:
+        """The map with global ids: the current estimates, or those in ``values``; with ``covariance``
+        the marginal covariances (from ``marginals``, else iSAM2's)."""
+        out = []
+        covs = {}
+        if covariance:
+            blocks = self.session.joint_blocks(marginals, [lm.key for lm in self.landmarks.values()])
+            covs = {lm.id: blocks[lm.key] for lm in self.landmarks.values() if lm.key in blocks}
+        _, mapped = self.objects()
+        for lm in self.landmarks.values():
+            est = value_of(values, lm.key) if values is not None else self.value(lm)
+            le = LandmarkEstimate(
+                id=lm.id,
+                kind=lm.kind,
+                n_observations=self.book.n_views(lm.id),
+                model=lm.model,
+                covariance=covs.get(lm.id),
+            )
+            if lm.kind == "object":
+                le.position = np.asarray(est, float)
+                le.class_posterior = self.book.class_posterior(lm.id)
+            elif lm.kind == "pipe":
+                c, d = lm.line(est)
+                le.p, le.q = self.book.extent(lm.id).ends(c, d, mapped, self.assoc.inline_object_radius_m)
+            else:
+                le.pose, le.position = est.matrix(), est.translation()
+            out.append(le)
+        return out
+
+
+def _summary(z, pose: gtsam.Pose3, T_BS: np.ndarray) -> np.ndarray:
+    """A world point standing for the observation (object / segment midpoint / structure origin)."""
+    T_WS = pose.compose(gtsam.Pose3(T_BS))
+    if isinstance(z, PointObservation):
+        return T_WS.transformFrom(z.position)
+    if isinstance(z, LineObservation):
+        return T_WS.transformFrom(0.5 * (z.p + z.q))
+    return T_WS.transformFrom(z.pose[:3, 3])
+
+
+def _point(lm: Landmark) -> np.ndarray:
+    if lm.kind == "object":
+        return np.asarray(lm.estimate, float)
+    return lm.estimate.translation()
+
+
+def _pipe_ends(lm: Landmark, book: LandmarkBook) -> tuple[np.ndarray, np.ndarray]:
+    """The extreme ends seen of a pipe, on its current line."""
+    c, d = lm.line()
+    lo, hi = book.extent(lm.id).outer(c, d)
+    return c + lo * d, c + hi * d
+
+
+def _observation_information(lm: Landmark, z, pose: gtsam.Pose3, pose_cov: np.ndarray, T_BS: np.ndarray) -> np.ndarray:
+    """Information H_lᵀ (R + H_x P H_xᵀ)⁻¹ H_l that one observation carries on the landmark's
+    parameters, with the keyframe pose uncertainty P folded into the noise."""
+    if lm.kind == "object":
+        _, H_x, H_l = point_residual(pose, lm.estimate, T_BS, z.position, jac=True)
+        R = z.covariance
+    elif lm.kind == "pipe":
+        _, H_x, H_l = line_residual(pose, lm.estimate, lm.anchor, T_BS, z.p, z.q, jac=True)
+        R = line_observation_covariance(pose, lm.estimate, lm.anchor, T_BS, z.covariance)
+    else:
+        _, H_x, H_l = structure_residual(pose, lm.estimate, T_BS, z.pose, jac=True)
+        R = z.covariance
+    return _information(H_x, H_l, R, pose_cov)
+
+
+def _information(H_x: np.ndarray, H_l: np.ndarray, R: np.ndarray, pose_cov: np.ndarray) -> np.ndarray:
+    """H_lᵀ (R + H_x P H_xᵀ)⁻¹ H_l."""
+    S = R + H_x @ pose_cov @ H_x.T
+    return H_l.T @ np.linalg.solve(S, H_l)

@@ -4,8 +4,8 @@ The graph back-end needs the newest keyframe pose's marginal after every update 
 online ±2σ, NEES). iSAM2 orders the keys of new factors last, so that pose is a frontal of the root
 clique, whose conditional p(F) has no parents: it is the joint marginal of the root's frontals, with
 information RᵀR. ``ISAM2.marginalCovariance`` re-eliminates that whole conditional down to the one
-variable: on the tank, roots of ~90 variables (~450 dimensions, dense: every landmark is seen from
-every pose) cost up to 25 ms per call. From R itself, Σ_jj = YᵀY with Rᵀ Y = E_j, one triangular
+variable, and a root is large where every landmark is seen from every pose (the tank's: see
+experiments/estimators/README.md). From R itself, Σ_jj = YᵀY with Rᵀ Y = E_j, one triangular
 solve (rows of Y before j's block are zero, so only R's trailing block is used).
 
 The Python wrapper does not expose the Bayes tree's root. ``marginalFactor(j, function)`` calls the

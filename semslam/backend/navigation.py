@@ -79,14 +79,9 @@ class NavigationBuffer:
         self.dvl: DvlSample | None = None
         self.depth: DepthSample | None = None
         self.preint: DvlPreintegrator | None = None
-        self.unknown_sensors: set[str] = set()
 
     def _T_BS(self, sensor: str) -> np.ndarray:
-        info = self.metadata.sensors.get(sensor)
-        if info is None:
-            self.unknown_sensors.add(sensor)
-            return np.eye(4)
-        return info.T_BS
+        return self.metadata.extrinsic(sensor)
 
     def add(self, m) -> None:
         t = m.stamp * 1e-9

@@ -1,16 +1,16 @@
-"""The graph back-end's data-association problem for :func:`semslam.backend.association.jcbb`.
+"""The graph back-end's data-association problem: the pairs it offers :func:`semslam.mapping.association.jcbb`.
 
 Vehicle block: the current keyframe pose X (6, tangent (ω, v)). Landmark blocks: point (3),
-line θ (4), structure pose (6). Covariances are iSAM2 marginals of single variables: the
-pose–landmark and landmark–landmark cross terms are taken as zero (computing them would need a
-joint marginal over the candidates at every scan). Both correlations are positive in practice
-(landmarks seen from the same poses), so dropping them overstates the innovation covariance:
-the gates get a little looser, never tighter.
+line θ (4), structure pose (6). A landmark's covariance is its own (its views' information, see
+:mod:`semslam.backend.landmarks`): the pose–landmark and landmark–landmark cross terms are taken as
+zero. Both correlations are positive in practice (landmarks seen from the same poses), so dropping
+them overstates the innovation covariance: the gates get a little looser, never tighter.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import gtsam
 import numpy as np
@@ -22,52 +22,40 @@ from factors.landmarks import (
     point_residual,
     structure_residual,
 )
-from semslam.backend.association import PairLinearization
-from semslam.backend.landmarks import Landmark, object_between
+from semslam.mapping.association import PairLinearization
+from semslam.mapping.builder import Scan
 from semslam.observations import LineObservation, PointObservation, StructureObservation
 
 
 @dataclass
 class Candidate:
-    landmark: Landmark
+    landmark: Any  # a semslam.backend.landmarks.Landmark (its kind, key, estimate, anchor, model)
     covariance: np.ndarray
 
 
 class GraphAssociationProblem:
-    """Observations of one batch against pre-gated candidate landmarks."""
-
-    uncorrelated_landmarks = True  # single-variable marginals: JCBB may use its low-rank joint NIS
+    """Observations of one batch against pre-gated candidate landmarks (``allowed``: the pairs the
+    pre-gates keep); ``scan``: the batch's rules (a pipe pair is ruled out where ``scan.excludes``)."""
 
     def __init__(
         self,
         pose: gtsam.Pose3,
-        pose_cov: np.ndarray,
         observations: list,
         T_BS: list[np.ndarray],
         candidates: list[Candidate],
-        pipe_extent_gap_m: float,
         allowed: np.ndarray,
-        separators: np.ndarray | None = None,
-        separator_radius: float = 0.15,
-        cutters: np.ndarray | None = None,
+        scan: Scan,
     ):
         self.pose = pose
-        self.pose_cov = pose_cov
         self.observations = observations
         self.T_BS = T_BS
         self.candidates = candidates
-        self.gap = pipe_extent_gap_m
-        self.allowed = allowed  # (n_obs, n_cand) bool: the Euclidean pre-gate
-        self.separators = np.zeros((0, 3)) if separators is None else separators  # objects in {W}
-        self.separator_radius = separator_radius
-        self.cutters = np.zeros((0, 3)) if cutters is None else cutters  # mapped objects: end a pipe's stretch
-        self.n_observations = len(observations)
-        self.n_landmarks = len(candidates)
+        self.allowed = allowed
+        self.scan = scan
         self._cache: dict[tuple[int, int], PairLinearization | None] = {}
         self._R, self._t = pose.rotation().matrix(), pose.translation()
         self._frames: dict[int, tuple] = {}
         self._segments: dict[int, tuple] = {}
-        self._stretches: dict[int, tuple[float, float]] = {}
 
     def _line_frame(self, j: int):
         """R_L, J_r columns and direction of pipe candidate j (once per problem)."""
@@ -77,12 +65,6 @@ class GraphAssociationProblem:
             self._frames[j] = (RL, Jr2, RL[:, 2])
         return self._frames[j]
 
-    def _stretch(self, j: int) -> tuple[float, float]:
-        """What has been seen of pipe candidate j along its line (once per problem)."""
-        if j not in self._stretches:
-            self._stretches[j] = self.candidates[j].landmark.stretch(self.cutters, self.separator_radius)
-        return self._stretches[j]
-
     def _segment(self, i: int):
         """Endpoints of line observation i in {B} (2×3) and in {W} (once per problem)."""
         if i not in self._segments:
@@ -90,9 +72,6 @@ class GraphAssociationProblem:
             e_B = np.stack([T_BS[:3, :3] @ z.p + T_BS[:3, 3], T_BS[:3, :3] @ z.q + T_BS[:3, 3]])
             self._segments[i] = (e_B, self._t + e_B @ self._R.T)
         return self._segments[i]
-
-    def candidate_landmarks(self, i: int) -> np.ndarray:
-        return np.flatnonzero(self.allowed[i])
 
     def pair(self, i: int, j: int) -> PairLinearization | None:
         key = (i, j)
@@ -110,13 +89,9 @@ class GraphAssociationProblem:
             RL, Jr2, d = self._line_frame(j)
             e_B, seg = self._segment(i)
             # The segment must overlap what has been seen of the pipe (collinear pipes on either
-            # side of a valve share one infinite line) ...
-            s = (seg - lm.anchor.c0) @ d
-            lo, hi = seen = self._stretch(j)
-            if s.max() < lo - self.gap or s.min() > hi + self.gap:
-                return None
-            # ... and no in-line part (valve, socket) may lie between them: that is the next pipe
-            if object_between(seen, seg, lm.anchor.c0, d, self.separators, self.separator_radius):
+            # side of a valve share one infinite line), and no in-line part (valve, socket) may lie
+            # between them: that is the next pipe
+            if self.scan.excludes(lm.id, seg, lm.anchor.point(theta), d):
                 return None
             r, H_x, H_l = line_residual_at(self._R, self._t, RL, Jr2, lm.anchor.c0, theta[2:4], e_B, jac=True)
             R = line_observation_covariance(self.pose, theta, lm.anchor, T_BS, z.covariance, RL=RL)
@@ -126,15 +101,9 @@ class GraphAssociationProblem:
             return PairLinearization(-r, H_x, H_l, z.covariance)
         return None
 
-    def covariance(self, a: int | None, b: int | None) -> np.ndarray:
-        if a is None and b is None:
-            return self.pose_cov
-        if a is None or b is None:
-            n = self.candidates[b if a is None else a].covariance.shape[0]
-            return np.zeros((6, n)) if a is None else np.zeros((n, 6))
-        if a == b:
-            return self.candidates[a].covariance
-        return np.zeros((self.candidates[a].covariance.shape[0], self.candidates[b].covariance.shape[0]))
+    def landmark_covariance(self, j: int) -> np.ndarray:
+        """Candidate j's gating covariance (uncorrelated with the pose and the other candidates)."""
+        return self.candidates[j].covariance
 
 
 def possible_pairs(

@@ -12,6 +12,8 @@ failures on Bayes trees like ours (borglab/gtsam #1638, #1680).
 
 from __future__ import annotations
 
+import bisect
+import time
 from collections.abc import Iterable
 
 import gtsam
@@ -66,3 +68,77 @@ def marginal_factors(leaving: list[tuple], values: gtsam.Values, drop: set[int])
             continue
         out.append(gtsam.LinearContainerFactor(g, subset(values, g.keys())))
     return out
+
+
+# Keyframe variable keys: pose, body velocity, AHRS heading bias.
+X = gtsam.symbol_shorthand.X
+V = gtsam.symbol_shorthand.V
+B = gtsam.symbol_shorthand.B
+
+
+class SlidingWindow:
+    """The online smoother's window of ``window_s`` seconds: the oldest keyframe in it, and the frozen
+    estimates of everything that left it."""
+
+    def __init__(self, window_s: float | None, diagnostics: list[str]):
+        self.window_s = window_s
+        self.diagnostics = diagnostics
+        self.first_active = 0  # the oldest keyframe in the window
+        self.frozen = gtsam.Values()  # the estimates of what left it
+        self.slides: list[dict] = []  # one row per marginalisation, for benchmarks
+        self.returns = 0  # marginalised landmarks seen again
+        self._slide_after = 0  # stamp before which no slide is tried (after a failed one)
+
+    def slide(self, session, kf_stamps: list[int]) -> tuple[set[int], gtsam.Values] | None:
+        """Once the window spans 1.5 × ``window_s``, marginalise the keyframes older than
+        ``window_s`` and the landmarks no kept keyframe observes, and restart iSAM2 on the rest with
+        their marginal; the cost of that restart is a batch elimination of the window, once per half
+        window. Returns the keys that left and the estimate they left with (None: no slide)."""
+        w = self.window_s
+        now = kf_stamps[-1]
+        if w is None or now < self._slide_after or (now - kf_stamps[self.first_active]) * 1e-9 < 1.5 * w:
+            return None
+        b = min(bisect.bisect_left(kf_stamps, now - int(w * 1e9)), len(kf_stamps) - 1)
+        kept_kf = {key for i in range(b, len(kf_stamps)) for key in (X(i), V(i), B(i))}
+        live, landmark_keys = set(), set()
+        for f, _ in session.window:
+            keys = f.keys()
+            lms = [k for k in keys if gtsam.Symbol(k).chr() in LANDMARK_CHARS]
+            landmark_keys.update(lms)
+            if lms and any(k in kept_kf for k in keys):
+                live.update(lms)
+        drop = {key for i in range(self.first_active, b) for key in (X(i), V(i), B(i))} | (landmark_keys - live)
+        t0 = time.perf_counter()
+        estimate = session.estimate()
+        kept, leaving = split_factors(session.window, drop)
+        try:
+            marginal = marginal_factors(leaving, estimate, drop)
+            window = kept + [(m, None) for m in marginal]
+            session.restart(window, subset(estimate, {k for f, _ in window for k in f.keys()}))
+        except RuntimeError as exc:
+            self._slide_after = now + int(0.5 * w * 1e9)
+            self.diagnostics.append(
+                f"{now}: marginalising keyframes before {b} failed ({str(exc).splitlines()[0]}); retried in {0.5 * w:g} s"
+            )
+            return None
+        self.first_active = b
+        self.slides.append(
+            {
+                "stamp": now,
+                "first_keyframe": b,
+                "left_landmarks": len(drop & landmark_keys),
+                "separator": len({k for m in marginal for k in m.keys()}),
+                "window_factors": len(window),
+                "seconds": time.perf_counter() - t0,
+            }
+        )
+        self.frozen.insert_or_assign(subset(estimate, [k for k in drop if estimate.exists(k)]))
+        return drop, estimate
+
+    def estimate(self, session) -> gtsam.Values:
+        """The window's estimate with the frozen estimates of everything that left it."""
+        values = session.estimate()
+        for key in self.frozen.keys():
+            if not values.exists(key):  # not a landmark that came back
+                values.insert(key, value_of(self.frozen, key))
+        return values

@@ -8,24 +8,39 @@ from pathlib import Path
 import typer
 
 from semslam.cli_support import ConfigOpt, MissionArg, user_errors
+from semslam.commands.run import FrontendsOpt, OverwriteOpt, RecordPointsOpt, choose_frontends, record_option
 
 
 @user_errors
 def compare(
     mission: Path = MissionArg,
     out: Path = typer.Option(..., "--out", "-o", help="output directory"),
-    frontends: str | None = typer.Option(None, "--frontends", help="comma-separated; default: by sensor kind"),
+    frontends: str | None = FrontendsOpt,
     config: Path | None = ConfigOpt,
+    record: bool = record_option(False),
+    record_points: int | None = RecordPointsOpt,
+    overwrite: bool = OverwriteOpt,
 ):
     """dr, ekf and graph on identical inputs, with a report."""
-    from semslam.compare import compare_to_dir
+    from semslam.compare import run_comparison
     from semslam.config import load_config
+    from semslam.eval.outputs import check_output_dir, write_run
+    from semslam.eval.replay import make_recorder
     from semslam.eval.report import metrics_table, text_table
     from semslam.mission.bag import read_mission
+    from semslam.pipeline import observed_by
 
+    check_output_dir(out, overwrite)
     cfg = load_config(config)
     m = read_mission(mission, cfg.reader)
-    names = None if frontends is None else [n.strip() for n in frontends.split(",") if n.strip()]
-    metrics, report = compare_to_dir(m, cfg, out, names, progress=sys.stderr.isatty())
+    names = choose_frontends(frontends, m.metadata, mission)
+    recorder = make_recorder(record, m.metadata, record_points)
+    with observed_by(*([recorder] if recorder is not None else [])):
+        result, metrics = run_comparison(m, cfg, names, progress=sys.stderr.isatty())
+    write_run(out, cfg, result, metrics, m.metadata, overwrite=overwrite, report=True, recorder=recorder)
     typer.echo(text_table(metrics_table(metrics)))
-    typer.echo(f"report: {report}")
+    typer.echo(f"report: {Path(out) / 'report.html'}")
+    if recorder is not None:
+        from semslam.eval.replay import how_to_open
+
+        typer.echo(how_to_open(out))

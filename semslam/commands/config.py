@@ -11,7 +11,10 @@ from semslam.cli_support import ConfigOpt, user_errors
 
 @user_errors
 def dump(config: Path | None = ConfigOpt):
-    """Print the resolved configuration (defaults, overridden by --config)."""
+    """Print the resolved configuration, every key with its description: the defaults, overridden by
+    --config, and the section of every registered front-end."""
     from semslam.config import dump_config, load_config
+    from semslam.registry import frontend_sections
 
-    typer.echo(dump_config(load_config(config)), nl=False)
+    cfg = load_config(config)
+    typer.echo(dump_config(cfg, frontend_sections(cfg.frontends)), nl=False)

@@ -9,6 +9,49 @@ import typer
 
 from semslam.cli_support import ConfigOpt, MissionArg, user_errors
 
+# Options that `compare` and `demo` share.
+FrontendsOpt = typer.Option(
+    None, "--frontends", help='comma-separated front-end names ("" for none); default: by sensor kind'
+)
+OverwriteOpt = typer.Option(False, "--overwrite", help="replace an existing output directory whole")
+RecordPointsOpt = typer.Option(
+    None, "--record-points", min=0, help="replay: points kept of each scan (0: no scans; default 600)"
+)
+
+
+def record_option(default: bool):
+    return typer.Option(
+        default, "--record/--no-record", help="also write replay.mcap, a ROS 2 bag of the run for Foxglove and RViz"
+    )
+
+
+def choose_frontends(option: str | None, metadata, mission: object) -> list[str]:
+    """The front-ends a command runs, said on stdout: those named by ``--frontends`` (comma-separated;
+    "" for none) or, without the option, those of the mission's sensor kinds
+    (:func:`semslam.compare.default_frontends`). A named front-end that consumes nothing the
+    mission's sensors give is an error naming it, what it consumes and the sensors there are."""
+    from semslam.compare import default_frontends
+    from semslam.errors import ConfigError
+    from semslam.mission.conversions import KIND_OF
+    from semslam.registry import load_frontend_class
+
+    kinds = sorted({s.kind for s in metadata.sensors.values()})
+    if option is None:
+        names = default_frontends(metadata)
+        typer.echo(f"front-ends: {', '.join(names) or 'none'} (by sensor kind; --frontends chooses)")
+        return names
+    names = [n.strip() for n in option.split(",") if n.strip()]
+    given = tuple(t for t, kind in KIND_OF.items() if kind in kinds)
+    for name in names:
+        consumes = tuple(load_frontend_class(name).consumes)
+        if not any(issubclass(t, consumes) for t in given):
+            raise ConfigError(
+                f"--frontends {name}: it consumes {', '.join(t.__name__ for t in consumes)}, which no sensor of "
+                f"{mission} gives (sensors: {', '.join(kinds) or 'none'})"
+            )
+    typer.echo(f"front-ends: {', '.join(names) or 'none'} (--frontends)")
+    return names
+
 
 @user_errors
 def run(
@@ -16,28 +59,38 @@ def run(
     out: Path = typer.Option(..., "--out", "-o", help="output directory"),
     estimator: str = typer.Option("graph", "--estimator", "-e", help="graph, ekf or dr"),
     batch: bool = typer.Option(False, "--batch", help="graph: re-optimise the whole mission at the end"),
-    frontends: str = typer.Option("", "--frontends", help="comma-separated front-end names"),
+    frontends: str | None = FrontendsOpt,
     config: Path | None = ConfigOpt,
+    record: bool = record_option(False),
+    record_points: int | None = RecordPointsOpt,
+    overwrite: bool = OverwriteOpt,
 ):
     """Run one estimator over a mission and write its trajectory, map and metrics."""
     from semslam.config import load_config
     from semslam.estimators import create_estimator
-    from semslam.eval.outputs import build_metrics, write_outputs
+    from semslam.eval.outputs import build_metrics, check_output_dir, write_run
+    from semslam.eval.replay import make_recorder
     from semslam.mission.bag import read_mission
     from semslam.pipeline import run_pipeline
     from semslam.registry import create_frontends
 
+    check_output_dir(out, overwrite)
     cfg = load_config(config)
     m = read_mission(mission, cfg.reader)
     est = create_estimator(estimator, m.metadata, cfg, batch=batch)
-    names = [n.strip() for n in frontends.split(",") if n.strip()]
-    fes = create_frontends(names, m.metadata, cfg.frontends)
-    result = run_pipeline(m, [est], fes, progress=sys.stderr.isatty())
+    fes = create_frontends(choose_frontends(frontends, m.metadata, mission), m.metadata, cfg.frontends)
+    recorder = make_recorder(record, m.metadata, record_points)
+    observers = [recorder] if recorder is not None else []
+    result = run_pipeline(m, [est], fes, progress=sys.stderr.isatty(), observers=observers)
     metrics = build_metrics(result, m.metadata)
-    write_outputs(out, cfg, result, metrics)
+    write_run(out, cfg, result, metrics, m.metadata, overwrite=overwrite, recorder=recorder)
     e = metrics["estimators"][est.name]
     ate = "n/a" if e["ate_rmse_m"] is None else f"{e['ate_rmse_m']:.3f} m"
     typer.echo(
         f"{est.name}: ATE RMSE {ate}, {e['n_objects']} objects, {e['n_pipes']} pipes, "
         f"{e['n_structures']} structures; outputs in {out}"
     )
+    if recorder is not None:
+        from semslam.eval.replay import how_to_open
+
+        typer.echo(how_to_open(out))

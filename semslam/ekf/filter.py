@@ -27,24 +27,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from semslam.mapping.association import inv_small
+
 _ROW_CHUNK = 512  # rows of P updated per gemm (bounds the temporaries for large maps)
-
-
-def inv_small(S: np.ndarray) -> np.ndarray:
-    """Inverse of a small symmetric positive-definite matrix (closed form up to 3×3 from its upper
-    triangle: numpy's per-call cost dominates at this size)."""
-    d = S.shape[0]
-    if d == 1:
-        return np.array([[1.0 / S[0, 0]]])
-    if d == 3:
-        (a, b, c), (_, e, f), (_, _, i) = S.tolist()
-        A, B, C = e * i - f * f, c * f - b * i, b * f - c * e
-        det = a * A + b * B + c * C
-        if det > 0.0:
-            E, F, I = a * i - c * c, b * c - a * f, a * e - b * b
-            r = 1.0 / det
-            return np.array([[A * r, B * r, C * r], [B * r, E * r, F * r], [C * r, F * r, I * r]])
-    return np.linalg.inv(S)
 
 
 class EkfState:

@@ -106,10 +106,17 @@ def position_nees(estimate: Trajectory, truth: Trajectory, max_dt_s: float = 0.0
     return float(np.mean(nees))
 
 
-def _point_to_line(points: np.ndarray, p: np.ndarray, q: np.ndarray) -> np.ndarray:
-    d = (q - p) / np.linalg.norm(q - p)
-    v = points - p
-    return np.linalg.norm(v - np.outer(v @ d, d), axis=1)
+def _pipe_costs(ends: np.ndarray, p: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """(E, G) cost of estimated segments ``ends`` (E, 2, 3) against true pipes from ``p`` to ``q``
+    (G, 3): the mean distance of the two ends to the true axis, plus how far (m) their projections
+    fall outside the true segment (a segment beyond the true pipe's extent is not that pipe)."""
+    L = np.linalg.norm(q - p, axis=1)  # (G,)
+    d = (q - p) / L[:, None]
+    v = ends[:, None, :, :] - p[None, :, None, :]  # (E, G, 2, 3)
+    t = np.einsum("egkc,gc->egk", v, d)
+    off_axis = np.linalg.norm(v - t[..., None] * d[None, :, None, :], axis=-1).mean(axis=-1)
+    beyond = np.maximum(0.0, np.maximum(-t, t - L[None, :, None])).max(axis=-1)
+    return off_axis + beyond
 
 
 @dataclass
@@ -139,20 +146,12 @@ def match_landmarks(
         if not gts:
             counts["spurious"] += len(ests)
             continue
-        C = np.full((len(ests), len(gts)), np.inf)
-        for a, lm in enumerate(ests):
-            if kind == "object":
-                C[a] = np.linalg.norm(np.array([g.position for g in gts]) - lm.position, axis=1)
-            elif kind == "structure":
-                C[a] = np.linalg.norm(np.array([g.position for g in gts]) - lm.pose[:3, 3], axis=1)
-            else:
-                ends = np.stack([lm.p, lm.q])
-                C[a] = [
-                    _point_to_line(ends, np.array(g.p), np.array(g.q)).mean()
-                    # a segment beyond the true pipe's extent is not that pipe
-                    + max(0.0, _beyond_segment(ends, np.array(g.p), np.array(g.q)))
-                    for g in gts
-                ]
+        if kind == "pipe":
+            ends = np.array([[lm.p, lm.q] for lm in ests], float)
+            C = _pipe_costs(ends, np.array([g.p for g in gts], float), np.array([g.q for g in gts], float))
+        else:
+            at = np.array([lm.position if kind == "object" else np.asarray(lm.pose)[:3, 3] for lm in ests], float)
+            C = np.linalg.norm(at[:, None, :] - np.array([g.position for g in gts], float)[None], axis=2)
         big = 1e6
         rows, cols = linear_sum_assignment(np.where(np.isfinite(C) & (C <= gate_m), C, big))
         matched_rows = set()
@@ -167,13 +166,6 @@ def match_landmarks(
         counts["spurious"] += int(np.sum(~within))
         counts["duplicates"] += int(within.sum() - len(np.unique(nearest[within])))
     return matches, counts
-
-
-def _beyond_segment(points: np.ndarray, p: np.ndarray, q: np.ndarray) -> float:
-    """How far (m) the points' projections fall outside the segment [p, q] along its axis."""
-    L = np.linalg.norm(q - p)
-    t = (points - p) @ ((q - p) / L)
-    return float(np.max(np.maximum(0.0, np.maximum(-t, t - L))))
 
 
 def estimator_metrics(

@@ -1,24 +1,131 @@
-"""The output directory of DESIGN.md: config, TUM trajectories, semantic maps (JSON + PLY), metrics.
+"""The output directory of DESIGN.md: config, TUM trajectories, semantic maps (JSON + PLY), metrics,
+and (compare, demo) the report and (``--record``) the replay.
 
-Everything is written into a staging folder beside the target and moved in at the end, so a
-failure leaves no half-written output behind.
+An output directory appears whole or not at all: :func:`staged_output` stages everything in a
+hidden sibling directory (same file system) and renames it into place at the end; an existing
+directory is refused unless ``overwrite``, which replaces it whole. :func:`check_output_dir` says
+before a run whether its output could be written at all.
 """
 
 from __future__ import annotations
 
+import errno
 import json
+import os
 import shutil
 import tempfile
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
 
 from semslam.config import SemslamConfig, dump_config
+from semslam.errors import SemslamError
 from semslam.estimation import EstimatorResult, LandmarkEstimate
 from semslam.eval.metrics import estimator_metrics, sonar_metrics
 from semslam.eval.recognition import recognition_block
 from semslam.mission.mission import MissionMetadata
 from semslam.results import PipelineResult
+
+# Estimators whose "map" is every observation placed with their own pose, never merged into
+# landmarks (DESIGN.md: dead reckoning). Their map is written as what it is: observation points and
+# segments, not thousands of landmark meshes.
+OBSERVATION_MAPS = ("dr",)
+# What marks a directory as a semslam output (every run writes it): only such a directory is replaced.
+MARKER_FILE = "metrics.json"
+
+
+class OutputError(SemslamError):
+    """The output directory cannot be written (a file in the way, no permission, disk full, ...)."""
+
+
+def _os_error(path: Path, exc: OSError, stage: Path | None = None) -> OutputError:
+    """One line naming the file (as the user will know it: inside ``path``, not the hidden ``stage``
+    it was written into) and the reason."""
+    where = Path(exc.filename) if exc.filename else path
+    if not exc.filename and stage is not None:  # a failed write() (a full disk) names no file: the
+        where = _newest_file(stage) or path  # one being written is the last one opened
+    if stage is not None and where.is_relative_to(stage):
+        where = path / where.relative_to(stage)
+    reason = exc.strerror or str(exc)
+    return OutputError(f"{where}: cannot write the output ({reason})")
+
+
+def _newest_file(directory: Path) -> Path | None:
+    files = [p for p in directory.rglob("*") if p.is_file()]
+    return max(files, key=lambda p: p.stat().st_mtime_ns, default=None)
+
+
+def check_output_dir(out_dir: str | Path, overwrite: bool = False) -> Path:
+    """Refuse, before any work, an output directory that could not be written: a file in the way,
+    an existing directory without ``overwrite`` (or one that is no semslam output), a parent that
+    cannot be created or written. Returns the path."""
+    out_dir = Path(out_dir)
+    if out_dir.exists() or out_dir.is_symlink():
+        if not out_dir.is_dir():
+            raise OutputError(f"{out_dir}: exists and is not a directory")
+        if not overwrite:
+            raise OutputError(f"{out_dir}: exists already (--overwrite replaces it)")
+        if any(out_dir.iterdir()) and not (out_dir / MARKER_FILE).is_file():
+            raise OutputError(f"{out_dir}: not a semslam output directory (no {MARKER_FILE}); not replacing it")
+    ancestor = next(p for p in out_dir.parents if p.exists() or p.is_symlink())
+    if not ancestor.is_dir():  # mkdir would only say "File exists"
+        raise OutputError(f"{ancestor}: exists and is not a directory")
+    try:
+        out_dir.parent.mkdir(parents=True, exist_ok=True)
+        probe = tempfile.mkdtemp(prefix=f".{out_dir.name}.", suffix=".probe", dir=out_dir.parent)
+        os.rmdir(probe)
+    except OSError as exc:
+        raise _os_error(out_dir.parent, exc) from None
+    return out_dir
+
+
+@contextmanager
+def staged_output(out_dir: str | Path, overwrite: bool = False) -> Iterator[Path]:
+    """Yield a staging directory to write an output into; on leaving the block without error it
+    becomes ``out_dir`` (replacing an existing one only with ``overwrite``); on any error it is
+    removed and ``out_dir`` is left as it was. OSErrors become one-line :class:`OutputError`s."""
+    out_dir = check_output_dir(out_dir, overwrite)
+    try:
+        stage = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", suffix=".partial", dir=out_dir.parent))
+    except OSError as exc:
+        raise _os_error(out_dir.parent, exc) from None
+    try:
+        try:
+            yield stage
+            umask = os.umask(0)
+            os.umask(umask)
+            stage.chmod(0o777 & ~umask)  # mkdtemp's 0700 would make a private output
+            _commit(stage, out_dir, overwrite)
+        except OSError as exc:
+            raise _os_error(out_dir, exc, stage) from None
+    finally:
+        shutil.rmtree(stage, ignore_errors=True)
+
+
+def _commit(stage: Path, out_dir: Path, overwrite: bool) -> None:
+    """Rename ``stage`` to ``out_dir``; an existing ``out_dir`` (with ``overwrite``) is moved aside
+    first and removed after, so the new output never mixes with the old."""
+    try:
+        os.rename(stage, out_dir)  # replaces at most an empty directory
+        return
+    except OSError as exc:
+        if exc.errno not in (errno.ENOTEMPTY, errno.EEXIST, errno.ENOTDIR, errno.EISDIR):
+            raise
+    check_output_dir(out_dir, overwrite)  # it appeared during the run: the same rules as before it
+    old = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", suffix=".old", dir=out_dir.parent))
+    moved = old / out_dir.name
+    try:
+        os.rename(out_dir, moved)
+        os.rename(stage, out_dir)
+    except BaseException:  # an error, or a signal between the two renames: the old one goes back
+        if moved.exists() and not out_dir.exists():
+            os.rename(moved, out_dir)
+        raise
+    finally:
+        if out_dir.exists() or not moved.exists():  # never delete the only copy of the old output
+            shutil.rmtree(old, ignore_errors=True)
 
 
 def _tolist(x):
@@ -147,44 +254,143 @@ def build_metrics(pipeline: PipelineResult, metadata: MissionMetadata) -> dict:
     return metrics
 
 
-def write_outputs(out_dir: str | Path, config: SemslamConfig, pipeline: PipelineResult, metrics: dict) -> Path:
-    """Write config.yaml, trajectory_<est>.tum, map_<est>.json/.ply and metrics.json into ``out_dir``."""
-    import open3d as o3d
+def write_results(directory: Path, config: SemslamConfig, pipeline: PipelineResult, metrics: dict) -> None:
+    """Write config.yaml, trajectory_<est>.tum, map_<est>.json/.ply, the front-ends' files and
+    metrics.json into ``directory`` (a staging directory: see :func:`staged_output`)."""
 
-    out_dir = Path(out_dir)
-    out_dir.parent.mkdir(parents=True, exist_ok=True)
-    stage = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", dir=out_dir.parent))
-    try:
-        # the resolved configuration: the front-ends' own sections with their defaults filled in
-        resolved = config.model_copy(update={"frontends": {**config.frontends, **pipeline.frontend_configs}})
-        (stage / "config.yaml").write_text(dump_config(resolved))
-        for name, result in pipeline.results.items():
-            result.trajectory.to_tum(stage / f"trajectory_{name}.tum")
-            if _has_distinct_online(result):
-                result.online_trajectory.to_tum(stage / f"trajectory_{name}_online.tum")
-            (stage / f"map_{name}.json").write_text(json.dumps(map_to_dict(result), indent=1))
-            o3d.io.write_triangle_mesh(str(stage / f"map_{name}.ply"), map_geometry(result.landmarks))
-        for summary in pipeline.frontend_summaries.values():
-            for name, writer in summary.files.items():
-                writer(stage / name)
-        (stage / "metrics.json").write_text(json.dumps(metrics, indent=2, default=_json_default))
-        out_dir.mkdir(exist_ok=True)
-        _move_into(stage, out_dir)
-    finally:
-        shutil.rmtree(stage, ignore_errors=True)
-    return out_dir
-
-
-def _move_into(src: Path, dst: Path) -> None:
-    """Move every entry of ``src`` into ``dst``, replacing files of the same name; a subdirectory
-    (a front-end's ``figures/...``) is merged into an existing one rather than replacing it, so a
-    run into an existing output directory works."""
-    for f in src.iterdir():
-        target = dst / f.name
-        if f.is_dir() and target.is_dir():
-            _move_into(f, target)
+    directory = Path(directory)
+    # the resolved configuration: the front-ends' own sections with their defaults filled in
+    resolved = config.model_copy(update={"frontends": {**config.frontends, **pipeline.frontend_configs}})
+    (directory / "config.yaml").write_text(dump_config(resolved))
+    for name, result in pipeline.results.items():
+        result.trajectory.to_tum(directory / f"trajectory_{name}.tum")
+        if _has_distinct_online(result):
+            result.online_trajectory.to_tum(directory / f"trajectory_{name}_online.tum")
+        if name in OBSERVATION_MAPS:
+            (directory / f"map_{name}.json").write_text(json.dumps(observation_map_to_dict(result), indent=0))
+            write_observation_ply(directory / f"map_{name}.ply", result.landmarks)
         else:
-            f.replace(target)
+            (directory / f"map_{name}.json").write_text(json.dumps(map_to_dict(result), indent=1))
+            write_mesh(directory / f"map_{name}.ply", map_geometry(result.landmarks))
+    for summary in pipeline.frontend_summaries.values():
+        for name, writer in summary.files.items():
+            target = directory / name
+            target.parent.mkdir(parents=True, exist_ok=True)
+            writer(target)
+    (directory / "metrics.json").write_text(json.dumps(metrics, indent=2, default=_json_default))
+
+
+def write_mesh(path: Path, mesh) -> None:
+    """An open3d triangle mesh (vertices, colours, triangles) as binary PLY, written here rather
+    than by open3d: its writer prints every failed element to stderr and may still report success
+    (a full disk), and writes no file at all for an empty mesh."""
+    colors = np.asarray(mesh.vertex_colors) if mesh.has_vertex_colors() else np.full((len(mesh.vertices), 3), 0.7)
+    write_ply(path, np.asarray(mesh.vertices), colors, faces=np.asarray(mesh.triangles))
+
+
+def write_ply(path: Path, points, colors, faces=(), edges=(), comment: str = "") -> None:
+    """Binary PLY: vertices (N×3) with RGB colours in [0, 1] (N×3), triangles (M×3 vertex indices)
+    and edges (K×2); an OSError (a full disk) is raised as any file write's."""
+    xyz = np.asarray(points, float).reshape(-1, 3)
+    rgb = (255 * np.clip(np.asarray(colors, float).reshape(-1, 3), 0, 1)).round()
+    vertex = np.zeros(len(xyz), [("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("r", "u1"), ("g", "u1"), ("b", "u1")])
+    for k, c in enumerate("xyz"):
+        vertex[c] = xyz[:, k]
+    for k, c in enumerate("rgb"):
+        vertex[c] = rgb[:, k]
+    tri = np.asarray(faces, "<i4").reshape(-1, 3)
+    face = np.zeros(len(tri), [("n", "u1"), ("i", "<i4", (3,))])
+    face["n"], face["i"] = 3, tri
+    edge = np.asarray(edges, "<i4").reshape(-1, 2)
+    header = (
+        "ply\nformat binary_little_endian 1.0\n"
+        + (f"comment {comment}\n" if comment else "")
+        + f"element vertex {len(vertex)}\nproperty float x\nproperty float y\nproperty float z\n"
+        "property uchar red\nproperty uchar green\nproperty uchar blue\n"
+        f"element face {len(face)}\nproperty list uchar int vertex_indices\n"
+        f"element edge {len(edge)}\nproperty int vertex1\nproperty int vertex2\nend_header\n"
+    )
+    with open(path, "wb") as f:
+        f.write(header.encode("ascii"))
+        f.write(vertex.tobytes())
+        f.write(face.tobytes())
+        f.write(edge.tobytes())
+
+
+def write_outputs(
+    out_dir: str | Path, config: SemslamConfig, pipeline: PipelineResult, metrics: dict, overwrite: bool = True
+) -> Path:
+    """:func:`write_results` as one transaction into ``out_dir``: an existing semslam output there is
+    replaced whole (``overwrite``, the library's default; the commands ask the user)."""
+    with staged_output(out_dir, overwrite) as stage:
+        write_results(stage, config, pipeline, metrics)
+    return Path(out_dir)
+
+
+def write_run(
+    out_dir: str | Path,
+    config: SemslamConfig,
+    pipeline: PipelineResult,
+    metrics: dict,
+    metadata: MissionMetadata,
+    *,
+    overwrite: bool = False,
+    report: bool = False,
+    recorder=None,
+) -> Path:
+    """A command's whole output as one transaction: the results, the report (``report``: report.md,
+    report.html, figures/) and the replay (a :class:`semslam.eval.replay.ReplayRecorder` that
+    watched the run: replay.mcap and its Foxglove layout)."""
+    with staged_output(out_dir, overwrite) as stage:
+        write_results(stage, config, pipeline, metrics)
+        if recorder is not None:
+            from semslam.eval.replay import LAYOUT_FILE, LAYOUT_PATH, REPLAY_FILE
+
+            recorder.write(stage / REPLAY_FILE, pipeline)
+            shutil.copyfile(LAYOUT_PATH, stage / LAYOUT_FILE)
+        if report:
+            from semslam.eval.report import write_report
+
+            write_report(stage, pipeline, metadata, metrics, replay=recorder is not None)
+    return Path(out_dir)
+
+
+def observation_map_to_dict(result: EstimatorResult, decimals: int = 4) -> dict:
+    """A map of placed observations (:data:`OBSERVATION_MAPS`) as what it is: one row per
+    observation, objects ``[x, y, z, class]`` and pipes ``[px, py, pz, qx, qy, qz]`` in {W}."""
+    objects, pipes = [], []
+    for lm in result.landmarks:
+        if lm.kind == "object" and lm.position is not None:
+            post = lm.class_posterior or {}
+            cls = max(post, key=post.get) if post else None
+            objects.append([*np.round(np.asarray(lm.position, float), decimals).tolist(), cls])
+        elif lm.kind == "pipe" and lm.p is not None:
+            pipes.append(np.round(np.concatenate([lm.p, lm.q]).astype(float), decimals).tolist())
+    return {
+        "estimator": result.name,
+        "map": "observations",
+        "note": "every observation placed with the estimator's own pose, never merged into landmarks",
+        "objects": objects,
+        "pipes": pipes,
+    }
+
+
+def write_observation_ply(path: Path, landmarks: list[LandmarkEstimate]) -> None:
+    """Placed observations as a binary PLY of vertices and edges (what open3d's types cannot hold
+    together with vertex colours): object observations as vertices coloured by class, pipe
+    observations as edges between their two (pipe-coloured) end vertices."""
+    from semslam.eval.replay_scene import PIPE_RGB, class_rgb, map_class
+
+    points, colors, edges = [], [], []
+    for lm in landmarks:
+        if lm.kind == "object" and lm.position is not None:
+            points.append(lm.position)
+            colors.append(class_rgb(map_class(lm.class_posterior)[0]))
+        elif lm.kind == "pipe" and lm.p is not None:
+            edges.append((len(points), len(points) + 1))
+            points += [lm.p, lm.q]
+            colors += [PIPE_RGB, PIPE_RGB]
+    write_ply(path, points, colors, edges=edges, comment="semslam: observations placed with the estimator's pose")
 
 
 def _json_default(x):

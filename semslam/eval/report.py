@@ -171,8 +171,20 @@ def make_figures(
     return made
 
 
-def write_report(out_dir: str | Path, pipeline: PipelineResult, metadata: MissionMetadata, metrics: dict) -> Path:
-    """figures/*.png, report.md and a self-contained report.html (images embedded)."""
+REPLAY_NOTE = (
+    "replay.mcap is the run as a ROS 2 bag: open it in Foxglove (Open local file, then import the layout "
+    "foxglove_layout.json beside it) or play it with `ros2 bag play replay.mcap --clock` for RViz "
+    "(fixed frame `map`; topics and frames: semslam's README)."
+)
+
+
+def write_report(
+    out_dir: str | Path, pipeline: PipelineResult, metadata: MissionMetadata, metrics: dict, replay: bool = False
+) -> Path:
+    """figures/*.png, report.md and a self-contained report.html (images and the interactive 3-D
+    view embedded; it works offline). ``replay``: the directory holds replay.mcap (say how to open it)."""
+    from semslam.eval.interactive import interactive_html
+
     out_dir = Path(out_dir)
     figs = make_figures(out_dir, pipeline, metadata, metrics)
     title = f"semslam comparison — {metadata.name}"
@@ -192,14 +204,15 @@ def write_report(out_dir: str | Path, pipeline: PipelineResult, metadata: Missio
             f"World model {sonar['world_model_bytes'] / 1e3:.0f} kB for a raw cloud of "
             f"{sonar['raw_cloud_bytes'] / 1e6:.1f} MB ({100 * sonar['world_model_bytes'] / sonar['raw_cloud_bytes']:.2f} %)."
         )
-    md = [f"# {title}", "", mission_line, "", "## Estimators", "", _md_table(est_rows), ""]
+    md = [f"# {title}", "", mission_line, "", *([REPLAY_NOTE, ""] if replay else [])]
+    md += ["## Estimators", "", _md_table(est_rows), ""]
     if rec_rows:
         md += ["## Recognition", "", _md_table(rec_rows), ""]
     if sonar_rows:
         md += ["## Sonar structures", "", _md_table(sonar_rows), "", sonar_line, ""]
     if time_rows:
         md += ["## Run time", "", _md_table(time_rows), ""]
-    md += ["## Figures", ""]
+    md += ["The interactive 3-D view (trajectories and maps) is in report.html.", "", "## Figures", ""]
     md += [f"### {cap}\n\n![{cap}](figures/{p.name})\n" for cap, p in figs]
     (out_dir / "report.md").write_text("\n".join(md))
 
@@ -214,6 +227,8 @@ table{{border-collapse:collapse;margin:1em 0}}td,th{{border:1px solid #ccc;paddi
 td:first-child,th:first-child{{text-align:left}}figure{{margin:2em 0}}img{{max-width:100%}}
 figcaption{{color:#555;font-size:90%}}</style></head><body>
 <h1>{html.escape(title)}</h1><p>{html.escape(mission_line)}</p>
+{f"<p>{html.escape(REPLAY_NOTE)}</p>" if replay else ""}
+<h2>Trajectories and maps in 3-D</h2>{interactive_html(pipeline, metadata.ground_truth)}
 <h2>Estimators</h2>{_html_table(est_rows)}
 {"<h2>Recognition</h2>" + _html_table(rec_rows) if rec_rows else ""}
 {"<h2>Sonar structures</h2>" + _html_table(sonar_rows) + f"<p>{html.escape(sonar_line)}</p>" if sonar_rows else ""}

@@ -1,11 +1,13 @@
 """Mission model: measurement types, the Mission, ground truth, and rosbag reading/writing."""
 
+from semslam.mission.geodesy import Geodetic
 from semslam.mission.ground_truth import GroundTruthMap, GtObject, GtPipe, GtStructure
 from semslam.mission.measurements import (
     MEASUREMENT_TYPES,
     Attitude,
     Depth,
     DvlVelocity,
+    GpsFix,
     GroundTruthPose,
     Measurement,
     PointCloud,
@@ -18,6 +20,8 @@ __all__ = [
     "Attitude",
     "Depth",
     "DvlVelocity",
+    "Geodetic",
+    "GpsFix",
     "GroundTruthMap",
     "GroundTruthPose",
     "GtObject",

@@ -1,8 +1,9 @@
 """Writing a Mission as an ordinary bag (ROS 1 ``.bag``, ROS 2 ``.mcap`` file or sqlite3 directory).
 
 Message types are those of ``conversions.MSGTYPE_OF`` (DVL as ``cola2_msgs/DVL`` so that validity
-and beam flags round-trip); recording time = header stamp. The sidecar JSON (extrinsics, ground
-truth, extras) is written where ``sidecar.sidecar_path`` says. Nothing is half-written: the bag
+and beam flags round-trip, GPS fixes as ``sensor_msgs/NavSatFix`` about the mission's datum);
+recording time = header stamp. The sidecar JSON (extrinsics, ground truth, extras, the datum and
+the atmospheric pressure depth was converted with) is written where ``sidecar.sidecar_path`` says. Nothing is half-written: the bag
 and its sidecar are built in a hidden temporary directory beside the target and renamed into
 place at the end (the bag last), and the temporary directory is removed on failure.
 """
@@ -18,7 +19,7 @@ import numpy as np
 
 from semslam.errors import MissionError
 from semslam.mission import sidecar
-from semslam.mission.config import ReaderConfig
+from semslam.mission.config import ReaderConfig, writing_atmosphere_pa
 from semslam.mission.conversions import KIND_OF, MSGTYPE_OF, Encoder, Unencodable
 from semslam.mission.mission import Mission, MissionMetadata, SensorInfo
 from semslam.mission.typestore import typestore
@@ -93,8 +94,10 @@ def write_mission(
         target = tmpdir / (path.stem if fmt == "mcap" else path.name)
         sensors = _write_messages(mission, fmt, target, cfg)
         staged = target / f"{path.stem}.mcap" if fmt == "mcap" else target
-        side = MissionMetadata(name=meta.name, sensors=sensors, ground_truth=meta.ground_truth, extras=meta.extras)
-        side_text = sidecar.dumps(side)
+        side = MissionMetadata(
+            name=meta.name, sensors=sensors, ground_truth=meta.ground_truth, extras=meta.extras, datum=meta.datum
+        )
+        side_text = sidecar.dumps(side, writing_atmosphere_pa(cfg))
         if fmt == "sqlite3":
             (staged / sidecar.DIR_SIDECAR).write_text(side_text)
             _replace(staged, path)
@@ -123,7 +126,7 @@ def _write_messages(mission: Mission, fmt: str, target: Path, cfg: ReaderConfig)
     """Write every measurement; return the sensors as the sidecar must describe them."""
     meta = mission.metadata
     sink = _Sink(fmt, target)
-    encoder = Encoder(sink.store, sink.ros_version, cfg)
+    encoder = Encoder(sink.store, sink.ros_version, cfg, meta.datum)
     sensors: dict[str, SensorInfo] = {}
     topics: dict[str, str] = {}  # topic → sensor, to refuse two sensors on one topic
     try:

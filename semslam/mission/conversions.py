@@ -9,33 +9,38 @@ message type                                          measurement     sensor kin
 ``sensor_msgs/Imu``                                   Attitude        ahrs
 ``sensor_msgs/FluidPressure``                         Depth           depth
 ``cola2_msgs/DVL`` (written) / ``geometry_msgs/
-TwistWithCovarianceStamped`` (read only)              DvlVelocity     dvl
+TwistWithCovarianceStamped``, ``uuv_sensor_ros_
+plugins_msgs/DVL``, ``dvl_msgs/DVL``, ``waterlinked_
+a50_ros_driver/DVL`` (read only)                      DvlVelocity     dvl
+``sensor_msgs/NavSatFix`` (written) / ``gps_msgs/
+GPSFix``, ``gps_common/GPSFix`` (read only)           GpsFix          gps
 ``nav_msgs/Odometry``                                 GroundTruthPose ground_truth
 ``sensor_msgs/LaserScan``                             SonarSwath      sonar
 ====================================================  ==============  =====================
 
 Conventions worth knowing:
 
-* Stamps are the messages' header stamps, integer ns.
-* **DVL validity.** ``cola2_msgs/DVL``: a reading is invalid when its ``velocity_covariance`` is
-  marked -1 (COLA2 / UUV Simulator convention) or when it has beams and fewer than
-  ``ReaderConfig.dvl_min_valid_beams`` of them are valid; a beam is valid when its ``range`` ≥ 0,
-  its ``velocity_covariance`` ≥ 0 and its velocity is finite. ``TwistWithCovarianceStamped`` has no
-  beams: it is invalid when ``twist.covariance[0]`` is -1 (the same marker). An invalid reading's
-  covariance carries no information and is read as NaN (so read → write → read is exact). The
-  writer writes every DVL as ``cola2_msgs/DVL``; semslam does not model per-beam ranges and
-  velocities, so beams carry only their validity (range = altitude or 0, velocity 0; -1 markers
-  when invalid). Unknown altitude is written as -1 and read back as ``None``.
+* Stamps are the messages' header stamps, integer ns (the reader may replace them by the receive
+  time, see ``semslam.mission.stamps``).
+* **DVL validity**, per vendor: ``semslam.mission.dvl_messages``. The writer writes every DVL as
+  ``cola2_msgs/DVL``; semslam does not model per-beam ranges and velocities, so beams carry only
+  their validity (range = altitude or 0, velocity 0; -1 markers when invalid). Unknown altitude is
+  written as -1 and read back as ``None``.
+* **GPS**: ``semslam.mission.gps_messages`` (NED about the datum, NO_FIX dropped, covariance).
 * **Imu** (REP 145): ``orientation_covariance[0] == -1`` means no orientation — such a message is
   no AHRS reading and is dropped (counted); the angular rate is kept unless
-  ``angular_velocity_covariance[0] == -1``.
-* **FluidPressure** → depth = (p − p_atm) / (ρ g), variance / (ρ g)², constants from ReaderConfig.
-* **PointCloud2**: x, y, z (any numeric type, any order, any ``point_step``/``row_step``) and an
-  optional ``intensity`` (or ``intensities``/``i``); points with a non-finite coordinate are
-  invalid points in ROS (``is_dense`` false) and are removed, the cloud is kept.
+  ``angular_velocity_covariance[0] == -1``. An all-zero orientation covariance is unknown:
+  ``reader.unknown_covariance.ahrs_rad`` is assumed.
+* **FluidPressure** → depth = (p − p_atm) / (ρ g), variance / (ρ g)², constants from ReaderConfig
+  (p_atm as resolved for the mission when ``auto``); a variance of 0 is unknown:
+  ``reader.unknown_covariance.depth_m`` is assumed.
+* **PointCloud2**: ``semslam.mission.pointcloud2`` (any layout, intensity, PCL's packed colour;
+  invalid points removed, the cloud kept).
 * **LaserScan** (REP 117): a beam whose range is not finite or outside [range_min, range_max] is
   not a return and is removed. The writer puts the returns back on a uniform angle grid (it finds
   the grid's increment from the beam angles) with +inf for the beams without a return.
+* Every assumption (a covariance left unknown) is noted per sensor in the ``DecodeContext`` and
+  reported by ``semslam info``.
 """
 
 from __future__ import annotations
@@ -46,141 +51,64 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from semslam.mission.config import ReaderConfig
+from semslam.mission.codec_base import (
+    DecodeContext,
+    MalformedMessage,
+    Unencodable,
+    Unusable,
+    normalize_msgtype,
+    short_msgtype,
+    stamp_ns,
+    unknown_covariance,
+)
+from semslam.mission.config import ReaderConfig, writing_atmosphere_pa
+from semslam.mission.dvl_messages import decode_twist, decode_uuv_dvl, decode_waterlinked_dvl
+from semslam.mission.geodesy import Geodetic
+from semslam.mission.gps_messages import decode_gps_fix, encode_navsatfix
 from semslam.mission.measurements import (
     Attitude,
     Depth,
     DvlVelocity,
+    GpsFix,
     GroundTruthPose,
     Measurement,
     PointCloud,
     SonarSwath,
 )
+from semslam.mission.pointcloud2 import FLOAT32, decode_pointcloud2_arrays, pointcloud2_fields, valid_points
 
-
-class MalformedMessage(ValueError):
-    """A message that cannot be converted; ``field`` names the offending message field."""
-
-    def __init__(self, field: str, what: str):
-        super().__init__(f"field {field}: {what}")
-        self.field = field
-        self.what = what
-
-
-class Unusable(ValueError):
-    """A well-formed message that carries no measurement of its kind (dropped and counted)."""
-
-    def __init__(self, field: str, what: str):
-        super().__init__(f"field {field}: {what}")
-        self.field = field
-
-
-class Unencodable(ValueError):
-    """A measurement that the chosen message type cannot carry."""
-
-
-def normalize_msgtype(msgtype: str) -> str:
-    """'sensor_msgs/PointCloud2' (ROS 1 spelling) → 'sensor_msgs/msg/PointCloud2'."""
-    parts = msgtype.split("/")
-    return f"{parts[0]}/msg/{parts[1]}" if len(parts) == 2 else msgtype
-
-
-def short_msgtype(msgtype: str) -> str:
-    """'sensor_msgs/msg/PointCloud2' → 'sensor_msgs/PointCloud2' (how people write it)."""
-    return normalize_msgtype(msgtype).replace("/msg/", "/")
-
-
-def stamp_ns(header) -> int:
-    return int(header.stamp.sec) * 1_000_000_000 + int(header.stamp.nanosec)
+__all__ = [
+    "CODECS",
+    "KIND_OF",
+    "MSGTYPE_OF",
+    "ROS1_FAST",
+    "Codec",
+    "DecodeContext",
+    "Encoder",
+    "MalformedMessage",
+    "Ros1Fast",
+    "Unencodable",
+    "Unusable",
+    "normalize_msgtype",
+    "short_msgtype",
+    "stamp_ns",
+    "uniform_grid",
+]
 
 
 # ----------------------------------------------------------------------------------------------
 # Decoding: message object → measurement (MalformedMessage: broken; Unusable: nothing to use)
 # ----------------------------------------------------------------------------------------------
 
-Decoder = Callable[[object, str, ReaderConfig], Measurement]
-
-_POINTFIELD_DTYPES = {1: "i1", 2: "u1", 3: "i2", 4: "u2", 5: "i4", 6: "u4", 7: "f4", 8: "f8"}
-_INTENSITY_NAMES = ("intensity", "intensities", "i")
+Decoder = Callable[[object, str, DecodeContext], Measurement]
 
 
-def decode_pointcloud2_arrays(msg) -> tuple[np.ndarray, np.ndarray | None]:
-    """x, y, z (N×3 float32) and intensity (N float32 or None) of a PointCloud2, vectorised.
-
-    Organised clouds are flattened row by row; row padding (``row_step`` > width·point_step) is
-    skipped. Invalid (non-finite) points are kept here; the caller filters them.
-    """
-    fields = {f.name: f for f in msg.fields}
-    for axis in "xyz":
-        if axis not in fields:
-            raise MalformedMessage("fields", f"no '{axis}' field (have {sorted(fields)})")
-    iname = next((n for n in _INTENSITY_NAMES if n in fields), None)
-    wanted = ["x", "y", "z"] + ([iname] if iname else [])
-    endian = ">" if msg.is_bigendian else "<"
-    step, width, height = int(msg.point_step), int(msg.width), int(msg.height)
-    formats = []
-    for name in wanted:
-        f = fields[name]
-        if f.datatype not in _POINTFIELD_DTYPES:
-            raise MalformedMessage(f"fields.{name}", f"unknown PointField datatype {f.datatype}")
-        fmt = np.dtype(endian + _POINTFIELD_DTYPES[f.datatype])
-        if f.offset + fmt.itemsize > step:
-            raise MalformedMessage(f"fields.{name}", f"offset {f.offset} beyond point_step {step}")
-        formats.append(fmt)
-    n = width * height
-    data = np.asarray(msg.data, dtype=np.uint8).reshape(-1)
-    row = width * step
-    if n == 0:
-        return np.zeros((0, 3), np.float32), (np.zeros(0, np.float32) if iname else None)
-    row_step = int(msg.row_step)
-    if height > 1 and row_step > row:
-        need = (height - 1) * row_step + row
-        if data.size < need:
-            raise MalformedMessage("data", f"{data.size} bytes, expected at least {need}")
-        # Drop the padding at the end of each row: a strided view, then one contiguous copy.
-        rows = np.lib.stride_tricks.as_strided(data, shape=(height, row), strides=(row_step, 1), writeable=False)
-        data = np.ascontiguousarray(rows).reshape(-1)
-    elif data.size < n * step:
-        raise MalformedMessage("data", f"{data.size} bytes, expected {n * step} ({n} points × {step})")
-    buf = data[: n * step]
-
-    offs = [fields[a].offset for a in "xyz"]
-    if (
-        all(fmt == np.dtype("<f4") for fmt in formats[:3])
-        and offs[1] == offs[0] + 4
-        and offs[2] == offs[0] + 8
-        and step % 4 == 0
-        and offs[0] % 4 == 0
-    ):
-        # Fast path (the common layout): float32 x, y, z adjacent → one strided view, one copy.
-        words = buf.view("<f4").reshape(n, step // 4)
-        points = np.array(words[:, offs[0] // 4 : offs[0] // 4 + 3], dtype=np.float32)
-    else:
-        dtype = np.dtype({"names": ["x", "y", "z"], "formats": formats[:3], "offsets": offs, "itemsize": step})
-        rec = buf.view(dtype)
-        points = np.empty((n, 3), np.float32)
-        for k, axis in enumerate("xyz"):
-            points[:, k] = rec[axis]
-    intensity = None
-    if iname:
-        dtype = np.dtype({"names": ["i"], "formats": [formats[3]], "offsets": [fields[iname].offset], "itemsize": step})
-        intensity = buf.view(dtype)["i"].astype(np.float32)
-    return points, intensity
+def _decode_pointcloud2(msg, sensor: str, ctx: DecodeContext) -> PointCloud:
+    points, intensity, rgb = valid_points(*decode_pointcloud2_arrays(msg))
+    return PointCloud(stamp_ns(msg.header), sensor, points=points, intensity=intensity, rgb=rgb)
 
 
-def _decode_pointcloud2(msg, sensor: str, cfg: ReaderConfig) -> PointCloud:
-    points, intensity = decode_pointcloud2_arrays(msg)
-    # Cheap whole-array test first; the per-point mask only for clouds that have invalid points.
-    if not (np.isfinite(points.reshape(-1)).all() and (intensity is None or np.isfinite(intensity).all())):
-        ok = np.isfinite(points).all(axis=1)
-        if intensity is not None:
-            ok &= np.isfinite(intensity)
-        points = points[ok]
-        intensity = None if intensity is None else intensity[ok]
-    return PointCloud(stamp_ns(msg.header), sensor, points=points, intensity=intensity)
-
-
-def _decode_imu(msg, sensor: str, cfg: ReaderConfig) -> Attitude:
+def _decode_imu(msg, sensor: str, ctx: DecodeContext) -> Attitude:
     q, w = msg.orientation, msg.angular_velocity
     return _imu_attitude(
         stamp_ns(msg.header),
@@ -189,65 +117,45 @@ def _decode_imu(msg, sensor: str, cfg: ReaderConfig) -> Attitude:
         msg.orientation_covariance,
         (w.x, w.y, w.z),
         msg.angular_velocity_covariance[0],
+        ctx,
     )
 
 
-def _imu_attitude(stamp: int, sensor: str, orientation, orientation_cov, rate, rate_cov_00: float) -> Attitude:
+def _imu_attitude(
+    stamp: int, sensor: str, orientation, orientation_cov, rate, rate_cov_00: float, ctx: DecodeContext
+) -> Attitude:
     """The AHRS reading of an Imu message's numbers (REP 145: a covariance starting with −1 means
-    the quantity is absent), whether rosbags or the ROS 1 fast path read them."""
+    the quantity is absent, all zeros that it is unknown), whether rosbags or the ROS 1 fast path
+    read them."""
     ocov = np.asarray(orientation_cov, dtype=float).reshape(3, 3)
     if ocov[0, 0] == -1.0:
         raise Unusable("orientation_covariance", "-1: no orientation in this Imu message (REP 145)")
+    if unknown_covariance(ocov):
+        sigma = ctx.cfg.unknown_covariance.ahrs_rad
+        ctx.note(sensor, f"orientation covariance unknown: σ {sigma:g} rad assumed")
+        ocov = np.eye(3) * sigma**2
     return Attitude(
         stamp, sensor, orientation=orientation, covariance=ocov, angular_rate=rate if rate_cov_00 != -1.0 else None
     )
 
 
-def _decode_fluid_pressure(msg, sensor: str, cfg: ReaderConfig) -> Depth:
+def _decode_fluid_pressure(msg, sensor: str, ctx: DecodeContext) -> Depth:
+    cfg = ctx.cfg
     rho_g = cfg.water_density_kg_m3 * cfg.gravity_m_s2
+    variance = msg.variance / rho_g**2
+    if variance == 0:
+        sigma = cfg.unknown_covariance.depth_m
+        ctx.note(sensor, f"variance unknown (0): σ {sigma:g} m assumed")
+        variance = sigma**2
     return Depth(
         stamp_ns(msg.header),
         sensor,
-        depth=(msg.fluid_pressure - cfg.atmospheric_pressure_pa) / rho_g,
-        variance=msg.variance / rho_g**2,
+        depth=(msg.fluid_pressure - ctx.atmospheric_pressure_pa) / rho_g,
+        variance=variance,
     )
 
 
-_NAN33 = np.full((3, 3), np.nan)
-
-
-def _decode_twist(msg, sensor: str, cfg: ReaderConfig) -> DvlVelocity:
-    cov = np.asarray(msg.twist.covariance, dtype=float).reshape(6, 6)[:3, :3]
-    valid = not cov[0, 0] < 0  # -1 marks an invalid reading (same convention as cola2_msgs/DVL)
-    v = msg.twist.twist.linear
-    return DvlVelocity(
-        stamp_ns(msg.header), sensor, velocity=(v.x, v.y, v.z), covariance=cov if valid else _NAN33, valid=valid
-    )
-
-
-def _decode_cola2_dvl(msg, sensor: str, cfg: ReaderConfig) -> DvlVelocity:
-    cov = np.asarray(msg.velocity_covariance, dtype=float).reshape(3, 3)
-    marked_invalid = cov[0, 0] < 0
-    beam_valid = None
-    if len(msg.beams):
-        beam_valid = tuple(
-            bool(b.range >= 0 and b.velocity_covariance >= 0 and np.isfinite(b.velocity)) for b in msg.beams
-        )
-    valid = not marked_invalid and (beam_valid is None or sum(beam_valid) >= cfg.dvl_min_valid_beams)
-    v = msg.velocity
-    altitude = float(msg.altitude) if msg.altitude >= 0 else None  # -1 (or NaN): unknown
-    return DvlVelocity(
-        stamp_ns(msg.header),
-        sensor,
-        velocity=(v.x, v.y, v.z),
-        covariance=cov if valid else _NAN33,
-        valid=valid,
-        beam_valid=beam_valid,
-        altitude=altitude,
-    )
-
-
-def _decode_odometry(msg, sensor: str, cfg: ReaderConfig) -> GroundTruthPose:
+def _decode_odometry(msg, sensor: str, ctx: DecodeContext) -> GroundTruthPose:
     p, q = msg.pose.pose.position, msg.pose.pose.orientation
     return GroundTruthPose(stamp_ns(msg.header), sensor, position=(p.x, p.y, p.z), orientation=(q.x, q.y, q.z, q.w))
 
@@ -304,7 +212,7 @@ def _parse_odometry_ros1(raw):
     return stamp, _ODOMETRY_POSE.unpack_from(raw, pos)
 
 
-def _build_odometry(stamp: int, v: tuple, sensor: str, cfg: ReaderConfig) -> GroundTruthPose:
+def _build_odometry(stamp: int, v: tuple, sensor: str, ctx: DecodeContext) -> GroundTruthPose:
     return GroundTruthPose(stamp, sensor, position=v[0:3], orientation=v[3:7])
 
 
@@ -315,17 +223,17 @@ def _parse_imu_ros1(raw):
     return head[0], _IMU_BODY.unpack_from(raw, head[1])
 
 
-def _build_imu(stamp: int, v: tuple, sensor: str, cfg: ReaderConfig) -> Attitude:
-    return _imu_attitude(stamp, sensor, v[0:4], v[4:13], v[13:16], v[16])
+def _build_imu(stamp: int, v: tuple, sensor: str, ctx: DecodeContext) -> Attitude:
+    return _imu_attitude(stamp, sensor, v[0:4], v[4:13], v[13:16], v[16], ctx)
 
 
 @dataclass(frozen=True)
 class Ros1Fast:
     """A message type's fast path: ``parse(raw) -> (header stamp, values) | None`` and
-    ``build(stamp, values, sensor, cfg) -> Measurement`` (may raise as the decoder does)."""
+    ``build(stamp, values, sensor, ctx) -> Measurement`` (may raise as the decoder does)."""
 
     parse: Callable[[object], tuple[int, tuple] | None]
-    build: Callable[[int, tuple, str, ReaderConfig], Measurement]
+    build: Callable[[int, tuple, str, DecodeContext], Measurement]
 
 
 ROS1_FAST: dict[str, Ros1Fast] = {
@@ -334,7 +242,7 @@ ROS1_FAST: dict[str, Ros1Fast] = {
 }
 
 
-def _decode_laserscan(msg, sensor: str, cfg: ReaderConfig) -> SonarSwath:
+def _decode_laserscan(msg, sensor: str, ctx: DecodeContext) -> SonarSwath:
     ranges = np.asarray(msg.ranges, dtype=np.float32).astype(np.float64)
     n = ranges.size
     angles = float(msg.angle_min) + np.arange(n) * float(msg.angle_increment)
@@ -364,8 +272,14 @@ CODECS: dict[str, Codec] = {
         Codec("sensor_msgs/msg/PointCloud2", "laser", _decode_pointcloud2),
         Codec("sensor_msgs/msg/Imu", "ahrs", _decode_imu),
         Codec("sensor_msgs/msg/FluidPressure", "depth", _decode_fluid_pressure),
-        Codec("geometry_msgs/msg/TwistWithCovarianceStamped", "dvl", _decode_twist),
-        Codec("cola2_msgs/msg/DVL", "dvl", _decode_cola2_dvl),
+        Codec("geometry_msgs/msg/TwistWithCovarianceStamped", "dvl", decode_twist),
+        Codec("cola2_msgs/msg/DVL", "dvl", decode_uuv_dvl),
+        Codec("uuv_sensor_ros_plugins_msgs/msg/DVL", "dvl", decode_uuv_dvl),
+        Codec("dvl_msgs/msg/DVL", "dvl", decode_waterlinked_dvl),
+        Codec("waterlinked_a50_ros_driver/msg/DVL", "dvl", decode_waterlinked_dvl),
+        Codec("sensor_msgs/msg/NavSatFix", "gps", decode_gps_fix),
+        Codec("gps_msgs/msg/GPSFix", "gps", decode_gps_fix),
+        Codec("gps_common/msg/GPSFix", "gps", decode_gps_fix),
         Codec("nav_msgs/msg/Odometry", "ground_truth", _decode_odometry),
         Codec("sensor_msgs/msg/LaserScan", "sonar", _decode_laserscan),
     )
@@ -381,6 +295,7 @@ MSGTYPE_OF: dict[type[Measurement], str] = {
     Attitude: "sensor_msgs/msg/Imu",
     Depth: "sensor_msgs/msg/FluidPressure",
     DvlVelocity: "cola2_msgs/msg/DVL",
+    GpsFix: "sensor_msgs/msg/NavSatFix",
     GroundTruthPose: "nav_msgs/msg/Odometry",
     SonarSwath: "sensor_msgs/msg/LaserScan",
 }
@@ -389,6 +304,7 @@ KIND_OF: dict[type[Measurement], str] = {
     Attitude: "ahrs",
     Depth: "depth",
     DvlVelocity: "dvl",
+    GpsFix: "gps",
     GroundTruthPose: "ground_truth",
     SonarSwath: "sonar",
 }
@@ -397,10 +313,12 @@ KIND_OF: dict[type[Measurement], str] = {
 class Encoder:
     """Builds message objects of one type store (ROS 1 or ROS 2 flavour)."""
 
-    def __init__(self, store, ros_version: int, cfg: ReaderConfig):
+    def __init__(self, store, ros_version: int, cfg: ReaderConfig, datum: Geodetic | None = None):
         self.T = store.types
         self.ros1 = ros_version == 1
         self.cfg = cfg
+        self.datum = datum  # of the GPS fixes' local NED frame
+        self.atmospheric_pressure_pa = writing_atmosphere_pa(cfg)
 
     # -- small message pieces ----------------------------------------------------------------
     def header(self, stamp: int, frame_id: str):
@@ -423,23 +341,17 @@ class Encoder:
         return getattr(self, f"_{type(m).__name__}")(m, frame_id)
 
     def _PointCloud(self, m: PointCloud, frame_id: str):
-        has_i = m.intensity is not None
-        names = ["x", "y", "z"] + (["intensity"] if has_i else [])
-        rec = np.empty(len(m.points), dtype=np.dtype({"names": names, "formats": ["<f4"] * len(names)}))
-        rec["x"], rec["y"], rec["z"] = m.points[:, 0], m.points[:, 1], m.points[:, 2]
-        if has_i:
-            rec["intensity"] = m.intensity
+        fields, step, data = pointcloud2_fields(m.points, m.intensity, m.rgb)
         PF = self.T["sensor_msgs/msg/PointField"]
-        step = 4 * len(names)
         return self.T["sensor_msgs/msg/PointCloud2"](
             header=self.header(m.stamp, frame_id),
             height=1,
             width=len(m.points),
-            fields=[PF(name=n, offset=4 * k, datatype=7, count=1) for k, n in enumerate(names)],
+            fields=[PF(name=n, offset=off, datatype=FLOAT32, count=1) for n, off in fields],
             is_bigendian=False,
             point_step=step,
             row_step=step * len(m.points),
-            data=rec.view(np.uint8).reshape(-1),
+            data=data,
             is_dense=True,
         )
 
@@ -461,7 +373,7 @@ class Encoder:
         rho_g = self.cfg.water_density_kg_m3 * self.cfg.gravity_m_s2
         return self.T["sensor_msgs/msg/FluidPressure"](
             header=self.header(m.stamp, frame_id),
-            fluid_pressure=m.depth * rho_g + self.cfg.atmospheric_pressure_pa,
+            fluid_pressure=m.depth * rho_g + self.atmospheric_pressure_pa,
             variance=m.variance * rho_g**2,
         )
 
@@ -496,6 +408,11 @@ class Encoder:
             altitude=altitude,
             beams=beams,
         )
+
+    def _GpsFix(self, m: GpsFix, frame_id: str):
+        if self.datum is None:
+            raise Unencodable("a GPS fix needs the mission's datum (MissionMetadata.datum) to be written")
+        return encode_navsatfix(self.T, self.header(m.stamp, frame_id), m, self.datum)
 
     def _GroundTruthPose(self, m: GroundTruthPose, frame_id: str):
         T = self.T

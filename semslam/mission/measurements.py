@@ -159,6 +159,20 @@ class SonarSwath(Measurement):
 
 
 @dataclass(frozen=True)
+class GpsFix(Measurement):
+    """A GPS fix of the antenna, in the mission's local NED frame about its datum (m), with its 3×3
+    covariance (m², NED). Only taken at the surface: the reader drops fixes without a position, and
+    those taken while the depth sensor reads deeper than ``reader.gps_max_depth_m``."""
+
+    position: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    covariance: np.ndarray = field(default_factory=lambda: np.eye(3))
+
+    def __post_init__(self):
+        object.__setattr__(self, "position", _frozen(self.position, shape=(3,)))
+        object.__setattr__(self, "covariance", _frozen(self.covariance, shape=(3, 3)))
+
+
+@dataclass(frozen=True)
 class GroundTruthPose(Measurement):
     """True body pose T_WB: position (m, NED) and orientation quaternion (x, y, z, w)."""
 
@@ -185,5 +199,6 @@ MEASUREMENT_TYPES: tuple[type[Measurement], ...] = (
     Depth,
     PointCloud,
     SonarSwath,
+    GpsFix,
     GroundTruthPose,
 )

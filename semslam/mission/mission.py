@@ -9,10 +9,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from semslam.errors import MissionError
+from semslam.mission.geodesy import Geodetic
 from semslam.mission.ground_truth import GroundTruthMap
-from semslam.mission.measurements import Measurement
+from semslam.mission.measurements import DvlVelocity, Measurement
 
-SENSOR_KINDS = ("dvl", "ahrs", "depth", "laser", "sonar", "ground_truth")
+SENSOR_KINDS = ("dvl", "ahrs", "depth", "gps", "laser", "sonar", "ground_truth")
 
 
 @dataclass
@@ -37,8 +38,9 @@ class MissionMetadata:
 
     name: str = "mission"
     sensors: dict[str, SensorInfo] = field(default_factory=dict)
-    ground_truth: GroundTruthMap | None = None
+    ground_truth: GroundTruthMap | None = None  # None: the mission has none (a real recording)
     extras: dict = field(default_factory=dict)  # e.g. the simulator's declared noise and scene
+    datum: Geodetic | None = None  # origin of the local NED frame of GPS fixes
 
     def sensors_of_kind(self, kind: str) -> list[SensorInfo]:
         return [s for s in self.sensors.values() if s.kind == kind]
@@ -85,6 +87,7 @@ class Mission:
         self.metadata = metadata
         self._source = source
         self.dropped: Counter[str] = Counter()  # sensor -> measurements dropped as non-finite (filled by readers)
+        self.invalid: Counter[str] = Counter()  # sensor -> readings flagged invalid (DVL dropouts), last full pass
 
     @classmethod
     def from_measurements(cls, metadata: MissionMetadata, measurements: Iterable[Measurement]) -> Mission:
@@ -92,7 +95,12 @@ class Mission:
         return cls(metadata, lambda: iter(items))
 
     def __iter__(self) -> Iterator[Measurement]:
-        return iter(self._source())
+        invalid: Counter[str] = Counter()
+        for m in self._source():
+            if type(m) is DvlVelocity and not m.valid:
+                invalid[m.sensor] += 1
+            yield m
+        self.invalid = invalid
 
     def of_type(self, cls: type[Measurement]) -> Iterator[Measurement]:
         return (m for m in self if isinstance(m, cls))

@@ -13,7 +13,13 @@ Content (version 1)::
      "sensors": {"<name>": {"kind": "dvl", "topic": "/dvl", "msgtype": "cola2_msgs/msg/DVL",
                             "T_BS": [[...4 rows...]]}},
      "ground_truth": {...GroundTruthMap.to_dict()...} | null,
-     "extras": {...}}
+     "extras": {...},
+     "datum": {"latitude_deg": ..., "longitude_deg": ..., "altitude_m": ...} | null,
+     "pressure": {"atmospheric_pa": 101325.0}}
+
+``datum`` is the origin of the GPS fixes' local NED frame; ``pressure.atmospheric_pa`` the surface
+pressure the writer converted depth with (``reader.atmospheric_pressure_pa: auto`` reads it back).
+Both are optional (sidecars written before them have neither).
 
 A bag without a sidecar is fine: sensors then have identity extrinsics and no ground truth.
 """
@@ -21,11 +27,13 @@ A bag without a sidecar is fine: sensors then have identity extrinsics and no gr
 from __future__ import annotations
 
 import json
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from semslam.errors import MissionError
+from semslam.mission.geodesy import Geodetic
 from semslam.mission.ground_truth import GroundTruthMap
 from semslam.mission.mission import SENSOR_KINDS, MissionMetadata, SensorInfo
 
@@ -51,7 +59,13 @@ def _jsonable(obj):
     raise TypeError(f"{type(obj).__name__} is not JSON serialisable")
 
 
-def dumps(meta: MissionMetadata) -> str:
+@dataclass
+class Sidecar:
+    metadata: MissionMetadata
+    atmospheric_pressure_pa: float | None = None  # what the writer converted depth with
+
+
+def dumps(meta: MissionMetadata, atmospheric_pressure_pa: float | None = None) -> str:
     doc = {
         "format": FORMAT,
         "version": VERSION,
@@ -62,15 +76,18 @@ def dumps(meta: MissionMetadata) -> str:
         },
         "ground_truth": None if meta.ground_truth is None else meta.ground_truth.to_dict(),
         "extras": meta.extras,
+        "datum": None if meta.datum is None else meta.datum.to_dict(),
     }
+    if atmospheric_pressure_pa is not None:
+        doc["pressure"] = {"atmospheric_pa": float(atmospheric_pressure_pa)}
     try:
         return json.dumps(doc, indent=1, default=_jsonable, allow_nan=True)
     except TypeError as exc:
         raise MissionError(f"mission {meta.name!r}: metadata cannot be written as JSON ({exc})") from None
 
 
-def load(path: Path) -> MissionMetadata | None:
-    """The sidecar at ``path`` as metadata, None if there is none; MissionError naming the key if invalid."""
+def load(path: Path) -> Sidecar | None:
+    """The sidecar at ``path``, None if there is none; MissionError naming the key if invalid."""
     if not path.is_file():
         return None
     try:
@@ -99,4 +116,13 @@ def load(path: Path) -> MissionMetadata | None:
     if not isinstance(extras, dict):
         raise MissionError(f"{path}: extras: expected an object")
     name = str(doc.get("name") or "mission")
-    return MissionMetadata(name=name, sensors=sensors, ground_truth=ground_truth, extras=extras)
+    try:
+        datum = None if doc.get("datum") is None else Geodetic.from_dict(doc["datum"])
+    except (KeyError, TypeError, ValueError) as exc:
+        raise MissionError(f"{path}: datum: malformed ({exc!r})") from None
+    pressure = doc.get("pressure") or {}
+    p_atm = pressure.get("atmospheric_pa") if isinstance(pressure, dict) else None
+    if p_atm is not None and not (isinstance(p_atm, (int, float)) and p_atm > 0):
+        raise MissionError(f"{path}: pressure.atmospheric_pa: expected a positive number")
+    meta = MissionMetadata(name=name, sensors=sensors, ground_truth=ground_truth, extras=extras, datum=datum)
+    return Sidecar(meta, None if p_atm is None else float(p_atm))

@@ -1,4 +1,7 @@
-"""What ``semslam info`` prints: per-sensor counts, rates, time span, DVL dropouts, gaps, drops.
+"""What ``semslam info`` prints: per-sensor counts, rates, time span, DVL dropouts, gaps, drops,
+and, for a bag, how it was read: the surface pressure and GPS datum found, the clock offset, each
+sensor's stamp source, the topic chosen per sensor and why every other topic was left unread,
+what was assumed (covariances a message left unknown) and what looks wrong (a cloud's scale).
 
 A gap is an interval between consecutive messages of a stream longer than ``GAP_FACTOR`` times the
 stream's median period; for a DVL, the interval between consecutive *valid* readings (a dropout:
@@ -38,6 +41,7 @@ class MissionSummary:
     sensors: list[SensorSummary]
     start: int | None  # first stamp over all sensors (ns)
     end: int | None
+    reading: list[str] = field(default_factory=list)  # how the bag was read (see reading_report)
 
     @property
     def duration_s(self) -> float:
@@ -132,6 +136,8 @@ class MissionSummary:
         ]
         if drop_lines:
             lines += ["", "dropped messages (never passed on):"] + drop_lines
+        if self.reading:
+            lines += [""] + self.reading
         return "\n".join(lines) + "\n"
 
 
@@ -209,4 +215,54 @@ def summarize(mission: Mission, progress: bool = False) -> MissionSummary:
             )
         )
     source = str(getattr(mission, "path", "")) or None
-    return MissionSummary(name=mission.metadata.name, source=source, sensors=out, start=t0, end=t1)
+    return MissionSummary(
+        name=mission.metadata.name, source=source, sensors=out, start=t0, end=t1, reading=reading_report(mission)
+    )
+
+
+def _counted(counts: dict[str, int]) -> str:
+    return ", ".join(f"{what} ×{n}" for what, n in counts.items())
+
+
+def reading_report(mission: Mission) -> list[str]:
+    """How a bag mission was read (empty for other missions); after a full pass over it."""
+    plan = getattr(mission, "plan", None)
+    if plan is None:
+        return []
+    meta = mission.metadata
+    gt = "none (a real recording: nothing is compared against truth)"
+    if meta.ground_truth is not None or meta.sensors_of_kind("ground_truth"):
+        topics = ", ".join(s.topic or s.name for s in meta.sensors_of_kind("ground_truth")) or "no trajectory"
+        gt = f"from the mission's sidecar and {topics}"
+    lines = ["reading:", f"  ground truth: {gt}"]
+    lines.append(f"  atmospheric pressure: {plan.atmosphere.value:.0f} Pa ({plan.atmosphere.how})")
+    if plan.datum.value is not None:
+        lines.append(f"  GPS datum: {plan.datum.value.format()} ({plan.datum.how})")
+    lines.append(f"  clock: {plan.clock.format()}")
+    lines += ["", f"time stamps (reader.stamp: {mission.config.stamp}):"]
+    for b in plan.binding.bindings:
+        c = plan.stamps[b.sensor]
+        source = "header stamp" if c.source == "header" else "receive time + offset"
+        lines.append(f"  {b.sensor}: {source} ({c.policy}: {c.reason})")
+    origin = {"configured": "reader.sensors", "sidecar": "the mission's sidecar", "chosen": "chosen by the rule"}
+    lines += ["", "binding (topic → sensor):"]
+    for b in plan.binding.bindings:
+        others = [u.topic for u in plan.binding.alternatives(b.kind)]
+        alt = f"; alternatives: {', '.join(others)}" if others and b.origin == "chosen" else ""
+        lines.append(f"  {b.topic} → {b.sensor} ({short_msgtype(b.msgtype)}, {origin[b.origin]}{alt})")
+    if plan.binding.unread:
+        lines += ["", "unread topics (never read nor checked):"]
+        width = max(len(u.topic) for u in plan.binding.unread)
+        for u in plan.binding.unread:
+            lines.append(f"  {u.topic.ljust(width)}  {u.msgtype or '-'}: {u.reason}")
+    notes = getattr(mission, "notes", {})
+    if notes:
+        lines += ["", "assumed (messages left it unknown):"]
+        lines += [f"  {sensor}: {_counted(c)}" for sensor, c in notes.items()]
+    warnings = [f"  {sensor}: {_counted(c)}" for sensor, c in getattr(mission, "warnings", {}).items()]
+    warnings += [
+        f"  {what}: {r.warning}" for what, r in (("atmosphere", plan.atmosphere), ("GPS", plan.datum)) if r.warning
+    ]
+    if warnings:
+        lines += ["", "warnings:"] + warnings
+    return lines

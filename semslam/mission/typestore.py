@@ -1,8 +1,11 @@
-"""rosbags type stores with the message definitions semslam ships (COLA2's ``cola2_msgs/DVL``).
+"""rosbags type stores with the message definitions semslam ships (``msgs/``): the DVLs of COLA2
+(``cola2_msgs/DVL``), Water Linked (``dvl_msgs/DVL`` of the ROS 2 driver,
+``waterlinked_a50_ros_driver/DVL`` of the ROS 1 one) and UUV Simulator
+(``uuv_sensor_ros_plugins_msgs/DVL``), and gps_umd's ``gps_msgs/GPSFix``.
 
 A ROS 1 bag embeds its message definitions, a ROS 2 bag recorded by Iron or later usually does
-too, but a Humble bag does not: for those, the reader falls back on these stores, so a bag from a
-COLA2 vehicle reads without ROS or the vehicle's packages installed.
+too, but a Humble bag does not: for those, the reader falls back on these stores, so such a bag
+reads without ROS or the vehicle's packages installed. A bag's own definition always wins.
 """
 
 from __future__ import annotations

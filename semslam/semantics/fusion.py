@@ -10,8 +10,8 @@ and with the pipe configurations seen at it (Table 2),
 
 A configuration counts as seen once it makes up at least ``min_configuration_fraction`` (10 %) of
 the configurations reported for the landmark. The paper's rule takes every configuration at face
-value, so one wrong view (a pipe passing near an elbow counted as its third; on the tank mission
-1–4 % of an object's views) would rule out the true class for good; a rare configuration is noise,
+value, so one wrong view (a pipe passing near an elbow counted as its third, a few per cent of an
+object's views on the tank mission) would rule out the true class for good; a rare configuration is noise,
 a real one recurs. With few views a single one still counts (1 of 1 is 100 %), as in the paper.
 
 Accumulated in log space so that long sequences neither underflow nor lose resolution. If the
@@ -41,30 +41,44 @@ class _Track:
 
 
 class ClassFusion:
-    """Class posteriors of object landmarks, keyed by global landmark id."""
+    """Class posteriors of object landmarks, keyed by global landmark id.
+
+    ``classes=None`` (an estimator, which knows the classes only from the likelihoods it receives):
+    the class set is open, a class enters with the first likelihood that names it, under a uniform
+    prior, and the views fused before had likelihood 0 (floored) for it, as for any class a view does
+    not name."""
 
     def __init__(
         self,
-        classes: Sequence[str],
+        classes: Sequence[str] | None,
         prior: Mapping[str, float] | None = None,
         connectivity: ConnectivityTable | None = None,
         min_configuration_fraction: float = 0.1,
     ):
         if not 0.0 <= min_configuration_fraction <= 1.0:
             raise ValueError("min_configuration_fraction must lie in [0, 1]")
+        if classes is None and prior is not None:
+            raise ValueError("a class prior needs the classes")
         self.min_configuration_fraction = float(min_configuration_fraction)
-        self.classes = list(classes)
+        self.open = classes is None
+        self.classes = list(classes or ())
         p = np.ones(len(self.classes)) if prior is None else np.array([prior.get(c, 0.0) for c in self.classes])
+        if self.open:
+            p = np.ones(1)  # no class yet: the uniform prior's normalisation is irrelevant
         if np.any(p < 0) or p.sum() <= 0:
             raise ValueError("class prior must be non-negative with positive mass")
-        self._log_prior = np.log(np.maximum(p / p.sum(), _FLOOR))
+        self._closed_log_prior = np.log(np.maximum(p / p.sum(), _FLOOR))
         self.table = connectivity or ConnectivityTable()
         self._tracks: dict[Hashable, _Track] = {}
 
     def _vector(self, likelihood: Mapping[str, float]) -> np.ndarray:
-        unknown = set(likelihood) - set(self.classes)
-        if unknown:
+        unknown = [c for c in likelihood if c not in self.classes]
+        if unknown and not self.open:
             raise KeyError(f"likelihood names unknown classes: {sorted(unknown)}")
+        for c in unknown:  # a new class: uniform prior, likelihood 0 (floored) in every earlier view
+            self.classes.append(c)
+            for tr in self._tracks.values():
+                tr.log_lik = np.append(tr.log_lik, tr.n_obs * np.log(_FLOOR))
         v = np.array([likelihood.get(c, 0.0) for c in self.classes], dtype=np.float64)
         if np.any(v < 0) or not np.all(np.isfinite(v)):
             raise ValueError("likelihoods must be finite and non-negative")
@@ -75,9 +89,10 @@ class ClassFusion:
     ) -> None:
         """Fuse one observation of ``landmark_id``: its class likelihood P(Z | X) (may be None when
         only the connectivity was observed) and the pipe configuration seen (1–4 or None)."""
+        log_lik = np.log(np.maximum(self._vector(likelihood), _FLOOR)) if likelihood is not None else None
         tr = self._tracks.setdefault(landmark_id, _Track(np.zeros(len(self.classes))))
-        if likelihood is not None:
-            tr.log_lik += np.log(np.maximum(self._vector(likelihood), _FLOOR))
+        if log_lik is not None:
+            tr.log_lik = tr.log_lik + log_lik
             tr.n_obs += 1
         if configuration is not None:
             tr.configurations.append(int(configuration))
@@ -88,9 +103,13 @@ class ClassFusion:
             return
         d = self._tracks.pop(drop)
         tr = self._tracks.setdefault(keep, _Track(np.zeros(len(self.classes))))
-        tr.log_lik += d.log_lik
+        tr.log_lik = tr.log_lik + d.log_lik
         tr.n_obs += d.n_obs
         tr.configurations += d.configurations
+
+    def forget(self, landmark_id: Hashable) -> None:
+        """Drop a landmark's evidence (a tentative landmark that never entered the map)."""
+        self._tracks.pop(landmark_id, None)
 
     def _seen_configurations(self, tr: _Track) -> list[int]:
         """The configurations reported often enough to count (see the module)."""
@@ -100,7 +119,10 @@ class ClassFusion:
 
     def _posterior(self, landmark_id: Hashable, use_connectivity: bool) -> tuple[np.ndarray, bool]:
         tr = self._tracks.get(landmark_id)
-        log_post = self._log_prior + (tr.log_lik if tr else 0.0)
+        if not self.classes:
+            return np.zeros(0), False
+        log_prior = np.zeros(len(self.classes)) if self.open else self._closed_log_prior
+        log_post = log_prior + (tr.log_lik if tr else 0.0)
         post = np.exp(log_post - log_post.max())
         post /= post.sum()
         conflict = False

@@ -12,6 +12,7 @@ Z-Y-X, i.e. R_BS = Rz(yaw)·Ry(pitch)·Rx(roll)).
 
 from __future__ import annotations
 
+import copy
 from pathlib import Path
 from typing import TypeVar
 
@@ -20,6 +21,7 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from semslam.errors import ConfigError
+from semslam.sim.vary import merge_into
 
 Vec3 = tuple[float, float, float]
 
@@ -225,28 +227,44 @@ def load_tank_config(path: str | Path | None = None, **overrides) -> TankSimConf
     return load_sim_config(TankSimConfig, path, **overrides)
 
 
-def load_sim_config(model: type[_M], path: str | Path | None = None, **overrides) -> _M:
-    """A simulator configuration of type ``model``: its defaults, overridden by a YAML file (if given)
-    and then by ``overrides`` (dotted keys with ``__`` separators). Every problem is a one-line
+def load_sim_config(model: type[_M], path: str | Path | None = None, base: dict | None = None, **overrides) -> _M:
+    """A simulator configuration of type ``model``: its defaults, overridden by ``base`` (e.g. what a
+    seed draws, :func:`semslam.sim.vary.draws`), then by a YAML file (if given) and then by
+    ``overrides`` (dotted keys with ``__`` separators). Every problem is a one-line
     :class:`ConfigError` naming the file and the key."""
-    data: dict = {}
-    if path is not None:
-        path = Path(path)
-        if not path.is_file():
-            raise ConfigError(f"{path}: simulation configuration file not found")
-        try:
-            data = yaml.safe_load(path.read_text()) or {}
-        except yaml.YAMLError as exc:
-            raise ConfigError(f"{path}: not valid YAML ({str(exc).splitlines()[0]})") from exc
-        if not isinstance(data, dict):
-            raise ConfigError(f"{path}: expected a mapping at the top level")
+    data = read_yaml_mapping(path, "simulation configuration") if path is not None else {}
+    return build_sim_config(model, data, source=None if path is None else str(path), base=base, **overrides)
+
+
+def read_yaml_mapping(path: str | Path, what: str = "configuration") -> dict:
+    """The mapping at the top of a YAML file (empty file: ``{}``); a one-line :class:`ConfigError`
+    naming the file otherwise."""
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError(f"{path}: {what} file not found")
+    try:
+        data = yaml.safe_load(path.read_text()) or {}
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{path}: not valid YAML ({str(exc).splitlines()[0]})") from exc
+    if not isinstance(data, dict):
+        raise ConfigError(f"{path}: expected a mapping at the top level")
+    return data
+
+
+def build_sim_config(
+    model: type[_M], data: dict, *, source: str | None = None, base: dict | None = None, **overrides
+) -> _M:
+    """``model`` from its defaults ← ``base`` ← ``data`` (a YAML file's mapping, named ``source`` in
+    errors) ← ``overrides`` (dotted keys with ``__`` separators)."""
+    where = source or "simulation config"
+    data = merge_into(copy.deepcopy(base or {}), copy.deepcopy(data))
     for key, value in overrides.items():
         d = data
         *parents, leaf = key.split("__")
         for k in parents:
             d = d.setdefault(k, {})
             if not isinstance(d, dict):
-                raise ConfigError(f"{path or 'simulation config'}: {k}: expected a mapping")
+                raise ConfigError(f"{where}: {k}: expected a mapping")
         d[leaf] = value
     try:
         return model.model_validate(data)
@@ -254,4 +272,4 @@ def load_sim_config(model: type[_M], path: str | Path | None = None, **overrides
         err = exc.errors()[0]
         key = ".".join(str(x) for x in err["loc"])
         msg = err["msg"].removeprefix("Value error, ")
-        raise ConfigError(f"{path or 'simulation config'}: {key + ': ' if key else ''}{msg}") from exc
+        raise ConfigError(f"{where}: {key + ': ' if key else ''}{msg}") from exc

@@ -13,6 +13,7 @@ Sensor names / topics / message types of the field bag (the navigation sensors a
 
 from __future__ import annotations
 
+from collections.abc import Collection
 from pathlib import Path
 
 import numpy as np
@@ -27,6 +28,7 @@ from semslam.sim.simulate import SENSORS as TANK_SENSORS
 from semslam.sim.simulate import dvl_dropout_extras, nav_noise, sensor_infos, simulate_nav
 from semslam.sim.sonar import beam_angles, simulate_sonar
 from semslam.sim.streams import rng_stream
+from semslam.sim.vary import ASPECTS
 
 #: sensor name → (kind, topic, message type it is written as)
 SENSORS = {
@@ -129,25 +131,27 @@ def simulate_field_to_bag(
     out: str | Path,
     *,
     seed: int = 0,
+    vary: Collection[str] = ASPECTS,
     dvl_dropout_rate: float | None = None,
     preview: str | Path | None = None,
     config: str | Path | None = None,
     overwrite: bool = False,
     progress: bool = False,
 ) -> Mission:
-    """What ``semslam simulate field`` does: resolve the configuration (defaults ← YAML ``config`` ←
-    the options given), simulate, write the bag (+ sidecar) at ``out`` and, if asked, the preview PNG.
+    """What ``semslam simulate field`` does: resolve the configuration (defaults ← what ``seed`` draws
+    for the ``vary`` aspects, :mod:`semslam.sim.vary` ← YAML ``config`` ← the options given), simulate,
+    write the bag (+ sidecar) at ``out`` and, if asked, the preview PNG.
     ``dvl_dropout_rate`` → ``dvl.random_dropout_rate``. Returns the simulated mission."""
-    from semslam.mission.bag import write_mission
-    from semslam.sim.field_config import load_field_config
-    from semslam.sim.field_preview import render_field_preview
+    from semslam.sim.scenarios import simulate_with_options
 
-    overrides: dict = {"seed": seed}
-    if dvl_dropout_rate is not None:
-        overrides["dvl__random_dropout_rate"] = dvl_dropout_rate
-    cfg = load_field_config(config, **overrides)
-    mission = simulate_field(cfg, progress=progress)
-    write_mission(mission, out, overwrite=overwrite)
-    if preview is not None:
-        render_field_preview(mission, preview)
-    return mission
+    return simulate_with_options(
+        "field",
+        out,
+        seed=seed,
+        vary=vary,
+        config=config,
+        preview=preview,
+        overwrite=overwrite,
+        progress=progress,
+        dvl_dropout_rate=dvl_dropout_rate,
+    )

@@ -6,6 +6,7 @@ truth (:func:`simulate_nav`), their declared noise (:func:`nav_noise`), the sens
 
 from __future__ import annotations
 
+from collections.abc import Collection
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -19,6 +20,7 @@ from semslam.sim.raycast import LabelledScene
 from semslam.sim.streams import rng_stream
 from semslam.sim.tank import TankScene, make_layout, tank_surface_corners
 from semslam.sim.trajectory import MotionModel, Trajectory
+from semslam.sim.vary import ASPECTS
 
 #: sensor name → (kind, topic, message type it is written as)
 SENSORS = {
@@ -174,6 +176,7 @@ def simulate_tank_to_bag(
     out: str | Path,
     *,
     seed: int = 0,
+    vary: Collection[str] = ASPECTS,
     dvl_dropout_rate: float | None = None,
     loops: float | None = None,
     preview: str | Path | None = None,
@@ -182,27 +185,26 @@ def simulate_tank_to_bag(
     overwrite: bool = False,
     progress: bool = False,
 ) -> Mission:
-    """What ``semslam simulate tank`` does: resolve the configuration (defaults ← YAML ``config`` ←
-    the options given), simulate, write the bag (+ sidecar) at ``out`` and, if asked, the preview PNG.
+    """What ``semslam simulate tank`` does: resolve the configuration (defaults ← what ``seed`` draws
+    for the ``vary`` aspects, :mod:`semslam.sim.vary` ← YAML ``config`` ← the options given), simulate,
+    write the bag (+ sidecar) at ``out`` and, if asked, the preview PNG.
 
     Options map to: ``seed`` → ``seed``; ``dvl_dropout_rate`` → ``dvl.random_dropout_rate``;
     ``loops`` → ``trajectory.loops`` (the duration follows unless ``trajectory.duration_s`` is set);
     ``layout`` → ``structure.layout_yaml``. Returns the simulated mission.
     """
-    from semslam.mission.bag import write_mission
-    from semslam.sim.config import load_tank_config
-    from semslam.sim.preview import render_preview
+    from semslam.sim.scenarios import simulate_with_options
 
-    overrides: dict = {"seed": seed}
-    if dvl_dropout_rate is not None:
-        overrides["dvl__random_dropout_rate"] = dvl_dropout_rate
-    if loops is not None:
-        overrides["trajectory__loops"] = loops
-    if layout is not None:
-        overrides["structure__layout_yaml"] = str(layout)
-    cfg = load_tank_config(config, **overrides)
-    mission = simulate_tank(cfg, progress=progress)
-    write_mission(mission, out, overwrite=overwrite)
-    if preview is not None:
-        render_preview(mission, preview)
-    return mission
+    return simulate_with_options(
+        "tank",
+        out,
+        seed=seed,
+        vary=vary,
+        config=config,
+        preview=preview,
+        overwrite=overwrite,
+        progress=progress,
+        dvl_dropout_rate=dvl_dropout_rate,
+        loops=loops,
+        layout=layout,
+    )

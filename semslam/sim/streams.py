@@ -18,6 +18,12 @@ STREAMS: dict[str, int] = {
     "sonar": 7,
     "seabed": 8,
     "field_layout": 9,
+    # the world's parameters a seed draws (semslam.sim.vary), one stream per aspect
+    "vary_layout": 20,
+    "vary_trajectory": 21,
+    "vary_noise": 22,
+    "vary_dropouts": 23,
+    "vary_start": 24,
 }
 
 

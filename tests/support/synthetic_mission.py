@@ -1,4 +1,4 @@
-"""A small synthetic mission generator for testing and benchmarking the graph back-end.
+"""A small synthetic mission generator for testing and benchmarking the graph back-end (test scaffolding).
 
 Not the tank simulator (``semslam.sim``): a smooth analytic trajectory (a circle, or a lawnmower
 for long missions) over a flat seabed with objects and pipes, and the navigation sensors the
@@ -370,3 +370,13 @@ def landmark_report(result, gt: GroundTruthMap) -> LandmarkReport:
     kind_of = {lm.id: lm.kind for lm in result.landmarks}
     c = Counter((kind_of[i], t) for i, t in truth_of.items() if t is not None)
     return LandmarkReport(errors, truth_of, sorted(t for t, n in c.items() if n > 1), merged, [])
+
+
+def run_graph(mission, config=None, frontends=(), batch: bool | None = None):
+    """The graph back-end alone over ``mission`` with ``frontends`` (which see its view), through the
+    one driver; its result."""
+    from semslam.backend.graph import GraphEstimator
+    from semslam.pipeline import run_pipeline
+
+    est = GraphEstimator(mission.metadata, config, batch=batch)
+    return run_pipeline(mission, [est], frontends, keep_observations=False).results[est.name]

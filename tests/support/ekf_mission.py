@@ -20,7 +20,7 @@ from scipy.spatial.transform import Rotation
 from semslam.ekf import geometry as geo
 from semslam.mission.ground_truth import GroundTruthMap, GtObject, GtPipe
 from semslam.mission.measurements import Attitude, Depth, DvlVelocity, GroundTruthPose, Measurement, PointCloud
-from semslam.mission.mission import MissionMetadata, SensorInfo
+from semslam.mission.mission import Mission, MissionMetadata, SensorInfo
 from semslam.observations import LineObservation, Observation, PointObservation
 
 
@@ -44,6 +44,18 @@ class SyntheticMission:
         """(measurement, observations or None) in stamp order, as the pipeline would feed them."""
         for m in self.measurements:
             yield m, self.observations.get(m.stamp) if m.sensor == "laser" else None
+
+    def mission(self) -> Mission:
+        return Mission.from_measurements(self.metadata, self.measurements)
+
+    def run(self, estimators, frontends=(), observations: bool = True, before=()) -> dict:
+        """Every estimator through the one driver, with the scans' observations (``observations``),
+        ``frontends`` after them and ``before`` them; their results by name."""
+        from semslam.pipeline import run_pipeline
+        from tests.support.replay import Replay
+
+        fes = [*before, *([Replay(self.observations)] if observations else []), *frontends]
+        return run_pipeline(self.mission(), list(estimators), fes, frontend_process=False).results
 
 
 def simulate_circling(
@@ -260,3 +272,32 @@ def simulate_circling(
         truth[idx],
         extras={"heading_bias": bias[idx]},
     )
+
+
+def seen_from_truth(
+    sim: SyntheticMission, stamp: int, segments, points, rng, line_sigma: float, point_sigma: float = 0.0
+):
+    """Pipe segments ((a, b) in {W}) and object points ({W}) as the laser sees them at ``stamp`` from the
+    true pose, with white noise of the given σ per coordinate and that σ as their covariance."""
+    from semslam.ekf.models import sensor_pose
+
+    T = sim.metadata.sensors["laser"].T_BS
+    xt = sim.truth_states[np.searchsorted(sim.truth_stamps, stamp)]
+    R, t, _, _ = sensor_pose(xt, T[:3, :3], T[:3, 3])
+    obs: list[Observation] = [
+        LineObservation(
+            stamp,
+            "laser",
+            p=(a - t) @ R + rng.normal(0, line_sigma, 3),
+            q=(b - t) @ R + rng.normal(0, line_sigma, 3),
+            covariance=np.eye(6) * line_sigma**2,
+        )
+        for a, b in segments
+    ]
+    obs += [
+        PointObservation(
+            stamp, "laser", position=(c - t) @ R + rng.normal(0, point_sigma, 3), covariance=np.eye(3) * point_sigma**2
+        )
+        for c in points
+    ]
+    return obs

@@ -1,0 +1,121 @@
+"""The laser odometry front-end: relative poses between scans, from kiss-icp, where the navigation
+sensors agree (BUGWRIGHT2 D4.2)."""
+
+from __future__ import annotations
+
+from collections import Counter
+from typing import ClassVar
+
+import numpy as np
+
+from frontends.odometry.config import OdometryConfig
+from frontends.odometry.information import adjoint
+from frontends.odometry.matcher import ScanMatcher
+from frontends.odometry.prior import NavigationPrior
+from semslam.errors import validated
+from semslam.mission.measurements import Attitude, Depth, DvlVelocity, Measurement, PointCloud
+from semslam.mission.mission import MissionMetadata
+from semslam.observations import Observation, OdometryObservation
+from semslam.registry import Frontend, FrontendSummary
+
+
+class _Track:
+    """One laser sensor's registration state: its map and the last scan it placed."""
+
+    def __init__(self, cfg: OdometryConfig):
+        self.matcher = ScanMatcher(cfg)
+        self.last_stamp: int | None = None  # the last scan placed in the map frame
+        self.last_pose: np.ndarray | None = None  # its T_OS (registered, or predicted if rejected)
+        self.anchor_stamp: int | None = None  # the last scan whose registration was accepted (or the first)
+        self.anchor_pose: np.ndarray | None = None
+        self.rejections = 0  # rejected registrations since the last accepted one
+
+
+class OdometryFrontend(Frontend):
+    """Consumes point clouds (and the navigation sensors, for its prior); emits one
+    :class:`OdometryObservation` per accepted registration: the body's motion from the last
+    accepted scan to this one, with the registration's covariance in the body frame."""
+
+    config_model: ClassVar[type] = OdometryConfig
+    name: ClassVar[str] = "odometry"
+    consumes: ClassVar[tuple[type, ...]] = (PointCloud, Attitude, DvlVelocity, Depth)
+    uses_view: ClassVar[bool] = False  # its prior is its own: runs in a process of its own
+
+    def __init__(self, metadata: MissionMetadata, config: dict | OdometryConfig | None = None):
+        self.config = validated(OdometryConfig, config, "frontends.odometry")
+        self.metadata = metadata
+        self.prior = NavigationPrior(metadata, horizon_s=self.config.max_interval_s + 5.0)
+        self.sensors = set(self.config.sensors) or {s.name for s in metadata.sensors_of_kind("laser")}
+        self._tracks: dict[str, _Track] = {}
+        self.counts: Counter[str] = Counter()
+
+    def process(self, measurement: Measurement, view=None) -> list[Observation]:
+        if not isinstance(measurement, PointCloud):
+            self.prior.add(measurement)
+            return []
+        if measurement.sensor not in self.sensors:
+            return []
+        self.counts["scans"] += 1
+        track = self._tracks.setdefault(measurement.sensor, _Track(self.config))
+        return self._register(track, measurement)
+
+    def _register(self, track: _Track, scan: PointCloud) -> list[Observation]:
+        T_BS = self.metadata.extrinsic(scan.sensor)
+        if self.prior.pose_at(scan.stamp) is None:
+            self.counts["no_prior"] += 1
+            return []
+        stale = track.last_stamp is None or (scan.stamp - track.last_stamp) * 1e-9 > self.config.max_interval_s
+        motion = None if stale else self.prior.motion(track.last_stamp, scan.stamp)
+        if motion is None or track.matcher.empty or track.rejections >= self.config.restart_after:
+            self._start(track, scan)
+            return []
+        predicted = track.last_pose @ np.linalg.inv(T_BS) @ motion @ T_BS
+        reg = track.matcher.register(scan.points, predicted)
+        track.last_stamp = scan.stamp
+        if reg.rejected is not None:
+            track.last_pose = predicted  # the chain goes on with the prior; the map is untouched
+            track.rejections += 1
+            self.counts[f"rejected_{reg.rejected}"] += 1
+            return []
+        track.last_pose, track.rejections = reg.pose, 0
+        relative_S = np.linalg.inv(track.anchor_pose) @ reg.pose
+        stamp_from = track.anchor_stamp
+        track.anchor_stamp, track.anchor_pose = scan.stamp, reg.pose
+        self.counts["accepted"] += 1
+        relative_B = T_BS @ relative_S @ np.linalg.inv(T_BS)
+        A = adjoint(T_BS)
+        cov_B = A @ reg.covariance @ A.T
+        return [
+            OdometryObservation(
+                scan.stamp,
+                scan.sensor,
+                stamp_from=stamp_from,
+                relative_pose=relative_B,
+                covariance=(cov_B + cov_B.T) / 2,
+            )
+        ]
+
+    def _start(self, track: _Track, scan: PointCloud) -> None:
+        """A new local map anchored at this scan (first scan, long gap, or lost overlap); a scan too
+        sparse to anchor one leaves the map empty until the next."""
+        track.last_stamp, track.last_pose = scan.stamp, np.eye(4)
+        track.rejections = 0
+        if track.matcher.start(scan.points, np.eye(4)):
+            track.anchor_stamp, track.anchor_pose = scan.stamp, np.eye(4)
+            self.counts["map_starts"] += 1
+        else:
+            self.counts["rejected_sparse"] += 1
+
+    def finish(self, view=None) -> FrontendSummary:
+        c = self.counts
+        rejected = {k.removeprefix("rejected_"): v for k, v in sorted(c.items()) if k.startswith("rejected_")}
+        return FrontendSummary(
+            section="odometry",
+            metrics={
+                "scans": c["scans"],
+                "accepted": c["accepted"],
+                "rejected": rejected,
+                "map_starts": c["map_starts"],
+                "without_prior": c["no_prior"],
+            },
+        )

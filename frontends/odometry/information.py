@@ -1,0 +1,51 @@
+"""Small geometry of the registration's uncertainty: point-to-plane information and pose algebra
+(numpy only: front-ends do not use GTSAM). Tangent order is GTSAM's Pose3: rotation, then
+translation, for a perturbation on the right (T·Exp(ξ))."""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def skew(v: np.ndarray) -> np.ndarray:
+    """[v]× for one vector (3,) or a stack (n, 3) → (n, 3, 3)."""
+    v = np.asarray(v, float)
+    out = np.zeros(v.shape[:-1] + (3, 3))
+    out[..., 0, 1], out[..., 0, 2] = -v[..., 2], v[..., 1]
+    out[..., 1, 0], out[..., 1, 2] = v[..., 2], -v[..., 0]
+    out[..., 2, 0], out[..., 2, 1] = -v[..., 1], v[..., 0]
+    return out
+
+
+def adjoint(T: np.ndarray) -> np.ndarray:
+    """Ad_T (6×6) for the (rotation, translation) tangent: Exp(Ad_T ξ) = T Exp(ξ) T⁻¹."""
+    R, t = T[:3, :3], T[:3, 3]
+    A = np.zeros((6, 6))
+    A[:3, :3] = R
+    A[3:, 3:] = R
+    A[3:, :3] = skew(t) @ R
+    return A
+
+
+def rotation_angle(R: np.ndarray) -> float:
+    """The angle (rad) of rotation matrix R."""
+    return float(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0)))
+
+
+def plane_information(
+    source: np.ndarray, world: np.ndarray, neighbours: np.ndarray, R: np.ndarray
+) -> tuple[np.ndarray, int, float]:
+    """Information (Σ JᵀJ, 6×6) of point-to-plane residuals nᵢ·(R pᵢ + t − qᵢ) about the pose T_OS,
+    with the plane of each matched point fitted to its map ``neighbours`` (n, k, 3), and the
+    residuals' variance. ``source`` are the scan points in {S}, ``world`` the same in {O}."""
+    centred = neighbours - neighbours.mean(axis=1, keepdims=True)
+    scatter = np.einsum("nki,nkj->nij", centred, centred)
+    _, vecs = np.linalg.eigh(scatter)
+    normals = vecs[..., 0]  # the direction of least spread
+    residual = np.einsum("ni,ni->n", normals, world - neighbours.mean(axis=1))
+    # d/dξ of n·(R(p + ω×p) + t + R v) = nᵀR [−[p]×, I]
+    nR = normals @ R  # rows nᵀR
+    J = np.concatenate([np.einsum("ni,nij->nj", nR, -skew(source)), nR], axis=1)
+    n = len(source)
+    var = float(residual @ residual / max(n - 6, 1))
+    return J.T @ J, n, var

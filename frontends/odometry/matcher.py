@@ -1,0 +1,172 @@
+"""Scan-to-map registration with kiss-icp's library (voxel hash map, adaptive threshold, robust
+point-to-point ICP), seeded by the navigation prior and judged before the map takes the scan.
+
+kiss-icp's own ``KissICP.register_frame`` predicts with a constant-velocity model and always
+inserts the scan into its map; here the prediction is the navigation sensors' and a registration
+that the gate rejects never reaches the map (a shifted or featureless scan would corrupt it). So
+the same components are called one by one: preprocess (range crop), voxelise, align, judge, update.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from kiss_icp.config import KISSConfig
+from kiss_icp.kiss_icp import KissICP
+from scipy.spatial import cKDTree
+
+from frontends.odometry.config import OdometryConfig
+from frontends.odometry.information import plane_information, rotation_angle
+
+NORMAL_NEIGHBOURS = 8
+
+
+@dataclass(frozen=True)
+class Registration:
+    """One scan's registration against the local map, in the map frame {O}."""
+
+    pose: np.ndarray  # T_OS after ICP (4×4)
+    correction: np.ndarray  # T_pred⁻¹ · T_OS: what ICP changed in the navigation prior
+    covariance: np.ndarray  # 6×6 of T_OS (right perturbation, rotation then translation)
+    inliers: int
+    points: int
+    rejected: str | None  # why it is not trusted, or None
+
+
+def large_planes(points: np.ndarray, cfg) -> list[tuple[np.ndarray, float]]:
+    """(unit normal, offset) of up to ``cfg.max_planes`` planes, each holding at least
+    ``cfg.min_fraction`` of ``points`` (RANSAC, largest first; seeded: the same scan gives the same planes)."""
+    import open3d as o3d
+
+    planes, rest = [], points
+    for _ in range(cfg.max_planes):
+        if len(rest) < 3:
+            break
+        pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(rest))
+        o3d.utility.random.seed(0)
+        model, inliers = pcd.segment_plane(cfg.distance_m, 3, 200)
+        if len(inliers) < cfg.min_fraction * len(points):
+            break
+        normal = np.asarray(model[:3], float)
+        norm = np.linalg.norm(normal)
+        planes.append((normal / norm, float(model[3]) / norm))
+        rest = np.delete(rest, inliers, axis=0)
+    return planes
+
+
+def kiss_config(cfg: OdometryConfig) -> KISSConfig:
+    k = cfg.kiss_icp
+    return KISSConfig(
+        data={"max_range": k.max_range_m, "min_range": k.min_range_m, "deskew": False},
+        mapping={"voxel_size": k.voxel_size_m, "max_points_per_voxel": k.max_points_per_voxel},
+        registration={
+            "max_num_iterations": k.max_iterations,
+            "convergence_criterion": k.convergence,
+            "max_num_threads": 1,
+        },
+        adaptive_threshold={
+            "initial_threshold": k.initial_threshold_m,
+            "min_motion_th": k.min_motion_m,
+            "fixed_threshold": k.fixed_threshold_m,
+        },
+    )
+
+
+class ScanMatcher:
+    """Registers scans to a kiss-icp local map; ``reset()`` starts a new map."""
+
+    def __init__(self, cfg: OdometryConfig):
+        self.cfg = cfg
+        self.reset()
+
+    def reset(self) -> None:
+        self.kiss = KissICP(kiss_config(self.cfg))
+
+    @property
+    def empty(self) -> bool:
+        return self.kiss.local_map.empty()
+
+    def _prepared(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(source points for ICP, finer points for the map): range-cropped, voxelised, without
+        their large planes."""
+        frame = np.asarray(points, dtype=np.float64)
+        frame = self.kiss.preprocessor.preprocess(frame, np.zeros(0), np.eye(4))
+        source, down = self.kiss.voxelize(frame)
+        for normal, offset in large_planes(source, self.cfg.planes):  # the coarser points: 5× fewer
+            source = source[np.abs(source @ normal + offset) > self.cfg.planes.distance_m]
+            down = down[np.abs(down @ normal + offset) > self.cfg.planes.distance_m]
+        return source, down
+
+    def start(self, points: np.ndarray, pose: np.ndarray) -> bool:
+        """A new map from this scan, placed at ``pose`` (T_OS); False (and no map) if the scan has
+        too few points to register others against."""
+        self.reset()
+        source, down = self._prepared(points)
+        if len(source) < self.cfg.gate.min_inliers:
+            return False
+        self.kiss.local_map.update(down, pose)
+        return True
+
+    def register(self, points: np.ndarray, predicted: np.ndarray) -> Registration:
+        """Align ``points`` (sensor frame) to the map starting from ``predicted`` (T_OS); the map
+        takes the scan only if the registration passes the gate."""
+        source, down = self._prepared(points)
+        gate = self.cfg.gate
+        if len(source) < gate.min_inliers:
+            return Registration(predicted, np.eye(4), np.full((6, 6), np.nan), 0, len(source), "too few points")
+        sigma = self.kiss.adaptive_threshold.get_threshold()
+        pose = self.kiss.registration.align_points_to_map(source, self.kiss.local_map, predicted, 3 * sigma, sigma)
+        correction = np.linalg.inv(predicted) @ pose
+        info, n_in, residual_var = self._information(source, pose, 3 * sigma)
+        cov = self._covariance(info, residual_var, n_in)
+        rejected = self._judge(correction, cov, n_in, len(source))
+        if rejected is None:
+            self.kiss.adaptive_threshold.update_model_deviation(correction)
+            self.kiss.local_map.update(down, pose)
+        return Registration(pose, correction, cov, n_in, len(source), rejected)
+
+    def _information(self, source: np.ndarray, pose: np.ndarray, max_distance: float):
+        """Point-to-plane information of the aligned scan against the map (6×6, per unit residual
+        variance), its inlier count and the residuals' variance. Point-to-plane, not the
+        point-to-point cost ICP minimised: its Hessian is n·I in translation whatever the geometry,
+        while the plane residuals see that a flat floor fixes nothing along itself."""
+        map_points = np.asarray(self.kiss.local_map.point_cloud())
+        if len(map_points) < NORMAL_NEIGHBOURS:
+            return np.zeros((6, 6)), 0, np.inf
+        tree = cKDTree(map_points)
+        world = source @ pose[:3, :3].T + pose[:3, 3]
+        dist, idx = tree.query(world, k=NORMAL_NEIGHBOURS, distance_upper_bound=max_distance * 2)
+        near = np.isfinite(dist[:, 0]) & (dist[:, 0] <= max_distance) & np.isfinite(dist).all(axis=1)
+        if near.sum() < 6:
+            return np.zeros((6, 6)), int(near.sum()), np.inf
+        neighbours = map_points[idx[near]]  # (n, k, 3)
+        return plane_information(source[near], world[near], neighbours, pose[:3, :3])
+
+    def _covariance(self, info: np.ndarray, residual_var: float, n: int) -> np.ndarray:
+        c = self.cfg.covariance
+        if n < 6 or not np.isfinite(residual_var):
+            return np.full((6, 6), np.inf)
+        try:
+            cov = c.scale * residual_var * np.linalg.inv(info)
+        except np.linalg.LinAlgError:
+            return np.full((6, 6), np.inf)
+        floor = np.array([c.floor_sigma_rad] * 3 + [c.floor_sigma_m] * 3) ** 2
+        return cov + np.diag(floor)
+
+    def _judge(self, correction: np.ndarray, cov: np.ndarray, inliers: int, points: int) -> str | None:
+        g = self.cfg.gate
+        if inliers < g.min_inliers or inliers < g.min_inlier_fraction * points:
+            return "overlap"
+        if not np.isfinite(cov).all():
+            return "degenerate"
+        if (
+            np.linalg.eigvalsh(cov[3:, 3:]).max() > g.max_sigma_m**2
+            or np.linalg.eigvalsh(cov[:3, :3]).max() > g.max_sigma_rad**2
+        ):
+            return "degenerate"
+        if rotation_angle(correction[:3, :3]) > g.max_rotation_correction_rad:
+            return "rotation_correction"
+        if np.linalg.norm(correction[:3, 3]) > g.max_translation_correction_m:
+            return "translation_correction"
+        return None

@@ -1,0 +1,279 @@
+"""Keyframes of the graph back-end and the navigation factors at and between them.
+
+Per keyframe k: X(k) = T_WB (Pose3), V(k) = body velocity and, when the AHRS heading bias is
+modelled, B(k) (see factors.navigation). Between consecutive keyframes: the preintegrated DVL/AHRS
+displacement (with the velocity motion model across dropouts) and, over intervals with no DVL at
+all, the velocity random walk. At each keyframe: the AHRS attitude, the depth and the latest DVL
+velocity.
+"""
+
+from __future__ import annotations
+
+import bisect
+
+import gtsam
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from factors.navigation import (
+    attitude_factor,
+    biased_attitude_factor,
+    depth_factor,
+    displacement_factor,
+    dvl_velocity_factor,
+    heading_bias_walk_factor,
+    velocity_random_walk_factor,
+)
+from semslam.backend.navigation import NavigationBuffer
+from semslam.backend.session import IsamSession, Owned
+from semslam.backend.window import B, SlidingWindow, V, X
+from semslam.config import SemslamConfig
+from semslam.mission.measurements import GroundTruthPose, Measurement
+from semslam.mission.mission import MissionMetadata
+
+
+class Keyframes:
+    """The keyframes: their stamps, the newest one's estimate (pose, velocity, pose covariance, heading
+    bias), each keyframe's pose as the online smoother gave it at its time, and the navigation
+    buffer between keyframes."""
+
+    def __init__(self, metadata: MissionMetadata, config: SemslamConfig, session: IsamSession, window: SlidingWindow):
+        self.cfg = config.graph
+        self.initial = config.initial
+        self.accel_sigma = config.motion.accel_sigma_m_s2
+        self.session = session
+        self.window = window
+        self.nav = NavigationBuffer(metadata, config.motion.accel_sigma_m_s2, config.motion.angular_rate_sigma_rad_s)
+        self.wait_for_gt = self.initial.pose == "first_ground_truth" and bool(metadata.sensors_of_kind("ground_truth"))
+        self.initial_gt: GroundTruthPose | None = None
+        self.stamps: list[int] = []
+        self.pose: gtsam.Pose3 | None = None  # the newest keyframe's estimate
+        self.vel: np.ndarray | None = None
+        self.pose_cov: np.ndarray | None = None
+        # AHRS heading bias as a random walk (0: not modelled, the AHRS heading taken as unbiased).
+        self.bias_walk = config.sensors.heading_bias_walk(metadata)
+        self.bias_sigma0 = config.sensors.heading_bias_sigma0(metadata)
+        self.bias = 0.0  # the newest keyframe's bias estimate (rad)
+        self.online: list[tuple[int, gtsam.Pose3, np.ndarray]] = []  # (stamp, pose, position covariance in {W})
+
+    def __len__(self) -> int:
+        return len(self.stamps)
+
+    @property
+    def newest(self) -> int:
+        return len(self.stamps) - 1
+
+    def anchor(self) -> tuple[int, int]:
+        """The newest keyframe's pose and velocity keys (a failed update re-anchors on them)."""
+        return X(self.newest), V(self.newest)
+
+    def add(self, measurement: Measurement) -> str | None:
+        """Take a navigation or ground-truth measurement; returns "first" when the first keyframe is
+        due, "next" when a keyframe is due (``keyframe_max_interval_s``), else None."""
+        if isinstance(measurement, GroundTruthPose):
+            if self.initial_gt is None:
+                self.initial_gt = measurement
+            return None
+        self.nav.add(measurement)
+        if self.nav.attitude is None:
+            return None
+        if not self.stamps:
+            return "first" if not self.wait_for_gt or self.initial_gt is not None else None
+        if (measurement.stamp - self.stamps[-1]) * 1e-9 >= self.cfg.keyframe_max_interval_s:
+            return "next"
+        return None
+
+    def _nav_factors_at(self, k: int, t: float) -> tuple[list, np.ndarray, np.ndarray | None]:
+        """AHRS, depth and DVL factors of keyframe k at time t; returns (factors, R_WB, v_B prior mean)."""
+        factors = []
+        R, _ = self.nav.attitude_at(t)
+        fused = self.nav.take_fused_attitude(t)
+        if fused is not None and t - self.nav.attitude.t <= self.cfg.ahrs_max_age_s:
+            R_f, cov_f, _ = fused
+            factors.append(
+                biased_attitude_factor(X(k), B(k), R_f, cov_f)
+                if self.bias_walk > 0
+                else attitude_factor(X(k), R_f, cov_f)
+            )
+        v_prior = None
+        dvl = self.nav.dvl
+        # The newest DVL sample is the velocity factor when it is fresh, and also when it is the last
+        # knot of the interval that ends here (a dropout starting inside it): the displacement alone
+        # cannot pin V(k), and the σ_a²·age inflation is the motion model's growth over the gap.
+        in_interval = bool(self.stamps) and dvl is not None and dvl.t > self.stamps[-1] * 1e-9
+        if dvl is not None and 0 <= t - dvl.t and (t - dvl.t <= self.cfg.dvl_max_age_s or in_interval):
+            age = t - dvl.t
+            factors.append(
+                dvl_velocity_factor(V(k), dvl.v_S, dvl.cov_S, dvl.T_BS, dvl.omega_B, self.accel_sigma**2 * age)
+            )
+            v_prior = dvl.v_B
+        dep = self.nav.depth
+        if dep is not None and 0 <= t - dep.t <= self.cfg.depth_max_age_s:
+            age = t - dep.t
+            # Bring the reading to t along the vertical velocity (from the DVL, else none).
+            vz = float((R @ (v_prior if v_prior is not None else np.zeros(3)))[2])
+            var = dep.variance + (self.accel_sigma * age**1.5) ** 2 + (0.01 * age) ** 2
+            factors.append(depth_factor(X(k), dep.depth + vz * age, var, dep.t_BS))
+        return factors, R, v_prior
+
+    def first(self, stamp: int) -> None:
+        """Keyframe 0: its navigation factors and the priors of the start state."""
+        t = stamp * 1e-9
+        factors, R, v_prior = self._nav_factors_at(0, t)
+        if self.initial_gt is not None and self.initial.pose == "first_ground_truth":
+            pos = np.asarray(self.initial_gt.position, float)
+            R0 = Rotation.from_quat(self.initial_gt.orientation).as_matrix()
+        else:
+            pos, R0 = np.zeros(3), self.unbiased(R)
+        pose0 = gtsam.Pose3(gtsam.Rot3(R0), pos)
+        sig = np.r_[[self.initial.attitude_sigma_rad] * 3, [self.initial.position_sigma_m] * 3]
+        factors.append(gtsam.PriorFactorPose3(X(0), pose0, gtsam.noiseModel.Diagonal.Sigmas(sig)))
+        v0 = v_prior if v_prior is not None else np.zeros(3)
+        factors.append(
+            gtsam.PriorFactorVector(V(0), v0, gtsam.noiseModel.Isotropic.Sigma(3, self.initial.velocity_sigma_m_s))
+        )
+        values = gtsam.Values()
+        values.insert(X(0), pose0)
+        values.insert(V(0), v0)
+        if self.bias_walk > 0:
+            factors.append(
+                gtsam.PriorFactorVector(B(0), np.zeros(1), gtsam.noiseModel.Isotropic.Sigma(1, self.bias_sigma0))
+            )
+            values.insert(B(0), np.zeros(1))
+        self._commit(stamp, [(f, None) for f in factors], values)
+
+    def next(self, stamp: int) -> int:
+        """Keyframe k at ``stamp`` with its navigation factors; returns k."""
+        k = len(self.stamps)
+        t = stamp * 1e-9
+        factors, R, v_prior = self._nav_factors_at(k, t)
+        # A DVL sample used as V(k)'s prior is removed from the displacement's knots (no double use).
+        if v_prior is not None and self.nav.preint.last_stamp == self.nav.dvl.t:
+            self.nav.preint.drop_last()
+        d = self.nav.preint.integrate(t, R)
+        factors.append(displacement_factor(X(k - 1), X(k), V(k - 1), V(k), d))
+        if d.n_samples == 0:  # no knot between the two velocity states: the process model links them
+            factors.append(velocity_random_walk_factor(V(k - 1), V(k), d.dt, self.accel_sigma))
+        v_init = v_prior if v_prior is not None else self.vel
+        p_init = self.pose.translation() + self.pose.rotation().matrix() @ (d.c + d.A @ self.vel + d.B @ v_init)
+        values = gtsam.Values()
+        values.insert(X(k), gtsam.Pose3(gtsam.Rot3(self.unbiased(R)), p_init))
+        values.insert(V(k), np.asarray(v_init, float))
+        if self.bias_walk > 0:
+            factors.append(heading_bias_walk_factor(B(k - 1), B(k), d.dt, self.bias_walk))
+            values.insert(B(k), np.array([self.bias]))
+        self._commit(stamp, [(f, None) for f in factors], values)
+        return k
+
+    def _commit(self, stamp: int, factors: list[Owned], values: gtsam.Values) -> None:
+        self.stamps.append(stamp)
+        self.session.commit(factors, values, self.anchor(), stamp=stamp)
+        t = stamp * 1e-9
+        self.refresh()
+        R, _ = self.nav.attitude_at(t)
+        att_sigma = float(np.sqrt(np.trace(self.nav.attitude.cov) / 3))
+        self.nav.start_interval(t, R, att_sigma)
+        self.online.append((stamp, self.pose, self._position_cov()))
+
+    def _position_cov(self) -> np.ndarray:
+        R = self.pose.rotation().matrix()
+        return R @ self.pose_cov[3:, 3:] @ R.T
+
+    def refresh(self) -> None:
+        """The newest keyframe's estimate from iSAM2."""
+        k = self.newest
+        self.pose = self.session.pose(X(k))
+        self.vel = self.session.vector(V(k))
+        if self.bias_walk > 0:
+            self.bias = float(self.session.vector(B(k))[0])
+        try:
+            self.pose_cov = self.session.root_marginal(X(k))  # from the root clique: it holds X(k)
+        except RuntimeError:
+            self.pose_cov = np.eye(6) * 1e2
+
+    def renew_online(self, k: int) -> None:
+        """Keyframe k's online pose is the one after its landmarks (when k is the newest)."""
+        if k == self.newest:
+            self.online[-1] = (self.online[-1][0], self.pose, self._position_cov())
+
+    def unbiased(self, R_ahrs: np.ndarray) -> np.ndarray:
+        """An AHRS attitude with the current heading-bias estimate taken out: Rz(−b) R."""
+        if self.bias == 0.0:
+            return R_ahrs
+        c, s_ = np.cos(self.bias), np.sin(self.bias)
+        return np.array([[c, s_, 0.0], [-s_, c, 0.0], [0.0, 0.0, 1.0]]) @ R_ahrs
+
+    # ------------------------------------------------------------------ poses
+    def pose_of(self, k: int) -> gtsam.Pose3:
+        """Keyframe k's current estimate (frozen once it left the window)."""
+        if k == self.newest and self.pose is not None:
+            return self.pose
+        if k < self.window.first_active:
+            return self.window.frozen.atPose3(X(k))
+        return self.session.pose(X(k))
+
+    def pose_and_cov(self, k: int) -> tuple[gtsam.Pose3, np.ndarray]:
+        """Keyframe k's pose estimate and marginal covariance (6×6, rotation then translation)."""
+        if k == self.newest:
+            return self.pose, self.pose_cov
+        return self.session.pose(X(k)), self.session.root_marginal(X(k))
+
+    def pose_at(self, stamp: int) -> gtsam.Pose3 | None:
+        """T_WB at ``stamp``: interpolated between keyframe estimates, or predicted from the
+        newest keyframe with the DVL/AHRS integrated since."""
+        if not self.stamps:
+            return None
+        if stamp >= self.stamps[-1]:
+            if stamp == self.stamps[-1] or self.nav.preint is None:
+                return self.pose
+            t = stamp * 1e-9
+            R, _ = self.nav.attitude_at(t)
+            d = self.nav.preint.integrate(t, R)
+            p = self.pose.translation() + self.pose.rotation().matrix() @ (d.c + (d.A + d.B) @ self.vel)
+            return gtsam.Pose3(gtsam.Rot3(self.unbiased(R)), p)
+        i = bisect.bisect_right(self.stamps, stamp)
+        if i == 0:
+            return None
+        a, b = self.pose_of(i - 1), self.pose_of(i)
+        s = (stamp - self.stamps[i - 1]) / (self.stamps[i] - self.stamps[i - 1])
+        return gtsam.Pose3(a.rotation().slerp(s, b.rotation()), (1 - s) * a.translation() + s * b.translation())
+
+    def nearest(self, stamp: int) -> tuple[int | None, gtsam.Pose3]:
+        """The keyframe nearest to ``stamp`` and T_B(keyframe),B(stamp) from the current estimate."""
+        if not self.stamps:
+            return None, gtsam.Pose3()
+        i = bisect.bisect_left(self.stamps, stamp)
+        i = min((c for c in (i - 1, i) if 0 <= c < len(self.stamps)), key=lambda c: abs(self.stamps[c] - stamp))
+        if self.stamps[i] == stamp:
+            return i, gtsam.Pose3()
+        here = self.pose_at(stamp)
+        if here is None:
+            return None, gtsam.Pose3()
+        return i, self.pose_of(i).between(here)
+
+    def older(self, stamp: int, diagnostics: list[str]) -> int | None:
+        """The keyframe that observations older than the newest keyframe attach to (None: it left the window)."""
+        i = bisect.bisect_left(self.stamps, stamp)
+        i = min(range(max(i - 1, 0), min(i + 1, len(self.stamps))), key=lambda j: abs(self.stamps[j] - stamp))
+        if i < self.window.first_active:
+            diagnostics.append(f"{stamp}: observations older than the smoothing window, dropped")
+            return None
+        diagnostics.append(f"{stamp}: observations older than the newest keyframe, attached to keyframe {i}")
+        return i
+
+    def odometry_factors(self, odom: list, diagnostics: list[str]) -> list:
+        """Relative-pose constraints (e.g. swath registrations). An end that is not a keyframe is
+        carried to the nearest keyframe with the estimated motion in between (short: at most half
+        a keyframe interval of dead reckoning, whose error is far below the constraint's)."""
+        out = []
+        for z in odom:
+            i, T_i_from = self.nearest(z.stamp_from)
+            j, T_j_to = self.nearest(z.stamp)
+            if i is None or j is None or i == j or min(i, j) < self.window.first_active:
+                diagnostics.append(
+                    f"{z.stamp}: odometry from {z.stamp_from} has no distinct keyframes in the window to join, dropped"
+                )
+                continue
+            meas = T_i_from.compose(gtsam.Pose3(z.relative_pose)).compose(T_j_to.inverse())
+            out.append(gtsam.BetweenFactorPose3(X(i), X(j), meas, gtsam.noiseModel.Gaussian.Covariance(z.covariance)))
+        return out

@@ -1,0 +1,76 @@
+"""The graph back-end's result at the end of a mission: the final estimate (the online one, or the
+batch re-optimisation of the whole mission), the keyframe trajectory with marginal covariances, and
+each keyframe as the online smoother gave it at its time."""
+
+from __future__ import annotations
+
+import time
+
+import gtsam
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from semslam.backend.session import IsamSession
+from semslam.backend.window import SlidingWindow, V, X
+from semslam.config import GraphConfig
+from semslam.estimation import Trajectory
+
+
+def final_values(
+    session: IsamSession, window: SlidingWindow, cfg: GraphConfig, batch: bool, history: dict
+) -> gtsam.Values:
+    """The online estimate of every variable (frozen ones included) or, with ``batch``, Levenberg–
+    Marquardt over the whole mission from it (its time in ``history["batch_time_s"]``)."""
+    online = window.estimate(session)
+    if not batch:
+        return online
+    t0 = time.perf_counter()
+    try:
+        values = session.batch(online, cfg.batch_max_iterations)
+    except RuntimeError as exc:
+        session.diagnostics.append(f"batch optimisation failed ({str(exc).splitlines()[0]}); online estimate kept")
+        values = online
+    history["batch_time_s"] = time.perf_counter() - t0
+    return values
+
+
+def _quaternions(poses: list[gtsam.Pose3]) -> np.ndarray:
+    return np.array([Rotation.from_matrix(p.rotation().matrix()).as_quat() for p in poses])
+
+
+def keyframe_trajectory(
+    stamps: list[int], values: gtsam.Values, marginals, session: IsamSession, cfg: GraphConfig
+) -> Trajectory:
+    """Every keyframe's pose and velocity in ``values``; with ``cfg.covariance_in_result`` the marginal
+    covariances of ``result_covariance_keyframes`` evenly spaced ones (NaN between)."""
+    n = len(stamps)
+    poses = [values.atPose3(X(i)) for i in range(n)]
+    pos_cov = vel_cov = None
+    if cfg.covariance_in_result:
+        pos_cov = np.full((n, 3, 3), np.nan)
+        vel_cov = np.full((n, 3, 3), np.nan)
+        sample = np.unique(np.linspace(0, n - 1, min(n, cfg.result_covariance_keyframes)).round().astype(int))
+        covs = session.joint_blocks(marginals, [k for i in sample for k in (X(i), V(i))])
+        for i in sample:
+            if X(i) in covs and V(i) in covs:
+                R = poses[i].rotation().matrix()
+                pos_cov[i] = R @ covs[X(i)][3:, 3:] @ R.T
+                vel_cov[i] = covs[V(i)]
+    return Trajectory(
+        stamps=np.array(stamps, np.int64),
+        positions=np.array([p.translation() for p in poses]),
+        orientations=_quaternions(poses),
+        position_cov=pos_cov,
+        velocities=np.array([values.atVector(V(i)) for i in range(n)]),
+        velocity_cov=vel_cov,
+    )
+
+
+def online_trajectory(online: list[tuple[int, gtsam.Pose3, np.ndarray]]) -> Trajectory:
+    """Each keyframe as the online smoother gave it at its time, with its position covariance then."""
+    return Trajectory(
+        stamps=np.array([s for s, _, _ in online], np.int64),
+        positions=np.array([p.translation() for _, p, _ in online]),
+        orientations=_quaternions([p for _, p, _ in online]),
+        position_cov=np.array([c for _, _, c in online]),
+    )

@@ -1,0 +1,229 @@
+"""The graph back-end's iSAM2 session: every factor with its owner, the window of them iSAM2 holds,
+updates with recovery from a failed one, and the batch re-optimisation and marginals at the end."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable
+
+import gtsam
+import numpy as np
+
+from semslam.backend.marginal import marginal_covariance
+from semslam.backend.window import value_of
+
+# A factor with its owner: None for navigation, else the id of the landmark it observes.
+Owned = tuple[gtsam.NonlinearFactor, int | None]
+
+
+class IsamSession:
+    """iSAM2 over the factors committed to it.
+
+    ``factors`` is every factor of the mission with its owner (for the batch and for recovery),
+    ``window`` the ones iSAM2 holds (those of ``factors`` on variables still in the smoothing window,
+    the marginals of what left it, and the priors of landmarks that came back), ``initial`` every
+    variable's first value."""
+
+    def __init__(self, relinearize_threshold: float, relinearize_skip: int, diagnostics: list[str]):
+        params = gtsam.ISAM2Params()
+        params.setRelinearizeThreshold(relinearize_threshold)
+        params.relinearizeSkip = relinearize_skip
+        self.diagnostics = diagnostics
+        self.factors: list[Owned] = []
+        self.window: list[Owned] = []
+        self.initial = gtsam.Values()
+        self._start(params)
+
+    def _start(self, params: gtsam.ISAM2Params) -> None:
+        """A fresh iSAM2, and a Python handle on its linearisation point, held for its lifetime.
+
+        A CustomFactor's callback receives the Values it is linearised at through pybind11, which
+        passes a C++ ``const Values&`` by copy unless that object already has a Python wrapper.
+        iSAM2 linearises at its internal θ, so without the handle every callback of a line,
+        displacement or biased-attitude factor copied the whole of θ (every keyframe, velocity
+        and landmark): a cost that grew with the mission. ``getLinearizationPoint`` returns θ by
+        reference (keeping iSAM2 alive), and pybind11 then hands that registered object to the
+        callbacks."""
+        self.isam = gtsam.ISAM2(params)
+        self.theta = self.isam.getLinearizationPoint()
+
+    # ------------------------------------------------------------------ estimates
+    def value(self, key: int):
+        return value_of(self.isam, key)
+
+    def pose(self, key: int) -> gtsam.Pose3:
+        return self.isam.calculateEstimatePose3(key)
+
+    def vector(self, key: int) -> np.ndarray:
+        return np.asarray(self.isam.calculateEstimateVector(key))
+
+    def estimate(self) -> gtsam.Values:
+        return self.isam.calculateEstimate()
+
+    def root_marginal(self, key: int) -> np.ndarray:
+        """The marginal covariance of a variable of the root clique (the newest keyframe), cheaply."""
+        return marginal_covariance(self.isam, key)
+
+    def marginal(self, key: int) -> np.ndarray:
+        return self.isam.marginalCovariance(key)
+
+    # ------------------------------------------------------------------ updates
+    def commit(
+        self,
+        factors: list[Owned],
+        values: gtsam.Values,
+        anchor: tuple[int, int],
+        priors: list[Owned] = (),
+        stamp: int = 0,
+    ) -> list[int] | None:
+        """Add factors (with their owners) and new variables to iSAM2, and ``priors`` that only the
+        window holds (a returning landmark's). On a failure, the landmark factors of this update are
+        dropped and iSAM2 is rebuilt from the rest (:meth:`rebuild`, ``anchor``: the newest keyframe's
+        pose and velocity keys). Returns None when the update went through, else the owners dropped."""
+        graph = gtsam.NonlinearFactorGraph()
+        for f, _ in [*factors, *priors]:
+            graph.add(f)
+        try:
+            self.isam.update(graph, values)
+        except RuntimeError as exc:
+            msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+            owners = sorted({o for _, o in factors if o is not None})
+            self.diagnostics.append(f"{stamp}: iSAM2 update failed ({msg}); dropped the factors of landmarks {owners}")
+            self.rebuild([(f, o) for f, o in factors if o is None], values, anchor)
+            return owners
+        self.factors.extend(factors)
+        self.window.extend(factors)
+        self.window.extend(priors)
+        self.initial.insert_or_assign(values)  # a returning landmark's key is there already
+        return None
+
+    def owns(self, owner: int) -> bool:
+        """Some committed factor observes landmark ``owner``."""
+        return any(o == owner for _, o in self.factors)
+
+    def window_keys(self) -> set[int]:
+        """Every variable a factor of the window holds."""
+        return {k for f, _ in self.window for k in f.keys()}
+
+    def rebuild(self, navigation: list[Owned], values: gtsam.Values, anchor: tuple[int, int]) -> None:
+        """A fresh iSAM2 from the window's factors plus ``navigation`` (this update's, the landmark
+        factors left out), at the current estimate. Should that fail too, a weak prior on the pose and
+        velocity keys ``anchor`` (the newest keyframe's) re-anchors the system."""
+        try:
+            estimate = self.isam.calculateEstimate()
+        except RuntimeError:
+            estimate = gtsam.Values(self.initial)
+        self.factors.extend(navigation)
+        self.window.extend(navigation)
+        keep = self.window_keys()
+        full = gtsam.Values()
+        for src in (estimate, values, self.initial):
+            for key in src.keys():
+                if key in keep and not full.exists(key):
+                    full.insert(key, value_of(src, key))
+        graph = gtsam.NonlinearFactorGraph()
+        for f, _ in self.window:
+            graph.add(f)
+        params = self.isam.params()
+        self._start(params)
+        try:
+            self.isam.update(graph, full)
+        except RuntimeError as exc:
+            x, v = anchor
+            prior = gtsam.PriorFactorPose3(x, full.atPose3(x), gtsam.noiseModel.Isotropic.Sigma(6, 10.0))
+            vprior = gtsam.PriorFactorVector(v, value_of(full, v), gtsam.noiseModel.Isotropic.Sigma(3, 10.0))
+            self.factors += [(prior, None), (vprior, None)]
+            self.window += [(prior, None), (vprior, None)]
+            graph.add(prior)
+            graph.add(vprior)
+            self._start(params)
+            self.isam.update(graph, full)
+            self.diagnostics.append(
+                f"rebuild needed a weak re-anchoring prior on {gtsam.Symbol(x).string()} ({str(exc).splitlines()[0]})"
+            )
+        self.initial = full
+
+    def restart(self, window: list[Owned], values: gtsam.Values) -> None:
+        """iSAM2 afresh on ``window`` (the smoothing window after a slide) at ``values``; on a failure
+        the session is left as it was and the RuntimeError raised."""
+        old = self.isam, self.theta
+        graph = gtsam.NonlinearFactorGraph()
+        for f, _ in window:
+            graph.add(f)
+        try:
+            self._start(self.isam.params())
+            self.isam.update(graph, values)
+        except RuntimeError:
+            self.isam, self.theta = old
+            raise
+        self.window = window
+
+    # ------------------------------------------------------------------ the whole mission
+    def graph(self) -> gtsam.NonlinearFactorGraph:
+        """Every factor of the mission."""
+        graph = gtsam.NonlinearFactorGraph()
+        for f, _ in self.factors:
+            graph.add(f)
+        return graph
+
+    def batch(self, initial: gtsam.Values, max_iterations: int) -> gtsam.Values:
+        """Levenberg–Marquardt over the whole mission from ``initial`` (raises RuntimeError on failure)."""
+        params = gtsam.LevenbergMarquardtParams()
+        params.setMaxIterations(max_iterations)
+        return levenberg_marquardt(self.graph(), initial, params)
+
+    def marginals(self, values: gtsam.Values):
+        """Marginals of ``values`` from one batch factorisation of the whole graph (iSAM2's
+        per-variable marginals cost a partial re-elimination each: minutes for a mission's
+        keyframes); None (iSAM2's, one by one) if the batch system is indeterminate."""
+        try:
+            return gtsam.Marginals(self.graph(), values)
+        except RuntimeError as exc:
+            self.diagnostics.append(f"batch marginals failed ({str(exc).splitlines()[0]}); iSAM2 marginals used")
+            return None
+
+    def joint_blocks(self, marginals, keys: Iterable[int], chunk: int = 60) -> dict[int, np.ndarray]:
+        """Marginal covariances of ``keys``: from joint marginals over chunks of them (in a graph
+        where every landmark links to every pose, one joint marginal of 60 variables costs about as
+        much as one or two single ones), else iSAM2's one by one. A key that fails is left out."""
+        keys = list(keys)
+        out: dict[int, np.ndarray] = {}
+        if marginals is not None:
+            for a in range(0, len(keys), chunk):
+                part = keys[a : a + chunk]
+                try:
+                    J = marginals.jointMarginalCovariance(gtsam.KeyVector(part))
+                    out.update({k: np.asarray(J.at(k, k)) for k in part})
+                except RuntimeError:
+                    pass
+        for k in keys:
+            if k not in out:
+                try:
+                    out[k] = self.isam.marginalCovariance(k)
+                except (RuntimeError, IndexError):  # indeterminate, or left the window
+                    pass
+        return out
+
+
+def levenberg_marquardt(graph: gtsam.NonlinearFactorGraph, initial: gtsam.Values, params) -> gtsam.Values:
+    """GTSAM's Levenberg–Marquardt, iterated here exactly as ``optimize()`` does (its
+    ``defaultOptimize`` loop and stopping rules), holding a Python handle on the optimiser's current
+    values during each iteration: the iteration linearises at them, and its CustomFactor callbacks
+    then get that object instead of a copy of every variable (see :meth:`IsamSession._start`).
+    The error evaluations of trial steps still copy."""
+    opt = gtsam.LevenbergMarquardtOptimizer(graph, initial, params)
+    new = opt.error()
+    if new <= params.getErrorTol() or opt.iterations() >= params.getMaxIterations():
+        return gtsam.Values(opt.values())
+    while True:
+        current = new
+        held = opt.values()  # alive while iterate() linearises at it
+        opt.iterate()
+        del held  # an accepted step replaced the values it pointed to
+        new = opt.error()
+        if not (
+            opt.iterations() < params.getMaxIterations()
+            and not gtsam.checkConvergence(params, current, new)
+            and math.isfinite(current)
+        ):
+            return gtsam.Values(opt.values())

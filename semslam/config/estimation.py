@@ -1,0 +1,141 @@
+"""The sections every estimator shares: the start state, the motion and sensor error models, and the
+map-building rules (association, tentative landmarks, duplicates). No estimator repeats these keys in
+its own section, so the graph, the EKF and dead reckoning are always compared under one setting."""
+
+from __future__ import annotations
+
+from typing import Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+
+class InitialStateConfig(BaseModel):
+    """Where every estimator starts, and how sure it is of that start."""
+
+    model_config = ConfigDict(extra="forbid")
+    pose: Literal["first_ground_truth", "origin"] = Field(
+        "first_ground_truth",
+        description="start pose: the first GroundTruthPose of the stream (a surface fix), or the origin "
+        "(x = y = 0, the first depth, the AHRS attitude); missions without ground truth use the origin",
+    )
+    position_sigma_m: float = Field(0.01, gt=0, description="prior σ of the start position (per axis)")
+    attitude_sigma_rad: float = Field(0.05, gt=0, description="prior σ of the start roll, pitch and yaw")
+    velocity_sigma_m_s: float = Field(0.5, gt=0, description="prior σ of the start body velocity (per axis)")
+
+
+class MotionNoiseConfig(BaseModel):
+    """Process noise of the vehicle motion model, shared by every estimator (no estimator gets its own tuning)."""
+
+    model_config = ConfigDict(extra="forbid")
+    accel_sigma_m_s2: float = Field(0.05, gt=0, description="white linear-acceleration noise (body frame)")
+    angular_rate_sigma_rad_s: float = Field(0.01, gt=0, description="white angular-rate noise")
+
+
+# The heading bias's prior σ at the start when the mission declares none (an AHRS's heading is
+# typically good to a degree), and the least one used (a bias declared exactly known).
+DEFAULT_BIAS_SIGMA0 = 0.0175
+MIN_BIAS_SIGMA0 = 1e-4
+
+
+class SensorModelConfig(BaseModel):
+    """Sensor error models beyond the white noise that the bag's covariances give, shared by every
+    estimator that models them."""
+
+    model_config = ConfigDict(extra="forbid")
+    heading_bias_walk_rad_per_sqrt_s: float | None = Field(
+        None,
+        ge=0,
+        description="random-walk intensity of the AHRS heading bias (an AHRS heading drifts: magnetic "
+        "disturbances, gyro bias); None: from the mission's declared noise (simulated missions: the bias "
+        "drift over the mission's duration), else 0 = no bias state",
+    )
+    heading_bias_initial_sigma_rad: float | None = Field(
+        None,
+        ge=0,
+        description="prior σ of the heading bias at the start of the mission; None: the mission's declared "
+        f"one (simulated missions: 0, their AHRS heading at the start defines the world's yaw), else "
+        f"{DEFAULT_BIAS_SIGMA0} (1°)",
+    )
+
+    @staticmethod
+    def _declared_ahrs(metadata: Any) -> dict:
+        return (metadata.extras or {}).get("noise", {}).get("ahrs", {})
+
+    def heading_bias_walk(self, metadata: Any) -> float:
+        """The heading-bias random-walk intensity (rad/√s) for the mission of ``metadata`` (a
+        :class:`semslam.mission.mission.MissionMetadata`)."""
+        if self.heading_bias_walk_rad_per_sqrt_s is not None:
+            return self.heading_bias_walk_rad_per_sqrt_s
+        ahrs = self._declared_ahrs(metadata)
+        drift, over = ahrs.get("heading_bias_drift_rad"), ahrs.get("heading_bias_drift_over_s")
+        if drift and over:
+            return float(drift) / float(over) ** 0.5  # a walk whose σ reaches the drift at the end
+        return 0.0
+
+    def heading_bias_sigma0(self, metadata: Any) -> float:
+        """The prior σ of the heading bias at the mission's start (rad), at least MIN_BIAS_SIGMA0: a
+        bias known exactly is still a proper Gaussian prior, for the filter's covariance and the
+        graph's noise model alike."""
+        s0 = self.heading_bias_initial_sigma_rad
+        if s0 is None:
+            s0 = self._declared_ahrs(metadata).get("heading_bias_initial_sigma_rad", DEFAULT_BIAS_SIGMA0)
+        return max(float(s0), MIN_BIAS_SIGMA0)
+
+
+class AssociationConfig(BaseModel):
+    """How both estimators build their map (semslam.mapping): data association (JCBB), tentative
+    landmarks and their promotion, pipe extents, and duplicates."""
+
+    model_config = ConfigDict(extra="forbid")
+    confidence: float = Field(0.99, gt=0, lt=1, description="χ² confidence of the compatibility gates")
+    pre_gate_m: float = Field(
+        2.0,
+        gt=0,
+        description="Euclidean pre-gate before the χ² tests (the EKF adds 3σ of the vehicle position): "
+        "saves work on large maps; must exceed the plausible landmark position error",
+    )
+    min_observations: int = Field(3, ge=1, description="consistent observations before a landmark enters the map")
+    min_segment_length_m: float = Field(
+        0.05, gt=0, description="pipe segments shorter than this are dropped (no usable direction)"
+    )
+    track_timeout_s: float = Field(
+        60.0, gt=0, description="a tentative landmark not seen again within this time is forgotten (false positive)"
+    )
+    track_gate_confidence: float = Field(
+        0.999, gt=0, lt=1, description="χ² confidence for an observation to extend a tentative landmark"
+    )
+    merge_angle_rad: float = Field(
+        0.175, gt=0, description="pipe segments are collinear (one pipe) when their directions differ by less than this"
+    )
+    merge_distance_m: float = Field(
+        0.3,
+        gt=0,
+        description="... and each one's ends lie within this distance of the other's line, with a gap along "
+        "the axis below it (the paper's collinear-segment merge)",
+    )
+    min_separation_m: float = Field(
+        0.08,
+        gt=0,
+        description="two landmarks of a kind are never closer than this (objects: centres; pipes: axes, "
+        "parallel and overlapping): an unpaired observation that close to one is it seen badly and "
+        "starts no new landmark",
+    )
+    inline_object_radius_m: float = Field(
+        0.15,
+        gt=0,
+        description="an object this close to a pipe's axis, between two collinear segments, separates them "
+        "(an in-line valve or socket joins two pipes): they are neither merged nor associated",
+    )
+    pipe_extent_gap_m: float = Field(
+        0.3,
+        ge=0,
+        description="an observed pipe segment pairs with a mapped pipe only if it comes within this gap "
+        "(along the axis) of what has been seen of that pipe",
+    )
+    duplicate_pipe_distance_m: float = Field(
+        0.1,
+        gt=0,
+        description="two mapped pipes within the collinearity angle whose seen extents overlap over half "
+        "the shorter and whose axes are closer than this (a pipe diameter: pipes cannot interpenetrate) "
+        "are one pipe mapped twice, even when their estimates fail the χ² test; the younger is dropped",
+    )

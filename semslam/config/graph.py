@@ -1,0 +1,55 @@
+"""Configuration of the graph back-end (section ``graph``). The start state, motion noise and the
+map-building rules are shared with the EKF and live in ``initial``, ``motion`` and ``association``."""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+
+class GraphConfig(BaseModel):
+    """iSAM2 online smoothing (and the batch re-optimisation) over keyframes."""
+
+    model_config = ConfigDict(extra="forbid")
+    batch: bool = Field(
+        False, description="after the online pass, re-optimise the whole mission with Levenberg–Marquardt"
+    )
+    keyframe_max_interval_s: float = Field(
+        1.0, gt=0, description="a keyframe at least this often, besides one per exteroceptive observation batch"
+    )
+    dvl_max_age_s: float = Field(
+        0.5, gt=0, description="a DVL sample older than this at a keyframe is not a velocity factor"
+    )
+    ahrs_max_age_s: float = Field(0.5, gt=0, description="an AHRS sample older than this at a keyframe is not used")
+    depth_max_age_s: float = Field(0.5, gt=0, description="a depth sample older than this at a keyframe is not used")
+    relinearize_threshold: float = Field(
+        0.02, gt=0, description="iSAM2 relinearises a variable whose update exceeds this (tangent-space norm)"
+    )
+    relinearize_skip: int = Field(
+        5, ge=1, description="iSAM2 checks for relinearisation every this many updates (1: every update)"
+    )
+    robust_kernel: Literal["huber", "cauchy", "tukey", "none"] = Field(
+        "huber", description="m-estimator on the landmark factors"
+    )
+    robust_k: float = Field(1.345, gt=0, description="width of the robust kernel, in whitened units (σ)")
+    window_s: float | None = Field(
+        600.0,
+        gt=0,
+        description="online smoothing window (mission seconds): keyframes older than this, and landmarks no newer "
+        "keyframe sees, are marginalised into a linear prior on what stays, every half window, so that the cost per "
+        "update stays flat on long missions; a landmark seen again re-enters with its last estimate and the "
+        "covariance of its own views. None: smooth the whole mission. The batch always spans the whole mission. "
+        "Must exceed twice association.track_timeout_s (a tentative landmark's views are still in the window "
+        "when it is promoted)",
+    )
+    batch_max_iterations: int = Field(100, ge=1, description="Levenberg–Marquardt iterations in batch mode")
+    covariance_in_result: bool = Field(
+        True, description="marginal covariances of keyframes and landmarks in the result"
+    )
+    result_covariance_keyframes: int = Field(
+        150,
+        ge=2,
+        description="keyframes (evenly spaced) whose marginal covariance the result carries, the others NaN: "
+        "each costs a partial elimination of a graph where every landmark links to every pose",
+    )

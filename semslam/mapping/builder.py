@@ -1,0 +1,352 @@
+"""How both estimators build their map from a scan's observations: one set of rules, one call.
+
+For each batch of observations (one front-end's, of one measurement) the builder
+1. drops the unusable ones (non-finite, a pipe segment shorter than ``min_segment_length_m``, what the
+   estimator cannot model) and merges the collinear pipe segments of the batch, sensor by sensor,
+   unless an object (of the batch, mapped or tentative) lies between them;
+2. asks the estimator for the individually compatible pairs of the batch with its landmarks
+   (:meth:`LandmarkState.candidates`, at the looser of the association and track confidences) and
+   runs the one JCBB on those compatible at ``association.confidence``;
+3. decides the unpaired: a pipe segment compatible with a pipe paired in this batch is a second view
+   of it (paired too); an observation compatible at ``track_gate_confidence`` with some landmark, or
+   lying where a mapped landmark of its kind is (objects closer than ``min_separation_m``; pipes that
+   close to the axis, nearly parallel, half within what was seen of it, no object between), is that
+   landmark seen badly: ambiguous, it starts nothing;
+4. has the estimator apply the pairings (its own update), extends or starts tentative landmarks with
+   the rest (:mod:`semslam.mapping.tracks`) and has the estimator initialise those promoted;
+5. records every view in the :class:`~semslam.mapping.book.LandmarkBook` (class evidence, what was seen
+   of each pipe, placed with the pose after the update);
+6. merges duplicates among the landmarks touched: two objects whose difference is compatible with zero
+   (χ² at ``confidence``); two pipes on one axis by the collinearity criterion whose line difference
+   is compatible with zero or which share over half of a stretch within ``duplicate_pipe_distance_m``
+   of each other's axis. The younger goes into the older (the estimator constrains the two to be one
+   where the χ² test passed; otherwise it just drops the younger).
+
+Each estimator keeps only what is its own: its state, how it linearises a pair, its update, how it
+initialises a landmark and merges two (:class:`LandmarkState`).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from typing import Any, Protocol
+
+import numpy as np
+
+from semslam.config import AssociationConfig
+from semslam.mapping.association import Candidates, JointCovariance, PairLinearization, chi2_gate, jcbb
+from semslam.mapping.book import LandmarkBook
+from semslam.mapping.extent import along_sigma, off_axis
+from semslam.mapping.pipes import merge_collinear, object_between
+from semslam.mapping.tracks import Track, TrackSet, TrackView
+from semslam.observations import LineObservation, Observation, PointObservation, StructureObservation
+
+MAPPED_TYPES = (PointObservation, LineObservation, StructureObservation)
+
+
+class Scan:
+    """What the rules of one batch share: the objects that keep collinear pipes apart (``separators``:
+    mapped and tentative, in {W}) and those that cut a pipe's extent (``cutters``: mapped)."""
+
+    def __init__(self, book: LandmarkBook, assoc: AssociationConfig, separators: np.ndarray, cutters: np.ndarray):
+        self.book = book
+        self.assoc = assoc
+        self.separators = separators
+        self.cutters = cutters
+
+    def excludes(self, pipe: int, seg_W: np.ndarray, c: np.ndarray, d: np.ndarray) -> bool:
+        """Segment ``seg_W`` (2×3, {W}) cannot be mapped pipe ``pipe`` (line c, d): beyond the gap from
+        what was seen of it, or across an in-line object (:meth:`PipeExtent.excludes`)."""
+        a = self.assoc
+        return self.book.extent(pipe).excludes(
+            seg_W, c, d, self.separators, self.cutters, a.inline_object_radius_m, a.pipe_extent_gap_m
+        )
+
+
+class LandmarkState(Protocol):
+    """What the shared map building asks of an estimator's own landmark state."""
+
+    def usable(self, z: Observation) -> bool:
+        """Whether the estimator can use ``z`` at all (a kind it models, not degenerate for its model)."""
+
+    def sensor_pose(self, sensor: str) -> np.ndarray:
+        """T_WS (4×4) of ``sensor`` with the pose of the current batch."""
+
+    def place(self, z: Observation) -> tuple[np.ndarray, np.ndarray | None, Any]:
+        """``z`` in {W} with the current pose (see :class:`~semslam.mapping.tracks.TrackView`): the
+        landmark it shows, the covariance of that position (objects, structures; the pose's
+        uncertainty included) and what the estimator needs to initialise a landmark from it."""
+
+    def objects(self) -> tuple[list[int], np.ndarray]:
+        """The mapped objects: their ids and positions in {W} (N×3)."""
+
+    def pipes(self) -> list[tuple[int, np.ndarray, np.ndarray]]:
+        """The mapped pipes: (id, a point of the line, its unit direction) in {W}."""
+
+    def candidates(
+        self, observations: list[Observation], confidence: float, scan: Scan
+    ) -> tuple[Candidates, list[int]]:
+        """The pairs of ``observations`` with landmarks individually compatible at ``confidence``
+        (landmarks as indices into the returned list of their ids; a pipe pair only where
+        ``scan.excludes`` does not rule it out)."""
+
+    def joint(self, found: Candidates) -> JointCovariance:
+        """How the joint NIS of hypotheses over ``found`` grows."""
+
+    def update(self, paired: list[tuple[Observation, int, PairLinearization]]) -> None:
+        """Apply the pairings (observation, landmark id, its linearisation)."""
+
+    def promote(self, track: Track) -> int:
+        """A tentative landmark enters the state; its new id."""
+
+    def settle(self) -> None:
+        """The batch's updates and new landmarks are in: estimates are current from here on."""
+
+    def difference_nis(self, a: int, b: int) -> float | None:
+        """χ² of the hypothesis that landmarks a and b are one (None: the estimator cannot test it)."""
+
+    def merge(self, keep: int, drop: int, constrain: bool) -> None:
+        """Landmark ``drop`` is ``keep`` mapped twice: it leaves the map; with ``constrain`` the two
+        estimates are first made one."""
+
+
+class MapBuilder:
+    """The map-building rules (see the module) over one estimator's landmark state."""
+
+    def __init__(self, state: LandmarkState, assoc: AssociationConfig, book: LandmarkBook, diagnostics: list[str]):
+        self.state = state
+        self.assoc = assoc
+        self.book = book
+        self.tracks = TrackSet(assoc)
+        self.diagnostics = diagnostics
+        self.merged = 0  # duplicates merged
+
+    # ------------------------------------------------------------------ one batch
+    def process(self, stamp: int, observations: Sequence[Observation]) -> set[int]:
+        """Map one batch of observations; returns the ids of the landmarks it touched."""
+        obs = self._usable(stamp, observations)
+        mapped_ids, mapped = self.state.objects()
+        separators = np.vstack([mapped, self.tracks.object_points()])
+        obs = self.merge_lines(obs, separators)
+        scan = Scan(self.book, self.assoc, separators, mapped)
+        a = self.assoc
+        paired: list[tuple[Observation, int, PairLinearization]] = []
+        unpaired: list[Observation] = []
+        if obs:
+            found, ids = self.state.candidates(obs, max(a.confidence, a.track_gate_confidence), scan)
+            strict = found.subset(found.passing(a.confidence))
+            pairing = jcbb(strict, self.state.joint(strict), a.confidence) if len(strict.obs) else [None] * len(obs)
+            taken = {j for j in pairing if j is not None}
+            for i, z in enumerate(obs):
+                j = pairing[i]
+                if j is not None:
+                    paired.append((z, ids[j], strict.lin[strict.pair(i, j)]))
+                    continue
+                best = found.best(i)
+                if best is not None:  # compatible with a landmark after all
+                    j = int(found.lm[best])
+                    k = strict.pair(i, j)
+                    if isinstance(z, LineObservation) and j in taken and k is not None:
+                        paired.append((z, ids[j], strict.lin[k]))  # a second segment of a pipe paired now
+                    continue  # ambiguous: that landmark seen badly
+                if not self._overlaps_mapped(z, mapped):
+                    unpaired.append(z)
+        if paired:
+            self.state.update(paired)
+        views = [TrackView(stamp, z, *self.state.place(z)) for z in unpaired]
+        went, promoted = self.tracks.extend(views, separators)
+        for v, tr in zip(views, went):
+            self.book.observe(("track", tr.key), stamp, v.z)
+            if tr.kind == "pipe":
+                self.book.extent(("track", tr.key)).add(v.world, along_sigma(v.z))
+        touched = {lid for _, lid, _ in paired}
+        for tr in promoted:
+            lid = self.state.promote(tr)
+            self.book.merge(lid, ("track", tr.key))
+            touched.add(lid)
+        for tr in self.tracks.purge(stamp):
+            self.book.forget(("track", tr.key))
+        self.state.settle()
+        for z, lid, _ in paired:  # the views, placed with the pose after the update
+            self.book.observe(lid, stamp, z)
+            if isinstance(z, LineObservation):
+                self.book.extent(lid).add(self.state.place(z)[0], along_sigma(z))
+        if touched:
+            self.merge_duplicates(touched, separators)
+        return touched
+
+    def _usable(self, stamp: int, observations: Sequence[Observation]) -> list[Observation]:
+        mapped = [z for z in observations if isinstance(z, MAPPED_TYPES)]
+        good = well_formed(mapped, self.assoc, self.diagnostics, stamp)
+        return [z for z in good if self.state.usable(z)]
+
+    def merge_lines(self, obs: list[Observation], separators_W: np.ndarray) -> list[Observation]:
+        """The batch's pipe segments merged along shared axes, sensor by sensor. Objects of the batch
+        and objects already mapped or tracked (placed in the sensor frame with the current pose) keep
+        the segments on either side of them apart: a missed in-line valve must not join its two pipes."""
+        lines = [z for z in obs if isinstance(z, LineObservation)]
+        if not lines:
+            return obs
+        merged: dict[int, Observation] = {}  # first member's place in the batch → the merged segment
+        for sensor in dict.fromkeys(z.sensor for z in lines):
+            T_SW = np.linalg.inv(self.state.sensor_pose(sensor))
+            seps = [z.position for z in obs if isinstance(z, PointObservation) and z.sensor == sensor]
+            seps = np.vstack([np.array(seps).reshape(-1, 3), separators_W @ T_SW[:3, :3].T + T_SW[:3, 3]])
+            group = [z for z in lines if z.sensor == sensor]
+            for m, members in merge_collinear(
+                group,
+                self.assoc.merge_angle_rad,
+                self.assoc.merge_distance_m,
+                separators=seps,
+                separator_radius=self.assoc.inline_object_radius_m,
+                side_by_side=self.assoc.min_separation_m,
+                members=True,
+            ):
+                merged[min(next(i for i, z in enumerate(obs) if z is group[k]) for k in members)] = m
+        # the batch's order kept (a merged segment where its first member was)
+        return [merged.get(i, z) for i, z in enumerate(obs) if not isinstance(z, LineObservation) or i in merged]
+
+    def _overlaps_mapped(self, z: Observation, mapped_objects: np.ndarray) -> bool:
+        """An observation that failed the χ² gates but lies where a mapped landmark of its kind
+        physically is (objects: closer than ``min_separation_m``; pipes: both ends that close to the
+        line, nearly parallel, half of it within what was seen of it, no object between) is that
+        landmark seen badly: it must not start a second one."""
+        a = self.assoc
+        sep = a.min_separation_m
+        if isinstance(z, PointObservation):
+            w = self.state.place(z)[0]
+            return bool(len(mapped_objects)) and bool(np.min(np.linalg.norm(mapped_objects - w, axis=1)) < sep)
+        if not isinstance(z, LineObservation):
+            return False
+        seg = self.state.place(z)[0]
+        u = (seg[1] - seg[0]) / np.linalg.norm(seg[1] - seg[0])
+        separators = np.vstack([mapped_objects, self.tracks.object_points()])
+        for pid, c, d in self.state.pipes():
+            if np.arccos(min(1.0, abs(float(u @ d)))) > a.merge_angle_rad:
+                continue
+            r = seg - c
+            if np.linalg.norm(r - np.outer(r @ d, d), axis=1).max() >= sep:
+                continue
+            s_ = r @ d
+            lo, hi = seen = self.book.extent(pid).interval(c, d, mapped_objects, a.inline_object_radius_m)
+            if min(s_.max(), hi) - max(s_.min(), lo) < 0.5 * (s_.max() - s_.min()):
+                continue  # mostly beyond what was seen: possibly the next pipe in line
+            if not object_between(seen, seg, c, d, separators, a.inline_object_radius_m):
+                return True
+        return False
+
+    # ------------------------------------------------------------------ duplicates
+    def merge_duplicates(self, touched: set[int], separators: np.ndarray | None = None) -> None:
+        """Merge the pairs of landmarks mapped twice among those involving a touched one, the most
+        compatible first (see the module). ``separators``: the objects that keep collinear pipes apart
+        (default: the mapped and tentative ones)."""
+        if separators is None:
+            separators = np.vstack([self.state.objects()[1], self.tracks.object_points()])
+        found = self._duplicate_objects(touched) + self._duplicate_pipes(touched, separators)
+        gone: set[int] = set()
+        for nis, a, b, gate in sorted(found):
+            if a in gone or b in gone:
+                continue
+            keep, drop = min(a, b), max(a, b)
+            self.state.merge(keep, drop, constrain=nis < gate)
+            self.book.merge(keep, drop)
+            gone.add(drop)
+            self.merged += 1
+            self.diagnostics.append(f"landmarks {keep} and {drop} are one, merged into {keep}")
+
+    def _duplicate_objects(self, touched: set[int]) -> list[tuple[float, int, int, float]]:
+        ids, pos = self.state.objects()
+        if len(ids) < 2:
+            return []
+        gate = chi2_gate(self.assoc.confidence, 3)
+        out = []
+        row = {lid: r for r, lid in enumerate(ids)}
+        for a in sorted(touched & set(row)):
+            near = np.flatnonzero(np.linalg.norm(pos - pos[row[a]], axis=1) < self.assoc.pre_gate_m)
+            for r in near:
+                b = ids[r]
+                if b == a or (b in touched and b < a):  # each pair once
+                    continue
+                nis = self.state.difference_nis(a, b)
+                if nis is not None and nis < gate:
+                    out.append((nis, a, b, gate))
+        return out
+
+    def _duplicate_pipes(self, touched: set[int], separators: np.ndarray) -> list[tuple[float, int, int, float]]:
+        """Pipes on one axis by the paper's collinearity criterion (angle, distance, extent gap, no
+        object between) that are one pipe: their line difference compatible with zero, or sharing a
+        stretch of pipe (two estimates of one short pipe can disagree by 5–8° with line covariances
+        overconfident by then, yet two pipes cannot share a stretch closer than a diameter)."""
+        pipes = self.state.pipes()
+        if len(pipes) < 2 or not any(pid in touched for pid, _, _ in pipes):
+            return []
+        a_cfg = self.assoc
+        gate = chi2_gate(a_cfg.confidence, 4)
+        dirs = np.array([d for _, _, d in pipes])
+        mids = np.array([self.book.extent(pid).centre() for pid, _, _ in pipes])
+        _, cutters = self.state.objects()
+        out = []
+        for pid_a, c_a, d_a in pipes:
+            if pid_a not in touched:
+                continue
+            r = mids - c_a
+            off = np.linalg.norm(r - np.outer(r @ d_a, d_a), axis=1)
+            screen = (np.abs(dirs @ d_a) >= math.cos(a_cfg.merge_angle_rad)) & (off <= a_cfg.merge_distance_m)
+            ext_a = self.book.extent(pid_a)
+            for b in np.flatnonzero(screen):
+                pid_b, c_b, d_b = pipes[b]
+                if pid_b == pid_a or (pid_b in touched and pid_b < pid_a):  # each pair once
+                    continue
+                ends_b = self.book.extent(pid_b).ends(c_b, d_b)
+                if not self._on_pipe(ends_b, pid_a, c_a, d_a, separators, cutters):
+                    continue
+                nis = self.state.difference_nis(pid_a, pid_b)
+                if nis is not None and nis < gate:
+                    out.append((nis, pid_a, pid_b, gate))
+                    continue
+                # sharing a stretch: what each pipe is, cut at the mapped in-line objects (a fit through a
+                # socket spans two pipes, and the pipe beyond the socket shares none of the other)
+                r = a_cfg.inline_object_radius_m
+                cut_b = self.book.extent(pid_b).ends(c_b, d_b, cutters, r)
+                if (
+                    off_axis(cut_b, c_a, d_a) <= a_cfg.duplicate_pipe_distance_m
+                    and ext_a.overlap_fraction(cut_b, c_a, d_a, cutters, r) >= 0.5
+                ):
+                    out.append((math.inf if nis is None else nis, pid_a, pid_b, gate))
+        return out
+
+    def _on_pipe(self, ends: np.ndarray, pipe: int, c, d, separators, cutters) -> bool:
+        """The paper's collinear merge: the segment is within ``merge_angle_rad`` of the pipe's axis,
+        both its ends within ``merge_distance_m`` of it, within the extent gap and not across an object."""
+        a = self.assoc
+        u = (ends[1] - ends[0]) / np.linalg.norm(ends[1] - ends[0])
+        if abs(float(u @ d)) < math.cos(a.merge_angle_rad) or off_axis(ends, c, d) > a.merge_distance_m:
+            return False
+        return not Scan(self.book, a, separators, cutters).excludes(pipe, ends, c, d)
+
+
+def well_formed(
+    observations: Sequence[Observation], assoc: AssociationConfig, diagnostics: list[str], stamp: int
+) -> list[Observation]:
+    """The observations with finite numbers, and pipe segments no shorter than
+    ``association.min_segment_length_m`` (the others are counted in ``diagnostics``)."""
+    out = [
+        z
+        for z in observations
+        if _finite(z)
+        and not (isinstance(z, LineObservation) and np.linalg.norm(z.q - z.p) < assoc.min_segment_length_m)
+    ]
+    if len(out) < len(observations):
+        diagnostics.append(f"{stamp}: {len(observations) - len(out)} degenerate or non-finite observations dropped")
+    return out
+
+
+def _finite(z: Observation) -> bool:
+    if isinstance(z, PointObservation):
+        arrays = (z.position, z.covariance)
+    elif isinstance(z, LineObservation):
+        arrays = (z.p, z.q, z.covariance)
+    else:
+        arrays = (z.pose, z.covariance)
+    return all(np.all(np.isfinite(a)) for a in arrays)

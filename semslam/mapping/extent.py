@@ -1,0 +1,156 @@
+"""What has been seen of a pipe: the ends of every view of it, in {W}, with their along-axis σ.
+
+The saved ends are projected onto the line as it is estimated now whenever the extent is used, so
+they follow every update of the line. The pipe's ends are a noise-robust extreme of them
+(:func:`semslam.mapping.pipes.robust_ends`), cut at the mapped in-line objects
+(:func:`~semslam.mapping.pipes.cut_at_objects`). A line is given as a point c on it and its unit
+direction d; positions along it are measured along d from c.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from semslam.mapping.pipes import cut_at_objects, object_between, robust_ends, small_median
+from semslam.observations import LineObservation
+
+
+def along_sigma(z: LineObservation) -> float:
+    """Endpoint σ along the segment, from its 6×6 covariance (the mean of both ends' variances)."""
+    d = (z.q - z.p) / np.linalg.norm(z.q - z.p)
+    C = np.asarray(z.covariance)
+    return float(np.sqrt(0.5 * (d @ C[:3, :3] @ d + d @ C[3:, 3:] @ d)))
+
+
+def off_axis(points: np.ndarray, c: np.ndarray, d: np.ndarray) -> float:
+    """The largest distance of the points (N×3) from the line (c, d)."""
+    r = np.asarray(points) - c
+    return float(np.linalg.norm(r - np.outer(r @ d, d), axis=1).max())
+
+
+class PipeExtent:
+    """The views of one pipe (ends in {W}) and what they say about where the pipe is along its line.
+    The interval of the latest line asked for is kept, so that one scan's checks compute it once."""
+
+    def __init__(self):
+        self._pts = np.zeros((8, 2, 3))  # (2, 3) per view, in a buffer that grows by doubling
+        self._sig = np.zeros(8)
+        self._k = 0
+        self._memo: tuple | None = None  # (c, d, view count, interval)
+        self._w: tuple | None = None  # (view count, 6 × median σ)
+        self._sep_memo: tuple | None = None  # (objects key, c, d, on-line objects' positions along it)
+
+    def __len__(self) -> int:
+        return self._k
+
+    def add(self, ends_W: np.ndarray, sigma: float) -> None:
+        """One view: its two ends in {W} and their along-axis σ."""
+        if self._k == len(self._sig):
+            self._pts = np.concatenate([self._pts, np.zeros_like(self._pts)])
+            self._sig = np.concatenate([self._sig, np.zeros_like(self._sig)])
+        self._pts[self._k] = ends_W
+        self._sig[self._k] = sigma
+        self._k += 1
+
+    def merge(self, other: PipeExtent) -> None:
+        for k in range(other._k):
+            self.add(other._pts[k], other._sig[k])
+
+    def centre(self) -> np.ndarray:
+        """Mean of the saved view ends in {W}: a point near the pipe, inside what was seen of it."""
+        return self._pts[: self._k].reshape(-1, 3).mean(axis=0)
+
+    def outer(self, c: np.ndarray, d: np.ndarray) -> tuple[float, float]:
+        """The extreme view ends along the line (every view's, noise included)."""
+        s = (self._pts[: self._k] - c) @ d
+        return float(s.min()), float(s.max())
+
+    def interval(
+        self, c: np.ndarray, d: np.ndarray, cutters: np.ndarray | None = None, radius: float = 0.0
+    ) -> tuple[float, float]:
+        """Where the pipe (c, d) was seen, robust to endpoint noise; cut at the mapped objects
+        ``cutters`` (N×3, {W}) within ``radius`` of the line inside it, keeping the side that holds
+        most of the views."""
+        out = self._robust(c, d)
+        if cutters is None or not len(cutters):
+            return out
+        middle = small_median(((self._pts[: self._k] - c) @ d).mean(axis=1))
+        return cut_at_objects(out, c, d, cutters, radius, middle)
+
+    def _robust(self, c: np.ndarray, d: np.ndarray) -> tuple[float, float]:
+        memo = self._memo
+        if memo is not None and memo[2] == self._k and np.array_equal(memo[0], c) and np.array_equal(memo[1], d):
+            return memo[3]
+        s = (self._pts[: self._k] - c) @ d  # (K, 2)
+        lo, hi = s.min(axis=1), s.max(axis=1)
+        if self._w is None or self._w[0] != self._k:
+            self._w = (self._k, 6.0 * small_median(self._sig[: self._k]))
+        out = robust_ends(lo, hi, self._w[1])
+        self._memo = (np.array(c, float), np.array(d, float), self._k, out)
+        return out
+
+    def ends(self, c: np.ndarray, d: np.ndarray, cutters: np.ndarray | None = None, radius: float = 0.0) -> np.ndarray:
+        """The pipe's two ends on the line (c, d), 2×3 (see :meth:`interval`)."""
+        a, b = self.interval(c, d, cutters, radius)
+        return np.array([c + a * d, c + b * d])
+
+    def gap(self, ends_W: np.ndarray, c: np.ndarray, d: np.ndarray, span: tuple[float, float]) -> float:
+        """Gap along the line between the seen extent ``span`` (its :meth:`interval`) and a segment
+        (2×3, {W}); 0 when they overlap."""
+        a, b = span
+        s = (ends_W - c) @ d
+        return max(0.0, float(s.min()) - b, a - float(s.max()))
+
+    def overlap_fraction(
+        self, ends_b: np.ndarray, c: np.ndarray, d: np.ndarray, cutters: np.ndarray | None = None, radius: float = 0.0
+    ) -> float:
+        """Length shared by the seen extent (cut at ``cutters``, see :meth:`interval`) and the segment
+        ends_b along the line (c, d), over the shorter one's length."""
+        a0, a1 = self.interval(c, d, cutters, radius)
+        s = (ends_b - c) @ d
+        b0, b1 = float(s.min()), float(s.max())
+        shorter = min(a1 - a0, b1 - b0)
+        return max(0.0, min(a1, b1) - max(a0, b0)) / shorter if shorter > 0 else 0.0
+
+    def separated(
+        self,
+        ends_W: np.ndarray,
+        c: np.ndarray,
+        d: np.ndarray,
+        objects: np.ndarray,
+        radius: float,
+        span: tuple[float, float],
+    ) -> bool:
+        """An object (N×3, {W}) within ``radius`` of the line lies between the seen extent ``span``
+        and the segment: collinear pipes joined by an in-line part (a valve, a socket) are different
+        pipes (:func:`~semslam.mapping.pipes.object_between`, with the objects on the line found once
+        per line and object set)."""
+        if len(objects) == 0:
+            return False
+        key = (objects.shape, float(objects.sum()), radius)
+        memo = self._sep_memo
+        if memo is not None and memo[0] == key and np.array_equal(memo[1], c) and np.array_equal(memo[2], d):
+            on_line = memo[3]
+        else:
+            r = objects - c
+            s_obj = r @ d
+            on_line = objects[np.linalg.norm(r - s_obj[:, None] * d, axis=1) < radius]
+            self._sep_memo = (key, np.array(c, float), np.array(d, float), on_line)
+        return object_between(span, ends_W, c, d, on_line, radius)
+
+    def excludes(
+        self,
+        ends_W: np.ndarray,
+        c: np.ndarray,
+        d: np.ndarray,
+        separators: np.ndarray,
+        cutters: np.ndarray,
+        radius: float,
+        max_gap: float,
+    ) -> bool:
+        """A segment (2×3, {W}) cannot be this pipe (c, d): it lies more than ``max_gap`` beyond what
+        was seen of it (cut at the mapped objects ``cutters``: a pipe seen through a socket or a tee
+        must not keep the views of the pipe beyond it), or an object (``separators``: mapped and
+        tentative) lies between them."""
+        span = self.interval(c, d, cutters, radius)
+        return self.gap(ends_W, c, d, span) > max_gap or self.separated(ends_W, c, d, separators, radius, span)

@@ -1,0 +1,162 @@
+"""Tentative landmarks (Himri et al. 2018: a landmark enters the map only after consistent repeated
+observations). A scan's unpaired observations continue tracks or start new ones; a track seen
+``association.min_observations`` times is promoted (each estimator then initialises the landmark in
+its own state); one not seen again within ``association.track_timeout_s`` is forgotten.
+
+A scan's views continue tracks one-to-one, by the assignment of least total cost over the scan
+(Hungarian), not view by view: in a row of objects 25–35 cm apart with a missed object, the greedy
+choice lets each view take its neighbour's track and the shift runs down the row. Objects and
+structures continue a track when the Mahalanobis distance of their position to the track's
+information-weighted mean passes ``association.track_gate_confidence``; pipe segments when they are
+collinear with the track's line by the paper's criterion (``merge_angle_rad``, ``merge_distance_m``),
+within ``pipe_extent_gap_m`` of what the track saw, with no in-line object between.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from semslam.config import AssociationConfig
+from semslam.mapping.association import chi2_gate
+from semslam.mapping.pipes import object_between, segment_matches_line
+from semslam.observations import LineObservation, Observation, PointObservation, StructureObservation
+
+KIND_OF_OBSERVATION = {PointObservation: "object", LineObservation: "pipe", StructureObservation: "structure"}
+
+
+@dataclass
+class TrackView:
+    """One view of a tentative landmark: the observation, where it puts the landmark in {W} with the
+    pose of its time (object: (3,); pipe: segment ends (2, 3); structure: T_W,model (4, 4)) and, for
+    objects and structures, that position's covariance (observation and pose). ``payload``: what the
+    estimator needs to initialise the landmark from it (the graph: the keyframe)."""
+
+    stamp: int
+    z: Observation
+    world: np.ndarray
+    cov: np.ndarray | None = None
+    payload: Any = None
+
+    @property
+    def position(self) -> np.ndarray:
+        return self.world if self.world.shape == (3,) else self.world[:3, 3]
+
+
+@dataclass
+class Track:
+    key: int
+    kind: str
+    model: str | None = None
+    views: list[TrackView] = field(default_factory=list)
+
+    @property
+    def last_stamp(self) -> int:
+        return self.views[-1].stamp
+
+    def mean_position(self) -> tuple[np.ndarray, np.ndarray]:
+        """Information-weighted mean of the views' positions and its covariance (objects, structures)."""
+        info = np.zeros((3, 3))
+        vec = np.zeros(3)
+        for v in self.views:
+            Ci = np.linalg.inv(v.cov)
+            info += Ci
+            vec += Ci @ v.position
+        cov = np.linalg.inv(info)
+        return cov @ vec, cov
+
+    def line_fit(self) -> tuple[np.ndarray, np.ndarray]:
+        """Principal axis of all the views' segment ends (pipes): (point, unit direction)."""
+        pts = np.vstack([v.world for v in self.views])
+        c = pts.mean(axis=0)
+        _, _, vt = np.linalg.svd(pts - c)
+        return c, vt[0]
+
+
+class TrackSet:
+    """The tentative landmarks of one estimator."""
+
+    def __init__(self, assoc: AssociationConfig):
+        self.assoc = assoc
+        self.tracks: list[Track] = []
+        self._next_key = 0
+
+    def __len__(self) -> int:
+        return len(self.tracks)
+
+    def object_points(self) -> np.ndarray:
+        """The tentative objects' positions in {W} (N×3): they separate collinear pipes as mapped ones do."""
+        pts = [tr.mean_position()[0] for tr in self.tracks if tr.kind == "object"]
+        return np.array(pts).reshape(-1, 3)
+
+    def purge(self, stamp: int) -> list[Track]:
+        """Forget the tracks not seen within ``track_timeout_s`` of ``stamp``; return them."""
+        horizon = stamp - int(self.assoc.track_timeout_s * 1e9)
+        gone = [t for t in self.tracks if t.last_stamp < horizon]
+        self.tracks = [t for t in self.tracks if t.last_stamp >= horizon]
+        return gone
+
+    def extend(self, views: list[TrackView], separators: np.ndarray) -> tuple[list[Track], list[Track]]:
+        """The scan's unpaired views continue tracks or start new ones (``separators``: objects in
+        {W}, N×3, that keep collinear pipe segments apart). Returns (the tracks each view went to,
+        the tracks promoted now), the promoted ones leaving the set."""
+        tracks = list(self.tracks)
+        cost = np.full((len(views), len(tracks)), np.inf)
+        for i, v in enumerate(views):
+            for j, tr in enumerate(tracks):
+                cost[i, j] = self._cost(tr, v, separators)
+        chosen: dict[int, Track] = {}
+        if np.isfinite(cost).any():
+            # each view may also start a track, at the price of its gate: two near misses must not beat
+            # one good continuation and one new track
+            new = np.full((len(views), len(views)), 1e12)
+            np.fill_diagonal(new, [self._gate(v.z) for v in views])
+            rows, cols = linear_sum_assignment(np.hstack([np.where(np.isfinite(cost), cost, 1e12), new]))
+            chosen = {r: tracks[c] for r, c in zip(rows, cols) if c < len(tracks) and np.isfinite(cost[r, c])}
+        went, promoted = [], []
+        for i, v in enumerate(views):
+            tr = chosen.get(i)
+            if tr is None:
+                tr = Track(self._next_key, KIND_OF_OBSERVATION[type(v.z)], model=getattr(v.z, "model", None))
+                self._next_key += 1
+                self.tracks.append(tr)
+            tr.views.append(v)
+            went.append(tr)
+            if len(tr.views) >= self.assoc.min_observations:
+                self.tracks.remove(tr)
+                promoted.append(tr)
+        return went, promoted
+
+    def _gate(self, z: Observation) -> float:
+        """The largest :meth:`_cost` that continues a track."""
+        if isinstance(z, LineObservation):
+            return self.assoc.merge_distance_m
+        return chi2_gate(self.assoc.track_gate_confidence, 3)
+
+    def _cost(self, tr: Track, v: TrackView, separators: np.ndarray) -> float:
+        """How well view v continues track tr; inf when it cannot (another kind or model, a view of the
+        same scan, outside the gate). Objects and structures: the Mahalanobis distance²; pipes: the
+        distance of the segment's middle from the track's line."""
+        kind = KIND_OF_OBSERVATION[type(v.z)]
+        if tr.kind != kind or tr.last_stamp == v.stamp:
+            return np.inf
+        a = self.assoc
+        if kind == "pipe":
+            c, d = tr.line_fit()
+            seen = np.vstack([u.world for u in tr.views])
+            s_seen = (seen - c) @ d
+            w = v.world
+            if not segment_matches_line(
+                w, c, d, seen, a.merge_angle_rad, a.merge_distance_m, a.pipe_extent_gap_m
+            ) or object_between((s_seen.min(), s_seen.max()), w, c, d, separators, a.inline_object_radius_m):
+                return np.inf
+            return float(np.linalg.norm(np.cross(w.mean(axis=0) - c, d)))
+        if kind == "structure" and tr.model != v.z.model:
+            return np.inf
+        mean, mcov = tr.mean_position()
+        r = v.position - mean
+        d2 = float(r @ np.linalg.solve(v.cov + mcov, r))
+        return d2 if d2 < self._gate(v.z) else np.inf

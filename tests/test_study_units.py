@@ -1,0 +1,106 @@
+"""The study's parts that need no cluster: seeds, tasks as plain data, statistics, user errors."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from semslam.cli import app
+from semslam.errors import ConfigError
+from semslam.study.plan import parse_seeds, scenario_tasks
+from semslam.study.stats import bootstrap_ci, distribution, paired_ratio, study_statistics
+
+runner = CliRunner()
+
+
+def test_parse_seeds():
+    assert parse_seeds("0-3") == [0, 1, 2, 3]
+    assert parse_seeds("7, 0-2,1") == [7, 0, 1, 2]
+    for bad in ("3-1", "a", "1-", ""):
+        with pytest.raises(ConfigError, match="--seeds"):
+            parse_seeds(bad)
+
+
+def test_tasks_are_plain_data_with_resolved_configs(tmp_path):
+    """What a Dask task gets survives JSON unchanged: paths, a seed, configurations as mappings,
+    the simulator's resolved (so its drawn world is fixed on the client) and validated."""
+    from semslam.sim.config import TankSimConfig
+
+    tasks = scenario_tasks(tmp_path, "tank", [0, 5], ("noise",), {"graph": {}})
+    for t in tasks:
+        assert json.loads(json.dumps(t.to_dict())) == t.to_dict()
+    seed0, seed5 = (TankSimConfig.model_validate(t.source["sim_config"]) for t in tasks)
+    assert seed0 == TankSimConfig()  # seed 0: the default mission
+    assert seed5.seed == 5 and seed5.dvl.sigma_m_s != TankSimConfig().dvl.sigma_m_s
+    assert seed5.structure == TankSimConfig().structure  # only the noise varies
+    assert tasks[0].identity_hash() != tasks[1].identity_hash()
+    bad = tmp_path / "sim.yaml"
+    bad.write_text("dvl: {sigma_m_s: -1}\n")
+    with pytest.raises(ConfigError, match=r"sim.yaml: dvl.sigma_m_s"):
+        scenario_tasks(tmp_path, "tank", [1], (), {}, bad)
+
+
+def test_distribution_skips_missing_values():
+    d = distribution([1.0, None, 3.0, float("nan"), 2.0])
+    assert (d["n"], d["median"], d["min"], d["max"], d["mean"]) == (3, 2.0, 1.0, 3.0, 2.0)
+    assert d["values"] == [1.0, None, 3.0, None, 2.0]
+    assert distribution([None])["median"] is None
+
+
+def test_paired_ratio_pairs_by_mission():
+    r = paired_ratio([1.0, 4.0, None, 2.0, 0.0], [2.0, 2.0, 1.0, None, 1.0])
+    assert r["values"] == [0.5, 2.0, None, None, None] and r["n"] == 2
+    assert r["median"] == pytest.approx(1.25) and r["geomean"] == pytest.approx(1.0) and r["share_below_1"] == 0.5
+    same = paired_ratio([1.0, 2.0, 3.0], [2.0, 4.0, 6.0])
+    assert same["median_ci95"] == [0.5, 0.5] and same["geomean_ci95"] == [0.5, 0.5]
+    assert paired_ratio([1.0], [2.0])["median_ci95"] is None  # one pair: no interval
+
+
+def test_bootstrap_interval_covers_the_true_median():
+    """Over many samples of 25 log-normal ratios, the 95 % interval of the median holds the true
+    median about 95 % of the time (bootstrap intervals run a little narrow on small samples)."""
+    rng = np.random.default_rng(1)
+    true = np.exp(-0.7)  # a graph/EKF ratio of ~0.5
+    hits = 0
+    for _ in range(80):
+        x = np.exp(rng.normal(-0.7, 0.5, 25))
+        lo, hi = bootstrap_ci(x, lambda v, axis=-1: np.median(v, axis=axis))
+        hits += lo <= true <= hi
+    assert 0.85 <= hits / 80 <= 1.0
+
+
+def test_study_statistics_per_estimator_and_pair():
+    def summary(dr, ekf, graph, f1):
+        est = {n: {"ate_rmse_m": v, "runtime_s": 1.0} for n, v in (("dr", dr), ("ekf", ekf), ("graph", graph))}
+        return {"estimators": est, "recognition_f1": {"SEM": f1}}
+
+    s = study_statistics([summary(1.0, 0.5, 0.25, 0.8), None, summary(2.0, 1.0, 0.4, 0.6)])
+    assert s["distributions"]["graph"]["ate_rmse_m"]["values"] == [0.25, None, 0.4]
+    assert s["distributions"]["dr"]["nees_mean"]["n"] == 0
+    assert s["recognition"]["SEM"]["f1"]["median"] == pytest.approx(0.7)
+    assert s["ratios"]["graph/ekf"]["ate_rmse_m"]["values"] == [0.5, None, 0.4]
+    assert s["ratios"]["ekf/dr"]["ate_rmse_m"]["median"] == 0.5
+    assert set(s["ratios"]) == {"graph/ekf", "ekf/dr"}
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["--out", "o"], "either bags or --scenario"),
+        (["m.bag", "--scenario", "tank", "--out", "o"], "either bags or --scenario"),
+        (["--scenario", "tank", "--seeds", "x", "--out", "o"], "--seeds"),
+        (["--scenario", "tank", "--vary", "colour", "--out", "o"], "--vary: unknown aspect 'colour'"),
+        (["--scenario", "pond", "--out", "o"], "unknown scene 'pond'"),
+        (["missing.bag", "--out", "o"], "missing.bag: no such bag"),
+        (["--scenario", "tank", "--timeout", "0", "--out", "o"], "--timeout"),
+    ],
+)
+def test_user_errors_are_one_line(tmp_path, monkeypatch, args, message):
+    monkeypatch.chdir(tmp_path)
+    res = runner.invoke(app, ["study", *args])
+    assert res.exit_code == 1 and message in res.output, res.output
+    assert len([line for line in res.output.splitlines() if line.strip()]) == 1
+    assert not (tmp_path / "o").exists()
