@@ -16,8 +16,6 @@ back (:class:`InspectionTrack`). Sensor names / topics / message types (the navi
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 from scipy.spatial.transform import Rotation
 
@@ -176,27 +174,3 @@ def simulate_pipeline(config: PipelineSimConfig | None = None, *, progress: bool
         name=cfg.mission_name, sensors=sensor_infos(SENSORS, mounts), ground_truth=ground_truth, extras=extras
     )
     return Mission.from_measurements(meta, [*nav.measurements(), *stereo.measurements])
-
-
-def simulate_pipeline_to_bag(
-    out: str | Path,
-    *,
-    seed: int = 0,
-    dvl_dropout_rate: float | None = None,
-    config: str | Path | None = None,
-    overwrite: bool = False,
-    progress: bool = False,
-) -> Mission:
-    """What ``semslam simulate pipeline`` does: resolve the configuration (defaults ← YAML ``config``
-    ← the options given), simulate, write the bag (+ sidecar) at ``out``. ``dvl_dropout_rate`` →
-    ``dvl.random_dropout_rate``. Returns the simulated mission."""
-    from semslam.mission.bag import write_mission
-    from semslam.sim.pipeline_config import load_pipeline_config
-
-    overrides: dict = {"seed": seed}
-    if dvl_dropout_rate is not None:
-        overrides["dvl__random_dropout_rate"] = dvl_dropout_rate
-    cfg = load_pipeline_config(config, **overrides)
-    mission = simulate_pipeline(cfg, progress=progress)
-    write_mission(mission, out, overwrite=overwrite)
-    return mission
