@@ -37,9 +37,15 @@ log = logging.getLogger(__name__)
 _RANGE_SAMPLE = 2000  # points of a cloud whose ranges are checked (evenly strided)
 
 
+_FAR_FACTOR = 3.0  # a cloud whose median range exceeds max_range this many times over is not a far background
+
+
 def range_problem(points: np.ndarray, min_range: float, max_range: float) -> str | None:
     """What is wrong with a cloud most of whose finite points lie outside [min_range, max_range]
-    (m, from the sensor), with the likely cause; None when most lie inside (or it is empty)."""
+    (m, from the sensor) for a likely cause: its median range in range once divided by 1000 (a cloud
+    in millimetres), or beyond ``_FAR_FACTOR`` × max_range (a cloud in the world frame, or another
+    sensor's). None otherwise: a scene mostly beyond max_range (the tank's far walls at 8 m, a view
+    into open water) is a scene, not a wrong cloud."""
     pts = np.asarray(points, dtype=np.float64)
     pts = pts[:: max(len(pts) // _RANGE_SAMPLE, 1)]
     r = np.sqrt(np.einsum("ij,ij->i", pts, pts))
@@ -47,15 +53,13 @@ def range_problem(points: np.ndarray, min_range: float, max_range: float) -> str
     if len(r) < 10:
         return None
     inside = float(np.mean((r >= min_range) & (r <= max_range)))
-    if inside >= 0.5:
-        return None
     med = float(np.median(r))
+    if inside >= 0.5 or med <= _FAR_FACTOR * max_range:
+        return None
     if min_range <= med / 1000.0 <= max_range:
         cause = "a cloud in millimetres? (points must be in metres)"
-    elif med > max_range:
-        cause = "a cloud in the world frame, or another sensor's? (points must be in the sensor's frame, metres)"
     else:
-        cause = "a cloud in the wrong units? (points must be in metres, in the sensor's frame)"
+        cause = "a cloud in the world frame, or another sensor's? (points must be in the sensor's frame, metres)"
     return (
         f"{100 * (1 - inside):.0f}% of the points lie outside preprocess.min_range..max_range "
         f"({min_range:g}-{max_range:g} m; median range {med:.4g} m): {cause} They are dropped."

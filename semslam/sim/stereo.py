@@ -60,17 +60,19 @@ def pixel_rays(cfg: StereoConfig) -> np.ndarray:
 @dataclass
 class ScanTruth:
     """What one cloud saw: per pipe id its visible length (m, bins of 2 cm along the axis with at
-    least 3 valid points), per fitting id its valid points, and the valid points on rocks."""
+    least 3 valid points) and the span of those bins (m along the axis from the pipe's p), per
+    fitting id its valid points, and the valid points on rocks."""
 
     stamp: int
-    pipes: dict[int, float] = field(default_factory=dict)
+    pipes: dict[int, tuple[float, float, float]] = field(default_factory=dict)
     objects: dict[int, int] = field(default_factory=dict)
     rock_points: int = 0
 
     def to_dict(self) -> dict:
         return {
             "stamp": self.stamp,
-            "pipe_visible_m": {str(k): round(v, 3) for k, v in self.pipes.items()},
+            "pipe_visible_m": {str(k): round(v[0], 3) for k, v in self.pipes.items()},
+            "pipe_seen_span_m": {str(k): [round(v[1], 3), round(v[2], 3)] for k, v in self.pipes.items()},
             "object_points": {str(k): v for k, v in self.objects.items()},
             "rock_points": self.rock_points,
         }
@@ -113,14 +115,18 @@ def _edge_artefacts(cfg: StereoConfig, z: np.ndarray, rng) -> np.ndarray:
     return np.where(far_side, near + mix * (z - near), z)
 
 
-def _visible_lengths(scene: PipelineScene, P_W: np.ndarray, ident: np.ndarray) -> dict[int, float]:
-    """Visible length of each pipe hit (bins of 2 cm along its axis with ≥ 3 points)."""
+def _visible_lengths(scene: PipelineScene, P_W: np.ndarray, ident: np.ndarray) -> dict[int, tuple[float, float, float]]:
+    """Per pipe hit: its visible length (bins of 2 cm along its axis with ≥ 3 points) and the span
+    (m along its axis from its p) from the first to the last such bin."""
     out = {}
     for pid in np.unique(ident):
         pp = scene.layout.pipes[int(pid)]
         t = (P_W[ident == pid] - pp.p) @ pp.axis
-        counts = np.bincount(np.floor((t - t.min()) / _COVER_BIN_M).astype(np.int64))
-        out[int(pid)] = float((counts >= _COVER_POINTS).sum() * _COVER_BIN_M)
+        t0 = t.min()
+        counts = np.bincount(np.floor((t - t0) / _COVER_BIN_M).astype(np.int64))
+        full = np.flatnonzero(counts >= _COVER_POINTS)
+        span = (t0 + full[0] * _COVER_BIN_M, t0 + (full[-1] + 1) * _COVER_BIN_M) if len(full) else (t0, t0)
+        out[int(pid)] = (float(len(full) * _COVER_BIN_M), float(span[0]), float(span[1]))
     return out
 
 
