@@ -107,7 +107,7 @@ def test_clouds_in_millimetres_or_the_world_frame_are_warned_once(pipeline, capl
     world = cloud.points @ T_WS[:3, :3].T.astype(np.float32) + T_WS[:3, 3].astype(np.float32)
     caplog.set_level(logging.WARNING)
     fe.process(cloud)
-    fe.process(PointCloud(cloud.stamp, "far", points=cloud.points * 5))  # ~9 m: far walls, beyond max_range
+    fe.process(PointCloud(cloud.stamp, "far", points=cloud.points * 5.5))  # ~8 m: far walls, beyond max_range
     assert not caplog.records  # metres, in the sensor frame: nothing to say
     for _ in range(3):
         assert fe.process(PointCloud(cloud.stamp, "stereo", points=cloud.points * 1000)) == []

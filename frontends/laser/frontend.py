@@ -37,14 +37,14 @@ log = logging.getLogger(__name__)
 _RANGE_SAMPLE = 2000  # points of a cloud whose ranges are checked (evenly strided)
 
 
-_FAR_FACTOR = 3.0  # a cloud whose median range exceeds max_range this many times over is not a far background
+_FAR_FACTOR = 2.0  # a cloud whose median range exceeds max_range this many times over is not a far background
 
 
 def range_problem(points: np.ndarray, min_range: float, max_range: float) -> str | None:
     """What is wrong with a cloud most of whose finite points lie outside [min_range, max_range]
     (m, from the sensor) for a likely cause: its median range in range once divided by 1000 (a cloud
     in millimetres), or beyond ``_FAR_FACTOR`` × max_range (a cloud in the world frame, or another
-    sensor's). None otherwise: a scene mostly beyond max_range (the tank's far walls at 8 m, a view
+    sensor's). None otherwise: a scene mostly beyond max_range (the tank's far walls at 8-9 m, a view
     into open water) is a scene, not a wrong cloud."""
     pts = np.asarray(points, dtype=np.float64)
     pts = pts[:: max(len(pts) // _RANGE_SAMPLE, 1)]
