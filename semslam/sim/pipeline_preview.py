@@ -46,9 +46,11 @@ def render_pipeline_preview(mission: Mission, png_path: str | Path) -> None:
         P = np.array([p.p, p.q], float)
         ax_top.plot(P[:, 1], P[:, 0], color="0.3", lw=2, zorder=2)
         ax_side.plot(along(P), P[:, 2], color="0.3", lw=2)
+    colours = {}  # one colour per class
     for o in gt.objects if gt else ():
-        ax_top.plot(o.position[1], o.position[0], "o", ms=6, zorder=3, label=o.cls)
-        ax_side.plot(along(o.position), o.position[2], "o", ms=6)
+        c = colours.setdefault(o.cls, f"C{len(colours)}")
+        ax_top.plot(o.position[1], o.position[0], "o", ms=6, color=c, zorder=3, label=o.cls)
+        ax_side.plot(along(o.position), o.position[2], "o", ms=6, color=c)
     if len(poses):
         ax_top.plot(poses[:, 2], poses[:, 1], color="tab:blue", lw=0.8, zorder=4, label="track")
         ax_side.plot(along(poses[:, 1:]), poses[:, 3], color="tab:blue", lw=0.8)
@@ -59,7 +61,7 @@ def render_pipeline_preview(mission: Mission, png_path: str | Path) -> None:
     unique = dict(zip(labels, handles, strict=True))
     ax_top.legend(unique.values(), unique.keys(), fontsize=8, loc="best")
     ax_top.set(xlabel="east (m)", ylabel="north (m)", title="from above")
-    ax_top.set_aspect("equal", adjustable="datalim")
+    ax_top.set_aspect("equal", adjustable="box")
     ax_side.set(xlabel="along the pipeline (m)", ylabel="depth (m, down)", title="depths along the line")
     ax_side.invert_yaxis()
     fig.tight_layout()
