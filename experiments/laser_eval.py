@@ -7,7 +7,7 @@ connectivity configuration). Writes ``per_scan.csv``, ``summary.json`` and one s
 (raw, planes removed, pipes, objects) to ``--out``.
 
 Sources:
-  * ``--source synthetic`` (default): the ray-cast mock-up of ``frontends.laser.synthetic`` seen from
+  * ``--source synthetic`` (default): the ray-cast mock-up of ``tests.support.synthetic`` seen from
     ``--scans`` random viewpoints (yaw, shift, tilt, height), range noise σ 5 mm, ~100k points;
   * ``--source tank``: the simulated tank mission of ``semslam.sim`` (``--seed``), every
     ``--every``-th scan; each point's truth is re-cast from the true sensor pose along its ray. The
@@ -51,7 +51,7 @@ ACCEPTANCE = {
 
 def synthetic_scans(n: int, seed: int):
     """(name, points, truth, up) for n random viewpoints of the synthetic mock-up."""
-    from frontends.laser.synthetic import default_scene, raycast, truth_of, viewpoint
+    from tests.support.synthetic import default_scene, raycast, truth_of, viewpoint
 
     rng = np.random.default_rng(seed)
     for i in range(n):

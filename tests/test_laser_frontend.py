@@ -4,12 +4,12 @@ import numpy as np
 import pytest
 
 from frontends.laser import LaserFrontend
-from frontends.laser.synthetic import cached_scan
 from semslam.errors import ConfigError
 from semslam.mission.measurements import PointCloud
 from semslam.mission.mission import MissionMetadata, SensorInfo
 from semslam.observations import Connectivity, LineObservation, PointObservation
 from semslam.registry import Frontend, load_frontend_class
+from tests.support.synthetic import cached_scan
 
 
 class _View:

@@ -4,7 +4,7 @@ import numpy as np
 
 from frontends.laser import LaserConfig, segment_scan
 from frontends.laser.objects import _line_intersection, box_frame, configuration_of
-from frontends.laser.synthetic import SynthScan, cached_scan
+from tests.support.synthetic import SynthScan, cached_scan
 
 
 def test_configurations():

@@ -6,7 +6,7 @@ from frontends.laser import LaserConfig, segment_scan
 from frontends.laser.config import PipeConfig
 from frontends.laser.evaluation import score_scan
 from frontends.laser.pipes import _make_pipe, endpoint_covariance, fit_cylinder, hypotheses, merge_duplicates
-from frontends.laser.synthetic import cached_scan, truth_of
+from tests.support.synthetic import cached_scan, truth_of
 
 
 def _cylinder(c, a, r, n, rng, length=1.0, noise=0.0):
@@ -176,7 +176,7 @@ def test_a_fitting_found_as_a_short_pipe_is_not_merged_across():
 def test_a_strip_as_wide_as_the_pipe_is_not_a_pipe():
     """A valve lever (a 32 mm strip) on its gear head fits the visible half of a 31.5 mm pipe; the
     rays through the rest of that cylinder reach the body behind it, so it is no pipe."""
-    from frontends.laser.synthetic import SynthObject, SynthPipe, SynthScene, raycast
+    from tests.support.synthetic import SynthObject, SynthPipe, SynthScene, raycast
 
     fz = 2.0
     scene = SynthScene(

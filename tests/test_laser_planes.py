@@ -6,7 +6,7 @@ from frontends.laser.config import LaserConfig
 from frontends.laser.evaluation import OBJECT, PIPE, PLANE
 from frontends.laser.planes import grow_regions, remove_planes
 from frontends.laser.preprocess import preprocess
-from frontends.laser.synthetic import SynthScan, cached_scan, truth_of
+from tests.support.synthetic import SynthScan, cached_scan, truth_of
 
 
 def _kept_raw(scan, cfg):

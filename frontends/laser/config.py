@@ -38,6 +38,14 @@ class PreprocessConfig(_Section):
         description="outlier removal: voxels of 26-connected clusters of fewer voxels than this are stray returns "
         "(bubbles, particles); surfaces, even thin parts like a valve stem, are larger connected clusters",
     )
+    sparse_cluster_voxels: int = Field(
+        30,
+        ge=0,
+        description="... and so are clusters of fewer voxels than this holding on average at most sparse_mean_points "
+        "raw points each: marine snow near a camera fills many voxels with a point each, a surface near enough to "
+        "make such a cluster has several per voxel (0: off)",
+    )
+    sparse_mean_points: float = Field(1.5, ge=0, description="see sparse_cluster_voxels")
 
 
 class PlaneConfig(_Section):
@@ -84,6 +92,34 @@ class PlaneConfig(_Section):
     border_hops: int = Field(3, ge=0, description="graph hops over which the border strip may join a plane")
 
 
+class GroundConfig(_Section):
+    """The ground as a height field (``frontends.laser.ground``): a natural seabed, which has no large
+    flat regions for plane removal to take. Points near it seed no pipe and join no object."""
+
+    enabled: bool = Field(True, description="model the ground under the scan (up from the AHRS)")
+    cell: float = Field(0.05, gt=0, description="grid cell across the up direction (m)")
+    open_radius: float = Field(
+        0.15,
+        gt=0,
+        description="the opening's half window (m): wider than half the width of anything lying on the ground "
+        "that is not ground (pipes ≤ 6 cm, fittings, stones); the ground's own slope must not fall more than "
+        "``band`` over it (≤ 11° at the defaults)",
+    )
+    band: float = Field(0.03, gt=0, description="ground candidates lie within this above the opened surface (m)")
+    fit_radius: float = Field(
+        0.25, gt=0, description="each cell's ground plane is fitted to the candidates within this (m)"
+    )
+    max_slope_deg: float = Field(
+        30.0, gt=0, lt=90, description="the ground is never steeper than this (a fitted plane is brought back to it)"
+    )
+    height: float = Field(
+        0.012, gt=0, description="a point less than this above the ground (or below it) is ground (m) ..."
+    )
+    height_sigmas: float = Field(
+        2.5, ge=0, description="... or less than this many times the scan's measured noise σ, whichever is larger"
+    )
+
+
 class PipeConfig(_Section):
     normal_hops: int = Field(
         2,
@@ -117,8 +153,52 @@ class PipeConfig(_Section):
         "still separate objects and count in their connectivity (the tank has 13 cm pipes between fittings, "
         "of which the sockets leave ~7-9 cm in view)",
     )
+    min_partial_length: float = Field(
+        0.15,
+        gt=0,
+        description="a segment shorter than min_length but at least this long is still reported, as a partial view "
+        "of a pipe (its ends are where the view, a burial or an occlusion cut it; the back-end grows a pipe's "
+        "extent over views), when it passes every shape test (arc, radius profile)",
+    )
+    ground_gap: float = Field(
+        0.07,
+        ge=0,
+        description="a segment whose underside lies less than this above the ground model lies on the ground (m; "
+        "resting on it, buried in part, or spanning a hollow) and must pass the tests of "
+        "frontends.laser.pipe_shape (sand crests, mounds and stones fit cylinders too), and objects at its ends "
+        "must stand over it; one standing clear of the ground (the tank's lowest pipes: 8.9 cm) is not tested. "
+        "Measured on the simulated pipeline: pipes resting on the sand 0-3 cm (the ground model is the sand's "
+        "mean level), spanning up to ~6 cm",
+    )
+    min_axis_height: float = Field(
+        0.0,
+        description="on the ground: the axis lies at least this many radii above the ground around it (a pipe at "
+        "most half buried; a crest fitted by a cylinder has its axis below the sand)",
+    )
+    min_arc_deg: float = Field(
+        60.0,
+        ge=0,
+        le=360,
+        description="on the ground: the inliers span at least this arc about the axis (5th-95th percentile of "
+        "their angles; measured on the simulated pipeline: pipes on the sand mostly 140-170°, down to 60° where "
+        "the stereo pair loses a flank; crests, mounds and stones 30-130°)",
+    )
+    min_color_contrast: float = Field(
+        15.0,
+        ge=0,
+        description="on the ground, with an RGB cloud: the segment's median colour differs from the ground's around "
+        "it by at least this (0-255 scale; 0: colour not used). Measured on the simulated pipeline: coated pipes "
+        "≥ 18, crests, mounds and stones ≤ 13",
+    )
+    color_reach: float = Field(0.10, gt=0, description="the ground around a segment: within this of its surface (m)")
     min_points: int = Field(40, ge=5, description="fewest inliers of a pipe segment")
-    distance_tolerance: float = Field(0.012, gt=0, description="inlier: |distance to axis − radius| below this")
+    distance_tolerance: float = Field(0.012, gt=0, description="inlier: |distance to axis − radius| below this (m) ...")
+    distance_sigmas: float = Field(
+        2.5,
+        ge=0,
+        description="... or below this many times the scan's measured noise σ (at the structure's median range), "
+        "whichever is larger: 12 mm is 2.4 σ of a 5 mm laser, stereo at 2 m has σ ≈ 10 mm",
+    )
     normal_tolerance_deg: float = Field(30.0, gt=0, lt=90, description="inlier: normal within this of radial")
     hypotheses: int = Field(
         40, ge=5, description="RANSAC hypotheses per extracted pipe (one per seed patch), scored together"
@@ -126,7 +206,20 @@ class PipeConfig(_Section):
     score_sample: int = Field(1000, ge=100, description="points on which hypotheses are scored (then all points)")
     refine_rounds: int = Field(5, ge=1, description="at most this many fit → inliers rounds per hypothesis")
     max_pipes: int = Field(40, ge=1, description="most pipe segments extracted from one scan")
-    max_failures: int = Field(4, ge=1, description="RANSAC stops after this many rounds in a row without a pipe")
+    max_failures: int = Field(
+        4, ge=1, description="RANSAC stops after this many rounds in a row without a pipe, at the least ..."
+    )
+    detection_confidence: float = Field(
+        0.0,
+        ge=0,
+        lt=1,
+        description="... or after as many as it takes for a pipe as rare among the seedable points as the rarest "
+        "found so far (its inliers' share: the inlier ratio) to have seeded a hypothesis with this probability "
+        "(adaptive RANSAC; e.g. 0.95: pipes that are 1 % of the points need ~8 rounds). Off (0) by default: "
+        "measured, with the ground model taking the seabed out of the seeds no stereo view of the simulated "
+        "pipeline gained a pipe, while on the tank the extra rounds split pipes and cost 20 % more CPU ...",
+    )
+    max_failures_cap: int = Field(12, ge=1, description="... but never more than this many rounds in a row")
     max_gap: float = Field(
         0.25,
         gt=0,
@@ -137,6 +230,15 @@ class PipeConfig(_Section):
     )
     fitting_points: int = Field(
         6, ge=1, description="this many such points in one bin along the axis mark a fitting (a body, a branch)"
+    )
+    fitting_window_deg: float = Field(
+        60.0,
+        gt=0,
+        le=180,
+        description="along a pipe lying on the ground (see ground_gap), fitting evidence (the points of "
+        "fitting_points and gap_reach) lies within this angle about the direction from its axis towards the "
+        "sensor: a fitting surrounds its pipe and shows over it, while stones beside it and a stereo camera's "
+        "mixed pixels along its silhouette do not (180: all around)",
     )
     gap_reach: float = Field(
         0.10, gt=0, description="a gap in a pipe's inliers with points this close to its surface holds a fitting (m)"
@@ -151,6 +253,13 @@ class PipeConfig(_Section):
         gt=0,
         description="a bin whose median distance to the axis exceeds the pipe's by this is a fitting (sockets are "
         "≥ 6 mm wider than their pipe) and cuts the pipe",
+    )
+    bump_sigmas: float = Field(
+        3.0,
+        ge=0,
+        description="... and, without radius_prior, at least this many times the noise of a bin's median (from the "
+        "scatter of the pipe's points about their bins' medians, measured per pipe: stereo noise makes the profile "
+        "itself bumpy; with the radius known, bump_height_known_radius alone, as tuned on the tank); 0: off",
     )
     bump_smooth: bool = Field(
         True, description="a bin also stands out when the mean residual over it and its two neighbours does"
@@ -295,6 +404,7 @@ class LaserConfig(_Section):
 
     preprocess: PreprocessConfig = Field(default_factory=PreprocessConfig)
     planes: PlaneConfig = Field(default_factory=PlaneConfig)
+    ground: GroundConfig = Field(default_factory=GroundConfig)
     pipes: PipeConfig = Field(default_factory=PipeConfig)
     objects: ObjectConfig = Field(default_factory=ObjectConfig)
     recognition: RecognitionConfig = Field(default_factory=RecognitionConfig)

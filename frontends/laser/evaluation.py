@@ -365,3 +365,66 @@ def _stats_by_key(dicts) -> dict:
         str(k): {"mean": round(float(np.mean(v)), 4), "median": round(float(np.median(v)), 4), "n": len(v)}
         for k, v in sorted(acc.items(), key=lambda kv: str(kv[0]))
     }
+
+
+# ----------------------------------------------------------------------------------------------
+# pipe observations of a whole mission against its ground-truth pipes (world frame)
+
+
+def matching_pipe(p: np.ndarray, q: np.ndarray, truth_pipes, angle_deg: float = 10.0, distance: float = 0.05):
+    """The true pipe (of ``truth_pipes``: objects with ``p``, ``q``, in {W}) a segment p-q ({W})
+    lies on: axes within ``angle_deg``, both endpoints within ``distance`` of its axis and the segment
+    overlapping its extent (±10 cm); the nearest such, or None."""
+    a = _unit(q - p)
+    best, best_d = None, np.inf
+    for g in truth_pipes:
+        gp, gq = np.asarray(g.p, float), np.asarray(g.q, float)
+        length = float(np.linalg.norm(gq - gp))
+        ga = (gq - gp) / length
+        if abs(a @ ga) < np.cos(np.radians(angle_deg)):
+            continue
+        v = np.stack([p, q]) - gp
+        t = v @ ga
+        d = float(np.linalg.norm(v - np.outer(t, ga), axis=1).max())
+        if d <= distance and t.max() > -0.1 and t.min() < length + 0.1 and d < best_d:
+            best, best_d = g, d
+    return best
+
+
+def score_pipe_observations(views, truth_pipes, min_visible: float = 0.2) -> dict:
+    """Scores of a mission's pipe observations against its true pipes.
+
+    ``views``: per scan (``T_WS`` 4×4, the line observations ({S}) of that scan, ``visible``: true
+    pipe id → length seen in the scan, m). A scan with a pipe seen over ``min_visible`` or more
+    counts as detected when some observation lies on such a pipe (:func:`matching_pipe`); an
+    observation on no true pipe is false. Radius errors: of the observations on a true pipe.
+    """
+    n_visible = n_detected = n_false = n_obs = 0
+    radius_errors = []
+    for T, lines, visible in views:
+        hit = set()
+        for o in lines:
+            n_obs += 1
+            P = np.stack([o.p, o.q]) @ T[:3, :3].T + T[:3, 3]
+            g = matching_pipe(P[0], P[1], truth_pipes)
+            if g is None:
+                n_false += 1
+                continue
+            hit.add(g.id)
+            if o.radius is not None:
+                radius_errors.append(abs(o.radius - g.radius))
+        wanted = {k for k, v in visible.items() if v >= min_visible}
+        if wanted:
+            n_visible += 1
+            n_detected += bool(wanted & hit)
+    n = len(views)
+    return {
+        "scans": n,
+        "observations": n_obs,
+        "scans_pipe_visible": n_visible,
+        "scans_pipe_detected": n_detected,
+        "detection_rate": n_detected / n_visible if n_visible else None,
+        "false_per_scan": n_false / n if n else None,
+        "false_observations": n_false,
+        "radius_error_median_m": float(np.median(radius_errors)) if radius_errors else None,
+    }

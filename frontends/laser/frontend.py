@@ -7,6 +7,7 @@ protocol of ``semslam.registry``.
 
 from __future__ import annotations
 
+import logging
 import time
 from dataclasses import dataclass, field
 from typing import Any, ClassVar, Protocol
@@ -14,9 +15,12 @@ from typing import Any, ClassVar, Protocol
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from frontends.laser.config import LaserConfig
+from frontends.laser.config import LaserConfig, PipeConfig
 from frontends.laser.grid import VoxelGrid, adjacency_of
+from frontends.laser.ground import GroundModel, fit_ground
+from frontends.laser.noise import NoiseModel, measure_noise
 from frontends.laser.objects import SegmentedObject, segment_objects
+from frontends.laser.pipe_shape import Seabed, axis_height, lies_on_ground
 from frontends.laser.pipes import Pipe, Rays, detect_pipes
 from frontends.laser.planes import PlaneResult, remove_planes
 from frontends.laser.preprocess import Preprocessed, hop_covariance_parts, preprocess, shape_of_parts
@@ -26,6 +30,40 @@ from semslam.observations import Connectivity, LineObservation, Observation, Poi
 from semslam.registry import FrontendSummary
 
 UP_NED = np.array([0.0, 0.0, -1.0])  # against gravity in the world frame (NED: z down)
+
+
+# One line on stderr (logging's last-resort handler) unless the application configures logging.
+log = logging.getLogger(__name__)
+_RANGE_SAMPLE = 2000  # points of a cloud whose ranges are checked (evenly strided)
+
+
+_FAR_FACTOR = 2.0  # a cloud whose median range exceeds max_range this many times over is not a far background
+
+
+def range_problem(points: np.ndarray, min_range: float, max_range: float) -> str | None:
+    """What is wrong with a cloud most of whose finite points lie outside [min_range, max_range]
+    (m, from the sensor) for a likely cause: its median range in range once divided by 1000 (a cloud
+    in millimetres), or beyond ``_FAR_FACTOR`` × max_range (a cloud in the world frame, or another
+    sensor's). None otherwise: a scene mostly beyond max_range (the tank's far walls at 8-9 m, a view
+    into open water) is a scene, not a wrong cloud."""
+    pts = np.asarray(points, dtype=np.float64)
+    pts = pts[:: max(len(pts) // _RANGE_SAMPLE, 1)]
+    r = np.sqrt(np.einsum("ij,ij->i", pts, pts))
+    r = r[np.isfinite(r)]
+    if len(r) < 10:
+        return None
+    inside = float(np.mean((r >= min_range) & (r <= max_range)))
+    med = float(np.median(r))
+    if inside >= 0.5 or med <= _FAR_FACTOR * max_range:
+        return None
+    if min_range <= med / 1000.0 <= max_range:
+        cause = "a cloud in millimetres? (points must be in metres)"
+    else:
+        cause = "a cloud in the world frame, or another sensor's? (points must be in the sensor's frame, metres)"
+    return (
+        f"{100 * (1 - inside):.0f}% of the points lie outside preprocess.min_range..max_range "
+        f"({min_range:g}-{max_range:g} m; median range {med:.4g} m): {cause} They are dropped."
+    )
 
 
 class Recognizer(Protocol):
@@ -39,7 +77,8 @@ class ScanSegmentation:
     """Everything one scan went through, in {S}.
 
     ``pre`` is the coarse cloud of the plane segmentation and ``planes`` its result; ``structure``
-    indexes the coarse voxels kept. ``structure_points`` is the structure re-sampled finely from the
+    indexes the coarse voxels kept. ``ground`` models the ground under the scan (a height field;
+    ``on_ground`` marks the structure points on it: they seed no pipe and join no object). ``structure_points`` is the structure re-sampled finely from the
     raw points (``raw_to_structure`` maps every raw point to its fine voxel, −1 if not structure),
     with ``normals``; pipe inliers and object indices index ``structure_points``.
     """
@@ -54,23 +93,35 @@ class ScanSegmentation:
     objects: list[SegmentedObject]
     up: np.ndarray
     timings: dict[str, float] = field(default_factory=dict)
+    noise: NoiseModel | None = None  # the scan's measured noise
+    ground: GroundModel | None = None  # the ground under the scan (None: not modelled)
+    on_ground: np.ndarray | None = None  # (M,) structure points on the ground
+    pipe_config: PipeConfig | None = None  # the pipe stage's configuration, scaled to this scan's noise
 
     def raw_indices(self, structure_indices: np.ndarray) -> np.ndarray:
         """Raw scan points that fell in the given fine structure voxels (sorted)."""
-        if not hasattr(self, "_raw_by_voxel"):
-            # Raw points grouped by structure voxel, once per scan (not a pass over the raw scan
-            # per object): voxel v's raw points are order[start[v]:start[v + 1]].
-            inside = np.flatnonzero(self.raw_to_structure >= 0)
-            order = inside[np.argsort(self.raw_to_structure[inside], kind="stable")]
-            start = np.r_[
-                0, np.cumsum(np.bincount(self.raw_to_structure[inside], minlength=len(self.structure_points)))
-            ]
-            self._raw_by_voxel = (order, start)
-        order, start = self._raw_by_voxel
+        if not hasattr(self, "_raw_index"):
+            self._raw_index = RawIndex(self.raw_to_structure, len(self.structure_points))
+        return self._raw_index(structure_indices)
+
+
+class RawIndex:
+    """The raw points of fine structure voxels: ``raw_to_structure`` (N,) each raw point's voxel
+    (−1: none), ``n`` voxels. The raw points are grouped by voxel once (not a pass over the raw scan
+    per query): voxel v's raw points are order[start[v]:start[v + 1]]."""
+
+    def __init__(self, raw_to_structure: np.ndarray, n: int):
+        inside = np.flatnonzero(raw_to_structure >= 0)
+        self.order = inside[np.argsort(raw_to_structure[inside], kind="stable")]
+        self.start = np.r_[0, np.cumsum(np.bincount(raw_to_structure[inside], minlength=n))]
+
+    def __call__(self, structure_indices: np.ndarray) -> np.ndarray:
+        """Raw scan points that fell in the given voxels (sorted)."""
+        start = self.start
         v = np.unique(structure_indices)
         counts = start[v + 1] - start[v]
         offsets = np.repeat(start[v] - np.r_[0, np.cumsum(counts)[:-1]], counts)
-        return np.sort(order[np.arange(counts.sum()) + offsets])
+        return np.sort(self.order[np.arange(counts.sum()) + offsets])
 
 
 def structure_cloud(raw: np.ndarray, pre: Preprocessed, planes: PlaneResult, cfg: LaserConfig):
@@ -114,31 +165,77 @@ class _StageClock:
         self.timings["cpu_" + name] = time.process_time() - self.c0
 
 
-def segment_scan(points: np.ndarray, cfg: LaserConfig, up: np.ndarray | None = None) -> ScanSegmentation:
-    """Run all stages on a raw scan (N×3, {S}). ``up`` is the unit up direction in {S}; when None the
-    direction towards the sensor is used (the scanner looks down at the structure)."""
+def scan_pipe_config(cfg: PipeConfig, noise: NoiseModel | None, points: np.ndarray) -> PipeConfig:
+    """The pipe stage's configuration for one scan: the inlier tolerance at least ``distance_sigmas``
+    × the scan's noise σ at the median range of ``points`` (the structure that may hold pipes)."""
+    if noise is None or not len(points) or cfg.distance_sigmas <= 0:
+        return cfg
+    sigma = float(noise.at(np.median(np.sqrt(np.einsum("ij,ij->i", points, points)))))
+    tol = max(cfg.distance_tolerance, cfg.distance_sigmas * sigma)
+    return cfg if tol == cfg.distance_tolerance else cfg.model_copy(update={"distance_tolerance": tol})
+
+
+def _objects(spts, pipes: list[Pipe], up, cfg: LaserConfig, pcfg: PipeConfig, on_ground, ground, rays: Rays):
+    """The objects at the pipes' ends (:func:`segment_objects`). On the seabed, a segment lying on
+    the ground and shorter than ``min_partial_length`` (not reported: a valve's lever or body, a
+    stone's flank fitted as a pipe) connects no object: its points go to the objects instead (in the
+    tank, where no pipe lies on the ground, the short pipes between fittings do connect them)."""
+    if ground is None:
+        return segment_objects(spts, pipes, up, cfg.objects, on_ground, None, None, rays.seen_at)
+    heights = [axis_height(p, ground) for p in pipes]
+    lying = np.array([h is not None and lies_on_ground(h, p.radius, pcfg) for h, p in zip(heights, pipes)])
+    arms = [k for k, p in enumerate(pipes) if not (lying[k] and p.length < pcfg.min_partial_length)]
+    objects = segment_objects(
+        spts, [pipes[k] for k in arms], up, cfg.objects, on_ground, ground, lying[arms], rays.seen_at
+    )
+    for o in objects:  # the attached pipes' indices into the scan's pipe list
+        o.pipes = tuple(arms[k] for k in o.pipes)
+    return objects
+
+
+def segment_scan(
+    points: np.ndarray, cfg: LaserConfig, up: np.ndarray | None = None, rgb: np.ndarray | None = None
+) -> ScanSegmentation:
+    """Run all stages on a raw scan (N×3, {S}; NaN points are dropped). ``up`` is the unit up
+    direction in {S} (from the AHRS); when None the direction towards the sensor is used (the
+    scanner looks down at the structure) and the ground is not modelled. ``rgb`` (N×3 uint8, or
+    None): the points' colours, an optional cue of the pipe test on a natural seabed."""
     tm: dict[str, float] = {}
     clock = _StageClock(tm)
     raw = np.asarray(points, dtype=np.float64)
     pre = preprocess(raw, cfg.preprocess, cfg.planes)
+    noise = measure_noise(raw, pre)
     clock.lap("preprocess")
     planes = remove_planes(pre, cfg.planes, cfg.preprocess.voxel_size)
     structure = np.flatnonzero(planes.structure)
     clock.lap("planes")
+    ground = None
+    if up is not None and cfg.ground.enabled:
+        sigma = float(noise.at(noise.range_ref)) if noise is not None else 0.0
+        ground = fit_ground(pre.points, pre.counts, up, cfg.ground, sigma)
+    clock.lap("ground")
     grid, raw_to_s, normals = structure_cloud(raw, pre, planes, cfg)
     spts = grid.points if grid is not None else np.zeros((0, 3))
+    on_ground = ground.is_ground(spts) if ground is not None else np.zeros(len(spts), bool)
     clock.lap("structure")
     if up is None:
         up = -spts.mean(axis=0) if len(spts) else -UP_NED
         up = up / max(np.linalg.norm(up), 1e-12)
     pipes: list[Pipe] = []
-    if len(spts) >= cfg.pipes.min_points:
-        pipes = detect_pipes(spts, normals, grid, cfg.pipes, Rays(raw))
+    pcfg = scan_pipe_config(cfg.pipes, noise, spts[~on_ground])
+    rays = Rays(raw)
+    if int((~on_ground).sum()) >= cfg.pipes.min_points:
+        seabed = None
+        if ground is not None:
+            seabed = Seabed(ground, spts, pcfg, raw, rgb, RawIndex(raw_to_s, len(spts)))
+        pipes = detect_pipes(spts, normals, grid, pcfg, rays, ~on_ground, ~on_ground, seabed)
     clock.lap("pipes")
-    objects = segment_objects(spts, pipes, up, cfg.objects)
+    objects = _objects(spts, pipes, up, cfg, pcfg, on_ground, ground, rays)
     clock.lap("objects")
     clock.total()
-    return ScanSegmentation(pre, planes, structure, spts, raw_to_s, normals, pipes, objects, up, tm)
+    return ScanSegmentation(
+        pre, planes, structure, spts, raw_to_s, normals, pipes, objects, up, tm, noise, ground, on_ground, pcfg
+    )
 
 
 class LaserFrontend:
@@ -166,6 +263,7 @@ class LaserFrontend:
         self._recognizer = recognizer
         self._latest_attitude: Attitude | None = None  # the latest AHRS reading (R_WB computed from it per scan)
         self.last: ScanSegmentation | None = None  # the latest scan's stages, for inspection
+        self._warned: set[str] = set()  # sensors whose clouds were found out of range (warned once each)
 
     @property
     def recognizer(self) -> Recognizer | None:
@@ -206,13 +304,14 @@ class LaserFrontend:
             # (~40 AHRS readings a scan in the tank mission; the conversion was most of their cost).
             self._latest_attitude = measurement
             return []
-        seg = segment_scan(measurement.points, self.config, self._up(measurement.sensor))
+        self._check_range(measurement)
+        seg = segment_scan(measurement.points, self.config, self._up(measurement.sensor), measurement.rgb)
         self.last = seg
         stamp, sensor = measurement.stamp, measurement.sensor
         obs: list[Observation] = [
             LineObservation(stamp, sensor, p=pp.p, q=pp.q, covariance=pp.covariance, radius=pp.radius)
             for pp in seg.pipes
-            if pp.reported(self.config.pipes)
+            if pp.reported(seg.pipe_config)
         ]
         spts = seg.structure_points
         conns, clouds = [], []
@@ -239,6 +338,18 @@ class LaserFrontend:
                 )
             )
         return obs
+
+    def _check_range(self, m: PointCloud) -> None:
+        """Warn once per sensor (one line on stderr, through ``logging``) when most of a cloud lies
+        outside the configured range: a cloud in millimetres, or in the world frame, would otherwise
+        give nothing, silently. (Once per front-end: with replicas in several worker processes,
+        once per worker that meets such a cloud.)"""
+        if m.sensor in self._warned:
+            return
+        message = range_problem(m.points, self.config.preprocess.min_range, self.config.preprocess.max_range)
+        if message is not None:
+            self._warned.add(m.sensor)
+            log.warning("semslam: warning: laser front-end, sensor %r: %s", m.sensor, message)
 
     def _classify(self, clouds: list[np.ndarray], conns: list[Connectivity]) -> list[dict[str, float] | None]:
         """Class likelihoods of a scan's object clouds (None without a recogniser): all at once

@@ -148,6 +148,22 @@ def along_and_off_axis(points: np.ndarray, origin: np.ndarray, axis: np.ndarray)
     return t, np.sqrt(np.maximum(row_dot(x, x) - t * t, 0.0))
 
 
+def stands_over(
+    points: np.ndarray, end: np.ndarray, out: np.ndarray, up: np.ndarray, radius: float, reach: float, cfg: ObjectConfig
+) -> int:
+    """How many of an object's ``points`` stand over the pipe ending at ``end`` (outward unit
+    ``out``, ``up`` the unit up across it): above its top (by ``own_margin``), over its axis (within
+    its radius plus ``own_margin`` across) and from ``own_beyond`` before the end to ``reach``
+    beyond it. A fitting on a pipe lying on the seabed rises over it, where the pipe enters it (a
+    valve's body, stem and handle); the seabed's clutter around a pipe's end (sand, stones) lies
+    beside it, or farther on."""
+    x = points - end
+    t, h = x @ out, x @ up
+    across = np.sqrt(np.maximum(row_dot(x, x) - t * t - h * h, 0.0))
+    over = (h > radius + cfg.own_margin) & (across <= radius + cfg.own_margin)
+    return int((over & (t >= -cfg.own_beyond) & (t <= reach)).sum())
+
+
 def own_points(points: np.ndarray, end: np.ndarray, out: np.ndarray, radius: float, cfg: ObjectConfig) -> int:
     """How many of an object's ``points`` are its own rather than the pipe's that ends at ``end``
     (outward unit ``out``, pipe ``radius``): off the pipe's cylinder by more than ``own_margin``
@@ -277,6 +293,12 @@ def _outermost_end(ends: np.ndarray, dirs: np.ndarray, d: np.ndarray, collinear_
     return ends[same[np.argmax(ends[same] @ d)]]
 
 
+def _local_up(up: np.ndarray, ground, at: np.ndarray) -> np.ndarray:
+    """The ground's normal under ``at`` where the ground model knows it, else ``up``."""
+    n = ground.normal(at) if ground is not None else None
+    return up if n is None else n
+
+
 def _site(members, ends, out, guess, up, cfg: ObjectConfig) -> _Site:
     dirs = -out[members]
     e = ends[members]
@@ -359,12 +381,29 @@ def position_covariance(config: int, R: np.ndarray, cfg: ObjectConfig) -> np.nda
 
 
 @single_threaded_blas
-def segment_objects(points: np.ndarray, pipes: list[Pipe], up: np.ndarray, cfg: ObjectConfig) -> list[SegmentedObject]:
+def segment_objects(
+    points: np.ndarray,
+    pipes: list[Pipe],
+    up: np.ndarray,
+    cfg: ObjectConfig,
+    exclude: np.ndarray | None = None,
+    ground=None,
+    lying: np.ndarray | None = None,
+    seen_beyond=None,
+) -> list[SegmentedObject]:
     """Objects at the ends of ``pipes`` among the structure ``points`` (N×3, {S}); ``up`` is the
-    unit up direction (against gravity) in {S}."""
+    unit up direction (against gravity) in {S}. ``exclude`` (mask): points that belong to no object
+    (the ground); ``ground`` (a :class:`~frontends.laser.ground.GroundModel` or None): where it
+    knows the ground under an object, the ground's normal is the object's "up" (on a slope, a valve
+    stands square to the seabed, not to gravity). ``lying`` (bool per pipe, or None): the pipes
+    lying on the ground, where the seabed's clutter (sand, stones) surrounds a pipe's end, so an
+    object at a lone end of one, or between two in line, must stand over them (``stands_over``). ``seen_beyond`` (a callable
+    (point, radius) → bool, or None): whether the scan saw the space at a point; a lone end beyond
+    which it saw nothing within ``attach_distance`` (the view's edge, a hole in it) is where the
+    view stops: an object there would be cut by it, and placed by half of its extent."""
     if not pipes:
         return []
-    is_pipe = np.zeros(len(points), bool)
+    is_pipe = np.zeros(len(points), bool) if exclude is None else np.array(exclude, bool)
     for p in pipes:
         is_pipe[p.inliers] = True
     rest = np.flatnonzero(~is_pipe)
@@ -379,7 +418,9 @@ def segment_objects(points: np.ndarray, pipes: list[Pipe], up: np.ndarray, cfg: 
     group = join_ends(ends, out, owner, cfg)
 
     handle = np.asarray(cfg.handle_size)
-    sites = [_site(members, ends, out, guess, up, cfg) for members in _groups(group)]
+    sites = [
+        _site(members, ends, out, guess, _local_up(up, ground, guess[members[0]]), cfg) for members in _groups(group)
+    ]
     # Points within reach of each site (all sites at once), then the exact boxes on those only.
     reach = np.linalg.norm(np.maximum(body, handle) / 2 + [0, 0, body[2] / 2 + handle[2] / 2])
     centres = np.array([site.center for site in sites])
@@ -397,7 +438,8 @@ def segment_objects(points: np.ndarray, pipes: list[Pipe], up: np.ndarray, cfg: 
         site = sites[group[0]]
         crop = crops[group[0]]
         if len(group) > 1:
-            site = _site(np.concatenate([sites[k].members for k in group]), ends, out, guess, up, cfg)
+            members = np.concatenate([sites[k].members for k in group])
+            site = _site(members, ends, out, guess, _local_up(up, ground, guess[members[0]]), cfg)
             crop = np.unique(np.concatenate([crops[k] for k in group]))
         if len(crop) < cfg.min_points:
             continue
@@ -418,6 +460,21 @@ def segment_objects(points: np.ndarray, pipes: list[Pipe], up: np.ndarray, cfg: 
             if own_points(P, e[0], -dirs[0], pipe.radius, cfg) < cfg.min_own_points:
                 continue
             if pipe_continues(P, e[0], -dirs[0], pipe, points, cfg):
+                continue
+            if seen_beyond is not None and not seen_beyond(e[0] - dirs[0] * cfg.attach_distance, pipe.radius):
+                continue
+        if lying is not None and all(lying[m // 2] for m in site.members) and site.config <= 2:
+            # on the seabed: something must rise over the pipe where it ends (config 1), or in the
+            # gap between the two ends (config 2), and the scan must have seen that place
+            pipe = pipes[site.members[0] // 2]
+            # (a fitting starts at the end, or up to attach_distance beyond where the end is seen short)
+            reach = float(np.ptp((e - e[0]) @ dirs[0])) + cfg.own_beyond
+            if site.config == 1:
+                reach = cfg.attach_distance + cfg.body_size[0] / 2
+            P = np.take(points, crop, axis=0)
+            if stands_over(P, e[0], -dirs[0], site.R[:, 2], pipe.radius, reach, cfg) < cfg.min_own_points:
+                continue
+            if seen_beyond is not None and not seen_beyond(center, pipe.radius):
                 continue
         if len(crop) < cfg.min_points:
             continue

@@ -57,7 +57,7 @@ class Pipe:
 
     def reported(self, cfg: PipeConfig) -> bool:
         """Long enough to be an observation (shorter ones only serve segmentation and connectivity)."""
-        return self.length >= cfg.min_length
+        return self.length >= cfg.min_partial_length
 
 
 def hypotheses(p1, n1, p2, n2, cfg: PipeConfig):
@@ -254,6 +254,12 @@ class Rays:
         (sel,) = self._cones((c + a * 0.5 * (t0 + t1))[None], np.array([np.hypot(0.5 * (t1 - t0), r)]))
         return self._count(sel, c, a, r, t0, t1, cfg)
 
+    def seen_at(self, point: np.ndarray, radius: float, min_rays: int = 3) -> bool:
+        """Whether at least ``min_rays`` of the scan's rays pass within ``radius`` of ``point``
+        (seen there: outside the field of view, or in a hole of a stereo cloud, none do)."""
+        (sel,) = self._cones(np.asarray(point, float)[None], np.array([radius]))
+        return len(sel) >= min_rays
+
     def solid(self, pipes: list[Pipe], cfg: PipeConfig) -> np.ndarray:
         """Per pipe segment: whether the rays crossing its cylinder end on it (``see_through``)."""
         if not pipes:
@@ -406,6 +412,13 @@ def split_at_fittings(
         np.lib.stride_tricks.as_strided(padded, (n_bins, 2 * w + 1), padded.strides * 2, writeable=False)
     )
     height = cfg.bump_height if cfg.radius_prior is None else cfg.bump_height_known_radius
+    # ... but, where the radius is fitted (no prior), no less than bump_sigmas × the noise of a bin's
+    # median: the points' own scatter about
+    # their bin's median (1.4826 × the median absolute deviation, a fitting's offset left out) ×
+    # 1.2533 / √n for a median of n points (stereo noise, or few points in a bin)
+    if cfg.bump_sigmas > 0 and cfg.radius_prior is None and len(t) >= 10:
+        sigma = 1.4826 * float(np.median(np.abs(residual - med[b])))
+        height = np.maximum(height, cfg.bump_sigmas * 1.2533 * sigma / np.sqrt(np.maximum(cnt, 1)))
     bad_bin = (med - level > height) & (cnt >= 3)
     if cfg.bump_smooth:
         # ... or its neighbourhood does: the mean residual over the bin and its two neighbours (a
@@ -529,9 +542,23 @@ def _refine(free: _Points, c, a, r, cfg: PipeConfig):
             return c, a, r, free.index[near[inl]]
 
 
-def _cut_into_segments(points, normals, sq, cb, ab, rb, idx, cfg: PipeConfig) -> list[Pipe]:
+def _facing_sensor(P: np.ndarray, c: np.ndarray, a: np.ndarray, cfg: PipeConfig) -> np.ndarray:
+    """Which points lie on the side of the axis (c, a) that faces the sensor (at the origin), within
+    ``fitting_window_deg`` about the direction from the axis towards it: a fitting surrounds its pipe,
+    so the sensor sees it over the pipe, where clutter beside the pipe (stones, the seabed, mixed
+    pixels along its silhouette) does not lie."""
+    toward = -(c - (c @ a) * a)  # from the axis towards the sensor, across it
+    toward /= max(np.linalg.norm(toward), 1e-12)
+    v = P - c
+    v -= np.outer(v @ a, a)
+    return v @ toward >= np.cos(np.radians(cfg.fitting_window_deg)) * np.sqrt(row_dot(v, v))
+
+
+def _cut_into_segments(points, normals, sq, cb, ab, rb, idx, cfg: PipeConfig, foreign=None, seabed=None) -> list[Pipe]:
     """The pipe segments of a refined cylinder's inliers ``idx``: cut at fittings (foreign points
-    just outside its surface, wider sockets), keep the runs long enough."""
+    just outside its surface, wider sockets; only the points of the mask ``foreign`` count, all when
+    None; along a pipe lying on the ``seabed``, only those over it, :func:`_facing_sensor`), keep
+    the runs long enough."""
     t = np.take(points, idx, axis=0) @ ab
     if len(idx) < cfg.min_points or t.max() - t.min() < cfg.min_detect_length:
         return []  # no run of these inliers can be a segment
@@ -541,6 +568,10 @@ def _cut_into_segments(points, normals, sq, cb, ab, rb, idx, cfg: PipeConfig) ->
     t, residual = t_all[idx], res_all[idx]
     span = (t_all > t.min() - cfg.max_gap) & (t_all < t.max() + cfg.max_gap)
     outside = (res_all > cfg.distance_tolerance) & span
+    if foreign is not None:
+        outside &= foreign
+    if seabed is not None and cfg.fitting_window_deg < 180.0 and seabed.on_or_unknown(cb, ab, rb, t.min(), t.max()):
+        outside[outside] = _facing_sensor(np.take(points, np.flatnonzero(outside), axis=0), cb, ab, cfg)
     near = outside & (res_all < cfg.fitting_reach)
     around = outside & (res_all < cfg.gap_reach)
     out = []
@@ -554,13 +585,36 @@ def _cut_into_segments(points, normals, sq, cb, ab, rb, idx, cfg: PipeConfig) ->
     return out
 
 
+def failure_budget(inlier_share: float, cfg: PipeConfig) -> int:
+    """Rounds in a row without a pipe before the search ends, from the inlier ratio (adaptive
+    RANSAC): enough for a pipe holding ``inlier_share`` of the seedable points (the smallest share
+    of a pipe found so far) to have seeded one of a round's ``hypotheses`` with probability
+    ``detection_confidence``; at least ``max_failures``, at most ``max_failures_cap``."""
+    if inlier_share >= 1.0 or inlier_share <= 0.0 or cfg.detection_confidence <= 0:
+        return cfg.max_failures
+    rounds = np.log(1.0 - cfg.detection_confidence) / (cfg.hypotheses * np.log1p(-inlier_share))
+    return int(np.clip(np.ceil(rounds), cfg.max_failures, max(cfg.max_failures_cap, cfg.max_failures)))
+
+
 @single_threaded_blas
 def detect_pipes(
-    points: np.ndarray, normals: np.ndarray, grid, cfg: PipeConfig, rays: Rays | None = None
+    points: np.ndarray,
+    normals: np.ndarray,
+    grid,
+    cfg: PipeConfig,
+    rays: Rays | None = None,
+    seedable: np.ndarray | None = None,
+    foreign: np.ndarray | None = None,
+    seabed=None,
 ) -> list[Pipe]:
     """Pipes among ``points`` (N×3, {S}) with outward ``normals``; ``grid`` the
     :class:`~frontends.laser.grid.VoxelGrid` whose cells they are, to draw point pairs; ``rays``
-    the scan's rays for the see-through test (none when None). Returns merged pipe segments.
+    the scan's rays for the see-through test (none when None). ``seedable`` (mask, all when None):
+    the points that may seed hypotheses (not the ground); ``foreign`` (mask, all when None): the
+    points that may tell a fitting next to a pipe (not the ground); ``seabed`` (a
+    :class:`frontends.laser.pipe_shape.Seabed`, or None off a natural seabed): the tests a segment
+    lying on the seabed must pass, and where fitting evidence is looked for along such a pipe.
+    Returns merged pipe segments.
 
     Two masks: ``free`` points may still be inliers; ``seedable`` points may still seed hypotheses.
     A model that yields a pipe consumes its inliers; one that does not (an object's curved part, a
@@ -569,14 +623,15 @@ def detect_pipes(
     n = len(points)
     rng = np.random.default_rng(cfg.seed)
     free = np.ones(n, bool)
-    seedable = np.ones(n, bool)
+    seedable = np.ones(n, bool) if seedable is None else np.array(seedable, bool)
+    max_failures = cfg.max_failures  # until a pipe tells how rare pipes are among the seeds
     sq = row_dot(points, points)
     pipes: list[Pipe] = []
     failures = 0
     cand = None  # the free points, narrowed when a pipe takes some
     stale = False
     for _ in range(3 * cfg.max_pipes):
-        if len(pipes) >= cfg.max_pipes or failures >= cfg.max_failures:
+        if len(pipes) >= cfg.max_pipes or failures >= max_failures:
             break
         seeds = np.flatnonzero(seedable & free)
         if len(seeds) < cfg.min_points:
@@ -622,12 +677,17 @@ def detect_pipes(
             failures += 1
             continue
         cb, ab, rb, idx = refined
-        found = _cut_into_segments(points, normals, sq, cb, ab, rb, idx, cfg)
+        found = _cut_into_segments(points, normals, sq, cb, ab, rb, idx, cfg, foreign, seabed)
+        if seabed is not None:
+            found = [pipe for pipe in found if seabed.accept(pipe)]
         for pipe in found:
             free[pipe.inliers] = False
             stale = True
         pipes += found
         seedable[idx] = False
+        if found:
+            share = min(len(pipe.inliers) for pipe in found) / max(int((seedable & free).sum()) + len(idx), 1)
+            max_failures = max(max_failures, failure_budget(share, cfg))
         failures = 0 if found else failures + 1
     if rays is not None:  # no segment the sensor sees through (all tested at once)
         pipes = [p for p, ok in zip(pipes, rays.solid(pipes, cfg)) if ok]

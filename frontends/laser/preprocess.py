@@ -8,7 +8,8 @@ All points are in the sensor frame {S} (m), the sensor at the origin. The stages
    raw points);
 3. the voxels' 26-neighbourhoods, looked up in the grid (no k-d tree: a 50-NN search of a 20k-voxel
    scan alone took 0.15 s), used three times: outlier removal (26-connected clusters of fewer
-   than ``outlier_min_voxels`` voxels are stray returns), normals and curvature, and the
+   than ``outlier_min_voxels`` voxels are stray returns, and so are clusters of a few tens of voxels
+   holding about one point each: marine snow in front of a camera), normals and curvature, and the
    region-growing graph.
 
 Normals and curvature come from the covariance of a neighbourhood grown ``normal_hops`` steps
@@ -47,6 +48,7 @@ class Preprocessed:
     normals: np.ndarray
     curvature: np.ndarray
     planarity: np.ndarray  # λ1/λ2 of the neighbourhood: ≈ 1 on a surface, ≪ 1 along a thin pipe
+    counts: np.ndarray | None = None  # (M,) raw points in each voxel
 
 
 def voxel_downsample(points: np.ndarray, voxel: float) -> tuple[np.ndarray, np.ndarray]:
@@ -243,10 +245,20 @@ def _shape(lam0, lam1, lam2, normals, centre, viewpoint):
     return normals, curvature, planarity
 
 
-def small_clusters(adjacency: csr_matrix, min_voxels: int) -> np.ndarray:
-    """Mask of the voxels in 26-connected clusters of fewer than ``min_voxels`` (stray returns)."""
+def small_clusters(
+    adjacency: csr_matrix, min_voxels: int, counts: np.ndarray | None = None, sparse: tuple[int, float] = (0, 0.0)
+) -> np.ndarray:
+    """Mask of the voxels in 26-connected clusters of fewer than ``min_voxels`` (stray returns), or,
+    with the raw ``counts`` per voxel, of fewer than ``sparse[0]`` voxels holding ``sparse[1]`` raw
+    points or fewer on average (a cloud of particles: a point per voxel, where a surface near
+    enough to make such a cluster has several)."""
     _, label = connected_components(adjacency, directed=False)
-    return np.bincount(label)[label] < min_voxels
+    size = np.bincount(label)
+    stray = size < min_voxels
+    if counts is not None and sparse[0] > 0:
+        mean = np.bincount(label, weights=counts) / size
+        stray |= (size < sparse[0]) & (mean <= sparse[1])
+    return stray[label]
 
 
 @single_threaded_blas
@@ -261,8 +273,8 @@ def preprocess(points: np.ndarray, pre: PreprocessConfig, planes: PlaneConfig) -
     grid = VoxelGrid(np.take(raw, keep, axis=0), pre.voxel_size)  # (np.take: ~4x faster than raw[keep] here)
     vox, inv, nb = grid.points, grid.inverse, grid.neighbours(1)
     A = adjacency_of(nb)
-    stray = small_clusters(A, pre.outlier_min_voxels)
-    all_vox, kept = vox, None
+    stray = small_clusters(A, pre.outlier_min_voxels, grid.counts, (pre.sparse_cluster_voxels, pre.sparse_mean_points))
+    all_vox, kept, counts = vox, None, grid.counts
     if stray.any():
         # A whole cluster goes, so no kept voxel had a removed one as neighbour: re-index only.
         # The adjacency stays as it is: the neighbourhoods of kept voxels never reach a stray one.
@@ -270,7 +282,7 @@ def preprocess(points: np.ndarray, pre: PreprocessConfig, planes: PlaneConfig) -
         kept = np.flatnonzero(good)
         remap = np.where(good, np.cumsum(good) - 1, -1)
         inv = remap[inv]
-        vox, nb = vox[good], nb[good]
+        vox, nb, counts = vox[good], nb[good], counts[good]
         nb = np.where(nb >= 0, remap[nb], -1)
     if len(vox) == 0:
         return _empty(raw_to_voxel)
@@ -278,9 +290,9 @@ def preprocess(points: np.ndarray, pre: PreprocessConfig, planes: PlaneConfig) -
     # (moments centred on the kept voxels' mean, as if the strays had never been there)
     cov = hop_covariance_parts(all_vox, A, planes.normal_hops, rows=kept, centre=vox.mean(axis=0))
     normals, curvature, planarity = shape_of_parts(cov, vox)
-    return Preprocessed(vox, raw_to_voxel, nb, normals, curvature, planarity)
+    return Preprocessed(vox, raw_to_voxel, nb, normals, curvature, planarity, counts)
 
 
 def _empty(raw_to_voxel) -> Preprocessed:
     z3 = np.zeros((0, 3))
-    return Preprocessed(z3, raw_to_voxel, np.zeros((0, 27), np.int64), z3, np.zeros(0), np.zeros(0))
+    return Preprocessed(z3, raw_to_voxel, np.zeros((0, 27), np.int64), z3, np.zeros(0), np.zeros(0), np.zeros(0, int))

@@ -12,13 +12,16 @@ from semslam.errors import SemslamError
 
 VARY_HELP = (
     "what the seed draws besides the noise realisations: all, none, or a comma-separated subset of "
-    "layout, trajectory, noise, dropouts, start (ranges: semslam/sim/vary.py); seed 0 is always the default mission"
+    "layout, trajectory, noise, dropouts, start (ranges: semslam/sim/vary.py); seed 0 is always the default mission; the pipeline's seed draws its whole world"
 )
 
 
 @user_errors
 def simulate(
-    scene: str = typer.Argument(..., help="tank (laser, DVL, AHRS, depth) or field (multibeam sonar)"),
+    scene: str = typer.Argument(
+        ...,
+        help="tank (laser, DVL, AHRS, depth), field (multibeam sonar), pipeline (stereo camera over a natural seabed) or dive (navigation from and back to the surface, GPS)",
+    ),
     out: Path = typer.Option(..., "--out", "-o", help="bag to write: .bag = ROS 1, .mcap, otherwise a ROS 2 directory"),
     seed: int = typer.Option(0, "--seed", help="random seed (seed 0 reproduces the default mission)"),
     vary: str = typer.Option("all", "--vary", help=VARY_HELP),

@@ -15,7 +15,9 @@ from semslam.errors import SemslamError
 def study(
     bags: list[Path] = typer.Argument(None, help="missions (ROS 1 .bag, ROS 2 bag directory or .mcap); or --scenario"),
     out: Path = typer.Option(..., "--out", "-o", help="study folder (re-running the same study resumes it)"),
-    scenario: str | None = typer.Option(None, "--scenario", help="simulate the missions: tank or field"),
+    scenario: str | None = typer.Option(
+        None, "--scenario", help="simulate the missions: tank, field, pipeline or dive"
+    ),
     seeds: str = typer.Option("0-19", "--seeds", help="with --scenario: seeds, e.g. 0-49 or 0,3,7-9"),
     vary: str = typer.Option("all", "--vary", help=VARY_HELP),
     sim_config: Path | None = typer.Option(

@@ -31,6 +31,11 @@ def _describe_tank(mission) -> str:
     return f"{len(gt.objects)} objects, {len(gt.pipes)} pipes"
 
 
+def _describe_pipeline(mission) -> str:
+    gt = mission.metadata.ground_truth
+    return f"{len(gt.objects)} fittings, {len(gt.pipes)} pipe pieces, {len(mission.metadata.extras['scans'])} stereo clouds"
+
+
 def _describe_field(mission) -> str:
     gt = mission.metadata.ground_truth
     swaths = mission.metadata.extras["sonar"]["swaths"]
@@ -47,6 +52,7 @@ class Scenario:
     describe: Callable = field(repr=False)  # mission -> one line for the user
     options: tuple[str, ...] = ()  # the simulate command's scenario-specific options it accepts
     varies_as: str | None = None  # the scenario whose seeded draws (semslam.sim.vary) it takes
+    varied: bool = True  # its seeds draw world parameters (semslam.sim.vary); else the seed alone draws the world
 
     def model(self) -> type[BaseModel]:
         return _load(self.config_model)
@@ -82,12 +88,21 @@ SCENARIOS: dict[str, Scenario] = {
         lambda mission: _load("semslam.sim.dive:describe")(mission),
         varies_as="field",
     ),
+    "pipeline": Scenario(
+        "pipeline",
+        "stereo clouds of a pipeline on a natural seabed",
+        "semslam.sim.pipeline_config:PipelineSimConfig",
+        "semslam.sim.pipeline_mission:simulate_pipeline",
+        "semslam.sim.pipeline_preview:render_pipeline_preview",
+        _describe_pipeline,
+        varied=False,
+    ),
 }
 
 
 def scenario(name: str) -> Scenario:
     if name not in SCENARIOS:
-        raise ConfigError(f"unknown scene {name!r} (choose {' or '.join(SCENARIOS)})")
+        raise ConfigError(f"unknown scene {name!r} (choose {', '.join(SCENARIOS)})")
     return SCENARIOS[name]
 
 
@@ -120,10 +135,11 @@ def resolve_config(
     **overrides,
 ) -> BaseModel:
     """The configuration of scenario ``name`` for ``seed``: defaults ← what the seed draws for the
-    ``vary`` aspects (:mod:`semslam.sim.vary`; nothing for seed 0) ← ``data`` (the user's YAML
+    ``vary`` aspects (:mod:`semslam.sim.vary`; nothing for seed 0 or a scenario whose seed alone draws
+    its world) ← ``data`` (the user's YAML
     mapping, named ``source`` in errors) ← ``overrides`` (dotted keys with ``__``)."""
     sc = scenario(name)
-    base = draws(sc.varies_as or name, seed, vary)
+    base = draws(sc.varies_as or name, seed, vary) if sc.varied else {}
     return build_sim_config(sc.model(), data or {}, source=source, base=base, seed=seed, **overrides)
 
 

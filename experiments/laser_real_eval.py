@@ -1,0 +1,287 @@
+"""Issue 22's acceptance numbers: the laser front-end on the tank (no worse than before) and on the
+simulated pipeline on a natural seabed (stereo noise).
+
+``tank``: for each seed, the tank mission is simulated in memory and run through the laser
+front-end and dr / ekf / graph as ``semslam demo`` runs them (``semslam.demo.demo_config``); prints
+and stores the graph's objects / pipes mapped against the ground truth seen, duplicates, landmark
+and object median errors, ATE.
+
+``pipeline``: for each seed, the pipeline mission (``semslam.sim.pipeline_mission``) is simulated in
+memory; every scan goes through the laser front-end alone and is scored against the scan's ground
+truth (which pipe was seen, over how much length): pipe line observations in the scans where at
+least 0.2 m of pipe is visible, false pipe observations per scan, radius error; then the whole
+mission runs through the graph (``semslam.compare.run_comparison``) and the mapped pipeline is
+scored along its length (the distance of points along the mapped pipes to the true axes, and
+along the true axes' seen parts to the mapped pipes) and valves mapped (each exactly once).
+
+    python experiments/laser_real_eval.py tank --seeds 0-10 [--ekf] [--json experiments/out/laser_real_tank.json]
+    python experiments/laser_real_eval.py pipeline --seeds 100-102 [--json ...] [--scans-only]
+
+The tank part imports only what existed before issue 22, so that ``PYTHONPATH=<old checkout>``
+runs it on the code before the change (the baseline).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+TANK_KEYS = (
+    "n_objects",
+    "n_pipes",
+    "landmark_duplicates",
+    "landmark_spurious",
+    "landmark_median_error_m",
+    "object_median_error_m",
+    "pipe_median_error_m",
+    "ate_rmse_m",
+)
+
+
+def parse_seeds(text: str) -> list[int]:
+    """ "0,10-19" → [0, 10, 11, ..., 19]."""
+    out: list[int] = []
+    for part in text.split(","):
+        a, _, b = part.partition("-")
+        out += list(range(int(a), int(b) + 1)) if b else [int(a)]
+    return out
+
+
+def tank_seed(seed: int, overrides: dict | None = None, estimators: tuple[str, ...] = ("graph",)) -> dict:
+    """The demo's comparison on tank mission ``seed`` as ``semslam study --scenario tank`` draws it
+    (every aspect varied; seed 0 the default mission), laser front-end ``overrides`` merged into the
+    demo's section: the ``estimators``' map numbers."""
+    from semslam.compare import run_comparison
+    from semslam.demo import demo_config
+    from semslam.sim.scenarios import resolve_config
+    from semslam.sim.simulate import simulate_tank
+    from semslam.sim.vary import ASPECTS
+
+    t0 = time.perf_counter()
+    mission = simulate_tank(resolve_config("tank", seed, ASPECTS))
+    cfg = demo_config()
+    if overrides:
+        laser = cfg.frontends.get("laser", {})
+        merged = {**laser, **{k: {**laser.get(k, {}), **v} for k, v in overrides.items()}}
+        cfg = cfg.model_copy(update={"frontends": {**cfg.frontends, "laser": merged}})
+    _, metrics = run_comparison(mission, cfg, ["laser"], estimators=("dr", *estimators), frontend_workers=1)
+    est = metrics["estimators"]
+    out = {n: {k: est[n].get(k) for k in TANK_KEYS} for n in estimators}
+    out["gt_objects"] = metrics["mission"]["gt_objects"]
+    out["gt_pipes"] = metrics["mission"]["gt_pipes"]
+    out["sem_f1"] = (metrics.get("recognition") or {}).get("SEM", {}).get("f1")
+    out["seconds"] = round(time.perf_counter() - t0, 1)
+    return out
+
+
+def tank_line(seed: int, r: dict) -> str:
+    g = r["graph"]
+    return (
+        f"tank seed {seed}: graph objects {g['n_objects']}/{r['gt_objects']} pipes {g['n_pipes']}/{r['gt_pipes']} "
+        f"duplicates {g['landmark_duplicates']} spurious {g['landmark_spurious']} "
+        f"landmark median {g['landmark_median_error_m']:.4f} m object median {g['object_median_error_m']:.4f} m "
+        f"ATE {g['ate_rmse_m']:.4f} "
+        + (f"| ekf objects {r['ekf']['n_objects']} dup {r['ekf']['landmark_duplicates']} " if "ekf" in r else "")
+        + f"| SEM F1 {r['sem_f1']} ({r['seconds']} s)"
+    )
+
+
+VALVES = ("Ball-Valve", "Butterfly-Valve", "3-Way-Ball-Valve")
+VALVE_SEEN_POINTS = 500  # a valve counts as seen when some cloud holds this many valid points on it
+VALVE_GATE_M = 0.2  # a mapped object within this of a valve is that valve's
+PIPE_GATE_M = 0.05  # "within 5 cm of truth along its length"
+
+
+def _segment_distance(P: np.ndarray, truth_pipes) -> np.ndarray:
+    """Distance (m) of each point to the nearest true pipe axis segment."""
+    out = np.full(len(P), np.inf)
+    for g in truth_pipes:
+        gp, gq = np.asarray(g.p, float), np.asarray(g.q, float)
+        L = np.linalg.norm(gq - gp)
+        a = (gq - gp) / L
+        t = np.clip((P - gp) @ a, 0.0, L)
+        out = np.minimum(out, np.linalg.norm(P - gp - np.outer(t, a), axis=1))
+    return out
+
+
+def map_scores(landmarks, gt, scans: list[dict]) -> dict:
+    """The graph's pipeline map against the truth: the distance to the true axes of points every
+    centimetre along the mapped pipes (median, 95th percentile, maximum, share within 5 cm), the
+    share of the seen true pipe length (the spans of the clouds that showed >= 0.2 m of a pipe)
+    with a mapped pipe within 5 cm, the pipes mapped; each valve seen (≥ 500 points in a
+    cloud) mapped by how many objects (within 0.2 m), and the objects near no fitting."""
+    pipes = [lm for lm in landmarks if lm.kind == "pipe" and lm.p is not None]
+    samples = [
+        lm.p + np.outer(np.arange(0, 1.0001, 0.01 / max(np.linalg.norm(lm.q - lm.p), 0.01)), lm.q - lm.p)
+        for lm in pipes
+    ]
+    along = np.concatenate(samples) if samples else np.zeros((0, 3))
+    d = _segment_distance(along, gt.pipes) if len(along) else np.zeros(0)
+    # coverage: every cm of each true pipe that some cloud saw (within the spans of the clouds that
+    # showed >= 0.2 m of it), and of those the ones with a mapped pipe within 5 cm
+    seen: dict[int, list] = {}
+    for s in scans:
+        for k, v in s["pipe_visible_m"].items():
+            if v >= 0.2:
+                seen.setdefault(int(k), []).append(s["pipe_seen_span_m"][k])
+    covered, total = 0, 0
+    per_pipe: dict[int, dict] = {}
+    mapped_pts = [(np.asarray(lm.p), np.asarray(lm.q)) for lm in pipes]
+    for g in gt.pipes:
+        if g.id not in seen:
+            continue
+        gp, gq = np.asarray(g.p, float), np.asarray(g.q, float)
+        s_along = np.arange(0.0, np.linalg.norm(gq - gp), 0.01)
+        in_view = np.zeros(len(s_along), bool)
+        for a, b in seen[g.id]:
+            in_view |= (s_along >= a) & (s_along <= b)
+        pts = gp + np.outer(s_along[in_view], (gq - gp) / np.linalg.norm(gq - gp))
+        near = np.zeros(len(pts), bool)
+        for p, q in mapped_pts:
+            L = np.linalg.norm(q - p)
+            a = (q - p) / L
+            t = (pts - p) @ a
+            inside = (t >= 0) & (t <= L)
+            near |= inside & (np.linalg.norm(pts - p - np.outer(t, a), axis=1) <= PIPE_GATE_M)
+        covered += int(near.sum())
+        total += len(pts)
+        per_pipe[g.id] = {
+            "length_m": round(float(np.linalg.norm(gq - gp)), 3),
+            "seen_m": round(0.01 * len(pts), 2),
+            "covered": round(float(near.mean()), 3) if len(pts) else None,
+        }
+    objects = np.array([lm.position for lm in landmarks if lm.kind == "object"]).reshape(-1, 3)
+    points = {}
+    for s in scans:
+        for k, v in s["object_points"].items():
+            points[int(k)] = max(points.get(int(k), 0), v)
+    valves = {}
+    for o in gt.objects:
+        if o.cls in VALVES and points.get(o.id, 0) >= VALVE_SEEN_POINTS:
+            valves[o.id] = int((np.linalg.norm(objects - np.asarray(o.position), axis=1) <= VALVE_GATE_M).sum())
+    fittings = np.array([o.position for o in gt.objects]).reshape(-1, 3)
+    stray = [
+        lm.id
+        for lm in landmarks
+        if lm.kind == "object" and (not len(fittings) or np.linalg.norm(fittings - lm.position, axis=1).min() > 0.3)
+    ]
+    return {
+        "pipes_mapped": len(pipes),
+        "pipe_error_median_m": float(np.median(d)) if len(d) else None,
+        "pipe_error_p95_m": float(np.percentile(d, 95)) if len(d) else None,
+        "pipe_error_max_m": float(d.max()) if len(d) else None,
+        "pipe_within_5cm_share": float((d <= PIPE_GATE_M).mean()) if len(d) else None,
+        "seen_pipe_length_covered": covered / total if total else None,
+        "seen_pipes": per_pipe,
+        "mapped_pipes": [
+            {
+                "length_m": round(float(np.linalg.norm(lm.q - lm.p)), 3),
+                "error_median_m": round(float(np.median(e)), 3),
+                "error_max_m": round(float(e.max()), 3),
+            }
+            for lm, e in zip(
+                pipes, np.split(d, np.cumsum([len(x) for x in samples])[:-1]) if pipes else [], strict=True
+            )
+        ],
+        "valves_seen": len(valves),
+        "valves_mapped_once": sum(v == 1 for v in valves.values()),
+        "valve_counts": valves,
+        "objects_mapped": len(objects),
+        "objects_far_from_any_fitting": len(stray),
+    }
+
+
+def pipeline_seed(seed: int, overrides: dict, scans_only: bool, dump: Path | None = None) -> dict:
+    """The pipeline mission of ``seed``: per-scan scores of the laser front-end's pipe observations
+    and (unless ``scans_only``) the graph's map against the truth."""
+    from frontends.laser.evaluation import score_pipe_observations
+    from semslam.compare import run_comparison
+    from semslam.config import SemslamConfig
+    from semslam.mission.measurements import GroundTruthPose
+    from semslam.observations import LineObservation
+    from semslam.sim.pipeline_config import PipelineSimConfig
+    from semslam.sim.pipeline_mission import simulate_pipeline
+
+    t0 = time.perf_counter()
+    mission = simulate_pipeline(PipelineSimConfig(seed=seed))
+    meta = mission.metadata
+    cfg = SemslamConfig(frontends={"laser": overrides})
+    estimators = ("dr",) if scans_only else ("dr", "ekf", "graph")
+    result, metrics = run_comparison(mission, cfg, ["laser"], estimators=estimators)
+    poses = {m.stamp: m for m in mission.of_type(GroundTruthPose)}
+    stamps = np.array(sorted(poses))
+    sensor = next(s for s in meta.sensors.values() if s.kind == "laser")
+    lines: dict[int, list] = {}
+    for rec in result.observations:
+        if isinstance(rec.observation, LineObservation):
+            lines.setdefault(rec.stamp, []).append(rec.observation)
+    views = []
+    for s in meta.extras["scans"]:
+        near = stamps[np.argmin(np.abs(stamps - s["stamp"]))]
+        T_WS = poses[near].matrix() @ sensor.T_BS
+        views.append((T_WS, lines.get(s["stamp"], []), {int(k): v for k, v in s["pipe_visible_m"].items()}))
+    out = {"scans": score_pipe_observations(views, meta.ground_truth.pipes)}
+    if not scans_only:
+        out["map"] = map_scores(result.results["graph"].landmarks, meta.ground_truth, meta.extras["scans"])
+        g = metrics["estimators"]["graph"]
+        out["graph"] = {k: g.get(k) for k in TANK_KEYS}
+    if dump is not None:  # the observations, to replay the back-end on them without the front-end
+        import pickle
+
+        dump.mkdir(parents=True, exist_ok=True)
+        (dump / f"pipeline_{seed}.pkl").write_bytes(pickle.dumps(result.observations))
+    out["laser_s_per_scan"] = result.timing_s.get("frontend:laser", 0.0) / max(len(views), 1)
+    out["seconds"] = round(time.perf_counter() - t0, 1)
+    return out
+
+
+def pipeline_line(seed: int, r: dict) -> str:
+    s = r["scans"]
+    text = (
+        f"pipeline seed {seed}: scans {s['scans']}, with >= 0.2 m of pipe {s['scans_pipe_visible']}, detected "
+        f"{s['scans_pipe_detected']} ({s['detection_rate']:.2f}), false per scan {s['false_per_scan']:.3f}, radius "
+        f"error median {1000 * (s['radius_error_median_m'] or float('nan')):.1f} mm"
+    )
+    if "map" in r:
+        m = r["map"]
+        text += (
+            f" | map: pipes {m['pipes_mapped']}, error median {m['pipe_error_median_m']:.3f} p95 {m['pipe_error_p95_m']:.3f} "
+            f"max {m['pipe_error_max_m']:.3f} m, within 5 cm {m['pipe_within_5cm_share']:.2f}, "
+            f"seen length covered {m['seen_pipe_length_covered']:.2f}, valves mapped once {m['valves_mapped_once']}/"
+            f"{m['valves_seen']} {m['valve_counts']}, objects {m['objects_mapped']} "
+            f"(far from any fitting {m['objects_far_from_any_fitting']})"
+        )
+    return text + f" ({r['seconds']} s)"
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("scenario", choices=("tank", "pipeline"))
+    ap.add_argument("--seeds", default="0")
+    ap.add_argument("--json", type=Path, default=None)
+    ap.add_argument("--dump", type=Path, default=None, help="pipeline: pickle each seed's observations here")
+    ap.add_argument("--ekf", action="store_true", help="tank: the EKF too (default the graph alone)")
+    ap.add_argument("--scans-only", action="store_true", help="pipeline: the per-scan scores only (no graph)")
+    ap.add_argument("--config", default="{}", help="laser front-end overrides (JSON, frontends.laser section)")
+    args = ap.parse_args(argv)
+    results = {}
+    for seed in parse_seeds(args.seeds):
+        if args.scenario == "tank":
+            results[seed] = r = tank_seed(seed, json.loads(args.config), ("graph", "ekf") if args.ekf else ("graph",))
+            print(tank_line(seed, r), flush=True)
+        else:
+            results[seed] = r = pipeline_seed(seed, json.loads(args.config), args.scans_only, args.dump)
+            print(pipeline_line(seed, r), flush=True)
+        if args.json is not None:  # after each seed: a long run interrupted keeps what it measured
+            args.json.parent.mkdir(parents=True, exist_ok=True)
+            args.json.write_text(json.dumps(results, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    np.set_printoptions(precision=4)
+    raise SystemExit(main())

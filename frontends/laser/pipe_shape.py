@@ -1,0 +1,132 @@
+"""What tells a pipe lying on the seabed from the seabed's own shapes (sand crests, mounds, stones).
+
+A cylinder fit finds more than pipes on a natural seabed: a sand ripple's crest or a mound's flank
+turns its normals like a pipe of a few cm radius, a stone's flank too. Off the ground nothing but
+structure stands (the tank's pipes stand ≥ 9 cm clear of its floor), so only a segment lying on
+the ground (its underside less than ``ground_gap`` above the ground model) is tested, for
+what a pipe has and those shapes lack:
+
+* it is at most half buried: its axis lies at least ``min_axis_height`` radii above the ground
+  around it (a crest fitted by a cylinder has its axis below the sand);
+* its points cover the visible half of its circumference: the arc they span around the axis (5th
+  to 95th percentile of their angles about the direction towards the sensor) is at least
+  ``min_arc_deg`` (a crest or a stone's flank shows a shallow arc);
+* with colour (an RGB cloud): it does not look like the ground around it, its median colour at
+  least ``min_color_contrast`` (0-255 scale) from the ground's within ``color_reach`` of it.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from frontends.laser.config import PipeConfig
+from frontends.laser.grid import row_dot
+from frontends.laser.pipes import Pipe
+
+_AXIS_SAMPLES = 9  # points along the axis where the ground's height is read
+
+
+def arc_span_deg(pipe: Pipe, points: np.ndarray) -> float:
+    """The arc (deg) the pipe's inliers span about its axis: the 5th to 95th percentile of their
+    angles about the direction from the axis towards the sensor (at the origin)."""
+    P = np.take(points, pipe.inliers, axis=0) - pipe.p
+    radial = P - np.outer(P @ pipe.axis, pipe.axis)
+    mid = 0.5 * (pipe.p + pipe.q)
+    toward = -(mid - (mid @ pipe.axis) * pipe.axis)  # from the axis towards the sensor, across it
+    toward /= max(np.linalg.norm(toward), 1e-12)
+    side = np.cross(pipe.axis, toward)
+    phi = np.degrees(np.arctan2(radial @ side, radial @ toward))
+    lo, hi = np.percentile(phi, [5, 95])
+    return float(hi - lo)
+
+
+def axis_height(pipe: Pipe, ground) -> float | None:
+    """Median height (m) of the pipe's axis above the ground model, None where it knows no ground."""
+    return axis_height_of(pipe.p, pipe.axis, pipe.length, ground)
+
+
+def axis_height_of(p: np.ndarray, axis: np.ndarray, length: float, ground) -> float | None:
+    """Median height (m) above the ground model of the axis from ``p`` along ``axis`` over
+    ``length``, None where it knows no ground."""
+    t = np.linspace(0.0, length, _AXIS_SAMPLES)
+    h = ground.height(p + np.outer(t, axis))
+    h = h[np.isfinite(h)]
+    return float(np.median(h)) if len(h) else None
+
+
+def color_contrast(
+    pipe: Pipe, seg_raw_indices, raw_points: np.ndarray, rgb: np.ndarray, on_ground_raw: np.ndarray, reach: float
+) -> float | None:
+    """Distance (0-255 scale) between the median colour of the pipe's raw points and that of the
+    ground's raw points within ``reach`` of its axis segment; None when either has too few points."""
+    own = seg_raw_indices(pipe.inliers)
+    if len(own) < 10:
+        return None
+    P = raw_points - pipe.p
+    t = P @ pipe.axis
+    near = (t > -reach) & (t < pipe.length + reach)
+    near &= row_dot(P, P) - t * t <= (pipe.radius + reach) ** 2
+    ground = np.flatnonzero(near & on_ground_raw)
+    if len(ground) < 10:
+        return None
+    return float(np.linalg.norm(np.median(rgb[own], axis=0) - np.median(rgb[ground], axis=0)))
+
+
+def lies_on_ground(axis_height: float, radius: float, cfg: PipeConfig) -> bool:
+    """A cylinder whose axis lies ``axis_height`` above the ground lies on it: its underside is less
+    than ``ground_gap`` above the ground."""
+    return axis_height - radius < cfg.ground_gap
+
+
+class Seabed:
+    """What the pipe stage knows of the seabed under a scan: its ground model, the structure
+    ``points``, and, with an RGB scan, the colour cue (the ground's raw points found once, when
+    first needed). ``raw_index`` maps structure indices to raw point indices."""
+
+    def __init__(self, ground, points: np.ndarray, cfg: PipeConfig, raw=None, rgb=None, raw_index=None):
+        self.ground, self.points, self.cfg = ground, points, cfg
+        self._raw, self._rgb, self._raw_index = raw, rgb, raw_index
+        self._raw_ground: np.ndarray | None = None
+
+    def on_or_unknown(self, c: np.ndarray, a: np.ndarray, r: float, t0: float, t1: float) -> bool:
+        """Whether the cylinder (axis point c, unit a, radius r) between t0 and t1 along a lies on
+        the ground (its underside less than ``ground_gap`` above it) or over unknown ground."""
+        h = axis_height_of(c + t0 * a, a, t1 - t0, self.ground)
+        return h is None or lies_on_ground(h, r, self.cfg)
+
+    def _contrast(self, pipe: Pipe) -> float | None:
+        if self._raw_ground is None:
+            raw = self._raw
+            finite = np.isfinite(raw).all(axis=1)
+            self._raw_ground = np.zeros(len(raw), bool)
+            self._raw_ground[finite] = self.ground.is_ground(raw[finite])
+        return color_contrast(
+            pipe, self._raw_index, self._raw, np.asarray(self._rgb, float), self._raw_ground, self.cfg.color_reach
+        )
+
+    def accept(self, pipe: Pipe) -> bool:
+        """The tests of a pipe on the seabed (:func:`lies_like_a_pipe`), with colour when the scan has it."""
+        colour = self._rgb is not None and self._raw is not None and self.cfg.min_color_contrast > 0
+        return lies_like_a_pipe(pipe, self.points, self.ground, self.cfg, self._contrast if colour else None)
+
+
+def lies_like_a_pipe(pipe: Pipe, points: np.ndarray, ground, cfg: PipeConfig, contrast=None) -> bool:
+    """Whether a segment passes the tests of a pipe lying on the ground (True for one standing clear
+    of it, or where there is no ground model). ``contrast``: a callable giving the segment's colour
+    contrast with the ground (:func:`color_contrast`), or None without colour."""
+    if ground is None:
+        return True
+    h = axis_height(pipe, ground)
+    if h is not None and not lies_on_ground(h, pipe.radius, cfg):
+        return True
+    # on the ground, or where the scan's ground model knows no ground (a boulder's top, a strip
+    # between stones): the tests of a pipe on the seabed, those that can be made
+    if h is not None and h < cfg.min_axis_height * pipe.radius:
+        return False
+    if arc_span_deg(pipe, points) < cfg.min_arc_deg:
+        return False
+    if contrast is not None and cfg.min_color_contrast > 0:
+        c = contrast(pipe)
+        if c is not None and c < cfg.min_color_contrast:
+            return False
+    return True
