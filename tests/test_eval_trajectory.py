@@ -77,3 +77,20 @@ def test_errors_are_evos_from_positions_and_quaternions():
         ate, rpe = _evo_reference(a, b, alignment)
         assert ours.ate_rmse_m > 0.01
         assert abs(ours.ate_rmse_m - ate) < 1e-12 and abs(ours.rpe_rmse_m - rpe) < 1e-12
+
+
+def test_stamp_matching_is_evos():
+    """Stamps matched at once as evo matches them one by one: nearest within the gap, its tie
+    rules, stamps beyond either end, repeated stamps, and evo's own search for unsorted ones."""
+    from evo.core.sync import matching_time_indices as evos
+
+    from semslam.eval.metrics import matching_time_indices
+
+    rng = np.random.default_rng(2)
+    for trial in range(30):
+        s2 = np.sort(rng.choice(np.arange(0.0, 20.0, 0.05), 200))  # on a grid: ties and repeats happen
+        s1 = np.round(rng.uniform(-1.0, 21.0, 150), 3 if trial % 2 else 2)
+        if trial == 29:
+            s2 = rng.permutation(s2)
+        for gap in (0.0, 0.02, 0.05, 0.5):
+            assert matching_time_indices(s1, s2, gap) == evos(s1, s2, gap)

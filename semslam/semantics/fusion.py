@@ -73,6 +73,7 @@ class ClassFusion:
         # (landmark, use_connectivity) → (posterior, conflict), until the landmark's evidence or
         # the class set changes: a map is read far more often (every replay step) than it changes.
         self._cache: dict[tuple[Hashable, bool], tuple[np.ndarray, bool]] = {}
+        self._masks: dict[tuple[int, frozenset], np.ndarray] = {}  # (how many classes, configurations seen)
 
     def _vector(self, likelihood: Mapping[str, float]) -> np.ndarray:
         unknown = [c for c in likelihood if c not in self.classes]
@@ -146,12 +147,20 @@ class ClassFusion:
         post /= post.sum()
         conflict = False
         if use_connectivity and tr and tr.configurations:
-            masked = post * self.table.mask(self.classes, self._seen_configurations(tr))
+            masked = post * self._mask(self._seen_configurations(tr))
             if masked.sum() > 0:
                 post = masked / masked.sum()
             else:
                 conflict = True
         return post, conflict
+
+    def _mask(self, seen: list[int]) -> np.ndarray:
+        """The connectivity table's mask of the classes (classes are only ever appended: their
+        number names the list) for the configurations ``seen``, made once per set of them."""
+        key = (len(self.classes), frozenset(seen))
+        if key not in self._masks:
+            self._masks[key] = self.table.mask(self.classes, seen)
+        return self._masks[key]
 
     def posterior(self, landmark_id: Hashable, use_connectivity: bool = True) -> dict[str, float]:
         """P(X | observations[, connectivity]) of a landmark; the prior if it was never observed."""
