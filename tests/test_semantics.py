@@ -277,3 +277,32 @@ def test_a_rare_wrong_configuration_does_not_rule_out_the_true_class():
     assert fusion.posterior(7)["Elbow"] == 0.0 and fusion.configuration(7) == 4
     with pytest.raises(ValueError):
         ClassFusion(CLASSES, min_configuration_fraction=1.5)
+
+
+def test_posteriors_read_between_changes_follow_every_change():
+    """Posteriors are kept between reads (a map is read far more often than it changes): a read after
+    each update, merge, forget or new class gives what a fusion that was never read gives."""
+    rng = np.random.default_rng(3)
+    read, fresh = ClassFusion(None), ClassFusion(None)
+    steps = []
+    for _ in range(60):
+        lid = int(rng.integers(4))
+        names = ["A", "B", "C", "D"][: int(rng.integers(2, 5))]  # new classes come in as it goes
+        lik = dict(zip(names, rng.dirichlet(np.ones(len(names))).tolist()))
+        steps.append(("update", lid, lik, int(rng.integers(1, 5))))
+    steps[20:20] = [("merge", 0, 1, None)]
+    steps[40:40] = [("forget", 2, None, None)]
+    for op, a, b, c in steps:
+        for f in (read, fresh):
+            if op == "update":
+                f.update(a, b, configuration=c)
+            elif op == "merge":
+                f.merge(a, b)
+            else:
+                f.forget(a)
+        for lid in range(4):  # only ``read`` is read between the changes
+            read.posterior(lid), read.posterior(lid, use_connectivity=False), read.conflict(lid)
+    for lid in range(4):
+        for conn in (True, False):
+            assert read.posterior(lid, conn) == pytest.approx(fresh.posterior(lid, conn), abs=1e-12)
+        assert read.map_class(lid) == fresh.map_class(lid)

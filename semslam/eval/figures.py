@@ -13,6 +13,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
+from matplotlib.collections import LineCollection  # noqa: E402
 
 from semslam.estimation import EstimatorResult, Trajectory  # noqa: E402
 from semslam.mission.ground_truth import GroundTruthMap  # noqa: E402
@@ -45,27 +46,45 @@ def trajectories(truth: Trajectory | None, results: Mapping[str, EstimatorResult
 
 
 def maps(results: Mapping[str, EstimatorResult], truth: GroundTruthMap | None, observations=None):
-    """Top views of each estimator's map over the true landmarks (the paper's Figure 10)."""
+    """Top views of each estimator's map over the true landmarks (the paper's Figure 10). Each layer
+    (true pipes, true objects, and each map's pipes, objects and structures) is one artist: the dead
+    reckoning map places thousands of observations, and an artist per landmark cost ~20 s."""
     names = list(results)
     fig, axes = plt.subplots(1, len(names), figsize=(5.5 * len(names), 5.2), squeeze=False)
     for ax, name in zip(axes[0], names):
         if truth is not None:
-            for p in truth.pipes:
-                ax.plot([p.p[1], p.q[1]], [p.p[0], p.q[0]], color="0.75", lw=4, solid_capstyle="round")
+            if truth.pipes:
+                ends = np.array([[p.p, p.q] for p in truth.pipes], float)
+                ax.add_collection(LineCollection(ends[:, :, [1, 0]], colors="0.75", lw=4, capstyle="round"))
             if truth.objects:
                 xy = truth.object_positions()
                 ax.scatter(xy[:, 1], xy[:, 0], s=60, facecolors="none", edgecolors="0.4", label="true objects")
-        for lm in results[name].landmarks:
-            if lm.kind == "pipe" and lm.p is not None:
-                ax.plot([lm.p[1], lm.q[1]], [lm.p[0], lm.q[0]], color=_color(name) or "tab:blue", lw=1.2)
-            elif lm.kind == "object" and lm.position is not None:
-                ax.scatter(lm.position[1], lm.position[0], s=12, color=_color(name) or "tab:blue")
-            elif lm.kind == "structure" and lm.pose is not None:
-                ax.scatter(lm.pose[1, 3], lm.pose[0, 3], marker="s", s=40, color=_color(name) or "tab:blue")
+        color = _color(name) or "tab:blue"
+        layers = map_layers(results[name].landmarks)
+        if len(layers["pipes"]):
+            ax.add_collection(LineCollection(layers["pipes"][:, :, [1, 0]], colors=color, lw=1.2))
+        if len(layers["objects"]):
+            ax.scatter(layers["objects"][:, 1], layers["objects"][:, 0], s=12, color=color)
+        if len(layers["structures"]):
+            ax.scatter(layers["structures"][:, 1], layers["structures"][:, 0], marker="s", s=40, color=color)
+        ax.autoscale_view()
         ax.set(title=f"{name} map", xlabel="east [m]", ylabel="north [m]", aspect="equal")
         ax.grid(alpha=0.3)
     fig.tight_layout()
     return fig
+
+
+def map_layers(landmarks) -> dict[str, np.ndarray]:
+    """A map's geometry as arrays: pipe segments (P, 2, 3), object positions (O, 3) and structure
+    origins (S, 3), in {W}; landmarks without that geometry are left out."""
+    pipes = [(lm.p, lm.q) for lm in landmarks if lm.kind == "pipe" and lm.p is not None]
+    objects = [lm.position for lm in landmarks if lm.kind == "object" and lm.position is not None]
+    structures = [np.asarray(lm.pose)[:3, 3] for lm in landmarks if lm.kind == "structure" and lm.pose is not None]
+    return {
+        "pipes": np.asarray(pipes, float).reshape(-1, 2, 3),
+        "objects": np.asarray(objects, float).reshape(-1, 3),
+        "structures": np.asarray(structures, float).reshape(-1, 3),
+    }
 
 
 def _interp_truth(truth: Trajectory, stamps: np.ndarray) -> np.ndarray:

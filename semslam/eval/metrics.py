@@ -16,15 +16,57 @@ from semslam.mission.ground_truth import GroundTruthMap
 ALIGNMENTS = ("none", "se3", "origin")
 
 
-def _evo_traj(stamps_ns, positions, quats_xyzw):
+def _evo_traj(traj: Trajectory, ids) -> object:
+    """The poses ``ids`` of ``traj`` as an evo trajectory, its pose matrices made at once (evo builds
+    them pose by pose from the quaternions when first asked: most of the metrics' time on a
+    mission's 10k+ poses)."""
     from evo.core.trajectory import PoseTrajectory3D
+    from scipy.spatial.transform import Rotation
 
-    q = np.asarray(quats_xyzw, float)
+    p = np.asarray(traj.positions, float)[ids]
+    q = np.asarray(traj.orientations, float)[ids]
+    T = np.tile(np.eye(4), (len(p), 1, 1))
+    T[:, :3, :3] = Rotation.from_quat(q).as_matrix()
+    T[:, :3, 3] = p
     return PoseTrajectory3D(
-        positions_xyz=np.asarray(positions, float),
+        positions_xyz=p,
         orientations_quat_wxyz=q[:, [3, 0, 1, 2]],
-        timestamps=np.asarray(stamps_ns, np.int64) * 1e-9,
+        timestamps=np.asarray(traj.stamps, np.int64)[ids] * 1e-9,
+        poses_se3=list(T),
     )
+
+
+def matching_time_indices(stamps_1: np.ndarray, stamps_2: np.ndarray, max_diff: float) -> tuple[list, list]:
+    """evo's ``sync.matching_time_indices`` (the nearest of ``stamps_2`` to each of ``stamps_1``
+    within ``max_diff``, its tie rules included) at once instead of stamp by stamp; evo's own when
+    ``stamps_2`` is not sorted."""
+    from evo.core import sync
+
+    s1, s2 = np.asarray(stamps_1, float), np.asarray(stamps_2, float)
+    if len(s2) == 0 or np.any(np.diff(s2) < 0):
+        return sync.matching_time_indices(s1, s2, max_diff)
+    i2 = np.minimum(np.searchsorted(s2, s1, side="right"), len(s2) - 1)
+    diff_ub = s2[i2] - s1
+    diff_lb = np.where(i2 > 0, s1 - s2[np.maximum(i2 - 1, 0)], np.inf)
+    upper = (diff_ub <= max_diff) & (diff_ub < diff_lb)
+    lower = ~upper & (diff_lb <= max_diff) & (diff_lb <= diff_ub)
+    inside = (s1 >= s2[0] - max_diff) & (s1 <= s2[-1] + max_diff) & (upper | lower)
+    ids_1 = np.flatnonzero(inside)
+    return ids_1.tolist(), np.where(upper, i2, i2 - 1)[ids_1].tolist()
+
+
+def _associated(estimate: Trajectory, truth: Trajectory, max_dt_s: float):
+    """(truth, estimate) as evo trajectories of their associated poses, as evo's
+    ``sync.associate_trajectories`` pairs them (nearest stamp within ``max_dt_s``, from the
+    trajectory with fewer poses), without its deep copies of both whole trajectories; None when
+    nothing associates."""
+    est_longer = len(estimate) > len(truth)
+    short, long_ = (truth, estimate) if est_longer else (estimate, truth)
+    ids_short, ids_long = matching_time_indices(short.stamps * 1e-9, long_.stamps * 1e-9, max_dt_s)
+    if not ids_short:
+        return None
+    ids_truth, ids_est = (ids_short, ids_long) if est_longer else (ids_long, ids_short)
+    return _evo_traj(truth, ids_truth), _evo_traj(estimate, ids_est)
 
 
 @dataclass
@@ -43,25 +85,25 @@ def trajectory_errors(
     alignment: str = "none",
     rpe_delta_m: float = 1.0,
     max_dt_s: float = 0.05,
+    rpe: bool = True,
 ) -> TrajectoryErrors | None:
-    """APE (translation) and RPE (translation per ``rpe_delta_m`` travelled) with evo.
+    """APE (translation) and RPE (translation per ``rpe_delta_m`` travelled; ``rpe`` False: not
+    computed, None) with evo.
 
     ``alignment``: "none" (the world frame is observable: depth and AHRS fix it — the default),
     "se3" (Umeyama) or "origin" (first poses aligned). None when no pose could be associated.
     """
-    from evo.core import metrics, sync
+    from evo.core import metrics
     from evo.core.units import Unit
 
     if alignment not in ALIGNMENTS:
         raise ValueError(f"alignment must be one of {ALIGNMENTS}")
     if len(estimate) == 0 or len(truth) == 0:
         return None
-    ref = _evo_traj(truth.stamps, truth.positions, truth.orientations)
-    est = _evo_traj(estimate.stamps, estimate.positions, estimate.orientations)
-    try:
-        ref, est = sync.associate_trajectories(ref, est, max_diff=max_dt_s)
-    except Exception:  # evo raises when nothing associates
+    pair = _associated(estimate, truth, max_dt_s)
+    if pair is None:
         return None
+    ref, est = pair
     if alignment == "se3":
         est.align(ref)
     elif alignment == "origin":
@@ -69,12 +111,13 @@ def trajectory_errors(
     ape = metrics.APE(metrics.PoseRelation.translation_part)
     ape.process_data((ref, est))
     rpe_rmse = None
-    try:
-        rpe = metrics.RPE(metrics.PoseRelation.translation_part, delta=rpe_delta_m, delta_unit=Unit.meters)
-        rpe.process_data((ref, est))
-        rpe_rmse = float(rpe.get_statistic(metrics.StatisticsType.rmse))
-    except Exception:  # too short a trajectory for one delta
-        rpe_rmse = None
+    if rpe:
+        try:
+            rpe_metric = metrics.RPE(metrics.PoseRelation.translation_part, delta=rpe_delta_m, delta_unit=Unit.meters)
+            rpe_metric.process_data((ref, est))
+            rpe_rmse = float(rpe_metric.get_statistic(metrics.StatisticsType.rmse))
+        except Exception:  # too short a trajectory for one delta
+            rpe_rmse = None
     errors = np.asarray(ape.error, float)
     return TrajectoryErrors(
         ate_rmse_m=float(np.sqrt(np.mean(errors**2))),
@@ -220,7 +263,7 @@ def _aligned_ate(estimate: Trajectory, truth: Trajectory) -> float | None:
     from evo.core.geometry import GeometryException
 
     try:
-        errs = trajectory_errors(estimate, truth, alignment="se3")
+        errs = trajectory_errors(estimate, truth, alignment="se3", rpe=False)
     except GeometryException:
         return None
     return errs.ate_rmse_m if errs is not None else None

@@ -70,11 +70,17 @@ class ClassFusion:
         self._closed_log_prior = np.log(np.maximum(p / p.sum(), _FLOOR))
         self.table = connectivity or ConnectivityTable()
         self._tracks: dict[Hashable, _Track] = {}
+        # (landmark, use_connectivity) → (posterior, conflict), until the landmark's evidence or
+        # the class set changes: a map is read far more often (every replay step) than it changes.
+        self._cache: dict[tuple[Hashable, bool], tuple[np.ndarray, bool]] = {}
+        self._masks: dict[tuple[int, frozenset], np.ndarray] = {}  # (how many classes, configurations seen)
 
     def _vector(self, likelihood: Mapping[str, float]) -> np.ndarray:
         unknown = [c for c in likelihood if c not in self.classes]
         if unknown and not self.open:
             raise KeyError(f"likelihood names unknown classes: {sorted(unknown)}")
+        if unknown:
+            self._cache.clear()
         for c in unknown:  # a new class: uniform prior, likelihood 0 (floored) in every earlier view
             self.classes.append(c)
             for tr in self._tracks.values():
@@ -90,6 +96,7 @@ class ClassFusion:
         """Fuse one observation of ``landmark_id``: its class likelihood P(Z | X) (may be None when
         only the connectivity was observed) and the pipe configuration seen (1–4 or None)."""
         log_lik = np.log(np.maximum(self._vector(likelihood), _FLOOR)) if likelihood is not None else None
+        self._forget_cached(landmark_id)
         tr = self._tracks.setdefault(landmark_id, _Track(np.zeros(len(self.classes))))
         if log_lik is not None:
             tr.log_lik = tr.log_lik + log_lik
@@ -101,6 +108,8 @@ class ClassFusion:
         """Two landmarks turned out to be one (the back-end merged them): pool their evidence."""
         if drop not in self._tracks:
             return
+        self._forget_cached(keep)
+        self._forget_cached(drop)
         d = self._tracks.pop(drop)
         tr = self._tracks.setdefault(keep, _Track(np.zeros(len(self.classes))))
         tr.log_lik = tr.log_lik + d.log_lik
@@ -110,6 +119,11 @@ class ClassFusion:
     def forget(self, landmark_id: Hashable) -> None:
         """Drop a landmark's evidence (a tentative landmark that never entered the map)."""
         self._tracks.pop(landmark_id, None)
+        self._forget_cached(landmark_id)
+
+    def _forget_cached(self, landmark_id: Hashable) -> None:
+        self._cache.pop((landmark_id, True), None)
+        self._cache.pop((landmark_id, False), None)
 
     def _seen_configurations(self, tr: _Track) -> list[int]:
         """The configurations reported often enough to count (see the module)."""
@@ -118,6 +132,12 @@ class ClassFusion:
         return [c for c, n in counts.items() if n >= need]
 
     def _posterior(self, landmark_id: Hashable, use_connectivity: bool) -> tuple[np.ndarray, bool]:
+        key = (landmark_id, use_connectivity)
+        if key not in self._cache:
+            self._cache[key] = self._compute_posterior(landmark_id, use_connectivity)
+        return self._cache[key]
+
+    def _compute_posterior(self, landmark_id: Hashable, use_connectivity: bool) -> tuple[np.ndarray, bool]:
         tr = self._tracks.get(landmark_id)
         if not self.classes:
             return np.zeros(0), False
@@ -127,12 +147,20 @@ class ClassFusion:
         post /= post.sum()
         conflict = False
         if use_connectivity and tr and tr.configurations:
-            masked = post * self.table.mask(self.classes, self._seen_configurations(tr))
+            masked = post * self._mask(self._seen_configurations(tr))
             if masked.sum() > 0:
                 post = masked / masked.sum()
             else:
                 conflict = True
         return post, conflict
+
+    def _mask(self, seen: list[int]) -> np.ndarray:
+        """The connectivity table's mask of the classes (classes are only ever appended: their
+        number names the list) for the configurations ``seen``, made once per set of them."""
+        key = (len(self.classes), frozenset(seen))
+        if key not in self._masks:
+            self._masks[key] = self.table.mask(self.classes, seen)
+        return self._masks[key]
 
     def posterior(self, landmark_id: Hashable, use_connectivity: bool = True) -> dict[str, float]:
         """P(X | observations[, connectivity]) of a landmark; the prior if it was never observed."""
