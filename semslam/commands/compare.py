@@ -38,7 +38,7 @@ def compare(
     recorder = make_recorder(record, m.metadata, record_points)
     with observed_by(*([recorder] if recorder is not None else [])):
         result, metrics = run_comparison(m, cfg, names, progress=sys.stderr.isatty())
-    after_the_pass(m, metrics, warnings)
+    after_the_pass(m, result, metrics, warnings)
     write_run(out, cfg, result, metrics, m.metadata, overwrite=overwrite, report=True, recorder=recorder)
     typer.echo(text_table(metrics_table(metrics)))
     typer.echo(f"report: {Path(out) / 'report.html'}")

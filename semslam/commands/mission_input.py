@@ -12,6 +12,7 @@ import typer
 if TYPE_CHECKING:
     from semslam.config import SemslamConfig
     from semslam.mission.mission import Mission
+    from semslam.results import PipelineResult
 
 AllowMissingOpt = typer.Option(
     "",
@@ -71,14 +72,19 @@ def checked_mission(
     return mission, names, check.warnings
 
 
-def after_the_pass(mission: Mission, metrics: dict, warnings: list[str]) -> None:
+def after_the_pass(mission: Mission, result: PipelineResult, metrics: dict, warnings: list[str]) -> None:
     """Once the pipeline has read the whole mission: the stream's warnings (messages dropped for
-    their stamps, a part of a reset mission read) on stderr, metrics.json's ``input`` (dropped and
-    invalid counts per sensor, and every warning of the check and the stream) and the input line."""
+    their stamps, a part of a reset mission read) and an estimator that estimated no pose at all
+    on stderr; metrics.json's ``input`` (dropped and invalid counts per sensor, and every warning
+    of the check, the stream and the results); the input line on stdout."""
     from semslam.mission.check import input_block, input_line, stream_findings, where
 
-    stream = [f"{where(mission)}: {f.text}" for f in stream_findings(mission) if f.severity == "warning"]
-    for line in stream:
+    said = [f"{where(mission)}: {f.text}" for f in stream_findings(mission) if f.severity == "warning"]
+    for name, r in result.results.items():
+        if len(r.trajectory) == 0:
+            why = "; ".join(r.diagnostics[-1:]) or "no attitude or velocity reading to start from"
+            said.append(f"{name}: no pose estimated ({why}): its trajectory and map are empty")
+    for line in said:
         warn(line)
-    metrics["input"] = {**input_block(mission), "warnings": [*warnings, *stream]}
+    metrics["input"] = {**input_block(mission), "warnings": [*warnings, *said]}
     typer.echo(input_line(mission))

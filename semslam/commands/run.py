@@ -58,7 +58,7 @@ def run(
     result = run_pipeline(m, [est], fes, progress=sys.stderr.isatty(), observers=observers)
     metrics = build_metrics(result, m.metadata)
     metrics["frontends"] = names
-    after_the_pass(m, metrics, warnings)
+    after_the_pass(m, result, metrics, warnings)
     write_run(out, cfg, result, metrics, m.metadata, overwrite=overwrite, recorder=recorder)
     e = metrics["estimators"][est.name]
     ate = "n/a" if e["ate_rmse_m"] is None else f"{e['ate_rmse_m']:.3f} m"
