@@ -76,7 +76,7 @@ def after_the_pass(mission: Mission, result: PipelineResult, metrics: dict, warn
     """Once the pipeline has read the whole mission: the stream's warnings (messages dropped for
     their stamps, a part of a reset mission read) and an estimator that estimated no pose at all
     on stderr; metrics.json's ``input`` (dropped and invalid counts per sensor, and every warning
-    of the check, the stream and the results); the input line on stdout."""
+    of the check, the stream and the results, when there are any); the input line on stdout."""
     from semslam.mission.check import input_block, input_line, stream_findings, where
 
     said = [f"{where(mission)}: {f.text}" for f in stream_findings(mission) if f.severity == "warning"]
@@ -86,5 +86,7 @@ def after_the_pass(mission: Mission, result: PipelineResult, metrics: dict, warn
             said.append(f"{name}: no pose estimated ({why}): its trajectory and map are empty")
     for line in said:
         warn(line)
-    metrics["input"] = {**input_block(mission), "warnings": [*warnings, *said]}
+    metrics["input"] = input_block(mission)
+    if warnings or said:  # only then: the input block of a clean mission is the same as study's
+        metrics["input"]["warnings"] = [*warnings, *said]
     typer.echo(input_line(mission))
