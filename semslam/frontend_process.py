@@ -68,6 +68,7 @@ from semslam.registry import Frontend
 WORKER_NICE = 10
 _STATE_BATCH = 256  # measurements nobody answers for, sent at the latest after this many
 _STOP_SIGNALS = frozenset((signal.SIGINT, signal.SIGTERM))
+_START_WAIT_S = 10.0  # an aborted run waits this long at most for a worker's start under way
 
 
 def runs_in_process(frontend) -> bool:
@@ -345,8 +346,11 @@ class _Worker:
                 self._proc.kill()
 
     def close(self, timeout: float = 10.0) -> None:
-        if self._starter is not None and not self._killed:
-            self._starter.join()
+        if self._starter is not None:
+            # Even when killed: a start under way ends first (and _start kills the new worker). Left
+            # to itself, the fork server would fork the worker after this process's queues are gone
+            # and it would die unpickling them, with a traceback on the user's terminal.
+            self._starter.join(timeout=_START_WAIT_S if self._killed else None)
         if self._started_flag and self._start_error is None:
             self._proc.join(timeout=timeout)
             if self._proc.is_alive():

@@ -8,12 +8,7 @@ from pathlib import Path
 import typer
 
 from semslam.cli_support import ConfigOpt, MissionArg, user_errors
-
-AllowMissingOpt = typer.Option(
-    "",
-    "--allow-missing",
-    help="accept a mission without these sources (comma-separated: dvl, ahrs): a warning instead of a refusal",
-)
+from semslam.commands.mission_input import AllowMissingOpt
 
 
 @user_errors

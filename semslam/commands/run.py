@@ -8,6 +8,7 @@ from pathlib import Path
 import typer
 
 from semslam.cli_support import ConfigOpt, MissionArg, user_errors
+from semslam.commands.mission_input import AllowMissingOpt
 
 # Options that `compare` and `demo` share.
 FrontendsOpt = typer.Option(
@@ -28,34 +29,6 @@ def record_option(default: bool):
     )
 
 
-def choose_frontends(option: str | None, metadata, mission: object) -> list[str]:
-    """The front-ends a command runs, said on stdout: those named by ``--frontends`` (comma-separated;
-    "" for none) or, without the option, those of the mission's sensor kinds
-    (:func:`semslam.compare.default_frontends`). A named front-end that consumes nothing the
-    mission's sensors give is an error naming it, what it consumes and the sensors there are."""
-    from semslam.compare import default_frontends
-    from semslam.errors import ConfigError
-    from semslam.mission.conversions import KIND_OF
-    from semslam.registry import load_frontend_class
-
-    kinds = sorted({s.kind for s in metadata.sensors.values()})
-    if option is None:
-        names = default_frontends(metadata)
-        typer.echo(f"front-ends: {', '.join(names) or 'none'} (by sensor kind; --frontends chooses)")
-        return names
-    names = [n.strip() for n in option.split(",") if n.strip()]
-    given = tuple(t for t, kind in KIND_OF.items() if kind in kinds)
-    for name in names:
-        consumes = tuple(load_frontend_class(name).consumes)
-        if not any(issubclass(t, consumes) for t in given):
-            raise ConfigError(
-                f"--frontends {name}: it consumes {', '.join(t.__name__ for t in consumes)}, which no sensor of "
-                f"{mission} gives (sensors: {', '.join(kinds) or 'none'})"
-            )
-    typer.echo(f"front-ends: {', '.join(names) or 'none'} (--frontends)")
-    return names
-
-
 @user_errors
 def run(
     mission: Path = MissionArg,
@@ -68,28 +41,31 @@ def run(
     record_points: int | None = RecordPointsOpt,
     hold_out_gps: str | None = HoldOutGpsOpt,
     overwrite: bool = OverwriteOpt,
+    allow_missing: str = AllowMissingOpt,
 ):
     """Run one estimator over a mission and write its trajectory, map and metrics."""
+    from semslam.commands.mission_input import after_the_pass, checked_mission
     from semslam.config import load_config
     from semslam.estimators import create_estimator
     from semslam.eval.gps_reference import GpsReference, HoldOut, add_gps_reference
     from semslam.eval.outputs import build_metrics, check_output_dir, write_run
     from semslam.eval.replay import make_recorder
-    from semslam.mission.bag import read_mission
     from semslam.pipeline import run_pipeline
     from semslam.registry import create_frontends
 
     check_output_dir(out, overwrite)
     cfg = load_config(config)
-    m = read_mission(mission, cfg.reader)
+    m, names, warnings = checked_mission(mission, cfg, frontends, allow_missing)
     est = create_estimator(estimator, m.metadata, cfg, batch=batch)
-    fes = create_frontends(choose_frontends(frontends, m.metadata, mission), m.metadata, cfg.frontends)
+    fes = create_frontends(names, m.metadata, cfg.frontends)
     recorder = make_recorder(record, m.metadata, record_points)
     observers = [recorder] if recorder is not None else []
     ref = GpsReference.hold_out(m, HoldOut.parse(hold_out_gps)) if hold_out_gps is not None else None
     seen = ref.estimators_see(m) if ref is not None else m
     result = run_pipeline(seen, [est], fes, progress=sys.stderr.isatty(), observers=observers)
     metrics = add_gps_reference(build_metrics(result, m.metadata), ref, result, m.metadata)
+    metrics["frontends"] = names
+    after_the_pass(m, result, metrics, warnings)
     write_run(out, cfg, result, metrics, m.metadata, overwrite=overwrite, recorder=recorder)
     e = metrics["estimators"][est.name]
     ate = "n/a" if e["ate_rmse_m"] is None else f"{e['ate_rmse_m']:.3f} m"

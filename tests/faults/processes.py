@@ -14,6 +14,7 @@ class Proc:
     start: int  # clock ticks after boot: a pid reused by another process has another start
     state: str
     cmdline: str
+    session: int  # the session id: a command started in a session of its own, and all it started
 
 
 def read_proc(pid: int) -> Proc | None:
@@ -25,7 +26,7 @@ def read_proc(pid: int) -> Proc | None:
         return None
     # "pid (comm) state ppid ...": comm may hold spaces and parentheses, so split after its last ')'
     fields = stat[stat.rindex(")") + 2 :].split()
-    return Proc(pid, int(fields[1]), int(fields[19]), fields[0], cmd)
+    return Proc(pid, int(fields[1]), int(fields[19]), fields[0], cmd, int(fields[3]))
 
 
 def all_processes() -> list[Proc]:
@@ -45,6 +46,12 @@ def descendants(root: int) -> list[Proc]:
             out.append(child)
             todo.append(child.pid)
     return out
+
+
+def in_session(sid: int) -> list[Proc]:
+    """Every living process of session ``sid`` (zombies aside): what a command started with
+    ``start_new_session`` left behind, even once reparented after its exit."""
+    return [p for p in all_processes() if p.session == sid and p.state != "Z"]
 
 
 def survivors(procs: list[Proc]) -> list[Proc]:

@@ -12,10 +12,14 @@ from semslam.demo import demo_mission, simulator_fingerprint
 from semslam.mission.bag import read_mission
 
 
+@pytest.fixture(scope="module")
+def small():
+    return short_tank(seconds=4.0)
+
+
 @pytest.fixture
-def cache(tmp_path, monkeypatch):
+def cache(tmp_path, monkeypatch, small):
     """An empty cache folder, and a simulator that gives a short mission instead of the default one."""
-    small = short_tank(seconds=4.0)
     monkeypatch.setenv("SEMSLAM_CACHE_DIR", str(tmp_path / "cache"))
     monkeypatch.setattr("semslam.sim.simulate.simulate_tank", lambda config: small)
     return tmp_path / "cache" / "missions"

@@ -1,0 +1,211 @@
+"""Memory of `semslam run --estimator graph` on a long simulated survey (issue 26; not a test).
+
+The mission: the tank simulator circling the pipe rack for ``--hours`` (default 2: 46 loops), with
+its DVL (5 Hz), AHRS (20 Hz), depth (8 Hz), ground truth (20 Hz) and a laser of 34×30 rays at 0.5 Hz
+(the oracle front-end, ground truth plus noise, misses and false positives, needs only the scans'
+stamps; full laser scans would make a 2-hour bag of ~9 GB). It is simulated once by
+`semslam simulate` in a process of its own, into ``--work``.
+
+The run is the real command, ``run MISSION --estimator graph --frontends oracle``, in a fresh
+process (so that its memory is the run's alone), with an observer of the pipeline that samples,
+every ``--every`` seconds of mission time: the resident set size, and the graph's factor counts:
+every factor created (the graph keeps each for a batch re-optimisation and for recovery), the
+factors of the smoothing window (what iSAM2 holds: ``graph.window_s``, 600 s by default) and
+iSAM2's own factor slots. The factor counts are read from the estimator's parts
+(``GraphEstimator.session``, ``.keyframes``, ``.map``): a measurement of the graph back-end as it is.
+
+``--tracemalloc`` also traces Python's allocations (numpy's included, GTSAM's C++ ones not; the
+run is ~2× slower) and lists where what was allocated after the window filled (1.5 × window_s)
+and is still held at the end comes from.
+
+Run: ``python experiments/long_survey_memory.py [--hours 2] [--work DIR] [--out F.json] [--tracemalloc]``;
+also ``F.png`` (memory and factors against mission time). Measured numbers go in the report of
+the issue, not here.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import resource
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+LOOP_S = 156.6667  # TrajectoryConfig.loop_period_s: one loop around the rack
+
+
+def simulate(hours: float, work: Path) -> Path:
+    bag = work / f"tank-{hours:g}h.bag"
+    if bag.exists():
+        return bag
+    work.mkdir(parents=True, exist_ok=True)
+    cfg = work / f"tank-{hours:g}h.yaml"
+    cfg.write_text(
+        f"trajectory:\n  duration_s: {hours * 3600:.1f}\nlaser:\n  resolution: [34, 30]\nground_truth:\n  rate_hz: 20\n"
+    )
+    semslam = Path(sys.executable).with_name("semslam")
+    t0 = time.perf_counter()
+    subprocess.run([str(semslam), "simulate", "tank", "--sim-config", str(cfg), "--out", str(bag)], check=True)
+    print(f"simulated in {time.perf_counter() - t0:.0f} s: {bag} ({bag.stat().st_size / 1e6:.0f} MB)", flush=True)
+    return bag
+
+
+def rss_mb() -> float:
+    with open("/proc/self/statm") as f:
+        return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 1e6
+
+
+class MemoryProbe:
+    """A pipeline observer: every ``every_s`` of mission time, the RSS and the graph's factor counts."""
+
+    def __init__(self, every_s: float):
+        self.every_ns = int(every_s * 1e9)
+        self.graph = None  # the estimator, captured when the command creates it
+        self.rows: list[dict] = []
+        self.filled = self.end = None  # tracemalloc snapshots: once the window has filled, at the end
+        self._start = self._next = self.last = None
+        self._t0 = time.perf_counter()
+
+    def step(self, stamp, measurement, observations, views) -> None:
+        if self._start is None:
+            self._start = self._next = stamp
+        self.last = stamp
+        if stamp >= self._next:
+            self._next += self.every_ns
+            self.rows.append(self.sample(stamp))
+
+    def sample(self, stamp: int) -> dict:
+        import tracemalloc
+
+        g = self.graph
+        t_s = (stamp - self._start) * 1e-9
+        if tracemalloc.is_tracing() and self.filled is None and t_s >= 1.5 * (g.cfg.window_s or 0):
+            self.filled = tracemalloc.take_snapshot()
+        return {
+            "traced_mb": tracemalloc.get_traced_memory()[0] / 1e6 if tracemalloc.is_tracing() else None,
+            "t_s": t_s,
+            "wall_s": time.perf_counter() - self._t0,
+            "rss_mb": rss_mb(),
+            "factors_created": len(g.session.factors),
+            "window_factors": len(g.session.window),
+            "isam_factor_slots": g.session.isam.getFactorsUnsafe().size(),
+            "keyframes": len(g.keyframes.stamps),
+            "landmarks": len(g.map),
+        }
+
+
+def measure(bag: Path, every_s: float, out_json: Path, trace: bool) -> None:
+    """In this process: the `run` command on ``bag`` with a MemoryProbe; the samples to ``out_json``."""
+    import tracemalloc
+
+    import semslam.estimators
+
+    if trace:
+        tracemalloc.start(12)
+    from semslam.cli import app
+    from semslam.pipeline import observed_by
+
+    probe = MemoryProbe(every_s)
+    create = semslam.estimators.create_estimator
+
+    def capture(*args, **kwargs):
+        probe.graph = est = create(*args, **kwargs)
+        finish = est.finish
+
+        def finish_after_snapshot():  # what the estimator holds before it assembles its result
+            probe.end = tracemalloc.take_snapshot() if trace else None
+            return finish()
+
+        est.finish = finish_after_snapshot
+        return est
+
+    semslam.estimators.create_estimator = capture
+    out_dir = out_json.with_suffix(".run")
+    t0 = time.perf_counter()
+    with observed_by(probe):
+        app(
+            ["run", str(bag), "-e", "graph", "--frontends", "oracle", "--out", str(out_dir), "--overwrite"],
+            standalone_mode=False,
+        )
+    metrics = json.loads((out_dir / "metrics.json").read_text())
+    growth = []
+    if probe.filled is not None:  # taken at the estimator's end: what it still holds
+        stats = probe.end.compare_to(probe.filled, "traceback")
+        for st in sorted(stats, key=lambda st: -st.size_diff)[:12]:
+            frames = [f"{f.filename.split('site-packages/')[-1].split('replay/')[-1]}:{f.lineno}" for f in st.traceback]
+            growth.append({"mb": st.size_diff / 1e6, "count": st.count_diff, "where": frames[-6:]})
+    result = {
+        "mission": str(bag),
+        "wall_s": time.perf_counter() - t0,
+        "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024 / 1e6,  # ru_maxrss: KiB
+        "final": probe.sample(probe.last),
+        "samples": probe.rows,
+        "graph": metrics["estimators"]["graph"],
+        "growth_after_window_filled": growth,
+    }
+    out_json.write_text(json.dumps(result, indent=1))
+
+
+def plot(result: dict, png: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    s = result["samples"]
+    t = [r["t_s"] / 60 for r in s]
+    fig, (a, b) = plt.subplots(2, 1, figsize=(8, 6), sharex=True)
+    a.plot(t, [r["rss_mb"] for r in s])
+    a.set_ylabel("RSS (MB)")
+    a.set_title(f"semslam run -e graph, {t[-1]:.0f} min of mission: peak RSS {result['peak_rss_mb']:.0f} MB")
+    for key in ("factors_created", "window_factors", "isam_factor_slots"):
+        b.plot(t, [r[key] for r in s], label=key.replace("_", " "))
+    b.set_ylabel("factors")
+    b.set_xlabel("mission time (min)")
+    b.legend()
+    fig.tight_layout()
+    fig.savefig(png, dpi=100)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--hours", type=float, default=2.0)
+    ap.add_argument("--work", type=Path, default=Path("runs/long_survey"))
+    ap.add_argument("--every", type=float, default=60.0, help="mission seconds between samples")
+    ap.add_argument("--out", type=Path, default=None, help="JSON of the samples (and a PNG beside it)")
+    ap.add_argument("--tracemalloc", action="store_true", help="also trace Python's allocations (~2x slower)")
+    ap.add_argument("--measure", type=Path, default=None, help=argparse.SUPPRESS)  # the run's own process
+    args = ap.parse_args()
+    if args.measure is not None:
+        measure(args.measure, args.every, args.out, args.tracemalloc)
+        return
+    bag = simulate(args.hours, args.work)
+    out = args.out or args.work / f"memory-{args.hours:g}h.json"
+    cmd = [sys.executable, __file__, "--measure", str(bag), "--every", str(args.every), "--out", str(out)]
+    cmd += ["--tracemalloc"] if args.tracemalloc else []
+    subprocess.run(cmd, check=True)
+    result = json.loads(out.read_text())
+    plot(result, out.with_suffix(".png"))
+    print(
+        f"{'t (min)':>8} {'RSS MB':>8} {'traced':>7} {'factors':>8} {'window':>7} {'iSAM2':>7} {'keyframes':>9} {'landmarks':>9}"
+    )
+    for r in result["samples"][:: max(1, len(result["samples"]) // 24)] + [result["final"]]:
+        print(
+            f"{r['t_s'] / 60:8.1f} {r['rss_mb']:8.0f} {r['traced_mb'] or 0:7.0f} {r['factors_created']:8d} {r['window_factors']:7d} "
+            f"{r['isam_factor_slots']:7d} {r['keyframes']:9d} {r['landmarks']:9d}"
+        )
+    for row in result["growth_after_window_filled"]:
+        print(f"  +{row['mb']:6.1f} MB in {row['count']:+8d} blocks: {' <- '.join(reversed(row['where']))}")
+    g = result["graph"]
+    print(
+        f"peak RSS {result['peak_rss_mb']:.0f} MB; wall {result['wall_s']:.0f} s; graph ATE {g['ate_rmse_m']}, "
+        f"{g['n_objects']} objects, {g['n_pipes']} pipes; update median {g['update_ms_median']} ms, "
+        f"p95 {g['update_ms_p95']} ms; {out}, {out.with_suffix('.png')}"
+    )
+
+
+if __name__ == "__main__":
+    main()
