@@ -9,6 +9,11 @@ from semslam.estimation import EstimatorResult, Trajectory
 from semslam.observations import Observation
 from semslam.registry import FrontendSummary
 
+# Estimators whose "map" is every observation placed with their own pose, never merged into
+# landmarks (DESIGN.md: dead reckoning). Their map is written as what it is: observation points and
+# segments, not thousands of landmark meshes.
+OBSERVATION_MAPS = ("dr",)
+
 
 @dataclass
 class ObservationRecord:

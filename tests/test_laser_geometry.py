@@ -141,7 +141,7 @@ def test_row_dot_is_the_row_sum_to_the_last_bit():
 
 
 def test_eigen3_parts_equals_eigen3_on_the_assembled_matrices():
-    from frontends.laser.preprocess import eigen3_parts
+    from frontends.laser.eigen import eigen3_parts
 
     rng = np.random.default_rng(6)
     X = rng.normal(size=(2000, 3, 4))

@@ -28,8 +28,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from frontends.laser.config import PipeConfig
+from frontends.laser.eigen import eigen3_parts
 from frontends.laser.grid import row_dot, single_threaded_blas
-from frontends.laser.preprocess import eigen3_parts
 
 _REFINE_REACH = 0.05  # m beyond a pipe's surface over which a refinement looks for its inliers
 # A patch's normals must turn (mean sin² of their spread across the axis, a pipe of radius r over

@@ -24,41 +24,22 @@ from __future__ import annotations
 
 import time
 from collections import defaultdict
-from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
 import numpy as np
 
 from frontends.sonar.config import SonarConfig
 from frontends.sonar.grid import ElevationMap, GridSpec, estimate_ground
+from frontends.sonar.known import KnownStructure
 from frontends.sonar.patches import Patch, inv, overlap_area, top_points, transform, yaw_of
 from frontends.sonar.pipes import PipeSegment, detect_pipes
-from frontends.sonar.recognition import Detection, Recogniser
-from frontends.sonar.registration import Registration, icp
+from frontends.sonar.recognition import Recogniser
+from frontends.sonar.registration import icp
 from frontends.sonar.swath_registration import register
 from semslam.errors import ConfigError, validated
 from semslam.mission.measurements import SonarSwath
 from semslam.observations import LineObservation, Observation, OdometryObservation, StructureObservation
 from semslam.registry import FrontendSummary
-
-
-@dataclass
-class KnownStructure:
-    """A recognised structure: its model and the latest estimate of T_WM (the graph's landmark once
-    it exists, else the front-end's own registration)."""
-
-    model: str
-    T_WM: np.ndarray
-    detection: Detection
-    stamp: int
-    landmark_id: int | None = None
-    n_observations: int = 0
-    final: Registration | None = None
-    history: list = field(default_factory=list)  # (stamp, patch id, T_SM, cov) of the observations
-
-    @property
-    def centre(self) -> np.ndarray:
-        return self.T_WM[:2, 3]
 
 
 def _wrap(a):

@@ -9,6 +9,7 @@ import time
 import numpy as np
 
 from frontends.sonar.grid import ElevationMap, GridSpec, estimate_ground
+from frontends.sonar.known import KnownStructure
 from frontends.sonar.patches import overlap_area, transform
 from frontends.sonar.registration import icp
 from frontends.sonar.swath_registration import _smoothed_gradient
@@ -141,8 +142,6 @@ def summarise(fe) -> FrontendSummary:
         t0 = time.process_time()
         removed = [(fe._current_T(ks)[:2, 3], fe.library[ks.model].footprint_radius + 0.3) for ks in fe.structures]
         dets = fe.recogniser.recognise(pts_W, None, None, removed, ground_kw=fe._ground_kw())
-        from frontends.sonar.frontend import KnownStructure
-
         for det in dets:
             ks = KnownStructure(det.model, det.registration.T.copy(), det, -1)
             fe.structures.append(ks)

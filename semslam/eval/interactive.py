@@ -19,10 +19,9 @@ import numpy as np
 
 from semslam.estimation import EstimatorResult, LandmarkEstimate, Trajectory
 from semslam.eval.metrics import match_landmarks
-from semslam.eval.outputs import OBSERVATION_MAPS
 from semslam.eval.replay_scene import class_rgb, map_class
 from semslam.mission.ground_truth import GroundTruthMap
-from semslam.results import PipelineResult
+from semslam.results import OBSERVATION_MAPS, PipelineResult
 
 TRAJECTORY_POINTS = 2000  # at most this many points of each trajectory
 MAP_POINTS = 500  # at most this many objects (and pipes) of one map: the DR map places every observation

@@ -26,12 +26,8 @@ from semslam.estimation import EstimatorResult, LandmarkEstimate
 from semslam.eval.metrics import estimator_metrics, sonar_metrics
 from semslam.eval.recognition import recognition_block
 from semslam.mission.mission import MissionMetadata
-from semslam.results import PipelineResult
+from semslam.results import OBSERVATION_MAPS, PipelineResult
 
-# Estimators whose "map" is every observation placed with their own pose, never merged into
-# landmarks (DESIGN.md: dead reckoning). Their map is written as what it is: observation points and
-# segments, not thousands of landmark meshes.
-OBSERVATION_MAPS = ("dr",)
 # What marks a directory as a semslam output (every run writes it): only such a directory is replaced.
 MARKER_FILE = "metrics.json"
 
@@ -356,7 +352,7 @@ def write_run(
 
 
 def observation_map_to_dict(result: EstimatorResult, decimals: int = 4) -> dict:
-    """A map of placed observations (:data:`OBSERVATION_MAPS`) as what it is: one row per
+    """A map of placed observations (:data:`semslam.results.OBSERVATION_MAPS`) as what it is: one row per
     observation, objects ``[x, y, z, class]`` and pipes ``[px, py, pz, qx, qy, qz]`` in {W}."""
     objects, pipes = [], []
     for lm in result.landmarks:

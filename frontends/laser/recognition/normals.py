@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 import open3d as o3d
 
-from frontends.laser.preprocess import eigen3
+from frontends.laser.eigen import eigen3
 
 
 def normals_and_curvature(

@@ -1,0 +1,29 @@
+"""A structure the sonar front-end has recognised, as it keeps it between swaths."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from frontends.sonar.recognition import Detection
+from frontends.sonar.registration import Registration
+
+
+@dataclass
+class KnownStructure:
+    """A recognised structure: its model and the latest estimate of T_WM (the graph's landmark once
+    it exists, else the front-end's own registration)."""
+
+    model: str
+    T_WM: np.ndarray
+    detection: Detection
+    stamp: int
+    landmark_id: int | None = None
+    n_observations: int = 0
+    final: Registration | None = None
+    history: list = field(default_factory=list)  # (stamp, patch id, T_SM, cov) of the observations
+
+    @property
+    def centre(self) -> np.ndarray:
+        return self.T_WM[:2, 3]
