@@ -2,8 +2,15 @@
 
 from __future__ import annotations
 
+import signal
+
 import numpy as np
 import pytest
+
+# A suite started in the background (`cmd &` in a script) inherits SIGINT ignored, and so would every
+# command a test starts: the tests that send Ctrl-C to a command would see it ignored. Handled here,
+# SIGINT is back to its default in those commands (an ignored signal survives exec, a handled one not).
+signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 @pytest.fixture
