@@ -22,6 +22,15 @@ class ConfigError(SemslamError):
     """A configuration file or value is invalid."""
 
 
+def one_line(exc: BaseException) -> str:
+    """What a library's exception says, on one line (a user error quotes it after naming the file)."""
+    text = " ".join(str(exc).split())
+    name = type(exc).__name__
+    if name.endswith("ReaderError"):  # rosbags' own messages say what is wrong; the class adds nothing
+        return text or name
+    return f"{name}: {text}" if text else name
+
+
 def validated(model: type[M], data: M | Mapping[str, Any] | None, where: str) -> M:
     """``data`` validated as ``model`` (an instance of it is taken as it is); an invalid key is a
     ConfigError naming it under ``where`` (e.g. ``frontends.laser.pipes.min_length: ...``)."""

@@ -28,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from semslam.errors import MissionError
+from semslam.errors import MissionError, one_line
 from semslam.mission import sidecar
 from semslam.mission.binding import BindingPlan, plan_bindings
 from semslam.mission.clock_guard import ClockProblem, Segment, StampGuard, TopicClock, regular_period
@@ -149,7 +149,7 @@ class BagMission(Mission):
                 try:
                     item = next(messages, None)
                 except Exception as exc:  # a damaged chunk / page / record: any rosbags or storage error
-                    raise MissionError(f"{self.path}: corrupt or truncated bag ({_one_line(exc)})") from None
+                    raise MissionError(f"{self.path}: corrupt or truncated bag ({one_line(exc)})") from None
                 if item is None:
                     break
                 conn, t_bag, raw = item
@@ -162,7 +162,7 @@ class BagMission(Mission):
                     except Exception as exc:
                         raise MissionError(
                             f"{where[topic]}: message at t={t_bag * 1e-9:.6f} s cannot be decoded as "
-                            f"{short_msgtype(conn.msgtype)} ({_one_line(exc)})"
+                            f"{short_msgtype(conn.msgtype)} ({one_line(exc)})"
                         ) from None
                     header_stamp = stamp_ns(parsed.header)
                     admitted = guard.admit(topic, t_bag, header_stamp, raw, (header_stamp, None, parsed))
@@ -304,14 +304,6 @@ def _layout(store, typename: str) -> tuple:
     return walk(tuple(store.fielddefs[typename][1]))
 
 
-def _one_line(exc: BaseException) -> str:
-    text = " ".join(str(exc).split())  # one line, whatever the library put in it
-    name = type(exc).__name__
-    if name.endswith("ReaderError"):  # rosbags' own messages say what is wrong; the class adds nothing
-        return text or name
-    return f"{name}: {text}" if text else name
-
-
 def bag_kind(path: Path) -> int:
     """1 or 2 (ROS version) for something that looks like a bag, else MissionError naming the path."""
     if not path.exists():
@@ -340,7 +332,7 @@ def open_bag(path: Path):
     except MissionError:
         raise
     except Exception as exc:  # what a damaged / foreign file raises varies: sqlite3, struct, yaml, rosbags...
-        raise MissionError(f"{path}: cannot open bag, corrupt or truncated? ({_one_line(exc)})") from None
+        raise MissionError(f"{path}: cannot open bag, corrupt or truncated? ({one_line(exc)})") from None
     try:
         yield reader
     finally:

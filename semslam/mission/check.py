@@ -32,6 +32,12 @@ from semslam.mission.sidecar import sidecar_path
 VELOCITY_FRONTENDS = frozenset({"odometry"})  # front-ends whose observations give the vehicle's motion
 # What --allow-missing accepts: sensor kind → what is missing without it.
 ALLOWABLE = {"dvl": "velocity", "ahrs": "attitude"}
+# What a run without the source gives, said when it is accepted (--allow-missing).
+CONSEQUENCE = {
+    "dvl": "the horizontal position drifts without bound",
+    "ahrs": "the attitude is not measured: an estimator that starts on an AHRS reading gives no trajectory, "
+    "one started from a ground-truth pose drifts in attitude",
+}
 NO_GROUND_TRUTH_MOUNT = frozenset({"ground_truth"})  # kinds whose T_BS means nothing
 
 
@@ -138,7 +144,7 @@ def _source(mission: Mission, kind: str, what: str, allowed: frozenset[str], fou
     need = ALLOWABLE[kind]
     why = _why_missing(mission, kind, what)
     if kind in allowed:
-        found(Finding("warning", f"no {need} source ({why}): accepted (--allow-missing {kind}); the estimate drifts"))
+        found(Finding("warning", f"no {need} source ({why}): accepted (--allow-missing {kind}); {CONSEQUENCE[kind]}"))
         return
     velocity = " and no odometry front-end" if kind == "dvl" else ""
     found(

@@ -24,6 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from semslam.errors import MissionError, one_line
 from semslam.mission.config import STANDARD_ATMOSPHERE_PA, ReaderConfig
 from semslam.mission.geodesy import Geodetic
 from semslam.mission.gps_messages import fix_position
@@ -47,7 +48,16 @@ class Resolved:
 
 def _messages(reader, topic: str):
     conns = [c for c in reader.connections if c.topic == topic]
-    for conn, t, raw in reader.messages(connections=conns):
+    messages = reader.messages(connections=conns)
+    while True:
+        try:
+            item = next(messages, None)
+        except Exception as exc:  # a damaged chunk / page: whatever rosbags or the storage raises
+            path = (getattr(reader, "paths", None) or ["bag"])[0]
+            raise MissionError(f"{path}: corrupt or truncated bag ({one_line(exc)})") from None
+        if item is None:
+            return
+        conn, t, raw = item
         try:
             yield t, reader.deserialize(raw, conn.msgtype)
         except Exception:  # the read reports a malformed message, with file, topic and stamp
