@@ -11,6 +11,7 @@ from semslam.eval.gps_reference import GpsReference, HoldOut, add_gps_reference
 from semslam.eval.outputs import build_metrics, write_run
 from semslam.mission.check import input_block
 from semslam.mission.mission import Mission, MissionMetadata
+from semslam.mission.rest import at_rest_until_velocity
 from semslam.pipeline import run_pipeline
 from semslam.registry import available_frontends, create_frontends
 from semslam.results import PipelineResult
@@ -24,6 +25,14 @@ def default_frontends(metadata: MissionMetadata) -> list[str]:
     registered = available_frontends()
     kinds = {s.kind for s in metadata.sensors.values()}
     return [fe for kind, fe in FRONTEND_FOR_KIND.items() if kind in kinds and fe in registered]
+
+
+def estimators_input(mission: Mission, config: SemslamConfig, reference: GpsReference | None = None) -> Mission:
+    """The stream every estimator reads: ``mission`` with the start at rest (:mod:`semslam.mission.rest`,
+    recorded as ``mission.rest`` for the run's warnings and metrics.json's ``input``), without the GPS
+    fixes held out as the ``reference``."""
+    seen, mission.rest = at_rest_until_velocity(mission, config.initial.at_rest_until_velocity_sigma_m_s)
+    return reference.estimators_see(seen) if reference is not None else seen
 
 
 def run_comparison(
@@ -43,7 +52,7 @@ def run_comparison(
     fes = create_frontends(names, mission.metadata, config.frontends)
     ests = [create_estimator(n, mission.metadata, config) for n in estimators]
     reference = GpsReference.hold_out(mission, hold_out_gps) if hold_out_gps is not None else None
-    seen = reference.estimators_see(mission) if reference is not None else mission
+    seen = estimators_input(mission, config, reference)
     result = run_pipeline(seen, ests, fes, view_estimator="graph", progress=progress, frontend_workers=frontend_workers)
     metrics = add_gps_reference(build_metrics(result, mission.metadata), reference, result, mission.metadata)
     metrics["input"] = input_block(mission)  # after the pipeline's complete pass over the mission

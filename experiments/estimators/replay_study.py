@@ -113,6 +113,7 @@ def record(args) -> None:
 
 def run_one(bag: Path, obs_path: Path, config: SemslamConfig, estimators: list[str]):
     """The estimators on one recorded mission: (pipeline result, metrics.json's dict, the mission's metadata)."""
+    from semslam.compare import estimators_input
     from semslam.estimators import create_estimator
     from semslam.eval.outputs import build_metrics
     from semslam.mission.bag import read_mission
@@ -124,7 +125,8 @@ def run_one(bag: Path, obs_path: Path, config: SemslamConfig, estimators: list[s
         RecordedFrontend(n, payload["observations"].get(n, {}), payload["summaries"].get(n)) for n in payload["names"]
     ]
     ests = [create_estimator(n, mission.metadata, config) for n in estimators]
-    result = run_pipeline(mission, ests, fes, view_estimator=estimators[0], frontend_process=False)
+    seen = estimators_input(mission, config)  # as compare feeds them (the start at rest)
+    result = run_pipeline(seen, ests, fes, view_estimator=estimators[0], frontend_process=False)
     return result, build_metrics(result, mission.metadata), mission.metadata
 
 

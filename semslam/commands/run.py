@@ -45,6 +45,7 @@ def run(
 ):
     """Run one estimator over a mission and write its trajectory, map and metrics."""
     from semslam.commands.mission_input import after_the_pass, checked_mission
+    from semslam.compare import estimators_input
     from semslam.config import load_config
     from semslam.estimators import create_estimator
     from semslam.eval.gps_reference import GpsReference, HoldOut, add_gps_reference
@@ -61,7 +62,7 @@ def run(
     recorder = make_recorder(record, m.metadata, record_points)
     observers = [recorder] if recorder is not None else []
     ref = GpsReference.hold_out(m, HoldOut.parse(hold_out_gps)) if hold_out_gps is not None else None
-    seen = ref.estimators_see(m) if ref is not None else m
+    seen = estimators_input(m, cfg, ref)
     result = run_pipeline(seen, [est], fes, progress=sys.stderr.isatty(), observers=observers)
     metrics = add_gps_reference(build_metrics(result, m.metadata), ref, result, m.metadata)
     metrics["frontends"] = names

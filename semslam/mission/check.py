@@ -174,11 +174,13 @@ def _why_missing(mission: Mission, kind: str, what: str) -> str:
 def stream_findings(mission: Mission) -> list[Finding]:
     """After a complete pass over a bag: its clock problems (refusals, unless split reads a part of a
     reset mission) and the messages dropped for their stamps, with the mission time of the first."""
+    rest = getattr(mission, "rest", None)
+    assumed = [Finding("warning", rest.describe())] if rest is not None and rest.readings else []
     problems = getattr(mission, "clock_problems", [])
     if not problems and not getattr(mission, "first_dropped", None):
-        return []
+        return assumed
     cfg = mission.config
-    out = []
+    out = assumed
     for p in problems:
         split = p.splittable and cfg.on_clock_jump == "split"
         out.append(Finding("warning" if split else "refusal", p.describe(hint=not split)))
@@ -222,6 +224,9 @@ def input_block(mission: Mission) -> dict:
     cfg = getattr(mission, "config", None)
     if cfg is not None and cfg.on_clock_jump == "split":
         block["segment"] = cfg.segment
+    rest = getattr(mission, "rest", None)
+    if rest is not None and rest.readings:
+        block["at_rest_s"] = round(rest.held_s, 3)
     return block
 
 
