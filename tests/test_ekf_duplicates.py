@@ -4,7 +4,7 @@ beside it, or beyond an in-line object, is still mapped; two features of one obj
 
 import numpy as np
 
-from semslam.config import SemslamConfig
+from semslam.config import AssociationConfig, SemslamConfig
 from semslam.ekf import EkfEstimator
 from semslam.ekf import geometry as geo
 from semslam.ekf import models as mdl
@@ -166,7 +166,6 @@ def test_an_incompatible_twin_sharing_the_stretch_of_a_pipe_is_dropped_not_fused
 
 
 def test_an_incompatible_object_twin_within_a_body_is_dropped_and_one_beyond_it_kept():
-    from semslam.mapping.builder import OBJECT_BODY_M
 
     est = _scene_run()
     valve = _valve(est)
@@ -181,7 +180,7 @@ def test_an_incompatible_object_twin_within_a_body_is_dropped_and_one_beyond_it_
     assert _kinds(est).count("object") == 2 and valve in est.map.features
     np.testing.assert_allclose(est.nav.state.x[valve.cols], x_before, atol=1e-12)  # not pulled by the twin
     # an object a little more than a body away is another object
-    z = (x_before + [0.0, OBJECT_BODY_M + 0.03, 0.0] - t) @ R
+    z = (x_before + [0.0, AssociationConfig().object_body_m + 0.03, 0.0] - t) @ R
     other = _add_twin(est, PointObservation(0, "laser", position=z, covariance=np.eye(3) * 0.001**2))
     est.mapper.merge_duplicates({other})
     assert _kinds(est).count("object") == 3

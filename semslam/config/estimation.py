@@ -128,6 +128,13 @@ class AssociationConfig(BaseModel):
         "parallel and overlapping): an unpaired observation that close to one is it seen badly and "
         "starts no new landmark",
     )
+    object_body_m: float = Field(
+        0.12,
+        gt=0,
+        description="two object centres closer than this are one object (a centre lies inside its body, so two "
+        "real objects are at least a body apart): a view this close to a mapped object starts no track, and two "
+        "mapped objects this close are merged even when their covariances, overconfident by then, fail the χ² test",
+    )
     inline_object_radius_m: float = Field(
         0.15,
         gt=0,

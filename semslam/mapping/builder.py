@@ -9,7 +9,7 @@ For each batch of observations (one front-end's, of one measurement) the builder
    runs the one JCBB on those compatible at ``association.confidence``;
 3. decides the unpaired: a pipe segment compatible with a pipe paired in this batch is a second view
    of it (paired too); an observation compatible at ``track_gate_confidence`` with some landmark, or
-   lying where a mapped landmark of its kind is (objects closer than :data:`OBJECT_BODY_M`; pipes
+   lying where a mapped landmark of its kind is (objects closer than ``association.object_body_m``; pipes
    within ``min_separation_m`` of the axis, nearly parallel, half within what was seen of it, no object between), is that
    landmark seen badly: ambiguous, it starts nothing;
 4. has the estimator apply the pairings (its own update), extends or starts tentative landmarks with
@@ -17,7 +17,7 @@ For each batch of observations (one front-end's, of one measurement) the builder
 5. records every view in the :class:`~semslam.mapping.book.LandmarkBook` (class evidence, what was seen
    of each pipe, placed with the pose after the update);
 6. merges duplicates among the landmarks touched: two objects whose difference is compatible with zero
-   (χ² at ``confidence``) or whose centres are closer than :data:`OBJECT_BODY_M`; two pipes on one axis
+   (χ² at ``confidence``) or whose centres are closer than ``association.object_body_m``; two pipes on one axis
    by the collinearity criterion whose line difference is compatible with zero or which share over
    half of a stretch within ``duplicate_pipe_distance_m`` of each other's axis. The younger goes into the older (the estimator constrains the two to be one
    where the χ² test passed; otherwise it just drops the younger).
@@ -43,12 +43,6 @@ from semslam.mapping.tracks import Track, TrackSet, TrackView
 from semslam.observations import LineObservation, Observation, PointObservation, StructureObservation
 
 MAPPED_TYPES = (PointObservation, LineObservation, StructureObservation)
-#: Two objects whose centres are closer than this are one object: an object's centre lies inside its
-#: body, so two real ones are at least a body apart (the tank's true objects: ≥ 0.27 m on the seeds
-#: measured). A view this close to a mapped object is that object seen badly (it starts no track), and
-#: two mapped objects this close are merged even when their covariances, overconfident by then, fail
-#: the χ² test (measured twins: 6-11 cm apart). Belongs in AssociationConfig (issue 21's report).
-OBJECT_BODY_M = 0.12
 
 
 class Scan:
@@ -215,14 +209,14 @@ class MapBuilder:
 
     def _overlaps_mapped(self, z: Observation, mapped_objects: np.ndarray) -> bool:
         """An observation that failed the χ² gates but lies where a mapped landmark of its kind
-        physically is (objects: closer than :data:`OBJECT_BODY_M`; pipes: both ends within
+        physically is (objects: closer than ``association.object_body_m``; pipes: both ends within
         ``min_separation_m`` of the line, nearly parallel, half of it within what was seen of it, no
         object between) is that landmark seen badly: it must not start a second one."""
         a = self.assoc
         sep = a.min_separation_m
         if isinstance(z, PointObservation):
             w = self.state.place(z)[0]
-            near = max(sep, OBJECT_BODY_M)
+            near = max(sep, a.object_body_m)
             return bool(len(mapped_objects)) and bool(np.min(np.linalg.norm(mapped_objects - w, axis=1)) < near)
         if not isinstance(z, LineObservation):
             return False
@@ -278,7 +272,7 @@ class MapBuilder:
                 nis = self.state.difference_nis(a, b)
                 if nis is not None and nis < gate:
                     out.append((nis, a, b, gate))
-                elif np.linalg.norm(pos[r] - pos[row[a]]) < OBJECT_BODY_M:  # one body: dropped, not fused
+                elif np.linalg.norm(pos[r] - pos[row[a]]) < self.assoc.object_body_m:  # one body: dropped, not fused
                     out.append((math.inf if nis is None else nis, a, b, gate))
         return out
 
