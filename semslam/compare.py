@@ -9,7 +9,7 @@ from semslam.config import SemslamConfig
 from semslam.estimators import create_estimator
 from semslam.eval.gps_reference import GpsReference, HoldOut, add_gps_reference
 from semslam.eval.outputs import build_metrics, write_run
-from semslam.mission.check import input_block
+from semslam.mission.check import input_block, stream_findings, where
 from semslam.mission.mission import Mission, MissionMetadata
 from semslam.mission.rest import at_rest_until_velocity
 from semslam.pipeline import run_pipeline
@@ -43,11 +43,13 @@ def run_comparison(
     progress: bool = False,
     frontend_workers: int | None = None,
     hold_out_gps: HoldOut | None = None,
+    check_warnings: Sequence[str] = (),
 ) -> tuple[PipelineResult, dict]:
     """Run every estimator on the identical measurement and observation stream; return the
     pipeline result and metrics.json's content. ``frontend_workers``: processes for the front-ends
     that run apart (default one per core; a study running one mission per core wants 1).
-    ``hold_out_gps``: GPS fixes kept from the estimators as the reference (semslam.eval.gps_reference)."""
+    ``hold_out_gps``: GPS fixes kept from the estimators as the reference (semslam.eval.gps_reference);
+    ``check_warnings``: the mission check's, for metrics.json's ``input`` (:func:`input_after_the_pass`)."""
     names = list(frontends) if frontends is not None else default_frontends(mission.metadata)
     fes = create_frontends(names, mission.metadata, config.frontends)
     ests = [create_estimator(n, mission.metadata, config) for n in estimators]
@@ -55,9 +57,24 @@ def run_comparison(
     seen = estimators_input(mission, config, reference)
     result = run_pipeline(seen, ests, fes, view_estimator="graph", progress=progress, frontend_workers=frontend_workers)
     metrics = add_gps_reference(build_metrics(result, mission.metadata), reference, result, mission.metadata)
-    metrics["input"] = input_block(mission)  # after the pipeline's complete pass over the mission
+    metrics["input"], _ = input_after_the_pass(mission, result, check_warnings)
     metrics["frontends"] = names
     return result, metrics
+
+
+def input_after_the_pass(mission: Mission, result: PipelineResult, check_warnings: Sequence[str] = ()):
+    """After the pipeline's complete pass over ``mission``: metrics.json's ``input`` block (dropped and
+    invalid counts, and every warning when there is any: the check's, the stream's, the assumptions'
+    and an estimator that estimated no pose) and the warnings found after the pass (to be said)."""
+    said = [f"{where(mission)}: {f.text}" for f in stream_findings(mission) if f.severity == "warning"]
+    for name, r in result.results.items():
+        if len(r.trajectory) == 0:
+            why = "; ".join(r.diagnostics[-1:]) or "no attitude or velocity reading to start from"
+            said.append(f"{name}: no pose estimated ({why}): its trajectory and map are empty")
+    block = input_block(mission)
+    if check_warnings or said:  # only then: the block of a clean mission has counts alone
+        block["warnings"] = [*check_warnings, *said]
+    return block, said
 
 
 def compare_to_dir(

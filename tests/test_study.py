@@ -274,3 +274,34 @@ def test_timeout_is_recorded(inputs, tmp_path):
     assert study["counts"]["timeout"] == 1 and not (out / "tank-seed1").exists()
     assert study["missions"][0]["error"] == "exceeded the timeout of 1 s"
     assert not compute_processes(out)
+
+
+def test_gps_held_out_in_a_study_as_in_compare(tmp_path):
+    """A campaign of real recordings has no ground truth: its reference is the GPS fixes held out.
+    A study with --hold-out-gps gives each mission compare's numbers with the same option, and its
+    statistics carry the error at the held-out fix."""
+    sim = tmp_path / "dive.yaml"
+    sim.write_text(
+        "trajectory: {lines: 1}\ndive: {surface_start_s: 10.0, surface_end_s: 10.0, descent_s: 10.0, ascent_s: 10.0}\n"
+    )
+    bag, alone, out = tmp_path / "dive.bag", tmp_path / "compare", tmp_path / "study"
+    res = runner.invoke(app, ["simulate", "dive", "--seed", "1", "--sim-config", str(sim), "--out", str(bag)])
+    assert res.exit_code == 0, res.output
+    res = runner.invoke(app, ["compare", str(bag), "--hold-out-gps", "last", "--out", str(alone)])
+    assert res.exit_code == 0, res.output
+    args = ["study", "--scenario", "dive", "--seeds", "1", "--sim-config", str(sim), "--hold-out-gps", "last"]
+    res = runner.invoke(app, [*args, "--workers", "1", "--out", str(out)])
+    assert res.exit_code == 0, res.output
+    expected = numbers(json.loads((alone / "metrics.json").read_text()))
+    got = numbers(json.loads((out / "dive-seed1" / "metrics.json").read_text()))
+    assert expected["reference"] == "gps" and expected["gps_reference"]["n_fixes"] == 1
+    # the same warnings, each naming the bag it ran on
+    said, study_said = (m["input"].pop("warnings", []) for m in (expected, got))
+    assert [w.replace(str(bag), "BAG") for w in said] == [w.replace(str(out), "BAG") for w in study_said]
+    assert got == expected
+    study = json.loads((out / "study.json").read_text())
+    for est in ("ekf", "graph"):
+        last = expected["estimators"][est]["gps_error_last_m"]
+        assert study["distributions"][est]["gps_error_last_m"]["values"] == [pytest.approx(last)]
+    assert study["ratios"]["graph/dr"]["gps_error_last_m"]["n"] == 1
+    assert "--hold-out-gps last" in study["missions"][0]["reproduce"]

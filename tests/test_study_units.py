@@ -84,7 +84,8 @@ def test_study_statistics_per_estimator_and_pair():
     assert s["recognition"]["SEM"]["f1"]["median"] == pytest.approx(0.7)
     assert s["ratios"]["graph/ekf"]["ate_rmse_m"]["values"] == [0.5, None, 0.4]
     assert s["ratios"]["ekf/dr"]["ate_rmse_m"]["median"] == 0.5
-    assert set(s["ratios"]) == {"graph/ekf", "ekf/dr"}
+    assert s["ratios"]["graph/dr"]["ate_rmse_m"]["values"] == [0.25, None, 0.2]
+    assert set(s["ratios"]) == {"graph/ekf", "ekf/dr", "graph/dr"}
 
 
 def test_shares_and_seen_pipe_ratios_per_mission():
@@ -110,6 +111,7 @@ def test_shares_and_seen_pipe_ratios_per_mission():
         (["--scenario", "pond", "--out", "o"], "unknown scene 'pond'"),
         (["missing.bag", "--out", "o"], "missing.bag: no such bag"),
         (["--scenario", "tank", "--timeout", "0", "--out", "o"], "--timeout"),
+        (["--scenario", "dive", "--hold-out-gps", "every:1", "--out", "o"], "--hold-out-gps 'every:1'"),
     ],
 )
 def test_user_errors_are_one_line(tmp_path, monkeypatch, args, message):

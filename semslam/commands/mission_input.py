@@ -77,16 +77,10 @@ def after_the_pass(mission: Mission, result: PipelineResult, metrics: dict, warn
     their stamps, a part of a reset mission read) and an estimator that estimated no pose at all
     on stderr; metrics.json's ``input`` (dropped and invalid counts per sensor, and every warning
     of the check, the stream and the results, when there are any); the input line on stdout."""
-    from semslam.mission.check import input_block, input_line, stream_findings, where
+    from semslam.compare import input_after_the_pass
+    from semslam.mission.check import input_line
 
-    said = [f"{where(mission)}: {f.text}" for f in stream_findings(mission) if f.severity == "warning"]
-    for name, r in result.results.items():
-        if len(r.trajectory) == 0:
-            why = "; ".join(r.diagnostics[-1:]) or "no attitude or velocity reading to start from"
-            said.append(f"{name}: no pose estimated ({why}): its trajectory and map are empty")
+    metrics["input"], said = input_after_the_pass(mission, result, warnings)
     for line in said:
         warn(line)
-    metrics["input"] = input_block(mission)
-    if warnings or said:  # only then: the input block of a clean mission is the same as study's
-        metrics["input"]["warnings"] = [*warnings, *said]
     typer.echo(input_line(mission))

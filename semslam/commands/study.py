@@ -25,6 +25,12 @@ def study(
     ),
     config: Path | None = ConfigOpt,
     frontends: str | None = typer.Option(None, "--frontends", help="comma-separated; default: by sensor kind"),
+    hold_out_gps: str | None = typer.Option(
+        None,
+        "--hold-out-gps",
+        help="last | every:N: each mission's GPS fixes kept from the estimators as its reference (as compare's); "
+        "the study's GPS errors and ratios are at those fixes",
+    ),
     scheduler: str | None = typer.Option(
         None, "--scheduler", help="address of a Dask scheduler (default: a LocalCluster)"
     ),
@@ -38,6 +44,7 @@ def study(
 ):
     """Run many missions (simulated over seeds, or bags) as Dask tasks: each compared with dr, ekf and
     graph as `semslam compare` does, then distributions and paired ratios with bootstrap CIs."""
+    from semslam.eval.gps_reference import HoldOut
     from semslam.sim.vary import parse_aspects
     from semslam.study.plan import bag_tasks, parse_seeds, scenario_tasks, semslam_config
     from semslam.study.run import run_study
@@ -47,10 +54,12 @@ def study(
     if timeout is not None and timeout <= 0:
         raise SemslamError(f"--timeout: must be positive (got {timeout:g})")
     names = None if frontends is None else [n.strip() for n in frontends.split(",") if n.strip()]
-    common = {"frontends": names, "timeout_s": timeout, "keep_bag": keep_bags}
+    held = None if hold_out_gps is None else str(HoldOut.parse(hold_out_gps))  # a bad value: one line, now
+    common = {"frontends": names, "hold_out_gps": held, "timeout_s": timeout, "keep_bag": keep_bags}
     out = out.resolve()
     cfg = semslam_config(config, scenario)
     description = {"config": str(config) if config else None, "frontends": names, "timeout_s": timeout}
+    description["hold_out_gps"] = held
     if scenario:
         aspects = parse_aspects(vary)
         seed_list = parse_seeds(seeds)

@@ -175,7 +175,7 @@ def stream_findings(mission: Mission) -> list[Finding]:
     """After a complete pass over a bag: its clock problems (refusals, unless split reads a part of a
     reset mission) and the messages dropped for their stamps, with the mission time of the first."""
     rest = getattr(mission, "rest", None)
-    assumed = [Finding("warning", rest.describe())] if rest is not None and rest.readings else []
+    assumed = [Finding("warning", rest.describe())] if rest is not None and rest.said else []
     problems = getattr(mission, "clock_problems", [])
     if not problems and not getattr(mission, "first_dropped", None):
         return assumed
@@ -225,7 +225,7 @@ def input_block(mission: Mission) -> dict:
     if cfg is not None and cfg.on_clock_jump == "split":
         block["segment"] = cfg.segment
     rest = getattr(mission, "rest", None)
-    if rest is not None and rest.readings:
+    if rest is not None and rest.said:
         block["at_rest_s"] = round(rest.held_s, 3)
     return block
 

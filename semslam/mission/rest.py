@@ -24,6 +24,7 @@ from semslam.mission.measurements import DvlVelocity, GpsFix
 from semslam.mission.mission import Mission
 
 PERIOD_S = 0.2  # a DVL's rate; the readings stand in for the ones it could not give
+SAID_AFTER_S = 1.0  # a hold shorter than this (a GPS fix or the lock a moment later) changes nothing worth a word
 VERTICAL_SIGMA_M_S = 1.0  # no information along z: a dive's 0.1–0.5 m/s is not held
 
 
@@ -43,9 +44,14 @@ class RestAssumption:
         """How long the assumption held (s): from its first reading to its last."""
         return 0.0 if not self.readings else (self.last - self.first) * 1e-9
 
+    @property
+    def said(self) -> bool:
+        """Whether the run says it assumed a start at rest (it held for ``SAID_AFTER_S`` or more)."""
+        return self.readings > 0 and self.held_s >= SAID_AFTER_S
+
     def describe(self) -> str | None:
-        """The warning a run gives, or None if the assumption was never used."""
-        if not self.readings:
+        """The warning a run gives, or None if the assumption held too briefly to matter."""
+        if not self.said:
             return None
         return (
             f"no valid velocity reading for the first {self.held_s:.1f} s ({self.sensor} without bottom lock): the vehicle "

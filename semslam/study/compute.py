@@ -75,6 +75,7 @@ def compute(task: MissionTask, stage: Path) -> dict:
     """Compute the mission into ``stage``; returns its record (also written there, last)."""
     from semslam.compare import default_frontends, run_comparison
     from semslam.config import SemslamConfig
+    from semslam.eval.gps_reference import HoldOut
     from semslam.eval.outputs import write_results
     from semslam.eval.report import write_report
     from semslam.mission.check import check_mission
@@ -89,7 +90,10 @@ def compute(task: MissionTask, stage: Path) -> dict:
         print(f"semslam: warning: {warning}", file=sys.stderr, flush=True)
     t_mission = time.perf_counter() - t0
     # One front-end worker: the study already runs one mission per core.
-    result, metrics = run_comparison(mission, config, task.frontends, frontend_workers=1)
+    hold_out = HoldOut.parse(task.hold_out_gps) if task.hold_out_gps else None
+    result, metrics = run_comparison(
+        mission, config, task.frontends, frontend_workers=1, hold_out_gps=hold_out, check_warnings=check.warnings
+    )
     write_results(stage, config, result, metrics)
     report = write_report(stage, result, mission.metadata, metrics)
     if not task.keep_bag:

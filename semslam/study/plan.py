@@ -28,6 +28,7 @@ class MissionTask:
     source: dict
     config: dict
     frontends: list[str] | None = None
+    hold_out_gps: str | None = None  # `semslam compare --hold-out-gps`: GPS fixes kept as the reference
     timeout_s: float | None = None
     keep_bag: bool = False
 
@@ -40,7 +41,12 @@ class MissionTask:
 
     def identity(self) -> dict:
         """What determines the mission's results (not where or how long it may run)."""
-        return {"source": self.source, "config": self.config, "frontends": self.frontends}
+        return {
+            "source": self.source,
+            "config": self.config,
+            "frontends": self.frontends,
+            "hold_out_gps": self.hold_out_gps,
+        }
 
     def identity_hash(self) -> str:
         return hashlib.sha256(json.dumps(self.identity(), sort_keys=True).encode()).hexdigest()[:16]
@@ -48,6 +54,7 @@ class MissionTask:
     def reproduce(self) -> str:
         """The `semslam` command line that recomputes this mission alone."""
         fe = f" --frontends {','.join(self.frontends)}" if self.frontends else ""
+        fe += f" --hold-out-gps {self.hold_out_gps}" if self.hold_out_gps else ""
         if self.source["kind"] == "bag":
             return f"semslam compare {self.source['path']} --config {self.mission}/config.yaml{fe} --out OUT"
         s = self.source

@@ -24,6 +24,7 @@ FIGURE_METRICS = (
     ("objects_mapped_ratio", "objects mapped / seen"),
     ("pipes_mapped_ratio", "pipes mapped / seen"),
     ("runtime_s", "estimator run time (s)"),
+    ("gps_error_rmse_m", "error at the held-out GPS fixes (m)"),
 )
 LABELS = dict(FIGURE_METRICS)
 

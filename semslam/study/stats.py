@@ -39,6 +39,8 @@ DISTRIBUTION_METRICS = (
     "pipe_false",
     "structure_missed",
     "structure_false",
+    "gps_error_rmse_m",
+    "gps_error_last_m",
 )
 #: yes/no per mission whose share of missions study.json gives per estimator (``shares``)
 SHARE_METRICS = ("objects_once", "nees_in_band")
@@ -51,9 +53,11 @@ RATIO_METRICS = (
     "landmark_median_error_m",
     "object_median_error_m",
     "pipe_median_error_m",
+    "gps_error_rmse_m",
+    "gps_error_last_m",
 )
 #: the pairs (numerator, denominator)
-RATIO_PAIRS = (("graph", "ekf"), ("ekf", "dr"))
+RATIO_PAIRS = (("graph", "ekf"), ("ekf", "dr"), ("graph", "dr"))
 CONFIDENCE = 0.95
 N_RESAMPLES = 9999
 
