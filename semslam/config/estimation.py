@@ -22,7 +22,7 @@ class InitialStateConfig(BaseModel):
     attitude_sigma_rad: float = Field(0.05, gt=0, description="prior σ of the start roll, pitch and yaw")
     velocity_sigma_m_s: float = Field(0.5, gt=0, description="prior σ of the start body velocity (per axis)")
     at_rest_until_velocity_sigma_m_s: float | None = Field(
-        0.05,
+        0.1,
         gt=0,
         description="until the first valid DVL reading (or GPS fix), every estimator takes the vehicle as "
         "holding its horizontal position, a zero body x/y velocity with this σ (a vehicle waiting for bottom "

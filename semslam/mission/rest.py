@@ -5,9 +5,9 @@ Why: a recording often starts with the vehicle at the surface, its DVL without b
 has dived (15–20 s in the simulated tank worlds). With nothing measuring the horizontal velocity, the
 constant-velocity motion model lets the start's velocity uncertainty grow the position's to metres,
 fully correlated with the velocity: the first valid reading is then read as that velocity held since
-the start, and the position jumps by it times the wait (0.4 m on tank seed 1; the EKF diverged on
-seed 20, the graph drifted). A vehicle waiting for bottom lock dives or holds station; the first
-velocity reading says nothing about how it got there.
+the start, and the position jumps by it times the wait (measured: experiments/estimators/README.md).
+A vehicle waiting for bottom lock dives or holds station; the first velocity reading says nothing
+about how it got there.
 
 So, until then, every ``PERIOD_S`` the estimators get a zero body velocity reading of the DVL with
 σ ``initial.at_rest_until_velocity_sigma_m_s`` along the body's x and y and none along z (the dive's
