@@ -309,7 +309,7 @@ def main(argv=None) -> int:
     for seed in parse_seeds(args.seeds):
         if args.scenario == "tank":
             results[seed] = r = tank_seed(seed, json.loads(args.config), ("graph", "ekf") if args.ekf else ("graph",))
-            print(tank_line(seed, r), flush=True)
+            print(tank_line(seed, r) if all(v is not None for v in r["graph"].values()) else r, flush=True)
         else:
             results[seed] = r = pipeline_seed(seed, json.loads(args.config), args.scans_only, args.dump)
             print(pipeline_line(seed, r), flush=True)

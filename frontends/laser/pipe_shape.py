@@ -72,8 +72,13 @@ def axis_height_of(p: np.ndarray, axis: np.ndarray, length: float, ground) -> fl
     ``length``, None where it knows no ground."""
     t = np.linspace(0.0, length, _AXIS_SAMPLES)
     h = ground.height(p + np.outer(t, axis))
-    h = h[np.isfinite(h)]
-    return float(np.median(h)) if len(h) else None
+    h = np.sort(h[np.isfinite(h)])
+    if not len(h):
+        return None
+    # (np.median's value, by one sort of the 9 samples: np.median costs ~10 times more on so few,
+    # and this runs about 3 times per pipe segment)
+    k = len(h) // 2
+    return float(h[k] if len(h) % 2 else (h[k - 1] + h[k]) / 2)
 
 
 def color_contrast(
