@@ -254,19 +254,32 @@ def main(argv=None) -> int:
     ap.add_argument("--every", type=int, default=25, help="tank, pipeline: every n-th scan")
     ap.add_argument("--process", action="store_true", help="also time LaserFrontend.process (with recognition)")
     ap.add_argument("--against", type=Path, default=None, help="paired A/B against this checkout (see above)")
+    ap.add_argument(
+        "--scans-file", type=Path, default=None, help="the scans are read from this .npz if it exists, else saved to it"
+    )
     ap.add_argument("--worker", type=Path, default=None, help=argparse.SUPPRESS)  # internal: scans file
     args = ap.parse_args(argv)
     if args.worker is not None:
         return _worker(args.worker, json.loads(args.config), args.process)
     overrides = json.loads(args.config)
     scans = []
-    if args.source in ("tank", "pipeline"):
+    if args.scans_file is not None and args.scans_file.exists():
+        scans = _load(args.scans_file)
+        if args.source == "tank":  # (the prior _mission_scans sets, from the default tank's radius)
+            from semslam.sim import TankSimConfig
+
+            overrides.setdefault("pipes", {}).setdefault(
+                "radius_prior", TankSimConfig(seed=args.seed).structure.pipe_radius_m
+            )
+    elif args.source in ("tank", "pipeline"):
         scans = _mission_scans(args.source, args.seed, args.every, args.scans, overrides)
     else:
         rng = np.random.default_rng(args.seed)
         for i in range(args.scans):
             T = viewpoint(rng.uniform(0, 360), rng.uniform(-0.3, 0.3, 2), rng.uniform(-10, 10), rng.uniform(-0.5, 0.3))
             scans.append({"points": raycast(default_scene(), n_rays=args.rays, T_scene=T, seed=i).points})
+    if args.scans_file is not None and not args.scans_file.exists():
+        _save(args.scans_file, scans)
     if args.against is not None:
         print(json.dumps(_paired(scans, overrides, args.against, args.repeat, args.process), indent=2))
         return 0

@@ -570,7 +570,12 @@ def _cut_into_segments(points, normals, sq, cb, ab, rb, idx, cfg: PipeConfig, fo
     outside = (res_all > cfg.distance_tolerance) & span
     if foreign is not None:
         outside &= foreign
-    if seabed is not None and cfg.fitting_window_deg < 180.0 and seabed.on_or_unknown(cb, ab, rb, t.min(), t.max()):
+    if (
+        seabed is not None
+        and cfg.fitting_window_deg < 180.0
+        and outside.any()  # (nothing to narrow down otherwise: the ground's height is not read)
+        and seabed.on_or_unknown(cb, ab, rb, t.min(), t.max())
+    ):
         outside[outside] = _facing_sensor(np.take(points, np.flatnonzero(outside), axis=0), cb, ab, cfg)
     near = outside & (res_all < cfg.fitting_reach)
     around = outside & (res_all < cfg.gap_reach)
