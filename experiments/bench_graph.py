@@ -57,9 +57,12 @@ def summarize(res, mission) -> dict:
     gs, gp = ground_truth_positions(mission)
     e = position_errors(res.trajectory.stamps, res.trajectory.positions, gs, gp)
     eo = position_errors(res.online_trajectory.stamps, res.online_trajectory.positions, gs, gp)
+    cpu = np.asarray(res.history.get("update_cpu_s", []), float) * 1e3  # per update, CPU ms of the process
     out = {
         "update_ms_median": float(np.median(t)),
         "update_ms_p95": float(np.percentile(t, 95)),
+        "update_cpu_ms_median": float(np.median(cpu)) if len(cpu) else None,
+        "update_cpu_ms_p95": float(np.percentile(cpu, 95)) if len(cpu) else None,
         "obs_update_ms_median": float(np.median(t[kinds == "observations"]))
         if (kinds == "observations").any()
         else None,
