@@ -206,11 +206,13 @@ def _slide_summary(slides: list[dict]) -> dict | None:
     if not slides:
         return None
     sec = np.array([s["seconds"] for s in slides]) * 1e3
+    cov = np.array([s.get("covariance_seconds", 0.0) for s in slides]) * 1e3  # what left keeps its covariance
     sep = np.array([s["separator"] for s in slides])
     return {
         "n": len(slides),
         "ms_median": float(np.median(sec)),
         "ms_max": float(sec.max()),
+        "covariance_ms_median": float(np.median(cov)),
         "separator_median": float(np.median(sep)),
         "separator_max": int(sep.max()),
         "left_landmarks": int(sum(s["left_landmarks"] for s in slides)),
