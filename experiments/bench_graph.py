@@ -57,9 +57,12 @@ def summarize(res, mission) -> dict:
     gs, gp = ground_truth_positions(mission)
     e = position_errors(res.trajectory.stamps, res.trajectory.positions, gs, gp)
     eo = position_errors(res.online_trajectory.stamps, res.online_trajectory.positions, gs, gp)
+    cpu = np.asarray(res.history.get("update_cpu_s", []), float) * 1e3  # per update, CPU ms of the process
     out = {
         "update_ms_median": float(np.median(t)),
         "update_ms_p95": float(np.percentile(t, 95)),
+        "update_cpu_ms_median": float(np.median(cpu)) if len(cpu) else None,
+        "update_cpu_ms_p95": float(np.percentile(cpu, 95)) if len(cpu) else None,
         "obs_update_ms_median": float(np.median(t[kinds == "observations"]))
         if (kinds == "observations").any()
         else None,
@@ -203,11 +206,13 @@ def _slide_summary(slides: list[dict]) -> dict | None:
     if not slides:
         return None
     sec = np.array([s["seconds"] for s in slides]) * 1e3
+    cov = np.array([s.get("covariance_seconds", 0.0) for s in slides]) * 1e3  # what left keeps its covariance
     sep = np.array([s["separator"] for s in slides])
     return {
         "n": len(slides),
         "ms_median": float(np.median(sec)),
         "ms_max": float(sec.max()),
+        "covariance_ms_median": float(np.median(cov)),
         "separator_median": float(np.median(sep)),
         "separator_max": int(sep.max()),
         "left_landmarks": int(sum(s["left_landmarks"] for s in slides)),

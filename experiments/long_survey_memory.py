@@ -9,7 +9,8 @@ stamps; full laser scans would make a 2-hour bag of ~9 GB). It is simulated once
 The run is the real command, ``run MISSION --estimator graph --frontends oracle``, in a fresh
 process (so that its memory is the run's alone), with an observer of the pipeline that samples,
 every ``--every`` seconds of mission time: the resident set size, and the graph's factor counts:
-every factor created (the graph keeps each for a batch re-optimisation and for recovery), the
+every factor committed (the graph keeps them all only for the batch re-optimisation, ``--batch``),
+the factors the session still holds (``kept_factors``: all of them with ``--batch``, else none), the
 factors of the smoothing window (what iSAM2 holds: ``graph.window_s``, 600 s by default) and
 iSAM2's own factor slots. The factor counts are read from the estimator's parts
 (``GraphEstimator.session``, ``.keyframes``, ``.map``): a measurement of the graph back-end as it is.
@@ -18,7 +19,9 @@ iSAM2's own factor slots. The factor counts are read from the estimator's parts
 run is ~2× slower) and lists where what was allocated after the window filled (1.5 × window_s)
 and is still held at the end comes from.
 
-Run: ``python experiments/long_survey_memory.py [--hours 2] [--work DIR] [--out F.json] [--tracemalloc]``;
+Run: ``python experiments/long_survey_memory.py [--hours 2] [--work DIR] [--out F.json] [--tracemalloc]
+[--config F.yaml] [--batch]`` (a shorter ``graph.window_s`` in F shows the slope after the window filled
+on a shorter survey);
 also ``F.png`` (memory and factors against mission time). Measured numbers go in the report of
 the issue, not here.
 """
@@ -89,7 +92,8 @@ class MemoryProbe:
             "t_s": t_s,
             "wall_s": time.perf_counter() - self._t0,
             "rss_mb": rss_mb(),
-            "factors_created": len(g.session.factors),
+            "factors_created": getattr(g.session, "n_committed", len(g.session.factors)),  # before: all kept
+            "kept_factors": len(g.session.factors),
             "window_factors": len(g.session.window),
             "isam_factor_slots": g.session.isam.getFactorsUnsafe().size(),
             "keyframes": len(g.keyframes.stamps),
@@ -97,7 +101,7 @@ class MemoryProbe:
         }
 
 
-def measure(bag: Path, every_s: float, out_json: Path, trace: bool) -> None:
+def measure(bag: Path, every_s: float, out_json: Path, trace: bool, extra: list[str]) -> None:
     """In this process: the `run` command on ``bag`` with a MemoryProbe; the samples to ``out_json``."""
     import tracemalloc
 
@@ -127,7 +131,7 @@ def measure(bag: Path, every_s: float, out_json: Path, trace: bool) -> None:
     t0 = time.perf_counter()
     with observed_by(probe):
         app(
-            ["run", str(bag), "-e", "graph", "--frontends", "oracle", "--out", str(out_dir), "--overwrite"],
+            ["run", str(bag), "-e", "graph", "--frontends", "oracle", "--out", str(out_dir), "--overwrite", *extra],
             standalone_mode=False,
         )
     metrics = json.loads((out_dir / "metrics.json").read_text())
@@ -161,8 +165,8 @@ def plot(result: dict, png: Path) -> None:
     a.plot(t, [r["rss_mb"] for r in s])
     a.set_ylabel("RSS (MB)")
     a.set_title(f"semslam run -e graph, {t[-1]:.0f} min of mission: peak RSS {result['peak_rss_mb']:.0f} MB")
-    for key in ("factors_created", "window_factors", "isam_factor_slots"):
-        b.plot(t, [r[key] for r in s], label=key.replace("_", " "))
+    for key in ("factors_created", "kept_factors", "window_factors", "isam_factor_slots"):
+        b.plot(t, [r.get(key, 0) for r in s], label=key.replace("_", " "))
     b.set_ylabel("factors")
     b.set_xlabel("mission time (min)")
     b.legend()
@@ -177,25 +181,31 @@ def main() -> None:
     ap.add_argument("--every", type=float, default=60.0, help="mission seconds between samples")
     ap.add_argument("--out", type=Path, default=None, help="JSON of the samples (and a PNG beside it)")
     ap.add_argument("--tracemalloc", action="store_true", help="also trace Python's allocations (~2x slower)")
+    ap.add_argument("--config", type=Path, default=None, help="semslam configuration YAML for the run")
+    ap.add_argument("--batch", action="store_true", help="run with --batch (keeps every factor)")
     ap.add_argument("--measure", type=Path, default=None, help=argparse.SUPPRESS)  # the run's own process
     args = ap.parse_args()
+    extra = (["--config", str(args.config)] if args.config else []) + (["--batch"] if args.batch else [])
     if args.measure is not None:
-        measure(args.measure, args.every, args.out, args.tracemalloc)
+        measure(args.measure, args.every, args.out, args.tracemalloc, extra)
         return
     bag = simulate(args.hours, args.work)
     out = args.out or args.work / f"memory-{args.hours:g}h.json"
     cmd = [sys.executable, __file__, "--measure", str(bag), "--every", str(args.every), "--out", str(out)]
     cmd += ["--tracemalloc"] if args.tracemalloc else []
+    cmd += (["--config", str(args.config)] if args.config else []) + (["--batch"] if args.batch else [])
     subprocess.run(cmd, check=True)
     result = json.loads(out.read_text())
     plot(result, out.with_suffix(".png"))
     print(
-        f"{'t (min)':>8} {'RSS MB':>8} {'traced':>7} {'factors':>8} {'window':>7} {'iSAM2':>7} {'keyframes':>9} {'landmarks':>9}"
+        f"{'t (min)':>8} {'RSS MB':>8} {'traced':>7} {'factors':>8} {'kept':>8} {'window':>7} {'iSAM2':>7} "
+        f"{'keyframes':>9} {'landmarks':>9}"
     )
     for r in result["samples"][:: max(1, len(result["samples"]) // 24)] + [result["final"]]:
         print(
-            f"{r['t_s'] / 60:8.1f} {r['rss_mb']:8.0f} {r['traced_mb'] or 0:7.0f} {r['factors_created']:8d} {r['window_factors']:7d} "
-            f"{r['isam_factor_slots']:7d} {r['keyframes']:9d} {r['landmarks']:9d}"
+            f"{r['t_s'] / 60:8.1f} {r['rss_mb']:8.0f} {r['traced_mb'] or 0:7.0f} {r['factors_created']:8d} "
+            f"{r['kept_factors']:8d} {r['window_factors']:7d} {r['isam_factor_slots']:7d} {r['keyframes']:9d} "
+            f"{r['landmarks']:9d}"
         )
     for row in result["growth_after_window_filled"]:
         print(f"  +{row['mb']:6.1f} MB in {row['count']:+8d} blocks: {' <- '.join(reversed(row['where']))}")

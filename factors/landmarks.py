@@ -19,15 +19,21 @@ from factors.geometry import skew, so3_exp, so3_right_jacobian
 
 def point_residual(T_WB: gtsam.Pose3, l_W: np.ndarray, T_BS: np.ndarray, z_S: np.ndarray, jac: bool = False):
     """r = R_BSᵀ (R_WBᵀ (l − t_WB) − t_BS) − z_S; Jacobians 3×6 wrt X and 3×3 wrt l."""
-    R = T_WB.rotation().matrix()
-    R_BS, t_BS = T_BS[:3, :3], T_BS[:3, 3]
-    l_B = R.T @ (l_W - T_WB.translation())
-    r = R_BS.T @ (l_B - t_BS) - z_S
+    return point_residual_at(T_WB.rotation().matrix(), T_WB.translation(), l_W, T_BS, z_S, jac)
+
+
+def point_residual_at(R: np.ndarray, t: np.ndarray, l_W, T_BS: np.ndarray, z_S: np.ndarray, jac: bool = False):
+    """:func:`point_residual` from the pose's pieces (R, t), for callers that pair one pose with many
+    landmarks."""
+    R_SB = T_BS[:3, :3].T
+    l_B = (np.asarray(l_W, float) - t) @ R  # R_WBᵀ (l − t)
+    r = R_SB @ (l_B - T_BS[:3, 3]) - z_S
     if not jac:
         return r
-    H_x = R_BS.T @ np.hstack([skew(l_B), -np.eye(3)])
-    H_l = R_BS.T @ R.T
-    return r, H_x, H_l
+    H_x = np.empty((3, 6))
+    H_x[:, :3] = R_SB @ skew(l_B)
+    H_x[:, 3:] = -R_SB
+    return r, H_x, R_SB @ R.T
 
 
 def point_factor(x: int, l: int, z_S, cov_S, T_BS, robust=None) -> gtsam.NonlinearFactor:

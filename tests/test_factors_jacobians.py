@@ -13,6 +13,7 @@ from factors.landmarks import (
     line_residual,
     point_factor,
     point_residual,
+    point_residual_at,
     structure_factor,
     structure_residual,
 )
@@ -458,3 +459,30 @@ def test_biased_attitude_factor_callback_equals_residual(seed):
         )
         v.insert(2, np.array([b]))
         assert_same_linearization(f, ref, v)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_point_residual_jacobians_against_central_differences(seed):
+    """The association's point linearisation (point_residual_at, the pose as R, t): H_x for the right
+    perturbation T·Exp(ξ), H_l for l + δ, both against central differences."""
+    rng = np.random.default_rng(seed)
+    T, T_BS = random_pose(rng), random_extrinsic(rng)
+    l, z = rng.normal(size=3) * 5, rng.normal(size=3)
+    r, H_x, H_l = point_residual_at(T.rotation().matrix(), T.translation(), l, T_BS, z, jac=True)
+    np.testing.assert_allclose(r, point_residual(T, l, T_BS, z))
+    h = 1e-6
+    num_x = np.column_stack(
+        [
+            (
+                point_residual(T.retract(h * np.eye(6)[k]), l, T_BS, z)
+                - point_residual(T.retract(-h * np.eye(6)[k]), l, T_BS, z)
+            )
+            / (2 * h)
+            for k in range(6)
+        ]
+    )
+    num_l = np.column_stack(
+        [(point_residual(T, l + h * e, T_BS, z) - point_residual(T, l - h * e, T_BS, z)) / (2 * h) for e in np.eye(3)]
+    )
+    np.testing.assert_allclose(H_x, num_x, atol=1e-6)
+    np.testing.assert_allclose(H_l, num_l, atol=1e-6)

@@ -10,7 +10,7 @@ from test_backend_graph import DROPOUTS, ate, dr_ate, indeterminate_landmark
 
 from frontends.oracle import OracleFrontend
 from semslam.backend.graph import GraphEstimator
-from semslam.backend.window import X, marginal_factors, split_factors, subset
+from semslam.backend.window import LEFT_COVARIANCE_EVERY, X, marginal_factors, split_factors, subset
 from semslam.config import SemslamConfig
 from tests.support.synthetic_mission import SyntheticConfig, landmark_report, run_graph, simulate
 
@@ -103,6 +103,41 @@ def windowed():
         fe = OracleFrontend(mission.metadata, {"seed": 1})
         runs[window] = run_graph(mission, SemslamConfig(graph={"window_s": window}), [fe], batch=True)
     return mission, runs[None], runs[125.0]
+
+
+def test_online_result_keeps_no_factor_of_the_whole_mission_and_its_covariances():
+    # Without --batch nothing keeps the factors that left the window: what left keeps the marginal
+    # covariance it had then. The whole-graph marginals (a full smoother, every factor) are at least
+    # as sure (later views add information) but, with a window of 125 s of future views, not far.
+    mission = simulate(SyntheticConfig(duration_s=300.0, n_pipes=0, n_structures=0, ahrs_yaw_bias_rad=0.0, seed=2))
+    runs = {}
+    for window in (None, 125.0):
+        est = GraphEstimator(mission.metadata, SemslamConfig(graph={"window_s": window}))
+        fe = OracleFrontend(mission.metadata, {"seed": 1})
+        view = est.view()
+        for m in mission:
+            est.process_measurement(m)
+            if isinstance(m, fe.consumes):
+                est.process_observations(m.stamp, fe.process(m, view))
+        runs[window] = est, est.finish()
+    est, win = runs[125.0]
+    full = runs[None][1]
+    assert est.window.slides and not est.session.factors
+    assert len(est.session.window) < 0.6 * est.session.n_committed
+    left = est.window.slides[-1]["first_keyframe"]
+    cov_w, cov_f = win.trajectory.position_cov, full.trajectory.position_cov
+    with_cov = [i for i in range(left) if np.isfinite(cov_w[i]).all()]
+    assert len(with_cov) >= 0.5 * left / LEFT_COVARIANCE_EVERY  # what left kept some
+    sampled = [i for i in with_cov if np.isfinite(cov_f[i]).all()]
+    assert len(sampled) >= 5
+    ratio = np.array([np.trace(cov_w[i]) / np.trace(cov_f[i]) for i in sampled])
+    assert ratio.min() > 0.95 and np.median(ratio) < 2.0
+    cov_lw = {lm.id: lm.covariance for lm in win.landmarks}
+    cov_lf = {lm.id: lm.covariance for lm in full.landmarks}
+    common = [i for i in cov_lw if i in cov_lf and cov_lw[i] is not None]
+    assert len(common) >= 0.9 * len(cov_lf)
+    lr = np.array([np.trace(cov_lw[i]) / np.trace(cov_lf[i]) for i in common])
+    assert lr.min() > 0.95 and np.median(lr) < 2.0
 
 
 def test_window_slides_and_landmarks_come_back(windowed):

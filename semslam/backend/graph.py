@@ -57,8 +57,14 @@ class GraphEstimator(Estimator):
         self.batch = self.cfg.batch if batch is None else bool(batch)
         self.assoc = config.association
         self.diagnostics: list[str] = []
-        self.session = IsamSession(self.cfg.relinearize_threshold, self.cfg.relinearize_skip, self.diagnostics)
-        self.window = SlidingWindow(self.cfg.window_s, self.diagnostics)
+        # Every factor of the mission is kept only for the batch; without it, what leaves the window
+        # keeps its covariance then, for the result (memory stays bounded on long missions).
+        self.session = IsamSession(
+            self.cfg.relinearize_threshold, self.cfg.relinearize_skip, self.diagnostics, keep_all=self.batch
+        )
+        self.window = SlidingWindow(
+            self.cfg.window_s, self.diagnostics, keep_covariances=not self.batch and self.cfg.covariance_in_result
+        )
         self.keyframes = Keyframes(metadata, config, self.session, self.window)
         self.book = LandmarkBook()  # views, class evidence and extents of the landmarks
         self.map = GraphLandmarks(
@@ -67,6 +73,7 @@ class GraphEstimator(Estimator):
         self.mapper = MapBuilder(self.map, self.assoc, self.book, self.diagnostics)
         self.gps = GraphGps(metadata, config.initial.pose, self.keyframes, self.session, self.diagnostics)
         self.update_times: list[float] = []
+        self.update_cpu_times: list[float] = []  # CPU seconds of the process: wall time says little under load
         self.update_n_landmarks: list[int] = []
         self.update_kinds: list[str] = []
 
@@ -93,9 +100,10 @@ class GraphEstimator(Estimator):
         self._timed(lambda: self._observations(stamp, list(observations)), "observations")
 
     def _timed(self, fn, kind: str) -> None:
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         fn()
         self.update_times.append(time.perf_counter() - t0)
+        self.update_cpu_times.append(time.process_time() - c0)
         self.update_n_landmarks.append(len(self.map))
         self.update_kinds.append(kind)
 
@@ -132,6 +140,7 @@ class GraphEstimator(Estimator):
         n = len(self.keyframes)
         history: dict = {
             "update_kinds": list(self.update_kinds),
+            "update_cpu_s": np.array(self.update_cpu_times),
             "n_keyframes": n,
             "window_slides": list(self.window.slides),
             "window_returns": self.window.returns,
@@ -142,7 +151,9 @@ class GraphEstimator(Estimator):
             return EstimatorResult(self.name, empty, diagnostics=list(self.diagnostics))
         values = final_values(self.session, self.window, self.cfg, self.batch, history)
         marginals = self.session.marginals(values) if self.cfg.covariance_in_result else None
-        landmarks = self.map.estimates(self.cfg.covariance_in_result, values, marginals)
+        in_window = self.session.window_keys()
+        left = {k: c for k, c in self.window.left_covariance.items() if k not in in_window}  # not come back
+        landmarks = self.map.estimates(self.cfg.covariance_in_result, values, marginals, left)
         self.book.connect(landmarks, self.assoc.merge_distance_m)
         ids = [lm.id for lm in landmarks]
         history["landmark_kind"] = {lm.id: lm.kind for lm in landmarks}
@@ -154,7 +165,7 @@ class GraphEstimator(Estimator):
         history.update(self.book.history(ids))
         return EstimatorResult(
             name=self.name,
-            trajectory=keyframe_trajectory(self.keyframes.stamps, values, marginals, self.session, self.cfg),
+            trajectory=keyframe_trajectory(self.keyframes.stamps, values, marginals, self.session, self.cfg, left),
             landmarks=landmarks,
             online_trajectory=online_trajectory(self.keyframes.online),
             update_times_s=np.array(self.update_times),

@@ -18,7 +18,7 @@ The absolute information is kept for the prior of a landmark that re-enters the 
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import gtsam
 import numpy as np
@@ -72,18 +72,27 @@ class Landmark:
     information: np.ndarray | None = None  # Σ information of its observations on its parameters
     gate_information: np.ndarray | None = None  # the same with the pose uncertainty relative to the map
     active: bool = True  # in the smoother's window; False: marginalised out, ``estimate`` frozen
+    # the inverses of ``information`` and ``gate_information`` until either changes (the duplicate
+    # test asks for every pair of objects after every scan: ~190 pairs in the tank)
+    _inverse: dict = field(default_factory=dict, repr=False)
 
     def add_information(self, info: np.ndarray, gate_info: np.ndarray) -> None:
         self.information = info if self.information is None else self.information + info
         self.gate_information = gate_info if self.gate_information is None else self.gate_information + gate_info
         self.cov_stamp = None
+        self._inverse.clear()
 
     def information_covariance(self, gate: bool = False) -> np.ndarray:
         """Inverse of the accumulated information (``gate``: with the pose relative to the map; a tiny
-        ridge keeps it finite)."""
-        n = DIM_OF_KIND[self.kind]
-        info = self.gate_information if gate else self.information
-        return np.linalg.inv((np.zeros((n, n)) if info is None else info) + np.eye(n) * 1e-9)
+        ridge keeps it finite). Read-only: shared until the information changes."""
+        cov = self._inverse.get(gate)
+        if cov is None:
+            n = DIM_OF_KIND[self.kind]
+            info = self.gate_information if gate else self.information
+            cov = np.linalg.inv((np.zeros((n, n)) if info is None else info) + np.eye(n) * 1e-9)
+            cov.flags.writeable = False
+            self._inverse[gate] = cov
+        return cov
 
     def line(self, estimate=None) -> tuple[np.ndarray, np.ndarray]:
         """A pipe's line (point, unit direction) at ``estimate`` (default: its current one)."""
@@ -438,14 +447,14 @@ class GraphLandmarks:
         self._sphere_c[row], self._sphere_r[row], self._sphere_obj[row] = c, r, lm.kind == "object"
 
     def estimates(
-        self, covariance: bool = True, values: gtsam.Values | None = None, marginals=None
+        self, covariance: bool = True, values: gtsam.Values | None = None, marginals=None, known=None
     ) -> list[LandmarkEstimate]:
         """The map with global ids: the current estimates, or those in ``values``; with ``covariance``
-        the marginal covariances (from ``marginals``, else iSAM2's)."""
+        the marginal covariances (those in ``known`` as given, else from ``marginals``, else iSAM2's)."""
         out = []
         covs = {}
         if covariance:
-            blocks = self.session.joint_blocks(marginals, [lm.key for lm in self.landmarks.values()])
+            blocks = self.session.joint_blocks(marginals, [lm.key for lm in self.landmarks.values()], known=known)
             covs = {lm.id: blocks[lm.key] for lm in self.landmarks.values() if lm.key in blocks}
         _, mapped = self.objects()
         for lm in self.landmarks.values():

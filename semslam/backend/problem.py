@@ -19,7 +19,7 @@ from factors.landmarks import (
     line_frame,
     line_observation_covariance,
     line_residual_at,
-    point_residual,
+    point_residual_at,
     structure_residual,
 )
 from semslam.mapping.association import PairLinearization
@@ -82,7 +82,7 @@ class GraphAssociationProblem:
     def _pair(self, i: int, j: int) -> PairLinearization | None:
         z, lm, T_BS = self.observations[i], self.candidates[j].landmark, self.T_BS[i]
         if isinstance(z, PointObservation) and lm.kind == "object":
-            r, H_x, H_l = point_residual(self.pose, lm.estimate, T_BS, z.position, jac=True)
+            r, H_x, H_l = point_residual_at(self._R, self._t, lm.estimate, T_BS, z.position, jac=True)
             return PairLinearization(-r, H_x, H_l, z.covariance)
         if isinstance(z, LineObservation) and lm.kind == "pipe":
             theta = lm.estimate

@@ -11,7 +11,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from semslam.backend.session import IsamSession
-from semslam.backend.window import SlidingWindow, V, X
+from semslam.backend.window import LEFT_COVARIANCE_EVERY, SlidingWindow, V, X
 from semslam.config import GraphConfig
 from semslam.estimation import Trajectory
 
@@ -39,18 +39,26 @@ def _quaternions(poses: list[gtsam.Pose3]) -> np.ndarray:
 
 
 def keyframe_trajectory(
-    stamps: list[int], values: gtsam.Values, marginals, session: IsamSession, cfg: GraphConfig
+    stamps: list[int],
+    values: gtsam.Values,
+    marginals,
+    session: IsamSession,
+    cfg: GraphConfig,
+    known: dict[int, np.ndarray] | None = None,
 ) -> Trajectory:
     """Every keyframe's pose and velocity in ``values``; with ``cfg.covariance_in_result`` the marginal
-    covariances of ``result_covariance_keyframes`` evenly spaced ones (NaN between)."""
+    covariances of ``result_covariance_keyframes`` evenly spaced ones (NaN between). Those in ``known``
+    (keyframes that left the window, which kept the covariance of some only) are given; a sampled
+    keyframe that left without one is replaced by the nearest that kept one."""
     n = len(stamps)
     poses = [values.atPose3(X(i)) for i in range(n)]
     pos_cov = vel_cov = None
     if cfg.covariance_in_result:
         pos_cov = np.full((n, 3, 3), np.nan)
         vel_cov = np.full((n, 3, 3), np.nan)
-        sample = np.unique(np.linspace(0, n - 1, min(n, cfg.result_covariance_keyframes)).round().astype(int))
-        covs = session.joint_blocks(marginals, [k for i in sample for k in (X(i), V(i))])
+        sample = np.linspace(0, n - 1, min(n, cfg.result_covariance_keyframes)).round().astype(int)
+        sample = np.unique(_nearest_known(sample, n, known or {}))
+        covs = session.joint_blocks(marginals, [k for i in sample for k in (X(i), V(i))], known=known)
         for i in sample:
             if X(i) in covs and V(i) in covs:
                 R = poses[i].rotation().matrix()
@@ -64,6 +72,21 @@ def keyframe_trajectory(
         velocities=np.array([values.atVector(V(i)) for i in range(n)]),
         velocity_cov=vel_cov,
     )
+
+
+def _nearest_known(sample: np.ndarray, n: int, known: dict[int, np.ndarray]) -> np.ndarray:
+    """``sample`` with each keyframe that left the window (one in ``LEFT_COVARIANCE_EVERY`` of those
+    kept its covariance: the window starts at most that far after the newest in ``known``) moved to
+    the nearest keyframe whose pose covariance ``known`` holds."""
+    kept = np.array(sorted(i for i in range(n) if X(i) in known), int)
+    if not kept.size:
+        return sample
+    out = sample.copy()
+    old = sample < kept[-1] + LEFT_COVARIANCE_EVERY
+    j = np.clip(np.searchsorted(kept, sample[old]), 1, max(kept.size - 1, 1))
+    lo, hi = kept[j - 1], kept[np.minimum(j, kept.size - 1)]
+    out[old] = np.where(np.abs(sample[old] - lo) <= np.abs(hi - sample[old]), lo, hi)
+    return out
 
 
 def online_trajectory(online: list[tuple[int, gtsam.Pose3, np.ndarray]]) -> Trajectory:

@@ -1,5 +1,6 @@
-"""The graph back-end's iSAM2 session: every factor with its owner, the window of them iSAM2 holds,
-updates with recovery from a failed one, and the batch re-optimisation and marginals at the end."""
+"""The graph back-end's iSAM2 session: the factors of the window iSAM2 holds with their owners (every
+factor of the mission too when the batch needs them), updates with recovery from a failed one, and the
+batch re-optimisation and marginals at the end."""
 
 from __future__ import annotations
 
@@ -10,7 +11,7 @@ import gtsam
 import numpy as np
 
 from semslam.backend.marginal import marginal_covariance
-from semslam.backend.window import value_of
+from semslam.backend.window import subset, value_of
 
 # A factor with its owner: None for navigation, else the id of the landmark it observes.
 Owned = tuple[gtsam.NonlinearFactor, int | None]
@@ -19,18 +20,25 @@ Owned = tuple[gtsam.NonlinearFactor, int | None]
 class IsamSession:
     """iSAM2 over the factors committed to it.
 
-    ``factors`` is every factor of the mission with its owner (for the batch and for recovery),
-    ``window`` the ones iSAM2 holds (those of ``factors`` on variables still in the smoothing window,
-    the marginals of what left it, and the priors of landmarks that came back), ``initial`` every
-    variable's first value."""
+    ``window`` is the factors iSAM2 holds with their owners (those on variables still in the smoothing
+    window, the marginals of what left it, and the priors of landmarks that came back), ``initial`` the
+    first value of every variable in it (a fallback for recovery). With ``keep_all`` (the batch),
+    ``factors`` is every factor of the mission; otherwise it stays empty, so that memory stays bounded
+    once the window has filled (a 2-hour survey created 154k factors, ~3 KB each), and ``initial``
+    forgets what left the window. ``n_committed`` counts the factors committed either way."""
 
-    def __init__(self, relinearize_threshold: float, relinearize_skip: int, diagnostics: list[str]):
+    def __init__(
+        self, relinearize_threshold: float, relinearize_skip: int, diagnostics: list[str], keep_all: bool = True
+    ):
         params = gtsam.ISAM2Params()
         params.setRelinearizeThreshold(relinearize_threshold)
         params.relinearizeSkip = relinearize_skip
         self.diagnostics = diagnostics
+        self.keep_all = keep_all
         self.factors: list[Owned] = []
         self.window: list[Owned] = []
+        self.owners: set[int] = set()  # every landmark a committed factor observes
+        self.n_committed = 0
         self.initial = gtsam.Values()
         self._start(params)
 
@@ -91,15 +99,21 @@ class IsamSession:
             self.diagnostics.append(f"{stamp}: iSAM2 update failed ({msg}); dropped the factors of landmarks {owners}")
             self.rebuild([(f, o) for f, o in factors if o is None], values, anchor)
             return owners
-        self.factors.extend(factors)
+        self._keep(factors)
+        self.owners.update(o for _, o in factors if o is not None)
         self.window.extend(factors)
         self.window.extend(priors)
         self.initial.insert_or_assign(values)  # a returning landmark's key is there already
         return None
 
+    def _keep(self, factors: list[Owned]) -> None:
+        self.n_committed += len(factors)
+        if self.keep_all:
+            self.factors.extend(factors)
+
     def owns(self, owner: int) -> bool:
         """Some committed factor observes landmark ``owner``."""
-        return any(o == owner for _, o in self.factors)
+        return owner in self.owners
 
     def window_keys(self) -> set[int]:
         """Every variable a factor of the window holds."""
@@ -113,7 +127,7 @@ class IsamSession:
             estimate = self.isam.calculateEstimate()
         except RuntimeError:
             estimate = gtsam.Values(self.initial)
-        self.factors.extend(navigation)
+        self._keep(navigation)
         self.window.extend(navigation)
         keep = self.window_keys()
         full = gtsam.Values()
@@ -132,7 +146,7 @@ class IsamSession:
             x, v = anchor
             prior = gtsam.PriorFactorPose3(x, full.atPose3(x), gtsam.noiseModel.Isotropic.Sigma(6, 10.0))
             vprior = gtsam.PriorFactorVector(v, value_of(full, v), gtsam.noiseModel.Isotropic.Sigma(3, 10.0))
-            self.factors += [(prior, None), (vprior, None)]
+            self._keep([(prior, None), (vprior, None)])
             self.window += [(prior, None), (vprior, None)]
             graph.add(prior)
             graph.add(vprior)
@@ -157,37 +171,49 @@ class IsamSession:
             self.isam, self.theta = old
             raise
         self.window = window
+        if not self.keep_all:
+            self.initial = gtsam.Values(values)
 
     # ------------------------------------------------------------------ the whole mission
     def graph(self) -> gtsam.NonlinearFactorGraph:
-        """Every factor of the mission."""
+        """Every factor of the mission (``keep_all``), else the window's."""
         graph = gtsam.NonlinearFactorGraph()
-        for f, _ in self.factors:
+        for f, _ in self.factors if self.keep_all else self.window:
             graph.add(f)
         return graph
 
     def batch(self, initial: gtsam.Values, max_iterations: int) -> gtsam.Values:
         """Levenberg–Marquardt over the whole mission from ``initial`` (raises RuntimeError on failure)."""
+        if not self.keep_all:
+            raise ValueError("the batch needs every factor of the mission: IsamSession(keep_all=True)")
         params = gtsam.LevenbergMarquardtParams()
         params.setMaxIterations(max_iterations)
         return levenberg_marquardt(self.graph(), initial, params)
 
     def marginals(self, values: gtsam.Values):
-        """Marginals of ``values`` from one batch factorisation of the whole graph (iSAM2's
+        """Marginals of ``values`` from one batch factorisation of :meth:`graph` (iSAM2's
         per-variable marginals cost a partial re-elimination each: minutes for a mission's
-        keyframes); None (iSAM2's, one by one) if the batch system is indeterminate."""
+        keyframes); None (iSAM2's, one by one) if the batch system is indeterminate. Without
+        ``keep_all`` they cover the window's variables only (with the marginal of what left it)."""
+        graph = self.graph()
+        if not self.keep_all:  # only the window's variables: a Values with more is refused
+            values = subset(values, {k for f, _ in self.window for k in f.keys()})
         try:
-            return gtsam.Marginals(self.graph(), values)
+            return gtsam.Marginals(graph, values)
         except RuntimeError as exc:
             self.diagnostics.append(f"batch marginals failed ({str(exc).splitlines()[0]}); iSAM2 marginals used")
             return None
 
-    def joint_blocks(self, marginals, keys: Iterable[int], chunk: int = 60) -> dict[int, np.ndarray]:
-        """Marginal covariances of ``keys``: from joint marginals over chunks of them (in a graph
-        where every landmark links to every pose, one joint marginal of 60 variables costs about as
-        much as one or two single ones), else iSAM2's one by one. A key that fails is left out."""
-        keys = list(keys)
-        out: dict[int, np.ndarray] = {}
+    def joint_blocks(
+        self, marginals, keys: Iterable[int], chunk: int = 60, known: dict[int, np.ndarray] | None = None
+    ) -> dict[int, np.ndarray]:
+        """Marginal covariances of ``keys``: those in ``known`` as given (what left the window, at the
+        time it left), the others from joint marginals over chunks of them (in a graph where every
+        landmark links to every pose, one joint marginal of 60 variables costs about as much as one
+        or two single ones), else iSAM2's one by one. A key that fails is left out."""
+        known = known or {}
+        out: dict[int, np.ndarray] = {k: known[k] for k in keys if k in known}
+        keys = [k for k in keys if k not in out]
         if marginals is not None:
             for a in range(0, len(keys), chunk):
                 part = keys[a : a + chunk]

@@ -17,6 +17,7 @@ import time
 from collections.abc import Iterable
 
 import gtsam
+import numpy as np
 
 LANDMARK_CHARS = frozenset(map(ord, "lps"))  # object points, pipe lines, structures
 POSE_CHARS = frozenset(map(ord, "xs"))  # Pose3-valued keys (keyframes, structures)
@@ -70,6 +71,10 @@ def marginal_factors(leaving: list[tuple], values: gtsam.Values, drop: set[int])
     return out
 
 
+# Keyframes that leave the window keep their covariance one in this many (each costs iSAM2 a marginal;
+# the result samples result_covariance_keyframes of a mission's keyframes, fewer on long missions).
+LEFT_COVARIANCE_EVERY = 10
+
 # Keyframe variable keys: pose, body velocity, AHRS heading bias.
 X = gtsam.symbol_shorthand.X
 V = gtsam.symbol_shorthand.V
@@ -78,13 +83,17 @@ B = gtsam.symbol_shorthand.B
 
 class SlidingWindow:
     """The online smoother's window of ``window_s`` seconds: the oldest keyframe in it, and the frozen
-    estimates of everything that left it."""
+    estimates of everything that left it; with ``keep_covariances``, also the marginal covariances
+    (of poses, velocities and landmarks) it had when it left, for a result made without the factors
+    of the whole mission."""
 
-    def __init__(self, window_s: float | None, diagnostics: list[str]):
+    def __init__(self, window_s: float | None, diagnostics: list[str], keep_covariances: bool = False):
         self.window_s = window_s
         self.diagnostics = diagnostics
+        self.keep_covariances = keep_covariances
         self.first_active = 0  # the oldest keyframe in the window
         self.frozen = gtsam.Values()  # the estimates of what left it
+        self.left_covariance: dict[int, np.ndarray] = {}  # key -> marginal covariance when it left
         self.slides: list[dict] = []  # one row per marginalisation, for benchmarks
         self.returns = 0  # marginalised landmarks seen again
         self._slide_after = 0  # stamp before which no slide is tried (after a failed one)
@@ -110,6 +119,8 @@ class SlidingWindow:
         drop = {key for i in range(self.first_active, b) for key in (X(i), V(i), B(i))} | (landmark_keys - live)
         t0 = time.perf_counter()
         estimate = session.estimate()
+        covariances = self._covariances(session, drop, b) if self.keep_covariances else {}
+        t_cov = time.perf_counter() - t0
         kept, leaving = split_factors(session.window, drop)
         try:
             marginal = marginal_factors(leaving, estimate, drop)
@@ -130,10 +141,27 @@ class SlidingWindow:
                 "separator": len({k for m in marginal for k in m.keys()}),
                 "window_factors": len(window),
                 "seconds": time.perf_counter() - t0,
+                "covariance_seconds": t_cov,
             }
         )
         self.frozen.insert_or_assign(subset(estimate, [k for k in drop if estimate.exists(k)]))
+        self.left_covariance.update(covariances)
         return drop, estimate
+
+    def _covariances(self, session, drop: set[int], b: int) -> dict[int, np.ndarray]:
+        """iSAM2's marginal covariances of the landmarks about to leave and of every
+        ``LEFT_COVARIANCE_EVERY``-th keyframe's pose and velocity (before the restart, while iSAM2
+        still holds them). A key iSAM2 cannot give is left out (its covariance is unknown: NaN)."""
+        first = -(-self.first_active // LEFT_COVARIANCE_EVERY) * LEFT_COVARIANCE_EVERY
+        keys = [k for i in range(first, b, LEFT_COVARIANCE_EVERY) for k in (X(i), V(i))]
+        keys += sorted(k for k in drop if gtsam.Symbol(k).chr() in LANDMARK_CHARS)
+        out = {}
+        for k in keys:
+            try:
+                out[k] = session.marginal(k)
+            except (RuntimeError, IndexError):
+                pass
+        return out
 
     def estimate(self, session) -> gtsam.Values:
         """The window's estimate with the frozen estimates of everything that left it."""

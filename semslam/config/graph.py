@@ -45,7 +45,11 @@ class GraphConfig(BaseModel):
     )
     batch_max_iterations: int = Field(100, ge=1, description="Levenberg–Marquardt iterations in batch mode")
     covariance_in_result: bool = Field(
-        True, description="marginal covariances of keyframes and landmarks in the result"
+        True,
+        description="marginal covariances of keyframes and landmarks in the result: with batch, from the whole "
+        "mission's graph; without, what is still in the window from the window's graph, and what left it (every "
+        "landmark, one keyframe in ten) with the covariance it had when it left (the factors of the whole mission "
+        "are kept only for the batch)",
     )
     result_covariance_keyframes: int = Field(
         150,
