@@ -180,6 +180,10 @@ def evaluate(
             for g in mission.metadata.ground_truth.structures
         ],
         "seen_structures": list(mission.metadata.ground_truth.seen_structures or []),
+        "unconfirmed": [
+            {k: s[k] for k in ("model", "pose", "fitness", "median_error_m")}
+            for s in res.frontend_summaries["sonar"].metrics.get("unconfirmed_structures", [])
+        ],
     }
     if quick:  # the structures alone: no outputs, no navigation-only graph, no disagreement
         return {
