@@ -103,7 +103,12 @@ def test_structure_becomes_a_graph_landmark(mission, baseline, tmp_path):
     from semslam.eval.outputs import build_metrics, write_outputs
 
     metrics = build_metrics(res, mission.metadata)
-    assert [s["found"] for s in metrics["sonar"]["structures"] if s["model"] in {lm.model for lm in lms}]
+    rows = metrics["sonar"]["structures"]
+    # every structure the front-end registered is at the right place (issue 21): no false structure,
+    # none at the wrong place (a miss and a false structure), and each landmark's model found
+    assert not [r for r in rows if r["truth_id"] is None], rows
+    assert all(r["found"] for r in rows if r["model"] in {lm.model for lm in lms}), rows
+    assert metrics["sonar"]["structures_wrong_place"] == 0 and metrics["sonar"]["structures_false"] == 0
     out = write_outputs(tmp_path / "out", SemslamConfig(), res, metrics)
     assert (out / "world_model.ply").stat().st_size == summary.metrics["world_model_bytes"]
     figures = {"sonar_elevation_map.png", "sonar_world_model.png", "sonar_swath_registration.png"}

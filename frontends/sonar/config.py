@@ -226,6 +226,28 @@ class StructureRegistrationConfig(_Section):
         60, ge=10, description="fewest structure points (above the pad, on the model's footprint) for a re-observation"
     )
     min_fitness: float = Field(0.5, ge=0, le=1, description="share of structure points within tukey_k_m of the model")
+    new_min_fitness: float = Field(
+        0.85,
+        ge=0,
+        le=1,
+        description="a new structure (a recognition, and the final registration on all of its data) needs at least "
+        "this fitness: placed right, the structure's points lie on the model up to the range noise; slid "
+        "along a manifold's bays, turned end for end or fitted to something else it fits less (see the README)",
+    )
+    final_min_fitness: float = Field(
+        0.80,
+        ge=0,
+        le=1,
+        description="... and at the end of the mission, on all of a structure's data (its passes misaligned by the "
+        "navigation error between them lower the fitness of a right registration)",
+    )
+    ambiguity_margin: float = Field(
+        0.05,
+        ge=0,
+        le=1,
+        description="a registration whose alternative (the model turned by half its symmetry period, end for "
+        "end for a PLET) fits within this much of its fitness is ambiguous: not accepted until more is seen",
+    )
     correlation_points: float = Field(
         8.0,
         ge=1,

@@ -4,15 +4,15 @@ structures (6-DoF) and pipelines out; at the end a world model, figures and the 
 Online, as the swaths arrive (each placed with the graph's current estimate through the view):
 
 * every ``patches.length_m`` of track the pending swaths become a :class:`Patch`, rigid in the frame
-  of its middle swath (its anchor);
+  of its middle swath (its anchor; :func:`.patches.make_patch`);
 * every ``swath_registration.window_patches`` patches, the window they form is registered on the
-  older overlapping patches of the neighbouring line (:mod:`.swath_registration`) →
-  ``OdometryObservation`` between the two anchors; the same window is searched for pipelines →
+  older overlapping patches of the neighbouring line (:class:`.window_registration.WindowRegistration`)
+  → ``OdometryObservation`` between the two anchors; the same window is searched for pipelines →
   ``LineObservation``s;
 * every ``recognition.every_patches`` patches, the newly covered area is searched for the CAD
   models (:mod:`.descriptor`, largest first) and each find registered (4-D + ICP): a new structure;
 * every patch that covers a known structure is registered on it by ICP (independent data each
-  time) → ``StructureObservation``; when a structure is first recognised, the patches of the pass
+  time; :class:`.reobservation.StructureReobservation`) → ``StructureObservation``; when a structure is first recognised, the patches of the pass
   closed shortly before are registered too and emitted one per swath (each at its own keyframe:
   the graph needs ``association.min_observations`` consistent observations at distinct keyframes).
 
@@ -24,36 +24,34 @@ from __future__ import annotations
 
 import time
 from collections import defaultdict
-from typing import Any, ClassVar
+from typing import ClassVar
 
 import numpy as np
 
 from frontends.sonar.config import SonarConfig
 from frontends.sonar.grid import ElevationMap, GridSpec, estimate_ground
 from frontends.sonar.known import KnownStructure
-from frontends.sonar.patches import Patch, inv, overlap_area, top_points, transform, yaw_of
+from frontends.sonar.patches import Patch, inv, make_patch, overlap_area, transform
 from frontends.sonar.pipes import PipeSegment, detect_pipes
 from frontends.sonar.recognition import Recogniser
-from frontends.sonar.registration import icp
-from frontends.sonar.swath_registration import register
+from frontends.sonar.reobservation import StructureReobservation
+from frontends.sonar.window_registration import WindowRegistration
 from semslam.errors import ConfigError, validated
+from semslam.estimation import EstimateView
 from semslam.mission.measurements import SonarSwath
-from semslam.observations import LineObservation, Observation, OdometryObservation, StructureObservation
-from semslam.registry import FrontendSummary
+from semslam.mission.mission import MissionMetadata
+from semslam.observations import LineObservation, Observation, StructureObservation
+from semslam.registry import Frontend, FrontendSummary
 
 
-def _wrap(a):
-    return (np.asarray(a) + np.pi) % (2 * np.pi) - np.pi
-
-
-class SonarFrontend:
+class SonarFrontend(Frontend):
     """Multibeam sonar front-end (``frontends.sonar`` section validated by :class:`SonarConfig`)."""
 
     config_model: ClassVar[type] = SonarConfig  # its section of the configuration, frontends.<name>
     name: ClassVar[str] = "sonar"
     consumes: ClassVar[tuple[type, ...]] = (SonarSwath,)
 
-    def __init__(self, metadata: Any, config: dict | None = None):
+    def __init__(self, metadata: MissionMetadata, config: dict | None = None):
         self.config = validated(SonarConfig, config, "frontends.sonar")
         from semslam.models.structures import structure_library
 
@@ -73,10 +71,13 @@ class SonarFrontend:
         self._last_pos: np.ndarray | None = None
         self.patches: list[Patch] = []
         self.structures: list[KnownStructure] = []
-        self.swath_registrations: list[dict] = []
-        self.rejected: dict[str, int] = defaultdict(int)
+        self.rejected: dict[str, int] = defaultdict(int)  # rejections by reason, every stage
         self.pipe_observations = 0
         self.timing: dict[str, float] = defaultdict(float)
+        self.windows = WindowRegistration(
+            self.config.swath_registration, np.radians(self.config.patches.max_turn_deg), self.rejected
+        )
+        self.reobservation = StructureReobservation(self.config.registration, self.rejected, self.timing)
         self.n_points = 0
         self._queue: list[tuple[Patch, KnownStructure]] = []
         self._window_start = 0
@@ -85,11 +86,7 @@ class SonarFrontend:
         self._pose_cache: dict[int, np.ndarray | None] = {}
         self._landmarks = None
         self._view = None
-        self._rng = np.random.default_rng(self.config.swath_registration.seed)
-        self._sensor = None
         self.final: dict | None = None
-        self.rejection_log: list = []  # why re-observations were not emitted (model, patch, reason, ...)
-        self.swath_log: list = []  # (window anchor patch, reference patch, outcome) of every registration tried
 
     # ------------------------------------------------------------------------------------------
     @property
@@ -102,9 +99,14 @@ class SonarFrontend:
             self.timing["templates_s"] += time.process_time() - t0
         return self._recogniser
 
+    @property
+    def swath_registrations(self) -> list[dict]:
+        """Every accepted window registration (see :class:`WindowRegistration`)."""
+        return self.windows.accepted
+
     def _T_BS(self, sensor: str) -> np.ndarray:
-        info = getattr(self.metadata, "sensors", {}).get(sensor) if self.metadata is not None else None
-        return np.asarray(info.T_BS, float) if info is not None else np.eye(4)
+        """The sonar's mount, from the mission's metadata (an undeclared sensor is an error)."""
+        return np.asarray(self.metadata.extrinsic(sensor), float)
 
     def _pose(self, stamp: int) -> np.ndarray | None:
         """T_WB at ``stamp`` from the view, cached for the current call."""
@@ -151,11 +153,10 @@ class SonarFrontend:
         return ks.T_WM
 
     # ------------------------------------------------------------------------------------------
-    def process(self, measurement: SonarSwath, view=None) -> list[Observation]:
+    def process(self, measurement: SonarSwath, view: EstimateView | None = None) -> list[Observation]:
         self._begin(view)
         cfg = self.config
         m = measurement
-        self._sensor = m.sensor
         r = np.asarray(m.ranges)
         keep = np.isfinite(r) & (r >= cfg.map.min_range_m) & (r <= cfg.map.max_range_m)
         pts = m.points()[keep].astype(np.float32)
@@ -189,39 +190,16 @@ class SonarFrontend:
         if len(sw) < 2:
             return []
         stamps = np.array([s[0] for s in sw], np.int64)
-        poses = [self._pose(int(s)) for s in stamps]
-        keep = [k for k, T in enumerate(poses) if T is not None]
-        if len(keep) < 2:
-            return []
-        a = keep[len(keep) // 2]
-        T_WA = poses[a]
-        A_inv = inv(T_WA)
-        pts, idx = [], []
-        yaws = []
-        pos = []
-        for k in keep:
-            T_AS = A_inv @ poses[k] @ self._T_BS(sw[k][1])
-            pts.append(transform(T_AS, sw[k][2]).astype(np.float32))
-            idx.append(np.full(len(sw[k][2]), k, np.int32))
-            yaws.append(yaw_of(poses[k]))
-            pos.append(poses[k][:3, 3])
-        P = np.concatenate(pts) if pts else np.zeros((0, 3), np.float32)
-        yaws = np.unwrap(np.array(yaws))
-        track = float(np.linalg.norm(np.diff(np.array(pos), axis=0), axis=1).sum())
-        patch = Patch(
+        patch = make_patch(
             len(self.patches),
             stamps,
-            int(stamps[a]),
-            P,
-            np.concatenate(idx),
-            T_WA.copy(),
-            float(yaws.max() - yaws.min()),
-            track,
+            [s[2] for s in sw],
+            [self._pose(int(s)) for s in stamps],
+            [self._T_BS(s[1]) for s in sw],
+            self.config.recognition.map_cell_m,
         )
-        if len(P):
-            W = transform(T_WA, P)
-            patch.lo, patch.hi = W[:, :2].min(0), W[:, :2].max(0)
-            patch.top = top_points(P, self.config.recognition.map_cell_m)
+        if patch is None:
+            return []
         self.patches.append(patch)
         if m is None:
             return []
@@ -248,7 +226,7 @@ class SonarFrontend:
             pts_W = np.concatenate([p.world(self.place(p)) for p in window])
             if cfg.swath_registration.enabled:
                 t0 = time.process_time()
-                out += self._register_window(window, pts_W, m)
+                out += self.windows.register(window, pts_W, self.patches, self.place, m.sensor)
                 self.timing["swath_registration_s"] += time.process_time() - t0
             if cfg.pipes.enabled:
                 t0 = time.process_time()
@@ -328,141 +306,18 @@ class SonarFrontend:
         )
 
     def _reobserve(self, patch: Patch, ks: KnownStructure, m: SonarSwath) -> StructureObservation | None:
-        """Register the structure on one patch's points (ICP from its current estimate) and express
-        it in the current sonar frame; None when the patch sees too little of it or fails the checks."""
-        rc = self.config.registration
+        """The structure registered on one patch, in the current sonar frame; None when the patch does
+        not cover it, cannot be placed, or the registration fails its checks."""
         if not self._covers(patch, ks):
             return None
         T_WA = self.place(patch)
         T_now = self._pose(m.stamp)
         if T_WA is None or T_now is None:
             return None
-        T_WM = self._current_T(ks)
         md = self.recogniser.model_data[ks.model]
-        R = md.model.footprint_radius + 0.5
-        T_AM0 = inv(T_WA) @ T_WM
-        c = T_AM0[:3, 3]
-        near = np.hypot(patch.points[:, 0] - c[0], patch.points[:, 1] - c[1]) <= R
-        if near.sum() < rc.min_points:
-            self.rejection_log.append((ks.model, patch.id, "few points near", int(near.sum())))
-            return None
-        t0 = time.process_time()
-        reg = icp(md, patch.points[near].astype(float), T_AM0, rc, distances=rc.icp_distances_m[-1:])
-        self.timing["registration_s"] += time.process_time() - t0
-        self.timing["reobservations"] += 1
-        d = inv(T_AM0) @ reg.T
-        jump = np.linalg.norm(d[:3, 3])
-        turn = abs(np.arccos(np.clip((np.trace(d[:3, :3]) - 1) / 2, -1, 1)))
-        sig_t = np.sqrt(np.linalg.eigvalsh(reg.cov[3:, 3:]).max())
-        if (
-            reg.n_structure < rc.min_points
-            or reg.fitness < rc.min_fitness
-            or reg.median_m > rc.max_median_m
-            or jump > rc.max_jump_m
-            or turn > np.radians(rc.max_turn_deg)
-            or sig_t > rc.max_sigma_m
-        ):
-            why = (
-                "points"
-                if reg.n_structure < rc.min_points
-                else "fitness"
-                if reg.fitness < rc.min_fitness
-                else "median"
-                if reg.median_m > rc.max_median_m
-                else "jump"
-                if jump > rc.max_jump_m or turn > np.radians(rc.max_turn_deg)
-                else "sigma"
-            )
-            self.rejected[f"structure_observation_{why}"] += 1
-            self.rejection_log.append(
-                (ks.model, patch.id, why, reg.n_structure, reg.fitness, reg.median_m, jump, np.degrees(turn), sig_t)
-            )
-            return None
-        T_SW = inv(T_now @ self._T_BS(m.sensor))
-        T_SM = T_SW @ T_WA @ reg.T
-        carry = rc.carry_sigma_per_m * float(np.linalg.norm(T_now[:3, 3] - T_WA[:3, 3]))
-        cov = reg.cov.copy()
-        cov[3:, 3:] += np.eye(3) * carry**2
-        ks.n_observations += 1
-        ks.history.append((m.stamp, patch.id, T_SM, cov, float(reg.median_m)))
-        return StructureObservation(m.stamp, m.sensor, model=ks.model, pose=T_SM, covariance=cov)
-
-    # ------------------------------------------------------------------------------------------
-    # swath registration
-
-    def _register_window(self, window: list[Patch], pts_W: np.ndarray, m: SonarSwath) -> list[Observation]:
-        cfg = self.config.swath_registration
-        if any(p.heading_change > np.radians(self.config.patches.max_turn_deg) for p in window):
-            self.rejected["swath_turn"] += 1
-            return []
-        j = window[len(window) // 2]
-        lo, hi = pts_W[:, :2].min(0), pts_W[:, :2].max(0)
-        best, best_a = None, 0.0
-        for p in self.patches:
-            if (j.anchor_stamp - p.anchor_stamp) * 1e-9 < cfg.min_age_s:
-                break  # patches are in time order
-            if p.heading_change > np.radians(self.config.patches.max_turn_deg):
-                continue
-            a = overlap_area(p.lo, p.hi, lo, hi)
-            if a > best_a:
-                best, best_a = p, a
-        if best is None:
-            self.rejected["swath_no_reference"] += 1
-            return []
-        yaw_ref = yaw_of(best.T_nav)
-        group = [
-            q
-            for q in self.patches[max(best.id - 3, 0) : best.id + 4]
-            if q.heading_change <= np.radians(self.config.patches.max_turn_deg)
-            and abs(_wrap(yaw_of(q.T_nav) - yaw_ref)) < np.radians(20)
-            and (j.anchor_stamp - q.anchor_stamp) * 1e-9 >= cfg.min_age_s
-        ]
-        ref_pts = np.concatenate([q.world(self.place(q)) for q in group])
-        spec = GridSpec.around(lo, hi, cfg.cell_m, pad=cfg.max_shift_m + 0.2)
-        ref = ElevationMap.from_points(ref_pts, spec=spec).fill_small_holes()
-        why: dict = {}
-        res = register(pts_W, ref, cfg, self._rng, why)
-        if res is None:
-            for k in why:
-                self.rejected[f"swath_{k}"] += 1
-            self.swath_log.append((j.id, best.id, ",".join(why)))
-            return []
-        self.swath_log.append((j.id, best.id, "ok"))
-        T_i = self._pose(best.anchor_stamp)
-        T_j = self._pose(j.anchor_stamp)
-        T_j2 = T_j.copy()
-        T_j2[:3, 3] += np.array([res.shift[0], res.shift[1], res.depth])
-        rel = inv(T_i) @ T_j2
-        R_j = T_j[:3, :3]
-        cov = np.zeros((6, 6))
-        cov[:3, :3] = np.eye(3) * cfg.rotation_sigma_rad**2
-        cov[3:, 3:] = R_j.T @ res.cov @ R_j
-        self.swath_registrations.append(
-            {
-                "stamp_from": best.anchor_stamp,
-                "stamp": j.anchor_stamp,
-                "patch_from": best.id,
-                "patch": j.id,
-                "shift": res.shift.tolist(),
-                "raw_shift": res.raw_shift.tolist(),
-                "depth": res.depth,
-                "cov_W": res.cov.tolist(),
-                "sigma": res.sigma,
-                "informative": res.informative,
-                "n_points": res.n_points,
-                "cost_before": res.cost_before,
-                "cost_after": res.cost_after,
-                "relative_pose": rel.tolist(),
-                "covariance": cov.tolist(),
-                "T_from": T_i.tolist(),
-                "T_to": T_j.tolist(),
-            }
+        return self.reobservation.observe(
+            patch, ks, md, T_WA, self._current_T(ks), T_now, self._T_BS(m.sensor), m.stamp, m.sensor
         )
-        return [
-            OdometryObservation(
-                j.anchor_stamp, m.sensor, stamp_from=best.anchor_stamp, relative_pose=rel, covariance=cov
-            )
-        ]
 
     # ------------------------------------------------------------------------------------------
     # pipelines
@@ -537,7 +392,7 @@ class SonarFrontend:
     # ------------------------------------------------------------------------------------------
     # end of mission
 
-    def finish(self, view=None) -> FrontendSummary:
+    def finish(self, view: EstimateView | None = None) -> FrontendSummary:
         from frontends.sonar.summary import summarise
 
         self._begin(view)

@@ -22,6 +22,7 @@ class KnownStructure:
     landmark_id: int | None = None
     n_observations: int = 0
     final: Registration | None = None
+    confirmed: bool = True  # False: its registration on all the data failed the quality test (end of mission)
     history: list = field(default_factory=list)  # (stamp, patch id, T_SM, cov) of the observations
 
     @property

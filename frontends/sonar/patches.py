@@ -89,3 +89,34 @@ def top_points(points: np.ndarray, cell: float, q: float = 0.1) -> np.ndarray:
     x = (uniq // w + i0[0] + 0.5) * cell
     y = (uniq % w + i0[1] + 0.5) * cell
     return np.column_stack([x, y, z]).astype(np.float32)
+
+
+def make_patch(
+    pid: int, stamps: np.ndarray, clouds: list[np.ndarray], poses: list, mounts: list[np.ndarray], map_cell_m: float
+) -> Patch | None:
+    """The patch ``pid`` of consecutive swaths: ``clouds`` in their sensor frames, ``poses`` T_WB at
+    ``stamps`` (None where the estimate has none: that swath is left out), ``mounts`` T_BS. Anchored
+    on the middle placed swath; None with fewer than two placed swaths."""
+    keep = [k for k, T in enumerate(poses) if T is not None]
+    if len(keep) < 2:
+        return None
+    a = keep[len(keep) // 2]
+    T_WA = poses[a]
+    A_inv = inv(T_WA)
+    pts, idx, yaws, pos = [], [], [], []
+    for k in keep:
+        pts.append(transform(A_inv @ poses[k] @ mounts[k], clouds[k]).astype(np.float32))
+        idx.append(np.full(len(clouds[k]), k, np.int32))
+        yaws.append(yaw_of(poses[k]))
+        pos.append(poses[k][:3, 3])
+    P = np.concatenate(pts) if pts else np.zeros((0, 3), np.float32)
+    yaws = np.unwrap(np.array(yaws))
+    track = float(np.linalg.norm(np.diff(np.array(pos), axis=0), axis=1).sum())
+    patch = Patch(
+        pid, stamps, int(stamps[a]), P, np.concatenate(idx), T_WA.copy(), float(yaws.max() - yaws.min()), track
+    )
+    if len(P):
+        W = transform(T_WA, P)
+        patch.lo, patch.hi = W[:, :2].min(0), W[:, :2].max(0)
+        patch.top = top_points(P, map_cell_m)
+    return patch

@@ -12,7 +12,7 @@ import numpy as np
 from frontends.sonar.config import RecognitionConfig, StructureRegistrationConfig
 from frontends.sonar.descriptor import Template, make_spec, model_template, search
 from frontends.sonar.grid import ElevationMap, estimate_ground
-from frontends.sonar.registration import ModelData, Registration, model_data, register_structure
+from frontends.sonar.registration import ModelData, Registration, half_turn_check, model_data, register_structure
 from semslam.models.structures import StructureModel
 
 
@@ -167,7 +167,14 @@ class Recogniser:
                 out.append(det)
         return out
 
-    def register(self, name: str, points: np.ndarray, ground: ElevationMap, centre: np.ndarray) -> Registration | None:
+    def register(
+        self,
+        name: str,
+        points: np.ndarray,
+        ground: ElevationMap,
+        centre: np.ndarray,
+        min_fitness: float | None = None,
+    ) -> Registration | None:
         """4-D + ICP registration of model ``name`` recognised at ``centre``; None if it fails the checks."""
         md = self.model_data[name]
         pts = np.asarray(points, float)
@@ -183,6 +190,33 @@ class Recogniser:
             reg = register_structure(md, pts_h, pts, centre, gc, self.reg_cfg)
         except ValueError:
             return None
-        if reg.median_m > self.reg_cfg.max_median_m or reg.fitness < self.reg_cfg.min_fitness:
+        return self.quality_test(name, pts, reg, min_fitness)
+
+    def quality_test(
+        self, name: str, pts: np.ndarray, reg: Registration, min_fitness: float | None = None
+    ) -> Registration | None:
+        """``reg`` (of model ``name`` on the points ``pts``), or its half-turn alternative if that fits
+        better, when it is a new structure's registration: it fits (median, ``min_fitness``, by default
+        ``new_min_fitness``) and is not ambiguous; else None."""
+        c = self.reg_cfg
+        if reg.median_m > c.max_median_m or reg.fitness < c.min_fitness:
+            return None  # not worth the alternative's ICP
+        reg, ambiguous = half_turn_check(self.model_data[name], pts, reg, c)
+        need = c.new_min_fitness if min_fitness is None else min_fitness
+        if ambiguous or reg.median_m > c.max_median_m or reg.fitness < need:
             return None
         return reg
+
+    def register_anew(
+        self,
+        name: str,
+        points: np.ndarray,
+        centre: np.ndarray,
+        ground_kw: dict | None = None,
+        min_fitness: float | None = None,
+    ) -> Registration | None:
+        """Model ``name`` registered afresh (4-D + ICP + :meth:`quality_test` with ``min_fitness``) on
+        ``points`` ({W}) around ``centre`` (north, east), the seabed estimated from them; None if it fails."""
+        em, ground, _ = self.heights(points, ground_kw=ground_kw)
+        G = ElevationMap(em.spec, ground, em.count)
+        return self.register(name, points, G, np.asarray(centre, float), min_fitness)

@@ -345,3 +345,21 @@ def register_structure(
     reg = icp(md, pts[near], T0, cfg)
     reg.cost_4d = cost
     return reg
+
+
+def half_turn_check(
+    md: ModelData, pts: np.ndarray, reg: Registration, cfg: StructureRegistrationConfig
+) -> tuple[Registration, bool]:
+    """The registration ``reg`` of the points ``pts`` against its alternative, the model turned by half
+    its symmetry period about its vertical axis (a PLET end for end: its two ends look alike from
+    above) and registered again by ICP: (the better fitting of the two, ambiguous), ambiguous when
+    the other fits within ``cfg.ambiguity_margin`` of it (too little of the structure seen to tell)."""
+    half = 0.5 * md.model.yaw_period
+    turn = np.eye(4)
+    turn[:2, :2] = [[np.cos(half), -np.sin(half)], [np.sin(half), np.cos(half)]]
+    T = reg.T
+    near = np.hypot(pts[:, 0] - T[0, 3], pts[:, 1] - T[1, 3]) <= md.model.footprint_radius + PAD_MARGIN_M + 0.2
+    alt = icp(md, pts[near], T @ turn, cfg)
+    alt.cost_4d = reg.cost_4d
+    best, other = (alt, reg) if (alt.fitness, -alt.median_m) > (reg.fitness, -reg.median_m) else (reg, alt)
+    return best, other.fitness >= best.fitness - cfg.ambiguity_margin

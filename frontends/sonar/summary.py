@@ -117,7 +117,12 @@ def swath_disagreement(fe, pose_fn, pairs, cell: float = 0.05) -> dict:
 
 
 def final_registrations(fe, pts_W: np.ndarray) -> None:
-    """Each known structure registered by ICP on all of its data, re-placed with the final estimate."""
+    """Each known structure registered by ICP on all of its data, re-placed with the final estimate.
+
+    The quality test of a new structure applies again, now on all the data (with ``final_min_fitness``):
+    a structure whose ICP does not pass it is registered afresh there (4-D search, half-turn
+    alternative); one that still fails is not confirmed (reported apart, never as a structure of the
+    map)."""
     rc = fe.config.registration
     for ks in fe.structures:
         t0 = time.process_time()
@@ -126,7 +131,15 @@ def final_registrations(fe, pts_W: np.ndarray) -> None:
         R = md.model.footprint_radius + 0.5
         near = np.hypot(pts_W[:, 0] - T0[0, 3], pts_W[:, 1] - T0[1, 3]) <= R
         if near.sum() >= rc.min_points:
-            ks.final = icp(md, pts_W[near], T0, rc)
+            reg = icp(md, pts_W[near], T0, rc)
+            checked = fe.recogniser.quality_test(ks.model, pts_W[near], reg, rc.final_min_fitness)
+            if checked is None:
+                wide = np.hypot(pts_W[:, 0] - T0[0, 3], pts_W[:, 1] - T0[1, 3]) <= R + 1.5
+                checked = fe.recogniser.register_anew(
+                    ks.model, pts_W[wide], T0[:2, 3], fe._ground_kw(), rc.final_min_fitness
+                )
+            ks.confirmed = checked is not None
+            ks.final = checked or reg
         fe.timing["registration_s"] += time.process_time() - t0
 
 
@@ -165,13 +178,17 @@ def summarise(fe) -> FrontendSummary:
         from frontends.sonar.world_model import build_world_model
 
         spec, bare = bare_seabed(fe, map_em, pipes)
-        structs = [(fe.library[ks.model], ks.final.T if ks.final is not None else ks.T_WM) for ks in fe.structures]
+        structs = [
+            (fe.library[ks.model], ks.final.T if ks.final is not None else ks.T_WM)
+            for ks in fe.structures
+            if ks.confirmed
+        ]
         world, world_info = build_world_model(structs, pipes, bare, spec, cfg.world_model, raw)
         world_info["seabed_under_structures"] = cfg.world_model.seabed_under_structures
-    structures = []
+    structures, unconfirmed = [], []
     for ks in fe.structures:
         reg = ks.final or ks.detection.registration
-        structures.append(
+        (structures if ks.confirmed else unconfirmed).append(
             {
                 "model": ks.model,
                 "pose": (reg.T if reg is not None else ks.T_WM).tolist(),
@@ -192,6 +209,8 @@ def summarise(fe) -> FrontendSummary:
     t = dict(fe.timing)
     metrics = {
         "structures": structures,
+        # registered online but failing the quality test on all the data at the end (not map structures)
+        "unconfirmed_structures": unconfirmed,
         "runtime_s": float(t.get("recognition_s", 0.0) + t.get("registration_s", 0.0)),
         "world_model_bytes": world_info.get("bytes"),
         "raw_cloud_bytes": raw,

@@ -11,6 +11,7 @@ from scipy.optimize import linear_sum_assignment
 
 from semslam.estimation import EstimatorResult, LandmarkEstimate, Trajectory
 from semslam.eval.map_quality import map_quality
+from semslam.eval.structures import structure_counts, structure_rows
 from semslam.mission.ground_truth import GroundTruthMap
 
 ALIGNMENTS = ("none", "se3", "origin")
@@ -269,20 +270,16 @@ def _aligned_ate(estimate: Trajectory, truth: Trajectory) -> float | None:
     return errs.ate_rmse_m if errs is not None else None
 
 
-def _yaw(R: np.ndarray) -> float:
-    """Heading of a rotation about the world's vertical (NED: z down)."""
-    return float(np.arctan2(R[1, 0], R[0, 0]))
-
-
 def sonar_metrics(frontend: dict, truth: GroundTruthMap | None) -> dict:
     """The ``sonar`` block of metrics.json from a sonar front-end's summary and the ground truth.
 
     ``frontend["structures"]`` lists what the front-end registered: ``model``, ``pose`` (T_W,model
     4×4 as it placed it), ``median_error_m`` (median point-to-model distance after registration)
     and ``symmetry`` (rotational order about the vertical: yaw errors are taken modulo 2π/order).
-    With ground truth, every true structure the sensor saw gets an entry (``found`` false when no
-    registered structure of its model lies within ``gate_m``), with its position and yaw errors;
-    registered structures matching no truth follow with ``truth_id`` None.
+    With ground truth, every true structure the sensor saw gets an entry (``found`` only when a
+    registration of its model lies at the right place: :mod:`semslam.eval.structures`), with its
+    position and yaw errors; registrations at no right place follow with ``truth_id`` None (false
+    structures, ``wrong_place`` when on a true structure of their model but wrongly), and the counts.
     """
     found = [dict(s) for s in frontend.get("structures", [])]
     out = {k: v for k, v in frontend.items() if k != "structures"}
@@ -301,52 +298,6 @@ def sonar_metrics(frontend: dict, truth: GroundTruthMap | None) -> dict:
             for s in found
         ]
         return out
-    from scipy.spatial.transform import Rotation
-
-    seen = set(truth.seen_structures) if truth.seen_structures is not None else {g.id for g in truth.structures}
-    used: set[int] = set()
-    rows = []
-    gate_m = 1.0
-    for g in truth.structures:
-        if g.id not in seen:
-            continue
-        R_true = Rotation.from_quat(g.orientation).as_matrix()
-        best, best_d = None, gate_m
-        for k, s in enumerate(found):
-            if k in used or s["model"] != g.model:
-                continue
-            d = float(np.linalg.norm(np.asarray(s["pose"])[:3, 3] - np.asarray(g.position)))
-            if d <= best_d:
-                best, best_d = k, d
-        row = {
-            "model": g.model,
-            "truth_id": g.id,
-            "found": best is not None,
-            "median_error_m": None,
-            "yaw_error_deg": None,
-            "position_error_m": None,
-        }
-        if best is not None:
-            used.add(best)
-            s = found[best]
-            period = 2 * np.pi / max(int(s.get("symmetry", 1)), 1)
-            dyaw = (_yaw(np.asarray(s["pose"])[:3, :3]) - _yaw(R_true)) % period
-            dyaw = min(dyaw, period - dyaw)
-            row.update(
-                median_error_m=s.get("median_error_m"), yaw_error_deg=float(np.degrees(dyaw)), position_error_m=best_d
-            )
-        rows.append(row)
-    for k, s in enumerate(found):
-        if k not in used:
-            rows.append(
-                {
-                    "model": s["model"],
-                    "truth_id": None,
-                    "found": True,
-                    "median_error_m": s.get("median_error_m"),
-                    "yaw_error_deg": None,
-                    "position_error_m": None,
-                }
-            )
-    out["structures"] = rows
+    out["structures"] = structure_rows(found, truth)
+    out.update(structure_counts(out["structures"]))
     return out

@@ -63,13 +63,22 @@ def sonar_table(metrics: dict) -> list[list[str]]:
         rows.append(
             [
                 str(st.get("model")),
-                "yes" if st.get("found") else "no",
+                _found(st),
                 _fmt(st.get("median_error_m"), "{:.3f}"),
                 _fmt(st.get("yaw_error_deg"), "{:.2f}"),
                 _fmt(st.get("position_error_m"), "{:.3f}"),
             ]
         )
     return rows if len(rows) > 1 else []
+
+
+def _found(st: dict) -> str:
+    """yes / no (missed) for a true structure; a registration at no right place: wrong place or false."""
+    if st.get("found"):
+        return "yes"
+    if st.get("truth_id") is not None:
+        return "no"
+    return "wrong place" if st.get("wrong_place") else "false"
 
 
 def _fmt(value, fmt) -> str:

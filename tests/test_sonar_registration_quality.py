@@ -1,0 +1,65 @@
+"""The quality test a new structure's registration must pass (issue 21): on a simulated survey of a
+PLET, a registration turned end for end is turned round, one slid along the structure is refused,
+and the right one is kept."""
+
+import numpy as np
+import pytest
+
+from frontends.sonar.config import SonarConfig
+from frontends.sonar.recognition import Recogniser
+from frontends.sonar.registration import icp
+from semslam.models.structures import structure_library
+from semslam.sim.field_mission import simulate_field
+from tests.support.sonar_survey import survey_config, true_points, true_structure_pose, yaw_error
+
+
+@pytest.fixture(scope="module")
+def plet():
+    """Two 10 m lines over seed 23's PLET: its returns placed with the true poses, its true pose and a
+    recogniser of the PLET alone."""
+    mission = simulate_field(survey_config(seed=23, lines=2, line_length_m=10.0, centre="plet", sonar={"n_beams": 256}))
+    T = true_structure_pose(mission, "plet")
+    P = true_points(mission)
+    near = np.hypot(P[:, 0] - T[0, 3], P[:, 1] - T[1, 3]) <= structure_library()["plet"].footprint_radius + 0.5
+    cfg = SonarConfig()
+    return P[near], T, Recogniser([structure_library()["plet"]], cfg.recognition, cfg.registration), cfg.registration
+
+
+def _moved(T, yaw=0.0, along=0.0):
+    """T turned by ``yaw`` about its vertical axis, then slid ``along`` its x axis."""
+    M = np.eye(4)
+    M[:2, :2] = [[np.cos(yaw), -np.sin(yaw)], [np.sin(yaw), np.cos(yaw)]]
+    M[0, 3] = along
+    return T @ M
+
+
+def _errors(T, T_true):
+    return float(np.linalg.norm(T[:3, 3] - T_true[:3, 3])), float(np.degrees(yaw_error(T, T_true, 1)))
+
+
+def test_right_registration_is_kept(plet):
+    pts, T_true, rec, cfg = plet
+    reg = rec.quality_test("plet", pts, icp(rec.model_data["plet"], pts, T_true, cfg))
+    assert reg is not None
+    d, dyaw = _errors(reg.T, T_true)
+    assert d < 0.05 and dyaw < 1.0
+
+
+def test_end_for_end_registration_is_turned_round(plet):
+    pts, T_true, rec, cfg = plet
+    flipped = icp(rec.model_data["plet"], pts, _moved(T_true, yaw=np.pi), cfg)
+    # the flipped PLET fits well enough for the old acceptance (median, fitness ≥ min_fitness) ...
+    assert flipped.median_m <= cfg.max_median_m and flipped.fitness >= cfg.min_fitness
+    assert _errors(flipped.T, T_true)[1] > 170
+    # ... but its half-turn fits clearly better: the quality test keeps that one
+    reg = rec.quality_test("plet", pts, flipped)
+    assert reg is not None
+    d, dyaw = _errors(reg.T, T_true)
+    assert d < 0.05 and dyaw < 1.0
+
+
+def test_registration_slid_along_the_structure_is_refused(plet):
+    pts, T_true, rec, cfg = plet
+    slid = icp(rec.model_data["plet"], pts, _moved(T_true, along=0.8), cfg)
+    reg = rec.quality_test("plet", pts, slid)
+    assert reg is None or max(_errors(reg.T, T_true)[0] / 0.1, _errors(reg.T, T_true)[1]) < 1.0
