@@ -31,9 +31,13 @@ DASK = Path(sys.executable).with_name("dask")
 
 
 def numbers(metrics: dict):
-    """metrics.json without its timings: what must not depend on where a mission ran."""
+    """metrics.json without its timings and with its warnings' file names left out (each names the
+    bag it ran on: the study's own copy, or the user's): what must not depend on where a mission ran."""
     if isinstance(metrics, dict):
-        return {k: numbers(v) for k, v in metrics.items() if k not in TIMING_KEYS}
+        out = {k: numbers(v) for k, v in metrics.items() if k not in TIMING_KEYS}
+        if isinstance(out.get("warnings"), list):
+            out["warnings"] = [w.split(": ", 1)[-1] for w in out["warnings"]]
+        return out
     if isinstance(metrics, list):
         return [numbers(v) for v in metrics]
     return metrics
@@ -295,9 +299,6 @@ def test_gps_held_out_in_a_study_as_in_compare(tmp_path):
     expected = numbers(json.loads((alone / "metrics.json").read_text()))
     got = numbers(json.loads((out / "dive-seed1" / "metrics.json").read_text()))
     assert expected["reference"] == "gps" and expected["gps_reference"]["n_fixes"] == 1
-    # the same warnings, each naming the bag it ran on
-    said, study_said = (m["input"].pop("warnings", []) for m in (expected, got))
-    assert [w.replace(str(bag), "BAG") for w in said] == [w.replace(str(out), "BAG") for w in study_said]
     assert got == expected
     study = json.loads((out / "study.json").read_text())
     for est in ("ekf", "graph"):
