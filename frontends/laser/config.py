@@ -337,6 +337,17 @@ class ObjectConfig(_Section):
     )
     line_tolerance: float = Field(0.03, gt=0, description="pipe ends meet when their axes pass this close (m)")
     max_inline_gap: float = Field(0.30, gt=0, description="longest in-line object between two facing pipe ends (m)")
+    min_inline_gap: float = Field(
+        0.05,
+        ge=0,
+        description="a gap between two facing pipe ends shorter than this is a pipe cut at a short bump (a 2-bin "
+        "stretch of outward noise, min_fitting_length), not an in-line part, unless min_inline_body points of the "
+        "gap's cloud stand off the pipes' cylinder (m; the tank's shortest in-line part, the R-Socket, is 0.088 m "
+        "between its ports; the false in-line objects of tank seed 10 lay in gaps of 0.041-0.049 m)",
+    )
+    min_inline_body: int = Field(
+        40, ge=0, description="see min_inline_gap (false in-line objects of tank seed 10: 2-32 such points)"
+    )
     max_port_distance: float = Field(
         0.15, gt=0, description="farthest a junction lies beyond the pipe ends meeting there (port to centre, m)"
     )

@@ -178,6 +178,12 @@ _TAIL_BIN = 0.02  # m along the axis: the profile beyond a lone end is judged pe
 _TAIL_BIN_POINTS = 5  # ... with at least this many points (fewer everywhere: all of them as one)
 
 
+def radial_level(pipe: Pipe, points: np.ndarray) -> float:
+    """The median distance of ``pipe``'s inliers (rows of ``points``) from its axis: its surface as
+    the scan sees it (the fitted radius is the prior's where one is set)."""
+    return float(np.median(along_and_off_axis(np.take(points, pipe.inliers, axis=0), pipe.p, pipe.axis)[1]))
+
+
 def pipe_continues(
     points: np.ndarray, end: np.ndarray, out: np.ndarray, pipe: Pipe, all_points: np.ndarray, cfg: ObjectConfig
 ) -> bool:
@@ -193,7 +199,7 @@ def pipe_continues(
     beyond = t > cfg.own_beyond
     if not beyond.any() or int((rad > pipe.radius + cfg.own_margin).sum()) >= cfg.min_own_points:
         return False
-    level = np.median(along_and_off_axis(np.take(all_points, pipe.inliers, axis=0), pipe.p, pipe.axis)[1])
+    level = radial_level(pipe, all_points)
     off = np.abs(rad[beyond] - level)
     stretch = ((t[beyond] - cfg.own_beyond) / _TAIL_BIN).astype(np.int64)
     counts = np.bincount(stretch)
@@ -463,6 +469,8 @@ def segment_objects(
                 continue
             if seen_beyond is not None and not seen_beyond(e[0] - dirs[0] * cfg.attach_distance, pipe.radius):
                 continue
+        if site.config == 2 and len(site.members) == 2 and gap_is_pipe(points, crop, site, pipes, cfg):
+            continue
         if lying is not None and all(lying[m // 2] for m in site.members) and site.config <= 2:
             # on the seabed: something must rise over the pipe where it ends (config 1), or in the
             # gap between the two ends (config 2), and the scan must have seen that place
@@ -491,6 +499,34 @@ def segment_objects(
         pipe_ids = tuple(int(m // 2) for m in site.members)
         objects.append(SegmentedObject(center, cov, crop, dirs, config, pipe_ids))
     return one_per_cluster(objects, pipes, len(points))
+
+
+def gap_is_pipe(points: np.ndarray, crop: np.ndarray, site: _Site, pipes: list[Pipe], cfg: ObjectConfig) -> bool:
+    """Whether an object's points (``crop`` of ``points``) at a site of exactly two collinear pipe
+    ends facing each other are one pipe running on through the gap (cut in two by an occluder, a
+    noisy fitting cut, a sparse stretch) rather than a part in line: fewer than ``min_own_points``
+    off the pipes' common cylinder (by ``own_margin``; a valve's body and handle leave it), and the
+    points between the two ends at the pipes' own radial level within ``tail_tolerance`` (a socket
+    is wider than its pipes); a gap with no points in it (hidden) shows no part either. A gap shorter
+    than ``min_inline_gap`` is the pipe stage's cut at a short bump of its surface (noise) unless
+    ``min_inline_body`` points stand off the cylinder."""
+    (e_a, e_b), (out_a, out_b) = site.ends[:2], -site.dirs[:2]
+    axis = (out_a - out_b) / np.linalg.norm(out_a - out_b)
+    mid = 0.5 * (e_a + e_b)
+    t, rad = along_and_off_axis(np.take(points, crop, axis=0), mid, axis)
+    two = [pipes[m // 2] for m in site.members[:2]]
+    radius = float(np.mean([p.radius for p in two]))
+    off = int((rad > radius + cfg.own_margin).sum())
+    lo, hi = sorted(((e_a - mid) @ axis, (e_b - mid) @ axis))
+    if hi - lo < cfg.min_inline_gap and off < cfg.min_inline_body:
+        return True
+    if off >= cfg.min_own_points:
+        return False
+    gap = (t >= lo) & (t <= hi)
+    if gap.sum() < _TAIL_BIN_POINTS:
+        return True
+    level = float(np.mean([radial_level(p, points) for p in two]))
+    return bool(abs(np.median(rad[gap]) - level) <= cfg.tail_tolerance)
 
 
 def one_per_cluster(objects: list[SegmentedObject], pipes: list[Pipe], n_points: int) -> list[SegmentedObject]:

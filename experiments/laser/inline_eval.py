@@ -1,0 +1,73 @@
+"""Per-scan object detections of the laser front-end on recorded tank bags, against ground truth:
+true (a true object within ``--gate``) and false object segments per connectivity configuration,
+and the true objects detected, with this checkout's front-end and, with ``--ab``, also with the
+in-line gap test off (the behaviour before it: every gap between two collinear pipe ends with enough
+points is an object).
+
+    python experiments/laser/inline_eval.py --cache DIR --seeds 3,9,10 [--every 10] [--ab]
+
+DIR/tank-seed<N>.bag: a bag of ``replay_study.py record`` (or ``semslam study``), read only.
+"""
+
+from __future__ import annotations
+
+import argparse
+from collections import Counter
+from pathlib import Path
+
+import numpy as np
+
+
+def _count(mission, every: int, gate: float) -> Counter:
+    from frontends.laser.config import LaserConfig
+    from frontends.laser.frontend import segment_scan
+    from semslam.mission.measurements import GroundTruthPose, PointCloud
+    from semslam.sim import TankSimConfig
+
+    gt = mission.metadata.ground_truth
+    sensor = next(s for s in mission.metadata.sensors.values() if s.kind == "laser")
+    objs = np.array([o.position for o in gt.objects])
+    poses = {m.stamp: m for m in mission.of_type(GroundTruthPose)}
+    stamps = np.array(sorted(poses))
+    cfg = LaserConfig.model_validate({"pipes": {"radius_prior": TankSimConfig().structure.pipe_radius_m}})
+    n = Counter()
+    for c in list(mission.of_type(PointCloud))[every // 2 :: every]:
+        T = poses[int(stamps[np.argmin(np.abs(stamps - c.stamp))])].matrix() @ sensor.T_BS
+        seg = segment_scan(c.points, cfg, up=T[:3, :3].T @ np.array([0.0, 0.0, -1.0]))
+        n["scans"] += 1
+        found = set()
+        for ob in seg.objects:
+            d = np.linalg.norm(objs - (T[:3, :3] @ ob.position + T[:3, 3]), axis=1)
+            ok = bool(d.min() <= gate)
+            n[f"{'true' if ok else 'false'} config {ob.configuration}"] += 1
+            n["true" if ok else "false"] += 1
+            if ok:
+                found.add(int(d.argmin()))
+        n["objects detected (per scan, summed)"] += len(found)
+    return n
+
+
+def main(argv=None) -> int:
+    from frontends.laser import objects
+    from semslam.mission.bag import read_mission
+
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--cache", type=Path, required=True)
+    ap.add_argument("--seeds", type=str, required=True)
+    ap.add_argument("--every", type=int, default=10)
+    ap.add_argument("--gate", type=float, default=0.15)
+    ap.add_argument("--ab", action="store_true")
+    args = ap.parse_args(argv)
+    test = objects.gap_is_pipe
+    for seed in [int(s) for s in args.seeds.split(",")]:
+        mission = read_mission(args.cache / f"tank-seed{seed}.bag")
+        for label, fn in ([("without gap test", lambda *a: False)] if args.ab else []) + [("this checkout", test)]:
+            objects.gap_is_pipe = fn
+            n = _count(mission, args.every, args.gate)
+            print(f"seed {seed} {label}: " + ", ".join(f"{k} {v}" for k, v in sorted(n.items())), flush=True)
+        objects.gap_is_pipe = test
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
