@@ -27,6 +27,7 @@ def mission():
     return simulate_pipeline(short_config())
 
 
+@pytest.mark.slow
 def test_simulate_pipeline_from_the_cli_same_seed_same_clouds_other_seed_other_world(tmp_path):
     """`semslam simulate pipeline` writes the bag the in-memory simulation gives (read back: the same
     valid points, the reader dropping the NaN pixels, colours and ground truth), with its preview;

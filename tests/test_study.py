@@ -221,6 +221,7 @@ def test_dask_scheduler_and_workers_one_killed(inputs, serial, dask_cluster, tmp
     assert not compute_processes(out)  # the killed worker's attempt died with it
 
 
+@pytest.mark.slow
 def test_bags_with_a_broken_one_then_fixed(inputs, serial, tmp_path):
     """A study of bags: the broken one fails with its error and never stops the good one; once
     fixed, a re-run computes it alone. A study folder holding missions of another configuration,
@@ -280,6 +281,7 @@ def test_timeout_is_recorded(inputs, tmp_path):
     assert not compute_processes(out)
 
 
+@pytest.mark.slow
 def test_gps_held_out_in_a_study_as_in_compare(tmp_path):
     """A campaign of real recordings has no ground truth: its reference is the GPS fixes held out.
     A study with --hold-out-gps gives each mission compare's numbers with the same option, and its
