@@ -137,6 +137,12 @@ def test_local_cluster_interrupted_then_resumed(inputs, serial, tmp_path):
     assert [m["reused"] for m in study["missions"]] == [m["mission"] in done for m in study["missions"]]
     assert study_numbers(out) == {name: s["numbers"] for name, s in serial.items()}
     assert not list((out / ".study").glob("staging/*"))
+    # A simulated mission's warnings name the mission, not its bag in the stage (gone once committed).
+    warned = {
+        d.name: json.loads((d / "metrics.json").read_text())["input"].get("warnings", []) for d in out.glob("tank-*")
+    }
+    assert any(warned.values()), warned  # seeds 1 and 3 start without bottom lock
+    assert all(w.startswith(f"{name}: ") for name, ws in warned.items() for w in ws), warned
 
     # study.json: per mission in seed order, distributions and paired ratios over the four
     assert [m["mission"] for m in study["missions"]] == [f"tank-seed{s}" for s in SEEDS]

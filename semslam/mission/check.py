@@ -90,7 +90,7 @@ def parse_allow_missing(text: str | Collection[str] | None) -> frozenset[str]:
 
 
 def where(mission: Mission) -> str:
-    return str(getattr(mission, "path", "") or f"mission {mission.metadata.name}")
+    return mission.label or str(getattr(mission, "path", "") or f"mission {mission.metadata.name}")
 
 
 def check_mission(

@@ -89,6 +89,7 @@ class Mission:
         self.dropped: Counter[str] = Counter()  # sensor -> measurements dropped as non-finite (filled by readers)
         self.invalid: Counter[str] = Counter()  # sensor -> readings flagged invalid (DVL dropouts), last full pass
         self.rest = None  # the start at rest applied to it (semslam.mission.rest.RestAssumption), if any
+        self.label: str | None = None  # what warnings call it, when its file's path would mislead (a study's stage)
 
     @classmethod
     def from_measurements(cls, metadata: MissionMetadata, measurements: Iterable[Measurement]) -> Mission:

@@ -63,7 +63,9 @@ def _mission(task: MissionTask, stage: Path, config):
     sim_config = scenario(src["scenario"]).model().model_validate(src["sim_config"])
     (stage / "sim_config.yaml").write_text(yaml.safe_dump(src["sim_config"], sort_keys=False))
     simulate_to_bag(src["scenario"], sim_config, stage / BAG)
-    return read_mission(stage / BAG, config.reader)
+    mission = read_mission(stage / BAG, config.reader)
+    mission.label = task.mission  # not the stage's path: it is renamed when the mission commits
+    return mission
 
 
 def _drop_bag(stage: Path) -> None:
