@@ -11,6 +11,7 @@ from typer.testing import CliRunner
 from semslam.cli import app
 from semslam.errors import ConfigError
 from semslam.study.plan import parse_seeds, scenario_tasks
+from semslam.study.report import write_study_report
 from semslam.study.stats import bootstrap_ci, distribution, paired_ratio, study_statistics
 from semslam.study.summary import mission_summary
 
@@ -99,6 +100,20 @@ def test_shares_and_seen_pipe_ratios_per_mission():
     s = study_statistics(rows + [None])
     assert s["shares"]["graph"]["objects_once"] == {"n": 3, "share": pytest.approx(2 / 3)}
     assert s["distributions"]["graph"]["pipes_seen_mapped_ratio"]["min"] == pytest.approx(0.95)
+
+
+def test_report_shows_shares_and_only_what_missions_have(tmp_path):
+    """The report's tables: the shares of missions (objects once), labelled; no row for a metric no
+    mission has (here: no landmark error, no GPS reference), no raw key where a label exists."""
+    est = {"ate_rmse_m": 0.1, "ate_rmse_pos_yaw_m": 0.05, "objects_once": True, "object_duplicates": 0}
+    rows = [{"estimators": {"graph": dict(est, objects_once=o), "ekf": est}, "recognition_f1": {}} for o in (1, 1, 0)]
+    counts = {"planned": 3, "ok": 3, "failed": 0, "timeout": 0, "not_run": 0}
+    study = {"study": {"title": "t"}, "counts": counts, "missions": [], "worst": [], "failures": []}
+    page = write_study_report(tmp_path, {**study, **study_statistics(rows)}).read_text()
+    assert "graph</td><td>every object mapped exactly once</td><td>3</td><td>0.667" in page
+    assert "objects mapped twice" in page and "position+yaw alignment" in page
+    assert "landmark median error" not in page and "held-out GPS" not in page
+    assert "ate_rmse_pos_yaw_m" not in page
 
 
 @pytest.mark.parametrize(

@@ -26,7 +26,31 @@ FIGURE_METRICS = (
     ("runtime_s", "estimator run time (s)"),
     ("gps_error_rmse_m", "error at the held-out GPS fixes (m)"),
 )
-LABELS = dict(FIGURE_METRICS)
+#: further rows of the distributions table (map quality, consistency), shown where a mission has them
+TABLE_METRICS = (
+    ("ate_rmse_pos_yaw_m", "ATE RMSE after position+yaw alignment (m)"),
+    ("object_median_error_m", "object median error (m)"),
+    ("pipe_median_error_m", "pipe median error (m)"),
+    ("object_duplicates", "objects mapped twice"),
+    ("object_missed", "objects missed"),
+    ("object_false", "false objects"),
+    ("pipes_seen_mapped_ratio", "pipes mapped / seen by the front-end"),
+    ("pipe_duplicate_ratio", "pipe duplicates / pipes"),
+    ("pipe_false", "false pipes"),
+    ("structure_missed", "structures missed"),
+    ("structure_false", "false structures"),
+    ("nees_share_in_pose_band", "poses with NEES in the 95 % band"),
+    ("gps_error_last_m", "error at the last held-out GPS fix (m)"),
+)
+#: yes/no per mission (study.json's ``shares``)
+SHARE_LABELS = {
+    "objects_once": "every object mapped exactly once",
+    "nees_in_band": "mean position NEES in the 95 % χ² band",
+}
+LABELS = {
+    **dict(FIGURE_METRICS),
+    **dict(TABLE_METRICS),
+}
 
 
 def _png(fig) -> str:
@@ -152,6 +176,7 @@ def write_study_report(out_dir: Path, study: dict) -> Path:
         ]
         for pair, block in study["ratios"].items()
         for k, r in block.items()
+        if r["n"]  # a metric no mission of the pair has (no landmarks, no held-out fix)
     ]
     parts.append(_table(["pair", "metric", "n", "median", "95 % CI", "geo. mean", "95 % CI", "share < 1"], rows))
     fig = ratios_figure(study)
@@ -163,8 +188,10 @@ def write_study_report(out_dir: Path, study: dict) -> Path:
         parts.append(f"<img alt='distributions' src='data:image/png;base64,{fig}'>")
     rows = []
     for est, d in study["distributions"].items():
-        for k, label in FIGURE_METRICS:
-            s = d[k]
+        for k, label in (*FIGURE_METRICS, *TABLE_METRICS):
+            s = d.get(k)
+            if not s or not s["n"]:
+                continue
             rows.append([html.escape(est), html.escape(label), str(s["n"]), _fmt(s["median"])])
             rows[-1] += [
                 f"{_fmt(s['p25'])} – {_fmt(s['p75'])}",
@@ -176,6 +203,15 @@ def write_study_report(out_dir: Path, study: dict) -> Path:
         rows.append(["recognition " + html.escape(st), "F1", str(s["n"]), _fmt(s["median"])])
         rows[-1] += [f"{_fmt(s['p25'])} – {_fmt(s['p75'])}", f"{_fmt(s['min'])} – {_fmt(s['max'])}", _fmt(s["mean"])]
     parts.append(_table(["estimator", "metric", "n", "median", "p25 – p75", "min – max", "mean"], rows))
+    rows = [
+        [html.escape(est), html.escape(SHARE_LABELS.get(k, k)), str(v["n"]), _fmt(v["share"])]
+        for est, block in study.get("shares", {}).items()
+        for k, v in block.items()
+        if v["n"]
+    ]
+    if rows:
+        parts.append("<h2>Share of missions</h2>")
+        parts.append(_table(["estimator", "", "n", "share"], rows))
     if study["worst"]:
         parts.append("<h2>Worst missions</h2>")
         rows = [
