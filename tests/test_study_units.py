@@ -10,6 +10,7 @@ from typer.testing import CliRunner
 
 from semslam.cli import app
 from semslam.errors import ConfigError
+from semslam.study.cluster import frontend_workers_per_mission
 from semslam.study.plan import parse_seeds, scenario_tasks
 from semslam.study.report import write_study_report
 from semslam.study.stats import bootstrap_ci, distribution, paired_ratio, study_statistics
@@ -135,3 +136,11 @@ def test_user_errors_are_one_line(tmp_path, monkeypatch, args, message):
     assert res.exit_code == 1 and message in res.output, res.output
     assert len([line for line in res.output.splitlines() if line.strip()]) == 1
     assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("cores, workers, expected", [(2, 2, 1), (2, 1, 2), (8, 2, 4), (8, 3, 2), (8, None, 1)])
+def test_a_mission_gets_the_cores_the_local_cluster_leaves_it(monkeypatch, cores, workers, expected):
+    """`--workers 1` on a 2-core machine: the mission's front-ends in two processes, as in `compare`;
+    one mission per core: one each; a user's cluster (None): one each (a worker is one core)."""
+    monkeypatch.setattr("os.cpu_count", lambda: cores)
+    assert frontend_workers_per_mission(workers) == expected

@@ -35,7 +35,10 @@ def study(
         None, "--scheduler", help="address of a Dask scheduler (default: a LocalCluster)"
     ),
     workers: int | None = typer.Option(
-        None, "--workers", help="LocalCluster workers (default and at most: one per core)"
+        None,
+        "--workers",
+        help="LocalCluster workers, one mission each (default and at most: one per core); "
+        "a mission runs its front-ends in the cores left to it (--workers 1: all, as compare does)",
     ),
     timeout: float | None = typer.Option(None, "--timeout", help="seconds a mission may take before it is killed"),
     keep_bags: bool = typer.Option(

@@ -31,6 +31,15 @@ def local_workers(requested: int | None, n_tasks: int) -> int:
     return max(1, min(requested or cores, cores, n_tasks))
 
 
+def frontend_workers_per_mission(n_workers: int | None) -> int:
+    """The front-end processes each mission starts: the cores of this machine a LocalCluster of
+    ``n_workers`` leaves each mission (``--workers 1``: all of them, as `semslam compare` would);
+    one on a user's cluster (``None``), whose workers are taken to be one core each."""
+    if n_workers is None:
+        return 1
+    return max(1, (os.cpu_count() or 1) // n_workers)
+
+
 @contextlib.contextmanager
 def dask_client(scheduler: str | None, n_workers: int) -> Iterator:
     """A ``distributed.Client`` on ``scheduler``, or on a LocalCluster of ``n_workers`` processes."""

@@ -91,10 +91,15 @@ def compute(task: MissionTask, stage: Path) -> dict:
     for warning in check.warnings:
         print(f"semslam: warning: {warning}", file=sys.stderr, flush=True)
     t_mission = time.perf_counter() - t0
-    # One front-end worker: the study already runs one mission per core.
+    # As many front-end workers as the cores the study left this mission (one when it runs one per core).
     hold_out = HoldOut.parse(task.hold_out_gps) if task.hold_out_gps else None
     result, metrics = run_comparison(
-        mission, config, task.frontends, frontend_workers=1, hold_out_gps=hold_out, check_warnings=check.warnings
+        mission,
+        config,
+        task.frontends,
+        frontend_workers=task.frontend_workers,
+        hold_out_gps=hold_out,
+        check_warnings=check.warnings,
     )
     write_results(stage, config, result, metrics)
     report = write_report(stage, result, mission.metadata, metrics)

@@ -31,6 +31,7 @@ class MissionTask:
     hold_out_gps: str | None = None  # `semslam compare --hold-out-gps`: GPS fixes kept as the reference
     timeout_s: float | None = None
     keep_bag: bool = False
+    frontend_workers: int = 1  # the mission's front-end processes (its share of the cores; not in its identity)
 
     def to_dict(self) -> dict:
         return asdict(self)

@@ -5,11 +5,12 @@ from __future__ import annotations
 import sys
 import time
 from collections.abc import Sequence
+from dataclasses import replace
 from pathlib import Path
 
 import semslam
 from semslam.errors import SemslamError
-from semslam.study.cluster import dask_client, local_workers, run_tasks
+from semslam.study.cluster import dask_client, frontend_workers_per_mission, local_workers, run_tasks
 from semslam.study.output import build_study, write_json
 from semslam.study.plan import MissionTask
 from semslam.study.report import write_study_report
@@ -97,8 +98,11 @@ def _finished(task: MissionTask, record: dict, reused: bool) -> dict:
 def _run(tasks, todo, results, store, scheduler, workers, info, progress, log) -> None:
     enabled = sys.stderr.isatty() if progress is None else progress
     n_workers = local_workers(workers, len(todo))
+    fe_workers = frontend_workers_per_mission(None if scheduler else n_workers)
+    todo = [replace(t, frontend_workers=fe_workers) for t in todo]
     with dask_client(scheduler, n_workers) as client:
         info["workers"] = len(client.nthreads()) if scheduler else n_workers
+        info["frontend_workers_per_mission"] = fe_workers
         bar = _progress(len(tasks), len(tasks) - len(todo), enabled)
         failed = 0
         try:
