@@ -2,9 +2,10 @@
 true (a true object within ``--gate``) and false object segments per connectivity configuration,
 and the true objects detected, with this checkout's front-end and, with ``--ab``, also with the
 in-line gap test off (the behaviour before it: every gap between two collinear pipe ends with enough
-points is an object).
+points is an object). Reported pipe segments are counted too: true when both ends lie within 5 cm of
+one true pipe's axis. ``--set section.key=value`` (repeatable) changes the front-end's configuration.
 
-    python experiments/laser/inline_eval.py --cache DIR --seeds 3,9,10 [--every 10] [--ab]
+    python experiments/laser/inline_eval.py --cache DIR --seeds 3,9,10 [--every 10] [--ab] [--set K=V]
 
 DIR/tank-seed<N>.bag: a bag of ``replay_study.py record`` (or ``semslam study``), read only.
 """
@@ -16,20 +17,32 @@ from collections import Counter
 from pathlib import Path
 
 import numpy as np
+from tank_truth import segment_distance
 
 
-def _count(mission, every: int, gate: float) -> Counter:
+def _config(overrides: list[str]):
     from frontends.laser.config import LaserConfig
+    from semslam.sim import TankSimConfig
+
+    data: dict = {"pipes": {"radius_prior": TankSimConfig().structure.pipe_radius_m}}
+    for item in overrides:
+        key, value = item.split("=", 1)
+        section, name = key.split(".")
+        data.setdefault(section, {})[name] = float(value)
+    return LaserConfig.model_validate(data)
+
+
+def _count(mission, every: int, gate: float, overrides: list[str] = ()) -> Counter:
     from frontends.laser.frontend import segment_scan
     from semslam.mission.measurements import GroundTruthPose, PointCloud
-    from semslam.sim import TankSimConfig
 
     gt = mission.metadata.ground_truth
     sensor = next(s for s in mission.metadata.sensors.values() if s.kind == "laser")
     objs = np.array([o.position for o in gt.objects])
     poses = {m.stamp: m for m in mission.of_type(GroundTruthPose)}
     stamps = np.array(sorted(poses))
-    cfg = LaserConfig.model_validate({"pipes": {"radius_prior": TankSimConfig().structure.pipe_radius_m}})
+    true_pipes = [(np.array(p.p), np.array(p.q)) for p in gt.pipes]
+    cfg = _config(list(overrides))
     n = Counter()
     for c in list(mission.of_type(PointCloud))[every // 2 :: every]:
         T = poses[int(stamps[np.argmin(np.abs(stamps - c.stamp))])].matrix() @ sensor.T_BS
@@ -44,6 +57,12 @@ def _count(mission, every: int, gate: float) -> Counter:
             if ok:
                 found.add(int(d.argmin()))
         n["objects detected (per scan, summed)"] += len(found)
+        for p in seg.pipes:
+            if not p.reported(seg.pipe_config):
+                continue
+            ends = [T[:3, :3] @ e + T[:3, 3] for e in (p.p, p.q)]
+            ok = any(max(segment_distance(e, a, b) for e in ends) <= 0.05 for a, b in true_pipes)
+            n["pipes true" if ok else "pipes false"] += 1
     return n
 
 
@@ -57,13 +76,14 @@ def main(argv=None) -> int:
     ap.add_argument("--every", type=int, default=10)
     ap.add_argument("--gate", type=float, default=0.15)
     ap.add_argument("--ab", action="store_true")
+    ap.add_argument("--set", action="append", default=[], help="section.key=value of the front-end's configuration")
     args = ap.parse_args(argv)
     test = objects.gap_is_pipe
     for seed in [int(s) for s in args.seeds.split(",")]:
         mission = read_mission(args.cache / f"tank-seed{seed}.bag")
         for label, fn in ([("without gap test", lambda *a: False)] if args.ab else []) + [("this checkout", test)]:
             objects.gap_is_pipe = fn
-            n = _count(mission, args.every, args.gate)
+            n = _count(mission, args.every, args.gate, args.set)
             print(f"seed {seed} {label}: " + ", ".join(f"{k} {v}" for k, v in sorted(n.items())), flush=True)
         objects.gap_is_pipe = test
     return 0

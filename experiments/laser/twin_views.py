@@ -19,12 +19,7 @@ from collections import Counter
 from pathlib import Path
 
 import numpy as np
-
-
-def _seg_dist(x: np.ndarray, p: np.ndarray, q: np.ndarray) -> float:
-    d = q - p
-    t = np.clip((x - p) @ d / max(d @ d, 1e-12), 0.0, 1.0)
-    return float(np.linalg.norm(x - p - t * d))
+from tank_truth import segment_distance
 
 
 def main(argv=None) -> int:
@@ -65,7 +60,7 @@ def main(argv=None) -> int:
                 ok = d_obj <= args.gate
                 counts[(conf, ok)] += 1
                 if not ok:
-                    d_pipe = min(_seg_dist(x, p, q) for p, q in pipes)
+                    d_pipe = min(segment_distance(x, p, q) for p, q in pipes)
                     counts[(conf, "on pipe" if d_pipe < 0.05 else "off pipe")] += 1
                     if conf == 2:
                         false_inline.append(stamp)

@@ -266,9 +266,8 @@ class PipeConfig(_Section):
     bump_sigmas: float = Field(
         3.0,
         ge=0,
-        description="... and, without radius_prior, at least this many times the noise of a bin's median (from the "
-        "scatter of the pipe's points about their bins' medians, measured per pipe: stereo noise makes the profile "
-        "itself bumpy; with the radius known, bump_height_known_radius alone, as tuned on the tank); 0: off",
+        description="... and at least this many times the noise of a bin's median (from the scatter of the pipe's "
+        "points about their bins' medians, measured per pipe: stereo noise makes the profile itself bumpy); 0: off",
     )
     bump_smooth: bool = Field(
         True, description="a bin also stands out when the mean residual over it and its two neighbours does"
@@ -277,6 +276,11 @@ class PipeConfig(_Section):
         0.003,
         gt=0,
         description="the same when radius_prior is given: the fit then has no radius bias, so the test can be finer",
+    )
+    bump_sigmas_known_radius: float = Field(
+        0.0,
+        ge=0,
+        description="bump_sigmas when radius_prior is given",
     )
     max_see_through: float = Field(
         0.15,
@@ -376,10 +380,17 @@ class ObjectConfig(_Section):
     tail_tolerance: float = Field(
         0.003,
         gt=0,
-        description="a lone pipe end's object is the pipe running on (its sparse far part not fitted), not a "
-        "fitting, when its points beyond the end lie within this of the pipe's own radial level along every 2 cm "
-        "(their median; m) and fewer than min_own_points are off its cylinder: the tank's sockets are 4.5-5 mm "
-        "wider than their pipes",
+        description="a lone pipe end's object is the pipe running on or ending (its sparse far part not fitted, "
+        "its end cap or bore), not a fitting, when fewer than min_own_points of its points are off its cylinder "
+        "and no 4 cm stretch of them beyond the end stands above the pipe's own radial level by more than this "
+        "(their median; m); the gap between two facing ends of one pipe, when its points' median lies within this "
+        "of that level: the tank's sockets are 4.5-5 mm wider than their pipes",
+    )
+    tail_sigmas: float = Field(
+        2.0,
+        ge=0,
+        description="... and by this many times the noise of that median (from the pipe's own scatter; see "
+        "tail_tolerance): a lone end's object without a body needs 4 cm of it wider than the pipe",
     )
     stub_start: float = Field(
         0.20,

@@ -181,32 +181,53 @@ _TAIL_BIN_POINTS = 5  # ... with at least this many points (fewer everywhere: al
 def radial_level(pipe: Pipe, points: np.ndarray) -> float:
     """The median distance of ``pipe``'s inliers (rows of ``points``) from its axis: its surface as
     the scan sees it (the fitted radius is the prior's where one is set)."""
-    return float(np.median(along_and_off_axis(np.take(points, pipe.inliers, axis=0), pipe.p, pipe.axis)[1]))
+    return surface_level(pipe, points)[0]
+
+
+def surface_level(pipe: Pipe, points: np.ndarray) -> tuple[float, float]:
+    """(:func:`radial_level`, the scatter of the inliers' distances about it: 1.4826 × their median
+    absolute deviation, the scan's noise on that pipe)."""
+    rad = along_and_off_axis(np.take(points, pipe.inliers, axis=0), pipe.p, pipe.axis)[1]
+    level = float(np.median(rad))
+    return level, 1.4826 * float(np.median(np.abs(rad - level)))
 
 
 def pipe_continues(
     points: np.ndarray, end: np.ndarray, out: np.ndarray, pipe: Pipe, all_points: np.ndarray, cfg: ObjectConfig
 ) -> bool:
     """Whether an object's ``points`` at a lone end of ``pipe`` (outward unit ``out``) are that pipe
-    running on past its fitted ``end`` (its sparse far part not taken as inliers) rather than a
-    fitting: fewer than ``min_own_points`` off its cylinder and, beyond the end, at the pipe's own
-    radial level (the median distance of its inliers, in ``all_points``, from its axis) within
-    ``tail_tolerance`` along every 2 cm stretch. A socket or a port is wider than its pipe, even
-    with an undetected pipe running on behind it; an elbow or a body leaves the cylinder."""
+    running on past its fitted ``end`` (its sparse far part not taken as inliers), or its own end
+    (an end cap, an open bore, the last centimetres cut off by noise), rather than a fitting: fewer
+    than ``min_own_points`` off its cylinder, and nowhere beyond the end wider than the pipe: no
+    4 cm stretch (two of 2 cm, at least 5 points) whose median distance from the axis stands above
+    the pipe's own radial level (the median distance of its inliers, in ``all_points``) by more than
+    ``tail_tolerance`` and ``tail_sigmas`` × the noise of that median (1.2533 σ / √n, σ the scatter
+    of the pipe's inliers about their level). A socket or a port is wider than its pipe, even with
+    an undetected pipe running on behind it; an elbow or a body leaves the cylinder. Points nearer
+    the axis than the pipe's surface (its end cap, the inside of an open end) are no fitting."""
     if len(pipe.inliers) == 0:
         return False
     t, rad = along_and_off_axis(points, end, out)
     beyond = t > cfg.own_beyond
     if not beyond.any() or int((rad > pipe.radius + cfg.own_margin).sum()) >= cfg.min_own_points:
         return False
-    level = radial_level(pipe, all_points)
-    off = np.abs(rad[beyond] - level)
-    stretch = ((t[beyond] - cfg.own_beyond) / _TAIL_BIN).astype(np.int64)
-    counts = np.bincount(stretch)
-    full = np.flatnonzero(counts >= _TAIL_BIN_POINTS)
-    if not len(full):
-        return bool(np.median(off) <= cfg.tail_tolerance)
-    return all(np.median(off[stretch == b]) <= cfg.tail_tolerance for b in full)
+    level, sigma = surface_level(pipe, all_points)
+    return not wider_stretch(t[beyond] - cfg.own_beyond, rad[beyond] - level, sigma, cfg)
+
+
+def wider_stretch(t: np.ndarray, offset: np.ndarray, sigma: float, cfg: ObjectConfig) -> bool:
+    """Whether points at ``t`` (≥ 0) along an axis, ``offset`` outward from a pipe's surface, hold
+    a stretch of two 2 cm bins (at least ``_TAIL_BIN_POINTS`` points) whose median offset exceeds
+    ``tail_tolerance`` and ``tail_sigmas`` × 1.2533 ``sigma`` / √n (the noise of a median of n)."""
+    stretch = (t / _TAIL_BIN).astype(np.int64)
+    for s in range(int(stretch.max()) + 1 if len(stretch) else 0):
+        w = (stretch == s) | (stretch == s + 1)
+        n = int(w.sum())
+        if n >= _TAIL_BIN_POINTS:
+            need = max(cfg.tail_tolerance, cfg.tail_sigmas * 1.2533 * sigma / np.sqrt(n))
+            if float(np.median(offset[w])) > need:
+                return True
+    return False
 
 
 def collinear_stub(points: np.ndarray, end: np.ndarray, out: np.ndarray, radius: float, cfg: ObjectConfig) -> bool:

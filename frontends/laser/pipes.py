@@ -381,6 +381,69 @@ def _nanmedian_rows(a: np.ndarray) -> np.ndarray:
     return np.where(n > 0, med, np.nan)
 
 
+@dataclass
+class BumpProfile:
+    """A pipe's inliers in bins of ``bump_bin`` along its axis (bin 0 from ``t0``): each point's
+    ``bin``; per bin its ``count``, ``median`` residual (NaN where empty), the pipe's own ``level``
+    around it (the median of the bin medians over ±``bump_window``: a slightly tilted fit makes the
+    level drift along the axis) and the ``smooth`` mean residual over it and its two neighbours
+    (NaN where they hold fewer than 6 points); ``sigma`` the points' scatter about their bin's
+    median (1.4826 × the median absolute deviation: a fitting's offset left out; NaN under 10
+    points)."""
+
+    t0: float
+    bin: np.ndarray
+    count: np.ndarray
+    median: np.ndarray
+    level: np.ndarray
+    smooth: np.ndarray
+    sigma: float
+
+    def height(self, cfg: PipeConfig) -> np.ndarray | float:
+        """How far a bin's median must stand above the level to show a fitting: ``bump_height``
+        (``bump_height_known_radius`` with the radius known), and no less than ``bump_sigmas``
+        (``bump_sigmas_known_radius``) × the noise of a bin's median, 1.2533 σ / √n for a median
+        of n points: laser or stereo noise makes the profile of a sparse stretch bumpy by itself."""
+        known = cfg.radius_prior is not None
+        height = cfg.bump_height_known_radius if known else cfg.bump_height
+        sigmas = cfg.bump_sigmas_known_radius if known else cfg.bump_sigmas
+        if sigmas > 0 and np.isfinite(self.sigma):
+            return np.maximum(height, sigmas * 1.2533 * self.sigma / np.sqrt(np.maximum(self.count, 1)))
+        return height
+
+    def bumps(self, cfg: PipeConfig) -> np.ndarray:
+        """Bins standing out of the profile (a socket, a union: wider than the pipe): the median
+        above the level by :meth:`height` (at least 3 points), or with ``bump_smooth`` the mean
+        over the bin and its neighbours (a socket's profile is not flat — larger half, central
+        stop, reduced half — and on a sparse view its bins alternate around the height)."""
+        height = self.height(cfg)
+        bad = (self.median - self.level > height) & (self.count >= 3)
+        if cfg.bump_smooth:
+            bad |= (self.smooth - self.level > height) & (self.count >= 2)
+        return bad
+
+
+def bump_profile(t: np.ndarray, residual: np.ndarray, cfg: PipeConfig) -> BumpProfile:
+    """The :class:`BumpProfile` of inliers at ``t`` along the axis with ``residual`` (distance to
+    the axis minus the radius; at least one point)."""
+    t0 = t.min()
+    b = np.floor((t - t0) / cfg.bump_bin).astype(np.int64)
+    n_bins = int(b.max()) + 1
+    cnt, med = _bin_medians(b, residual, n_bins)
+    w = int(np.ceil(cfg.bump_window / cfg.bump_bin))
+    padded = np.full(n_bins + 2 * w, np.nan)
+    padded[w : w + n_bins] = med
+    level = _nanmedian_rows(
+        np.lib.stride_tricks.as_strided(padded, (n_bins, 2 * w + 1), padded.strides * 2, writeable=False)
+    )
+    sums = np.bincount(b, weights=residual, minlength=n_bins)
+    s3 = np.convolve(sums, np.ones(3), "same")
+    c3 = np.convolve(cnt, np.ones(3), "same")
+    smooth = np.where(c3 >= 6, s3 / np.maximum(c3, 1), np.nan)
+    sigma = 1.4826 * float(np.median(np.abs(residual - med[b]))) if len(t) >= 10 else np.nan
+    return BumpProfile(float(t0), b, cnt, med, level, smooth, sigma)
+
+
 def split_at_fittings(
     t: np.ndarray, residual: np.ndarray, t_foreign: np.ndarray, cfg: PipeConfig, t_around: np.ndarray | None = None
 ) -> list[np.ndarray]:
@@ -399,36 +462,9 @@ def split_at_fittings(
     """
     if len(t) == 0:
         return []
-    t0 = t.min()
-    b = np.floor((t - t0) / cfg.bump_bin).astype(np.int64)
-    n_bins = int(b.max()) + 1
-    cnt, med = _bin_medians(b, residual, n_bins)
-    # Against the pipe's own level nearby (a slightly tilted fit makes the level drift along the
-    # axis): the median of the bin medians over ±bump_window, longer than any socket.
-    w = int(np.ceil(cfg.bump_window / cfg.bump_bin))
-    padded = np.full(n_bins + 2 * w, np.nan)
-    padded[w : w + n_bins] = med
-    level = _nanmedian_rows(
-        np.lib.stride_tricks.as_strided(padded, (n_bins, 2 * w + 1), padded.strides * 2, writeable=False)
-    )
-    height = cfg.bump_height if cfg.radius_prior is None else cfg.bump_height_known_radius
-    # ... but, where the radius is fitted (no prior), no less than bump_sigmas × the noise of a bin's
-    # median: the points' own scatter about
-    # their bin's median (1.4826 × the median absolute deviation, a fitting's offset left out) ×
-    # 1.2533 / √n for a median of n points (stereo noise, or few points in a bin)
-    if cfg.bump_sigmas > 0 and cfg.radius_prior is None and len(t) >= 10:
-        sigma = 1.4826 * float(np.median(np.abs(residual - med[b])))
-        height = np.maximum(height, cfg.bump_sigmas * 1.2533 * sigma / np.sqrt(np.maximum(cnt, 1)))
-    bad_bin = (med - level > height) & (cnt >= 3)
-    if cfg.bump_smooth:
-        # ... or its neighbourhood does: the mean residual over the bin and its two neighbours (a
-        # socket's profile is not flat — larger half, central stop, reduced half — and on a sparse
-        # view its bins alternate around the height).
-        sums = np.bincount(b, weights=residual, minlength=n_bins)
-        s3 = np.convolve(sums, np.ones(3), "same")
-        c3 = np.convolve(cnt, np.ones(3), "same")
-        smooth = np.where(c3 >= 6, s3 / np.maximum(c3, 1), np.nan)
-        bad_bin |= (smooth - level > height) & (cnt >= 2)
+    prof = bump_profile(t, residual, cfg)
+    t0, b, n_bins = prof.t0, prof.bin, len(prof.count)
+    bad_bin = prof.bumps(cfg)
     # Bins flagged, over a range that also holds the foreign points' bins (which may lie beyond
     # the inliers): flag[k - first] is bin k's.
     first, flag = 0, bad_bin
