@@ -73,20 +73,35 @@ class GateSettings(BaseModel):
 
 
 class CovarianceSettings(BaseModel):
-    """The registration's covariance: σ²·H⁻¹ of the point-to-point cost at the solution (σ² from its
-    residuals), scaled and floored."""
+    """The registration's covariance: σ²·H⁻¹ of the point-to-plane residuals at the solution (σ² from
+    them), scaled and floored, then scaled by how far ICP moved from the navigation prior against the
+    prior's own covariance (a Student-t error: most registrations are good to a centimetre, a few
+    converge wrong, and those are the ones that disagree with the prior). Tuned on tank seeds 0–5
+    (experiments/odometry_covariance.py; experiments/odometry/README.md)."""
 
     model_config = ConfigDict(extra="forbid")
     scale: float = Field(
-        8.0,
+        9.8,
         gt=0,
         description="multiplies σ²·H⁻¹: neighbouring residuals of a voxelised map are not independent, "
         "so the raw Hessian bound is overconfident (experiments/odometry_eval.py measures the NEES)",
     )
     floor_sigma_m: float = Field(
-        0.01, ge=0, description="least translation σ per axis (m): what ICP's sampling bias leaves"
+        0.0038, ge=0, description="least translation σ per axis (m): what ICP's sampling bias leaves"
     )
-    floor_sigma_rad: float = Field(0.008, ge=0, description="least rotation σ per axis (rad)")
+    floor_sigma_rad: float = Field(0.0026, ge=0, description="least rotation σ per axis (rad)")
+    tail_dof: float = Field(
+        34.0,
+        ge=0,
+        description="ν of the Student-t scaling: the covariance is multiplied by (ν + d²)/(ν + 6), d² the "
+        "squared Mahalanobis distance of ICP's correction under the prior's covariance (0: no scaling)",
+    )
+    hold_walk_m_s: float = Field(
+        0.02,
+        ge=0,
+        description="the prior's covariance: σ of the body velocity's random walk while a DVL reading is held "
+        "(m/s per √s)",
+    )
 
 
 class OdometryConfig(BaseModel):

@@ -9,7 +9,7 @@ from typing import ClassVar
 import numpy as np
 
 from frontends.odometry.config import OdometryConfig
-from frontends.odometry.information import adjoint
+from frontends.odometry.information import adjoint, mahalanobis2, tangent
 from frontends.odometry.matcher import ScanMatcher
 from frontends.odometry.prior import NavigationPrior
 from semslam.errors import validated
@@ -44,7 +44,9 @@ class OdometryFrontend(Frontend):
     def __init__(self, metadata: MissionMetadata, config: dict | OdometryConfig | None = None):
         self.config = validated(OdometryConfig, config, "frontends.odometry")
         self.metadata = metadata
-        self.prior = NavigationPrior(metadata, horizon_s=self.config.max_interval_s + 5.0)
+        self.prior = NavigationPrior(
+            metadata, horizon_s=self.config.max_interval_s + 5.0, hold_walk_m_s=self.config.covariance.hold_walk_m_s
+        )
         self.sensors = set(self.config.sensors) or {s.name for s in metadata.sensors_of_kind("laser")}
         self._tracks: dict[str, _Track] = {}
         self.counts: Counter[str] = Counter()
@@ -84,7 +86,7 @@ class OdometryFrontend(Frontend):
         self.counts["accepted"] += 1
         relative_B = T_BS @ relative_S @ np.linalg.inv(T_BS)
         A = adjoint(T_BS)
-        cov_B = A @ reg.covariance @ A.T
+        cov_B = A @ self._tail_scaled(reg, A, stamp_from, scan.stamp) @ A.T
         return [
             OdometryObservation(
                 scan.stamp,
@@ -94,6 +96,17 @@ class OdometryFrontend(Frontend):
                 covariance=(cov_B + cov_B.T) / 2,
             )
         ]
+
+    def _tail_scaled(self, reg, A: np.ndarray, stamp_from: int, stamp_to: int) -> np.ndarray:
+        """The registration's covariance (sensor frame) times (ν + d²)/(ν + 6), d² the correction
+        ICP made to the prior, under the prior's covariance over the same interval."""
+        nu = self.config.covariance.tail_dof
+        prior_B = self.prior.motion_covariance(stamp_from, stamp_to)
+        if nu <= 0 or prior_B is None:
+            return reg.covariance
+        A_inv = np.linalg.inv(A)
+        d2 = mahalanobis2(tangent(reg.correction), A_inv @ prior_B @ A_inv.T)
+        return reg.covariance if d2 is None else reg.covariance * (nu + d2) / (nu + 6)
 
     def _start(self, track: _Track, scan: PointCloud) -> None:
         """A new local map anchored at this scan (first scan, long gap, or lost overlap); a scan too

@@ -5,6 +5,7 @@ translation, for a perturbation on the right (T·Exp(ξ))."""
 from __future__ import annotations
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 
 def skew(v: np.ndarray) -> np.ndarray:
@@ -25,6 +26,21 @@ def adjoint(T: np.ndarray) -> np.ndarray:
     A[3:, 3:] = R
     A[3:, :3] = skew(t) @ R
     return A
+
+
+def tangent(T: np.ndarray) -> np.ndarray:
+    """(rotation vector, translation) of T: its tangent to first order, in the order above."""
+    return np.concatenate([Rotation.from_matrix(T[:3, :3]).as_rotvec(), T[:3, 3]])
+
+
+def mahalanobis2(x: np.ndarray, cov: np.ndarray) -> float | None:
+    """xᵀ cov⁻¹ x, or None when cov is not positive definite (nothing known along some direction)."""
+    try:
+        L = np.linalg.cholesky(cov)
+    except np.linalg.LinAlgError:
+        return None
+    y = np.linalg.solve(L, x)
+    return float(y @ y)
 
 
 def rotation_angle(R: np.ndarray) -> float:

@@ -29,6 +29,8 @@ class Registration:
     pose: np.ndarray  # T_OS after ICP (4×4)
     correction: np.ndarray  # T_pred⁻¹ · T_OS: what ICP changed in the navigation prior
     covariance: np.ndarray  # 6×6 of T_OS (right perturbation, rotation then translation)
+    information: np.ndarray  # point-to-plane Σ JᵀJ (6×6, per unit residual variance) behind it
+    residual_var: float  # the point-to-plane residuals' variance (m²)
     inliers: int
     points: int
     rejected: str | None  # why it is not trusted, or None
@@ -114,7 +116,8 @@ class ScanMatcher:
         source, down = self._prepared(points)
         gate = self.cfg.gate
         if len(source) < gate.min_inliers:
-            return Registration(predicted, np.eye(4), np.full((6, 6), np.nan), 0, len(source), "too few points")
+            nan = np.full((6, 6), np.nan)
+            return Registration(predicted, np.eye(4), nan, nan, np.nan, 0, len(source), "too few points")
         sigma = self.kiss.adaptive_threshold.get_threshold()
         pose = self.kiss.registration.align_points_to_map(source, self.kiss.local_map, predicted, 3 * sigma, sigma)
         correction = np.linalg.inv(predicted) @ pose
@@ -124,18 +127,21 @@ class ScanMatcher:
         if rejected is None:
             self.kiss.adaptive_threshold.update_model_deviation(correction)
             self.kiss.local_map.update(down, pose)
-        return Registration(pose, correction, cov, n_in, len(source), rejected)
+        return Registration(pose, correction, cov, info, residual_var, n_in, len(source), rejected)
 
     def _information(self, source: np.ndarray, pose: np.ndarray, max_distance: float):
         """Point-to-plane information of the aligned scan against the map (6×6, per unit residual
         variance), its inlier count and the residuals' variance. Point-to-plane, not the
         point-to-point cost ICP minimised: its Hessian is n·I in translation whatever the geometry,
         while the plane residuals see that a flat floor fixes nothing along itself."""
+        world = source @ pose[:3, :3].T + pose[:3, 3]
         map_points = np.asarray(self.kiss.local_map.point_cloud())
+        reach = 2 * max_distance  # the map beyond the scan's box by more than the query's bound is never a neighbour
+        box = np.all((map_points >= world.min(axis=0) - reach) & (map_points <= world.max(axis=0) + reach), axis=1)
+        map_points = map_points[box]
         if len(map_points) < NORMAL_NEIGHBOURS:
             return np.zeros((6, 6)), 0, np.inf
         tree = cKDTree(map_points)
-        world = source @ pose[:3, :3].T + pose[:3, 3]
         dist, idx = tree.query(world, k=NORMAL_NEIGHBOURS, distance_upper_bound=max_distance * 2)
         near = np.isfinite(dist[:, 0]) & (dist[:, 0] <= max_distance) & np.isfinite(dist).all(axis=1)
         if near.sum() < 6:

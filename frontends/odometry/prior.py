@@ -6,6 +6,12 @@ Attitude is the AHRS's (its slowly drifting heading bias cancels over a few seco
 integrates the DVL's body velocity rotated by it; depth readings replace the integrated depth.
 During a DVL dropout the last valid body velocity is held: underwater vehicles keep their speed
 through a short loss of bottom lock, and the registration's gate absorbs the rest.
+
+It also keeps how uncertain that motion is (``motion_covariance``), from the covariances the DVL,
+AHRS and depth messages carry: over [a, b] inside the hold of one velocity reading (taken at h),
+the reading's error moves the position by σ_v·(b − a), and the velocity's random walk since h
+(``hold_walk_m_s``: small between 5 Hz readings, large deep in a dropout) by
+q²·((a − h)(b − a)² + (b − a)³/3) in variance; holds of different readings are independent.
 """
 
 from __future__ import annotations
@@ -25,8 +31,9 @@ NS = 1e-9
 class NavigationPrior:
     """Dead reckoning in a local frame {D} (NED axes, arbitrary origin) kept over ``horizon_s``."""
 
-    def __init__(self, metadata: MissionMetadata, horizon_s: float = 60.0):
+    def __init__(self, metadata: MissionMetadata, horizon_s: float = 60.0, hold_walk_m_s: float = 0.02):
         self.metadata = metadata
+        self.hold_walk = hold_walk_m_s  # σ of the body velocity's random walk over 1 s held (m/s/√s)
         self.horizon_ns = int(horizon_s * 1e9)
         self._stamps: deque[int] = deque()
         self._poses: deque[np.ndarray] = deque()  # T_DB (4×4) at each stamp
@@ -35,6 +42,9 @@ class NavigationPrior:
         self._p = np.zeros(3)
         self._t: int | None = None
         self._depth_offset: float | None = None  # depth sensor's z in {D} − its reading, set once
+        self._holds: deque[tuple[int, float]] = deque()  # (stamp, per-axis variance m²/s²) of each valid reading
+        self._var_att = np.zeros(3)  # the AHRS's roll, pitch, yaw variances (rad²)
+        self._var_depth = 0.0  # the depth reading's variance (m²)
 
     def add(self, m: Measurement) -> None:
         """Feed a navigation measurement (others are ignored); stamps must not go backwards."""
@@ -45,10 +55,14 @@ class NavigationPrior:
         if isinstance(m, Attitude):
             R_WS = Rotation.from_quat(np.asarray(m.orientation, float)).as_matrix()
             self._R_WB = R_WS @ T_BS[:3, :3].T
+            self._var_att = np.clip(np.diag(np.asarray(m.covariance, float)), 0.0, None)
         elif isinstance(m, DvlVelocity):
             if m.valid and np.isfinite(m.velocity).all():
                 self._v_B = T_BS[:3, :3] @ np.asarray(m.velocity, float)  # the lever arm's ω×r is mm/s here
+                var_v = float(np.trace(np.asarray(m.covariance, float))) / 3
+                self._holds.append((m.stamp, var_v if np.isfinite(var_v) and var_v > 0 else 0.0))
         elif self._R_WB is not None:  # depth: the sensor's z in {D} is its reading plus a fixed offset
+            self._var_depth = m.variance if np.isfinite(m.variance) and m.variance > 0 else 0.0
             z_sensor = self._p[2] + (self._R_WB @ T_BS[:3, 3])[2]
             if self._depth_offset is None:
                 self._depth_offset = z_sensor - m.depth
@@ -60,6 +74,25 @@ class NavigationPrior:
             self._p = self._p + self._R_WB @ self._v_B * ((stamp - self._t) * NS)
         self._t = stamp if self._t is None else max(self._t, stamp)
 
+    def _displacement_variance(self, a: int, b: int) -> float:
+        """Variance (m² per axis) of the DVL-integrated displacement over [a, b]: per held reading,
+        its own error over the part of [a, b] it covers and the velocity's random walk since it was
+        read (before the first reading: nothing known, nothing added)."""
+        q2, total = self.hold_walk**2, 0.0
+        starts = [h for h, _ in self._holds]
+        k = max(bisect.bisect_right(starts, a) - 1, 0)
+        for i in range(k, len(self._holds)):
+            h, var_v = self._holds[i]
+            end = self._holds[i + 1][0] if i + 1 < len(self._holds) else b
+            lo, hi = max(a, h), min(b, end)
+            if hi <= lo:
+                if h >= b:
+                    break
+                continue
+            age, span = (lo - h) * NS, (hi - lo) * NS
+            total += var_v * span**2 + q2 * (age * span**2 + span**3 / 3)
+        return total
+
     def _store(self) -> None:
         if self._R_WB is None or self._t is None:
             return
@@ -70,6 +103,8 @@ class NavigationPrior:
         while self._stamps and self._stamps[0] < self._t - self.horizon_ns:
             self._stamps.popleft()
             self._poses.popleft()
+        while len(self._holds) > 1 and self._holds[1][0] < self._t - self.horizon_ns:
+            self._holds.popleft()  # the reading held at the horizon stays
 
     def pose_at(self, stamp: int) -> np.ndarray | None:
         """T_DB at ``stamp``: the last stored pose before it, carried on at the current velocity;
@@ -87,3 +122,19 @@ class NavigationPrior:
         if a is None or b is None:
             return None
         return np.linalg.inv(a) @ b
+
+    def motion_covariance(self, stamp_from: int, stamp_to: int) -> np.ndarray | None:
+        """6×6 covariance (rotation, translation; body frame) of :meth:`motion` between the stamps:
+        two AHRS readings' attitude errors, the DVL's integrated velocity errors, the relative
+        translation turned by the heading error of the first reading, and two depth readings' errors
+        along the vertical (depth readings replace the integrated depth)."""
+        motion = self.motion(stamp_from, stamp_to)
+        if motion is None:
+            return None
+        i = bisect.bisect_right(self._stamps, stamp_from) - 1
+        turned = self._var_att.max() * motion[:3, 3] @ motion[:3, 3]
+        var_t = self._displacement_variance(stamp_from, stamp_to) + turned
+        cov = np.diag(np.r_[2 * self._var_att, [var_t] * 3])
+        down_B = self._poses[i][2, :3]  # {D}'s z axis in the body frame at stamp_from
+        cov[3:, 3:] += 2 * self._var_depth * np.outer(down_B, down_B)
+        return cov

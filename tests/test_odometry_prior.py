@@ -1,0 +1,59 @@
+"""The odometry front-end's navigation prior: how uncertain it says its predicted motion is, from the
+covariances its DVL, AHRS and depth readings carry (experiments/odometry_covariance.py compares it
+with the prior's real errors)."""
+
+import numpy as np
+import pytest
+
+from frontends.odometry.prior import NavigationPrior
+from semslam.mission.measurements import Attitude, Depth, DvlVelocity
+from semslam.mission.mission import MissionMetadata, SensorInfo
+
+S = 1_000_000_000
+META = MissionMetadata(sensors={n: SensorInfo(n, k) for n, k in (("ahrs", "ahrs"), ("dvl", "dvl"), ("depth", "depth"))})
+
+
+def _prior(sigma_v=0.01, sigma_att=0.01, depth_var=0.0004, valid=lambda t: True, walk=0.02, seconds=4.0):
+    p = NavigationPrior(META, horizon_s=60.0, hold_walk_m_s=walk)
+    for k in range(int(seconds * 20) + 1):  # AHRS at 20 Hz, DVL at 5 Hz, depth at 4 Hz
+        t = k * S // 20
+        p.add(Attitude(t, "ahrs", covariance=np.eye(3) * sigma_att**2))
+        if k % 4 == 0:
+            ok = valid(t)
+            p.add(
+                DvlVelocity(t, "dvl", velocity=np.array([0.2, 0.0, 0.0]), covariance=np.eye(3) * sigma_v**2, valid=ok)
+            )
+        if k % 5 == 0:
+            p.add(Depth(t, "depth", depth=1.0, variance=depth_var))
+    return p
+
+
+def test_motion_covariance_adds_up_the_readings_errors():
+    p = _prior()
+    cov = p.motion_covariance(1 * S, 3 * S)
+    assert np.allclose(p.motion(1 * S, 3 * S)[:3, 3], [0.4, 0.0, 0.0], atol=1e-9)
+    assert np.allclose(np.diag(cov)[:3], 2 * 0.01**2)  # two attitude readings
+    # ten DVL readings, each held 0.2 s: (σ² · 0.2² + walk² · 0.2³ / 3) · 10 per axis; the heading error turns 0.4 m
+    dvl = 10 * (0.01**2 * 0.2**2 + 0.02**2 * 0.2**3 / 3)
+    turned = 0.01**2 * 0.4**2
+    assert cov[3, 3] == pytest.approx(dvl + turned, rel=1e-6)
+    assert cov[5, 5] == pytest.approx(dvl + turned + 2 * 0.0004, rel=1e-6)  # and two depth readings along z
+    assert np.allclose(cov - np.diag(np.diag(cov)), 0.0)
+
+
+def test_a_reading_held_through_a_dropout_grows_the_covariance():
+    dropout = _prior(valid=lambda t: not (1 * S < t < 3 * S))
+    steady = _prior()
+    held, normal = dropout.motion_covariance(1 * S, 3 * S)[3, 3], steady.motion_covariance(1 * S, 3 * S)[3, 3]
+    assert held > normal + 0.01**2 * 2.0**2 * 0.9  # one reading's error times the 2 s it was held
+    no_walk = _prior(valid=lambda t: not (1 * S < t < 3 * S), walk=0.0).motion_covariance(1 * S, 3 * S)[3, 3]
+    assert held - no_walk == pytest.approx(0.02**2 * 2.0**3 / 3, rel=0.05)  # the velocity's random walk
+
+
+def test_deep_in_a_dropout_the_velocity_error_since_the_reading_counts():
+    """Over [5, 7] s of a dropout that began at 1 s, the held velocity is 4 s stale when the interval
+    starts: the random walk's variance q²·4 s acts over the 2 s, (a − h)Δ² + Δ³/3, not the
+    increments of a cumulative variance (which would say q²·(6³ − 4³)/3)."""
+    p = _prior(valid=lambda t: not (1 * S < t < 9 * S), seconds=8.0, depth_var=0.0, sigma_att=0.0)
+    var = p.motion_covariance(5 * S, 7 * S)[3, 3]
+    assert var == pytest.approx(0.01**2 * 2.0**2 + 0.02**2 * (4.0 * 2.0**2 + 2.0**3 / 3), rel=1e-6)
