@@ -15,15 +15,20 @@ factors of the smoothing window (what iSAM2 holds: ``graph.window_s``, 600 s by 
 iSAM2's own factor slots. The factor counts are read from the estimator's parts
 (``GraphEstimator.session``, ``.keyframes``, ``.map``): a measurement of the graph back-end as it is.
 
-``--tracemalloc`` also traces Python's allocations (numpy's included, GTSAM's C++ ones not; the
-run is ~2× slower) and lists where what was allocated after the window filled (1.5 × window_s)
-and is still held at the end comes from.
+``--tracemalloc`` also traces Python's allocations from the pipeline's first step (numpy's included,
+GTSAM's C++ ones not; the run is ~2× slower) and lists the allocation sites (by line, then by call path) of what was
+allocated after the window filled (1.5 × window_s, its first slide) and is still held when the
+estimator finishes: what grows with the mission.
+
+``--labelled`` runs ``run`` with ``run_pipeline(keep_observations="labelled")``: the pipeline's
+records keep only the labelled object observations (the recognition tables'), as ``run`` itself
+would once it asks for them (it keeps every observation otherwise, ~900 bytes each).
 
 Run: ``python experiments/long_survey_memory.py [--hours 2] [--work DIR] [--out F.json] [--tracemalloc]
-[--config F.yaml] [--batch]`` (a shorter ``graph.window_s`` in F shows the slope after the window filled
-on a shorter survey);
-also ``F.png`` (memory and factors against mission time). Measured numbers go in the report of
-the issue, not here.
+[--config F.yaml] [--batch] [--labelled]`` (a shorter ``graph.window_s`` in F shows the slope after the
+window filled on a shorter survey); also ``F.png`` (memory and factors against mission time) and
+``F.samples.jsonl`` (each sample as it is taken: what a run stopped early leaves). Measured numbers
+go in experiments/speed/README.md, not here.
 """
 
 from __future__ import annotations
@@ -37,6 +42,20 @@ import sys
 import time
 from pathlib import Path
 
+# The results a memory change must leave as they were (metrics.json's graph block).
+METRICS = (
+    "ate_rmse_m",
+    "ate_max_m",
+    "rpe_rmse_m",
+    "landmark_median_error_m",
+    "object_median_error_m",
+    "pipe_median_error_m",
+    "n_objects",
+    "n_pipes",
+    "nees_mean",
+    "landmark_duplicates",
+    "landmark_spurious",
+)
 LOOP_S = 156.6667  # TrajectoryConfig.loop_period_s: one loop around the rack
 
 
@@ -64,21 +83,31 @@ def rss_mb() -> float:
 class MemoryProbe:
     """A pipeline observer: every ``every_s`` of mission time, the RSS and the graph's factor counts."""
 
-    def __init__(self, every_s: float):
+    def __init__(self, every_s: float, stream: Path, count: bool = False, trace: bool = False):
         self.every_ns = int(every_s * 1e9)
+        self.trace = trace  # trace Python's allocations from the pipeline's first step (not the mission check)
+        self.stream = stream.open("w")
+        self.count = count  # also count the observation and ground-truth objects alive (~0.5 s a sample)
         self.graph = None  # the estimator, captured when the command creates it
         self.rows: list[dict] = []
         self.filled = self.end = None  # tracemalloc snapshots: once the window has filled, at the end
+        self.filled_mb = self.end_mb = None  # the traced memory then
         self._start = self._next = self.last = None
         self._t0 = time.perf_counter()
 
     def step(self, stamp, measurement, observations, views) -> None:
         if self._start is None:
+            if self.trace:
+                import tracemalloc
+
+                tracemalloc.start(12)
             self._start = self._next = stamp
         self.last = stamp
         if stamp >= self._next:
             self._next += self.every_ns
             self.rows.append(self.sample(stamp))
+            self.stream.write(json.dumps(self.rows[-1]) + "\n")
+            self.stream.flush()
 
     def sample(self, stamp: int) -> dict:
         import tracemalloc
@@ -87,6 +116,7 @@ class MemoryProbe:
         t_s = (stamp - self._start) * 1e-9
         if tracemalloc.is_tracing() and self.filled is None and t_s >= 1.5 * (g.cfg.window_s or 0):
             self.filled = tracemalloc.take_snapshot()
+            self.filled_mb = tracemalloc.get_traced_memory()[0] / 1e6
         return {
             "traced_mb": tracemalloc.get_traced_memory()[0] / 1e6 if tracemalloc.is_tracing() else None,
             "t_s": t_s,
@@ -98,21 +128,50 @@ class MemoryProbe:
             "isam_factor_slots": g.session.isam.getFactorsUnsafe().size(),
             "keyframes": len(g.keyframes.stamps),
             "landmarks": len(g.map),
+            **(live_objects() if self.count else {}),
         }
 
 
-def measure(bag: Path, every_s: float, out_json: Path, trace: bool, extra: list[str]) -> None:
+def growth(end, filled, by: str, n: int) -> list[dict]:
+    """The ``n`` allocation sites (``by``: "lineno" or "traceback") that grew most from ``filled`` to ``end``."""
+    rows = []
+    for st in sorted(end.compare_to(filled, by), key=lambda st: -st.size_diff)[:n]:
+        frames = [f"{f.filename.split('site-packages/')[-1].split('replay/')[-1]}:{f.lineno}" for f in st.traceback]
+        rows.append({"mb": st.size_diff / 1e6, "count": st.count_diff, "where": frames[-6:]})
+    return rows
+
+
+def live_objects() -> dict:
+    """The observations (labelled ones too) and ground-truth poses alive in this process."""
+    import gc
+
+    from semslam.mapping.book import labelled
+    from semslam.mission.measurements import GroundTruthPose
+    from semslam.observations import Observation
+
+    obs = [o for o in gc.get_objects() if isinstance(o, (Observation, GroundTruthPose))]
+    return {
+        "live_observations": sum(isinstance(o, Observation) for o in obs),
+        "live_labelled": sum(isinstance(o, Observation) and labelled(o) for o in obs),
+        "live_truth_poses": sum(isinstance(o, GroundTruthPose) for o in obs),
+    }
+
+
+def measure(
+    bag: Path, every_s: float, out_json: Path, trace: bool, labelled: bool, count: bool, extra: list[str]
+) -> None:
     """In this process: the `run` command on ``bag`` with a MemoryProbe; the samples to ``out_json``."""
     import tracemalloc
 
     import semslam.estimators
-
-    if trace:
-        tracemalloc.start(12)
+    import semslam.pipeline
     from semslam.cli import app
     from semslam.pipeline import observed_by
 
-    probe = MemoryProbe(every_s)
+    probe = MemoryProbe(every_s, out_json.with_suffix(".samples.jsonl"), count, trace)
+    if labelled:  # what `run` keeps once it asks for the labelled observations only
+        run_pipeline = semslam.pipeline.run_pipeline
+        semslam.pipeline.run_pipeline = lambda *a, **kw: run_pipeline(*a, keep_observations="labelled", **kw)
     create = semslam.estimators.create_estimator
 
     def capture(*args, **kwargs):
@@ -120,7 +179,8 @@ def measure(bag: Path, every_s: float, out_json: Path, trace: bool, extra: list[
         finish = est.finish
 
         def finish_after_snapshot():  # what the estimator holds before it assembles its result
-            probe.end = tracemalloc.take_snapshot() if trace else None
+            if trace:
+                probe.end, probe.end_mb = tracemalloc.take_snapshot(), tracemalloc.get_traced_memory()[0] / 1e6
             return finish()
 
         est.finish = finish_after_snapshot
@@ -135,12 +195,10 @@ def measure(bag: Path, every_s: float, out_json: Path, trace: bool, extra: list[
             standalone_mode=False,
         )
     metrics = json.loads((out_dir / "metrics.json").read_text())
-    growth = []
-    if probe.filled is not None:  # taken at the estimator's end: what it still holds
-        stats = probe.end.compare_to(probe.filled, "traceback")
-        for st in sorted(stats, key=lambda st: -st.size_diff)[:12]:
-            frames = [f"{f.filename.split('site-packages/')[-1].split('replay/')[-1]}:{f.lineno}" for f in st.traceback]
-            growth.append({"mb": st.size_diff / 1e6, "count": st.count_diff, "where": frames[-6:]})
+    grew = {}
+    if probe.filled is not None:  # the end snapshot is taken before the estimator's finish: what it holds
+        grew = {by: growth(probe.end, probe.filled, by, 12) for by in ("lineno", "traceback")}
+        grew["traced_mb"] = {"filled": probe.filled_mb, "end": probe.end_mb}
     result = {
         "mission": str(bag),
         "wall_s": time.perf_counter() - t0,
@@ -148,7 +206,8 @@ def measure(bag: Path, every_s: float, out_json: Path, trace: bool, extra: list[
         "final": probe.sample(probe.last),
         "samples": probe.rows,
         "graph": metrics["estimators"]["graph"],
-        "growth_after_window_filled": growth,
+        "labelled_only": labelled,
+        "growth_after_window_filled": grew,
     }
     out_json.write_text(json.dumps(result, indent=1))
 
@@ -183,38 +242,50 @@ def main() -> None:
     ap.add_argument("--tracemalloc", action="store_true", help="also trace Python's allocations (~2x slower)")
     ap.add_argument("--config", type=Path, default=None, help="semslam configuration YAML for the run")
     ap.add_argument("--batch", action="store_true", help="run with --batch (keeps every factor)")
+    ap.add_argument("--labelled", action="store_true", help="the pipeline keeps the labelled observations only")
+    ap.add_argument("--count", action="store_true", help="count the observation and truth objects alive per sample")
     ap.add_argument("--measure", type=Path, default=None, help=argparse.SUPPRESS)  # the run's own process
     args = ap.parse_args()
     extra = (["--config", str(args.config)] if args.config else []) + (["--batch"] if args.batch else [])
     if args.measure is not None:
-        measure(args.measure, args.every, args.out, args.tracemalloc, extra)
+        measure(args.measure, args.every, args.out, args.tracemalloc, args.labelled, args.count, extra)
         return
     bag = simulate(args.hours, args.work)
     out = args.out or args.work / f"memory-{args.hours:g}h.json"
     cmd = [sys.executable, __file__, "--measure", str(bag), "--every", str(args.every), "--out", str(out)]
     cmd += ["--tracemalloc"] if args.tracemalloc else []
+    cmd += ["--labelled"] if args.labelled else []
+    cmd += ["--count"] if args.count else []
     cmd += (["--config", str(args.config)] if args.config else []) + (["--batch"] if args.batch else [])
     subprocess.run(cmd, check=True)
     result = json.loads(out.read_text())
     plot(result, out.with_suffix(".png"))
     print(
         f"{'t (min)':>8} {'RSS MB':>8} {'traced':>7} {'factors':>8} {'kept':>8} {'window':>7} {'iSAM2':>7} "
-        f"{'keyframes':>9} {'landmarks':>9}"
+        f"{'keyframes':>9} {'landmarks':>9} {'live obs':>8} {'labelled':>8} {'truth':>6}"
     )
     for r in result["samples"][:: max(1, len(result["samples"]) // 24)] + [result["final"]]:
         print(
             f"{r['t_s'] / 60:8.1f} {r['rss_mb']:8.0f} {r['traced_mb'] or 0:7.0f} {r['factors_created']:8d} "
             f"{r['kept_factors']:8d} {r['window_factors']:7d} {r['isam_factor_slots']:7d} {r['keyframes']:9d} "
-            f"{r['landmarks']:9d}"
+            f"{r['landmarks']:9d} {r.get('live_observations', ''):>8} {r.get('live_labelled', ''):>8} "
+            f"{r.get('live_truth_poses', ''):>6}"
         )
-    for row in result["growth_after_window_filled"]:
-        print(f"  +{row['mb']:6.1f} MB in {row['count']:+8d} blocks: {' <- '.join(reversed(row['where']))}")
+    grew = result["growth_after_window_filled"]
+    if grew:
+        mb = grew["traced_mb"]
+        print(f"traced Python memory {mb['filled']:.1f} MB when the window filled, {mb['end']:.1f} MB at the end")
+    for by in ("lineno", "traceback") if grew else ():
+        print(f"grew most after the window filled, by {by}:")
+        for row in grew[by]:
+            print(f"  {row['mb']:+7.2f} MB in {row['count']:+8d} blocks: {' <- '.join(reversed(row['where']))}")
     g = result["graph"]
     print(
         f"peak RSS {result['peak_rss_mb']:.0f} MB; wall {result['wall_s']:.0f} s; graph ATE {g['ate_rmse_m']}, "
         f"{g['n_objects']} objects, {g['n_pipes']} pipes; update median {g['update_ms_median']} ms, "
         f"p95 {g['update_ms_p95']} ms; {out}, {out.with_suffix('.png')}"
     )
+    print({k: g.get(k) for k in METRICS})
 
 
 if __name__ == "__main__":

@@ -10,15 +10,14 @@ from contextlib import contextmanager
 from contextvars import ContextVar
 from typing import Protocol
 
-import numpy as np
-
-from semslam.estimation import EstimateView, Estimator, Trajectory
+from semslam.estimation import EstimateView, Estimator
 from semslam.frontend_process import FrontendProcess, default_workers, runs_in_process
+from semslam.mapping.book import labelled
 from semslam.mission.measurements import GroundTruthPose, Measurement
 from semslam.mission.mission import Mission
 from semslam.observations import Observation
 from semslam.registry import Frontend
-from semslam.results import ObservationRecord, PipelineResult
+from semslam.results import ObservationRecord, PipelineResult, PoseLog
 
 
 class PipelineObserver(Protocol):
@@ -51,23 +50,13 @@ def observed_by(*observers: PipelineObserver) -> Iterator[None]:
         _AMBIENT.reset(token)
 
 
-def _truth_trajectory(poses: list[GroundTruthPose]) -> Trajectory | None:
-    if not poses:
-        return None
-    return Trajectory(
-        stamps=np.array([p.stamp for p in poses], np.int64),
-        positions=np.array([p.position for p in poses]),
-        orientations=np.array([p.orientation for p in poses]),
-    )
-
-
 def run_pipeline(
     mission: Mission,
     estimators: Sequence[Estimator],
     frontends: Sequence[Frontend] = (),
     view_estimator: str | None = None,
     progress: bool = False,
-    keep_observations: bool = True,
+    keep_observations: bool | str = True,
     frontend_process: bool = True,
     frontend_workers: int | None = None,
     observers: Sequence[PipelineObserver] = (),
@@ -81,7 +70,10 @@ def run_pipeline(
     order, in less wall time. Of ``frontend_workers`` workers (default: one per core, at most 4),
     front-ends that declare ``parallel_consumes`` (the laser's scans) have a replica in each, sharing
     those measurements; the others live in one each. On any exception (Ctrl-C included) the workers
-    are killed before it propagates. ``observers`` (and those of an enclosing :func:`observed_by`)
+    are killed before it propagates. ``keep_observations``: the result keeps every observation (True),
+    none (False), or "labelled": the labelled object observations alone
+    (:func:`semslam.mapping.book.labelled`: all the recognition tables read; a long survey's other
+    observations are much of its memory). ``observers`` (and those of an enclosing :func:`observed_by`)
     see every step; without any, nothing is collected for them.
 
     BLAS runs single-threaded meanwhile: the matrices here are small (an EKF of a few hundred
@@ -90,6 +82,8 @@ def run_pipeline(
     """
     from threadpoolctl import threadpool_limits
 
+    if not isinstance(keep_observations, bool) and keep_observations != "labelled":
+        raise ValueError(f"keep_observations: True, False or 'labelled', not {keep_observations!r}")
     watchers = (*observers, *_AMBIENT.get())
     apart = [fe for fe in frontends if frontend_process and runs_in_process(fe)]
     worker = FrontendProcess(apart, frontend_workers or default_workers()) if apart else None
@@ -151,7 +145,7 @@ def _run_pipeline(
     by_name = {e.name: e for e in estimators}
     view_source = by_name.get(view_estimator or "graph", estimators[0])
     timing: dict[str, float] = defaultdict(float)
-    truth: list[GroundTruthPose] = []
+    truth = PoseLog()  # packed: the ground truth of a long survey is its largest stream
     records: list[ObservationRecord] = []
     consumers = [(fe, tuple(fe.consumes)) for fe in frontends]
     apart = set(worker.names) if worker is not None else set()
@@ -162,7 +156,8 @@ def _run_pipeline(
         if watchers:
             fed.append((fe_name, obs))
         if keep_observations:
-            records.extend(ObservationRecord(fe_name, stamp, o) for o in obs)
+            kept = obs if keep_observations is True else [o for o in obs if labelled(o)]
+            records.extend(ObservationRecord(fe_name, stamp, o) for o in kept)
         for est in estimators:
             t0 = time.perf_counter()
             est.process_observations(stamp, obs)
@@ -186,7 +181,7 @@ def _run_pipeline(
         first = m.stamp if first is None else first
         last = m.stamp
         if isinstance(m, GroundTruthPose):
-            truth.append(m)
+            truth.append(m.stamp, m.position, m.orientation)
         for est in estimators:
             t0 = time.perf_counter()
             est.process_measurement(m)
@@ -249,4 +244,4 @@ def _run_pipeline(
         for fe in frontends
         if hasattr(getattr(fe, "config", None), "model_dump")
     }
-    return PipelineResult(results, _truth_trajectory(truth), records, dict(timing), n, duration, summaries, resolved)
+    return PipelineResult(results, truth.trajectory(), records, dict(timing), n, duration, summaries, resolved)

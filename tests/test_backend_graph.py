@@ -280,6 +280,14 @@ def test_two_object_landmarks_on_one_place_are_merged():
     )
     est = GraphEstimator(mission.metadata, SemslamConfig())
     twin = None
+    fed = {}  # every observation the estimator took (the book keeps none), by identity
+    process = est.process_observations
+
+    def keep(stamp, observations):
+        fed.update({id(z): (stamp, z) for z in observations})
+        process(stamp, observations)
+
+    est.process_observations = keep
 
     def inject(m):  # once an object has five views, a twin from the same views
         nonlocal twin
@@ -287,14 +295,14 @@ def test_two_object_landmarks_on_one_place_are_merged():
         if twin is not None or not objects or est.book.n_views(objects[0].id) < 5:
             return
         a = objects[0]
+        seen = [fed[k] for k in est.book.history([a.id])["landmark_of_observation"]]  # its views, in order
         views = [
-            TrackView(t, z, np.asarray(a.estimate), np.eye(3) * 1e-4, est.keyframes.older(t, []) or 0)
-            for t, z in est.book.views[a.id]
+            TrackView(t, z, np.asarray(a.estimate), np.eye(3) * 1e-4, est.keyframes.older(t, []) or 0) for t, z in seen
         ]
         est.map.begin(est.keyframes.newest)
         twin = est.map.promote(Track(-1, "object", views=views))
         est.map.settle()
-        for t, z in est.book.views[a.id][: len(views)]:
+        for t, z in seen:
             est.book.observe(twin, t, z)
         n_before, n_hist = len(est.map), est.book.n_views(a.id)
         est.mapper.merge_duplicates({twin})

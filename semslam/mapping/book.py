@@ -5,6 +5,7 @@ connect."""
 
 from __future__ import annotations
 
+from array import array
 from collections.abc import Hashable, Iterable
 
 import numpy as np
@@ -16,12 +17,60 @@ from semslam.observations import LineObservation, Observation, PointObservation
 from semslam.semantics.fusion import ClassFusion
 
 
+def labelled(z: Observation) -> bool:
+    """An object observation with a class likelihood: what the recognition tables score, and the
+    views the book names by identity (``landmark_of_observation``)."""
+    return isinstance(z, PointObservation) and bool(z.class_likelihood)
+
+
+NO_TRUTH = -(2**63)  # a view's truth id when the front-end gave none
+
+
+class ViewLog:
+    """One landmark's views, packed: what the map and the evaluation need of them, not the observations
+    (a landmark of a long survey is seen tens of thousands of times, ~900 bytes an observation)."""
+
+    __slots__ = ("stamps", "truth_ids", "labelled", "models", "saw_pipes")
+
+    def __init__(self):
+        self.stamps = array("q")
+        self.truth_ids = array("q")  # NO_TRUTH for None
+        self.labelled = array("q")  # id() of each labelled view: the key of the driver's records
+        self.models: frozenset[str] = frozenset()  # the CAD models the pipe's segments were seen to end at
+        self.saw_pipes = False  # an object view reported pipes attached to it
+
+    def __len__(self) -> int:
+        return len(self.stamps)
+
+    def add(self, stamp: int, z: Observation) -> None:
+        self.stamps.append(stamp)
+        truth = getattr(z, "truth_id", None)
+        self.truth_ids.append(NO_TRUTH if truth is None else truth)
+        if labelled(z):
+            self.labelled.append(id(z))
+        if isinstance(z, PointObservation):
+            self.saw_pipes |= z.connectivity is not None and z.connectivity.n_pipes > 0
+        elif isinstance(z, LineObservation) and z.connected_models:
+            self.models |= frozenset(z.connected_models)
+
+    def extend(self, other: ViewLog) -> None:
+        self.stamps.extend(other.stamps)
+        self.truth_ids.extend(other.truth_ids)
+        self.labelled.extend(other.labelled)
+        self.models |= other.models
+        self.saw_pipes |= other.saw_pipes
+
+    def stamped_truth(self) -> list[tuple[int, int | None]]:
+        """(stamp, truth id) of each view, in the order seen."""
+        return [(s, None if t == NO_TRUTH else t) for s, t in zip(self.stamps, self.truth_ids)]
+
+
 class LandmarkBook:
     """Views and class evidence of landmarks (by global id) and of tentative ones (by any key)."""
 
     def __init__(self):
         self.classes = ClassFusion(None)  # the class set grows with the likelihoods received
-        self.views: dict[Hashable, list[tuple[int, Observation]]] = {}
+        self.views: dict[Hashable, ViewLog] = {}
         self.extents: dict[Hashable, PipeExtent] = {}  # pipes: what was seen of them
 
     def extent(self, key: Hashable) -> PipeExtent:
@@ -32,14 +81,15 @@ class LandmarkBook:
 
     def observe(self, key: Hashable, stamp: int, z: Observation) -> None:
         """One view of landmark ``key``: its class likelihood and the pipe configuration seen with it."""
-        self.views.setdefault(key, []).append((stamp, z))
+        self._log(key).add(stamp, z)
         if isinstance(z, PointObservation) and (z.class_likelihood or z.connectivity is not None):
             conf = z.connectivity.configuration if z.connectivity is not None else None
             self.classes.update(key, dict(z.class_likelihood) if z.class_likelihood else None, conf)
 
     def merge(self, keep: Hashable, drop: Hashable) -> None:
         """``drop`` turned out to be ``keep`` (a promoted track, a duplicate): its views and evidence go to it."""
-        self.views.setdefault(keep, []).extend(self.views.pop(drop, []))
+        if drop in self.views:
+            self._log(keep).extend(self.views.pop(drop))
         self.classes.merge(keep, drop)
         if drop in self.extents:
             self.extent(keep).merge(self.extents.pop(drop))
@@ -48,6 +98,11 @@ class LandmarkBook:
         self.views.pop(key, None)
         self.extents.pop(key, None)
         self.classes.forget(key)
+
+    def _log(self, key: Hashable) -> ViewLog:
+        if key not in self.views:
+            self.views[key] = ViewLog()
+        return self.views[key]
 
     def n_views(self, key: Hashable) -> int:
         return len(self.views.get(key, ()))
@@ -59,14 +114,14 @@ class LandmarkBook:
         return self.classes.posterior(key)
 
     def history(self, ids: Iterable[int]) -> dict:
-        """For evaluation: which landmark each observation ended in (by object identity), and each
-        landmark's views as (stamp, truth id)."""
+        """For evaluation: which landmark each labelled observation ended in (by object identity, ``id``:
+        the book keeps no observation, and an identity names one only while it lives, which the
+        driver's records ensure for those they keep), and each landmark's views as (stamp, truth id)."""
         ids = list(ids)
+        empty = ViewLog()
         return {
-            "landmark_of_observation": {id(z): lid for lid in ids for _, z in self.views.get(lid, ())},
-            "landmark_observations": {
-                lid: [(stamp, getattr(z, "truth_id", None)) for stamp, z in self.views.get(lid, ())] for lid in ids
-            },
+            "landmark_of_observation": {k: lid for lid in ids for k in self.views.get(lid, empty).labelled},
+            "landmark_observations": {lid: self.views.get(lid, empty).stamped_truth() for lid in ids},
         }
 
     def connect(self, estimates: list[LandmarkEstimate], max_distance: float) -> None:
@@ -77,10 +132,8 @@ class LandmarkBook:
         pipes = [e for e in estimates if e.kind == "pipe" and e.p is not None]
         structures = [e for e in estimates if e.kind == "structure" and e.pose is not None]
         for pe in pipes:
-            models = {
-                m for _, z in self.views.get(pe.id, ()) if isinstance(z, LineObservation) for m in z.connected_models
-            }
-            for model in sorted(models):
+            log = self.views.get(pe.id)
+            for model in sorted(log.models if log is not None else ()):
                 cands = [s for s in structures if s.model == model]
                 if cands:
                     ends = np.stack([pe.p, pe.q])
@@ -93,10 +146,8 @@ class LandmarkBook:
                     _link(e, pe)
 
     def _saw_pipes(self, key: Hashable) -> bool:
-        return any(
-            isinstance(z, PointObservation) and z.connectivity is not None and z.connectivity.n_pipes > 0
-            for _, z in self.views.get(key, ())
-        )
+        log = self.views.get(key)
+        return log is not None and log.saw_pipes
 
 
 def _link(a: LandmarkEstimate, b: LandmarkEstimate) -> None:
