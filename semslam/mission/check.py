@@ -174,7 +174,7 @@ def _why_missing(mission: Mission, kind: str, what: str) -> str:
 def stream_findings(mission: Mission) -> list[Finding]:
     """After a complete pass over a bag: its clock problems (refusals, unless split reads a part of a
     reset mission) and the messages dropped for their stamps, with the mission time of the first."""
-    rest = getattr(mission, "rest", None)
+    rest = mission.rest
     assumed = [Finding("warning", rest.describe())] if rest is not None and rest.said else []
     problems = getattr(mission, "clock_problems", [])
     if not problems and not getattr(mission, "first_dropped", None):
@@ -224,7 +224,7 @@ def input_block(mission: Mission) -> dict:
     cfg = getattr(mission, "config", None)
     if cfg is not None and cfg.on_clock_jump == "split":
         block["segment"] = cfg.segment
-    rest = getattr(mission, "rest", None)
+    rest = mission.rest
     if rest is not None and rest.said:
         block["at_rest_s"] = round(rest.held_s, 3)
     return block
