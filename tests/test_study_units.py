@@ -10,7 +10,7 @@ from typer.testing import CliRunner
 
 from semslam.cli import app
 from semslam.errors import ConfigError
-from semslam.study.cluster import frontend_workers_per_mission
+from semslam.study.cluster import frontend_workers_per_mission, local_workers
 from semslam.study.plan import parse_seeds, scenario_tasks
 from semslam.study.report import write_study_report
 from semslam.study.stats import bootstrap_ci, distribution, paired_ratio, study_statistics
@@ -144,3 +144,14 @@ def test_a_mission_gets_the_cores_the_local_cluster_leaves_it(monkeypatch, cores
     one mission per core: one each; a user's cluster (None): one each (a worker is one core)."""
     monkeypatch.setattr("os.cpu_count", lambda: cores)
     assert frontend_workers_per_mission(workers) == expected
+
+
+@pytest.mark.parametrize(
+    "cores, requested, tasks, expected",
+    [(2, None, 20, 1), (8, None, 20, 4), (8, None, 3, 3), (2, 5, 20, 2), (1, None, 4, 1)],
+)
+def test_local_cluster_default_is_one_mission_per_two_cores(monkeypatch, cores, requested, tasks, expected):
+    """A mission keeps ~2 cores busy (its front-ends run apart): by default one per two cores, never
+    more workers than cores or missions."""
+    monkeypatch.setattr("os.cpu_count", lambda: cores)
+    assert local_workers(requested, tasks) == expected

@@ -37,8 +37,8 @@ def study(
     workers: int | None = typer.Option(
         None,
         "--workers",
-        help="LocalCluster workers, one mission each (default and at most: one per core); "
-        "a mission runs its front-ends in the cores left to it (--workers 1: all, as compare does)",
+        help="LocalCluster workers, one mission each (default: one per two cores; at most one per core); "
+        "a mission runs its front-ends in the cores left to it (as compare does when it has two or more)",
     ),
     timeout: float | None = typer.Option(None, "--timeout", help="seconds a mission may take before it is killed"),
     keep_bags: bool = typer.Option(

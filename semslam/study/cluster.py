@@ -1,9 +1,11 @@
 """The Dask side of a study: a client on a LocalCluster or on the user's scheduler, and the tasks'
 results as they complete.
 
-Default: a ``LocalCluster`` of worker processes with one thread each, at most one per core (a
-mission is single-threaded work plus its own front-end processes). ``--scheduler ADDRESS`` joins
-an existing cluster (``dask scheduler`` / ``dask worker``, jobqueue, Kubernetes, ...); its
+Default: a ``LocalCluster`` of worker processes with one thread each, one per two cores: a mission
+runs its estimators in its own process and its front-ends in two more (as `semslam compare` does),
+which keeps about two cores busy; two such missions on two cores only contend (measured:
+experiments/speed/README.md, `bench_study.py`). ``--workers N`` asks for more, at most one per
+core. ``--scheduler ADDRESS`` joins an existing cluster (``dask scheduler`` / ``dask worker``, jobqueue, Kubernetes, ...); its
 workers must have semslam installed and see the study folder (and the bags) at the same paths.
 A worker that dies while running a mission is replaced by Dask and its task run again elsewhere
 (up to the scheduler's ``distributed.scheduler.allowed-failures`` times, 3 by default).
@@ -22,13 +24,17 @@ from semslam.study.plan import MissionTask
 from semslam.study.store import StudyStore
 from semslam.study.task import run_mission
 
+CORES_PER_MISSION = 2  # a mission's main process plus its front-end workers keep ~2 cores busy
+
 
 def local_workers(requested: int | None, n_tasks: int) -> int:
-    """Workers of a LocalCluster: as requested, but at most one per core and one per mission."""
+    """Workers of a LocalCluster: as requested (default: one per two cores), but at most one per
+    core and one per mission."""
     cores = os.cpu_count() or 1
     if requested is not None and requested < 1:
         raise SemslamError(f"--workers: must be at least 1 (got {requested})")
-    return max(1, min(requested or cores, cores, n_tasks))
+    default = max(1, cores // CORES_PER_MISSION)
+    return max(1, min(requested or default, cores, n_tasks))
 
 
 def frontend_workers_per_mission(n_workers: int | None) -> int:
