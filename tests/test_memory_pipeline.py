@@ -96,3 +96,15 @@ def test_labelled_records_keep_the_recognition_observations_alone(mission):
     landmark_of = result.results["graph"].history["landmark_of_observation"]
     found = [landmark_of.get(id(r.observation)) for r in result.observations]
     assert sum(f is not None for f in found) > 0.5 * len(found)
+
+
+def test_the_recognition_tables_are_the_same_from_the_labelled_records_alone(mission):
+    """`semslam run` keeps only the labelled records: its recognition tables must not change."""
+    from semslam.eval.recognition import recognition_block
+
+    every, _, _ = _run(mission, keep_observations=True)
+    labelled_only, _, _ = _run(mission, keep_observations="labelled")
+    assert len(labelled_only.observations) < len(every.observations)
+    table = recognition_block(every, mission.metadata)
+    assert table and table.get("SEM"), table  # there is something to compare
+    assert recognition_block(labelled_only, mission.metadata) == table

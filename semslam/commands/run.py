@@ -63,7 +63,11 @@ def run(
     observers = [recorder] if recorder is not None else []
     ref = GpsReference.hold_out(m, HoldOut.parse(hold_out_gps)) if hold_out_gps is not None else None
     seen = estimators_input(m, cfg, ref)
-    result = run_pipeline(seen, [est], fes, progress=sys.stderr.isatty(), observers=observers)
+    # Only the labelled object observations (what the recognition tables read): a long survey's
+    # records would otherwise keep every observation of the mission.
+    result = run_pipeline(
+        seen, [est], fes, progress=sys.stderr.isatty(), observers=observers, keep_observations="labelled"
+    )
     metrics = add_gps_reference(build_metrics(result, m.metadata), ref, result, m.metadata)
     metrics["frontends"] = names
     after_the_pass(m, result, metrics, warnings)
