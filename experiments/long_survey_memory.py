@@ -20,12 +20,11 @@ GTSAM's C++ ones not; the run is ~2× slower) and lists the allocation sites (by
 allocated after the window filled (1.5 × window_s, its first slide) and is still held when the
 estimator finishes: what grows with the mission.
 
-``--labelled`` runs ``run`` with ``run_pipeline(keep_observations="labelled")``: the pipeline's
-records keep only the labelled object observations (the recognition tables'), as ``run`` itself
-would once it asks for them (it keeps every observation otherwise, ~900 bytes each).
+``run`` keeps only the labelled object observations in the pipeline's records (the recognition
+tables' input), ~1.25 kB each.
 
 Run: ``python experiments/long_survey_memory.py [--hours 2] [--work DIR] [--out F.json] [--tracemalloc]
-[--config F.yaml] [--batch] [--labelled]`` (a shorter ``graph.window_s`` in F shows the slope after the
+[--config F.yaml] [--batch]`` (a shorter ``graph.window_s`` in F shows the slope after the
 window filled on a shorter survey); also ``F.png`` (memory and factors against mission time) and
 ``F.samples.jsonl`` (each sample as it is taken: what a run stopped early leaves). Measured numbers
 go in experiments/speed/README.md, not here.
@@ -157,21 +156,15 @@ def live_objects() -> dict:
     }
 
 
-def measure(
-    bag: Path, every_s: float, out_json: Path, trace: bool, labelled: bool, count: bool, extra: list[str]
-) -> None:
+def measure(bag: Path, every_s: float, out_json: Path, trace: bool, count: bool, extra: list[str]) -> None:
     """In this process: the `run` command on ``bag`` with a MemoryProbe; the samples to ``out_json``."""
     import tracemalloc
 
     import semslam.estimators
-    import semslam.pipeline
     from semslam.cli import app
     from semslam.pipeline import observed_by
 
     probe = MemoryProbe(every_s, out_json.with_suffix(".samples.jsonl"), count, trace)
-    if labelled:  # what `run` keeps once it asks for the labelled observations only
-        run_pipeline = semslam.pipeline.run_pipeline
-        semslam.pipeline.run_pipeline = lambda *a, **kw: run_pipeline(*a, keep_observations="labelled", **kw)
     create = semslam.estimators.create_estimator
 
     def capture(*args, **kwargs):
@@ -206,7 +199,6 @@ def measure(
         "final": probe.sample(probe.last),
         "samples": probe.rows,
         "graph": metrics["estimators"]["graph"],
-        "labelled_only": labelled,
         "growth_after_window_filled": grew,
     }
     out_json.write_text(json.dumps(result, indent=1))
@@ -242,19 +234,17 @@ def main() -> None:
     ap.add_argument("--tracemalloc", action="store_true", help="also trace Python's allocations (~2x slower)")
     ap.add_argument("--config", type=Path, default=None, help="semslam configuration YAML for the run")
     ap.add_argument("--batch", action="store_true", help="run with --batch (keeps every factor)")
-    ap.add_argument("--labelled", action="store_true", help="the pipeline keeps the labelled observations only")
     ap.add_argument("--count", action="store_true", help="count the observation and truth objects alive per sample")
     ap.add_argument("--measure", type=Path, default=None, help=argparse.SUPPRESS)  # the run's own process
     args = ap.parse_args()
     extra = (["--config", str(args.config)] if args.config else []) + (["--batch"] if args.batch else [])
     if args.measure is not None:
-        measure(args.measure, args.every, args.out, args.tracemalloc, args.labelled, args.count, extra)
+        measure(args.measure, args.every, args.out, args.tracemalloc, args.count, extra)
         return
     bag = simulate(args.hours, args.work)
     out = args.out or args.work / f"memory-{args.hours:g}h.json"
     cmd = [sys.executable, __file__, "--measure", str(bag), "--every", str(args.every), "--out", str(out)]
     cmd += ["--tracemalloc"] if args.tracemalloc else []
-    cmd += ["--labelled"] if args.labelled else []
     cmd += ["--count"] if args.count else []
     cmd += (["--config", str(args.config)] if args.config else []) + (["--batch"] if args.batch else [])
     subprocess.run(cmd, check=True)
