@@ -15,8 +15,8 @@ Where each front-end runs:
   ones are spread over the workers), and gets there every measurement it consumes.
 - A front-end whose result for some measurement types depends only on that measurement and on what
   it kept from its other types (``parallel_consumes``: the laser's scans, given the latest AHRS
-  reading) has a replica in every worker. Its parallel measurements go round-robin to one replica
-  each; its other types go to every replica (so that each keeps the same state), and nobody
+  reading) has a replica in every worker. Its parallel measurements go to one replica each, the
+  one with the least work waiting (:class:`_Balance`); its other types go to every replica (so that each keeps the same state), and nobody
   answers for them: the estimators go on without waiting (the laser's 9800 AHRS readings). A
   replica's ``finish()`` must not depend on the parallel measurements (the first one's is used).
 
@@ -103,17 +103,63 @@ def _context(frontends: Sequence):
 
 @dataclass(frozen=True)
 class _Route:
-    """Where a measurement type goes: ``turn`` — some replicated front-end takes it in parallel
-    (one replica, in turn); ``everywhere`` — some replicated front-end keeps state from it (every
-    worker); ``homes`` — the workers of the sequential front-ends that consume it."""
+    """Where a measurement type goes: ``parallel`` — the replicated front-ends that take it in
+    parallel (one replica, in turn); ``everywhere`` — some replicated front-end keeps state from it
+    (every worker); ``sequential`` — the sequential front-ends that consume it, with their homes."""
 
-    turn: bool
+    parallel: tuple[str, ...]
     everywhere: bool
-    homes: frozenset[int]
+    sequential: tuple[tuple[str, int], ...]
+
+    @property
+    def turn(self) -> bool:
+        return bool(self.parallel)
+
+    @property
+    def homes(self) -> frozenset[int]:
+        return frozenset(w for _, w in self.sequential)
 
     @property
     def answered(self) -> bool:
-        return self.turn or bool(self.homes)
+        return self.turn or bool(self.sequential)
+
+
+class _Balance:
+    """Whose turn a parallel measurement is: the worker with the least work submitted and not yet
+    answered, counting the sequential front-ends' share of the same measurement, as estimated from
+    each front-end's mean seconds per answered measurement so far (unknown: one unit each; ties in
+    turn, so equal workers alternate). Plain turns gave the laser odometry's worker half the laser's
+    scans as well: 2.3x the other worker's work on the tank (issue 23)."""
+
+    _UNKNOWN = 1.0
+    _KEEP = 0.8  # weight of the old mean: a front-end's cost drifts with the scene
+
+    def __init__(self, n_workers: int):
+        self._busy = [0.0] * n_workers  # estimated seconds submitted to each worker, not yet answered
+        self._cost: dict[str, float] = {}
+        self._next = 0
+
+    def place(self, route: _Route) -> tuple[int | None, dict[int, float]]:
+        """The turn (None if no front-end takes it in parallel) and each answering worker's estimated load."""
+        load: dict[int, float] = {}
+        for name, home in route.sequential:
+            load[home] = load.get(home, 0.0) + self._cost.get(name, self._UNKNOWN)
+        turn = None
+        if route.parallel:
+            n = len(self._busy)
+            turn = min(range(n), key=lambda w: (self._busy[w] + load.get(w, 0.0), (w - self._next) % n))
+            self._next = (turn + 1) % n
+            load[turn] = load.get(turn, 0.0) + sum(self._cost.get(name, self._UNKNOWN) for name in route.parallel)
+        for w, c in load.items():
+            self._busy[w] += c
+        return turn, load
+
+    def answered(self, load: dict[int, float], seconds: dict[str, float]) -> None:
+        for w, c in load.items():
+            self._busy[w] -= c
+        for name, dt in seconds.items():
+            old = self._cost.get(name)
+            self._cost[name] = dt if old is None else self._KEEP * old + (1 - self._KEEP) * dt
 
 
 @dataclass(frozen=True)
@@ -138,8 +184,9 @@ class FrontendProcess:
         n = max(1, workers) if any(self._parallel) else max(1, min(workers, len(sequential)))
         self._home = {i: k % n for k, i in enumerate(sequential)}  # a sequential front-end's worker
         self._routes: dict[type, _Route] = {}
-        self._owners: deque[tuple[int, ...]] = deque()  # which workers answer each submitted measurement
-        self._turn = 0
+        # which workers answer each submitted measurement, and the load it was estimated to give them
+        self._owners: deque[tuple[tuple[int, ...], dict[int, float]]] = deque()
+        self._balance = _Balance(n)
         self._state: list[Measurement] = []  # measurements nobody answers for, not yet sent
         self._relay = _SignalRelay()
         self._workers: list[_Worker] = []
@@ -161,9 +208,9 @@ class FrontendProcess:
                 (i, par) for i, (types, par) in enumerate(zip(self._types, self._parallel)) if isinstance(m, types)
             ]
             route = self._routes[type(m)] = _Route(
-                turn=any(par and isinstance(m, par) for _, par in takers),
+                parallel=tuple(self.names[i] for i, par in takers if par and isinstance(m, par)),
                 everywhere=any(par and not isinstance(m, par) for _, par in takers),
-                homes=frozenset(self._home[i] for i, par in takers if not par),
+                sequential=tuple((self.names[i], self._home[i]) for i, par in takers if not par),
             )
         return route
 
@@ -176,14 +223,12 @@ class FrontendProcess:
                 self._send_state()
             return False
         self._send_state()
-        turn = None
-        if route.turn:
-            turn, self._turn = self._turn, (self._turn + 1) % len(self._workers)
+        turn, load = self._balance.place(route)
         answering = route.homes | ({turn} if turn is not None else set())
         for w in self._workers:
             if route.everywhere or w.index in answering:
                 w.send((m, w.index == turn), reply=w.index in answering)
-        self._owners.append(tuple(sorted(answering)))
+        self._owners.append((tuple(sorted(answering)), load))
         return True
 
     def _send_state(self) -> None:
@@ -198,10 +243,12 @@ class FrontendProcess:
         """The results of the next submitted measurement that has some: front-end name →
         (observations, seconds), for the front-ends that consume it."""
         out: dict[str, tuple[list, float]] = {}
-        for w in self._owners.popleft():
+        workers, load = self._owners.popleft()
+        for w in workers:
             for name, (obs, dt) in self._workers[w].receive(self.names).items():
                 before, t = out.get(name, ([], 0.0))  # a replica keeping state answers with nothing
                 out[name] = (before + obs, t + dt)
+        self._balance.answered(load, {name: dt for name, (_, dt) in out.items()})
         return out
 
     def finish(self) -> dict[str, tuple[object, float]]:

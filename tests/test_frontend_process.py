@@ -2,6 +2,7 @@
 the estimators must see exactly what they would see with the front-end inline, and an error in
 the process must surface as itself, not hang the run."""
 
+import time
 from typing import ClassVar
 
 import numpy as np
@@ -289,8 +290,7 @@ def test_a_replicated_and_a_sequential_front_end_on_the_same_scans(sample_missio
     by_process: dict[float, list[float]] = {}
     for _, pid, count in counting:
         by_process.setdefault(pid, []).append(count)
-    assert len(by_process) == 2  # both workers took scans ...
-    for counts in by_process.values():  # ... and each processed only its own
+    for counts in by_process.values():  # each worker processed only its own scans
         assert counts == list(range(1, len(counts) + 1))
     assert sum(len(c) for c in by_process.values()) == n_scans
 
@@ -299,6 +299,38 @@ def test_a_replicated_and_a_sequential_front_end_on_the_same_scans(sample_missio
     assert [count for _, _, count in sequential] == list(range(1, n_scans + 1))
     assert apart.frontend_summaries["sequential"].metrics == inline.frontend_summaries["sequential"].metrics
     assert apart.timing_s["frontend:sequential"] > 0 and apart.timing_s["frontend:counting"] > 0
+
+
+class BusyCountingScans(CountingScans):
+    name: ClassVar[str] = "counting"
+
+    def process(self, measurement, view):
+        if isinstance(measurement, PointCloud):
+            time.sleep(0.02)
+        return super().process(measurement, view)
+
+
+class BusySequentialScans(SequentialScans):
+    def process(self, measurement, view):
+        if isinstance(measurement, PointCloud):
+            time.sleep(0.02)
+        return super().process(measurement, view)
+
+
+def test_the_replicated_scans_go_to_the_worker_the_sequential_front_end_leaves_idle(sample_mission):
+    """A sequential front-end (the odometry) busy on every scan, a replicated one (the laser) as
+    busy: taking turns gave the sequential one's worker half the replicated scans as well (twice the
+    other's work); now it gets few of them, and the stream is the same."""
+    mission = sample_mission(seconds=12.0)
+    fes = [BusyCountingScans(), BusySequentialScans()]
+    apart = run_pipeline(mission, [Deaf()], fes, frontend_workers=2)
+    home = {r.observation.position[1] for r in apart.observations if r.frontend == "sequential"}
+    counting = [r.observation.position[1] for r in apart.observations if r.frontend == "counting"]
+    assert len(home) == 1 and len(counting) == sum(isinstance(m, PointCloud) for m in mission) == 24
+    at_home = sum(pid in home for pid in counting)
+    assert at_home <= 0.25 * len(counting), at_home
+    inline = run_pipeline(mission, [Deaf()], [BusyCountingScans(), BusySequentialScans()], frontend_process=False)
+    assert [(r.frontend, r.stamp) for r in apart.observations] == [(r.frontend, r.stamp) for r in inline.observations]
 
 
 class SlowScans(Frontend):
