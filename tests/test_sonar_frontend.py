@@ -9,6 +9,7 @@ from frontends.sonar import SonarFrontend
 from semslam.config import SemslamConfig
 from semslam.errors import ConfigError
 from semslam.estimators import create_estimator
+from semslam.eval.structures import pose_at, structure_rows
 from semslam.observations import OdometryObservation, StructureObservation
 from semslam.pipeline import run_pipeline
 from semslam.registry import create_frontends
@@ -109,6 +110,19 @@ def test_structure_becomes_a_graph_landmark(mission, baseline, tmp_path):
     assert not [r for r in rows if r["truth_id"] is None], rows
     assert all(r["found"] for r in rows if r["model"] in {lm.model for lm in lms}), rows
     assert metrics["sonar"]["structures_wrong_place"] == 0 and metrics["sonar"]["structures_false"] == 0
+    # each registration names its support (the patches it was fitted to, placed by the final estimate),
+    # from which the evaluation reads it relative to the trajectory where it was seen
+    graph_at = pose_at(res.results["graph"].trajectory)
+    for s in summary.metrics["structures"]:
+        assert s["support"] and sum(p["points"] for p in s["support"]) >= 1000
+        for p in s["support"]:
+            assert np.linalg.norm(np.array(p["T_WB"])[:3, 3] - graph_at(p["stamp"])[:3, 3]) < 0.02
+    relative = structure_rows(summary.metrics["structures"], mission.metadata.ground_truth, pose_at(res.truth))
+    assert {r["judged"] for r in relative if r["found"]} == {"relative"}
+    assert [r["found"] for r in relative if r["truth_id"] is not None] == [
+        r["found"] for r in rows if r["truth_id"] is not None
+    ]
+    assert all(r["relative_position_error_m"] < 0.1 for r in relative if r["found"]), relative
     out = write_outputs(tmp_path / "out", SemslamConfig(), res, metrics)
     assert (out / "world_model.ply").stat().st_size == summary.metrics["world_model_bytes"]
     figures = {"sonar_elevation_map.png", "sonar_world_model.png", "sonar_swath_registration.png"}

@@ -24,6 +24,8 @@ class KnownStructure:
     final: Registration | None = None
     confirmed: bool = True  # False: its registration on all the data failed the quality test (end of mission)
     history: list = field(default_factory=list)  # (stamp, patch id, T_SM, cov) of the observations
+    # the patches its final registration used: (anchor stamp, points near it, T_W,B of the anchor as placed)
+    support: list = field(default_factory=list)
 
     @property
     def centre(self) -> np.ndarray:

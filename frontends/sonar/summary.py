@@ -116,8 +116,13 @@ def swath_disagreement(fe, pose_fn, pairs, cell: float = 0.05) -> dict:
     }
 
 
-def final_registrations(fe, pts_W: np.ndarray) -> None:
+def final_registrations(fe, pts_W: np.ndarray, patch_ids: np.ndarray) -> None:
     """Each known structure registered by ICP on all of its data, re-placed with the final estimate.
+
+    ``patch_ids``: the patch of each point (:func:`place_all`). The patches near a structure, with
+    their points there and their anchor's pose as placed, are kept as its ``support``: what the
+    evaluation needs to tell the registration's error from the navigation's where it was seen
+    (:mod:`semslam.eval.structures`).
 
     The quality test of a new structure applies again, now on all the data (with ``final_min_fitness``):
     a structure whose ICP does not pass it is registered afresh there (4-D search, half-turn
@@ -130,6 +135,10 @@ def final_registrations(fe, pts_W: np.ndarray) -> None:
         T0 = fe._current_T(ks)
         R = md.model.footprint_radius + 0.5
         near = np.hypot(pts_W[:, 0] - T0[0, 3], pts_W[:, 1] - T0[1, 3]) <= R
+        ids, counts = np.unique(patch_ids[near], return_counts=True)
+        ks.support = [
+            (fe.patches[i].anchor_stamp, int(n), fe.place(fe.patches[i])) for i, n in zip(ids, counts, strict=True)
+        ]
         if near.sum() >= rc.min_points:
             reg = icp(md, pts_W[near], T0, rc)
             checked = fe.recogniser.quality_test(ks.model, pts_W[near], reg, rc.final_min_fitness)
@@ -148,7 +157,7 @@ def summarise(fe) -> FrontendSummary:
     t_start = time.process_time()
     final_pose = fe.place
     nav_pose = lambda p: p.T_nav  # noqa: E731
-    pts_W, _ = place_all(fe, final_pose)
+    pts_W, patch_ids = place_all(fe, final_pose)
     # a last recognition pass over the whole map for structures the online search missed
     late = []
     if cfg.recognition.enabled and cfg.recognition.final_pass and len(pts_W):
@@ -161,7 +170,7 @@ def summarise(fe) -> FrontendSummary:
             late.append(ks)
             fe.timing["registration_s"] += det.timing.get("registration_s", 0.0)
         fe.timing["recognition_s"] += time.process_time() - t0 - sum(d.timing.get("registration_s", 0.0) for d in dets)
-    final_registrations(fe, pts_W)
+    final_registrations(fe, pts_W, patch_ids)
     # the final map, its pipelines and the world model
     map_em = ElevationMap.from_points(pts_W, cfg.figures.cell_m) if len(pts_W) else None
     pipes = fe.detect_pipes(pts_W) if (cfg.pipes.enabled and len(pts_W)) else []
@@ -203,6 +212,9 @@ def summarise(fe) -> FrontendSummary:
                 "observations_emitted": ks.n_observations,
                 "landmark_id": ks.landmark_id,
                 "landmark_pose": None if ks.landmark_id is None else fe._current_T(ks).tolist(),
+                "support": [
+                    {"stamp": int(stamp), "points": n, "T_WB": np.round(T, 6).tolist()} for stamp, n, T in ks.support
+                ],
             }
         )
     regs = fe.swath_registrations
