@@ -195,3 +195,22 @@ def test_rows_keep_the_registration_so_it_can_be_judged_again():
     again = structure_rows(registrations_of(block["structures"]), TRUTH, truth_pose_at)
     counts = structure_counts(again)
     assert (counts["structures_found"], counts["structures_false"], counts["structures_judged"]) == (1, 0, ["relative"])
+
+
+def test_metrics_judge_relative_when_the_truths_trajectory_is_given():
+    """metrics.json's sonar block (what run, compare and study write) judges with the truth's
+    trajectory when the pipeline has it: the registration under a 1.3 m navigation error is found."""
+    from semslam.estimation import Trajectory
+
+    reg, _ = _seen_with(NAV_ERROR)
+    truth = _true_trajectory(STAMPS)
+    stamps = np.array(STAMPS, np.int64)
+    trajectory = Trajectory(
+        stamps,
+        np.array([truth[s][:3, 3] for s in STAMPS]),
+        Rotation.from_matrix([truth[s][:3, :3] for s in STAMPS]).as_quat(),
+    )
+    block = sonar_metrics({"structures": [reg]}, TRUTH, trajectory)
+    row = next(r for r in block["structures"] if r["truth_id"] == 1)
+    assert row["found"] and row["judged"] == "relative"
+    assert not sonar_metrics({"structures": [reg]}, TRUTH)["structures"][0]["found"]  # absolute: 1.3 m off

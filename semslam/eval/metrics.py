@@ -11,7 +11,7 @@ from scipy.optimize import linear_sum_assignment
 
 from semslam.estimation import EstimatorResult, LandmarkEstimate, Trajectory
 from semslam.eval.map_quality import map_quality
-from semslam.eval.structures import structure_counts, structure_rows
+from semslam.eval.structures import pose_at, structure_counts, structure_rows
 from semslam.mission.ground_truth import GroundTruthMap
 
 ALIGNMENTS = ("none", "se3", "origin")
@@ -270,8 +270,11 @@ def _aligned_ate(estimate: Trajectory, truth: Trajectory) -> float | None:
     return errs.ate_rmse_m if errs is not None else None
 
 
-def sonar_metrics(frontend: dict, truth: GroundTruthMap | None) -> dict:
+def sonar_metrics(frontend: dict, truth: GroundTruthMap | None, truth_trajectory: Trajectory | None = None) -> dict:
     """The ``sonar`` block of metrics.json from a sonar front-end's summary and the ground truth.
+    With the truth's trajectory, a structure is judged relative to the estimated trajectory where
+    it was seen (:func:`semslam.eval.structures.structure_rows`), so that a navigation error there
+    is not counted as the registration's; without it, against the truth in the world frame.
 
     ``frontend["structures"]`` lists what the front-end registered: ``model``, ``pose`` (T_W,model
     4×4 as it placed it), ``median_error_m`` (median point-to-model distance after registration)
@@ -298,6 +301,7 @@ def sonar_metrics(frontend: dict, truth: GroundTruthMap | None) -> dict:
             for s in found
         ]
         return out
-    out["structures"] = structure_rows(found, truth)
+    along = pose_at(truth_trajectory) if truth_trajectory is not None and len(truth_trajectory.stamps) > 1 else None
+    out["structures"] = structure_rows(found, truth, along)
     out.update(structure_counts(out["structures"]))
     return out

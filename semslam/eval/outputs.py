@@ -241,7 +241,7 @@ def build_metrics(pipeline: PipelineResult, metadata: MissionMetadata) -> dict:
     syn = None
     for summary in pipeline.frontend_summaries.values():
         if summary.section == "sonar":
-            metrics["sonar"] = sonar_metrics(summary.metrics, gt)
+            metrics["sonar"] = sonar_metrics(summary.metrics, gt, pipeline.truth)
         elif summary.section == "recognition":
             syn = summary.metrics.get("SYN")
         elif summary.section:
