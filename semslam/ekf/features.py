@@ -11,7 +11,9 @@ Pipe Jacobians are evaluated at each pipe's first estimate (FEJ, Huang, Mourikis
 ``ekf.line_jacobians``): a pipe's world-origin line parameters change under a common translation of
 vehicle and map in a way that depends on their estimate, so Jacobians at the current estimate let a
 sequence of updates observe that translation, spurious absolute-position information that makes the
-filter overconfident. Objects (points) have no such dependence.
+filter overconfident. Objects (points) have no such dependence. For the same reason two features of
+one pipe are merged by their difference as seen from the vehicle, not by the difference of their
+world-origin parameters (:meth:`FeatureMap.merge`).
 """
 
 from __future__ import annotations
@@ -34,6 +36,8 @@ from semslam.mapping.book import LandmarkBook
 from semslam.mapping.builder import Scan
 from semslam.mapping.tracks import Track
 from semslam.observations import Observation, StructureObservation
+
+_I3, _Z3 = np.eye(3), np.zeros(3)  # {B} itself as the "sensor" (a pipe seen from the vehicle)
 
 
 @dataclass
@@ -213,32 +217,54 @@ class FeatureMap:
         """Every update of the filter is applied at once: nothing is pending."""
 
     def _difference(self, a: Feature, b: Feature) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """The difference of two features' parameters and its Jacobians on them."""
+        """ν, the state columns it depends on and H = ∂ν/∂x on them: the difference of two features,
+        zero when they are one.
+
+        Objects: b − a in {W}. Pipes: the line error that takes a to b as seen from the vehicle ({B}),
+        not between their world-origin parameters. A common translation (or, with the heading bias
+        modelled, rotation about the vertical) of vehicle and map changes nothing seen from the
+        vehicle, so with the Jacobians at the points where the filter linearises each pipe's views
+        (its first estimate, the propagated position: :class:`ScanPairs`) the difference observes
+        none of it, whatever the two estimates: H N = 0 for that null space N. The world-origin
+        parameters of two lines that differ change differently under a translation, and a merge, a
+        perfect measurement, read that as absolute position: a twin 2-3° off moved vehicle and map
+        by 0.26-0.62 m (experiments/estimators/EKF.md)."""
         x = self.nav.state.x
         if a.kind == "object":
-            return x[b.cols] - x[a.cols], -np.eye(3), np.eye(3)
-        return geo.line_difference(x[a.cols], x[b.cols])
+            return x[b.cols] - x[a.cols], np.r_[a.cols, b.cols], np.hstack([-np.eye(3), np.eye(3)])
+        nav = self.nav
+        xv = x[:NX]
+        x_lin = nav.x_lin() if nav.fej_yaw else xv
+        first = self.fej_lines or nav.fej_yaw
+        seen = []
+        for f in (a, b):
+            m, d, _, _ = mdl.line_to_sensor(xv, x[f.cols], _I3, _Z3)  # the pipe in {B}, now
+            U, rho = geo.orthonormal_from_plucker(m, d)
+            m_l, d_l, J_x, J_l = mdl.line_to_sensor(x_lin, f.l_first if first else x[f.cols], _I3, _Z3)
+            A = geo.line_error_map(*geo.orthonormal_from_plucker(m_l, d_l))
+            seen.append((U, rho, A @ J_x, A @ J_l))
+        (Ua, ra, Ax, Al), (Ub, rb, Bx, Bl) = seen
+        nu, G_a, G_b = geo.orthonormal_difference(Ua, ra, Ub, rb)
+        return nu, np.r_[np.arange(NX), a.cols, b.cols], np.hstack([G_a @ Ax + G_b @ Bx, G_a @ Al, G_b @ Bl])
 
     def difference_nis(self, a: int, b: int) -> float | None:
         """χ² of the two features' difference against zero, with their full joint covariance."""
-        fa, fb = self.feature(a), self.feature(b)
-        nu, H_a, H_b = self._difference(fa, fb)
-        cols = np.r_[fa.cols, fb.cols]
-        H = np.hstack([H_a, H_b])
+        nu, cols, H = self._difference(self.feature(a), self.feature(b))
         try:
             return float(nu @ np.linalg.solve(H @ self.nav.state.P[np.ix_(cols, cols)] @ H.T, nu))
         except np.linalg.LinAlgError:
             return None
 
     def merge(self, keep: int, drop: int, constrain: bool) -> None:
-        """Impose keep = drop (their difference as a perfect measurement of zero) unless not
-        ``constrain`` (the constraint would pull the state, the vehicle too, across a disagreement
-        their covariances call impossible), then drop the younger block (marginalise it out)."""
+        """Impose keep = drop (their difference, :meth:`_difference`, as a perfect measurement of zero)
+        unless not ``constrain`` (the constraint would pull the state, the vehicle too, across a
+        disagreement their covariances call impossible), then drop the younger block (marginalise it
+        out)."""
         fk, fd = self.feature(keep), self.feature(drop)
         state = self.nav.state
         if constrain:
-            nu, H_k, H_d = self._difference(fk, fd)
-            state.update(-nu, np.r_[fk.cols, fd.cols], np.hstack([H_k, H_d]), np.eye(len(nu)) * 1e-12)
+            nu, cols, H = self._difference(fk, fd)
+            state.update(-nu, cols, H, np.eye(len(nu)) * 1e-12)
             self.nav.wrap_vehicle()
         state.remove(fd.index, fd.size)
         self.features.remove(fd)

@@ -209,13 +209,28 @@ _FLIP = np.diag([-1.0, -1.0, 1.0])  # U of the same line with its direction reve
 def line_difference(la: np.ndarray, lb: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(ν, H_a, H_b): the line error (ε, δρ) that takes line a = [α, β, γ, ρ] to line b, with b's
     direction taken along a's, and its Jacobians (4×4) with respect to a and b. ν = 0 exactly when
-    the two are the same line. From U_b' = U_a Exp(ε), ρ_b = ρ_a + δρ, with right perturbations
-    U → U Exp(E δe): ε ≈ ε₀ + J_r⁻¹(ε₀) F E_b δe_b − J_l⁻¹(ε₀) E_a δe_a (F: the direction flip)."""
+    the two are the same line (:func:`orthonormal_difference`, with U → U Exp(E δe) for the Euler
+    angles)."""
     Ua, Ub = rot(la[0], la[1], la[2]), rot(lb[0], lb[1], lb[2])
+    nu, G_a, G_b = orthonormal_difference(Ua, la[3], Ub, lb[3])
+    E = np.eye(4)
+    E[:3, :3] = euler_rate_to_body(la[0], la[1])
+    H_a = G_a @ E
+    E[:3, :3] = euler_rate_to_body(lb[0], lb[1])
+    return nu, H_a, G_b @ E
+
+
+def orthonormal_difference(
+    Ua: np.ndarray, rho_a: float, Ub: np.ndarray, rho_b: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(ν, G_a, G_b): the line error (ε, δρ) that takes line a (U_a, ρ_a) to line b, b's direction
+    taken along a's, and its Jacobians (4×4) on each line's error (ε, δρ) (:func:`line_error_map`).
+    From U_b' = U_a Exp(ε), ρ_b = ρ_a + δρ, with right perturbations U → U Exp(δε):
+    ε ≈ ε₀ + J_r⁻¹(ε₀) F δε_b − J_l⁻¹(ε₀) δε_a (F: the direction flip)."""
     F = _FLIP if Ua[:, 1] @ Ub[:, 1] < 0 else np.eye(3)
     eps = so3_log(Ua.T @ Ub @ F)
-    H_a, H_b = np.zeros((4, 4)), np.zeros((4, 4))
-    H_a[:3, :3] = -so3_left_jacobian_inv(eps) @ euler_rate_to_body(la[0], la[1])
-    H_b[:3, :3] = so3_right_jacobian_inv(eps) @ F @ euler_rate_to_body(lb[0], lb[1])
-    H_a[3, 3], H_b[3, 3] = -1.0, 1.0
-    return np.append(eps, lb[3] - la[3]), H_a, H_b
+    G_a, G_b = np.zeros((4, 4)), np.zeros((4, 4))
+    G_a[:3, :3] = -so3_left_jacobian_inv(eps)
+    G_b[:3, :3] = so3_right_jacobian_inv(eps) @ F
+    G_a[3, 3], G_b[3, 3] = -1.0, 1.0
+    return np.append(eps, rho_b - rho_a), G_a, G_b
