@@ -4,8 +4,9 @@ pipe landmark error on some tank worlds is mostly the mapped extent overshooting
     python experiments/laser/line_ends_eval.py --bag B.bag [--every 3] [--set K=V]
 
 Segments every ``--every``-th scan of B.bag ("up" and placement from the true pose) with this
-checkout's front-end. Each reported pipe segment is matched to the true pipe whose axis its two ends
-lie nearest to (mean distance); per end it records how far along that axis it lies beyond the true
+checkout's front-end. Each reported pipe segment is matched to the true pipe of least cost as
+``semslam.eval.metrics`` matches mapped pipes (mean distance of its ends to the axis plus how far they
+reach past the pipe's extent); per end it records how far along that axis it lies beyond the true
 pipe's end (0 when inside), and whether that true end meets a fitting or is free. Prints the share
 of ends beyond 3 / 5 / 10 cm and the largest, split by fitted and free true ends.
 """
@@ -59,7 +60,8 @@ def main(argv=None) -> int:
             v = ends[None] - P[:, None]
             t = np.einsum("gkc,gc->gk", v, D)
             off = np.linalg.norm(v - t[..., None] * D[:, None], axis=-1)
-            g = int(off.mean(axis=1).argmin())
+            beyond = np.maximum(0.0, np.maximum(-t, t - L[:, None]))
+            g = int((off.mean(axis=1) + beyond.max(axis=1)).argmin())  # as the metrics match pipes
             if off[g].mean() > 0.05:
                 continue  # no true pipe under it (a false segment)
             for k in range(2):

@@ -376,7 +376,8 @@ class ObjectConfig(_Section):
         ge=0,
         description="... and by at least this many times the scatter of the pipe's inliers about their level, when "
         "that is more: the points off a lone end's pipe by range noise are no body (tank seed 10, laser σ 9.7 mm: "
-        "free pipe ends' tails had 10-30 points 1.5 cm off their cylinder)",
+        "the rest of a pipe beyond its fitted end, at free pipe ends, held 10-120 points 1.5 cm off the fitted "
+        "cylinder, part of them by noise)",
     )
     own_beyond: float = Field(
         0.03, gt=0, description="... or this far beyond the pipe's end along its axis (m); its end cap is not"
