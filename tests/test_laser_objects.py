@@ -49,6 +49,7 @@ def test_mushroom_crop_takes_the_valve_handle_and_no_floor():
     top_of_body = valve.center[2] - valve.size[2] / 2
     handle = cloud[:, 2] < top_of_body - 0.05  # up is −z: the stem and hand wheel above the body
     assert handle.sum() >= 10
+    assert (cloud[:, 2] > top_of_body).sum() >= 10  # and the body, apart from the wheel (its stem unseen)
     assert cloud[:, 2].max() < scan.scene.floor_z - 0.01  # nothing of the floor
     # the crop's points are the object's: most voxels of the cloud come from object rays
     raw = seg.raw_indices(o.indices)

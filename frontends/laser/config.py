@@ -362,11 +362,22 @@ class ObjectConfig(_Section):
         0.15,
         gt=0,
         description="an object at a lone pipe end is the largest crop cluster reaching back to within this of the "
-        "end along the pipe (m; a fitting starts at the end, or a few cm beyond it where the end is seen short): "
-        "a cluster only farther away belongs to something else (a neighbour's handle, another fitting)",
+        "end along the pipe and of its axis (m; a fitting starts at the end, around the axis, or a few cm beyond it "
+        "where the end is seen short): a cluster only farther away belongs to something else (a neighbour's handle, "
+        "another fitting; tank seeds 10 and 12: a valve of the layer above, 0.3 m over a free pipe end, was taken as "
+        "its body). Its cloud adds the largest cluster within this of the end along the pipe alone (a valve's handle, "
+        "its stem unseen)",
     )
     own_margin: float = Field(
         0.015, gt=0, description="a lone end's object point is its own when this far outside the pipe's cylinder (m)"
+    )
+    own_sigmas: float = Field(
+        3.0,
+        ge=0,
+        description="... and by at least this many times the scatter of the pipe's inliers about their level, when "
+        "that is more: the points off a lone end's pipe by range noise are no body (tank seed 10, laser σ 9.7 mm: "
+        "the rest of a pipe beyond its fitted end, at free pipe ends, held 10-120 points 1.5 cm off the fitted "
+        "cylinder, part of them by noise)",
     )
     own_beyond: float = Field(
         0.03, gt=0, description="... or this far beyond the pipe's end along its axis (m); its end cap is not"

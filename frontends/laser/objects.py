@@ -9,7 +9,8 @@ something is there, other than the pipe running on. The object is cropped from t
 (pipe inliers excluded) with an oriented box in a frame (pipe direction, across, up): the
 "mushroom" (body box plus a handle box above it) when the object has one connection or two
 collinear ones — a valve's handle stands above its body — and the body box alone otherwise. The
-largest Euclidean cluster of the crop is the object's cloud; objects sharing half of their clouds
+largest Euclidean cluster of the crop is the object's cloud (at a lone end: the largest touching the
+end, around its axis, with the largest reaching back to it along the pipe, a handle); objects sharing half of their clouds
 are one (the one on the most and longest pipes). Where pipes cross but their fits took in the
 fitting's surface (an elbow continues its pipes' cylinders), the crop keeps the pipe points; two
 lone ends whose crops overlap and whose axes meet a little farther away than ``max_port_distance``
@@ -198,7 +199,9 @@ def pipe_continues(
     """Whether an object's ``points`` at a lone end of ``pipe`` (outward unit ``out``) are that pipe
     running on past its fitted ``end`` (its sparse far part not taken as inliers), or its own end
     (an end cap, an open bore, the last centimetres cut off by noise), rather than a fitting: fewer
-    than ``min_own_points`` off its cylinder, and nowhere beyond the end wider than the pipe: no
+    than ``min_own_points`` off its cylinder (by ``own_margin``, or ``own_sigmas`` × the scatter of
+    the pipe's inliers where that is more: at 1 cm of range noise, 7 % of a bare pipe's points lie
+    1.5 cm off it, so a 10 cm tail of a free end showed a "body"), and nowhere beyond the end wider than the pipe: no
     4 cm stretch (two of 2 cm, at least 5 points) whose median distance from the axis stands above
     the pipe's own radial level (the median distance of its inliers, in ``all_points``) by more than
     ``tail_tolerance`` and ``tail_sigmas`` × the noise of that median (1.2533 σ / √n, σ the scatter
@@ -209,9 +212,11 @@ def pipe_continues(
         return False
     t, rad = along_and_off_axis(points, end, out)
     beyond = t > cfg.own_beyond
-    if not beyond.any() or int((rad > pipe.radius + cfg.own_margin).sum()) >= cfg.min_own_points:
+    if not beyond.any():
         return False
     level, sigma = surface_level(pipe, all_points)
+    if int((rad > pipe.radius + max(cfg.own_margin, cfg.own_sigmas * sigma)).sum()) >= cfg.min_own_points:
+        return False
     return not wider_stretch(t[beyond] - cfg.own_beyond, rad[beyond] - level, sigma, cfg)
 
 
@@ -460,7 +465,7 @@ def segment_objects(
             # took in (an elbow continues its pipes' cylinders). Crop it with the pipe points.
             crop = _crop(points, np.arange(len(points)), site, cfg)
         crops.append(crop)
-    found = []  # (site, crop, its points, anchor mask) of every object with enough points
+    found = []  # (site, crop, its points, anchor masks) of every object with enough points
     for group in _merge_overlapping(sites, crops, out, owner, len(points), cfg):
         site = sites[group[0]]
         crop = crops[group[0]]
@@ -473,23 +478,32 @@ def segment_objects(
         P = np.take(points, crop, axis=0)  # (np.take: several times faster than points[crop])
         # A lone pipe end is no evidence by itself (the pipe may leave the view or be hidden):
         # the object must touch the end (its cluster anchored there) and have points of its own
-        # beyond the pipe's surface.
-        near_end = (P - site.ends[0]) @ -site.dirs[0] <= cfg.attach_distance if site.config == 1 else None
-        found.append((site, crop, P, near_end))
-    clusters = _largest_clusters([f[2] for f in found], cfg.cluster_distance, [f[3] for f in found])
+        # beyond the pipe's surface. Its cloud adds the largest cluster reaching back to the end
+        # along the pipe: a valve's handle over its body, its stem not seen.
+        anchors = (None, None)
+        if site.config == 1:
+            t, rad = along_and_off_axis(P, site.ends[0], -site.dirs[0])
+            anchors = ((t <= cfg.attach_distance) & (rad <= cfg.attach_distance), t <= cfg.attach_distance)
+        found.append((site, crop, P, anchors))
+    clusters = _largest_clusters([f[2] for f in found], cfg.cluster_distance, [f[3][0] for f in found])
+    lone = [k for k, f in enumerate(found) if f[0].config == 1]
+    reaching = dict(
+        zip(lone, _largest_clusters([found[k][2] for k in lone], cfg.cluster_distance, [found[k][3][1] for k in lone]))
+    )
     objects: list[SegmentedObject] = []
-    for (site, crop, _, _), cluster in zip(found, clusters):
+    for k, ((site, crop, _, _), cluster) in enumerate(zip(found, clusters)):
         center, dirs, e = site.center, site.dirs, site.ends
-        crop = crop[cluster]
         if site.config == 1:
             pipe = pipes[site.members[0] // 2]
-            P = np.take(points, crop, axis=0)
+            P = np.take(points, crop[cluster], axis=0)  # the object's base, at the end: is it one?
             if own_points(P, e[0], -dirs[0], pipe.radius, cfg) < cfg.min_own_points:
                 continue
             if pipe_continues(P, e[0], -dirs[0], pipe, points, cfg):
                 continue
             if seen_beyond is not None and not seen_beyond(e[0] - dirs[0] * cfg.attach_distance, pipe.radius):
                 continue
+            cluster = np.union1d(cluster, reaching[k])
+        crop = crop[cluster]
         if site.config == 2 and len(site.members) == 2 and gap_is_pipe(points, crop, site, pipes, cfg):
             continue
         if lying is not None and all(lying[m // 2] for m in site.members) and site.config <= 2:
