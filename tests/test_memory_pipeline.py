@@ -60,7 +60,17 @@ def mission():
     )
 
 
+_RUNS: dict = {}  # (mission, keep_observations) -> one run's outcome: the tests read the same runs
+
+
 def _run(mission, keep_observations):
+    key = (id(mission), keep_observations)
+    if key not in _RUNS:
+        _RUNS[key] = _run_once(mission, keep_observations)
+    return _RUNS[key]
+
+
+def _run_once(mission, keep_observations):
     cfg = SemslamConfig(graph={"window_s": WINDOW_S}, association={"track_timeout_s": 10.0})
     est = create_estimator("graph", mission.metadata, cfg)
     fes = create_frontends(["oracle"], mission.metadata, {"oracle": {"seed": 1}})
