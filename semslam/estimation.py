@@ -56,6 +56,28 @@ class Trajectory:
     def __len__(self) -> int:
         return len(self.stamps)
 
+    def poses_at(self, stamps: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Rotations (N, 3, 3) and positions (N, 3) at ``stamps``: linear in position and
+        spherical-linear in attitude between the poses, held at the first and last pose outside them."""
+        return self.interpolator()(stamps)
+
+    def interpolator(self):
+        """:meth:`poses_at` as a function of the stamps, its slerp built once (for many calls)."""
+        from scipy.spatial.transform import Rotation, Slerp
+
+        ts = np.asarray(self.stamps, np.int64)
+        rots = Rotation.from_quat(self.orientations)
+        slerp = Slerp(ts, rots) if len(ts) > 1 else None
+        positions = self.positions
+
+        def at(stamps: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            s = np.clip(np.asarray(stamps, np.int64), ts[0], ts[-1])
+            pos = np.column_stack([np.interp(s, ts, positions[:, k]) for k in range(3)])
+            R = slerp(s).as_matrix() if slerp is not None else rots.as_matrix()[np.zeros(len(s), int)]
+            return R, pos
+
+        return at
+
     def to_tum(self, path) -> None:
         """Write ``stamp x y z qx qy qz qw`` lines (stamp in seconds), readable by evo."""
         data = np.column_stack([self.stamps * 1e-9, self.positions, self.orientations])

@@ -46,7 +46,7 @@ from pathlib import Path
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
-from scipy.spatial.transform import Rotation, Slerp
+from scipy.spatial.transform import Rotation
 
 from semslam.estimation import EstimateView, LandmarkEstimate, Trajectory
 from semslam.eval import ros_messages as rm
@@ -258,7 +258,7 @@ class ReplayRecorder:
         if len(traj) == 0:
             return []
         stamps = np.array([s.stamp for s in self.scans], np.int64)
-        R_WB, t_WB = poses_at(traj, stamps)
+        R_WB, t_WB = traj.poses_at(stamps)
         out = []
         for scan, R, t in zip(self.scans, R_WB, t_WB):
             T_BS = self.metadata.sensors[scan.sensor].T_BS if scan.sensor in self.metadata.sensors else np.eye(4)
@@ -290,17 +290,6 @@ def path_stamps(first: int, last: int, period_s: float) -> list[int]:
     """When the paths are published: every ``period_s`` after ``first``, and at ``last``."""
     step = int(period_s * 1e9)
     return [*range(first + step, last, step), last]
-
-
-def poses_at(traj: Trajectory, stamps: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Rotations (N, 3, 3) and positions (N, 3) of ``traj`` at ``stamps``: linear in position and
-    spherical-linear in attitude between its poses, held at its first and last pose outside them."""
-    ts = np.asarray(traj.stamps, np.int64)
-    s = np.clip(np.asarray(stamps, np.int64), ts[0], ts[-1])
-    pos = np.column_stack([np.interp(s, ts, traj.positions[:, k]) for k in range(3)])
-    rots = Rotation.from_quat(traj.orientations)
-    R = rots.as_matrix()[np.zeros(len(s), int)] if len(ts) == 1 else Slerp(ts, rots)(s).as_matrix()
-    return R, pos
 
 
 def _signature(landmarks: list[LandmarkEstimate]) -> tuple:

@@ -36,7 +36,7 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import numpy as np
-from scipy.spatial.transform import Rotation, Slerp
+from scipy.spatial.transform import Rotation
 
 from semslam.estimation import Trajectory
 from semslam.mission.ground_truth import GroundTruthMap
@@ -65,17 +65,14 @@ def pose_at(trajectory: Trajectory, clip: bool = False) -> Callable[[int], np.nd
     """T_W,B at any stamp of ``trajectory``, interpolated (slerp); outside its span None, or with
     ``clip`` its first / last pose."""
     stamps = np.asarray(trajectory.stamps, np.int64)
-    positions = np.asarray(trajectory.positions, float)
-    rotations = Rotation.from_quat(trajectory.orientations)
-    slerp = Slerp(stamps.astype(float), rotations) if len(stamps) > 1 else None
+    poses_at = trajectory.interpolator()
 
     def at(stamp: int) -> np.ndarray | None:
         if not clip and not stamps[0] <= stamp <= stamps[-1]:
             return None
-        s = float(np.clip(stamp, stamps[0], stamps[-1]))
+        R, t = poses_at(np.array([stamp], np.int64))
         T = np.eye(4)
-        T[:3, :3] = (slerp([s]) if slerp is not None else rotations[:1]).as_matrix()[0]
-        T[:3, 3] = [np.interp(s, stamps, positions[:, k]) for k in range(3)]
+        T[:3, :3], T[:3, 3] = R[0], t[0]
         return T
 
     return at
