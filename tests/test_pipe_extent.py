@@ -5,7 +5,9 @@ import numpy as np
 import pytest
 
 from semslam.mapping.extent import PipeExtent
+from semslam.mapping.fittings import port_depths
 from semslam.mapping.pipes import object_between, robust_ends
+from semslam.models import cad
 
 
 def test_ends_of_many_noisy_views_are_not_biased_outwards():
@@ -68,6 +70,31 @@ def test_a_pipe_seen_through_a_mapped_tee_is_cut_at_it_on_the_side_of_its_views(
     other = _views([(0.55, 1.0)] * 30 + [(0.0, 1.0)] * 5, y=1.0, z=4.0)
     lo, hi = other.interval(c, d, np.array([tee]), 0.15)
     assert lo == pytest.approx(0.5, abs=1e-9) and hi == pytest.approx(1.0, abs=1e-9)
+
+
+def test_a_pipe_running_into_a_classified_fitting_ends_at_its_port_mouth():
+    # the tank's pipes end at their fittings' socket mouths; the laser's segments run on into the
+    # socket (the pipe's shape) up to the fitting's centre, here an elbow at x = 0.6
+    elbow_depth = port_depths([{"Elbow": 1.0}])[0]
+    assert elbow_depth == pytest.approx(np.linalg.norm(cad.builtin("Elbow").ports[0][0]))
+    ext = _views([(0.0, 0.6)] * 40 + [(0.0, 0.55)] * 10, y=1.0, z=4.0)
+    c, d = np.array([0.0, 1.0, 4.0]), np.array([1.0, 0.0, 0.0])
+    elbow = np.array([[0.6, 1.01, 4.0]])
+    assert ext.interval(c, d, elbow, 0.15) == ext.interval(c, d)  # at the end, centre cut: nothing
+    lo, hi = ext.interval(c, d, elbow, 0.15, np.array([elbow_depth]))
+    assert hi == pytest.approx(0.6 - elbow_depth, abs=1e-9) and lo == pytest.approx(0.0, abs=1e-9)
+    # an object whose class is unknown has no depth: the centre rule as before
+    assert port_depths([None])[0] == 0.0
+    assert ext.interval(c, d, elbow, 0.15, port_depths([None])) == ext.interval(c, d)
+    # a fitting whose mouth lies beyond what was seen does not lengthen the pipe
+    far = np.array([[0.75, 1.0, 4.0]])
+    assert ext.interval(c, d, far, 0.15, np.array([elbow_depth])) == ext.interval(c, d)
+
+
+def test_port_depth_follows_the_class_posterior():
+    both = port_depths([{"Elbow": 0.5, "Ball-Valve": 0.5}, {"Ball-Valve": 1.0}, {}])
+    elbow, valve = (np.linalg.norm(cad.builtin(c).ports[0][0]) for c in ("Elbow", "Ball-Valve"))
+    np.testing.assert_allclose(both, [0.5 * (elbow + valve), valve, 0.0])
 
 
 def _seg(a, b, rng=None, sigma=0.0):

@@ -44,6 +44,7 @@ from semslam.estimation import LandmarkEstimate
 from semslam.mapping.association import Candidates, LowRankJoint, PairLinearization, chi2_gate, uncorrelated_candidates
 from semslam.mapping.book import LandmarkBook
 from semslam.mapping.builder import Scan
+from semslam.mapping.fittings import port_depths
 from semslam.mapping.pipes import point_segment_distance
 from semslam.mapping.tracks import Track
 from semslam.mission.mission import MissionMetadata
@@ -456,7 +457,8 @@ class GraphLandmarks:
         if covariance:
             blocks = self.session.joint_blocks(marginals, [lm.key for lm in self.landmarks.values()], known=known)
             covs = {lm.id: blocks[lm.key] for lm in self.landmarks.values() if lm.key in blocks}
-        _, mapped = self.objects()
+        ids, mapped = self.objects()
+        depths = port_depths([self.book.class_posterior(i) for i in ids])
         for lm in self.landmarks.values():
             est = value_of(values, lm.key) if values is not None else self.value(lm)
             le = LandmarkEstimate(
@@ -471,7 +473,7 @@ class GraphLandmarks:
                 le.class_posterior = self.book.class_posterior(lm.id)
             elif lm.kind == "pipe":
                 c, d = lm.line(est)
-                le.p, le.q = self.book.extent(lm.id).ends(c, d, mapped, self.assoc.inline_object_radius_m)
+                le.p, le.q = self.book.extent(lm.id).ends(c, d, mapped, self.assoc.inline_object_radius_m, depths)
             else:
                 le.pose, le.position = est.matrix(), est.translation()
             out.append(le)

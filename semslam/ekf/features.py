@@ -34,6 +34,7 @@ from semslam.estimation import LandmarkEstimate
 from semslam.mapping.association import Candidates, DenseJoint, PairLinearization, chi2_gate
 from semslam.mapping.book import LandmarkBook
 from semslam.mapping.builder import Scan
+from semslam.mapping.fittings import port_depths
 from semslam.mapping.tracks import Track
 from semslam.observations import Observation, StructureObservation
 
@@ -291,7 +292,8 @@ class FeatureMap:
     def estimates(self) -> list[LandmarkEstimate]:
         """The map with global ids and the filter's covariances."""
         x, P = self.nav.state.x, self.nav.state.P
-        _, mapped = self.objects()
+        ids, mapped = self.objects()
+        depths = port_depths([self.book.class_posterior(i) for i in ids])
         out = []
         for f in self.features:
             l, cov = x[f.index : f.index + f.size].copy(), P[np.ix_(f.cols, f.cols)].copy()
@@ -301,7 +303,7 @@ class FeatureMap:
             else:
                 m, d = geo.line_plucker(l)
                 radius = self.assoc.inline_object_radius_m
-                le.p, le.q = self.book.extent(f.id).ends(geo.closest_point(m, d), d, mapped, radius)
+                le.p, le.q = self.book.extent(f.id).ends(geo.closest_point(m, d), d, mapped, radius, depths)
             out.append(le)
         return out
 

@@ -66,16 +66,22 @@ class PipeExtent:
         return float(s.min()), float(s.max())
 
     def interval(
-        self, c: np.ndarray, d: np.ndarray, cutters: np.ndarray | None = None, radius: float = 0.0
+        self,
+        c: np.ndarray,
+        d: np.ndarray,
+        cutters: np.ndarray | None = None,
+        radius: float = 0.0,
+        depths: np.ndarray | None = None,
     ) -> tuple[float, float]:
         """Where the pipe (c, d) was seen, robust to endpoint noise; cut at the mapped objects
         ``cutters`` (N×3, {W}) within ``radius`` of the line inside it, keeping the side that holds
-        most of the views."""
+        most of the views (at their port mouths where ``depths`` gives them, see
+        :func:`~semslam.mapping.pipes.cut_at_objects`)."""
         out = self._robust(c, d)
         if cutters is None or not len(cutters):
             return out
         middle = small_median(((self._pts[: self._k] - c) @ d).mean(axis=1))
-        return cut_at_objects(out, c, d, cutters, radius, middle)
+        return cut_at_objects(out, c, d, cutters, radius, middle, depths=depths)
 
     def _robust(self, c: np.ndarray, d: np.ndarray) -> tuple[float, float]:
         memo = self._memo
@@ -89,9 +95,16 @@ class PipeExtent:
         self._memo = (np.array(c, float), np.array(d, float), self._k, out)
         return out
 
-    def ends(self, c: np.ndarray, d: np.ndarray, cutters: np.ndarray | None = None, radius: float = 0.0) -> np.ndarray:
+    def ends(
+        self,
+        c: np.ndarray,
+        d: np.ndarray,
+        cutters: np.ndarray | None = None,
+        radius: float = 0.0,
+        depths: np.ndarray | None = None,
+    ) -> np.ndarray:
         """The pipe's two ends on the line (c, d), 2×3 (see :meth:`interval`)."""
-        a, b = self.interval(c, d, cutters, radius)
+        a, b = self.interval(c, d, cutters, radius, depths)
         return np.array([c + a * d, c + b * d])
 
     def gap(self, ends_W: np.ndarray, c: np.ndarray, d: np.ndarray, span: tuple[float, float]) -> float:

@@ -150,18 +150,26 @@ def cut_at_objects(
     radius: float,
     middle: float,
     margin: float = 0.05,
+    depths: np.ndarray | None = None,
 ) -> tuple[float, float]:
     """The stretch ``seen`` of the line (c, d) (positions along d from c) cut at the objects (N×3,
-    {W}) within ``radius`` of the line and more than ``margin`` inside it, keeping the side that
-    holds ``middle`` (the median of the views' middles)."""
+    {W}) within ``radius`` of the line, keeping the side that holds ``middle`` (the median of the
+    views' middles). An object cuts at its centre when that lies more than ``margin`` inside; one
+    with a port depth (``depths``, N; 0: unknown) cuts where the pipe enters it, at the port mouth
+    ``depth`` before its centre, wherever that lies inside: the front-end's segments run on into a
+    fitting's socket, which has the pipe's shape, and would put the pipe's end at the fitting's centre."""
     lo, hi = seen
     r = np.asarray(objects, float).reshape(-1, 3) - c
     s = r @ d
-    inside = (np.linalg.norm(r - s[:, None] * d, axis=1) < radius) & (s > lo + margin) & (s < hi - margin)
-    if not inside.any():
-        return lo, hi
-    below, above = s[inside & (s <= middle)], s[inside & (s > middle)]
-    return (float(below.max()) if below.size else lo, float(above.min()) if above.size else hi)
+    depth = np.zeros(len(s)) if depths is None else np.asarray(depths, float)
+    on = np.linalg.norm(r - s[:, None] * d, axis=1) < radius
+    slack = np.where(depth > 0, 0.0, margin)
+    face_above, face_below = s - depth, s + depth
+    above = on & (s > middle) & (face_above > lo + slack) & (face_above < hi - slack)
+    below = on & (s <= middle) & (face_below > lo + slack) & (face_below < hi - slack)
+    a = float(face_below[below].max()) if below.any() else lo
+    b = float(face_above[above].min()) if above.any() else hi
+    return (a, b) if b > a else (lo, hi)
 
 
 def robust_ends(lo: np.ndarray, hi: np.ndarray, window: float) -> tuple[float, float]:
