@@ -48,3 +48,26 @@ def test_object_tracks_keep_the_weighted_mean_of_their_views():
     mean, cov = tr.mean_position()
     np.testing.assert_allclose(mean, [0.1, 0.0, 0.0])
     np.testing.assert_allclose(cov, np.eye(3) * (1 / (100 + 50)))
+
+
+def test_an_object_seen_now_and_then_is_not_promoted_one_seen_in_a_run_is():
+    # the laser's false objects (a pipe detected in part) gather consistent views now and then; a
+    # real object in view is seen in scan after scan
+    tracks = TrackSet(AssociationConfig(min_observations=3, object_scan_ratio=0.5))
+    promoted = []
+    for scan in range(1, 13):
+        tracks.count_scan(scan, ["laser"])
+        tracks.count_scan(scan, ["laser"])  # a second batch of the same scan counts once
+        promoted += _scan(tracks, scan, [0] if scan % 4 == 1 else [])[1]  # scans 1, 5, 9: 3 views
+    assert promoted == [] and len(tracks.tracks[0].views) == 3
+    for scan in range(13, 15):  # then scan after scan: at 14, the last three (9, 13, 14) within 6 scans
+        tracks.count_scan(scan, ["laser"])
+        promoted += _scan(tracks, scan, [0])[1]
+    assert len(promoted) == 1 and len(promoted[0].views) == 5 and len(tracks) == 0
+    # off: the third view promotes whatever the rhythm
+    loose = TrackSet(AssociationConfig(min_observations=3, object_scan_ratio=0.0))
+    got = []
+    for scan in range(1, 10):
+        loose.count_scan(scan, ["laser"])
+        got += _scan(loose, scan, [0] if scan % 4 == 1 else [])[1]
+    assert len(got) == 1

@@ -125,6 +125,7 @@ class MapBuilder:
     # ------------------------------------------------------------------ one batch
     def process(self, stamp: int, observations: Sequence[Observation]) -> set[int]:
         """Map one batch of observations; returns the ids of the landmarks it touched."""
+        self.tracks.count_scan(stamp, {z.sensor for z in observations if isinstance(z, MAPPED_TYPES)})
         obs = self._usable(stamp, observations)
         mapped_ids, mapped = self.state.objects()
         separators = np.vstack([mapped, self.tracks.object_points()])

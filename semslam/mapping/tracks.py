@@ -1,7 +1,12 @@
 """Tentative landmarks (Himri et al. 2018: a landmark enters the map only after consistent repeated
 observations). A scan's unpaired observations continue tracks or start new ones; a track seen
 ``association.min_observations`` times is promoted (each estimator then initialises the landmark in
-its own state); one not seen again within ``association.track_timeout_s`` is forgotten.
+its own state); one not seen again within ``association.track_timeout_s`` is forgotten. An object's
+views must also come in a run: its last ``min_observations`` views within ``min_observations /
+association.object_scan_ratio`` of its sensor's scans. An object in view is seen in nearly every scan
+(in the tank worlds every true object's first three views came in three consecutive scans), while a
+front-end's false object views, made by a rare configuration (a pipe detected in part), come now and
+then and may still gather a few consistent views over a minute.
 
 A scan's views continue tracks one-to-one, by the assignment of least total cost over the scan
 (Hungarian), not view by view: in a row of objects 25–35 cm apart with a missed object, the greedy
@@ -14,6 +19,7 @@ within ``pipe_extent_gap_m`` of what the track saw, with no in-line object betwe
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -52,6 +58,7 @@ class Track:
     kind: str
     model: str | None = None
     views: list[TrackView] = field(default_factory=list)
+    scans: list[int] = field(default_factory=list)  # each view's scan number of its sensor
 
     @property
     def last_stamp(self) -> int:
@@ -83,6 +90,7 @@ class TrackSet:
         self.assoc = assoc
         self.tracks: list[Track] = []
         self._next_key = 0
+        self._scans: dict[str, tuple[int, int]] = {}  # sensor -> (scans counted, last stamp counted)
 
     def __len__(self) -> int:
         return len(self.tracks)
@@ -91,6 +99,13 @@ class TrackSet:
         """The tentative objects' positions in {W} (N×3): they separate collinear pipes as mapped ones do."""
         pts = [tr.mean_position()[0] for tr in self.tracks if tr.kind == "object"]
         return np.array(pts).reshape(-1, 3)
+
+    def count_scan(self, stamp: int, sensors: Iterable[str]) -> None:
+        """A scan of each of these sensors gave observations at ``stamp`` (counted once per stamp)."""
+        for sensor in sensors:
+            n, last = self._scans.get(sensor, (0, None))
+            if last != stamp:
+                self._scans[sensor] = (n + 1, stamp)
 
     def purge(self, stamp: int) -> list[Track]:
         """Forget the tracks not seen within ``track_timeout_s`` of ``stamp``; return them."""
@@ -124,11 +139,20 @@ class TrackSet:
                 self._next_key += 1
                 self.tracks.append(tr)
             tr.views.append(v)
+            tr.scans.append(self._scans.get(v.z.sensor, (0, None))[0])
             went.append(tr)
-            if len(tr.views) >= self.assoc.min_observations:
+            if len(tr.views) >= self.assoc.min_observations and self._in_a_run(tr):
                 self.tracks.remove(tr)
                 promoted.append(tr)
         return went, promoted
+
+    def _in_a_run(self, tr: Track) -> bool:
+        """An object's last ``min_observations`` views came within ``min_observations /
+        object_scan_ratio`` scans of its sensor (other kinds: always)."""
+        ratio, k = self.assoc.object_scan_ratio, self.assoc.min_observations
+        if tr.kind != "object" or ratio <= 0:
+            return True
+        return k / (tr.scans[-1] - tr.scans[-k] + 1) >= ratio
 
     def _gate(self, z: Observation) -> float:
         """The largest :meth:`_cost` that continues a track."""
