@@ -32,7 +32,7 @@ def test_a_missed_object_does_not_shift_the_row_of_tracks():
 
 
 def test_a_track_is_promoted_at_min_observations_and_forgotten_after_the_timeout():
-    tracks = TrackSet(AssociationConfig(min_observations=3, track_timeout_s=60.0))
+    tracks = TrackSet(AssociationConfig(min_observations=3, track_timeout_s=60.0, object_scan_ratio=0.0))
     assert _scan(tracks, 1, [0])[1] == [] and _scan(tracks, 2, [0])[1] == []
     _, promoted = _scan(tracks, 3, [0])
     assert len(promoted) == 1 and len(promoted[0].views) == 3 and len(tracks) == 0
@@ -51,19 +51,26 @@ def test_object_tracks_keep_the_weighted_mean_of_their_views():
 
 
 def test_an_object_seen_now_and_then_is_not_promoted_one_seen_in_a_run_is():
-    # the laser's false objects (a pipe detected in part) gather consistent views now and then; a
-    # real object in view is seen in scan after scan
-    tracks = TrackSet(AssociationConfig(min_observations=3, object_scan_ratio=0.5))
+    # the laser's false objects (a pipe detected in part) gather consistent views in short bursts;
+    # a real object in view is seen scan after scan
+    assoc = AssociationConfig(min_observations=3, object_run_views=5, object_scan_ratio=0.7)
+    tracks = TrackSet(assoc)
     promoted = []
-    for scan in range(1, 13):
+    burst = {1, 2, 3, 4, 9, 12}  # a burst of four, then now and then: never five within seven scans
+    for scan in range(1, 16):
         tracks.count_scan(scan, ["laser"])
         tracks.count_scan(scan, ["laser"])  # a second batch of the same scan counts once
-        promoted += _scan(tracks, scan, [0] if scan % 4 == 1 else [])[1]  # scans 1, 5, 9: 3 views
-    assert promoted == [] and len(tracks.tracks[0].views) == 3
-    for scan in range(13, 15):  # then scan after scan: at 14, the last three (9, 13, 14) within 6 scans
+        promoted += _scan(tracks, scan, [0] if scan in burst else [])[1]
+    assert promoted == [] and len(tracks.tracks[0].views) == 6
+    for scan in range(16, 19):  # then scan after scan: at 18, the last five (9, 12, 16, 17, 18) within 10 scans
         tracks.count_scan(scan, ["laser"])
         promoted += _scan(tracks, scan, [0])[1]
-    assert len(promoted) == 1 and len(promoted[0].views) == 5 and len(tracks) == 0
+    assert promoted == []
+    tracks.count_scan(19, ["laser"])
+    promoted += _scan(tracks, 19, [0])[1]  # (12, 16, 17, 18, 19): five within eight scans, 0.625 < 0.7
+    tracks.count_scan(20, ["laser"])
+    promoted += _scan(tracks, 20, [0])[1]  # (16, ..., 20): five in five
+    assert len(promoted) == 1 and len(promoted[0].views) == 11 and len(tracks) == 0
     # off: the third view promotes whatever the rhythm
     loose = TrackSet(AssociationConfig(min_observations=3, object_scan_ratio=0.0))
     got = []

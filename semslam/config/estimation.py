@@ -103,14 +103,18 @@ class AssociationConfig(BaseModel):
         "saves work on large maps; must exceed the plausible landmark position error",
     )
     min_observations: int = Field(3, ge=1, description="consistent observations before a landmark enters the map")
+    object_run_views: int = Field(
+        5,
+        ge=1,
+        description="an object enters the map only after this many views in a run: within object_run_views / "
+        "object_scan_ratio of its sensor's scans (scans that gave any observation); a real object in view is "
+        "seen scan after scan, a front-end's false object views (a pipe detected in part) come in short bursts",
+    )
     object_scan_ratio: float = Field(
-        0.5,
+        0.7,
         ge=0,
         le=1,
-        description="an object enters the map only when its last min_observations views came within "
-        "min_observations / this many of its sensor's scans (scans that gave any observation): an object in "
-        "view is seen in nearly every scan, while a front-end's false object views (a pipe detected in part) "
-        "come now and then; 0: off",
+        description="the least share of its sensor's scans an object's run was seen in (0: no run asked)",
     )
     min_segment_length_m: float = Field(
         0.05, gt=0, description="pipe segments shorter than this are dropped (no usable direction)"

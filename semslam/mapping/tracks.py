@@ -2,11 +2,10 @@
 observations). A scan's unpaired observations continue tracks or start new ones; a track seen
 ``association.min_observations`` times is promoted (each estimator then initialises the landmark in
 its own state); one not seen again within ``association.track_timeout_s`` is forgotten. An object's
-views must also come in a run: its last ``min_observations`` views within ``min_observations /
-association.object_scan_ratio`` of its sensor's scans. An object in view is seen in nearly every scan
-(in the tank worlds every true object's first three views came in three consecutive scans), while a
-front-end's false object views, made by a rare configuration (a pipe detected in part), come now and
-then and may still gather a few consistent views over a minute.
+views must also come in a run: its last ``association.object_run_views`` views within
+``object_run_views / association.object_scan_ratio`` of its sensor's scans. An object in view is seen
+scan after scan, while a front-end's false object views, made by a passing configuration (a pipe
+detected in part), come in short bursts and may still gather consistent views over minutes.
 
 A scan's views continue tracks one-to-one, by the assignment of least total cost over the scan
 (Hungarian), not view by view: in a row of objects 25–35 cm apart with a missed object, the greedy
@@ -147,12 +146,12 @@ class TrackSet:
         return went, promoted
 
     def _in_a_run(self, tr: Track) -> bool:
-        """An object's last ``min_observations`` views came within ``min_observations /
+        """An object's last ``object_run_views`` views came within ``object_run_views /
         object_scan_ratio`` scans of its sensor (other kinds: always)."""
-        ratio, k = self.assoc.object_scan_ratio, self.assoc.min_observations
+        ratio, k = self.assoc.object_scan_ratio, self.assoc.object_run_views
         if tr.kind != "object" or ratio <= 0:
             return True
-        return k / (tr.scans[-1] - tr.scans[-k] + 1) >= ratio
+        return len(tr.scans) >= k and k / (tr.scans[-1] - tr.scans[-k] + 1) >= ratio
 
     def _gate(self, z: Observation) -> float:
         """The largest :meth:`_cost` that continues a track."""
