@@ -248,13 +248,9 @@ def test_batch_levenberg_marquardt_is_gtsams():
 
 
 def test_landmark_needs_min_observations():
-    """An object seen scan after scan becomes a landmark at its min_observations-th view, and only
-    after a run of object_run_views views (the default config: 3 and 5)."""
+    """Two observations of an object do not create a landmark; the third does."""
     mission = simulate(SyntheticConfig(duration_s=20.0, n_objects=0, n_pipes=0, n_structures=0, seed=2))
-    config = SemslamConfig()
-    need = max(config.association.min_observations, config.association.object_run_views)
-    assert need > 1
-    est = GraphEstimator(mission.metadata, config)
+    est = GraphEstimator(mission.metadata, SemslamConfig())
     sent = 0
     target = None
     for m in mission:
@@ -268,7 +264,7 @@ def test_landmark_needs_min_observations():
                 m.stamp, [PointObservation(m.stamp, "laser", position=z, covariance=np.eye(3) * 1e-4)]
             )
             sent += 1
-            assert len(est.map) == (0 if sent < need else 1)
+            assert len(est.map) == (0 if sent < 3 else 1)
     res = est.finish()
     assert len(res.landmarks) == 1 and res.landmarks[0].n_observations == sent
 

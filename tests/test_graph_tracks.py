@@ -32,7 +32,7 @@ def test_a_missed_object_does_not_shift_the_row_of_tracks():
 
 
 def test_a_track_is_promoted_at_min_observations_and_forgotten_after_the_timeout():
-    tracks = TrackSet(AssociationConfig(min_observations=3, track_timeout_s=60.0, object_scan_ratio=0.0))
+    tracks = TrackSet(AssociationConfig(min_observations=3, track_timeout_s=60.0))
     assert _scan(tracks, 1, [0])[1] == [] and _scan(tracks, 2, [0])[1] == []
     _, promoted = _scan(tracks, 3, [0])
     assert len(promoted) == 1 and len(promoted[0].views) == 3 and len(tracks) == 0
@@ -50,31 +50,37 @@ def test_object_tracks_keep_the_weighted_mean_of_their_views():
     np.testing.assert_allclose(cov, np.eye(3) * (1 / (100 + 50)))
 
 
-def test_an_object_seen_now_and_then_is_not_promoted_one_seen_in_a_run_is():
-    # the laser's false objects (a pipe detected in part) gather consistent views in short bursts;
-    # a real object in view is seen scan after scan
-    assoc = AssociationConfig(min_observations=3, object_run_views=5, object_scan_ratio=0.7)
+def test_an_object_seen_in_few_of_the_scans_that_had_it_in_view_is_not_promoted():
+    # the laser's false objects (a pipe detected in part) come in a few of the many scans that see the
+    # pipe beside them; a real object in view is seen scan after scan
+    assoc = AssociationConfig(min_observations=3, object_view_ratio=0.5, object_view_reach_m=0.3)
+    pipe = np.array([[[0.2, 0.0, 3.0], [0.8, 0.0, 3.0]]])  # ends 0.2 m from ROW[0]
+    far = np.array([[[3.0, 0.0, 3.0], [3.5, 0.0, 3.0]]])
+    none = np.zeros((0, 3))
     tracks = TrackSet(assoc)
     promoted = []
-    burst = {1, 2, 3, 4, 9, 12}  # a burst of four, then now and then: never five within seven scans
-    for scan in range(1, 16):
-        tracks.count_scan(scan, ["laser"])
-        tracks.count_scan(scan, ["laser"])  # a second batch of the same scan counts once
-        promoted += _scan(tracks, scan, [0] if scan in burst else [])[1]
-    assert promoted == [] and len(tracks.tracks[0].views) == 6
-    for scan in range(16, 19):  # then scan after scan: at 18, the last five (9, 12, 16, 17, 18) within 10 scans
-        tracks.count_scan(scan, ["laser"])
+    for scan in range(1, 13):
+        tracks.note_scan(scan, none, pipe)  # the pipe beside it seen in every scan
+        promoted += _scan(tracks, scan, [0] if scan in (1, 2, 8, 12) else [])[1]
+    assert promoted == [] and len(tracks.tracks[0].views) == 4 and tracks.tracks[0].in_view == 12
+    # seen scan after scan from now on: promoted once seen in half the scans that had it in view
+    for scan in range(13, 30):
+        tracks.note_scan(scan, none, pipe)
         promoted += _scan(tracks, scan, [0])[1]
-    assert promoted == []
-    tracks.count_scan(19, ["laser"])
-    promoted += _scan(tracks, 19, [0])[1]  # (12, 16, 17, 18, 19): five within eight scans, 0.625 < 0.7
-    tracks.count_scan(20, ["laser"])
-    promoted += _scan(tracks, 20, [0])[1]  # (16, ..., 20): five in five
-    assert len(promoted) == 1 and len(promoted[0].views) == 11 and len(tracks) == 0
-    # off: the third view promotes whatever the rhythm
-    loose = TrackSet(AssociationConfig(min_observations=3, object_scan_ratio=0.0))
+        if promoted:
+            break
+    assert len(promoted) == 1 and len(promoted[0].views) == 8 and promoted[0].in_view == 16
+    # scans that saw only things far away do not count
+    alone = TrackSet(assoc)
     got = []
-    for scan in range(1, 10):
-        loose.count_scan(scan, ["laser"])
-        got += _scan(loose, scan, [0] if scan % 4 == 1 else [])[1]
+    for scan in range(1, 13):
+        alone.note_scan(scan, none, far)
+        got += _scan(alone, scan, [0] if scan in (1, 6, 12) else [])[1]
+    assert len(got) == 1 and got[0].in_view == 3
+    # off: the third view promotes whatever was in view
+    loose = TrackSet(AssociationConfig(min_observations=3, object_view_ratio=0.0))
+    got = []
+    for scan in range(1, 13):
+        loose.note_scan(scan, none, pipe)
+        got += _scan(loose, scan, [0] if scan in (1, 6, 12) else [])[1]
     assert len(got) == 1

@@ -103,18 +103,17 @@ class AssociationConfig(BaseModel):
         "saves work on large maps; must exceed the plausible landmark position error",
     )
     min_observations: int = Field(3, ge=1, description="consistent observations before a landmark enters the map")
-    object_run_views: int = Field(
-        5,
-        ge=1,
-        description="an object enters the map only after this many views in a run: within object_run_views / "
-        "object_scan_ratio of its sensor's scans (scans that gave any observation); a real object in view is "
-        "seen scan after scan, a front-end's false object views (a pipe detected in part) come in short bursts",
-    )
-    object_scan_ratio: float = Field(
-        0.7,
+    object_view_ratio: float = Field(
+        0.5,
         ge=0,
         le=1,
-        description="the least share of its sensor's scans an object's run was seen in (0: no run asked)",
+        description="an object enters the map only when it was seen in at least this share of the scans that had "
+        "its place in view since its first view (scans that saw anything within object_view_reach_m of it): a real "
+        "object in view is seen scan after scan, a front-end's false object views (a pipe detected in part) come in "
+        "a few of the many scans that see the pipe beside them; 0: off",
+    )
+    object_view_reach_m: float = Field(
+        0.3, gt=0, description="a scan that saw anything this close to a tentative object had that object in view"
     )
     min_segment_length_m: float = Field(
         0.05, gt=0, description="pipe segments shorter than this are dropped (no usable direction)"

@@ -125,7 +125,6 @@ class MapBuilder:
     # ------------------------------------------------------------------ one batch
     def process(self, stamp: int, observations: Sequence[Observation]) -> set[int]:
         """Map one batch of observations; returns the ids of the landmarks it touched."""
-        self.tracks.count_scan(stamp, {z.sensor for z in observations if isinstance(z, MAPPED_TYPES)})
         obs = self._usable(stamp, observations)
         mapped_ids, mapped = self.state.objects()
         separators = np.vstack([mapped, self.tracks.object_points()])
@@ -156,6 +155,7 @@ class MapBuilder:
         if paired:
             self.state.update(paired)
         views = [TrackView(stamp, z, *self.state.place(z)) for z in unpaired]
+        self.tracks.note_scan(stamp, *self._seen(paired, views, mapped_ids, mapped))
         went, promoted = self.tracks.extend(views, separators)
         for v, tr in zip(views, went):
             self.book.observe(("track", tr.key), stamp, v.z)
@@ -176,6 +176,16 @@ class MapBuilder:
         if touched:
             self.merge_duplicates(touched, separators)
         return touched
+
+    def _seen(self, paired, views: list[TrackView], mapped_ids: list[int], mapped: np.ndarray):
+        """What the batch saw in {W}: points (the paired objects' landmarks, the unpaired objects' and
+        structures' views) and segments (the pipe observations)."""
+        row = {lid: r for r, lid in enumerate(mapped_ids)}
+        points = [mapped[row[lid]] for z, lid, _ in paired if lid in row]
+        points += [v.position for v in views if not isinstance(v.z, LineObservation)]
+        segments = [self.state.place(z)[0] for z, _, _ in paired if isinstance(z, LineObservation)]
+        segments += [v.world for v in views if isinstance(v.z, LineObservation)]
+        return np.array(points).reshape(-1, 3), np.array(segments).reshape(-1, 2, 3)
 
     def _usable(self, stamp: int, observations: Sequence[Observation]) -> list[Observation]:
         mapped = [z for z in observations if isinstance(z, MAPPED_TYPES)]

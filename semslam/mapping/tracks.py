@@ -1,11 +1,12 @@
 """Tentative landmarks (Himri et al. 2018: a landmark enters the map only after consistent repeated
 observations). A scan's unpaired observations continue tracks or start new ones; a track seen
 ``association.min_observations`` times is promoted (each estimator then initialises the landmark in
-its own state); one not seen again within ``association.track_timeout_s`` is forgotten. An object's
-views must also come in a run: its last ``association.object_run_views`` views within
-``object_run_views / association.object_scan_ratio`` of its sensor's scans. An object in view is seen
-scan after scan, while a front-end's false object views, made by a passing configuration (a pipe
-detected in part), come in short bursts and may still gather consistent views over minutes.
+its own state); one not seen again within ``association.track_timeout_s`` is forgotten. An object
+must also have been seen in at least ``association.object_view_ratio`` of the scans that had its
+place in view since its first view: the scans that saw anything (a mapped or tentative landmark, an
+unpaired view) within ``association.object_view_reach_m`` of it. A real object in view is seen scan
+after scan; a front-end's false object views, made by a passing configuration (a pipe detected in
+part), come in a few of the many scans that see the pipe beside them.
 
 A scan's views continue tracks one-to-one, by the assignment of least total cost over the scan
 (Hungarian), not view by view: in a row of objects 25–35 cm apart with a missed object, the greedy
@@ -18,7 +19,6 @@ within ``pipe_extent_gap_m`` of what the track saw, with no in-line object betwe
 
 from __future__ import annotations
 
-from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -27,7 +27,7 @@ from scipy.optimize import linear_sum_assignment
 
 from semslam.config import AssociationConfig
 from semslam.mapping.association import chi2_gate
-from semslam.mapping.pipes import object_between, segment_matches_line
+from semslam.mapping.pipes import object_between, point_segment_distance, segment_matches_line
 from semslam.observations import LineObservation, Observation, PointObservation, StructureObservation
 
 KIND_OF_OBSERVATION = {PointObservation: "object", LineObservation: "pipe", StructureObservation: "structure"}
@@ -57,7 +57,8 @@ class Track:
     kind: str
     model: str | None = None
     views: list[TrackView] = field(default_factory=list)
-    scans: list[int] = field(default_factory=list)  # each view's scan number of its sensor
+    in_view: int = 0  # scans that saw anything within object_view_reach_m of it since its first view
+    _in_view_stamp: int | None = None
 
     @property
     def last_stamp(self) -> int:
@@ -89,7 +90,6 @@ class TrackSet:
         self.assoc = assoc
         self.tracks: list[Track] = []
         self._next_key = 0
-        self._scans: dict[str, tuple[int, int]] = {}  # sensor -> (scans counted, last stamp counted)
 
     def __len__(self) -> int:
         return len(self.tracks)
@@ -99,12 +99,19 @@ class TrackSet:
         pts = [tr.mean_position()[0] for tr in self.tracks if tr.kind == "object"]
         return np.array(pts).reshape(-1, 3)
 
-    def count_scan(self, stamp: int, sensors: Iterable[str]) -> None:
-        """A scan of each of these sensors gave observations at ``stamp`` (counted once per stamp)."""
-        for sensor in sensors:
-            n, last = self._scans.get(sensor, (0, None))
-            if last != stamp:
-                self._scans[sensor] = (n + 1, stamp)
+    def note_scan(self, stamp: int, points: np.ndarray, segments: np.ndarray) -> None:
+        """A scan at ``stamp`` saw these points (N×3, {W}) and segments (M×2×3): the tentative objects
+        within ``object_view_reach_m`` of any were in its view (counted once per stamp)."""
+        reach = self.assoc.object_view_reach_m
+        for tr in self.tracks:
+            if tr.kind != "object" or tr._in_view_stamp == stamp:
+                continue
+            x = tr.views[-1].position
+            near = len(points) and np.min(np.linalg.norm(points - x, axis=1)) < reach
+            if not near and len(segments):
+                near = any(point_segment_distance(x[None], a, b)[0] < reach for a, b in segments)
+            if near:
+                _in_view(tr, stamp)
 
     def purge(self, stamp: int) -> list[Track]:
         """Forget the tracks not seen within ``track_timeout_s`` of ``stamp``; return them."""
@@ -138,20 +145,18 @@ class TrackSet:
                 self._next_key += 1
                 self.tracks.append(tr)
             tr.views.append(v)
-            tr.scans.append(self._scans.get(v.z.sensor, (0, None))[0])
+            _in_view(tr, v.stamp)
             went.append(tr)
-            if len(tr.views) >= self.assoc.min_observations and self._in_a_run(tr):
+            if len(tr.views) >= self.assoc.min_observations and self._seen_when_in_view(tr):
                 self.tracks.remove(tr)
                 promoted.append(tr)
         return went, promoted
 
-    def _in_a_run(self, tr: Track) -> bool:
-        """An object's last ``object_run_views`` views came within ``object_run_views /
-        object_scan_ratio`` scans of its sensor (other kinds: always)."""
-        ratio, k = self.assoc.object_scan_ratio, self.assoc.object_run_views
-        if tr.kind != "object" or ratio <= 0:
-            return True
-        return len(tr.scans) >= k and k / (tr.scans[-1] - tr.scans[-k] + 1) >= ratio
+    def _seen_when_in_view(self, tr: Track) -> bool:
+        """An object was seen in at least ``object_view_ratio`` of the scans that had it in view
+        (other kinds: always)."""
+        ratio = self.assoc.object_view_ratio
+        return tr.kind != "object" or ratio <= 0 or len(tr.views) >= ratio * tr.in_view
 
     def _gate(self, z: Observation) -> float:
         """The largest :meth:`_cost` that continues a track."""
@@ -183,3 +188,9 @@ class TrackSet:
         r = v.position - mean
         d2 = float(r @ np.linalg.solve(v.cov + mcov, r))
         return d2 if d2 < self._gate(v.z) else np.inf
+
+
+def _in_view(tr: Track, stamp: int) -> None:
+    if tr._in_view_stamp != stamp:
+        tr.in_view += 1
+        tr._in_view_stamp = stamp
