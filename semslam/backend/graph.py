@@ -153,7 +153,7 @@ class GraphEstimator(Estimator):
         marginals = self.session.marginals(values) if self.cfg.covariance_in_result else None
         in_window = self.session.window_keys()
         left = {k: c for k, c in self.window.left_covariance.items() if k not in in_window}  # not come back
-        landmarks = self.map.estimates(self.cfg.covariance_in_result, values, marginals, left)
+        landmarks = self.mapper.confirmed(self.map.estimates(self.cfg.covariance_in_result, values, marginals, left))
         self.book.connect(landmarks, self.assoc.merge_distance_m)
         ids = [lm.id for lm in landmarks]
         history["landmark_kind"] = {lm.id: lm.kind for lm in landmarks}

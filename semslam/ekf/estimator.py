@@ -96,7 +96,7 @@ class _Filter(Estimator):
                 self.name, empty, diagnostics=self.diagnostics + ["the filter was never initialised"]
             )
         traj, history = out
-        landmarks = self.map.estimates()
+        landmarks = self._confirmed(self.map.estimates())
         history["landmark_kind"] = {lm.id: lm.kind for lm in landmarks}
         history["landmark_volume"] = self._volumes()
         history.update(self.book.history([lm.id for lm in landmarks]))
@@ -115,6 +115,10 @@ class _Filter(Estimator):
     @abstractmethod
     def _volumes(self) -> dict:
         """Each map entry's uncertainty volume over time, by id."""
+
+    def _confirmed(self, landmarks: list[LandmarkEstimate]) -> list[LandmarkEstimate]:
+        """The map at the end of the mission, as the map building confirms it (a filter without one: all)."""
+        return landmarks
 
     def _finish_map(self, landmarks: list[LandmarkEstimate], history: dict) -> None:
         """The map's last word at the end of the mission."""
@@ -141,6 +145,9 @@ class EkfEstimator(_Filter):
 
     def _volumes(self) -> dict:
         return {f.id: (np.array(f.vol_stamps, np.int64), np.array(f.vol)) for f in self.map.features}
+
+    def _confirmed(self, landmarks: list[LandmarkEstimate]) -> list[LandmarkEstimate]:
+        return self.mapper.confirmed(landmarks)
 
     def _finish_map(self, landmarks: list[LandmarkEstimate], history: dict) -> None:
         self.book.connect(landmarks, self.assoc.merge_distance_m)

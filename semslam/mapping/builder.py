@@ -35,11 +35,13 @@ from typing import Any, Protocol
 import numpy as np
 
 from semslam.config import AssociationConfig
+from semslam.estimation import LandmarkEstimate
 from semslam.mapping.association import Candidates, JointCovariance, PairLinearization, chi2_gate, jcbb
 from semslam.mapping.book import LandmarkBook
 from semslam.mapping.extent import along_sigma, off_axis
 from semslam.mapping.pipes import merge_collinear, object_between
 from semslam.mapping.tracks import Track, TrackSet, TrackView
+from semslam.mapping.visibility import InView
 from semslam.observations import LineObservation, Observation, PointObservation, StructureObservation
 
 MAPPED_TYPES = (PointObservation, LineObservation, StructureObservation)
@@ -119,6 +121,7 @@ class MapBuilder:
         self.assoc = assoc
         self.book = book
         self.tracks = TrackSet(assoc)
+        self.in_view = InView(assoc.object_view_reach_m)
         self.diagnostics = diagnostics
         self.merged = 0  # duplicates merged
 
@@ -155,7 +158,10 @@ class MapBuilder:
         if paired:
             self.state.update(paired)
         views = [TrackView(stamp, z, *self.state.place(z)) for z in unpaired]
-        self.tracks.note_scan(stamp, *self._seen(paired, views, mapped_ids, mapped))
+        points, segments = self._seen(paired, views, mapped_ids, mapped)
+        self.tracks.note_scan(stamp, points, segments)
+        seen_objects = {lid for z, lid, _ in paired if isinstance(z, PointObservation)}
+        self.in_view.scan(mapped_ids, mapped, points, segments, seen_objects)
         went, promoted = self.tracks.extend(views, separators)
         for v, tr in zip(views, went):
             self.book.observe(("track", tr.key), stamp, v.z)
@@ -165,6 +171,8 @@ class MapBuilder:
         for tr in promoted:
             lid = self.state.promote(tr)
             self.book.merge(lid, ("track", tr.key))
+            if tr.kind == "object":
+                self.in_view.start(lid, len(tr.views), tr.in_view)
             touched.add(lid)
         for tr in self.tracks.purge(stamp):
             self.book.forget(("track", tr.key))
@@ -176,6 +184,19 @@ class MapBuilder:
         if touched:
             self.merge_duplicates(touched, separators)
         return touched
+
+    def confirmed(self, landmarks: list[LandmarkEstimate]) -> list[LandmarkEstimate]:
+        """The map at the end of the mission without the objects seen in fewer than
+        ``object_view_ratio`` of the (at least ``object_confirm_scans``) scans that had them in view
+        (:mod:`semslam.mapping.visibility`); says how many it left out."""
+        a = self.assoc
+        out = self.in_view.unconfirmed(a.object_view_ratio, a.object_confirm_scans)
+        if out:
+            self.diagnostics.append(
+                f"{len(out)} object(s) seen in fewer than {a.object_view_ratio:.0%} of the scans that had them in "
+                f"view left out of the map as false views (ids {sorted(out)})"
+            )
+        return [lm for lm in landmarks if lm.id not in out]
 
     def _seen(self, paired, views: list[TrackView], mapped_ids: list[int], mapped: np.ndarray):
         """What the batch saw in {W}: points (the paired objects' landmarks, the unpaired objects' and
@@ -263,6 +284,7 @@ class MapBuilder:
             keep, drop = min(a, b), max(a, b)
             self.state.merge(keep, drop, constrain=nis < gate)
             self.book.merge(keep, drop)
+            self.in_view.merge(keep, drop)
             gone.add(drop)
             self.merged += 1
             self.diagnostics.append(f"landmarks {keep} and {drop} are one, merged into {keep}")

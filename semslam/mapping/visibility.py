@@ -1,0 +1,58 @@
+"""Was a mapped object seen when it was in view? For each object landmark, the scans that had its
+place in view (saw anything within ``association.object_view_reach_m`` of it) and those that saw it,
+from its first view (its track's counts) to the end of the mission.
+
+A real object in view is seen scan after scan. A front-end's false object views, made by a passing
+configuration (a pipe detected in part), can come in a burst of a few scans, enough to map it, and
+then not again for the hundreds of scans that see the pipe beside it. At the end of the mission an
+object seen in fewer than ``association.object_view_ratio`` of at least ``object_confirm_scans`` scans
+that had it in view is left out of the map (:meth:`InView.unconfirmed`)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from semslam.mapping.pipes import point_segment_distance
+
+
+class InView:
+    """In-view and seen scan counts of the mapped objects, by landmark id."""
+
+    def __init__(self, reach_m: float):
+        self.reach = reach_m
+        self.in_view: dict[int, int] = {}
+        self.seen: dict[int, int] = {}
+
+    def start(self, lid: int, seen: int, in_view: int) -> None:
+        """A new object landmark, with its track's counts."""
+        self.seen[lid], self.in_view[lid] = seen, in_view
+
+    def scan(self, ids: list[int], positions: np.ndarray, points: np.ndarray, segments: np.ndarray, seen) -> None:
+        """One scan: the mapped objects ``ids`` at ``positions`` (N×3, {W}) with what it saw (points
+        M×3, segments S×2×3) and the ids of the objects it saw (paired views)."""
+        seen = {lid for lid in seen if lid in self.in_view}
+        for lid in seen:
+            self.seen[lid] += 1
+        if not len(ids):
+            return
+        near = np.zeros(len(ids), bool)
+        if len(points):
+            near |= np.min(np.linalg.norm(positions[:, None, :] - points[None], axis=2), axis=1) < self.reach
+        for a, b in segments:
+            near |= point_segment_distance(positions, a, b) < self.reach
+        for lid, is_near in zip(ids, near):
+            if lid in self.in_view and (is_near or lid in seen):
+                self.in_view[lid] += 1
+
+    def merge(self, keep: int, drop: int) -> None:
+        if drop in self.in_view:
+            seen, in_view = self.seen.pop(drop), self.in_view.pop(drop)
+            if keep in self.in_view:
+                self.seen[keep] += seen
+                self.in_view[keep] = max(self.in_view[keep], in_view)
+
+    def unconfirmed(self, ratio: float, min_scans: int) -> set[int]:
+        """The objects seen in fewer than ``ratio`` of at least ``min_scans`` scans that had them in view."""
+        if ratio <= 0:
+            return set()
+        return {lid for lid, n in self.in_view.items() if n >= min_scans and self.seen[lid] < ratio * n}
