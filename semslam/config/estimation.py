@@ -112,11 +112,16 @@ class AssociationConfig(BaseModel):
         "object in view is seen scan after scan, a front-end's false object views (a pipe detected in part) come in "
         "a few of the many scans that see the pipe beside them; 0: off",
     )
+    object_confirm_ratio: float = Field(
+        0.3,
+        ge=0,
+        le=1,
+        description="a mapped object seen in fewer than this share of the scans that had it in view, once at least "
+        "object_confirm_scans did, is left out of the map at the end of the mission (a false front-end view; real "
+        "objects, partly hidden at times, are seen in half of them or more); 0: off",
+    )
     object_confirm_scans: int = Field(
-        20,
-        ge=1,
-        description="a mapped object seen in fewer than object_view_ratio of the scans that had it in view, once "
-        "at least this many did, is left out of the map at the end of the mission (a false front-end view)",
+        15, ge=1, description="the scans that had a mapped object in view before object_confirm_ratio judges it"
     )
     object_view_reach_m: float = Field(
         0.3, gt=0, description="a scan that saw anything this close to a tentative object had that object in view"

@@ -187,13 +187,13 @@ class MapBuilder:
 
     def confirmed(self, landmarks: list[LandmarkEstimate]) -> list[LandmarkEstimate]:
         """The map at the end of the mission without the objects seen in fewer than
-        ``object_view_ratio`` of the (at least ``object_confirm_scans``) scans that had them in view
+        ``object_confirm_ratio`` of the (at least ``object_confirm_scans``) scans that had them in view
         (:mod:`semslam.mapping.visibility`); says how many it left out."""
         a = self.assoc
-        out = self.in_view.unconfirmed(a.object_view_ratio, a.object_confirm_scans)
+        out = self.in_view.unconfirmed(a.object_confirm_ratio, a.object_confirm_scans)
         if out:
             self.diagnostics.append(
-                f"{len(out)} object(s) seen in fewer than {a.object_view_ratio:.0%} of the scans that had them in "
+                f"{len(out)} object(s) seen in fewer than {a.object_confirm_ratio:.0%} of the scans that had them in "
                 f"view left out of the map as false views (ids {sorted(out)})"
             )
         return [lm for lm in landmarks if lm.id not in out]

@@ -4,9 +4,9 @@ from its first view (its track's counts) to the end of the mission.
 
 A real object in view is seen scan after scan. A front-end's false object views, made by a passing
 configuration (a pipe detected in part), can come in a burst of a few scans, enough to map it, and
-then not again for the hundreds of scans that see the pipe beside it. At the end of the mission an
-object seen in fewer than ``association.object_view_ratio`` of at least ``object_confirm_scans`` scans
-that had it in view is left out of the map (:meth:`InView.unconfirmed`)."""
+then not again for the scans that see the pipe beside it. At the end of the mission an object seen in
+fewer than ``association.object_confirm_ratio`` of at least ``object_confirm_scans`` scans that had it
+in view is left out of the map (:meth:`InView.unconfirmed`)."""
 
 from __future__ import annotations
 
