@@ -73,8 +73,9 @@ def run_pipeline(
     are killed before it propagates. ``keep_observations``: the result keeps every observation (True),
     none (False), or "labelled": the numbers the recognition tables read of each labelled object
     observation (:func:`semslam.mapping.book.labelled`; ``PipelineResult.labelled``, kept with True
-    too), not the observations: a long survey's observations are much of its memory. ``observers`` (and those of an enclosing :func:`observed_by`)
-    see every step; without any, nothing is collected for them.
+    too), not the observations: a long survey's observations are much of its memory. ``observers``
+    (and those of an enclosing :func:`observed_by`) see every step; without any, nothing is
+    collected for them.
 
     BLAS runs single-threaded meanwhile: the matrices here are small (an EKF of a few hundred
     states, 3×3 to 100×100 blocks), and OpenBLAS's threads spinning against GTSAM's and each other
