@@ -20,8 +20,8 @@ GTSAM's C++ ones not; the run is ~2× slower) and lists the allocation sites (by
 allocated after the window filled (1.5 × window_s, its first slide) and is still held when the
 estimator finishes: what grows with the mission.
 
-``run`` keeps only the labelled object observations in the pipeline's records (the recognition
-tables' input), ~1.25 kB each.
+``run`` keeps no observation: of each labelled object observation, the numbers the recognition
+tables read (``PipelineResult.labelled``, ~100 bytes a view).
 
 Run: ``python experiments/long_survey_memory.py [--hours 2] [--work DIR] [--out F.json] [--tracemalloc]
 [--config F.yaml] [--batch]`` (a shorter ``graph.window_s`` in F shows the slope after the
@@ -198,10 +198,19 @@ def measure(bag: Path, every_s: float, out_json: Path, trace: bool, count: bool,
         "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024 / 1e6,  # ru_maxrss: KiB
         "final": probe.sample(probe.last),
         "samples": probe.rows,
+        "window_s": probe.graph.cfg.window_s,
         "graph": metrics["estimators"]["graph"],
         "growth_after_window_filled": grew,
     }
     out_json.write_text(json.dumps(result, indent=1))
+
+
+def slope_mb_per_min(samples: list[dict]) -> float:
+    """Least-squares slope of the RSS against mission time."""
+    import numpy as np
+
+    t = np.array([r["t_s"] / 60 for r in samples])
+    return float(np.polyfit(t, [r["rss_mb"] for r in samples], 1)[0])
 
 
 def plot(result: dict, png: Path) -> None:
@@ -269,6 +278,12 @@ def main() -> None:
         print(f"grew most after the window filled, by {by}:")
         for row in grew[by]:
             print(f"  {row['mb']:+7.2f} MB in {row['count']:+8d} blocks: {' <- '.join(reversed(row['where']))}")
+    fill_s = 1.5 * result["window_s"] if result.get("window_s") else None
+    if fill_s is not None:
+        after = [r for r in result["samples"] if r["t_s"] >= fill_s]
+        if len(after) >= 2:
+            slope = slope_mb_per_min(after)
+            print(f"RSS after the window filled ({fill_s / 60:.1f} min of mission on): {slope:+.2f} MB/min")
     g = result["graph"]
     print(
         f"peak RSS {result['peak_rss_mb']:.0f} MB; wall {result['wall_s']:.0f} s; graph ATE {g['ate_rmse_m']}, "

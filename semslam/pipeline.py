@@ -17,7 +17,7 @@ from semslam.mission.measurements import GroundTruthPose, Measurement
 from semslam.mission.mission import Mission
 from semslam.observations import Observation
 from semslam.registry import Frontend
-from semslam.results import ObservationRecord, PipelineResult, PoseLog
+from semslam.results import LabelledViews, ObservationRecord, PipelineResult, PoseLog
 
 
 class PipelineObserver(Protocol):
@@ -71,10 +71,11 @@ def run_pipeline(
     front-ends that declare ``parallel_consumes`` (the laser's scans) have a replica in each, sharing
     those measurements; the others live in one each. On any exception (Ctrl-C included) the workers
     are killed before it propagates. ``keep_observations``: the result keeps every observation (True),
-    none (False), or "labelled": the labelled object observations alone
-    (:func:`semslam.mapping.book.labelled`: all the recognition tables read; a long survey's other
-    observations are much of its memory). ``observers`` (and those of an enclosing :func:`observed_by`)
-    see every step; without any, nothing is collected for them.
+    none (False), or "labelled": the numbers the recognition tables read of each labelled object
+    observation (:func:`semslam.mapping.book.labelled`; ``PipelineResult.labelled``, kept with True
+    too), not the observations: a long survey's observations are much of its memory. ``observers``
+    (and those of an enclosing :func:`observed_by`) see every step; without any, nothing is
+    collected for them.
 
     BLAS runs single-threaded meanwhile: the matrices here are small (an EKF of a few hundred
     states, 3×3 to 100×100 blocks), and OpenBLAS's threads spinning against GTSAM's and each other
@@ -147,6 +148,7 @@ def _run_pipeline(
     timing: dict[str, float] = defaultdict(float)
     truth = PoseLog()  # packed: the ground truth of a long survey is its largest stream
     records: list[ObservationRecord] = []
+    labelled_views = LabelledViews()
     consumers = [(fe, tuple(fe.consumes)) for fe in frontends]
     apart = set(worker.names) if worker is not None else set()
 
@@ -156,8 +158,11 @@ def _run_pipeline(
         if watchers:
             fed.append((fe_name, obs))
         if keep_observations:
-            kept = obs if keep_observations is True else [o for o in obs if labelled(o)]
-            records.extend(ObservationRecord(fe_name, stamp, o) for o in kept)
+            for o in obs:
+                if labelled(o):
+                    labelled_views.append(stamp, o)
+        if keep_observations is True:
+            records.extend(ObservationRecord(fe_name, stamp, o) for o in obs)
         for est in estimators:
             t0 = time.perf_counter()
             est.process_observations(stamp, obs)
@@ -244,4 +249,6 @@ def _run_pipeline(
         for fe in frontends
         if hasattr(getattr(fe, "config", None), "model_dump")
     }
-    return PipelineResult(results, truth.trajectory(), records, dict(timing), n, duration, summaries, resolved)
+    return PipelineResult(
+        results, truth.trajectory(), records, dict(timing), n, duration, summaries, resolved, labelled_views
+    )

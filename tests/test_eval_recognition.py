@@ -5,9 +5,10 @@ import pytest
 
 from semslam.estimation import EstimatorResult, Trajectory
 from semslam.eval.recognition import recognition_block
+from semslam.mapping.book import view_key
 from semslam.mission import GroundTruthMap, GtObject, MissionMetadata, SensorInfo
 from semslam.observations import Connectivity, PointObservation
-from semslam.results import ObservationRecord, PipelineResult
+from semslam.results import LabelledViews, PipelineResult
 
 CLASSES = ("A", "B")
 
@@ -40,9 +41,13 @@ def _setup():
         PointObservation(stamps[4], "laser", position=[-1.0, 2, 0], class_likelihood=lik_B),  # object B
         PointObservation(stamps[5], "laser", position=[0.0, -3, 0], class_likelihood=lik_A),  # no object there
     ]
-    history = {"landmark_of_observation": {id(obs[0]): 7, id(obs[1]): 7, id(obs[2]): 7, id(obs[3]): 8}}
+    key = [view_key(o.stamp, o.sensor, o.position) for o in obs]
+    history = {"landmark_of_observation": {key[0]: 7, key[1]: 7, key[2]: 7, key[3]: 8}}
     res = EstimatorResult("graph", truth, history=history)
-    pipe = PipelineResult({"graph": res}, truth, [ObservationRecord("laser", int(o.stamp), o) for o in obs])
+    views = LabelledViews()
+    for o in obs:
+        views.append(int(o.stamp), o)
+    pipe = PipelineResult({"graph": res}, truth, labelled=views)
     return pipe, meta
 
 
@@ -62,3 +67,26 @@ def test_no_ground_truth_no_tables():
     pipe, meta = _setup()
     meta.ground_truth = None
     assert recognition_block(pipe, meta) == {}
+
+
+def test_labelled_views_give_back_what_the_tables_read():
+    """The packed views give back each observation's stamps, sensor, position, likelihoods (their
+    order too) and pipe configuration, whatever class set each observation names."""
+    obs = [
+        PointObservation(5, "laser", position=[0.1, -2.5, 3e-9], class_likelihood={"B": 0.25, "A": 0.75}),
+        PointObservation(6, "sonar", position=[1, 2, 3], class_likelihood={"A": 0.5, "C": 0.1, "B": 0.4}),
+        PointObservation(
+            7, "laser", position=[4, 5, 6], class_likelihood={"B": 0.9, "A": 0.1}, connectivity=Connectivity(3, 4)
+        ),
+    ]
+    views = LabelledViews()
+    for i, o in enumerate(obs):
+        views.append(100 + i, o)
+    got = list(views)
+    assert len(views) == len(got) == 3
+    for i, (o, v) in enumerate(zip(obs, got)):
+        assert (v.stamp, v.view_stamp, v.sensor) == (100 + i, o.stamp, o.sensor)
+        assert np.array_equal(v.position, o.position)
+        assert list(v.class_likelihood.items()) == list(o.class_likelihood.items())
+        assert view_key(v.view_stamp, v.sensor, v.position) == view_key(o.stamp, o.sensor, o.position)
+    assert [v.configuration for v in got] == [None, None, 4]

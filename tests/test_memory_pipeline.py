@@ -9,7 +9,8 @@ import pytest
 
 from semslam.config import SemslamConfig
 from semslam.estimators import create_estimator
-from semslam.mapping.book import labelled
+from semslam.eval.recognition import labelled_object_records, recognition_block
+from semslam.mapping.book import labelled, view_key
 from semslam.mission.measurements import GroundTruthPose
 from semslam.mission.mission import Mission
 from semslam.observations import Observation
@@ -26,12 +27,13 @@ class LiveObjects:
 
     def __init__(self, every_s: float):
         self.every_ns = int(every_s * 1e9)
-        self.fed = self.truth_fed = 0
+        self.fed = self.labelled_fed = self.truth_fed = 0
         self.rows: list[dict] = []
         self._next = None
 
     def step(self, stamp, measurement, observations, views):
         self.fed += sum(len(obs) for _, obs in observations)
+        self.labelled_fed += sum(labelled(z) for _, obs in observations for z in obs)
         self.truth_fed += isinstance(measurement, GroundTruthPose)
         self._next = stamp if self._next is None else self._next
         if stamp >= self._next:
@@ -41,6 +43,7 @@ class LiveObjects:
                 {
                     "stamp": stamp,
                     "fed": self.fed,
+                    "labelled_fed": self.labelled_fed,
                     "truth_fed": self.truth_fed,
                     "observations": sum(isinstance(o, Observation) for o in live),
                     "labelled": sum(isinstance(o, Observation) and labelled(o) for o in live),
@@ -96,21 +99,44 @@ def test_after_the_window_filled_no_observation_or_truth_pose_is_kept_per_second
     assert views > 0.5 * end["fed"]
 
 
-def test_labelled_records_keep_the_recognition_observations_alone(mission):
+def test_labelled_records_keep_numbers_not_observations(mission):
+    """`semslam run`'s records: what the recognition tables read of each labelled view, as numbers;
+    no observation, labelled or not, stays alive for them."""
     result, filled, end = _run(mission, keep_observations="labelled")
-    assert result.observations and all(labelled(r.observation) for r in result.observations)
-    # the records are all that grows: the other observations are not kept
+    assert not result.observations and len(result.labelled) >= end["labelled_fed"] > 100  # end: the last sample
+    labelled_fed = end["labelled_fed"] - filled["labelled_fed"]
+    assert labelled_fed > 100  # the mission went on with labelled views
+    # before, the records kept every labelled observation (1.25 kB each) to find its landmark by id()
+    assert end["labelled"] - filled["labelled"] < 0.15 * labelled_fed, (filled, end)
     others = [r["observations"] - r["labelled"] for r in (filled, end)]
     assert others[1] - others[0] < 0.15 * (end["fed"] - filled["fed"]), (filled, end)
-    # each record's landmark, by identity, as the recognition tables look it up
-    landmark_of = result.results["graph"].history["landmark_of_observation"]
-    found = [landmark_of.get(id(r.observation)) for r in result.observations]
-    assert sum(f is not None for f in found) > 0.5 * len(found)
+    # each view's key names it alone, and most views ended in a landmark
+    keys = [view_key(v.view_stamp, v.sensor, v.position) for v in result.labelled]
+    assert len(set(keys)) == len(keys)
+    assert set(result.results["graph"].history["landmark_of_observation"]) <= set(keys)
+    records = labelled_object_records(result, mission.metadata)
+    assert sum(r.landmark_id is not None for r in records) > 0.5 * len(records)
+
+
+def test_a_views_key_names_the_landmark_that_holds_that_view(mission):
+    """Recognition finds each view's landmark by value (view_key): it is a landmark holding that view."""
+    every, _, _ = _run(mission, keep_observations=True)
+    history = every.results["graph"].history
+    held = {lid: set(views) for lid, views in history["landmark_observations"].items()}
+    named = 0
+    for r in every.observations:
+        z = r.observation
+        if not labelled(z):
+            continue
+        lid = history["landmark_of_observation"].get(view_key(z.stamp, z.sensor, z.position))
+        if lid is not None:
+            assert (r.stamp, z.truth_id) in held[lid]
+            named += 1
+    assert named > 100
 
 
 def test_the_recognition_tables_are_the_same_from_the_labelled_records_alone(mission):
-    """`semslam run` keeps only the labelled records: its recognition tables must not change."""
-    from semslam.eval.recognition import recognition_block
+    """`semslam run` keeps only the labelled views' numbers: its recognition tables must not change."""
 
     every, _, _ = _run(mission, keep_observations=True)
     labelled_only, _, _ = _run(mission, keep_observations="labelled")

@@ -18,6 +18,7 @@ The absolute information is kept for the prior of a landmark that re-enters the 
 
 from __future__ import annotations
 
+from array import array
 from dataclasses import dataclass, field
 
 import gtsam
@@ -56,6 +57,28 @@ KEY_OF_KIND = {
     "structure": gtsam.symbol_shorthand.S,
 }
 DIM_OF_KIND = {"object": 3, "pipe": 4, "structure": 6}
+
+
+class VolumeLog:
+    """A landmark's uncertainty volume (log det of its covariance) at each refresh, packed: 16 bytes
+    a refresh where a (stamp, float) tuple in a list costs ~120; a survey refreshes its landmarks for
+    hours. Iterates as (stamp, log det) pairs."""
+
+    __slots__ = ("stamps", "values")
+
+    def __init__(self):
+        self.stamps = array("q")
+        self.values = array("d")
+
+    def __len__(self) -> int:
+        return len(self.stamps)
+
+    def append(self, stamp: int, value: float) -> None:
+        self.stamps.append(stamp)
+        self.values.append(value)
+
+    def __iter__(self):
+        return zip(self.stamps, self.values)
 
 
 @dataclass
@@ -158,7 +181,7 @@ class GraphLandmarks:
         self.diagnostics = diagnostics
         self.landmarks: dict[int, Landmark] = {}
         self._next_id = 0
-        self.volume: dict[int, list[tuple[int, float]]] = {}  # landmark id → [(stamp, log det cov)]
+        self.volume: dict[int, VolumeLog] = {}  # landmark id → (stamp, log det cov) at each refresh
         # Bounding sphere (centre, radius) of every landmark, refreshed with its estimate.
         self._sphere_row: dict[int, int] = {}
         self._sphere_ids: list[int] = []
@@ -424,7 +447,8 @@ class GraphLandmarks:
                 lm.cov_stamp = stamp
                 lm.covariance = lm.information_covariance(gate=True)
                 ev = np.linalg.eigvalsh(lm.covariance)
-                self.volume.setdefault(lid, []).append((stamp, float(np.sum(np.log(np.maximum(ev, 1e-300))))))
+                log = self.volume.setdefault(lid, VolumeLog())
+                log.append(stamp, float(np.sum(np.log(np.maximum(ev, 1e-300)))))
 
     def _spheres(self) -> tuple[list[int], np.ndarray, np.ndarray]:
         n = len(self._sphere_ids)

@@ -6,8 +6,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from semslam.mapping.book import view_key
 from semslam.mission.mission import MissionMetadata
-from semslam.observations import PointObservation
 from semslam.results import PipelineResult
 from semslam.semantics.metrics import ObservationRecord, recognition_metrics
 
@@ -31,14 +31,11 @@ def _true_poses(truth, stamps: np.ndarray) -> np.ndarray | None:
 def labelled_object_records(
     pipeline: PipelineResult, metadata: MissionMetadata, view: str = "graph"
 ) -> list[ObservationRecord]:
-    """Every object observation with a class likelihood, its true class (nearest true object to the
-    observation placed with the true pose, within ``MATCH_GATE_M``) and the landmark id it ended in."""
+    """Every object observation with a class likelihood (``pipeline.labelled``), its true class
+    (nearest true object to the observation placed with the true pose, within ``MATCH_GATE_M``) and
+    the landmark id it ended in (the estimator's ``landmark_of_observation``, by view key)."""
     gt = metadata.ground_truth
-    obs = [
-        r
-        for r in pipeline.observations
-        if isinstance(r.observation, PointObservation) and r.observation.class_likelihood
-    ]
+    obs = list(pipeline.labelled)
     if gt is None or not gt.objects or not obs:
         return []
     T = _true_poses(pipeline.truth, np.array([r.stamp for r in obs], np.int64))
@@ -50,16 +47,15 @@ def labelled_object_records(
     truth_cls = [o.cls for o in gt.objects]
     out = []
     for r, T_WB in zip(obs, T):
-        z = r.observation
-        info = metadata.sensors.get(z.sensor)
+        info = metadata.sensors.get(r.sensor)
         T_BS = info.T_BS if info is not None else np.eye(4)
-        w = (T_WB @ T_BS @ np.r_[z.position, 1.0])[:3]
+        w = (T_WB @ T_BS @ np.r_[r.position, 1.0])[:3]
         d = np.linalg.norm(truth_pos - w, axis=1)
         k = int(np.argmin(d))
         if d[k] > MATCH_GATE_M:
             continue
-        conf = z.connectivity.configuration if z.connectivity is not None else None
-        out.append(ObservationRecord(truth_cls[k], dict(z.class_likelihood), landmark_of.get(id(z)), conf))
+        lid = landmark_of.get(view_key(r.view_stamp, r.sensor, r.position))
+        out.append(ObservationRecord(truth_cls[k], r.class_likelihood, lid, r.configuration))
     return out
 
 

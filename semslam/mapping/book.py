@@ -5,6 +5,7 @@ connect."""
 
 from __future__ import annotations
 
+import sys
 from array import array
 from collections.abc import Hashable, Iterable
 
@@ -19,8 +20,16 @@ from semslam.semantics.fusion import ClassFusion
 
 def labelled(z: Observation) -> bool:
     """An object observation with a class likelihood: what the recognition tables score, and the
-    views the book names by identity (``landmark_of_observation``)."""
+    views the book names (``landmark_of_observation``, by :func:`view_key`)."""
     return isinstance(z, PointObservation) and bool(z.class_likelihood)
+
+
+def view_key(stamp: int, sensor: str, position) -> tuple:
+    """What names a labelled view by value: its stamp, sensor and position in the sensor frame (two
+    views of one scan are never at the same place), so that whoever kept these numbers finds its
+    landmark without keeping the observation."""
+    x, y, z = (float(v) for v in position)
+    return int(stamp), sensor, x, y, z
 
 
 NO_TRUTH = -(2**63)  # a view's truth id when the front-end gave none
@@ -30,12 +39,23 @@ class ViewLog:
     """One landmark's views, packed: what the map and the evaluation need of them, not the observations
     (a landmark of a long survey is seen tens of thousands of times, ~900 bytes an observation)."""
 
-    __slots__ = ("stamps", "truth_ids", "labelled", "models", "saw_pipes")
+    __slots__ = (
+        "stamps",
+        "truth_ids",
+        "labelled_stamps",
+        "labelled_sensors",
+        "labelled_positions",
+        "models",
+        "saw_pipes",
+    )
 
     def __init__(self):
         self.stamps = array("q")
         self.truth_ids = array("q")  # NO_TRUTH for None
-        self.labelled = array("q")  # id() of each labelled view: the key of the driver's records
+        # the view_key of each labelled view: its own stamp, its sensor (interned) and its position
+        self.labelled_stamps = array("q")
+        self.labelled_sensors: list[str] = []
+        self.labelled_positions = array("d")
         self.models: frozenset[str] = frozenset()  # the CAD models the pipe's segments were seen to end at
         self.saw_pipes = False  # an object view reported pipes attached to it
 
@@ -47,7 +67,9 @@ class ViewLog:
         truth = getattr(z, "truth_id", None)
         self.truth_ids.append(NO_TRUTH if truth is None else truth)
         if labelled(z):
-            self.labelled.append(id(z))
+            self.labelled_stamps.append(z.stamp)
+            self.labelled_sensors.append(sys.intern(z.sensor))
+            self.labelled_positions.extend(np.asarray(z.position, np.float64))
         if isinstance(z, PointObservation):
             self.saw_pipes |= z.connectivity is not None and z.connectivity.n_pipes > 0
         elif isinstance(z, LineObservation) and z.connected_models:
@@ -56,9 +78,19 @@ class ViewLog:
     def extend(self, other: ViewLog) -> None:
         self.stamps.extend(other.stamps)
         self.truth_ids.extend(other.truth_ids)
-        self.labelled.extend(other.labelled)
+        self.labelled_stamps.extend(other.labelled_stamps)
+        self.labelled_sensors.extend(other.labelled_sensors)
+        self.labelled_positions.extend(other.labelled_positions)
         self.models |= other.models
         self.saw_pipes |= other.saw_pipes
+
+    def labelled_keys(self) -> list[tuple]:
+        """The view_key of each labelled view, in the order seen."""
+        pos = self.labelled_positions
+        return [
+            view_key(s, n, pos[3 * i : 3 * i + 3])
+            for i, (s, n) in enumerate(zip(self.labelled_stamps, self.labelled_sensors))
+        ]
 
     def stamped_truth(self) -> list[tuple[int, int | None]]:
         """(stamp, truth id) of each view, in the order seen."""
@@ -114,13 +146,12 @@ class LandmarkBook:
         return self.classes.posterior(key)
 
     def history(self, ids: Iterable[int]) -> dict:
-        """For evaluation: which landmark each labelled observation ended in (by object identity, ``id``:
-        the book keeps no observation, and an identity names one only while it lives, which the
-        driver's records ensure for those they keep), and each landmark's views as (stamp, truth id)."""
+        """For evaluation: which landmark each labelled observation ended in (by :func:`view_key`: the
+        book keeps no observation), and each landmark's views as (stamp, truth id)."""
         ids = list(ids)
         empty = ViewLog()
         return {
-            "landmark_of_observation": {k: lid for lid in ids for k in self.views.get(lid, empty).labelled},
+            "landmark_of_observation": {k: lid for lid in ids for k in self.views.get(lid, empty).labelled_keys()},
             "landmark_observations": {lid: self.views.get(lid, empty).stamped_truth() for lid in ids},
         }
 
