@@ -273,6 +273,7 @@ def test_two_object_landmarks_on_one_place_are_merged():
     """A second landmark made from the same views as a mapped object (as when a first track's
     views were off and both end up fed by one object) converges onto it and is merged: the map
     keeps one object with both histories, and the graph (rebuild included) goes on."""
+    from semslam.mapping.book import labelled, view_key
     from semslam.mapping.tracks import Track, TrackView
 
     mission = simulate(
@@ -280,11 +281,11 @@ def test_two_object_landmarks_on_one_place_are_merged():
     )
     est = GraphEstimator(mission.metadata, SemslamConfig())
     twin = None
-    fed = {}  # every observation the estimator took (the book keeps none), by identity
+    fed = {}  # every labelled observation the estimator took (the book keeps none), by view key
     process = est.process_observations
 
     def keep(stamp, observations):
-        fed.update({id(z): (stamp, z) for z in observations})
+        fed.update({view_key(z.stamp, z.sensor, z.position): (stamp, z) for z in observations if labelled(z)})
         process(stamp, observations)
 
     est.process_observations = keep
