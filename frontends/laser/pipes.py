@@ -445,7 +445,11 @@ def bump_profile(t: np.ndarray, residual: np.ndarray, cfg: PipeConfig) -> BumpPr
 
 
 def split_at_fittings(
-    t: np.ndarray, residual: np.ndarray, t_foreign: np.ndarray, cfg: PipeConfig, t_around: np.ndarray | None = None
+    t: np.ndarray,
+    residual: np.ndarray,
+    t_foreign: np.ndarray,
+    cfg: PipeConfig,
+    t_around: np.ndarray | None = None,
 ) -> list[np.ndarray]:
     """Runs of a pipe's inliers, cut where a fitting sits on it (index arrays into ``t``).
 
@@ -458,7 +462,9 @@ def split_at_fittings(
     the pipe (to the objects), the pipe is cut there. A gap in the inliers (a pipe in front hides
     part of this one) is bridged unless longer than ``max_gap`` or holding at least
     ``fitting_points`` of ``t_around`` (points within ``gap_reach`` of the surface: a body whose
-    faces are not cylinder inliers): fittings, not gaps, are what separate two pipes.
+    faces are not cylinder inliers): fittings, not gaps, are what separate two pipes. With
+    ``t_around``, a bump beyond the outermost segment must have some of them around it to cut the
+    pipe (:func:`_bare_ends`).
     """
     if len(t) == 0:
         return []
@@ -479,6 +485,19 @@ def split_at_fittings(
     # A fitting is at least min_fitting_length long (the shortest socket is 8.8 cm): a lone bin is
     # noise or a pipe passing close by, not a fitting.
     flag = _in_long_runs(flag, max(int(round(cfg.min_fitting_length / cfg.bump_bin)), 1))
+    ta = None if t_around is None else np.sort(t_around)
+    runs = _kept_runs(flag, first, b, t, t0, ta, cfg)
+    if ta is not None and cfg.end_fitting_points > 0:
+        bare = _bare_ends(flag, first, t, t0, runs, ta, cfg)
+        if bare is not None:
+            runs = _kept_runs(bare, first, b, t, t0, ta, cfg)
+    return runs
+
+
+def _kept_runs(flag, first: int, b, t, t0: float, ta, cfg: PipeConfig) -> list[np.ndarray]:
+    """The runs of the inliers (bin ``b``, at ``t``) outside the flagged bins (``flag[k - first]``
+    is bin k's), cut at flagged bins, at gaps longer than ``max_gap`` and at gaps holding a body
+    (``fitting_points`` of the sorted ``ta``, or None)."""
     bad_bins = np.flatnonzero(flag) + first
     kept = np.flatnonzero(~flag[b - first])
     if len(kept) == 0:
@@ -489,11 +508,41 @@ def split_at_fittings(
     fitting_before = np.searchsorted(t0 + bad_bins * cfg.bump_bin, tk)
     gap = tk[1:] - tk[:-1]
     cut = (fitting_before[1:] > fitting_before[:-1]) | (gap > cfg.max_gap)
-    if t_around is not None and len(t_around):
-        ta = np.sort(t_around)
+    if ta is not None and len(ta):
         inside = np.searchsorted(ta, tk[1:]) - np.searchsorted(ta, tk[:-1], side="right")
         cut |= (gap > cfg.min_fitting_length) & (inside >= cfg.fitting_points)
     return np.split(kept, np.flatnonzero(cut) + 1)
+
+
+def _bare_ends(flag, first: int, t, t0: float, runs: list[np.ndarray], te, cfg: PipeConfig):
+    """``flag`` with the flagged bins beyond the outermost segment (a run of at least ``min_points``
+    over ``min_detect_length``) cleared, at either end, where fewer than ``end_fitting_points`` of
+    ``te`` (sorted: ``t_around``, the points that may show a fitting) lie from that segment's end to
+    ``end_fitting_reach`` beyond the outermost inlier: the pipe's own end, not a fitting. None when
+    nothing is cleared.
+
+    A bump alone cannot tell a fitting at the end of a pipe from the pipe's last centimetres: a sparse
+    4 cm stretch under 5-10 mm of range noise stands 3-6 mm out of a slightly tilted fit as often as a
+    socket's surface does (measured on the tank's free pipe ends), and cut there, the pipe stops short
+    and its rest reads as an object. A fitting shows more: end faces, a body, a branch, a handle off the
+    cylinder. (Flagged bins in between, or a short run beyond them, join the segment.)"""
+    segments = [r for r in runs if len(r) >= cfg.min_points and np.ptp(t[r]) >= cfg.min_detect_length]
+    if not segments:
+        return None
+    out = flag.copy()
+    reach, bin_of = cfg.end_fitting_reach, lambda x: int(np.floor((x - t0) / cfg.bump_bin)) - first
+    hi, lo = max(float(t[r].max()) for r in segments), min(float(t[r].min()) for r in segments)
+    if (
+        t.max() > hi
+        and np.searchsorted(te, t.max() + reach, "right") - np.searchsorted(te, hi) < cfg.end_fitting_points
+    ):
+        out[bin_of(hi) + 1 :] = False
+    if (
+        t.min() < lo
+        and np.searchsorted(te, lo, "right") - np.searchsorted(te, t.min() - reach) < cfg.end_fitting_points
+    ):
+        out[: max(bin_of(lo), 0)] = False
+    return None if np.array_equal(out, flag) else out
 
 
 def _bin_medians(b: np.ndarray, residual: np.ndarray, n_bins: int) -> tuple[np.ndarray, np.ndarray]:
