@@ -261,8 +261,9 @@ class PipeConfig(_Section):
         description="a bump at an extreme of a pipe's inliers (none of them kept beyond it) cuts the pipe there only "
         "if at least this many points within gap_reach outside its surface lie from the pipe's last unbumped "
         "inlier to end_fitting_reach beyond the bump (a fitting's end faces, body, branch); else it is the pipe's "
-        "own end. Measured on tank seeds 10, 12, 19 (every 3rd scan): such bumps at free pipe ends (the pipe then "
-        "stopped short, its rest read as an object) have 0-9 (83 of 96), at fittings >= 10 (1796 of 1810); 0: off",
+        "own end (free pipe ends of the tank: noise on their sparse last cm cut them 4-36 cm short, and their rest "
+        "was read as an object). It also lets a pipe run into a fitting that shows only its hub (an elbow or socket "
+        "whose other side is not seen); measured in experiments/laser/README.md; 0: off",
     )
     end_fitting_reach: float = Field(0.12, gt=0, description="see end_fitting_points (m)")
     bump_bin: float = Field(0.02, gt=0, description="bin along the axis in which fittings are looked for")
