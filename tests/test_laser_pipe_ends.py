@@ -12,7 +12,7 @@ import numpy as np
 
 from frontends.laser.config import PipeConfig
 from frontends.laser.grid import VoxelGrid
-from frontends.laser.pipes import detect_pipes, split_at_fittings
+from frontends.laser.pipes import Rays, detect_pipes, split_at_fittings
 
 R = 0.0315  # the tank's pipe radius
 
@@ -51,7 +51,7 @@ def test_a_bump_with_a_body_beyond_it_is_still_a_fitting():
 def _free_pipe(seed: int, sigma: float):
     """A ray-cast-like half shell of a pipe along +x (x in [0, 0.5], axis at z = 2 m below the
     sensor), 1 cm voxels, its last 5 cm 5 mm wider (noise of the sparse end and a tilted fit, as the
-    pipe stage sees it), nothing else in view: (points, outward normals, grid)."""
+    pipe stage sees it): (points, outward normals, grid, the scan's rays with a floor 0.5 m below)."""
     rng = np.random.default_rng(seed)
     n = 6000
     x = rng.uniform(0.0, 0.5, n)
@@ -61,13 +61,18 @@ def _free_pipe(seed: int, sigma: float):
     grid = VoxelGrid(raw, 0.01)
     p = grid.points
     radial = np.column_stack([np.zeros(len(p)), p[:, 1], p[:, 2] - 2.0])
-    return p, radial / np.linalg.norm(radial, axis=1)[:, None], grid
+    # the floor behind, where the sensor's rays past the pipe (and past its end) return
+    fx, fy = np.meshgrid(np.arange(-0.3, 0.9, 0.01), np.arange(-0.3, 0.3, 0.01))
+    floor = np.column_stack([fx.ravel(), fy.ravel(), np.full(fx.size, 2.5)])
+    hidden = (np.abs(floor[:, 1] * 2.0 / 2.5) < R) & (floor[:, 0] * 2.0 / 2.5 > 0.0) & (floor[:, 0] * 2.0 / 2.5 < 0.5)
+    return p, radial / np.linalg.norm(radial, axis=1)[:, None], grid, Rays(np.vstack([raw, floor[~hidden]]))
 
 
 def test_detect_pipes_runs_a_free_pipe_to_its_end():
-    cfg = PipeConfig(radius_prior=R)
-    for seed in range(3):
-        points, normals, grid = _free_pipe(seed, 0.002)
-        (pipe,) = [p for p in detect_pipes(points, normals, grid, cfg) if p.length >= cfg.min_detect_length]
-        lo, hi = sorted((pipe.p[0], pipe.q[0]))
-        assert lo < 0.01 and hi > 0.49  # not stopped 5 cm short, the rest left to the objects
+    for see_through in (False, True):  # the sensor sees the floor past the pipe's end
+        cfg = PipeConfig(radius_prior=R, end_see_through=see_through)
+        for seed in range(3):
+            points, normals, grid, rays = _free_pipe(seed, 0.002)
+            (pipe,) = [p for p in detect_pipes(points, normals, grid, cfg, rays) if p.length >= cfg.min_detect_length]
+            lo, hi = sorted((pipe.p[0], pipe.q[0]))
+            assert lo < 0.01 and hi > 0.49  # not stopped 5 cm short, the rest left to the objects

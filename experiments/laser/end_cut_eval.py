@@ -37,7 +37,7 @@ def collect(args) -> None:
     calls: list = []
     orig_cut, orig_split = P._cut_into_segments, P.split_at_fittings
 
-    def cut_hook(points, normals, sq, cb, ab, rb, idx, pcfg, foreign=None, seabed=None):
+    def cut_hook(points, normals, sq, cb, ab, rb, idx, pcfg, foreign=None, seabed=None, rays=None):
         state["cyl"] = dict(cb=np.array(cb), ab=np.array(ab), rb=float(rb), pts=points[idx], nrm=normals[idx])
         # every structure point near the cylinder (not only the free ones): along the axis, off its surface
         ta = (points - cb) @ ab
@@ -48,17 +48,17 @@ def collect(args) -> None:
             near &= foreign
         state["cyl"].update(near_t=ta[near], near_res=ra[near])
         try:
-            return orig_cut(points, normals, sq, cb, ab, rb, idx, pcfg, foreign, seabed)
+            return orig_cut(points, normals, sq, cb, ab, rb, idx, pcfg, foreign, seabed, rays)
         finally:
             state.pop("cyl", None)
 
-    def split_hook(t, residual, t_foreign, pcfg, t_around=None):
+    def split_hook(t, residual, t_foreign, pcfg, t_around=None, open_beyond=None):
         if "cyl" in state:
             c = dict(state["cyl"], stamp=state["stamp"], t=np.array(t), residual=np.array(residual), cfg=pcfg)
             c["t_foreign"] = np.array(t_foreign)
             c["t_around"] = None if t_around is None else np.array(t_around)
             calls.append(c)
-        return orig_split(t, residual, t_foreign, pcfg, t_around)
+        return orig_split(t, residual, t_foreign, pcfg, t_around, open_beyond)
 
     P._cut_into_segments, P.split_at_fittings = cut_hook, split_hook
     out = {}

@@ -46,8 +46,8 @@ def main(argv=None) -> int:
     rec: list = []
     orig = P._cut_into_segments
 
-    def hook(points, normals, sq, cb, ab, rb, idx, pcfg, foreign=None, seabed=None):
-        out = orig(points, normals, sq, cb, ab, rb, idx, pcfg, foreign, seabed)
+    def hook(points, normals, sq, cb, ab, rb, idx, pcfg, foreign=None, seabed=None, rays=None):
+        out = orig(points, normals, sq, cb, ab, rb, idx, pcfg, foreign, seabed, rays)
         rec.append((np.array(cb), np.array(ab), float(rb), np.array(idx), out, pcfg))
         return out
 
