@@ -49,14 +49,14 @@ def collect(args) -> None:
     calls: list = []
     orig_cut, orig_split = P._cut_into_segments, P.split_at_fittings
 
-    def cut_hook(points, normals, sq, cb, ab, rb, idx, pcfg, foreign=None, seabed=None):
+    def cut_hook(points, normals, sq, cb, ab, rb, idx, pcfg, foreign=None, seabed=None, rays=None):
         state["cyl"] = (np.array(cb), np.array(ab), float(rb), pcfg)
         try:
-            return orig_cut(points, normals, sq, cb, ab, rb, idx, pcfg, foreign, seabed)
+            return orig_cut(points, normals, sq, cb, ab, rb, idx, pcfg, foreign, seabed, rays)
         finally:
             state.pop("cyl", None)
 
-    def split_hook(t, residual, t_foreign, pcfg, t_around=None):
+    def split_hook(t, residual, t_foreign, pcfg, t_around=None, open_beyond=None):
         if "cyl" in state:
             cb, ab, rb, ccfg = state["cyl"]
             calls.append(
@@ -72,7 +72,7 @@ def collect(args) -> None:
                     cfg=ccfg,
                 )
             )
-        return orig_split(t, residual, t_foreign, pcfg, t_around)
+        return orig_split(t, residual, t_foreign, pcfg, t_around, open_beyond)
 
     P._cut_into_segments, P.split_at_fittings = cut_hook, split_hook
     out = {}

@@ -37,6 +37,9 @@ _REFINE_REACH = 0.05  # m beyond a pipe's surface over which a refinement looks 
 _MIN_TURN = 0.02
 _MAX_FITTING = 0.25  # m: a segment no longer than this may be a fitting found as a pipe (sockets, tee runs)
 _MAX_OFF_AXIS = 0.5
+# A pipe's bare end (split_at_fittings' open_beyond): the cylinder continued from 2 to 10 cm past its
+# last inlier (past an end cap's rim) is seen through by at least half of at least 5 crossing rays.
+_OPEN_FROM, _OPEN_TO, _MIN_OPEN_RAYS = 0.02, 0.10, 5
 
 
 @dataclass
@@ -445,7 +448,12 @@ def bump_profile(t: np.ndarray, residual: np.ndarray, cfg: PipeConfig) -> BumpPr
 
 
 def split_at_fittings(
-    t: np.ndarray, residual: np.ndarray, t_foreign: np.ndarray, cfg: PipeConfig, t_around: np.ndarray | None = None
+    t: np.ndarray,
+    residual: np.ndarray,
+    t_foreign: np.ndarray,
+    cfg: PipeConfig,
+    t_around: np.ndarray | None = None,
+    open_beyond=None,
 ) -> list[np.ndarray]:
     """Runs of a pipe's inliers, cut where a fitting sits on it (index arrays into ``t``).
 
@@ -458,7 +466,10 @@ def split_at_fittings(
     the pipe (to the objects), the pipe is cut there. A gap in the inliers (a pipe in front hides
     part of this one) is bridged unless longer than ``max_gap`` or holding at least
     ``fitting_points`` of ``t_around`` (points within ``gap_reach`` of the surface: a body whose
-    faces are not cylinder inliers): fittings, not gaps, are what separate two pipes.
+    faces are not cylinder inliers): fittings, not gaps, are what separate two pipes. With
+    ``t_around``, a bump beyond the outermost segment must have some of them around it to cut the
+    pipe (:func:`_bare_ends`; ``open_beyond(t0, t1)``, when given, must also tell that the sensor
+    sees through the cylinder continued over [t0, t1]: the pipe ends there).
     """
     if len(t) == 0:
         return []
@@ -479,6 +490,19 @@ def split_at_fittings(
     # A fitting is at least min_fitting_length long (the shortest socket is 8.8 cm): a lone bin is
     # noise or a pipe passing close by, not a fitting.
     flag = _in_long_runs(flag, max(int(round(cfg.min_fitting_length / cfg.bump_bin)), 1))
+    ta = None if t_around is None else np.sort(t_around)
+    runs = _kept_runs(flag, first, b, t, t0, ta, cfg)
+    if ta is not None and cfg.end_fitting_points > 0:
+        bare = _bare_ends(flag, first, t, t0, runs, ta, cfg, open_beyond)
+        if bare is not None:
+            runs = _kept_runs(bare, first, b, t, t0, ta, cfg)
+    return runs
+
+
+def _kept_runs(flag, first: int, b, t, t0: float, ta, cfg: PipeConfig) -> list[np.ndarray]:
+    """The runs of the inliers (bin ``b``, at ``t``) outside the flagged bins (``flag[k - first]``
+    is bin k's), cut at flagged bins, at gaps longer than ``max_gap`` and at gaps holding a body
+    (``fitting_points`` of the sorted ``ta``, or None)."""
     bad_bins = np.flatnonzero(flag) + first
     kept = np.flatnonzero(~flag[b - first])
     if len(kept) == 0:
@@ -489,11 +513,43 @@ def split_at_fittings(
     fitting_before = np.searchsorted(t0 + bad_bins * cfg.bump_bin, tk)
     gap = tk[1:] - tk[:-1]
     cut = (fitting_before[1:] > fitting_before[:-1]) | (gap > cfg.max_gap)
-    if t_around is not None and len(t_around):
-        ta = np.sort(t_around)
+    if ta is not None and len(ta):
         inside = np.searchsorted(ta, tk[1:]) - np.searchsorted(ta, tk[:-1], side="right")
         cut |= (gap > cfg.min_fitting_length) & (inside >= cfg.fitting_points)
     return np.split(kept, np.flatnonzero(cut) + 1)
+
+
+def _bare_ends(flag, first: int, t, t0: float, runs: list[np.ndarray], te, cfg: PipeConfig, open_beyond=None):
+    """``flag`` with the flagged bins beyond the outermost segment (a run of at least ``min_points``
+    over ``min_detect_length``) cleared, at either end, where fewer than ``end_fitting_points`` of
+    ``te`` (sorted: ``t_around``, the points that may show a fitting) lie from that segment's end to
+    ``end_fitting_reach`` beyond the outermost inlier: the pipe's own end, not a fitting. None when
+    nothing is cleared.
+
+    A bump alone cannot tell a fitting at the end of a pipe from the pipe's last centimetres: a sparse
+    4 cm stretch under 5-10 mm of range noise stands 3-6 mm out of a slightly tilted fit as often as a
+    socket's surface does (measured on the tank's free pipe ends), and cut there, the pipe stops short
+    and its rest reads as an object. A fitting shows more: end faces, a body, a branch, a handle off the
+    cylinder. (Flagged bins in between, or a short run beyond them, join the segment.)"""
+    segments = [r for r in runs if len(r) >= cfg.min_points and np.ptp(t[r]) >= cfg.min_detect_length]
+    if not segments:
+        return None
+    out = flag.copy()
+    reach, bin_of = cfg.end_fitting_reach, lambda x: int(np.floor((x - t0) / cfg.bump_bin)) - first
+    hi, lo = max(float(t[r].max()) for r in segments), min(float(t[r].min()) for r in segments)
+    if (
+        t.max() > hi
+        and np.searchsorted(te, t.max() + reach, "right") - np.searchsorted(te, hi) < cfg.end_fitting_points
+        and (open_beyond is None or open_beyond(t.max() + _OPEN_FROM, t.max() + _OPEN_TO))
+    ):
+        out[bin_of(hi) + 1 :] = False
+    if (
+        t.min() < lo
+        and np.searchsorted(te, lo, "right") - np.searchsorted(te, t.min() - reach) < cfg.end_fitting_points
+        and (open_beyond is None or open_beyond(t.min() - _OPEN_TO, t.min() - _OPEN_FROM))
+    ):
+        out[: max(bin_of(lo), 0)] = False
+    return None if np.array_equal(out, flag) else out
 
 
 def _bin_medians(b: np.ndarray, residual: np.ndarray, n_bins: int) -> tuple[np.ndarray, np.ndarray]:
@@ -590,7 +646,9 @@ def _facing_sensor(P: np.ndarray, c: np.ndarray, a: np.ndarray, cfg: PipeConfig)
     return v @ toward >= np.cos(np.radians(cfg.fitting_window_deg)) * np.sqrt(row_dot(v, v))
 
 
-def _cut_into_segments(points, normals, sq, cb, ab, rb, idx, cfg: PipeConfig, foreign=None, seabed=None) -> list[Pipe]:
+def _cut_into_segments(
+    points, normals, sq, cb, ab, rb, idx, cfg: PipeConfig, foreign=None, seabed=None, rays: Rays | None = None
+) -> list[Pipe]:
     """The pipe segments of a refined cylinder's inliers ``idx``: cut at fittings (foreign points
     just outside its surface, wider sockets; only the points of the mask ``foreign`` count, all when
     None; along a pipe lying on the ``seabed``, only those over it, :func:`_facing_sensor`), keep
@@ -616,7 +674,14 @@ def _cut_into_segments(points, normals, sq, cb, ab, rb, idx, cfg: PipeConfig, fo
     near = outside & (res_all < cfg.fitting_reach)
     around = outside & (res_all < cfg.gap_reach)
     out = []
-    for run in split_at_fittings(t, residual, t_all[near], cfg, t_all[around]):
+    open_beyond = None
+    if rays is not None and cfg.end_see_through:
+
+        def open_beyond(t0: float, t1: float) -> bool:  # the sensor sees past the cylinder there
+            behind, crossing = rays.see_through(cb, ab, rb, t0, t1, cfg)
+            return crossing >= _MIN_OPEN_RAYS and behind >= 0.5 * crossing
+
+    for run in split_at_fittings(t, residual, t_all[near], cfg, t_all[around], open_beyond):
         seg = idx[run]
         if len(seg) < cfg.min_points:
             continue
@@ -718,7 +783,7 @@ def detect_pipes(
             failures += 1
             continue
         cb, ab, rb, idx = refined
-        found = _cut_into_segments(points, normals, sq, cb, ab, rb, idx, cfg, foreign, seabed)
+        found = _cut_into_segments(points, normals, sq, cb, ab, rb, idx, cfg, foreign, seabed, rays)
         if seabed is not None:
             found = [pipe for pipe in found if seabed.accept(pipe)]
         for pipe in found:
