@@ -14,6 +14,7 @@ import argparse
 import json
 
 import numpy as np
+from odometry_eval import evaluate
 
 from semslam.demo import demo_config
 from semslam.estimators import create_estimator
@@ -77,6 +78,10 @@ def main() -> None:
         t0 = next(iter(mission)).stamp
         lo, hi = t0 + int(args.start * 1e9), t0 + int((args.start + args.outage) * 1e9)
         row = {}
+        if any("odometry" in name for name in args.variants.split(";")):
+            # the registrations alone against the truth (the same scans and prior as in the pipeline's worker)
+            ev = evaluate(mission)
+            row["odometry_nees"] = {k: ev[k] for k in ("nees_mean", "nees_band_95", "nees_median", "accepted")}
         for name in args.variants.split(";"):
             fes = [f for f in name.split("+") if f and f != "navigation"]
             result = run(mission, fes)
