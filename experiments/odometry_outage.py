@@ -86,8 +86,10 @@ def main() -> None:
         row = {}
         if any("odometry" in name for name in args.variants.split(";")):
             # the registrations alone against the truth (the same scans and prior as in the pipeline's worker)
-            ev = evaluate(mission)
-            row["odometry_nees"] = {k: ev[k] for k in ("nees_mean", "nees_band_95", "nees_median", "accepted")}
+            ev = evaluate(mission, window=(lo, hi))
+            keys = ("nees_mean", "nees_band_95", "nees_median", "accepted", "accepted_in_window")
+            keys += ("nees_mean_in_window", "nees_mean_outside_window", "cpu_ms_per_scan_median", "cpu_ms_per_scan_p95")
+            row["odometry_nees"] = {k: ev[k] for k in keys}
         for name in args.variants.split(";"):
             sets, _, kernel = name.partition("/")
             fes = [f for f in sets.split("+") if f and f != "navigation"]
