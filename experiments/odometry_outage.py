@@ -1,6 +1,6 @@
 """What laser odometry buys during a long DVL outage (issue 23): the tank mission with the DVL
 silenced for ``--outage`` seconds (``dvl.outage_s``) while the vehicle works by the structure, run through the graph
-with and without the odometry front-end, beside the laser front-end's landmarks and without them
+with and without the odometry front-end (its factors with and without their m-estimator), beside the laser front-end's landmarks and without them
 (navigation only). Prints the relative position error over
 ``--delta`` seconds inside the outage (RPE), the ATE over the mission and inside the outage, and
 the odometry's NEES over the mission.
@@ -14,6 +14,7 @@ import argparse
 import json
 
 import numpy as np
+from odometry_eval import evaluate
 
 from semslam.demo import demo_config
 from semslam.estimators import create_estimator
@@ -44,12 +45,16 @@ def errors(result, truth, lo: int, hi: int, delta_s: float) -> dict:
     return {
         "ate_rmse_m": float(np.sqrt(np.mean(e**2))),
         "ate_outage_rmse_m": float(np.sqrt(np.mean(e[inside] ** 2))),
+        "ate_outside_rmse_m": float(np.sqrt(np.mean(e[~inside] ** 2))),
+        "ate_max_m": float(np.max(e)),
         "rpe_outage_rmse_m": float(np.sqrt(np.mean(np.square(rpe)))) if rpe else None,
     }
 
 
-def run(mission: Mission, frontends: list[str]) -> tuple[dict, object]:
+def run(mission: Mission, frontends: list[str], gaussian: bool = False) -> tuple[dict, object]:
     cfg = demo_config()
+    if gaussian:  # the odometry factors without their m-estimator
+        cfg.graph = cfg.graph.model_copy(update={"odometry_cauchy_k": {}})
     ests = [create_estimator("graph", mission.metadata, cfg)]
     fes = create_frontends(frontends, mission.metadata, cfg.frontends)
     return run_pipeline(mission, ests, fes)
@@ -63,7 +68,9 @@ def main() -> None:
     ap.add_argument("--delta", type=float, default=10.0, help="RPE interval (s)")
     ap.add_argument("--loops", type=float, default=3.0)
     ap.add_argument(
-        "--variants", default="laser;laser+odometry;navigation;odometry", help="front-end sets, ';'-separated"
+        "--variants",
+        default="laser;laser+odometry;laser+odometry/gaussian;navigation;odometry",
+        help="front-end sets, ';'-separated ('/gaussian': the odometry factors without their Cauchy m-estimator)",
     )
     args = ap.parse_args()
     for seed in (int(s) for s in args.seeds.split(",")):
@@ -77,13 +84,20 @@ def main() -> None:
         t0 = next(iter(mission)).stamp
         lo, hi = t0 + int(args.start * 1e9), t0 + int((args.start + args.outage) * 1e9)
         row = {}
+        if any("odometry" in name for name in args.variants.split(";")):
+            # the registrations alone against the truth (the same scans and prior as in the pipeline's worker)
+            ev = evaluate(mission, window=(lo, hi))
+            keys = ("nees_mean", "nees_band_95", "nees_median", "accepted", "accepted_in_window")
+            keys += ("nees_mean_in_window", "nees_mean_outside_window", "cpu_ms_per_scan_median", "cpu_ms_per_scan_p95")
+            row["odometry_nees"] = {k: ev[k] for k in keys}
         for name in args.variants.split(";"):
-            fes = [f for f in name.split("+") if f and f != "navigation"]
-            result = run(mission, fes)
+            sets, _, kernel = name.partition("/")
+            fes = [f for f in sets.split("+") if f and f != "navigation"]
+            result = run(mission, fes, gaussian=kernel == "gaussian")
             row[name] = errors(result.results["graph"], result.truth, lo, hi, args.delta)
             if "odometry" in result.frontend_summaries:
                 row[name]["odometry"] = result.frontend_summaries["odometry"].metrics
-        for a, b in (("laser", "laser+odometry"), ("navigation", "odometry")):
+        for a, b in (("laser", "laser+odometry"), ("laser", "laser+odometry/gaussian"), ("navigation", "odometry")):
             if a in row and b in row:
                 row[f"rpe_ratio {b} / {a}"] = row[b]["rpe_outage_rmse_m"] / row[a]["rpe_outage_rmse_m"]
         print(f"seed {seed}: {json.dumps(row)}", flush=True)

@@ -19,8 +19,9 @@ class TrueRelativePose:
     name = "relative"
     consumes = (PointCloud, GroundTruthPose)
 
-    def __init__(self, lag_s: float, sigma_m: float = 0.01, sigma_rad: float = 0.002):
+    def __init__(self, lag_s: float, sigma_m: float = 0.01, sigma_rad: float = 0.002, sensor: str = "relative"):
         self.lag_ns = int(lag_s * 1e9)
+        self.sensor = sensor
         self.poses: dict[int, np.ndarray] = {}
         self.cov = np.diag([sigma_rad**2] * 3 + [sigma_m**2] * 3)
         self.finished = False
@@ -40,7 +41,7 @@ class TrueRelativePose:
         s_from = max(past)
         self.froms.append(s_from)
         rel = np.linalg.inv(self.poses[s_from]) @ self.poses[now]
-        return [OdometryObservation(now, "relative", stamp_from=s_from, relative_pose=rel, covariance=self.cov)]
+        return [OdometryObservation(now, self.sensor, stamp_from=s_from, relative_pose=rel, covariance=self.cov)]
 
     def finish(self, view):
         self.finished = True
@@ -74,3 +75,49 @@ def test_relative_poses_between_non_keyframe_stamps_bound_the_drift(drifting_mis
     assert _ate(r1, drifting_mission) < 0.5 * _ate(r0, drifting_mission)
     # the front-end's last word reaches the result
     assert fe.finished and with_odom.frontend_summaries["relative"].metrics["n_poses"] > 100
+
+
+class OneWrongRegistration(TrueRelativePose):
+    """True relative poses measured by the laser, the ``wrong``-th of them shifted by 1 m: a
+    registration that converged wrong with a confident covariance."""
+
+    name = "laser_odometry"
+
+    def __init__(self, wrong: int, **kw):
+        super().__init__(sensor="laser", **kw)
+        self.wrong = wrong
+
+    def process(self, m, view):
+        out = super().process(m, view)
+        if out and len(self.froms) == self.wrong:
+            z = out[0]
+            rel = z.relative_pose.copy()
+            rel[:3, 3] += rel[:3, :3] @ [0.0, 1.0, 0.0]
+            out = [
+                OdometryObservation(
+                    z.stamp, z.sensor, stamp_from=z.stamp_from, relative_pose=rel, covariance=z.covariance
+                )
+            ]
+        return out
+
+
+def test_robust_odometry_factor_bounds_the_pull_of_a_wrong_registration(drifting_mission):
+    def track(kernel_k: dict, wrong: int):
+        cfg = SemslamConfig.model_validate({"graph": {"odometry_cauchy_k": kernel_k}})
+        est = GraphEstimator(drifting_mission.metadata, cfg)
+        tr = (
+            run_pipeline(drifting_mission, [est], [OneWrongRegistration(wrong, lag_s=20.0)]).results["graph"].trajectory
+        )
+        return tr.stamps, tr.positions
+
+    def pull(a, b):  # how far the wrong registration moved the track
+        assert np.array_equal(a[0], b[0])
+        return float(np.max(np.linalg.norm(a[1] - b[1], axis=1)))
+
+    robust_clean = track({"laser": 5.3}, wrong=-1)
+    gaussian_clean = track({}, wrong=-1)
+    robust = track({"laser": 5.3}, wrong=20)
+    gaussian = track({}, wrong=20)
+    # without the m-estimator the 1 m registration (σ 1 cm) drags the track by decimetres; with it, by millimetres
+    assert pull(gaussian, gaussian_clean) > 0.3
+    assert pull(robust, robust_clean) < 0.03

@@ -55,6 +55,12 @@ class Keyframes:
         self.bias_sigma0 = config.sensors.heading_bias_sigma0(metadata)
         self.bias = 0.0  # the newest keyframe's bias estimate (rad)
         self.online: list[tuple[int, gtsam.Pose3, np.ndarray]] = []  # (stamp, pose, position covariance in {W})
+        # relative-pose factors' m-estimator, by measuring sensor (the config names sensor kinds)
+        self.odometry_kernels = {
+            s.name: gtsam.noiseModel.mEstimator.Cauchy.Create(config.graph.odometry_cauchy_k[s.kind])
+            for s in metadata.sensors.values()
+            if s.kind in config.graph.odometry_cauchy_k
+        }
 
     def __len__(self) -> int:
         return len(self.stamps)
@@ -264,7 +270,8 @@ class Keyframes:
     def odometry_factors(self, odom: list, diagnostics: list[str]) -> list:
         """Relative-pose constraints (e.g. swath registrations). An end that is not a keyframe is
         carried to the nearest keyframe with the estimated motion in between (short: at most half
-        a keyframe interval of dead reckoning, whose error is far below the constraint's)."""
+        a keyframe interval of dead reckoning, whose error is far below the constraint's). A Cauchy
+        m-estimator bounds the pull of one that converged wrong, for the sensor kinds the config names."""
         out = []
         for z in odom:
             i, T_i_from = self.nearest(z.stamp_from)
@@ -275,5 +282,8 @@ class Keyframes:
                 )
                 continue
             meas = T_i_from.compose(gtsam.Pose3(z.relative_pose)).compose(T_j_to.inverse())
-            out.append(gtsam.BetweenFactorPose3(X(i), X(j), meas, gtsam.noiseModel.Gaussian.Covariance(z.covariance)))
+            noise = gtsam.noiseModel.Gaussian.Covariance(z.covariance)
+            if z.sensor in self.odometry_kernels:
+                noise = gtsam.noiseModel.Robust.Create(self.odometry_kernels[z.sensor], noise)
+            out.append(gtsam.BetweenFactorPose3(X(i), X(j), meas, noise))
         return out

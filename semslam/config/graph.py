@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, PositiveFloat
 
 
 class GraphConfig(BaseModel):
@@ -33,6 +33,13 @@ class GraphConfig(BaseModel):
         "huber", description="m-estimator on the landmark factors"
     )
     robust_k: float = Field(1.345, gt=0, description="width of the robust kernel, in whitened units (σ)")
+    odometry_cauchy_k: dict[Literal["laser", "sonar"], PositiveFloat] = Field(
+        {"laser": 5.3},
+        description="Cauchy m-estimator width (whitened units) on the relative-pose factors, by the kind of the sensor "
+        "that measured them (laser: laser odometry; a kind not listed stays Gaussian). Registrations that converged "
+        "wrong are heavy-tailed beyond their covariance; 5.3 is the maximum-likelihood width on the tuning seeds' "
+        "registrations (experiments/odometry/README.md)",
+    )
     window_s: float | None = Field(
         600.0,
         gt=0,
