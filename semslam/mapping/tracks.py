@@ -27,7 +27,8 @@ from scipy.optimize import linear_sum_assignment
 
 from semslam.config import AssociationConfig
 from semslam.mapping.association import chi2_gate
-from semslam.mapping.pipes import object_between, point_segment_distance, segment_matches_line
+from semslam.mapping.pipes import object_between, segment_matches_line
+from semslam.mapping.visibility import near_seen
 from semslam.observations import LineObservation, Observation, PointObservation, StructureObservation
 
 KIND_OF_OBSERVATION = {PointObservation: "object", LineObservation: "pipe", StructureObservation: "structure"}
@@ -102,14 +103,9 @@ class TrackSet:
     def note_scan(self, stamp: int, points: np.ndarray, segments: np.ndarray) -> None:
         """A scan at ``stamp`` saw these points (N×3, {W}) and segments (M×2×3): the tentative objects
         within ``object_view_reach_m`` of any were in its view (counted once per stamp)."""
-        reach = self.assoc.object_view_reach_m
-        for tr in self.tracks:
-            if tr.kind != "object" or tr._in_view_stamp == stamp:
-                continue
-            x = tr.views[-1].position
-            near = len(points) and np.min(np.linalg.norm(points - x, axis=1)) < reach
-            if not near and len(segments):
-                near = any(point_segment_distance(x[None], a, b)[0] < reach for a, b in segments)
+        objects = [tr for tr in self.tracks if tr.kind == "object" and tr._in_view_stamp != stamp]
+        at = np.array([tr.views[-1].position for tr in objects]).reshape(-1, 3)
+        for tr, near in zip(objects, near_seen(at, points, segments, self.assoc.object_view_reach_m)):
             if near:
                 _in_view(tr, stamp)
 

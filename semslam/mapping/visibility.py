@@ -15,6 +15,19 @@ import numpy as np
 from semslam.mapping.pipes import point_segment_distance
 
 
+def near_seen(positions: np.ndarray, points: np.ndarray, segments: np.ndarray, reach: float) -> np.ndarray:
+    """Which of ``positions`` (N×3, {W}) lie within ``reach`` of anything a scan saw: a point
+    (M×3) or a segment (S×2×3). Whether the scan had them in view."""
+    near = np.zeros(len(positions), bool)
+    if not len(positions):
+        return near
+    if len(points):
+        near |= np.min(np.linalg.norm(positions[:, None, :] - points[None], axis=2), axis=1) < reach
+    for a, b in segments:
+        near |= point_segment_distance(positions, a, b) < reach
+    return near
+
+
 class InView:
     """In-view and seen scan counts of the mapped objects, by landmark id."""
 
@@ -35,11 +48,7 @@ class InView:
             self.seen[lid] += 1
         if not len(ids):
             return
-        near = np.zeros(len(ids), bool)
-        if len(points):
-            near |= np.min(np.linalg.norm(positions[:, None, :] - points[None], axis=2), axis=1) < self.reach
-        for a, b in segments:
-            near |= point_segment_distance(positions, a, b) < self.reach
+        near = near_seen(positions, points, segments, self.reach)
         for lid, is_near in zip(ids, near):
             if lid in self.in_view and (is_near or lid in seen):
                 self.in_view[lid] += 1
