@@ -43,3 +43,14 @@ def test_merged_objects_add_their_views():
     log.start(2, seen=10, in_view=40)
     log.merge(1, 2)
     assert (log.seen, log.in_view) == ({1: 40}, {1: 40})
+
+
+def test_metrics_say_how_many_objects_were_left_out():
+    from semslam.estimation import EstimatorResult, Trajectory
+    from semslam.eval.metrics import estimator_metrics
+
+    empty = Trajectory(np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 4)))
+    told = EstimatorResult("graph", empty, history={"objects_left_out": 2})
+    assert estimator_metrics(told, None, None, None)["objects_left_out"] == 2
+    # an estimator without map building (dead reckoning) says nothing: null, not 0
+    assert estimator_metrics(EstimatorResult("dr", empty), None, None, None)["objects_left_out"] is None

@@ -162,6 +162,7 @@ class GraphEstimator(Estimator):
             for lid, v in self.map.volume.items()
         }
         history["duplicates_merged"] = self.mapper.merged
+        history["objects_left_out"] = len(self.mapper.left_out)
         history.update(self.book.history(ids))
         return EstimatorResult(
             name=self.name,

@@ -152,6 +152,7 @@ class EkfEstimator(_Filter):
     def _finish_map(self, landmarks: list[LandmarkEstimate], history: dict) -> None:
         self.book.connect(landmarks, self.assoc.merge_distance_m)
         history["duplicates_merged"] = self.mapper.merged
+        history["objects_left_out"] = len(self.mapper.left_out)
 
 
 class DeadReckoning(_Filter):

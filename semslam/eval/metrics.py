@@ -236,6 +236,8 @@ def estimator_metrics(
         "update_ms_median": None,
         "update_ms_p95": None,
         "nees_mean": None,
+        # objects the map building left out at the end as false views (semslam.mapping.visibility)
+        "objects_left_out": result.history.get("objects_left_out"),
     }
     if len(result.update_times_s):
         out["update_ms_median"] = float(np.median(result.update_times_s) * 1e3)

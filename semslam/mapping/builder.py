@@ -124,6 +124,7 @@ class MapBuilder:
         self.in_view = InView(assoc.object_view_reach_m)
         self.diagnostics = diagnostics
         self.merged = 0  # duplicates merged
+        self.left_out: list[int] = []  # objects left out of the final map (:meth:`confirmed`)
 
     # ------------------------------------------------------------------ one batch
     def process(self, stamp: int, observations: Sequence[Observation]) -> set[int]:
@@ -191,6 +192,7 @@ class MapBuilder:
         (:mod:`semslam.mapping.visibility`); says how many it left out."""
         a = self.assoc
         out = self.in_view.unconfirmed(a.object_confirm_ratio, a.object_confirm_scans)
+        self.left_out = sorted(out)
         if out:
             self.diagnostics.append(
                 f"{len(out)} object(s) seen in fewer than {a.object_confirm_ratio:.0%} of the scans that had them in "
