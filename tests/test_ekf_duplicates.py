@@ -46,7 +46,9 @@ def _kinds(est):
 def _pipe_a(est):
     """The feature of pipe A (along x)."""
     return next(
-        f for f in est.map.features if f.kind == "pipe" and abs(geo.line_plucker(est.nav.state.x[f.cols])[1][0]) > 0.9
+        f
+        for f in est.map.features
+        if f.kind == "pipe" and abs(geo.anchored_plucker(est.nav.state.x[f.cols], f.anchor)[1][0]) > 0.9
     )
 
 
@@ -138,7 +140,7 @@ def test_two_features_of_one_pipe_are_fused_and_the_younger_dropped():
     assert est.nav.state.n == n_state
     assert np.linalg.eigvalsh(est.nav.state.P).min() > -1e-12
     # the kept line is still pipe A: its seen ends lie on the true axis within a centimetre
-    m, d = geo.line_plucker(est.nav.state.x[pipe_a.cols])
+    m, d = geo.anchored_plucker(est.nav.state.x[pipe_a.cols], pipe_a.anchor)
     ends = est.book.extent(pipe_a.id).ends(geo.closest_point(m, d), d)
     assert np.abs(ends[:, 1:] - [0.0, 4.5]).max() < 0.01
     assert np.abs(np.sort(ends[:, 0]) - [-0.8, 0.8]).max() < 0.05

@@ -150,6 +150,23 @@ def test_batch_models_equal_the_scalar_ones():
     for k in range(len(Ls)):
         for a, b in zip((v[k] for v in out), mdl.line_innovation(X, Ls[k], obs[k], R_BS, T_BS)):
             np.testing.assert_allclose(a, b, atol=1e-10, rtol=1e-8)
+    # moments about per-pipe anchors
+    anchors = RNG.normal(0, 3.0, (len(Ls), 3))
+    out = bt.line_innovations(
+        X,
+        Ls,
+        np.array([o.U for o in obs]),
+        np.array([o.rho for o in obs]),
+        np.array([o.d for o in obs]),
+        np.array([o.cov for o in obs]),
+        R_BS,
+        T_BS,
+        anchors=anchors,
+    )
+    for k in range(len(Ls)):
+        ref = mdl.line_innovation(X, Ls[k], obs[k], R_BS, T_BS, anchor=anchors[k])
+        for a, b in zip((v[k] for v in out), ref):
+            np.testing.assert_allclose(a, b, atol=1e-10, rtol=1e-8)
     # first-estimates Jacobians: H at L_lin, ν and R at L
     L_lin = Ls + RNG.normal(0, 0.01, Ls.shape)
     out = bt.line_innovations(
@@ -250,12 +267,12 @@ class _PairwiseProblem:
             if nav.fej_yaw:
                 H_x = mdl.point_measurement(nav.x_lin(), f.l_first, o.R_BS, o.t_BS)[1]
             return PairLinearization(o.obs.position - h, H_x, H_l, np.asarray(o.obs.covariance))
-        m_W, d_W = g.line_plucker(l)
+        m_W, d_W = g.anchored_plucker(l, f.anchor)
         if self.scan.excludes(f.id, o.ends_W, g.closest_point(m_W, d_W), d_W):
             return None
         l_first = f.l_first if self.est.map.fej_lines or nav.fej_yaw else None
         x_lin = nav.x_lin() if nav.fej_yaw else None
-        return PairLinearization(*mdl.line_innovation(x, l, o.line, o.R_BS, o.t_BS, l_first, x_lin))
+        return PairLinearization(*mdl.line_innovation(x, l, o.line, o.R_BS, o.t_BS, l_first, x_lin, f.anchor))
 
     def covariance(self, a, b):
         ia = np.arange(mdl.NX) if a is None else self.feats[a].cols

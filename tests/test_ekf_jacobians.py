@@ -223,3 +223,40 @@ def test_biased_attitude_jacobian_and_the_graph_model():
     xb[5], xb[mdl.BIAS] = np.pi - 0.01, 0.03
     u = mdl.biased_attitude_update(xb, h(xb), np.eye(3))
     np.testing.assert_allclose(u.innovation, 0.0, atol=1e-12)
+
+
+ANCHOR = np.array([1.5, -2.0, 0.7])
+
+
+def test_anchored_line_measurement_and_initialisation_jacobians():
+    """A pipe whose moment is about an anchor: the innovation's and the initialisation's Jacobians
+    against numerical ones, and the same world line as without the anchor."""
+    l0, pw, qw = _world_line(0.3)
+    ps, qs = _to_sensor(X, np.array([pw, qw]))
+    l, G_x, G_pq = mdl.line_initialise(X, ps, qs, R_BS, T_BS, ANCHOR)
+    m, d = g.anchored_plucker(l, ANCHOR)
+    m0, d0 = g.line_plucker(l0)
+    np.testing.assert_allclose(np.r_[m, d], np.r_[m0, d0], atol=1e-9)
+    assert_jac(G_x, numjac(lambda x: mdl.line_initialise(x, ps, qs, R_BS, T_BS, ANCHOR)[0], X, h=1e-8), 1e-4, 1e-5)
+    f = lambda pq: mdl.line_initialise(X, pq[:3], pq[3:], R_BS, T_BS, ANCHOR)[0]
+    assert_jac(G_pq, numjac(f, np.r_[ps, qs], h=1e-8), rtol=1e-4, atol=1e-5)
+    obs = mdl.LineObservationModel.from_endpoints(ps + [0.02, -0.01, 0.03], qs + [-0.01, 0.02, 0.0], np.eye(6) * 1e-4)
+    nu, H_x, H_l, _ = mdl.line_innovation(X, l, obs, R_BS, T_BS, anchor=ANCHOR)
+    # the same innovation as the pipe about the origin: the anchor changes the chart, not the line
+    np.testing.assert_allclose(nu, mdl.line_innovation(X, l0, obs, R_BS, T_BS)[0], atol=1e-9)
+    inn = lambda x, ll: mdl.line_innovation(x, ll, obs, R_BS, T_BS, anchor=ANCHOR)[0]
+    assert_jac(H_x, -numjac(lambda x: inn(x, l), X, h=1e-7), rtol=1e-4, atol=1e-6)
+    assert_jac(H_l, -numjac(lambda ll: inn(X, ll), l, h=1e-7), rtol=1e-4, atol=1e-6)
+
+
+@pytest.mark.parametrize("d", [[0, 0, 1.0], [1.0, 0, 0], [0.6, 0.0, 0.8], [0.05, 0.03, -1.0]])
+def test_line_anchor_is_square_to_the_line_at_its_distance_and_never_level_with_it(d):
+    d = np.asarray(d) / np.linalg.norm(d)
+    c = np.array([0.3, -0.2, 4.5])
+    a = g.line_anchor(c, d, 4.0)
+    assert np.linalg.norm(a - c) == pytest.approx(4.0)
+    assert abs((a - c) @ d) < 1e-9
+    # about the anchor: ρ is the distance, the closest point is c, and the moment is not vertical
+    m = g.cross3(c - a, d)
+    assert np.linalg.norm(m) == pytest.approx(4.0)
+    assert abs(m[2]) / np.linalg.norm(m) < 0.99

@@ -87,24 +87,35 @@ def line_innovations(
     t_BS: np.ndarray,
     L_lin: np.ndarray | None = None,
     x_lin: np.ndarray | None = None,
+    anchors: np.ndarray | None = None,
 ):
     """:func:`models.line_innovation` for K pairs (pipe L[k] = [α β γ ρ] in {W}, observed line k in
     {S} with orthonormal U (K×3×3), ρ (K,), direction d (K×3) and error covariance (K×4×4)), all seen
     from one sensor pose; the Jacobians at L_lin and the vehicle state x_lin when given (first
-    estimates). Returns (ν K×4, H_x K×4×9, H_l K×4×4, R K×4×4)."""
-    nu, Rn, r, flip = _line_residuals(x, L, obs_U, obs_rho, obs_d, obs_cov, R_BS, t_BS)
+    estimates); each pipe's moment about its row of ``anchors`` (K×3, default the origin).
+    Returns (ν K×4, H_x K×4×9, H_l K×4×4, R K×4×4)."""
+    anchors = np.zeros((len(L), 3)) if anchors is None else np.asarray(anchors, float)
+    nu, Rn, r, flip = _line_residuals(x, L, obs_U, obs_rho, obs_d, obs_cov, R_BS, t_BS, anchors)
     if L_lin is None and x_lin is None:
-        H_x, H_l = _line_jacobians(x, L, r, R_BS, t_BS)
+        H_x, H_l = _line_jacobians(x, L, r, R_BS, t_BS, anchors)
     else:  # r at the first estimates, with the observations flipped as at L
         H_x, H_l = _line_jacobians(
-            x if x_lin is None else x_lin, L if L_lin is None else L_lin, None, R_BS, t_BS, obs_U=obs_U, flip=flip
+            x if x_lin is None else x_lin,
+            L if L_lin is None else L_lin,
+            None,
+            R_BS,
+            t_BS,
+            anchors,
+            obs_U=obs_U,
+            flip=flip,
         )
     return nu, H_x, H_l, Rn
 
 
-def _predicted_lines(x, L, R_BS, t_BS):
-    """The pipes L (K×4, in {W}) in {S} as orthonormal (U_h, ρ_h) and Plücker (m_S, d_S)."""
+def _predicted_lines(x, L, R_BS, t_BS, anchors):
+    """The pipes L (K×4, in {W}, moments about ``anchors`` K×3) in {S} as orthonormal (U_h, ρ_h) and Plücker (m_S, d_S)."""
     R, t, _, _ = sensor_pose(x, R_BS, t_BS)
+    t = t - anchors  # {S} as seen from each pipe's anchor
     U_W = geo.rot_batch(L[:, :3])
     d_W = U_W[:, :, 1]
     m_W = L[:, 3:4] * U_W[:, :, 0]
@@ -116,10 +127,10 @@ def _predicted_lines(x, L, R_BS, t_BS):
     return U_h, rho_h, m_S, d_S
 
 
-def _line_residuals(x, L, obs_U, obs_rho, obs_d, obs_cov, R_BS, t_BS, flip=None):
+def _line_residuals(x, L, obs_U, obs_rho, obs_d, obs_cov, R_BS, t_BS, anchors, flip=None):
     """(ν, R, r, flip): innovation, its noise in the innovation's chart, the rotation part r and
     which observations were flipped to agree with the predicted direction."""
-    U_h, rho_h, _, d_S = _predicted_lines(x, L, R_BS, t_BS)
+    U_h, rho_h, _, d_S = _predicted_lines(x, L, R_BS, t_BS, anchors)
     if flip is None:
         flip = np.einsum("ki,ki->k", obs_d, d_S) < 0
     U_z = np.where(flip[:, None, None], obs_U * _FLIP, obs_U)
@@ -132,11 +143,12 @@ def _line_residuals(x, L, obs_U, obs_rho, obs_d, obs_cov, R_BS, t_BS, flip=None)
     return nu, Gr @ cov @ np.transpose(Gr, (0, 2, 1)), r, flip
 
 
-def _line_jacobians(x, L, r, R_BS, t_BS, obs_U=None, flip=None):
+def _line_jacobians(x, L, r, R_BS, t_BS, anchors, obs_U=None, flip=None):
     """(H_x, H_l) of the line innovation at pipes L with rotation residuals r (or, when r is None,
     those of the observations obs_U, flipped where ``flip``, against L)."""
     K = len(L)
-    R, t, R_WB, E = sensor_pose(x, R_BS, t_BS)
+    R, t0, R_WB, E = sensor_pose(x, R_BS, t_BS)
+    t = t0 - anchors  # (K, 3): {S} as seen from each pipe's anchor
     W = R_BS.T @ E  # ∂ω_S/∂e
     # the pipes in {W} as Plücker, then in {S} (line_to_sensor)
     U_W = geo.rot_batch(L[:, :3])
@@ -149,10 +161,10 @@ def _line_jacobians(x, L, r, R_BS, t_BS, obs_U=None, flip=None):
     J_x[:, :3] = R.T @ skew_batch(d_W) @ _dt_dx(R_WB, E, t_BS)
     J_x[:, :3, ATT] += skew_batch(m_S) @ W
     J_x[:, 3:, ATT] = skew_batch(d_S) @ W
-    J_md = np.zeros((6, 6))
-    J_md[:3, :3] = R.T
-    J_md[:3, 3:] = -R.T @ geo.skew(t)
-    J_md[3:, 3:] = R.T
+    J_md = np.zeros((K, 6, 6))
+    J_md[:, :3, :3] = R.T
+    J_md[:, :3, 3:] = -R.T @ skew_batch(t)
+    J_md[:, 3:, 3:] = R.T
     # ∂(m, d)/∂[α β γ ρ] = line_error_inverse(U, ρ) G, G = diag(E(α, β), 1)
     u1, u3 = U_W[:, :, 0], U_W[:, :, 2]
     Binv = np.zeros((K, 6, 4))

@@ -39,6 +39,9 @@ from semslam.mapping.tracks import Track
 from semslam.observations import Observation, StructureObservation
 
 _I3, _Z3 = np.eye(3), np.zeros(3)  # {B} itself as the "sensor" (a pipe seen from the vehicle)
+# A pipe's moment is about a point this far from its first view, square to it (geometry.line_anchor): the
+# distance at which the tank's level pipes lie below the world origin, where the origin's chart works.
+LINE_ANCHOR_DISTANCE_M = 4.0
 
 
 @dataclass
@@ -50,6 +53,7 @@ class Feature:
     index: int  # first state index
     size: int
     l_first: np.ndarray  # the estimate it entered the state with (first-estimates Jacobians)
+    anchor: np.ndarray = field(default_factory=lambda: np.zeros(3))  # pipes: the point their moment is about
     vol_stamps: list[int] = field(default_factory=list)
     vol: list[float] = field(default_factory=list)
 
@@ -124,7 +128,7 @@ class FeatureMap:
         out = []
         for f in self.features:
             if f.kind == "pipe":
-                m, d = geo.line_plucker(x[f.index : f.index + 4])
+                m, d = geo.anchored_plucker(x[f.index : f.index + 4], f.anchor)
                 out.append((f.id, geo.closest_point(m, d), d))
         return out
 
@@ -202,16 +206,22 @@ class FeatureMap:
         cross-covariances (first-estimates Jacobians at the propagated pose when the heading bias is
         modelled)."""
         o: Prepared = track.views[-1].payload
-        init = mdl.point_initialise if o.kind == "object" else mdl.line_initialise
-        z = (o.obs.position,) if o.kind == "object" else (o.obs.p, o.obs.q)
-        l, G_x, G_z = init(self.nav.state.xv, *z, o.R_BS, o.t_BS)
+        xv = self.nav.state.xv
+        if o.kind == "object":
+            init, z, extra = mdl.point_initialise, (o.obs.position,), ()
+        else:
+            R, t, _, _ = mdl.sensor_pose(xv, o.R_BS, o.t_BS)
+            d = R @ (o.obs.q - o.obs.p)
+            anchor = geo.line_anchor(R @ (o.obs.p + o.obs.q) / 2 + t, d / np.linalg.norm(d), LINE_ANCHOR_DISTANCE_M)
+            init, z, extra = mdl.line_initialise, (o.obs.p, o.obs.q), (anchor,)
+        l, G_x, G_z = init(xv, *z, o.R_BS, o.t_BS, *extra)
         l_first = l
         if self.nav.fej_yaw:
-            l_first, G_x, G_z = init(self.nav.x_lin(), *z, o.R_BS, o.t_BS)
+            l_first, G_x, G_z = init(self.nav.x_lin(), *z, o.R_BS, o.t_BS, *extra)
         idx = self.nav.state.augment(l, G_x, G_z, np.asarray(o.obs.covariance))
         lid = self._next_id
         self._next_id += 1
-        self.features.append(Feature(lid, o.kind, idx, len(l), np.array(l_first, float)))
+        self.features.append(Feature(lid, o.kind, idx, len(l), np.array(l_first, float), *extra))
         return lid
 
     def settle(self) -> None:
@@ -239,9 +249,9 @@ class FeatureMap:
         first = self.fej_lines or nav.fej_yaw
         seen = []
         for f in (a, b):
-            m, d, _, _ = mdl.line_to_sensor(xv, x[f.cols], _I3, _Z3)  # the pipe in {B}, now
+            m, d, _, _ = mdl.line_to_sensor(xv, x[f.cols], _I3, _Z3, f.anchor)  # the pipe in {B}, now
             U, rho = geo.orthonormal_from_plucker(m, d)
-            m_l, d_l, J_x, J_l = mdl.line_to_sensor(x_lin, f.l_first if first else x[f.cols], _I3, _Z3)
+            m_l, d_l, J_x, J_l = mdl.line_to_sensor(x_lin, f.l_first if first else x[f.cols], _I3, _Z3, f.anchor)
             A = geo.line_error_map(*geo.orthonormal_from_plucker(m_l, d_l))
             seen.append((U, rho, A @ J_x, A @ J_l))
         (Ua, ra, Ax, Al), (Ub, rb, Bx, Bl) = seen
@@ -301,7 +311,7 @@ class FeatureMap:
             if f.kind == "object":
                 le.position, le.class_posterior = l, self.book.class_posterior(f.id)
             else:
-                m, d = geo.line_plucker(l)
+                m, d = geo.anchored_plucker(l, f.anchor)
                 radius = self.assoc.inline_object_radius_m
                 le.p, le.q = self.book.extent(f.id).ends(geo.closest_point(m, d), d, mapped, radius, depths)
             out.append(le)
@@ -362,7 +372,12 @@ class ScanPairs:
                         )
                         L_lin = np.array([feats[j].l_first for j in fj]) if fmap.fej_lines or nav.fej_yaw else None
                         nu, Hx, HlK, R = bt.line_innovations(
-                            x[:NX], x[cols], *args, L_lin=L_lin, x_lin=nav.x_lin() if nav.fej_yaw else None
+                            x[:NX],
+                            x[cols],
+                            *args,
+                            L_lin=L_lin,
+                            x_lin=nav.x_lin() if nav.fej_yaw else None,
+                            anchors=np.array([feats[j].anchor for j in fj]),
                         )
                     # S = H_x P_vv H_xᵀ + H_x P_vl H_lᵀ + H_l P_lv H_xᵀ + H_l P_ll H_lᵀ + R
                     Pvl = P[:NX][:, cols].transpose(1, 0, 2)  # (K, 9, size)
@@ -375,7 +390,7 @@ class ScanPairs:
                     if kind == "pipe":
                         for k in np.flatnonzero(keep):
                             f = feats[fj[k]]
-                            m_W, d_W = geo.line_plucker(x[f.index : f.index + 4])
+                            m_W, d_W = geo.anchored_plucker(x[f.index : f.index + 4], f.anchor)
                             keep[k] = not scan.excludes(f.id, obs[oi[k]].ends_W, geo.closest_point(m_W, d_W), d_W)
                     obs_i.append(oi[keep])
                     feat_j.append(fj[keep])
@@ -419,7 +434,9 @@ def pre_gate(fmap: FeatureMap, obs: list[Prepared]) -> np.ndarray:
         lp = x[starts[pip, None] + np.arange(4)]
         U = geo.rot_batch(lp[:, :3])
         d_l = U[:, :, 1]
-        c_l = np.cross(d_l, lp[:, 3:4] * U[:, :, 0])  # closest points d × m
+        anchors = np.array([feats[j].anchor for j in pip])
+        m_l = lp[:, 3:4] * U[:, :, 0] + np.cross(anchors, d_l)  # moments about the origin
+        c_l = np.cross(d_l, m_l)  # closest points d × m
         mid = np.array([obs[i].ends_W.mean(axis=0) for i in o_pip])
         r = mid[:, None, :] - c_l[None, :, :]  # (n_obs, n_pipes, 3)
         off = r - np.einsum("opk,pk->op", r, d_l)[:, :, None] * d_l[None, :, :]

@@ -191,6 +191,33 @@ def line_params_from_error(l: np.ndarray) -> np.ndarray:
     return G
 
 
+def line_anchor(c: np.ndarray, d: np.ndarray, distance: float) -> np.ndarray:
+    """The point a pipe's moment is taken about: ``distance`` from point ``c`` of the line (d its unit
+    direction), square to the line and as vertical as that allows (above a level pipe, level beside a
+    vertical one), so the plane through it and the line is never level (the Euler singularity of
+    [α β γ ρ]).
+
+    Why not the world origin: for a line passing near it (ρ a few decimetres: a vertical pipe under
+    the origin, or one tilted a few degrees by a short first view), the moment's direction swings
+    with every centimetre the line moves and the closest point lies metres from the seen segment, so
+    the filter's linearisation fails and the pipe is mapped away from its views, then mapped again
+    (experiments/estimators/README.md). About a point square to the seen segment the closest point
+    is the segment itself and ρ is the chosen distance."""
+    up = np.array([0.0, 0.0, -1.0]) - d * (-d[2])  # NED: up is -z; its part square to d
+    if np.linalg.norm(up) < 0.3:  # a (near-)vertical pipe: a level direction square to it
+        up = cross3(d, np.array([1.0, 0.0, 0.0]))
+        if np.linalg.norm(up) < 0.3:
+            up = cross3(d, np.array([0.0, 1.0, 0.0]))
+    return c + distance * up / np.linalg.norm(up)
+
+
+def anchored_plucker(l: np.ndarray, anchor: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(m, d) in {W} about its origin of the line [α, β, γ, ρ] whose moment is about ``anchor``:
+    m_W = m + anchor × d."""
+    m, d = line_plucker(l)
+    return m + cross3(anchor, d), d
+
+
 def closest_point(m: np.ndarray, d: np.ndarray) -> np.ndarray:
     """Point of the line nearest the origin: d × m."""
     return cross3(d, m)

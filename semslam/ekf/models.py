@@ -266,13 +266,17 @@ def point_initialise(x: np.ndarray, z: np.ndarray, R_BS: np.ndarray, t_BS: np.nd
 
 
 # -------------------------------------------------------------------------------- lines
-def line_to_sensor(x: np.ndarray, l: np.ndarray, R_BS: np.ndarray, t_BS: np.ndarray):
+def line_to_sensor(x: np.ndarray, l: np.ndarray, R_BS: np.ndarray, t_BS: np.ndarray, anchor: np.ndarray | None = None):
     """Pipe l = [α β γ ρ] in {W} as Plücker (m_S, d_S) in {S} (eqs. 13–16, 33–35):
     d_S = R_WSᵀ d_W, m_S = R_WSᵀ (m_W - t_WS × d_W).
 
-    Returns (m_S, d_S, J_x 6×9, J_l 6×4), Jacobians of (m_S, d_S).
+    ``anchor`` (a point in {W}, default its origin): the point l's moment is taken about,
+    m = (p − anchor) × d (see :func:`semslam.ekf.geometry.line_anchor`); it moves {S}'s position to
+    t_WS − anchor and changes nothing else. Returns (m_S, d_S, J_x 6×9, J_l 6×4), Jacobians of (m_S, d_S).
     """
     R, t, R_WB, E = sensor_pose(x, R_BS, t_BS)
+    if anchor is not None:
+        t = t - anchor
     m_W, d_W = line_plucker(l)
     m_S = R.T @ (m_W - cross3(t, d_W))
     d_S = R.T @ d_W
@@ -323,8 +327,9 @@ def line_innovation(
     t_BS: np.ndarray,
     l_lin: np.ndarray | None = None,
     x_lin: np.ndarray | None = None,
+    anchor: np.ndarray | None = None,
 ):
-    """Innovation of an observed line against pipe l, on the manifold of the orthonormal representation.
+    """Innovation of an observed line against pipe l (moment about ``anchor``), on the manifold of the orthonormal representation.
 
     ν = [Log(U_hᵀ U_z); ρ_z − ρ_h] where (U_h, ρ_h) is the pipe in {S} and the observed direction is
     flipped to agree with the predicted one. This is the paper's comparison of orthonormal
@@ -335,7 +340,7 @@ def line_innovation(
     l and x (the first-estimates Jacobian, see :mod:`semslam.ekf.estimator`); ν and R are always at
     (x, l).
     """
-    m_S, d_S, J_x, J_l = line_to_sensor(x, l, R_BS, t_BS)
+    m_S, d_S, J_x, J_l = line_to_sensor(x, l, R_BS, t_BS, anchor)
     U_h, rho_h = orthonormal_from_plucker(m_S, d_S)
     if obs.d @ d_S < 0:
         obs = obs.flipped()
@@ -345,7 +350,9 @@ def line_innovation(
     Gr[:3, :3] = so3_right_jacobian_inv(r)
     R = Gr @ obs.cov @ Gr.T
     if l_lin is not None or x_lin is not None:
-        m_S, d_S, J_x, J_l = line_to_sensor(x if x_lin is None else x_lin, l if l_lin is None else l_lin, R_BS, t_BS)
+        m_S, d_S, J_x, J_l = line_to_sensor(
+            x if x_lin is None else x_lin, l if l_lin is None else l_lin, R_BS, t_BS, anchor
+        )
         U_h, rho_h = orthonormal_from_plucker(m_S, d_S)
         r = so3_log(U_h.T @ obs.U)
     A = line_error_map(U_h, rho_h)
@@ -356,10 +363,15 @@ def line_innovation(
     return nu, H_x, H_l, R
 
 
-def line_world(x: np.ndarray, p: np.ndarray, q: np.ndarray, R_BS: np.ndarray, t_BS: np.ndarray):
+def line_world(
+    x: np.ndarray, p: np.ndarray, q: np.ndarray, R_BS: np.ndarray, t_BS: np.ndarray, anchor: np.ndarray | None = None
+):
     """An observed segment (p, q) in {S} as Plücker (m_W, d_W) in {W}: d_W = R_WS d_S,
-    m_W = R_WS m_S + t_WS × d_W (eqs. 42–44). Returns (m_W, d_W, J_x 6×9, J_pq 6×6)."""
+    m_W = R_WS m_S + t_WS × d_W (eqs. 42–44), the moment about ``anchor`` (default the origin).
+    Returns (m_W, d_W, J_x 6×9, J_pq 6×6)."""
     R, t, R_WB, E = sensor_pose(x, R_BS, t_BS)
+    if anchor is not None:
+        t = t - anchor
     m_S, d_S, J_pq = plucker_from_endpoints(p, q)
     d_W = R @ d_S
     m_W = R @ m_S + cross3(t, d_W)
@@ -375,10 +387,12 @@ def line_world(x: np.ndarray, p: np.ndarray, q: np.ndarray, R_BS: np.ndarray, t_
     return m_W, d_W, Jx, Jz @ J_pq
 
 
-def line_initialise(x: np.ndarray, p: np.ndarray, q: np.ndarray, R_BS: np.ndarray, t_BS: np.ndarray):
-    """New pipe [α β γ ρ] from an observed segment (p, q) in {S} (eqs. 42–45).
+def line_initialise(
+    x: np.ndarray, p: np.ndarray, q: np.ndarray, R_BS: np.ndarray, t_BS: np.ndarray, anchor: np.ndarray | None = None
+):
+    """New pipe [α β γ ρ] (moment about ``anchor``) from an observed segment (p, q) in {S} (eqs. 42–45).
     Returns (l, G_x 4×9, G_pq 4×6)."""
-    m_W, d_W, Jx, Jpq = line_world(x, p, q, R_BS, t_BS)
+    m_W, d_W, Jx, Jpq = line_world(x, p, q, R_BS, t_BS, anchor)
     l = line_params(m_W, d_W)
     U_W = rot(l[0], l[1], l[2])
     T = line_params_from_error(l) @ line_error_map(U_W, l[3])
