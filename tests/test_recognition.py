@@ -50,10 +50,14 @@ def shapes() -> dict:
 
 def _view_cache(request):
     """A view cache kept across test runs (pytest's cache dir): views are keyed by model content and
-    parameters, so reuse is exact; the cache itself is tested on fresh directories below."""
+    parameters, so reuse is exact; the cache itself is tested on fresh directories below. Without
+    pytest's cache (-p no:cacheprovider) one folder for the session, as the cache dir is on a clean
+    clone: the database's views are not built twice."""
     cache = getattr(request.config, "cache", None)  # absent under -p no:cacheprovider
     if cache is None:
-        return request.getfixturevalue("tmp_path_factory").mktemp("semslam-views")
+        folder = request.getfixturevalue("tmp_path_factory").getbasetemp() / "semslam-views"
+        folder.mkdir(exist_ok=True)
+        return folder
     return cache.mkdir("semslam-views")
 
 

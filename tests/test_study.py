@@ -24,7 +24,10 @@ from typer.testing import CliRunner
 from semslam.cli import app
 
 runner = CliRunner()
-SEEDS = (0, 1, 2, 3)
+# Three missions: two workers busy at once and one more waiting, so that an interruption after the
+# first finished mission leaves some done and some not, and the paired ratios have several pairs.
+# (Four made the same points; each mission costs ~15 s of CPU, and this module was 21 % of the suite.)
+SEEDS = (0, 1, 2)
 SHORT_SIM = "trajectory: {duration_s: 20.0, rest_s: 1.0, ramp_s: 6.0, loops: 0.2}\nlaser: {resolution: [40, 30]}\n"
 TIMING_KEYS = {"runtime_s", "update_ms_median", "update_ms_p95", "timing_s", "wall_time_s"}
 DASK = Path(sys.executable).with_name("dask")
@@ -83,8 +86,9 @@ def study_args(inputs, out: Path, *extra: str) -> list[str]:
     return ["study", "--frontends", "oracle", "--config", str(inputs["config"]), "--out", str(out), *extra]
 
 
-def scenario_args(inputs, out: Path, *extra: str) -> list[str]:
-    return study_args(inputs, out, "--scenario", "tank", "--seeds", "0-3", "--sim-config", str(inputs["sim"]), *extra)
+def scenario_args(inputs, out: Path, *extra: str, seeds: tuple[int, ...] = SEEDS) -> list[str]:
+    span = f"{seeds[0]}-{seeds[-1]}"
+    return study_args(inputs, out, "--scenario", "tank", "--seeds", span, "--sim-config", str(inputs["sim"]), *extra)
 
 
 @pytest.fixture(scope="module")
@@ -124,7 +128,7 @@ def test_local_cluster_interrupted_then_resumed(inputs, serial, tmp_path):
     done = {p.parent.name for p in out.glob("tank-seed*/study_mission.json")}
     partial = json.loads((out / "study.json").read_text())  # what finished, even while shutting down
     assert {m["mission"] for m in partial["missions"] if m["status"] == "ok"} == done, partial["counts"]
-    assert {p.parent.name for p in first} <= done and len(done) < 4
+    assert {p.parent.name for p in first} <= done and len(done) < len(SEEDS)
     assert {m["status"] for m in partial["missions"] if m["mission"] not in done} == {"not_run"}
     assert not list((out / ".study").glob("staging/*"))  # nothing half-done left behind
     before = {name: mtimes(out / name) for name in done}
@@ -132,7 +136,8 @@ def test_local_cluster_interrupted_then_resumed(inputs, serial, tmp_path):
     res = runner.invoke(app, scenario_args(inputs, out, "--workers", "2"))
     assert res.exit_code == 0, res.output
     study = json.loads((out / "study.json").read_text())
-    assert study["counts"] == {"planned": 4, "ok": 4, "failed": 0, "timeout": 0, "not_run": 0}
+    n = len(SEEDS)
+    assert study["counts"] == {"planned": n, "ok": n, "failed": 0, "timeout": 0, "not_run": 0}
     assert {name: mtimes(out / name) for name in done} == before  # not recomputed
     assert [m["reused"] for m in study["missions"]] == [m["mission"] in done for m in study["missions"]]
     assert study_numbers(out) == {name: s["numbers"] for name, s in serial.items()}
@@ -141,10 +146,10 @@ def test_local_cluster_interrupted_then_resumed(inputs, serial, tmp_path):
     warned = {
         d.name: json.loads((d / "metrics.json").read_text())["input"].get("warnings", []) for d in out.glob("tank-*")
     }
-    assert any(warned.values()), warned  # seeds 1 and 3 start without bottom lock
+    assert any(warned.values()), warned  # seed 1 starts without bottom lock
     assert all(w.startswith(f"{name}: ") for name, ws in warned.items() for w in ws), warned
 
-    # study.json: per mission in seed order, distributions and paired ratios over the four
+    # study.json: per mission in seed order, distributions and paired ratios over all of them
     assert [m["mission"] for m in study["missions"]] == [f"tank-seed{s}" for s in SEEDS]
     graph_ate = [
         json.loads((out / m / "metrics.json").read_text())["estimators"]["graph"]["ate_rmse_m"] for m in serial
@@ -153,7 +158,7 @@ def test_local_cluster_interrupted_then_resumed(inputs, serial, tmp_path):
     ratio = study["ratios"]["graph/ekf"]["ate_rmse_m"]
     ekf_ate = study["distributions"]["ekf"]["ate_rmse_m"]["values"]
     assert ratio["values"] == pytest.approx([g / e for g, e in zip(graph_ate, ekf_ate)])
-    assert ratio["n"] == 4 and ratio["median_ci95"][0] <= ratio["median"] <= ratio["median_ci95"][1]
+    assert ratio["n"] == n and ratio["median_ci95"][0] <= ratio["median"] <= ratio["median_ci95"][1]
     # the report opens with the ratios and distributions, figures embedded, worst missions linked
     page = (out / "report.html").read_text()
     assert page.index("Paired ratios") < page.index("Distributions") < page.index("Worst missions")
@@ -201,6 +206,9 @@ def test_dask_scheduler_and_workers_one_killed(inputs, serial, dask_cluster, tmp
     """On a `dask scheduler` + two `dask worker`s, a worker process killed while it computes a
     mission: Dask runs that mission again, the study finishes whole, with the serial run's numbers."""
     out = tmp_path / "study"
+    # Two missions, one per worker: one worker is killed while the other's mission goes on; what is
+    # asserted (the killed mission run again, the study whole with the serial numbers) needs no more.
+    seeds = SEEDS[:2]
     killed = {}
 
     def kill_a_busy_worker():
@@ -215,13 +223,13 @@ def test_dask_scheduler_and_workers_one_killed(inputs, serial, dask_cluster, tmp
 
     killer = threading.Thread(target=kill_a_busy_worker)
     killer.start()
-    res = runner.invoke(app, scenario_args(inputs, out, "--scheduler", dask_cluster))
+    res = runner.invoke(app, scenario_args(inputs, out, "--scheduler", dask_cluster, seeds=seeds))
     killer.join()
     assert "worker" in killed, killed
     assert res.exit_code == 0, res.output
     study = json.loads((out / "study.json").read_text())
-    assert study["counts"]["ok"] == 4 and study["study"]["scheduler"] == dask_cluster
-    assert study_numbers(out) == {name: s["numbers"] for name, s in serial.items()}
+    assert study["counts"]["ok"] == len(seeds) and study["study"]["scheduler"] == dask_cluster
+    assert study_numbers(out) == {f"tank-seed{s}": serial[f"tank-seed{s}"]["numbers"] for s in seeds}
     rerun = Path(killed["stage"]).name.split(".")[0]  # the mission the killed worker was computing
     assert next(m for m in study["missions"] if m["mission"] == rerun)["status"] == "ok"
     assert not compute_processes(out)  # the killed worker's attempt died with it
