@@ -69,6 +69,7 @@ WORKER_NICE = 10
 _STATE_BATCH = 256  # measurements nobody answers for, sent at the latest after this many
 _STOP_SIGNALS = frozenset((signal.SIGINT, signal.SIGTERM))
 _START_WAIT_S = 10.0  # an aborted run waits this long at most for a worker's start under way
+_ALIVE_CHECK_S = 0.5  # a worker that died without a word is noticed this soon (a timed-out get costs nothing)
 
 
 def runs_in_process(frontend) -> bool:
@@ -363,7 +364,7 @@ class _Worker:
         self._started()
         while True:
             try:
-                kind, payload = pickle.loads(self._out.get(timeout=5.0))
+                kind, payload = pickle.loads(self._out.get(timeout=_ALIVE_CHECK_S))
                 break
             except queue.Empty:  # the worker may have died without a word
                 if not self._proc.is_alive():
