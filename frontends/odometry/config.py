@@ -118,6 +118,12 @@ class OdometryConfig(BaseModel):
     planes: PlaneSettings = Field(default_factory=PlaneSettings)
     gate: GateSettings = Field(default_factory=GateSettings)
     covariance: CovarianceSettings = Field(default_factory=CovarianceSettings)
+    map_window_s: float = Field(
+        30.0,
+        gt=0,
+        description="the local map holds the scans accepted in the last this many seconds (kiss-icp forgets only "
+        "by distance, and a vehicle circling a structure stays within range: a map a loop old holds that loop's drift)",
+    )
     restart_after: int = Field(
         3, ge=1, description="this many rejected scans in a row start a new local map at the next usable scan"
     )
