@@ -42,13 +42,13 @@ class RecordingMatcher(ScanMatcher):
 
     log: list = []
 
-    def start(self, points, pose):
-        ok = super().start(points, pose)
+    def start(self, points, pose, stamp):
+        ok = super().start(points, pose, stamp)
         RecordingMatcher.log.append(("start", ok))
         return ok
 
-    def register(self, points, predicted):
-        reg = super().register(points, predicted)
+    def register(self, points, predicted, stamp):
+        reg = super().register(points, predicted, stamp)
         RecordingMatcher.log.append(("register", reg))
         return reg
 
@@ -393,6 +393,7 @@ def main() -> None:
     rec.add_argument("--config", default="{}", help="front-end section as JSON")
     rec.add_argument("--out", type=Path, required=True)
     rec.add_argument("--cache", type=Path, help="keep the simulated missions here (pickled) and reuse them")
+    rec.add_argument("--outage", help="START,LENGTH (s): the simulator's long DVL outage (dvl.outage_s)")
     rec.add_argument("--prefix", default="seed", help="file name before the seed: 'report' marks a seed not tuned on")
     ev = sub.add_parser("nees")
     ev.add_argument("files", nargs="+", type=Path)
@@ -430,7 +431,10 @@ def main() -> None:
         args.out.mkdir(parents=True, exist_ok=True)
         for seed in (int(s) for s in args.seeds.split(",")):
             loops = max(args.duration - 20.0, 10.0) / 156.6667
-            cfg = resolve_config("tank", seed, vary=ASPECTS, data={"trajectory": {"loops": loops}})
+            data = {"trajectory": {"loops": loops}}
+            if args.outage:
+                data["dvl"] = {"outage_s": [float(v) for v in args.outage.split(",")]}
+            cfg = resolve_config("tank", seed, vary=ASPECTS, data=data)
             t0 = time.perf_counter()
             mission = _simulated(cfg, args.cache)
             t1 = time.perf_counter()

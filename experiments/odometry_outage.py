@@ -68,23 +68,35 @@ def main() -> None:
     ap.add_argument("--delta", type=float, default=10.0, help="RPE interval (s)")
     ap.add_argument("--loops", type=float, default=3.0)
     ap.add_argument(
+        "--look-away",
+        action="store_true",
+        help="the vehicle turns its back on the rack through the outage (trajectory.look_away_s, turns inside it)",
+    )
+    ap.add_argument(
         "--variants",
         default="laser;laser+odometry;laser+odometry/gaussian;navigation;odometry",
         help="front-end sets, ';'-separated ('/gaussian': the odometry factors without their Cauchy m-estimator)",
     )
+    ap.add_argument("--no-nees", action="store_true", help="skip the odometry's NEES (odometry_covariance measures it)")
     args = ap.parse_args()
     for seed in (int(s) for s in args.seeds.split(",")):
         cfg = resolve_config(  # each seed its world, with the simulator's long DVL outage
             "tank",
             seed,
             ASPECTS,
-            data={"trajectory": {"loops": args.loops}, "dvl": {"outage_s": [args.start, args.outage]}},
+            data={
+                "trajectory": {
+                    "loops": args.loops,
+                    "look_away_s": [args.start, args.outage] if args.look_away else None,
+                },
+                "dvl": {"outage_s": [args.start, args.outage]},
+            },
         )
         mission = simulate_tank(cfg)
         t0 = next(iter(mission)).stamp
         lo, hi = t0 + int(args.start * 1e9), t0 + int((args.start + args.outage) * 1e9)
         row = {}
-        if any("odometry" in name for name in args.variants.split(";")):
+        if not args.no_nees and any("odometry" in name for name in args.variants.split(";")):
             # the registrations alone against the truth (the same scans and prior as in the pipeline's worker)
             ev = evaluate(mission, window=(lo, hi))
             keys = ("nees_mean", "nees_band_95", "nees_median", "accepted", "accepted_in_window")

@@ -72,7 +72,7 @@ class OdometryFrontend(Frontend):
             self._start(track, scan)
             return []
         predicted = track.last_pose @ np.linalg.inv(T_BS) @ motion @ T_BS
-        reg = track.matcher.register(scan.points, predicted)
+        reg = track.matcher.register(scan.points, predicted, scan.stamp)
         track.last_stamp = scan.stamp
         if reg.rejected is not None:
             track.last_pose = predicted  # the chain goes on with the prior; the map is untouched
@@ -113,7 +113,7 @@ class OdometryFrontend(Frontend):
         sparse to anchor one leaves the map empty until the next."""
         track.last_stamp, track.last_pose = scan.stamp, np.eye(4)
         track.rejections = 0
-        if track.matcher.start(scan.points, np.eye(4)):
+        if track.matcher.start(scan.points, np.eye(4), scan.stamp):
             track.anchor_stamp, track.anchor_pose = scan.stamp, np.eye(4)
             self.counts["map_starts"] += 1
         else:

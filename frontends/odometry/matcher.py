@@ -9,6 +9,7 @@ the same components are called one by one: preprocess (range crop), voxelise, al
 
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
@@ -76,7 +77,14 @@ def kiss_config(cfg: OdometryConfig) -> KISSConfig:
 
 
 class ScanMatcher:
-    """Registers scans to a kiss-icp local map; ``reset()`` starts a new map."""
+    """Registers scans to a kiss-icp local map of the scans accepted in the last ``map_window_s``;
+    ``reset()`` starts a new map.
+
+    kiss-icp forgets map points only by distance (``max_range``), and a vehicle circling a structure
+    never leaves that range: its map would keep every scan of the mission, each placed with the drift
+    of its time, and a scan registered to points mapped a loop earlier takes that drift into its
+    relative pose (the errors grew with the map's age, experiments/odometry/README.md). So the map
+    is rebuilt from the recent scans alone, as they age out."""
 
     def __init__(self, cfg: OdometryConfig):
         self.cfg = cfg
@@ -84,6 +92,21 @@ class ScanMatcher:
 
     def reset(self) -> None:
         self.kiss = KissICP(kiss_config(self.cfg))
+        self._scans: deque[tuple[int, np.ndarray]] = deque()  # (stamp, map-frame points) in the map
+
+    def _add(self, stamp: int, down: np.ndarray, pose: np.ndarray) -> None:
+        """Adds a scan's points (placed at ``pose``) and drops the scans older than the window."""
+        world = down @ pose[:3, :3].T + pose[:3, 3]
+        self._scans.append((stamp, world))
+        horizon = stamp - int(self.cfg.map_window_s * 1e9)
+        if self._scans[0][0] >= horizon:
+            self.kiss.local_map.update(down, pose)
+            return
+        while self._scans[0][0] < horizon:
+            self._scans.popleft()
+        self.kiss.local_map.clear()
+        for _, points in self._scans:
+            self.kiss.local_map.add_points(points)
 
     @property
     def empty(self) -> bool:
@@ -100,19 +123,19 @@ class ScanMatcher:
             down = down[np.abs(down @ normal + offset) > self.cfg.planes.distance_m]
         return source, down
 
-    def start(self, points: np.ndarray, pose: np.ndarray) -> bool:
+    def start(self, points: np.ndarray, pose: np.ndarray, stamp: int) -> bool:
         """A new map from this scan, placed at ``pose`` (T_OS); False (and no map) if the scan has
         too few points to register others against."""
         self.reset()
         source, down = self._prepared(points)
         if len(source) < self.cfg.gate.min_inliers:
             return False
-        self.kiss.local_map.update(down, pose)
+        self._add(stamp, down, pose)
         return True
 
-    def register(self, points: np.ndarray, predicted: np.ndarray) -> Registration:
-        """Align ``points`` (sensor frame) to the map starting from ``predicted`` (T_OS); the map
-        takes the scan only if the registration passes the gate."""
+    def register(self, points: np.ndarray, predicted: np.ndarray, stamp: int) -> Registration:
+        """Align ``points`` (sensor frame, taken at ``stamp``) to the map starting from ``predicted``
+        (T_OS); the map takes the scan only if the registration passes the gate."""
         source, down = self._prepared(points)
         gate = self.cfg.gate
         if len(source) < gate.min_inliers:
@@ -126,7 +149,7 @@ class ScanMatcher:
         rejected = self._judge(correction, cov, n_in, len(source))
         if rejected is None:
             self.kiss.adaptive_threshold.update_model_deviation(correction)
-            self.kiss.local_map.update(down, pose)
+            self._add(stamp, down, pose)
         return Registration(pose, correction, cov, info, residual_var, n_in, len(source), rejected)
 
     def _information(self, source: np.ndarray, pose: np.ndarray, max_distance: float):

@@ -41,3 +41,10 @@ class EkfConfig(BaseModel):
     history_period_s: float = Field(
         0.5, ge=0, description="vehicle covariance recorded in the history at most this often (0 = every update)"
     )
+    odometry_gate_probability: float | None = Field(
+        0.99,
+        gt=0,
+        lt=1,
+        description="an odometry velocity pseudo-measurement whose NIS exceeds χ²₃ at this probability is rejected "
+        "(a registration that converged wrong, as the graph's Cauchy kernel discounts it); null: no gate",
+    )

@@ -23,6 +23,7 @@ import math
 
 import numpy as np
 from scipy.spatial.transform import Rotation
+from scipy.stats import chi2
 
 from semslam.config import SemslamConfig
 from semslam.ekf import geometry as geo
@@ -65,6 +66,10 @@ class FilterNavigation:
         self.gps = FilterGps(metadata, self.initial.pose)  # the start from the first fix; the EKF's updates
         self._traj: dict[str, list] = {k: [] for k in ("t", "x", "P")}  # vehicle state and covariance
         self._history: tuple[list, list] = ([], [])  # (stamps, vehicle covariance) every history_period_s
+        gate = self.cfg.odometry_gate_probability
+        self._odometry_gate = None if gate is None else float(chi2.ppf(gate, 3))  # NIS bound of a velocity (3-D)
+        self._odometry_counts = {"taken": 0, "rejected": 0}
+        self._odometry_note: int | None = None  # where in ``diagnostics`` the gate's count stands
 
     def extrinsic(self, sensor: str) -> tuple[np.ndarray, np.ndarray]:
         """R_BS, t_BS of ``sensor`` (an undeclared sensor is a MissionError)."""
@@ -184,7 +189,11 @@ class FilterNavigation:
         pose to). Under the constant-velocity model a body turning at a steady rate moves by
         Δt·R_half·v_B, R_half the rotation halfway; the covariance is the relative translation's over
         Δt², plus how far the velocity may wander from its mean in Δt (σ_a²·Δt/3). The rotation it
-        measures is not used: the AHRS observes the attitude directly."""
+        measures is not used: the AHRS observes the attitude directly.
+
+        Gated as the graph's robust factor discounts it: a pseudo-measurement whose NIS νᵀS⁻¹ν exceeds
+        χ²₃ at ``ekf.odometry_gate_probability`` is rejected (a registration that converged wrong, where
+        the filter knows its velocity; deep in a DVL dropout S is wide and the gate lets it through)."""
         dt = (z.stamp - z.stamp_from) * NS
         if dt <= 0 or z.stamp < self.t:
             return
@@ -192,10 +201,33 @@ class FilterNavigation:
         R_half = Rotation.from_rotvec(0.5 * Rotation.from_matrix(z.relative_pose[:3, :3]).as_rotvec()).as_matrix()
         v = R_half.T @ z.relative_pose[:3, 3] / dt
         cov = R_half.T @ z.covariance[3:, 3:] @ R_half / dt**2 + np.eye(3) * self.motion.accel_sigma_m_s2**2 * dt / 3
+        innovation = v - self.state.xv[VEL]
+        if self._odometry_gate is not None:
+            S = self.state.Pvv[VEL, VEL] + cov
+            if innovation @ np.linalg.solve(S, innovation) > self._odometry_gate:
+                self._count_odometry("rejected")
+                return
+        self._count_odometry("taken")
         H = np.zeros((3, NX))
         H[:, VEL] = np.eye(3)
-        self._nav_update(mdl.NavUpdate(v - self.state.xv[VEL], H, cov))
+        self._nav_update(mdl.NavUpdate(innovation, H, cov))
         self.record(z.stamp)
+
+    def _count_odometry(self, outcome: str) -> None:
+        """Counts the odometry pseudo-measurements; once one was rejected, one diagnostic line says how many."""
+        c = self._odometry_counts
+        c[outcome] += 1
+        if not c["rejected"]:
+            return
+        note = (
+            f"odometry: {c['rejected']} of {c['taken'] + c['rejected']} registrations rejected by the NIS gate "
+            f"(χ²₃, p = {self.cfg.odometry_gate_probability})"
+        )
+        if self._odometry_note is None:
+            self._odometry_note = len(self.diagnostics)
+            self.diagnostics.append(note)
+        else:
+            self.diagnostics[self._odometry_note] = note
 
     def _attitude(self, m: Attitude) -> None:
         R_BS, _ = self.extrinsic(m.sensor)

@@ -98,6 +98,13 @@ class TrajectoryConfig(_Section):
     work_depth_m: float = Field(2.9, gt=0, description="mean working depth (m)")
     depth_swing_m: float = Field(0.25, ge=0, description="depth oscillation amplitude, twice per loop (m)")
     roll_pitch_amplitude_deg: float = Field(1.0, ge=0, description="amplitude of the roll/pitch wobble (deg)")
+    look_away_s: tuple[float, float] | None = Field(
+        None,
+        description="(start, length) in s from the mission start: the vehicle keeps its path but turns its back on "
+        "the structure (heading +180°, e.g. to inspect the tank wall), so that the laser loses the rack; null: "
+        "it always faces it",
+    )
+    look_away_turn_s: float = Field(10.0, gt=0, description="time to turn away and to turn back (s)")
 
     @model_validator(mode="after")
     def _duration(self):

@@ -106,11 +106,23 @@ class Trajectory(MotionModel):
         vz = dz_mean * dS + dS * swing + S * c.depth_swing_m * np.cos(k * (th - self.theta0)) * k * dth
         return np.stack([x, y, z], 1), np.stack([vx, vy, vz], 1)
 
+    def _away(self, t) -> np.ndarray:
+        """The heading turned away from the structure centre (rad): π inside ``look_away_s``, turned
+        smoothly over ``look_away_turn_s`` at either end, 0 outside."""
+        if self.cfg.look_away_s is None:
+            return np.zeros_like(t)
+        start, length = self.cfg.look_away_s
+        turn = self.cfg.look_away_turn_s
+        out, _, _ = smoothstep((t - start) / turn)
+        back, _, _ = smoothstep((t - start - length + turn) / turn)
+        return np.pi * (out - back)
+
     def rotation(self, t) -> Rotation:
-        """R_WB(t): facing the structure centre (yaw), with a small roll/pitch wobble."""
+        """R_WB(t): facing the structure centre (yaw; away from it during ``look_away_s``), with a small
+        roll/pitch wobble."""
         t = np.atleast_1d(np.asarray(t, float))
         p, _ = self.position_velocity(t)
-        yaw = np.arctan2(self.center[1] - p[:, 1], self.center[0] - p[:, 0])
+        yaw = np.arctan2(self.center[1] - p[:, 1], self.center[0] - p[:, 0]) + self._away(t)
         S, _ = self._ramp(t)
         A = np.deg2rad(self.cfg.roll_pitch_amplitude_deg)
         roll = A * S * np.sin(2 * np.pi * t / 7.3)
