@@ -28,6 +28,11 @@ def test_path_pairs_are_evos():
             ours = path_pairs(p, delta)
             assert ours == filter_pairs_by_path(poses, delta)
             assert len(ours) > 0 or delta == 4.0
+    # steps of 0.1 m (their sums round either side of 0.3 and 1.0) with standstills of up to 12 poses
+    grid = np.repeat(np.arange(300)[:, None] * [[0.1, 0.0, 0.0]], rng.integers(1, 13, 300), axis=0)
+    poses = [np.block([[np.eye(3), x[:, None]], [np.zeros((1, 3)), np.ones((1, 1))]]) for x in grid]
+    for delta in (0.3, 1.0, 0.7):
+        assert path_pairs(grid, delta) == filter_pairs_by_path(poses, delta)
     assert path_pairs(np.zeros((5, 3)), 1.0) == []  # standing still: no pair, as evo
     assert path_pairs(np.zeros((1, 3)), 1.0) == []
 

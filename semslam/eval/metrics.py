@@ -80,6 +80,8 @@ def path_pairs(positions: np.ndarray, delta: float) -> list[tuple[int, int]]:
         guess = int(np.searchsorted(cum, cum[i] + delta, side="left"))  # the end, up to rounding
         run = np.cumsum(steps[i : guess + 4])  # evo's sum from pose i, in its order
         hit = np.flatnonzero(run >= delta)
+        if not len(hit) and guess + 4 < len(steps):  # a rounding short of delta, then a standstill
+            hit = np.flatnonzero(np.cumsum(steps[i:]) >= delta)
         if not len(hit):
             break
         i += 1 + int(hit[0])
