@@ -63,12 +63,12 @@ def summarize(res, mission) -> dict:
         "update_ms_p95": float(np.percentile(t, 95)),
         "update_cpu_ms_median": float(np.median(cpu)) if len(cpu) else None,
         "update_cpu_ms_p95": float(np.percentile(cpu, 95)) if len(cpu) else None,
-        "obs_update_ms_median": float(np.median(t[kinds == "observations"]))
-        if (kinds == "observations").any()
-        else None,
-        "obs_update_ms_p95": float(np.percentile(t[kinds == "observations"], 95))
-        if (kinds == "observations").any()
-        else None,
+        **{  # per kind of update (a keyframe; a scan's observations), wall and CPU
+            f"{short}_update_{unit}_{stat}": (float(fn(x[kinds == kind])) if (kinds == kind).any() and len(x) else None)
+            for short, kind in (("keyframe", "keyframe"), ("obs", "observations"))
+            for unit, x in (("ms", t), ("cpu_ms", cpu))
+            for stat, fn in (("median", np.median), ("p95", lambda v: np.percentile(v, 95)))
+        },
         "n_updates": int(len(t)),
         "n_landmarks": len(res.landmarks),
         "ate_rmse_m": float(np.sqrt(np.mean(e**2))),

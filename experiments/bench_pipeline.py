@@ -7,7 +7,8 @@ the pipeline (``run_comparison``), build metrics.json, write the results and the
 ``--record`` the replay, as the demo does: its recorder's per-step cost is timed apart). Runs
 alternate between the front-end worker counts given (``--workers 1,2``), so that a change of the
 machine's load falls on all of them; per worker count it reports the median of the whole compare's
-wall time and real-time factor, of the pipeline's, and of each stage. The pipeline's own stages
+wall time and real-time factor, of the pipeline's, and of each stage (wall, and the main process's CPU:
+the machine's load, given per run, inflates the wall times). The pipeline's own stages
 ("read", "frontend:<name>", "estimator:<name>") are CPU-side sums: with the front-ends apart they
 overlap, and their sum exceeds the pipeline's wall time. The estimates are checked identical across
 runs (ATE of each estimator).
@@ -19,8 +20,10 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import tempfile
 import time
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -46,45 +49,56 @@ class TimedObserver:
         self.seconds += time.perf_counter() - t0
 
 
+class Stages:
+    """Wall and CPU seconds (this process's: the front-end workers' CPU is not in it) of each stage."""
+
+    def __init__(self):
+        self.wall: dict[str, float] = {}
+        self.cpu: dict[str, float] = {}
+
+    @contextmanager
+    def time(self, name: str):
+        t0, c0 = time.perf_counter(), time.process_time()
+        yield
+        self.wall[name] = time.perf_counter() - t0
+        self.cpu[name] = time.process_time() - c0
+
+
 def one_run(bag: Path, cfg, workers: int, record: bool) -> dict:
     from semslam.eval.replay import LAYOUT_FILE, LAYOUT_PATH, REPLAY_FILE, make_recorder
 
-    stages: dict[str, float] = {}
+    st = Stages()
+    load_before = os.getloadavg()[0]
     t_start = time.perf_counter()
-    t0 = time.perf_counter()
-    mission = read_mission(bag, cfg.reader)
-    stages["open mission"] = time.perf_counter() - t0
+    with st.time("open mission"):
+        mission = read_mission(bag, cfg.reader)
     recorder = TimedObserver(make_recorder(True, mission.metadata, None)) if record else None
-    t0 = time.perf_counter()
-    with observed_by(*([recorder] if recorder else [])):
+    with st.time("pipeline + metrics"), observed_by(*([recorder] if recorder else [])):
         result, metrics = run_comparison(mission, cfg, frontend_workers=workers)
-    pipeline_and_metrics = time.perf_counter() - t0
     # run_comparison's metrics, timed again on their own (the same call: build_metrics)
     from semslam.eval.outputs import build_metrics
 
-    t0 = time.perf_counter()
-    build_metrics(result, mission.metadata)
-    stages["metrics"] = time.perf_counter() - t0
-    pipeline_wall = pipeline_and_metrics - stages["metrics"]
+    with st.time("metrics"):
+        build_metrics(result, mission.metadata)
+    for d in (st.wall, st.cpu):
+        d["pipeline"] = d.pop("pipeline + metrics") - d["metrics"]
     if recorder is not None:
-        stages["replay recorder (in the pipeline)"] = recorder.seconds
+        st.wall["replay recorder (in the pipeline)"] = recorder.seconds
     with tempfile.TemporaryDirectory(prefix="bench_pipeline_") as tmp:
         with staged_output(Path(tmp) / "out") as stage:
-            t0 = time.perf_counter()
-            write_results(stage, cfg, result, metrics)
-            stages["outputs"] = time.perf_counter() - t0
+            with st.time("outputs"):
+                write_results(stage, cfg, result, metrics)
             if recorder is not None:
                 import shutil
 
-                t0 = time.perf_counter()
-                recorder.inner.write(stage / REPLAY_FILE, result)
-                shutil.copyfile(LAYOUT_PATH, stage / LAYOUT_FILE)
-                stages["replay write"] = time.perf_counter() - t0
-            t0 = time.perf_counter()
-            write_report(stage, result, mission.metadata, metrics, replay=recorder is not None)
-            stages["report"] = time.perf_counter() - t0
+                with st.time("replay write"):
+                    recorder.inner.write(stage / REPLAY_FILE, result)
+                    shutil.copyfile(LAYOUT_PATH, stage / LAYOUT_FILE)
+            with st.time("report"):
+                write_report(stage, result, mission.metadata, metrics, replay=recorder is not None)
     # the whole compare: the metrics counted once (run_comparison built them; the second call only timed them)
-    wall = time.perf_counter() - t_start - stages["metrics"]
+    wall = time.perf_counter() - t_start - st.wall["metrics"]
+    stages = dict(st.wall)
     for k, v in result.timing_s.items():
         if k != "wall":
             stages[f"pipeline {k}"] = v
@@ -92,9 +106,11 @@ def one_run(bag: Path, cfg, workers: int, record: bool) -> dict:
         "workers": workers,
         "wall_s": wall,
         "real_time_factor": result.duration_s / wall,
-        "pipeline_wall_s": pipeline_wall,
-        "pipeline_real_time_factor": result.duration_s / pipeline_wall,
+        "pipeline_wall_s": st.wall["pipeline"],
+        "pipeline_real_time_factor": result.duration_s / st.wall["pipeline"],
         "stages_s": stages,
+        "stages_cpu_s": st.cpu,
+        "load_average": [load_before, os.getloadavg()[0]],  # 1-minute, at the start and the end of the run
         "ate_m": {n: metrics["estimators"][n]["ate_rmse_m"] for n in DEFAULT_ESTIMATORS},
     }
 
@@ -136,6 +152,10 @@ def main() -> None:
             "pipeline_wall_s_median": med("pipeline_wall_s"),
             "pipeline_real_time_factor_median": med("pipeline_real_time_factor"),
             "stages_s_median": {k: float(np.median([r["stages_s"].get(k, 0.0) for r in rs])) for k in stages},
+            "stages_cpu_s_median": {
+                k: float(np.median([r["stages_cpu_s"][k] for r in rs])) for k in rs[0]["stages_cpu_s"]
+            },
+            "load_average": [r["load_average"] for r in rs],
         }
         s = summary[w]
         print(
@@ -143,8 +163,11 @@ def main() -> None:
             f"{s['real_time_factor_median']:.1f}× real time; pipeline {s['pipeline_wall_s_median']:.1f} s = "
             f"{s['pipeline_real_time_factor_median']:.1f}×"
         )
+        cpu = s["stages_cpu_s_median"]
+        print(f"  {'stage':40s} {'wall':>9s} {'CPU (main)':>11s}")
         for k, v in s["stages_s_median"].items():
-            print(f"  {k:40s} {v:7.2f} s")
+            print(f"  {k:40s} {v:7.2f} s" + (f" {cpu[k]:9.2f} s" if k in cpu else ""))
+        print("  load average (1 min) at the start and end of each run:", s["load_average"])
     print("estimates identical across runs:", len(ates) == 1)
     Path(args.json).parent.mkdir(parents=True, exist_ok=True)
     Path(args.json).write_text(json.dumps({"runs": runs, "summary": summary, "identical": len(ates) == 1}, indent=1))

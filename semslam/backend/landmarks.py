@@ -42,7 +42,14 @@ from semslam.backend.session import IsamSession, Owned
 from semslam.backend.window import SlidingWindow, X, value_of
 from semslam.config import SemslamConfig
 from semslam.estimation import LandmarkEstimate
-from semslam.mapping.association import Candidates, LowRankJoint, PairLinearization, chi2_gate, uncorrelated_candidates
+from semslam.mapping.association import (
+    Candidates,
+    LowRankJoint,
+    PairLinearization,
+    chi2_gate,
+    inv_small,
+    uncorrelated_candidates,
+)
 from semslam.mapping.book import LandmarkBook
 from semslam.mapping.builder import Scan
 from semslam.mapping.fittings import port_depths
@@ -314,6 +321,10 @@ class GraphLandmarks:
         found = uncorrelated_candidates(
             len(observations), [t for t in pairs if t[2] is not None], pose_cov, problem.landmark_covariance, confidence
         )
+        # the scan's pipe rules after the gate: they cost more than a linearisation, and most pairs fail the gate
+        found = found.subset(
+            np.array([k for k, (i, j) in enumerate(zip(found.obs, found.lm)) if not problem.excluded(i, j)], int)
+        )
         self._problem = problem
         return found, [lm.id for lm in cand_lms]
 
@@ -408,7 +419,7 @@ class GraphLandmarks:
             return None
         d = np.asarray(la.estimate, float) - np.asarray(lb.estimate, float)
         S = la.information_covariance(gate=True) + lb.information_covariance(gate=True)
-        return float(d @ np.linalg.solve(S, d))
+        return float(d @ inv_small(S) @ d)  # closed form: asked of every object pair after every scan
 
     def merge(self, keep: int, drop: int, constrain: bool) -> None:
         """``drop`` leaves the map; with ``constrain`` (objects) it is first tied to ``keep`` by a stiff

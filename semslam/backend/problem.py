@@ -35,7 +35,8 @@ class Candidate:
 
 class GraphAssociationProblem:
     """Observations of one batch against pre-gated candidate landmarks (``allowed``: the pairs the
-    pre-gates keep); ``scan``: the batch's rules (a pipe pair is ruled out where ``scan.excludes``)."""
+    pre-gates keep); ``scan``: the batch's rules (:meth:`excluded`: a pipe pair is ruled out where
+    ``scan.excludes``)."""
 
     def __init__(
         self,
@@ -86,13 +87,8 @@ class GraphAssociationProblem:
             return PairLinearization(-r, H_x, H_l, z.covariance)
         if isinstance(z, LineObservation) and lm.kind == "pipe":
             theta = lm.estimate
-            RL, Jr2, d = self._line_frame(j)
-            e_B, seg = self._segment(i)
-            # The segment must overlap what has been seen of the pipe (collinear pipes on either
-            # side of a valve share one infinite line), and no in-line part (valve, socket) may lie
-            # between them: that is the next pipe
-            if self.scan.excludes(lm.id, seg, lm.anchor.point(theta), d):
-                return None
+            RL, Jr2, _ = self._line_frame(j)
+            e_B, _ = self._segment(i)
             r, H_x, H_l = line_residual_at(self._R, self._t, RL, Jr2, lm.anchor.c0, theta[2:4], e_B, jac=True)
             R = line_observation_covariance(self.pose, theta, lm.anchor, T_BS, z.covariance, RL=RL)
             return PairLinearization(-r, H_x, H_l, R)
@@ -100,6 +96,18 @@ class GraphAssociationProblem:
             r, H_x, H_l = structure_residual(self.pose, lm.estimate, T_BS, z.pose, jac=True)
             return PairLinearization(-r, H_x, H_l, z.covariance)
         return None
+
+    def excluded(self, i: int, j: int) -> bool:
+        """Whether the rules of the scan rule out pair (i, j): a pipe segment must overlap what has been
+        seen of the pipe (collinear pipes on either side of a valve share one infinite line), and no
+        in-line part (valve, socket) may lie between them: that is the next pipe. Asked only of the
+        pairs that pass the χ² gate (the rules cost more than the linearisation)."""
+        z, lm = self.observations[i], self.candidates[j].landmark
+        if not (isinstance(z, LineObservation) and lm.kind == "pipe"):
+            return False
+        _, _, d = self._line_frame(j)
+        _, seg = self._segment(i)
+        return self.scan.excludes(lm.id, seg, lm.anchor.point(lm.estimate), d)
 
     def landmark_covariance(self, j: int) -> np.ndarray:
         """Candidate j's gating covariance (uncorrelated with the pose and the other candidates)."""

@@ -14,6 +14,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from matplotlib.collections import LineCollection  # noqa: E402
+from matplotlib.ticker import FuncFormatter, NullFormatter  # noqa: E402
 
 from semslam.estimation import EstimatorResult, Trajectory  # noqa: E402
 from semslam.mission.ground_truth import GroundTruthMap  # noqa: E402
@@ -23,6 +24,24 @@ COLORS = {"truth": "k", "dr": "tab:red", "ekf": "tab:blue", "graph": "tab:green"
 
 def _color(name: str) -> str:
     return COLORS.get(name, None)
+
+
+def _lay_out(fig, left=0.9, right=0.25, bottom=0.6, top=0.45, wspace=0.85, hspace=0.9) -> None:
+    """Margins and gaps between the axes of a grid, in inches (room for tick labels, axis labels and
+    titles at the default font size): fixed, where ``tight_layout`` would measure every tick label
+    first (about a third of the report's time) and leave a placeholder layout engine behind that makes
+    ``savefig`` lay the figure out once more."""
+    w, h = fig.get_size_inches()
+    nrows, ncols = fig.axes[0].get_subplotspec().get_gridspec().get_geometry()
+    inner_w, inner_h = w - left - right, h - bottom - top
+    fig.subplots_adjust(
+        left=left / w,
+        right=1 - right / w,
+        bottom=bottom / h,
+        top=1 - top / h,
+        wspace=wspace / ((inner_w - (ncols - 1) * wspace) / ncols),
+        hspace=hspace / ((inner_h - (nrows - 1) * hspace) / nrows),
+    )
 
 
 def trajectories(truth: Trajectory | None, results: Mapping[str, EstimatorResult]):
@@ -41,7 +60,7 @@ def trajectories(truth: Trajectory | None, results: Mapping[str, EstimatorResult
     for ax in (top, side):
         ax.grid(alpha=0.3)
         ax.legend(loc="best", fontsize=8)
-    fig.tight_layout()
+    _lay_out(fig)
     return fig
 
 
@@ -70,7 +89,7 @@ def maps(results: Mapping[str, EstimatorResult], truth: GroundTruthMap | None, o
         ax.autoscale_view()
         ax.set(title=f"{name} map", xlabel="east [m]", ylabel="north [m]", aspect="equal")
         ax.grid(alpha=0.3)
-    fig.tight_layout()
+    _lay_out(fig)
     return fig
 
 
@@ -118,7 +137,7 @@ def position_errors(truth: Trajectory, results: Mapping[str, EstimatorResult]):
     axes[0].legend(loc="upper left", fontsize=8, ncol=4)
     axes[0].set_title("position error and ±2σ (axes scaled to the errors: wider bands run off the plot)")
     axes[-1].set_xlabel("mission time [s]")
-    fig.tight_layout()
+    _lay_out(fig, hspace=0.25)
     return fig
 
 
@@ -145,7 +164,7 @@ def velocities(results: Mapping[str, EstimatorResult]):
     axes[0].legend(loc="upper left", fontsize=8)
     axes[0].set_title("body velocity and ±2σ")
     axes[-1].set_xlabel("mission time [s]")
-    fig.tight_layout()
+    _lay_out(fig, hspace=0.25)
     return fig
 
 
@@ -162,16 +181,24 @@ def uncertainty_volumes(results: Mapping[str, EstimatorResult], t0: int | None =
     if t0 is None:
         t0 = min(int(np.min(st)) for r in have.values() for st, _ in r.history["landmark_volume"].values() if len(st))
     fig, axes = plt.subplots(len(have), 2, figsize=(12, 3.8 * len(have)), squeeze=False)
+    cycle = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     for row, (name, r) in zip(axes, have.items()):
         kinds = r.history.get("landmark_kind", {})
+        curves: tuple[list, list] = ([], [])  # pipes, objects: one LineCollection each
         for lid, (stamps, vol) in r.history["landmark_volume"].items():
-            ax = row[0] if kinds.get(lid, "object") == "pipe" else row[1]
-            ax.plot((np.asarray(stamps) - t0) * 1e-9, vol, lw=0.8)
+            t = (np.asarray(stamps) - t0) * 1e-9
+            curves[0 if kinds.get(lid, "object") == "pipe" else 1].append(np.column_stack([t, np.asarray(vol, float)]))
+        for ax, lines in zip(row, curves):
+            if lines:  # each curve in the next colour of the cycle, as one plot call per curve would
+                ax.add_collection(
+                    LineCollection(lines, colors=[cycle[k % len(cycle)] for k in range(len(lines))], lw=0.8)
+                )
+                ax.autoscale_view()
         row[0].set(title=f"{name}: pipes", ylabel="Σ log λ", xlabel="mission time [s]")
         row[1].set(title=f"{name}: objects", ylabel="Σ log λ", xlabel="mission time [s]")
         for ax in row:
             ax.grid(alpha=0.3)
-    fig.tight_layout()
+    _lay_out(fig)
     return fig
 
 
@@ -187,10 +214,13 @@ def update_cost(results: Mapping[str, EstimatorResult]):
                 r.update_n_landmarks, np.asarray(r.update_times_s) * 1e3, s=4, alpha=0.5, color=_color(name), label=name
             )
     ax.set(xlabel="landmarks in the map", ylabel="update time [ms]", yscale="log", title="per-update cost")
+    # plain numbers on the log axis: its default 10^k labels go through mathtext, ~1 s of font set-up
+    ax.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+    ax.yaxis.set_minor_formatter(NullFormatter())
     ax.grid(alpha=0.3)
     if ax.get_legend_handles_labels()[0]:
         ax.legend(fontsize=8, markerscale=3)
-    fig.tight_layout()
+    _lay_out(fig)
     return fig
 
 
@@ -219,5 +249,5 @@ def confusion_matrices(recognition: Mapping[str, dict], classes: list[str]):
         ax.set_yticks(range(len(classes)), classes, fontsize=7)
         f1 = recognition[stage].get("f1")
         ax.set_title(f"{stage}" + (f" (F1 {f1:.2f})" if isinstance(f1, (int, float)) else ""))
-    fig.tight_layout()
+    _lay_out(fig, left=0.95, bottom=0.95, wspace=1.0)  # class names at the rows and under the columns
     return fig

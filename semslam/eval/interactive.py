@@ -14,6 +14,7 @@ import base64
 import functools
 import gzip
 import json
+import math
 
 import numpy as np
 
@@ -222,7 +223,7 @@ def _estimator_traces(name: str, result: EstimatorResult, truth: GroundTruthMap 
 def _json_default(x):
     if isinstance(x, np.ndarray):  # coordinates to 0.1 mm; NaN (a gap between pipes) as null
         if x.dtype.kind == "f":
-            return [None if not np.isfinite(v) else round(float(v), 4) for v in x.ravel()]
+            return [round(v, 4) if math.isfinite(v) else None for v in x.ravel().tolist()]  # Python floats: ~3× faster
         return x.tolist()
     if isinstance(x, (np.floating, np.integer)):
         return x.item()

@@ -114,16 +114,17 @@ def ate_position_yaw(estimate: Trajectory, truth: Trajectory) -> tuple[float, np
 
 
 def moved(landmarks: list[LandmarkEstimate], T: np.ndarray) -> list[LandmarkEstimate]:
-    """The landmarks moved by T (4×4; positions, pipe ends and structure poses)."""
+    """The landmarks moved by T (4×4; positions, pipe ends and structure poses), the points of all
+    of them at once (dead reckoning's map places thousands)."""
     from dataclasses import replace
 
-    def f(x):
-        return None if x is None else T[:3, :3] @ np.asarray(x, float) + T[:3, 3]
-
-    return [
-        replace(lm, position=f(lm.position), p=f(lm.p), q=f(lm.q), pose=None if lm.pose is None else T @ lm.pose)
-        for lm in landmarks
-    ]
+    fields = ("position", "p", "q")
+    at = [(k, f) for k, lm in enumerate(landmarks) for f in fields if getattr(lm, f) is not None]
+    pts = np.array([getattr(landmarks[k], f) for k, f in at], float).reshape(-1, 3) @ T[:3, :3].T + T[:3, 3]
+    new: list[dict] = [dict.fromkeys(fields) for _ in landmarks]
+    for (k, f), x in zip(at, pts):
+        new[k][f] = x
+    return [replace(lm, **new[k], pose=None if lm.pose is None else T @ lm.pose) for k, lm in enumerate(landmarks)]
 
 
 # ------------------------------------------------------------------ consistency

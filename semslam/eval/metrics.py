@@ -1,4 +1,4 @@
-"""Metrics of an estimator's result against ground truth: trajectory errors (through evo),
+"""Metrics of an estimator's result against ground truth: trajectory errors (evo's, computed at once),
 landmark errors, consistency (NEES) and timing. Library functions that return plain dicts with
 the keys of ``metrics.json`` (DESIGN.md); a key without ground truth is None, never invented."""
 
@@ -8,6 +8,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
+from scipy.spatial.transform import Rotation
 
 from semslam.estimation import EstimatorResult, LandmarkEstimate, Trajectory
 from semslam.eval.map_quality import map_quality
@@ -15,26 +16,6 @@ from semslam.eval.structures import pose_at, structure_counts, structure_rows
 from semslam.mission.ground_truth import GroundTruthMap
 
 ALIGNMENTS = ("none", "se3", "origin")
-
-
-def _evo_traj(traj: Trajectory, ids) -> object:
-    """The poses ``ids`` of ``traj`` as an evo trajectory, its pose matrices made at once (evo builds
-    them pose by pose from the quaternions when first asked: most of the metrics' time on a
-    mission's 10k+ poses)."""
-    from evo.core.trajectory import PoseTrajectory3D
-    from scipy.spatial.transform import Rotation
-
-    p = np.asarray(traj.positions, float)[ids]
-    q = np.asarray(traj.orientations, float)[ids]
-    T = np.tile(np.eye(4), (len(p), 1, 1))
-    T[:, :3, :3] = Rotation.from_quat(q).as_matrix()
-    T[:, :3, 3] = p
-    return PoseTrajectory3D(
-        positions_xyz=p,
-        orientations_quat_wxyz=q[:, [3, 0, 1, 2]],
-        timestamps=np.asarray(traj.stamps, np.int64)[ids] * 1e-9,
-        poses_se3=list(T),
-    )
 
 
 def matching_time_indices(stamps_1: np.ndarray, stamps_2: np.ndarray, max_diff: float) -> tuple[list, list]:
@@ -56,18 +37,56 @@ def matching_time_indices(stamps_1: np.ndarray, stamps_2: np.ndarray, max_diff: 
     return ids_1.tolist(), np.where(upper, i2, i2 - 1)[ids_1].tolist()
 
 
-def _associated(estimate: Trajectory, truth: Trajectory, max_dt_s: float):
-    """(truth, estimate) as evo trajectories of their associated poses, as evo's
-    ``sync.associate_trajectories`` pairs them (nearest stamp within ``max_dt_s``, from the
-    trajectory with fewer poses), without its deep copies of both whole trajectories; None when
+class GeometryException(ValueError):
+    """The positions cannot fix an SE(3) alignment (all on one line or one point): evo's condition."""
+
+
+def _associated(estimate: Trajectory, truth: Trajectory, max_dt_s: float) -> tuple[list, list] | None:
+    """(truth rows, estimate rows) of the associated poses, as evo's ``sync.associate_trajectories``
+    pairs them (nearest stamp within ``max_dt_s``, from the trajectory with fewer poses); None when
     nothing associates."""
     est_longer = len(estimate) > len(truth)
     short, long_ = (truth, estimate) if est_longer else (estimate, truth)
     ids_short, ids_long = matching_time_indices(short.stamps * 1e-9, long_.stamps * 1e-9, max_dt_s)
     if not ids_short:
         return None
-    ids_truth, ids_est = (ids_short, ids_long) if est_longer else (ids_long, ids_short)
-    return _evo_traj(truth, ids_truth), _evo_traj(estimate, ids_est)
+    return (ids_short, ids_long) if est_longer else (ids_long, ids_short)
+
+
+def umeyama(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rotation r and translation t (no scale) with y ≈ r x + t for points x, y (N×3): evo's
+    ``geometry.umeyama_alignment``, its covariance summed at once instead of point by point;
+    :class:`GeometryException` where evo raises its own."""
+    mean_x, mean_y = x.mean(axis=0), y.mean(axis=0)
+    cov_xy = (y - mean_y).T @ (x - mean_x) / len(x)
+    u, d, v = np.linalg.svd(cov_xy)
+    if np.count_nonzero(d > np.finfo(d.dtype).eps) < 2:
+        raise GeometryException("degenerate covariance rank: no SE(3) alignment")
+    s = np.eye(3)
+    if np.linalg.det(u) * np.linalg.det(v) < 0.0:
+        s[2, 2] = -1
+    r = u @ s @ v
+    return r, mean_y - r @ mean_x
+
+
+def path_pairs(positions: np.ndarray, delta: float) -> list[tuple[int, int]]:
+    """evo's consecutive pairs of poses ``delta`` metres of path apart (``filters.filter_pairs_by_path``:
+    the path summed from each pair's first pose until it reaches ``delta``), each end found by a search
+    on the cumulative path and confirmed by evo's sum from the pair's first pose, instead of pose by pose."""
+    steps = np.linalg.norm(np.diff(positions, axis=0), axis=1)
+    cum = np.concatenate([[0.0], np.cumsum(steps)])  # cum[k]: the path from pose 0 to pose k
+    ids, i = [0], 0
+    while i < len(steps):
+        guess = int(np.searchsorted(cum, cum[i] + delta, side="left"))  # the end, up to rounding
+        run = np.cumsum(steps[i : guess + 4])  # evo's sum from pose i, in its order
+        hit = np.flatnonzero(run >= delta)
+        if not len(hit) and guess + 4 < len(steps):  # a rounding short of delta, then a standstill
+            hit = np.flatnonzero(np.cumsum(steps[i:]) >= delta)
+        if not len(hit):
+            break
+        i += 1 + int(hit[0])
+        ids.append(i)
+    return list(zip(ids, ids[1:]))
 
 
 @dataclass
@@ -88,45 +107,46 @@ def trajectory_errors(
     max_dt_s: float = 0.05,
     rpe: bool = True,
 ) -> TrajectoryErrors | None:
-    """APE (translation) and RPE (translation per ``rpe_delta_m`` travelled; ``rpe`` False: not
-    computed, None) with evo.
+    """APE (translation) and RPE (translation per ``rpe_delta_m`` travelled, consecutive pairs
+    from the estimate; ``rpe`` False: not computed, None) as evo computes them (its
+    ``metrics.APE``/``RPE`` with ``PoseRelation.translation_part``), on all poses at once: evo
+    builds, aligns and compares pose matrices one by one (most of the metrics' time).
 
     ``alignment``: "none" (the world frame is observable: depth and AHRS fix it — the default),
     "se3" (Umeyama) or "origin" (first poses aligned). None when no pose could be associated.
     """
-    from evo.core import metrics
-    from evo.core.units import Unit
-
     if alignment not in ALIGNMENTS:
         raise ValueError(f"alignment must be one of {ALIGNMENTS}")
     if len(estimate) == 0 or len(truth) == 0:
         return None
-    pair = _associated(estimate, truth, max_dt_s)
-    if pair is None:
+    rows = _associated(estimate, truth, max_dt_s)
+    if rows is None:
         return None
-    ref, est = pair
+    ref_p, est_p = truth.positions[rows[0]], estimate.positions[rows[1]]
+    ref_R = Rotation.from_quat(truth.orientations[rows[0]]).as_matrix()
+    est_R = Rotation.from_quat(estimate.orientations[rows[1]]).as_matrix()
     if alignment == "se3":
-        est.align(ref)
-    elif alignment == "origin":
-        est.align_origin(ref)
-    ape = metrics.APE(metrics.PoseRelation.translation_part)
-    ape.process_data((ref, est))
+        r, t = umeyama(est_p, ref_p)
+    elif alignment == "origin":  # T_ref0 · T_est0⁻¹
+        r = ref_R[0] @ est_R[0].T
+        t = ref_p[0] - r @ est_p[0]
+    if alignment != "none":
+        est_p, est_R = est_p @ r.T + t, r @ est_R
+    errors = np.linalg.norm(est_p - ref_p, axis=1)
     rpe_rmse = None
-    if rpe:
-        try:
-            rpe_metric = metrics.RPE(metrics.PoseRelation.translation_part, delta=rpe_delta_m, delta_unit=Unit.meters)
-            rpe_metric.process_data((ref, est))
-            rpe_rmse = float(rpe_metric.get_statistic(metrics.StatisticsType.rmse))
-        except Exception:  # too short a trajectory for one delta
-            rpe_rmse = None
-    errors = np.asarray(ape.error, float)
+    pairs = np.array(path_pairs(est_p, rpe_delta_m), int).reshape(-1, 2) if rpe else np.zeros((0, 2), int)
+    if len(pairs):  # |t(Q_rel⁻¹ P_rel)| = |t(P_rel) − t(Q_rel)|, t(A_rel) = R_Aiᵀ (a_j − a_i)
+        i, j = pairs[:, 0], pairs[:, 1]
+        t_est = np.einsum("nki,nk->ni", est_R[i], est_p[j] - est_p[i])
+        t_ref = np.einsum("nki,nk->ni", ref_R[i], ref_p[j] - ref_p[i])
+        rpe_rmse = float(np.sqrt(np.mean(np.sum((t_est - t_ref) ** 2, axis=1))))
     return TrajectoryErrors(
         ate_rmse_m=float(np.sqrt(np.mean(errors**2))),
         ate_max_m=float(errors.max()),
         ate_median_m=float(np.median(errors)),
         rpe_rmse_m=rpe_rmse,
         errors_m=errors,
-        stamps=np.round(np.asarray(ref.timestamps) * 1e9).astype(np.int64),
+        stamps=np.round(np.asarray(truth.stamps, np.int64)[rows[0]] * 1e-9 * 1e9).astype(np.int64),
     )
 
 
@@ -263,8 +283,6 @@ def estimator_metrics(
 
 def _aligned_ate(estimate: Trajectory, truth: Trajectory) -> float | None:
     """ATE RMSE after SE(3) alignment; None when the trajectory cannot fix one (a straight line)."""
-    from evo.core.geometry import GeometryException
-
     try:
         errs = trajectory_errors(estimate, truth, alignment="se3", rpe=False)
     except GeometryException:

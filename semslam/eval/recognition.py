@@ -14,18 +14,15 @@ from semslam.semantics.metrics import ObservationRecord, recognition_metrics
 MATCH_GATE_M = 0.10  # an object observation farther than this from every true object is a false segment
 
 
-def _true_poses(truth, stamps: np.ndarray) -> np.ndarray | None:
-    """T_WB (N,4,4) of the ground truth at ``stamps`` (nearest sample)."""
+def _true_poses(truth, stamps: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """R_WB (N,3,3) and t_WB (N,3) of the ground truth at ``stamps`` (nearest sample)."""
     from scipy.spatial.transform import Rotation
 
     if truth is None or len(truth) == 0:
         return None
     idx = np.clip(np.searchsorted(truth.stamps, stamps), 1, len(truth.stamps) - 1)
     idx = np.where(np.abs(truth.stamps[idx - 1] - stamps) < np.abs(truth.stamps[idx] - stamps), idx - 1, idx)
-    T = np.tile(np.eye(4), (len(stamps), 1, 1))
-    T[:, :3, :3] = Rotation.from_quat(truth.orientations[idx]).as_matrix()
-    T[:, :3, 3] = truth.positions[idx]
-    return T
+    return Rotation.from_quat(truth.orientations[idx]).as_matrix(), truth.positions[idx]
 
 
 def labelled_object_records(
@@ -38,21 +35,28 @@ def labelled_object_records(
     obs = list(pipeline.labelled)
     if gt is None or not gt.objects or not obs:
         return []
-    T = _true_poses(pipeline.truth, np.array([r.stamp for r in obs], np.int64))
-    if T is None:
+    poses = _true_poses(pipeline.truth, np.array([r.stamp for r in obs], np.int64))
+    if poses is None:
         return []
+    R_WB, t_WB = poses
     result = pipeline.results.get(view) or next(iter(pipeline.results.values()))
     landmark_of = result.history.get("landmark_of_observation", {})
     truth_pos = gt.object_positions()
     truth_cls = [o.cls for o in gt.objects]
-    out = []
-    for r, T_WB in zip(obs, T):
-        info = metadata.sensors.get(r.sensor)
+    # every view placed in {W} with the true pose at once, sensor by sensor
+    in_body = np.empty((len(obs), 3))
+    sensors = [r.sensor for r in obs]
+    for sensor in set(sensors):
+        rows = [k for k, s in enumerate(sensors) if s == sensor]
+        info = metadata.sensors.get(sensor)
         T_BS = info.T_BS if info is not None else np.eye(4)
-        w = (T_WB @ T_BS @ np.r_[r.position, 1.0])[:3]
-        d = np.linalg.norm(truth_pos - w, axis=1)
-        k = int(np.argmin(d))
-        if d[k] > MATCH_GATE_M:
+        in_body[rows] = np.array([obs[k].position for k in rows], float) @ T_BS[:3, :3].T + T_BS[:3, 3]
+    w = np.einsum("nij,nj->ni", R_WB, in_body) + t_WB
+    d = np.linalg.norm(w[:, None, :] - truth_pos[None, :, :], axis=2)
+    nearest = np.argmin(d, axis=1)
+    out = []
+    for r, k, dk in zip(obs, nearest, d[np.arange(len(obs)), nearest]):
+        if dk > MATCH_GATE_M:
             continue
         lid = landmark_of.get(view_key(r.view_stamp, r.sensor, r.position))
         out.append(ObservationRecord(truth_cls[k], r.class_likelihood, lid, r.configuration))

@@ -170,7 +170,7 @@ def make_figures(
         if fig is None:
             continue
         path = fig_dir / name
-        fig.savefig(path, dpi=110)
+        fig.savefig(path, dpi=110, pil_kwargs={"compress_level": 1})  # ~10 % larger, encoded in ~2/3 of the time
         plt.close(fig)
         made.append((caption, path))
     # Figures the front-ends wrote themselves (e.g. the sonar elevation map and world model).
