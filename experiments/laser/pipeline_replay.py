@@ -115,7 +115,7 @@ def replay(seed: int, dump: Path, sim: dict, config: dict, fix_directions: bool 
     fes = [RecordedFrontend("laser", by_stamp, None)]
     ests = [create_estimator(n, mission.metadata, cfg) for n in ("dr", "graph")]
     result = run_pipeline(estimators_input(mission, cfg), ests, fes, view_estimator="graph", frontend_process=False)
-    return result.results["graph"], mission, by_stamp
+    return result.results, mission, by_stamp
 
 
 def line_frame(gt) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -158,7 +158,7 @@ def first_views(by_stamp: dict, graph, truth_T: dict, T_BS: np.ndarray) -> dict[
     return out
 
 
-def explain(graph, mission, by_stamp) -> dict:
+def explain(graph, mission, by_stamp, dr=None) -> dict:
     from semslam.mission.measurements import GroundTruthPose
 
     meta = mission.metadata
@@ -171,6 +171,10 @@ def explain(graph, mission, by_stamp) -> dict:
     k = np.searchsorted(stamps, traj.stamps).clip(0, len(stamps) - 1)
     err = traj.positions - np.array([truth_T[int(s)][:3, 3] for s in stamps[k]])
     err_across, err_along = err @ across, err @ a
+    dr_across = None
+    if dr is not None:  # dead reckoning's error across the line at the graph's stamps
+        dr_pos = dr.trajectory.poses_at(traj.stamps)[1]
+        dr_across = (dr_pos - np.array([truth_T[int(s)][:3, 3] for s in stamps[k]])) @ across
     t = (traj.stamps - traj.stamps[0]) * 1e-9
     tenths = [
         {
@@ -178,6 +182,7 @@ def explain(graph, mission, by_stamp) -> dict:
             "along_line_m": round(float((traj.positions[i] - o) @ a), 2),
             "across_cm": round(100 * float(err_across[i]), 1),
             "along_cm": round(100 * float(err_along[i]), 1),
+            **({"dr_across_cm": round(100 * float(dr_across[i]), 1)} if dr_across is not None else {}),
         }
         for i in np.linspace(0, len(t) - 1, 11).astype(int)
     ]
@@ -326,14 +331,15 @@ def main(argv=None) -> int:
     for seed in parse_seeds(args.seeds):
         from semslam.mission.measurements import GroundTruthPose
 
-        graph, mission, by_stamp = replay(
+        results, mission, by_stamp = replay(
             seed, args.dump, json.loads(args.sim), json.loads(args.config), args.true_directions
         )
+        graph = results["graph"]
         meta = mission.metadata
         scores = map_scores(graph.landmarks, meta.ground_truth, meta.extras["scans"])
         truth = {m.stamp: np.asarray(m.position, float) for m in mission.of_type(GroundTruthPose)}
         scores.update(offsets_split(graph.landmarks, meta.ground_truth, graph.trajectory, truth))
-        why = explain(graph, mission, by_stamp)
+        why = explain(graph, mission, by_stamp, results.get("dr"))
         out[seed] = {
             "map": scores,
             **why,
