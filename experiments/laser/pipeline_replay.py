@@ -62,6 +62,21 @@ def light_mission(seed: int, sim: dict, cache: Path):
     return Mission.from_measurements(mission.metadata, items)
 
 
+def true_poses(mission):
+    """A function of a stamp: the true body pose T_WB nearest to it and the laser's pose T_WS then."""
+    from semslam.mission.measurements import GroundTruthPose
+
+    poses = {m.stamp: m.matrix() for m in mission.of_type(GroundTruthPose)}
+    stamps = np.array(sorted(poses))
+    T_BS = next(s for s in mission.metadata.sensors.values() if s.kind == "laser").T_BS
+
+    def at(stamp: int) -> tuple[np.ndarray, np.ndarray]:
+        T_WB = poses[int(stamps[np.argmin(np.abs(stamps - stamp))])]
+        return T_WB, T_WB @ T_BS
+
+    return at
+
+
 def true_directions(mission, by_stamp) -> dict:
     """The recorded observations with each line observation on a true pipe turned, about its
     midpoint (placed with the true pose), onto the true pipe's direction: what the map would be with
@@ -69,16 +84,13 @@ def true_directions(mission, by_stamp) -> dict:
     import dataclasses
 
     from frontends.laser.evaluation import matching_pipe
-    from semslam.mission.measurements import GroundTruthPose
     from semslam.observations import LineObservation
 
     meta = mission.metadata
-    poses = {m.stamp: m.matrix() for m in mission.of_type(GroundTruthPose)}
-    stamps = np.array(sorted(poses))
-    T_BS = next(s for s in meta.sensors.values() if s.kind == "laser").T_BS
+    pose_at = true_poses(mission)
     out = {}
     for stamp, obs in by_stamp.items():
-        T = poses[int(stamps[np.argmin(np.abs(stamps - stamp))])] @ T_BS
+        T = pose_at(stamp)[1]
         new = []
         for z in obs:
             g = None
@@ -229,18 +241,14 @@ def observation_bias(mission, by_stamp) -> dict:
     median signed yaw of their direction from the true axis (deg, about down), their median signed
     horizontal offset across it and vertical offset (mm, at their midpoints)."""
     from frontends.laser.evaluation import matching_pipe
-    from semslam.mission.measurements import GroundTruthPose
     from semslam.observations import LineObservation
 
     meta = mission.metadata
     gt = meta.ground_truth
-    poses = {m.stamp: m.matrix() for m in mission.of_type(GroundTruthPose)}
-    stamps = np.array(sorted(poses))
-    T_BS = next(s for s in meta.sensors.values() if s.kind == "laser").T_BS
+    pose_at = true_poses(mission)
     rows: dict[tuple, list] = {}
     for stamp, obs in by_stamp.items():
-        T_WB = poses[int(stamps[np.argmin(np.abs(stamps - stamp))])]
-        T = T_WB @ T_BS
+        T_WB, T = pose_at(stamp)
         for z in obs:
             if not isinstance(z, LineObservation):
                 continue
@@ -276,17 +284,14 @@ def misses(mission, by_stamp) -> dict:
     missed it, the visible length in the missed scans, and the nearest observation's miss (its
     largest end distance from that pipe's axis, and its angle), when the scan had observations."""
     from frontends.laser.evaluation import matching_pipe
-    from semslam.mission.measurements import GroundTruthPose
     from semslam.observations import LineObservation
 
     meta = mission.metadata
     gt = meta.ground_truth
-    poses = {m.stamp: m.matrix() for m in mission.of_type(GroundTruthPose)}
-    stamps = np.array(sorted(poses))
-    T_BS = next(s for s in meta.sensors.values() if s.kind == "laser").T_BS
+    pose_at = true_poses(mission)
     by_pipe: dict[int, dict] = {}
     for s in meta.extras["scans"]:
-        T = poses[int(stamps[np.argmin(np.abs(stamps - s["stamp"]))])] @ T_BS
+        T = pose_at(s["stamp"])[1]
         segs = [
             np.stack([z.p, z.q]) @ T[:3, :3].T + T[:3, 3]
             for z in by_stamp.get(s["stamp"], [])
