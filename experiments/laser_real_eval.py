@@ -303,8 +303,20 @@ def main(argv=None) -> int:
     ap.add_argument("--dump", type=Path, default=None, help="pipeline: pickle each seed's observations here")
     ap.add_argument("--ekf", action="store_true", help="tank: the EKF too (default the graph alone)")
     ap.add_argument("--scans-only", action="store_true", help="pipeline: the per-scan scores only (no graph)")
+    ap.add_argument(
+        "--no-axis-refit",
+        action="store_true",
+        help="segments' axes as before the geometric refit (principal direction)",
+    )
     ap.add_argument("--config", default="{}", help="laser front-end overrides (JSON, frontends.laser section)")
     args = ap.parse_args(argv)
+    if args.no_axis_refit:
+        from frontends.laser import pipes
+
+        pipes.refine_cylinder = lambda pts, c, a, r, cfg: (c, a, r)
+        import semslam.pipeline
+
+        semslam.pipeline.runs_in_process = lambda fe: False  # in this process, where the patch holds
     results = {}
     for seed in parse_seeds(args.seeds):
         if args.scenario == "tank":

@@ -3,9 +3,11 @@ true (a true object within ``--gate``) and false object segments per connectivit
 and the true objects detected, with this checkout's front-end and, with ``--ab``, also with the
 in-line gap test off (the behaviour before it: every gap between two collinear pipe ends with enough
 points is an object). Reported pipe segments are counted too: true when both ends lie within 5 cm of
-one true pipe's axis. ``--set section.key=value`` (repeatable) changes the front-end's configuration.
+one true pipe's axis, with the sum of their axes' angles from that pipe's (millidegrees);
+``--no-axis-refit`` fits the segments' axes as before issue 22's geometric refit (the principal
+direction of the inliers). ``--set section.key=value`` (repeatable) changes the front-end's configuration.
 
-    python experiments/laser/inline_eval.py --cache DIR --seeds 3,9,10 [--every 10] [--ab] [--set K=V]
+    python experiments/laser/inline_eval.py --cache DIR --seeds 3,9,10 [--every 10] [--ab] [--no-axis-refit] [--set K=V]
 
 DIR/tank-seed<N>.bag: a bag of ``replay_study.py record`` (or ``semslam study``), read only.
 """
@@ -61,8 +63,14 @@ def _count(mission, every: int, gate: float, overrides: list[str] = ()) -> Count
             if not p.reported(seg.pipe_config):
                 continue
             ends = [T[:3, :3] @ e + T[:3, 3] for e in (p.p, p.q)]
-            ok = any(max(segment_distance(e, a, b) for e in ends) <= 0.05 for a, b in true_pipes)
+            dist = [max(segment_distance(e, a, b) for e in ends) for a, b in true_pipes]
+            ok = min(dist) <= 0.05
             n["pipes true" if ok else "pipes false"] += 1
+            if ok:  # the axis' angle from its true pipe's, in millidegrees (a Counter holds the sum)
+                a, b = true_pipes[int(np.argmin(dist))]
+                u = (ends[1] - ends[0]) / np.linalg.norm(ends[1] - ends[0])
+                cos = abs(u @ (b - a)) / np.linalg.norm(b - a)
+                n["pipes true: angle sum (mdeg)"] += int(round(1000 * np.degrees(np.arccos(min(1.0, cos)))))
     return n
 
 
@@ -76,9 +84,18 @@ def main(argv=None) -> int:
     ap.add_argument("--every", type=int, default=10)
     ap.add_argument("--gate", type=float, default=0.15)
     ap.add_argument("--ab", action="store_true")
+    ap.add_argument(
+        "--no-axis-refit",
+        action="store_true",
+        help="segments' axes as before the geometric refit (principal direction)",
+    )
     ap.add_argument("--set", action="append", default=[], help="section.key=value of the front-end's configuration")
     args = ap.parse_args(argv)
     test = objects.gap_is_pipe
+    if args.no_axis_refit:
+        from frontends.laser import pipes
+
+        pipes.refine_cylinder = lambda pts, c, a, r, cfg: (c, a, r)
     for seed in [int(s) for s in args.seeds.split(",")]:
         mission = read_mission(args.cache / f"tank-seed{seed}.bag")
         for label, fn in ([("without gap test", lambda *a: False)] if args.ab else []) + [("this checkout", test)]:

@@ -594,9 +594,62 @@ def endpoint_covariance(p, q, axis, n_points, mean_range, cfg: PipeConfig) -> np
     return cov
 
 
+# The geometric refinement of a segment's axis: Gauss-Newton rounds, and how far it may turn the
+# principal-direction axis (farther: the fit is not trusted, the first axis kept).
+_GEOMETRIC_ROUNDS, _GEOMETRIC_MAX_TURN = 6, np.radians(5.0)
+
+
+def refine_cylinder(points: np.ndarray, c: np.ndarray, a: np.ndarray, r: float, cfg: PipeConfig):
+    """The cylinder (c, a, r) refitted to ``points`` by least squares on their distances to its
+    surface (Gauss-Newton over the axis' two offsets and two tilts across it, and the radius).
+    :func:`fit_cylinder`'s principal direction is the axis only where the visible part of the shell
+    is the same all along it; a camera looking forward and down at a pipe on the seabed sees a
+    different arc at its near and far ends, which turned the axis by 0.3-0.7° (pipeline scenario,
+    seed 6), enough to make the map drift across a long pipeline. The radius is fitted too. Keeps the first fit when the refit turns
+    the axis more than 5°, leaves the radius range or fits worse.
+
+    Not with ``radius_prior`` (the tank): there it cut the mean axis error of the tank's segments
+    (seeds 10 and 5: 1.59° → 1.13°, 0.62° → 0.27°) but made a 9.7 mm-noise free pipe end an object
+    in the lone-end tests (tests/test_laser_lone_end.py), not yet looked into."""
+    if cfg.radius_prior is not None:
+        return c, a, r
+    c1, a1, rho = c, a, r
+
+    def residuals(c_, a_, rho_):
+        d = points - c_
+        t = d @ a_
+        x = d - np.outer(t, a_)
+        dist = np.maximum(np.sqrt(row_dot(x, x)), 1e-12)
+        return dist - rho_, t, x / dist[:, None]
+
+    res, t, n = residuals(c1, a1, rho)
+    cost0 = float(res @ res)
+    for _ in range(_GEOMETRIC_ROUNDS):
+        E = _across(a1)
+        nE = n @ E
+        J = np.concatenate([-nE, -t[:, None] * nE, -np.ones((len(points), 1))], axis=1)
+        try:
+            step = np.linalg.solve(J.T @ J, -(J.T @ res))
+        except np.linalg.LinAlgError:
+            return c, a, r
+        c1 = c1 + E @ step[:2]
+        a1 = a1 + E @ step[2:4]
+        a1 = a1 / np.sqrt(a1 @ a1)
+        rho = rho + step[4]
+        res, t, n = residuals(c1, a1, rho)
+        if np.abs(step).max() < 1e-6:
+            break
+    turned = np.arccos(min(1.0, abs(float(a1 @ a))))
+    if turned > _GEOMETRIC_MAX_TURN or not (cfg.min_radius <= rho <= cfg.max_radius) or res @ res > cost0:
+        return c, a, r
+    a1 = a1 if a1 @ a >= 0 else -a1
+    return c1, a1, float(rho)
+
+
 def _make_pipe(points, normals, idx, a0, cfg: PipeConfig) -> Pipe:
     pts = np.take(points, idx, axis=0)
     c, a, r = fit_cylinder(pts, np.take(normals, idx, axis=0), a0, cfg)
+    c, a, r = refine_cylinder(pts, c, a, r, cfg)
     t = (pts - c) @ a
     p, q = c + t.min() * a, c + t.max() * a
     rng = float(np.add.reduce(np.sqrt(np.add.reduce(pts * pts, 1))) / len(pts))  # mean range (np.linalg.norm(·).mean())
