@@ -190,7 +190,8 @@ class BagMission(Mission):
                     if bad is not None:
                         if cfg.on_nonfinite == "error":
                             raise MissionError(
-                                f"{where[topic]}: field {bad} is not finite (message at t={stamp * 1e-9:.6f} s)"
+                                f"{where[topic]}: field {bad} is not finite or not a covariance "
+                                f"(message at t={stamp * 1e-9:.6f} s)"
                             )
                         dropped[b.sensor] += 1
                         fields[b.sensor][bad] += 1

@@ -30,6 +30,26 @@ def _all_finite(a: np.ndarray) -> bool:
     return bool(np.isfinite(a).all())
 
 
+def _is_covariance(c: np.ndarray) -> bool:
+    """Whether the square matrix ``c`` can be a covariance, to round-off (relative 1e-6 of its largest
+    entry: a message's floats): symmetric, no negative variance, no correlation beyond ±1 (what
+    positive semi-definiteness asks of every 2×2 minor; checked through Python floats, as every
+    message passes here)."""
+    if c.ndim != 2 or c.shape[0] != c.shape[1] or not c.size:
+        return True  # not a matrix (the field's own checks say what it holds)
+    rows = c.tolist()
+    n = len(rows)
+    tol = 1e-6 * max(max(abs(v) for v in row) for row in rows)
+    diag = [rows[i][i] for i in range(n)]
+    if min(diag) < -tol:
+        return False
+    for i in range(n):
+        for j in range(i + 1, n):
+            if abs(rows[i][j] - rows[j][i]) > tol or abs(rows[i][j]) > math.sqrt(max(diag[i] * diag[j], 0.0)) + tol:
+                return False
+    return True
+
+
 @dataclass(frozen=True)
 class Measurement:
     """Base of all measurements: ``stamp`` in ns, ``sensor`` the sensor name of the mission."""
@@ -38,14 +58,20 @@ class Measurement:
     sensor: str
 
     def is_finite(self) -> bool:
-        """False if any numeric field holds NaN or inf (such measurements are dropped and counted)."""
+        """False if any numeric field holds NaN or inf, or a covariance is none (such measurements are
+        dropped and counted)."""
         return self.nonfinite_field() is None
 
     def nonfinite_field(self) -> str | None:
-        """Name of the first field holding NaN or inf, else None (the rule of :meth:`is_finite`)."""
+        """Name of the first field holding NaN or inf, or of a ``covariance`` that is not symmetric
+        positive semi-definite, else None (the rule of :meth:`is_finite`). Why the covariance: bytes
+        damaged in a recording make finite nonsense (an off-diagonal of -1e188) that the filters turn
+        into NaN without a word."""
         for name, value in vars(self).items():
             if isinstance(value, np.ndarray):
                 if value.dtype.kind == "f" and not _all_finite(value):
+                    return name
+                if name == "covariance" and not _is_covariance(value):
                     return name
             elif isinstance(value, float) and not math.isfinite(value):
                 return name
