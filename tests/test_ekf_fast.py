@@ -137,9 +137,7 @@ def test_batch_models_equal_the_scalar_ones():
     pairs = [_line_obs(k) for k in range(16)]
     Ls = np.array([p[0] for p in pairs])
     obs = [p[1] for p in pairs]
-    out = bt.line_innovations(
-        X,
-        Ls,
+    obs_args = (
         np.array([o.U for o in obs]),
         np.array([o.rho for o in obs]),
         np.array([o.d for o in obs]),
@@ -147,39 +145,20 @@ def test_batch_models_equal_the_scalar_ones():
         R_BS,
         T_BS,
     )
+    out = bt.line_innovations(X, Ls, *obs_args)
     for k in range(len(Ls)):
         for a, b in zip((v[k] for v in out), mdl.line_innovation(X, Ls[k], obs[k], R_BS, T_BS)):
             np.testing.assert_allclose(a, b, atol=1e-10, rtol=1e-8)
     # moments about per-pipe anchors
     anchors = RNG.normal(0, 3.0, (len(Ls), 3))
-    out = bt.line_innovations(
-        X,
-        Ls,
-        np.array([o.U for o in obs]),
-        np.array([o.rho for o in obs]),
-        np.array([o.d for o in obs]),
-        np.array([o.cov for o in obs]),
-        R_BS,
-        T_BS,
-        anchors=anchors,
-    )
+    out = bt.line_innovations(X, Ls, *obs_args, anchors=anchors)
     for k in range(len(Ls)):
         ref = mdl.line_innovation(X, Ls[k], obs[k], R_BS, T_BS, anchor=anchors[k])
         for a, b in zip((v[k] for v in out), ref):
             np.testing.assert_allclose(a, b, atol=1e-10, rtol=1e-8)
     # first-estimates Jacobians: H at L_lin, ν and R at L
     L_lin = Ls + RNG.normal(0, 0.01, Ls.shape)
-    out = bt.line_innovations(
-        X,
-        Ls,
-        np.array([o.U for o in obs]),
-        np.array([o.rho for o in obs]),
-        np.array([o.d for o in obs]),
-        np.array([o.cov for o in obs]),
-        R_BS,
-        T_BS,
-        L_lin=L_lin,
-    )
+    out = bt.line_innovations(X, Ls, *obs_args, L_lin=L_lin)
     for k in range(len(Ls)):
         ref = mdl.line_innovation(X, Ls[k], obs[k], R_BS, T_BS, l_lin=L_lin[k])
         for a, b in zip((v[k] for v in out), ref):
