@@ -61,6 +61,12 @@ class Feature:
     def cols(self) -> np.ndarray:
         return np.arange(self.index, self.index + self.size)
 
+    def world_line(self, l: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """A pipe's line in {W} from its parameters ``l`` (moment about its anchor): (the point
+        nearest the origin, the unit direction)."""
+        m, d = geo.anchored_plucker(l, self.anchor)
+        return geo.closest_point(m, d), d
+
 
 class FeatureMap:
     """The features of the filter (:class:`semslam.mapping.builder.LandmarkState`)."""
@@ -128,8 +134,7 @@ class FeatureMap:
         out = []
         for f in self.features:
             if f.kind == "pipe":
-                m, d = geo.anchored_plucker(x[f.index : f.index + 4], f.anchor)
-                out.append((f.id, geo.closest_point(m, d), d))
+                out.append((f.id, *f.world_line(x[f.cols])))
         return out
 
     def candidates(
@@ -210,9 +215,9 @@ class FeatureMap:
         if o.kind == "object":
             init, z, extra = mdl.point_initialise, (o.obs.position,), ()
         else:
-            R, t, _, _ = mdl.sensor_pose(xv, o.R_BS, o.t_BS)
-            d = R @ (o.obs.q - o.obs.p)
-            anchor = geo.line_anchor(R @ (o.obs.p + o.obs.q) / 2 + t, d / np.linalg.norm(d), LINE_ANCHOR_DISTANCE_M)
+            ends = track.views[-1].world  # the segment in {W}, placed with the current pose
+            d = ends[1] - ends[0]
+            anchor = geo.line_anchor(ends.mean(axis=0), d / np.linalg.norm(d), LINE_ANCHOR_DISTANCE_M)
             init, z, extra = mdl.line_initialise, (o.obs.p, o.obs.q), (anchor,)
         l, G_x, G_z = init(xv, *z, o.R_BS, o.t_BS, *extra)
         l_first = l
@@ -311,9 +316,8 @@ class FeatureMap:
             if f.kind == "object":
                 le.position, le.class_posterior = l, self.book.class_posterior(f.id)
             else:
-                m, d = geo.anchored_plucker(l, f.anchor)
                 radius = self.assoc.inline_object_radius_m
-                le.p, le.q = self.book.extent(f.id).ends(geo.closest_point(m, d), d, mapped, radius, depths)
+                le.p, le.q = self.book.extent(f.id).ends(*f.world_line(l), mapped, radius, depths)
             out.append(le)
         return out
 
@@ -390,8 +394,7 @@ class ScanPairs:
                     if kind == "pipe":
                         for k in np.flatnonzero(keep):
                             f = feats[fj[k]]
-                            m_W, d_W = geo.anchored_plucker(x[f.index : f.index + 4], f.anchor)
-                            keep[k] = not scan.excludes(f.id, obs[oi[k]].ends_W, geo.closest_point(m_W, d_W), d_W)
+                            keep[k] = not scan.excludes(f.id, obs[oi[k]].ends_W, *f.world_line(x[f.cols]))
                     obs_i.append(oi[keep])
                     feat_j.append(fj[keep])
                     nus += list(nu[keep])
