@@ -269,6 +269,18 @@ def attitude_factor(key: int, R_WB: np.ndarray, cov_tangent: np.ndarray) -> gtsa
     return gtsam.PoseRotationPrior3D(key, gtsam.Rot3(R_WB), gtsam.noiseModel.Gaussian.Covariance(cov_tangent))
 
 
+def rotation_carry_factor(
+    xi: int, xj: int, R_ij: np.ndarray, t_ij: np.ndarray, rot_sigma: float
+) -> gtsam.NonlinearFactor:
+    """X(j)'s rotation carried from X(i) by the angular rate when no AHRS reading arrived between the
+    two keyframes (built-in BetweenFactorPose3, rotation σ ``rot_sigma``). Its translation part,
+    ``t_ij`` at σ 1 km, carries no information: the displacement factor holds the translation."""
+    sigmas = np.r_[[max(rot_sigma, 1e-6)] * 3, [1e3] * 3]
+    return gtsam.BetweenFactorPose3(
+        xi, xj, gtsam.Pose3(gtsam.Rot3(R_ij), np.asarray(t_ij, float)), gtsam.noiseModel.Diagonal.Sigmas(sigmas)
+    )
+
+
 def biased_attitude_residual(T_WB: gtsam.Pose3, b: float, R_meas: np.ndarray, jac: bool = False):
     """r = Log(R_measᵀ Rz(b) R_WB): an AHRS whose heading reads the true one plus a bias b (rad)
     about the world's vertical, R_meas = Rz(b) R_WB. Jacobians 3×6 wrt X (right perturbation,

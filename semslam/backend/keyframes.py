@@ -22,6 +22,7 @@ from factors.navigation import (
     displacement_factor,
     dvl_velocity_factor,
     heading_bias_walk_factor,
+    rotation_carry_factor,
     velocity_random_walk_factor,
 )
 from semslam.backend.navigation import NavigationBuffer
@@ -89,12 +90,14 @@ class Keyframes:
             return "next"
         return None
 
-    def _nav_factors_at(self, k: int, t: float) -> tuple[list, np.ndarray, np.ndarray | None]:
-        """AHRS, depth and DVL factors of keyframe k at time t; returns (factors, R_WB, v_B prior mean)."""
+    def _nav_factors_at(self, k: int, t: float) -> tuple[list, np.ndarray, np.ndarray | None, bool]:
+        """AHRS, depth and DVL factors of keyframe k at time t; returns (factors, R_WB, v_B prior mean,
+        whether an AHRS factor is among them)."""
         factors = []
         R, _ = self.nav.attitude_at(t)
         fused = self.nav.take_fused_attitude(t)
-        if fused is not None and t - self.nav.attitude.t <= self.cfg.ahrs_max_age_s:
+        has_attitude = fused is not None and t - self.nav.attitude.t <= self.cfg.ahrs_max_age_s
+        if has_attitude:
             R_f, cov_f, _ = fused
             factors.append(
                 biased_attitude_factor(X(k), B(k), R_f, cov_f)
@@ -120,12 +123,12 @@ class Keyframes:
             vz = float((R @ (v_prior if v_prior is not None else np.zeros(3)))[2])
             var = dep.variance + (self.accel_sigma * age**1.5) ** 2 + (0.01 * age) ** 2
             factors.append(depth_factor(X(k), dep.depth + vz * age, var, dep.t_BS))
-        return factors, R, v_prior
+        return factors, R, v_prior, has_attitude
 
     def first(self, stamp: int) -> None:
         """Keyframe 0: its navigation factors and the priors of the start state."""
         t = stamp * 1e-9
-        factors, R, v_prior = self._nav_factors_at(0, t)
+        factors, R, v_prior, _ = self._nav_factors_at(0, t)
         if self.initial_gt is not None and self.initial.pose == "first_ground_truth":
             pos = np.asarray(self.initial_gt.position, float)
             R0 = Rotation.from_quat(self.initial_gt.orientation).as_matrix()
@@ -152,7 +155,7 @@ class Keyframes:
         """Keyframe k at ``stamp`` with its navigation factors; returns k."""
         k = len(self.stamps)
         t = stamp * 1e-9
-        factors, R, v_prior = self._nav_factors_at(k, t)
+        factors, R, v_prior, has_attitude = self._nav_factors_at(k, t)
         # A DVL sample used as V(k)'s prior is removed from the displacement's knots (no double use).
         if v_prior is not None and self.nav.preint.last_stamp == self.nav.dvl.t:
             self.nav.preint.drop_last()
@@ -161,7 +164,14 @@ class Keyframes:
         if d.n_samples == 0:  # no knot between the two velocity states: the process model links them
             factors.append(velocity_random_walk_factor(V(k - 1), V(k), d.dt, self.accel_sigma))
         v_init = v_prior if v_prior is not None else self.vel
-        p_init = self.pose.translation() + self.pose.rotation().matrix() @ (d.c + d.A @ self.vel + d.B @ v_init)
+        delta = d.c + d.A @ self.vel + d.B @ v_init  # the displacement in {B(k-1)}
+        if not has_attitude:
+            # No AHRS reading since X(k-1) (keyframes 10–50 ms apart) or a stale one: nothing else fixes
+            # X(k)'s rotation unless a landmark does, and iSAM2 fails on the indeterminate system.
+            R_prev, _ = self.nav.attitude_at(self.stamps[-1] * 1e-9)
+            rot_sigma = self.nav.rate_sigma * d.dt
+            factors.append(rotation_carry_factor(X(k - 1), X(k), R_prev.T @ R, delta, rot_sigma))
+        p_init = self.pose.translation() + self.pose.rotation().matrix() @ delta
         values = gtsam.Values()
         values.insert(X(k), gtsam.Pose3(gtsam.Rot3(self.unbiased(R)), p_init))
         values.insert(V(k), np.asarray(v_init, float))
