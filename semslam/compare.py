@@ -6,8 +6,10 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from semslam.config import SemslamConfig
+from semslam.estimation import EstimatorResult
 from semslam.estimators import create_estimator
 from semslam.eval.gps_reference import GpsReference, HoldOut, add_gps_reference
+from semslam.eval.metrics import recovered_failures
 from semslam.eval.outputs import build_metrics, write_run
 from semslam.mission.check import input_block, stream_findings, where
 from semslam.mission.mission import Mission, MissionMetadata
@@ -62,6 +64,14 @@ def run_comparison(
     return result, metrics
 
 
+def at_mission_time(diagnostic: str, result: EstimatorResult) -> str:
+    """A diagnostic led by its stamp in ns, with the stamp as seconds after the estimate's start."""
+    stamp, sep, text = diagnostic.partition(": ")
+    if not (sep and stamp.isdigit() and len(result.trajectory)):
+        return diagnostic
+    return f"at {(int(stamp) - int(result.trajectory.stamps[0])) * 1e-9:.1f} s: {text}"
+
+
 def input_after_the_pass(mission: Mission, result: PipelineResult, check_warnings: Sequence[str] = ()):
     """After the pipeline's complete pass over ``mission``: metrics.json's ``input`` block (dropped and
     invalid counts, and every warning when there is any: the check's, the stream's, the assumptions'
@@ -71,6 +81,11 @@ def input_after_the_pass(mission: Mission, result: PipelineResult, check_warning
         if len(r.trajectory) == 0:
             why = "; ".join(r.diagnostics[-1:]) or "no attitude or velocity reading to start from"
             said.append(f"{name}: no pose estimated ({why}): its trajectory and map are empty")
+        elif failures := recovered_failures(r.diagnostics):
+            said.append(
+                f"{name}: recovered from {len(failures)} solver failure(s), the first {at_mission_time(failures[0], r)}; "
+                "its estimate may be off from there (all its diagnostics in metrics.json)"
+            )
     block = input_block(mission)
     if check_warnings or said:  # only then: the block of a clean mission has counts alone
         block["warnings"] = [*check_warnings, *said]

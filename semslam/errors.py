@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from collections.abc import Mapping
 from typing import Any, TypeVar
 
@@ -29,6 +30,16 @@ def one_line(exc: BaseException) -> str:
     if name.endswith("ReaderError"):  # rosbags' own messages say what is wrong; the class adds nothing
         return text or name
     return f"{name}: {text}" if text else name
+
+
+def solver_failure(exc: BaseException) -> str:
+    """What a solver's exception says in a diagnostic: its first non-empty line (GTSAM's
+    indeterminate-system message starts with a blank one and explains itself over a paragraph),
+    with the variable it names."""
+    text = str(exc)
+    line = next((ln.strip() for ln in text.splitlines() if ln.strip()), type(exc).__name__)
+    near = re.search(r"\(Symbol: (\w+)\)", text)
+    return f"{line} {near.group(1)}" if near else line
 
 
 def validated(model: type[M], data: M | Mapping[str, Any] | None, where: str) -> M:

@@ -13,6 +13,7 @@ from scipy.spatial.transform import Rotation
 from semslam.backend.session import IsamSession
 from semslam.backend.window import LEFT_COVARIANCE_EVERY, SlidingWindow, V, X
 from semslam.config import GraphConfig
+from semslam.errors import solver_failure
 from semslam.estimation import Trajectory
 
 
@@ -28,7 +29,7 @@ def final_values(
     try:
         values = session.batch(online, cfg.batch_max_iterations)
     except RuntimeError as exc:
-        session.diagnostics.append(f"batch optimisation failed ({str(exc).splitlines()[0]}); online estimate kept")
+        session.diagnostics.append(f"batch optimisation failed ({solver_failure(exc)}); online estimate kept")
         values = online
     history["batch_time_s"] = time.perf_counter() - t0
     return values

@@ -5,7 +5,6 @@ batch re-optimisation and marginals at the end."""
 from __future__ import annotations
 
 import math
-import re
 from collections.abc import Iterable
 
 import gtsam
@@ -13,16 +12,7 @@ import numpy as np
 
 from semslam.backend.marginal import marginal_covariance
 from semslam.backend.window import subset, value_of
-
-
-def first_line(exc: Exception) -> str:
-    """An exception's first non-empty line (GTSAM's indeterminant-system message starts with a blank
-    one), else its type's name."""
-    text = str(exc)
-    line = next((ln.strip() for ln in text.splitlines() if ln.strip()), type(exc).__name__)
-    near = re.search(r"\(Symbol: (\w+)\)", text)
-    return f"{line} {near.group(1)}" if near else line
-
+from semslam.errors import solver_failure
 
 # A factor with its owner: None for navigation, else the id of the landmark it observes.
 Owned = tuple[gtsam.NonlinearFactor, int | None]
@@ -105,7 +95,7 @@ class IsamSession:
         try:
             self.isam.update(graph, values)
         except RuntimeError as exc:
-            msg = first_line(exc)
+            msg = solver_failure(exc)
             owners = sorted({o for _, o in factors if o is not None})
             self.diagnostics.append(f"{stamp}: iSAM2 update failed ({msg}); dropped the factors of landmarks {owners}")
             self.rebuild([(f, o) for f, o in factors if o is None], values, anchor)
@@ -164,7 +154,7 @@ class IsamSession:
             self._start(params)
             self.isam.update(graph, full)
             self.diagnostics.append(
-                f"rebuild needed a weak re-anchoring prior on {gtsam.Symbol(x).string()} ({first_line(exc)})"
+                f"rebuild needed a weak re-anchoring prior on {gtsam.Symbol(x).string()} ({solver_failure(exc)})"
             )
         self.initial = full
 

@@ -19,6 +19,8 @@ from collections.abc import Iterable
 import gtsam
 import numpy as np
 
+from semslam.errors import solver_failure
+
 LANDMARK_CHARS = frozenset(map(ord, "lps"))  # object points, pipe lines, structures
 POSE_CHARS = frozenset(map(ord, "xs"))  # Pose3-valued keys (keyframes, structures)
 POINT_CHARS = frozenset(map(ord, "l"))  # Point3-valued keys
@@ -129,7 +131,7 @@ class SlidingWindow:
         except RuntimeError as exc:
             self._slide_after = now + int(0.5 * w * 1e9)
             self.diagnostics.append(
-                f"{now}: marginalising keyframes before {b} failed ({str(exc).splitlines()[0]}); retried in {0.5 * w:g} s"
+                f"{now}: marginalising keyframes before {b} failed ({solver_failure(exc)}); retried in {0.5 * w:g} s"
             )
             return None
         self.first_active = b

@@ -4,6 +4,7 @@ the keys of ``metrics.json`` (DESIGN.md); a key without ground truth is None, ne
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 
 import numpy as np
@@ -233,6 +234,18 @@ def match_landmarks(
     return matches, counts
 
 
+MAX_DIAGNOSTICS = 50  # in metrics.json; the count says how many there were
+
+# What the estimators' diagnostics say when an update, a slide or the batch failed and was recovered
+# from (semslam.backend.session/window/result): the estimate may be off from there on.
+_FAILURE = re.compile(r"\bfailed\b|re-anchoring")
+
+
+def recovered_failures(diagnostics: list[str]) -> list[str]:
+    """The diagnostics that report a failure the estimator recovered from."""
+    return [d for d in diagnostics if _FAILURE.search(d)]
+
+
 def estimator_metrics(
     result: EstimatorResult,
     truth_trajectory: Trajectory | None,
@@ -258,6 +271,10 @@ def estimator_metrics(
         "nees_mean": None,
         # objects the map building left out at the end as false views (semslam.mapping.visibility)
         "objects_left_out": result.history.get("objects_left_out"),
+        # what the estimator recovered from or left out, as it said it (at most MAX_DIAGNOSTICS)
+        "diagnostics_count": len(result.diagnostics),
+        "recovered_failures": len(recovered_failures(result.diagnostics)),
+        "diagnostics": list(result.diagnostics[:MAX_DIAGNOSTICS]),
     }
     if len(result.update_times_s):
         out["update_ms_median"] = float(np.median(result.update_times_s) * 1e3)

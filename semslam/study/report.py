@@ -39,6 +39,7 @@ TABLE_METRICS = (
     ("pipe_false", "false pipes"),
     ("structure_missed", "structures missed"),
     ("structure_false", "false structures"),
+    ("recovered_failures", "solver failures recovered from"),
     ("nees_share_in_pose_band", "poses with NEES in the 95 % band"),
     ("gps_error_last_m", "error at the last held-out GPS fix (m)"),
 )

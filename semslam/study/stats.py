@@ -39,6 +39,7 @@ DISTRIBUTION_METRICS = (
     "pipe_false",
     "structure_missed",
     "structure_false",
+    "recovered_failures",
     "gps_error_rmse_m",
     "gps_error_last_m",
 )

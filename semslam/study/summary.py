@@ -34,6 +34,7 @@ ESTIMATOR_KEYS = (
     "n_pipes",
     "n_structures",
     "runtime_s",
+    "recovered_failures",
     # with --hold-out-gps: the error at the fixes held out (the reference of a real recording)
     "gps_error_rmse_m",
     "gps_error_last_m",
