@@ -14,14 +14,12 @@ covariance it emitted; ``nees`` prints the NEES of the emitted covariance per se
 from __future__ import annotations
 
 import argparse
-import hashlib
 import json
-import pickle
 import time
 from pathlib import Path
 
 import numpy as np
-from odometry_eval import TruthInterpolator, pose_error
+from odometry_eval import TruthInterpolator, pose_error, simulated
 from scipy.optimize import minimize_scalar
 from scipy.special import gammaln
 from scipy.stats import chi2
@@ -31,9 +29,7 @@ from frontends.odometry import OdometryFrontend
 from frontends.odometry.matcher import ScanMatcher
 from frontends.odometry.prior import NavigationPrior
 from semslam.mission.measurements import DvlVelocity, GroundTruthPose, PointCloud
-from semslam.mission.mission import Mission
 from semslam.sim.scenarios import resolve_config
-from semslam.sim.simulate import simulate_tank
 from semslam.sim.vary import ASPECTS
 
 
@@ -129,19 +125,6 @@ def record(mission, config: dict) -> dict[str, np.ndarray]:
     out["ms_per_scan_wall"] = 1e3 * np.array(walls)
     out["summary"] = np.array(json.dumps(fe.finish().metrics))
     return out
-
-
-def _simulated(cfg, cache: Path | None) -> Mission:
-    """The simulated mission of ``cfg``, from ``cache`` when it was simulated before."""
-    path = cache / f"{hashlib.sha1(cfg.model_dump_json().encode()).hexdigest()[:16]}.pkl" if cache else None
-    if path is not None and path.exists():
-        metadata, items = pickle.loads(path.read_bytes())
-        return Mission.from_measurements(metadata, items)
-    mission = simulate_tank(cfg)
-    if path is not None:
-        cache.mkdir(parents=True, exist_ok=True)
-        path.write_bytes(pickle.dumps((mission.metadata, list(mission))))
-    return mission
 
 
 def _longest_hold(valid_stamps: np.ndarray, lo: int, hi: int) -> float:
@@ -436,7 +419,7 @@ def main() -> None:
                 data["dvl"] = {"outage_s": [float(v) for v in args.outage.split(",")]}
             cfg = resolve_config("tank", seed, vary=ASPECTS, data=data)
             t0 = time.perf_counter()
-            mission = _simulated(cfg, args.cache)
+            mission = simulated("tank", cfg, args.cache)
             t1 = time.perf_counter()
             r = record(mission, json.loads(args.config))
             r["sensor_sigmas"] = np.array(  # what the messages' covariances carry: the front-end may read them

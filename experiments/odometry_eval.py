@@ -1,28 +1,54 @@
-"""Laser odometry against ground truth on simulated tank missions: how many registrations the gate
-accepts and why it rejects the others, the error of the accepted relative poses, their NEES against
-the front-end's covariance (6-DoF: the 95% χ² band of the mean over n registrations), and the time
-per scan (wall and CPU).
+"""Laser odometry against ground truth on simulated missions (the tank's, or the pipeline's stereo
+clouds over a natural seabed): how many registrations the gate accepts and why it rejects the others,
+the error of the accepted relative poses, their NEES against the front-end's covariance (6-DoF: the
+95% χ² band of the mean over n registrations), and the time per scan (wall and CPU).
 
     python experiments/odometry_eval.py [--seeds 0,1] [--duration 120] [--config JSON] [--profile N]
+    python experiments/odometry_eval.py --scenario pipeline --seeds 1 [--outage 40,60] [--cache DIR]
 """
 
 from __future__ import annotations
 
 import argparse
 import cProfile
+import hashlib
 import json
+import pickle
 import pstats
 import time
+from pathlib import Path
 
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 from scipy.stats import chi2
 
 from frontends.odometry import OdometryFrontend
+from frontends.odometry.config import STEREO_SEABED
 from semslam.mission.measurements import GroundTruthPose, PointCloud
-from semslam.sim.scenarios import resolve_config
-from semslam.sim.simulate import simulate_tank
+from semslam.mission.mission import Mission
+from semslam.sim.scenarios import resolve_config, scenario
 from semslam.sim.vary import ASPECTS
+
+
+def scenario_config(name: str, seed: int, data: dict):
+    """The simulator's configuration of ``seed`` (its world drawn by the seed: the tank's varied aspects)
+    with ``data`` over it."""
+    return resolve_config(name, seed, ASPECTS if name == "tank" else (), data=data)
+
+
+def simulated(name: str, cfg, cache: Path | None = None) -> Mission:
+    """The simulated mission of scenario ``name`` and configuration ``cfg``, from ``cache`` when it was
+    simulated before."""
+    key = hashlib.sha1(cfg.model_dump_json().encode()).hexdigest()[:16]  # the scenarios' models differ
+    path = cache / f"{key}.pkl" if cache else None
+    if path is not None and path.exists():
+        metadata, items = pickle.loads(path.read_bytes())
+        return Mission.from_measurements(metadata, items)
+    mission = scenario(name).simulator()(cfg)
+    if path is not None:
+        cache.mkdir(parents=True, exist_ok=True)
+        path.write_bytes(pickle.dumps((mission.metadata, list(mission))))
+    return mission
 
 
 class TruthInterpolator:
@@ -102,19 +128,34 @@ def evaluate(mission, config: dict | None = None, window: tuple[int, int] | None
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--scenario", choices=("tank", "pipeline"), default="tank")
     ap.add_argument("--seeds", default="0")
-    ap.add_argument("--duration", type=float, default=120.0)
-    ap.add_argument("--config", default="{}", help="front-end section as JSON")
+    ap.add_argument("--duration", type=float, default=120.0, help="tank mission length (s; the pipeline's: its passes)")
+    ap.add_argument("--outage", help="START,LENGTH (s): the simulator's long DVL outage (dvl.outage_s)")
+    ap.add_argument(
+        "--config", default=None, help="front-end section as JSON (default: the tank's defaults, STEREO_SEABED)"
+    )
+    ap.add_argument("--cache", type=Path, help="keep the simulated missions here (pickled) and reuse them")
+    ap.add_argument("--sim", default="{}", help="simulator overrides as JSON (sections merged over the seed's draws)")
     ap.add_argument("--profile", type=int, default=0, help="print this many functions by own CPU time")
     args = ap.parse_args()
+    config = json.loads(args.config) if args.config else STEREO_SEABED if args.scenario == "pipeline" else {}
     for seed in (int(s) for s in args.seeds.split(",")):
-        loops = max(args.duration - 20.0, 10.0) / 156.6667  # the default speed, not the default loops squeezed
-        cfg = resolve_config("tank", seed, vary=ASPECTS, data={"trajectory": {"loops": loops}})  # each seed its world
-        mission = simulate_tank(cfg)
+        data = json.loads(args.sim)
+        if args.scenario == "tank":  # the default speed, not the default loops squeezed
+            data["trajectory"] = {"loops": max(args.duration - 20.0, 10.0) / 156.6667} | data.get("trajectory", {})
+        window = None
+        if args.outage:
+            start, length = (float(v) for v in args.outage.split(","))
+            data["dvl"] = data.get("dvl", {}) | {"outage_s": [start, length]}
+        mission = simulated(args.scenario, scenario_config(args.scenario, seed, data), args.cache)
+        if args.outage:
+            t0 = next(iter(mission)).stamp
+            window = (t0 + int(start * 1e9), t0 + int((start + length) * 1e9))
         profiler = cProfile.Profile(time.process_time) if args.profile else None
         if profiler:
             profiler.enable()
-        r = evaluate(mission, json.loads(args.config))
+        r = evaluate(mission, config, window)
         print(f"seed {seed}: " + json.dumps(r), flush=True)
         if profiler:
             profiler.disable()

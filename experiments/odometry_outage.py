@@ -1,4 +1,5 @@
-"""What laser odometry buys during a long DVL outage (issue 23): the tank mission with the DVL
+"""What laser odometry buys during a long DVL outage (issue 23): the tank mission (or the pipeline's,
+``--scenario pipeline``: stereo clouds of a rocky seabed) with the DVL
 silenced for ``--outage`` seconds (``dvl.outage_s``) while the vehicle works by the structure, run through the graph
 with and without the odometry front-end (its factors with and without their m-estimator), beside the laser front-end's landmarks and without them
 (navigation only). Prints the relative position error over
@@ -6,24 +7,25 @@ with and without the odometry front-end (its factors with and without their m-es
 the odometry's NEES over the mission.
 
     python experiments/odometry_outage.py [--seeds 0] [--start 200] [--outage 90] [--loops 3]
+    python experiments/odometry_outage.py --scenario pipeline --seeds 1 --start 40 --outage 60 [--cache DIR]
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+from pathlib import Path
 
 import numpy as np
-from odometry_eval import evaluate
+from odometry_eval import evaluate, scenario_config, simulated
 
+from frontends.odometry.config import STEREO_SEABED
+from semslam.config import SemslamConfig
 from semslam.demo import demo_config
 from semslam.estimators import create_estimator
 from semslam.mission.mission import Mission
 from semslam.pipeline import run_pipeline
 from semslam.registry import create_frontends
-from semslam.sim.scenarios import resolve_config
-from semslam.sim.simulate import simulate_tank
-from semslam.sim.vary import ASPECTS
 
 
 def _interp(stamps, positions, t):
@@ -51,8 +53,10 @@ def errors(result, truth, lo: int, hi: int, delta_s: float) -> dict:
     }
 
 
-def run(mission: Mission, frontends: list[str], gaussian: bool = False) -> tuple[dict, object]:
-    cfg = demo_config()
+def run(mission: Mission, frontends: list[str], gaussian: bool = False, odometry: dict | None = None):
+    """The graph on ``mission`` with ``frontends``: the tank's demo configuration, or (``odometry`` given)
+    the defaults with that odometry section (the pipeline: no known pipe radius)."""
+    cfg = demo_config() if odometry is None else SemslamConfig(frontends={"odometry": odometry})
     if gaussian:  # the odometry factors without their m-estimator
         cfg.graph = cfg.graph.model_copy(update={"odometry_cauchy_k": {}})
     ests = [create_estimator("graph", mission.metadata, cfg)]
@@ -62,11 +66,14 @@ def run(mission: Mission, frontends: list[str], gaussian: bool = False) -> tuple
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--scenario", choices=("tank", "pipeline"), default="tank")
     ap.add_argument("--seeds", default="0")
     ap.add_argument("--start", type=float, default=200.0, help="outage start (s from the mission start)")
     ap.add_argument("--outage", type=float, default=90.0, help="outage length (s)")
     ap.add_argument("--delta", type=float, default=10.0, help="RPE interval (s)")
-    ap.add_argument("--loops", type=float, default=3.0)
+    ap.add_argument("--loops", type=float, default=3.0, help="tank loops (the pipeline flies its passes)")
+    ap.add_argument("--cache", type=Path, help="keep the simulated missions here (pickled) and reuse them")
+    ap.add_argument("--config", help="odometry section as JSON (default: the tank's defaults, STEREO_SEABED)")
     ap.add_argument(
         "--look-away",
         action="store_true",
@@ -79,33 +86,29 @@ def main() -> None:
     )
     ap.add_argument("--no-nees", action="store_true", help="skip the odometry's NEES (odometry_covariance measures it)")
     args = ap.parse_args()
+    pipeline = args.scenario == "pipeline"
+    odometry = json.loads(args.config) if args.config else STEREO_SEABED if pipeline else None
     for seed in (int(s) for s in args.seeds.split(",")):
-        cfg = resolve_config(  # each seed its world, with the simulator's long DVL outage
-            "tank",
-            seed,
-            ASPECTS,
-            data={
-                "trajectory": {
-                    "loops": args.loops,
-                    "look_away_s": [args.start, args.outage] if args.look_away else None,
-                },
-                "dvl": {"outage_s": [args.start, args.outage]},
-            },
-        )
-        mission = simulate_tank(cfg)
+        data = {"dvl": {"outage_s": [args.start, args.outage]}}  # each seed its world, with a long DVL outage
+        if not pipeline:
+            data["trajectory"] = {
+                "loops": args.loops,
+                "look_away_s": [args.start, args.outage] if args.look_away else None,
+            }
+        mission = simulated(args.scenario, scenario_config(args.scenario, seed, data), args.cache)
         t0 = next(iter(mission)).stamp
         lo, hi = t0 + int(args.start * 1e9), t0 + int((args.start + args.outage) * 1e9)
         row = {}
         if not args.no_nees and any("odometry" in name for name in args.variants.split(";")):
             # the registrations alone against the truth (the same scans and prior as in the pipeline's worker)
-            ev = evaluate(mission, window=(lo, hi))
+            ev = evaluate(mission, odometry, window=(lo, hi))
             keys = ("nees_mean", "nees_band_95", "nees_median", "accepted", "accepted_in_window")
             keys += ("nees_mean_in_window", "nees_mean_outside_window", "cpu_ms_per_scan_median", "cpu_ms_per_scan_p95")
             row["odometry_nees"] = {k: ev[k] for k in keys}
         for name in args.variants.split(";"):
             sets, _, kernel = name.partition("/")
             fes = [f for f in sets.split("+") if f and f != "navigation"]
-            result = run(mission, fes, gaussian=kernel == "gaussian")
+            result = run(mission, fes, gaussian=kernel == "gaussian", odometry=odometry)
             row[name] = errors(result.results["graph"], result.truth, lo, hi, args.delta)
             if "odometry" in result.frontend_summaries:
                 row[name]["odometry"] = result.frontend_summaries["odometry"].metrics
