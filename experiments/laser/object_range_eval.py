@@ -28,17 +28,10 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+from laser_real_eval import parse_seeds  # noqa: E402
 
 BANDS = (0.0, 2.0, 3.0, 4.0, 5.0, 9.0)
 NIS95 = 7.815  # χ²(3) 95 %
-
-
-def parse_seeds(text: str) -> list[int]:
-    out: list[int] = []
-    for part in text.split(","):
-        a, _, b = part.partition("-")
-        out += list(range(int(a), int(b) + 1)) if b else [int(a)]
-    return out
 
 
 def _config(overrides: list[str]):
