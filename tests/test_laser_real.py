@@ -46,11 +46,12 @@ def _views(mission, frontend):
     return views
 
 
-def _cloud_with_pipe(mission, frontend):
-    """The first cloud in which the front-end observes a pipe (the AHRS fed before it)."""
+def _cloud_with_pipe(mission, frontend, min_length: float = 0.0):
+    """The first cloud in which the front-end observes a pipe (at least ``min_length`` long; the AHRS
+    fed before it)."""
     for m in mission:
         if isinstance(m, PointCloud):
-            if _lines(frontend.process(m)):
+            if any(np.linalg.norm(o.q - o.p) >= min_length for o in _lines(frontend.process(m))):
                 return m
         elif m.sensor == "ahrs":
             frontend.process(m)
@@ -83,21 +84,44 @@ def test_organised_cloud_with_nans_gives_what_its_valid_points_give(pipeline):
                 assert np.array_equal(getattr(x, name), getattr(y, name))
 
 
+def _fed_up_to(mission, frontend, stamp):
+    """``frontend`` with the mission's AHRS fed up to ``stamp``."""
+    for m in mission:
+        if m.sensor == "ahrs" and m.stamp < stamp:
+            frontend.process(m)
+    return frontend
+
+
+def _sand_coloured(cloud):
+    """``cloud`` with every point the median colour of the scene (the seabed's): no colour contrast."""
+    sand = np.broadcast_to(np.median(cloud.rgb, axis=0).astype(np.uint8), cloud.rgb.shape)
+    return PointCloud(cloud.stamp, cloud.sensor, points=cloud.points, rgb=sand)
+
+
 def test_colour_is_an_optional_cue(pipeline):
-    """A pipe coloured like the seabed around it is taken for the seabed; without colour the
-    geometry alone decides."""
+    """A short segment (a partial view, as long as a stone's top) coloured like the seabed around it
+    is taken for the seabed; a long straight one is a pipe by its shape, whatever its colour; without
+    colour the geometry alone decides."""
+    long_enough = PipeConfig().color_max_length
     fe = LaserFrontend(pipeline.metadata, GEOMETRY_ONLY)
     cloud = _cloud_with_pipe(pipeline, fe)
-    sand = np.broadcast_to(np.median(cloud.rgb, axis=0).astype(np.uint8), cloud.rgb.shape)
-    grey = PointCloud(cloud.stamp, cloud.sensor, points=cloud.points, rgb=sand)
     plain = PointCloud(cloud.stamp, cloud.sensor, points=cloud.points)
-    assert _lines(fe.process(plain))
-    assert not _lines(fe.process(grey))
-    off = LaserFrontend(pipeline.metadata, {**GEOMETRY_ONLY, "pipes": {"min_color_contrast": 0}})
-    for m in pipeline:  # the AHRS up to the cloud
-        if m.sensor == "ahrs" and m.stamp < cloud.stamp:
-            off.process(m)
-    assert _lines(off.process(grey))
+    seen = _lines(fe.process(plain))
+    assert seen and all(np.linalg.norm(o.q - o.p) < long_enough for o in seen)
+    assert not _lines(fe.process(_sand_coloured(cloud)))
+    off = _fed_up_to(
+        pipeline, LaserFrontend(pipeline.metadata, {**GEOMETRY_ONLY, "pipes": {"min_color_contrast": 0}}), cloud.stamp
+    )
+    assert len(_lines(off.process(_sand_coloured(cloud)))) == len(seen)
+
+    later = _cloud_with_pipe(pipeline, fe, long_enough)
+    seen = _lines(fe.process(PointCloud(later.stamp, later.sensor, points=later.points)))
+    kept = _lines(fe.process(_sand_coloured(later)))
+    assert kept
+    assert [o.p.tolist() for o in kept] == [o.p.tolist() for o in seen if np.linalg.norm(o.q - o.p) >= long_enough]
+    everywhere = {**GEOMETRY_ONLY, "pipes": {"color_max_length": 10.0}}  # colour judges every length
+    always = _fed_up_to(pipeline, LaserFrontend(pipeline.metadata, everywhere), later.stamp)
+    assert not _lines(always.process(_sand_coloured(later)))
 
 
 def test_clouds_in_millimetres_or_the_world_frame_are_warned_once(pipeline, caplog):

@@ -196,8 +196,18 @@ class PipeConfig(_Section):
         15.0,
         ge=0,
         description="on the ground, with an RGB cloud: the segment's median colour differs from the ground's around "
-        "it by at least this (0-255 scale; 0: colour not used). Measured on the simulated pipeline: coated pipes "
-        "≥ 18, crests, mounds and stones ≤ 13",
+        "it by at least this (0-255 scale; 0: colour not used). Measured on the simulated pipeline (seeds 1-3): "
+        "coated pipes ≥ 18, crests, mounds and stones ≤ 13; but a pale pipe in turbid water 4-33 (seed 9), hence "
+        "color_max_length",
+    )
+    color_max_length: float = Field(
+        0.30,
+        ge=0,
+        description="the colour test applies to segments shorter than this only (m): a longer one on the ground "
+        "is judged by its geometry alone. Turbid water and a pale coating can leave a pipe as dull as the sand "
+        "(pipeline seed 9: contrast 4-16 on 0.45 m views of its pipes); the seabed's cylinder-like shapes that "
+        "pass the geometric tests are shorter (pipeline seeds 1, 4, 9, every 3rd cloud: 0.22-0.28 m, none of "
+        "10 at 0.30 m or more)",
     )
     color_reach: float = Field(0.10, gt=0, description="the ground around a segment: within this of its surface (m)")
     min_points: int = Field(40, ge=5, description="fewest inliers of a pipe segment")
@@ -456,6 +466,15 @@ class ObjectConfig(_Section):
         (0.026, 0.007),
         description="σ (along the pipe, across) of the position beyond a lone pipe end (configuration 1): the "
         "middle of the visible extent, m",
+    )
+    centre_margin: float = Field(
+        0.025,
+        gt=0,
+        description="a lone end's object is centred (along its pipe) on the middle of the extent of its points "
+        "standing more than this outside the pipe's cylinder (a body, a branch port, a handle), m; of all its "
+        "points when fewer than 5 do. The middle of the whole extent put elbows and tees 3-4 cm short of their "
+        "centre, where their ports' axes cross (tank seeds 3, 13, 5, 11: median error along the pipe -1.4 → "
+        "-0.1 cm, experiments/laser/object_range_eval.py); a large value: the whole extent, as before",
     )
 
 

@@ -175,6 +175,27 @@ def own_points(points: np.ndarray, end: np.ndarray, out: np.ndarray, radius: flo
     return int(((rad > radius + cfg.own_margin) | (t > cfg.own_beyond)).sum())
 
 
+_MIN_CENTRE_POINTS = 5  # fewest points off the cylinder that place a lone end's object (else all its points do)
+
+
+def lone_end_depth(points: np.ndarray, end: np.ndarray, out: np.ndarray, radius: float, cfg: ObjectConfig) -> float:
+    """How far beyond a lone pipe ``end`` (outward unit ``out``, pipe ``radius``) the centre of the
+    object made of ``points`` lies: the middle (2nd-98th percentile) of the extent along the pipe of
+    its points standing more than ``centre_margin`` outside the pipe's cylinder (from ``own_beyond``
+    before the end on), or, when fewer than 5 do (a socket only a little wider than its pipe), of all
+    its points beyond the end. What stands off the pipe (a valve's body and handle, an elbow's or a
+    tee's other port) is centred on the fitting whatever its class; the whole extent is not for a
+    fitting that turns: its centre, where its ports' axes cross, lies one port radius before its far
+    wall, not midway from the pipe's end to it."""
+    t, rad = along_and_off_axis(points, end, out)
+    off = t[(rad > radius + cfg.centre_margin) & (t > -cfg.own_beyond)]
+    if len(off) >= _MIN_CENTRE_POINTS:
+        lo, hi = np.percentile(off, [2, 98])
+        return float(0.5 * (lo + hi))
+    lo, hi = np.percentile(t, [2, 98])
+    return float(0.5 * (max(lo, 0.0) + hi))
+
+
 _TAIL_BIN = 0.02  # m along the axis: the profile beyond a lone end is judged per stretch of this length
 _TAIL_BIN_POINTS = 5  # ... with at least this many points (fewer everywhere: all of them as one)
 
@@ -522,10 +543,9 @@ def segment_objects(
         if len(crop) < cfg.min_points:
             continue
         config = site.config
-        if site.config == 1:  # on the pipe's axis, midway along the object's extent
-            t = (np.take(points, crop, axis=0) - e[0]) @ (-dirs[0])
-            lo, hi = np.percentile(t, [2, 98])
-            center = e[0] - dirs[0] * 0.5 * (max(lo, 0.0) + hi)
+        if site.config == 1:  # on the pipe's axis, at the middle of the object's own part
+            radius = pipes[site.members[0] // 2].radius
+            center = e[0] - dirs[0] * lone_end_depth(np.take(points, crop, axis=0), e[0], -dirs[0], radius, cfg)
             if collinear_stub(X, e[0], -dirs[0], pipes[site.members[0] // 2].radius, cfg):
                 # a second pipe in line (not detected): two collinear connections; the position
                 # is still the one found from the first pipe (and has its covariance)

@@ -15,8 +15,10 @@ what a pipe has and those shapes lack:
   ends (a stone's or a mound's top is a dome: a cylinder fitted to 0.15-0.3 m of it leaves its
   inliers' distance to the axis falling off towards both ends; :func:`bow`), by more than
   ``max_bow`` or ``bow_sigmas`` standard errors of that bow, whichever is larger;
-* with colour (an RGB cloud): it does not look like the ground around it, its median colour at
-  least ``min_color_contrast`` (0-255 scale) from the ground's within ``color_reach`` of it.
+* with colour (an RGB cloud), a segment shorter than ``color_max_length`` (a partial view, as long
+  as a stone's top): it does not look like the ground around it, its median colour at least
+  ``min_color_contrast`` (0-255 scale) from the ground's within ``color_reach`` of it. A longer
+  straight cylinder is a pipe by its shape, however dull its colour in turbid water.
 """
 
 from __future__ import annotations
@@ -156,7 +158,7 @@ def lies_like_a_pipe(pipe: Pipe, points: np.ndarray, ground, cfg: PipeConfig, co
         b, se = bow(pipe, points)
         if b > max(cfg.max_bow, cfg.bow_sigmas * se):
             return False
-    if contrast is not None and cfg.min_color_contrast > 0:
+    if contrast is not None and cfg.min_color_contrast > 0 and pipe.length < cfg.color_max_length:
         c = contrast(pipe)
         if c is not None and c < cfg.min_color_contrast:
             return False

@@ -609,8 +609,9 @@ def refine_cylinder(points: np.ndarray, c: np.ndarray, a: np.ndarray, r: float, 
     the axis more than 5°, leaves the radius range or fits worse.
 
     Not with ``radius_prior`` (the tank): there it cut the mean axis error of the tank's segments
-    (seeds 10 and 5: 1.59° → 1.13°, 0.62° → 0.27°) but made a 9.7 mm-noise free pipe end an object
-    in the lone-end tests (tests/test_laser_lone_end.py), not yet looked into."""
+    (seeds 10 and 5: 1.59° → 1.13°, 0.62° → 0.27°) but, the radius being fitted too, a one-sided
+    view at 9.7 mm range noise made most pipes 22-24 mm thin (prior 31.5) with their axes up to 18 mm
+    towards the sensor, and noisy free pipe ends objects (tests/test_laser_lone_end.py; experiments/laser/README.md)."""
     if cfg.radius_prior is not None:
         return c, a, r
     c1, a1, rho = c, a, r
