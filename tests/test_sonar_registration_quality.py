@@ -63,3 +63,37 @@ def test_registration_slid_along_the_structure_is_refused(plet):
     slid = icp(rec.model_data["plet"], pts, _moved(T_true, along=0.8), cfg)
     reg = rec.quality_test("plet", pts, slid)
     assert reg is None or max(_errors(reg.T, T_true)[0] / 0.1, _errors(reg.T, T_true)[1]) < 1.0
+
+
+@pytest.fixture(scope="module")
+def manifold_strip():
+    """A 1 m strip along seed 23's manifold (what one pass over it sees of the roof), placed with the
+    true poses; its true pose and a recogniser of the manifold alone."""
+    from frontends.sonar.patches import inv, transform
+
+    mission = simulate_field(
+        survey_config(seed=23, lines=2, line_length_m=10.0, centre="manifold", sonar={"n_beams": 256})
+    )
+    T = true_structure_pose(mission, "manifold")
+    P = true_points(mission)
+    lib = structure_library()
+    near = np.hypot(P[:, 0] - T[0, 3], P[:, 1] - T[1, 3]) <= lib["manifold"].footprint_radius + 2.0
+    strip = np.abs(transform(inv(T), P)[:, 1]) < 0.5
+    cfg = SonarConfig()
+    return P[near & strip], T, Recogniser([lib["manifold"]], cfg.recognition, cfg.registration), cfg.registration
+
+
+def test_manifold_slid_a_bay_on_a_strip_is_refused(manifold_strip):
+    """Slid one roof bay (0.8 m) on a strip, the model's points all fit (fitness passes) but the
+    manifold's end beyond the slid footprint is left unexplained: refused. Placed right: kept."""
+    pts, T_true, rec, cfg = manifold_strip
+    md = rec.model_data["manifold"]
+    right = icp(md, pts, T_true, cfg)
+    assert right.unexplained < 0.02
+    kept = rec.quality_test("manifold", pts, right)
+    assert kept is not None and _errors(kept.T, T_true)[0] < 0.05
+    slid = icp(md, pts, _moved(T_true, along=0.8), cfg)
+    assert _errors(slid.T, T_true)[0] > 0.7
+    assert slid.median_m <= cfg.max_median_m and slid.fitness >= cfg.new_min_fitness  # fitness cannot tell
+    assert slid.unexplained > 3 * cfg.max_unexplained
+    assert rec.quality_test("manifold", pts, slid) is None

@@ -234,6 +234,15 @@ class StructureRegistrationConfig(_Section):
         "this fitness: placed right, the structure's points lie on the model up to the range noise; slid "
         "along a manifold's bays, turned end for end or fitted to something else it fits less (see the README)",
     )
+    max_unexplained: float = Field(
+        0.1,
+        ge=0,
+        le=1,
+        description="a new structure's registration (not the final re-check) is refused when more than this "
+        "share of the high points around it (over 1 m above its base, within 1 m beyond its footprint) lie off the model's footprint: "
+        "structure the model does not explain, as when it is slid along a manifold's bays on a partial view "
+        "whose points on the footprint all fit",
+    )
     final_min_fitness: float = Field(
         0.80,
         ge=0,

@@ -197,13 +197,17 @@ class Recogniser:
     ) -> Registration | None:
         """``reg`` (of model ``name`` on the points ``pts``), or its half-turn alternative if that fits
         better, when it is a new structure's registration: it fits (median, ``min_fitness``, by default
-        ``new_min_fitness``) and is not ambiguous; else None."""
+        ``new_min_fitness``) and is not ambiguous; a new structure (no ``min_fitness`` given) must also
+        explain the structure around it (``max_unexplained``: at the mission's end, all the passes
+        misaligned by the navigation put a right model's edges off its footprint); else None."""
         c = self.reg_cfg
         if reg.median_m > c.max_median_m or reg.fitness < c.min_fitness:
             return None  # not worth the alternative's ICP
         reg, ambiguous = half_turn_check(self.model_data[name], pts, reg, c)
         need = c.new_min_fitness if min_fitness is None else min_fitness
         if ambiguous or reg.median_m > c.max_median_m or reg.fitness < need:
+            return None
+        if min_fitness is None and reg.unexplained > c.max_unexplained:
             return None
         return reg
 

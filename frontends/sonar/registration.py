@@ -36,6 +36,10 @@ from semslam.models.structures import StructureModel, pose_matrix
 PAD_MARGIN_M = 0.3  # the ground disc of the ICP target reaches this beyond the footprint
 STRUCTURE_MIN_HEIGHT_M = 0.10  # structure points are this far above the pad at least
 FOOTPRINT_DILATE_M = 0.05
+# Points this high above the base are structure, never seabed or a pipe lying on it (≤ 0.5 m): seen
+# within UNEXPLAINED_RING_M beyond the footprint, they are structure that the model does not explain.
+UNEXPLAINED_HEIGHT_M = 1.0
+UNEXPLAINED_RING_M = 1.0
 
 
 @dataclass
@@ -154,6 +158,10 @@ class Registration:
     sigma: float  # robust σ of the point-to-plane residuals
     coverage: float = 1.0  # share of the model's footprint (10 cm blocks) the structure points cover
     cost_4d: float | None = None
+    # share of the high points around the model (above UNEXPLAINED_HEIGHT_M, within the footprint's
+    # radius + UNEXPLAINED_RING_M) that lie off its footprint: a model slid along a structure leaves
+    # the structure's far end unexplained, which fitness (on the footprint only) never sees
+    unexplained: float = 0.0
 
 
 # ----------------------------------------------------------------------------------------------
@@ -319,13 +327,17 @@ def evaluate(md: ModelData, pts: np.ndarray, T: np.ndarray, cfg: StructureRegist
                 pass
             cov = 0.5 * (cov + cov.T)
     coverage = md.footprint_coverage(ys[:, :2]) if len(ys) else 0.0
+    high = (y[:, 2] < -UNEXPLAINED_HEIGHT_M) & (
+        np.hypot(y[:, 0], y[:, 1]) <= md.model.footprint_radius + UNEXPLAINED_RING_M
+    )
+    unexplained = float(np.mean(~md.on_footprint(y[high, :2]))) if high.any() else 0.0
     # a partial view (a 1 m strip over the structure) constrains the pose less than its points
     # suggest: the linearised part grows as the footprint coverage shrinks; the floors stand for
     # what the points cannot tell (a structure seen from one side, the CAD's small departures)
     cov = cov / max(coverage, 0.1)
     cov[:3, :3] += np.eye(3) * cfg.sigma_floor_rad**2
     cov[3:, 3:] += np.eye(3) * cfg.sigma_floor_m**2
-    return Registration(T, median, fitness, int(struct.sum()), cov, sigma, coverage)
+    return Registration(T, median, fitness, int(struct.sum()), cov, sigma, coverage, unexplained=unexplained)
 
 
 def register_structure(
