@@ -278,6 +278,10 @@ def main() -> None:
         print(f"grew most after the window filled, by {by}:")
         for row in grew[by]:
             print(f"  {row['mb']:+7.2f} MB in {row['count']:+8d} blocks: {' <- '.join(reversed(row['where']))}")
+    marks = [m for m in (15, 30, 60, 90, 120) if m * 60 <= result["samples"][-1]["t_s"]]
+    if marks:  # the sample nearest each mark
+        near = [min(result["samples"], key=lambda r, m=m: abs(r["t_s"] - 60 * m)) for m in marks]
+        print("RSS at " + ", ".join(f"{r['t_s'] / 60:.0f} min {r['rss_mb']:.0f} MB" for r in near))
     fill_s = 1.5 * result["window_s"] if result.get("window_s") else None
     if fill_s is not None:
         after = [r for r in result["samples"] if r["t_s"] >= fill_s]

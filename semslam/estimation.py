@@ -6,6 +6,7 @@ through an :class:`EstimateView`, and at the end returns an :class:`EstimatorRes
 
 from __future__ import annotations
 
+import tempfile
 from abc import ABC, abstractmethod
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -17,6 +18,51 @@ from semslam.mission.measurements import Measurement
 from semslam.observations import Observation
 
 LANDMARK_KINDS = ("object", "pipe", "structure")
+
+
+class SpillLog:
+    """Rows of one numpy ``dtype`` appended one at a time over a run of any length (a survey's
+    ground truth, views, timings), kept on disk: only the last ``chunk`` rows are in memory, the
+    rest in an anonymous temporary file in ``directory`` (default: the system's), which no directory
+    lists and which goes with the process however it ends. :meth:`array` reads them all back."""
+
+    __slots__ = ("dtype", "_plain", "_directory", "_file", "_buffer", "_buffered", "_spilled")
+
+    def __init__(self, dtype, chunk: int = 4096, directory=None):
+        self.dtype = np.dtype(dtype)
+        self._plain = self.dtype.names is None  # one value a row, not a record
+        self._directory = directory
+        self._file = None  # opened when the first chunk is full
+        self._buffer = np.empty(chunk, self.dtype)
+        self._buffered = 0
+        self._spilled = 0
+
+    def __len__(self) -> int:
+        return self._spilled + self._buffered
+
+    def append(self, *row) -> None:
+        """One row: a value per field of ``dtype``, in its order (sub-arrays as sequences)."""
+        self._buffer[self._buffered] = row[0] if self._plain else row
+        self._buffered += 1
+        if self._buffered == len(self._buffer):
+            if self._file is None:
+                self._file = tempfile.TemporaryFile(prefix="semslam-", suffix=".rows", dir=self._directory)
+            self._file.write(self._buffer.tobytes())
+            self._spilled += self._buffered
+            self._buffered = 0
+
+    def array(self) -> np.ndarray:
+        """Every row appended, in order (a new array: the log goes on)."""
+        rows = np.empty(len(self), self.dtype)
+        if self._spilled:
+            self._file.flush()
+            self._file.seek(0)
+            got = self._file.readinto(rows[: self._spilled].view(np.uint8))
+            if got != self._spilled * self.dtype.itemsize:
+                raise OSError(f"{self._file.name}: {got} bytes read back of {self._spilled * self.dtype.itemsize}")
+            self._file.seek(0, 2)
+        rows[self._spilled :] = self._buffer[: self._buffered]
+        return rows
 
 
 @dataclass

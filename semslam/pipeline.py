@@ -8,6 +8,7 @@ from collections import defaultdict, deque
 from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from contextvars import ContextVar
+from pathlib import Path
 from typing import Protocol
 
 from semslam.estimation import EstimateView, Estimator
@@ -60,6 +61,7 @@ def run_pipeline(
     frontend_process: bool = True,
     frontend_workers: int | None = None,
     observers: Sequence[PipelineObserver] = (),
+    spill_dir: str | Path | None = None,
 ) -> PipelineResult:
     """Feed ``mission`` through ``frontends`` into every estimator.
 
@@ -75,7 +77,9 @@ def run_pipeline(
     observation (:func:`semslam.mapping.book.labelled`; ``PipelineResult.labelled``, kept with True
     too), not the observations: a long survey's observations are much of its memory. ``observers``
     (and those of an enclosing :func:`observed_by`) see every step; without any, nothing is
-    collected for them.
+    collected for them. The ground truth and the labelled views go to anonymous files in
+    ``spill_dir`` (default: the system's temporary directory) as they come
+    (:class:`semslam.estimation.SpillLog`), so that an hours-long survey's memory stays flat.
 
     BLAS runs single-threaded meanwhile: the matrices here are small (an EKF of a few hundred
     states, 3×3 to 100×100 blocks), and OpenBLAS's threads spinning against GTSAM's and each other
@@ -91,7 +95,7 @@ def run_pipeline(
     try:
         with threadpool_limits(limits=1, user_api="blas"):
             result = _run_pipeline(
-                mission, estimators, frontends, view_estimator, progress, keep_observations, worker, watchers
+                mission, estimators, frontends, view_estimator, progress, keep_observations, worker, watchers, spill_dir
             )
     except BaseException:  # an error, Ctrl-C or SIGTERM: the workers' work is of no use, kill them now
         if worker is not None:
@@ -138,7 +142,7 @@ def _in_order(mission: Mission, worker: FrontendProcess | None, timing: dict):
 
 
 def _run_pipeline(
-    mission, estimators, frontends, view_estimator, progress, keep_observations, worker, watchers
+    mission, estimators, frontends, view_estimator, progress, keep_observations, worker, watchers, spill_dir
 ) -> PipelineResult:
     if not estimators:
         raise ValueError("at least one estimator is needed")
@@ -146,9 +150,9 @@ def _run_pipeline(
     by_name = {e.name: e for e in estimators}
     view_source = by_name.get(view_estimator or "graph", estimators[0])
     timing: dict[str, float] = defaultdict(float)
-    truth = PoseLog()  # packed: the ground truth of a long survey is its largest stream
+    truth = PoseLog(spill_dir)  # on disk: the ground truth of a long survey is its largest stream
     records: list[ObservationRecord] = []
-    labelled_views = LabelledViews()
+    labelled_views = LabelledViews(spill_dir)
     consumers = [(fe, tuple(fe.consumes)) for fe in frontends]
     apart = set(worker.names) if worker is not None else set()
 

@@ -4,14 +4,13 @@ estimator's result, the ground truth, the front-ends' observations, timing and s
 from __future__ import annotations
 
 import sys
-from array import array
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
 import numpy as np
 
-from semslam.estimation import EstimatorResult, Trajectory
+from semslam.estimation import EstimatorResult, SpillLog, Trajectory
 from semslam.observations import Observation, PointObservation
 from semslam.registry import FrontendSummary
 
@@ -22,31 +21,31 @@ OBSERVATION_MAPS = ("dr",)
 
 
 class PoseLog:
-    """Poses appended one at a time (e.g. the ground truth at 20 Hz over hours), kept as packed
-    numbers: 64 bytes a pose, where a ``GroundTruthPose`` kept whole costs ~780."""
+    """Poses appended one at a time (e.g. the ground truth at 20 Hz over hours), kept on disk as
+    packed numbers (:class:`SpillLog`: 64 bytes a pose, a few thousand in memory)."""
 
-    def __init__(self):
-        self._stamps = array("q")
-        self._positions = array("d")
-        self._orientations = array("d")
+    def __init__(self, directory=None):
+        self._rows = SpillLog(_POSE_ROW, directory=directory)
 
     def __len__(self) -> int:
-        return len(self._stamps)
+        return len(self._rows)
 
     def append(self, stamp: int, position: np.ndarray, orientation: np.ndarray) -> None:
-        self._stamps.append(stamp)
-        self._positions.extend(np.asarray(position, np.float64))
-        self._orientations.extend(np.asarray(orientation, np.float64))
+        self._rows.append(stamp, position, orientation)
 
     def trajectory(self) -> Trajectory | None:
         """The poses as a trajectory (None when there is none)."""
-        if not self._stamps:
+        if not len(self._rows):
             return None
+        rows = self._rows.array()
         return Trajectory(
-            stamps=np.array(self._stamps, np.int64),
-            positions=np.array(self._positions, np.float64).reshape(-1, 3),
-            orientations=np.array(self._orientations, np.float64).reshape(-1, 4),
+            stamps=rows["stamp"].copy(),
+            positions=rows["position"].copy(),
+            orientations=rows["orientation"].copy(),
         )
+
+
+_POSE_ROW = [("stamp", "<i8"), ("position", "<f8", 3), ("orientation", "<f8", 4)]
 
 
 @dataclass(slots=True)  # one per observation kept: ~100 bytes (its stamp included), ~140 without slots
@@ -70,23 +69,18 @@ class LabelledView(NamedTuple):
 
 
 class LabelledViews:
-    """The labelled object observations of a run, kept as numbers: ~100 bytes a view with six
-    classes, where the observation (its cloud, covariance and likelihood dict) costs ~1.25 kB; they
-    are 60 % of a survey's observations and kept to its end."""
+    """The labelled object observations of a run, kept as numbers on disk (:class:`SpillLog`): ~100
+    bytes a view with six classes, where the observation (its cloud, covariance and likelihood
+    dict) costs ~1.25 kB; they are 60 % of a survey's observations and kept to its end."""
 
-    def __init__(self):
-        self._stamps = array("q")
-        self._view_stamps = array("q")
-        self._sensors = array("H")  # index into _names
-        self._positions = array("d")
-        self._configurations = array("b")  # -1 for None
-        self._classes = array("H")  # index into _names of the tuple of class names, in the order given
-        self._scores = array("d")  # the likelihoods, one after the other
+    def __init__(self, directory=None):
+        self._rows = SpillLog(_VIEW_ROW, directory=directory)
+        self._scores = SpillLog("<f8", directory=directory)  # the likelihoods, one view's after the other
         self._names: list = []  # sensor names and class-name tuples (a handful)
         self._index: dict = {}
 
     def __len__(self) -> int:
-        return len(self._stamps)
+        return len(self._rows)
 
     def _code(self, name) -> int:
         if name not in self._index:
@@ -96,28 +90,37 @@ class LabelledViews:
 
     def append(self, stamp: int, z: PointObservation) -> None:
         conf = z.connectivity.configuration if z.connectivity is not None else None
-        self._stamps.append(stamp)
-        self._view_stamps.append(z.stamp)
-        self._sensors.append(self._code(z.sensor))
-        self._positions.extend(np.asarray(z.position, np.float64))
-        self._configurations.append(-1 if conf is None else conf)
-        self._classes.append(self._code(tuple(z.class_likelihood)))
-        self._scores.extend(float(v) for v in z.class_likelihood.values())
+        classes = self._code(tuple(z.class_likelihood))
+        self._rows.append(stamp, z.stamp, self._code(z.sensor), z.position, -1 if conf is None else conf, classes)
+        for v in z.class_likelihood.values():
+            self._scores.append(v)
 
     def __iter__(self) -> Iterator[LabelledView]:
+        rows, scores = self._rows.array(), self._scores.array()
         at = 0
-        for i, (stamp, view_stamp, conf) in enumerate(zip(self._stamps, self._view_stamps, self._configurations)):
-            classes = self._names[self._classes[i]]
-            scores = self._scores[at : at + len(classes)]
-            at += len(classes)
-            yield LabelledView(
-                stamp,
-                view_stamp,
-                self._names[self._sensors[i]],
-                np.array(self._positions[3 * i : 3 * i + 3]),
-                dict(zip(classes, scores)),
-                None if conf < 0 else conf,
-            )
+        for start in range(0, len(rows), 1024):  # as Python objects a chunk at a time: ~0.4 kB a view
+            for stamp, view_stamp, sensor, position, conf, classes in rows[start : start + 1024].tolist():
+                names = self._names[classes]
+                yield LabelledView(
+                    stamp,
+                    view_stamp,
+                    self._names[sensor],
+                    np.array(position),
+                    dict(zip(names, scores[at : at + len(names)].tolist())),
+                    None if conf < 0 else conf,
+                )
+                at += len(names)
+
+
+# the view's stamps, its sensor and class-name tuple (indices into LabelledViews._names), -1 for no configuration
+_VIEW_ROW = [
+    ("stamp", "<i8"),
+    ("view_stamp", "<i8"),
+    ("sensor", "<u2"),
+    ("position", "<f8", 3),
+    ("configuration", "<i2"),
+    ("classes", "<u2"),
+]
 
 
 @dataclass

@@ -18,7 +18,6 @@ The absolute information is kept for the prior of a landmark that re-enters the 
 
 from __future__ import annotations
 
-from array import array
 from dataclasses import dataclass, field
 
 import gtsam
@@ -41,7 +40,7 @@ from semslam.backend.problem import Candidate, GraphAssociationProblem, possible
 from semslam.backend.session import IsamSession, Owned
 from semslam.backend.window import SlidingWindow, X, value_of
 from semslam.config import SemslamConfig
-from semslam.estimation import LandmarkEstimate
+from semslam.estimation import LandmarkEstimate, SpillLog
 from semslam.mapping.association import (
     Candidates,
     LowRankJoint,
@@ -67,25 +66,33 @@ DIM_OF_KIND = {"object": 3, "pipe": 4, "structure": 6}
 
 
 class VolumeLog:
-    """A landmark's uncertainty volume (log det of its covariance) at each refresh, packed: 16 bytes
-    a refresh where a (stamp, float) tuple in a list costs ~120; a survey refreshes its landmarks for
-    hours. Iterates as (stamp, log det) pairs."""
-
-    __slots__ = ("stamps", "values")
+    """Every landmark's uncertainty volume (log det of its covariance) at each refresh, on disk
+    (:class:`SpillLog`, 24 bytes a refresh): a survey refreshes its landmarks for hours.
+    :meth:`items` gives each landmark's (stamp, log det) pairs, landmarks in the order first logged."""
 
     def __init__(self):
-        self.stamps = array("q")
-        self.values = array("d")
+        self._rows = SpillLog([("lid", "<i8"), ("stamp", "<i8"), ("value", "<f8")])
+        self._removed: set[int] = set()
 
-    def __len__(self) -> int:
-        return len(self.stamps)
+    def append(self, lid: int, stamp: int, value: float) -> None:
+        self._rows.append(lid, stamp, value)
 
-    def append(self, stamp: int, value: float) -> None:
-        self.stamps.append(stamp)
-        self.values.append(value)
+    def pop(self, lid: int) -> None:
+        """Forget ``lid``'s history (a landmark removed; ids are never given again)."""
+        self._removed.add(lid)
 
-    def __iter__(self):
-        return zip(self.stamps, self.values)
+    def items(self) -> list[tuple[int, list[tuple[int, float]]]]:
+        rows = self._rows.array()
+        order = np.argsort(rows["lid"], kind="stable")  # each landmark's rows together, in the order logged
+        rows = rows[order]
+        ids, first = np.unique(rows["lid"], return_index=True)
+        groups = np.split(rows, first[1:])
+        out = []
+        for k in np.argsort(order[first]):  # the landmarks in the order first logged
+            lid = int(ids[k])
+            if lid not in self._removed:
+                out.append((lid, list(zip(groups[k]["stamp"].tolist(), groups[k]["value"].tolist()))))
+        return out
 
 
 @dataclass
@@ -188,7 +195,7 @@ class GraphLandmarks:
         self.diagnostics = diagnostics
         self.landmarks: dict[int, Landmark] = {}
         self._next_id = 0
-        self.volume: dict[int, VolumeLog] = {}  # landmark id → (stamp, log det cov) at each refresh
+        self.volume = VolumeLog()  # landmark id → (stamp, log det cov) at each refresh
         # Bounding sphere (centre, radius) of every landmark, refreshed with its estimate.
         self._sphere_row: dict[int, int] = {}
         self._sphere_ids: list[int] = []
@@ -248,7 +255,7 @@ class GraphLandmarks:
         row = self._sphere_row.pop(lid, None)
         if row is not None:
             self._sphere_c[row] = np.inf  # never near again
-        self.volume.pop(lid, None)
+        self.volume.pop(lid)
 
     # ------------------------------------------------------------------ for the map building
     def usable(self, z: Observation) -> bool:
@@ -458,8 +465,7 @@ class GraphLandmarks:
                 lm.cov_stamp = stamp
                 lm.covariance = lm.information_covariance(gate=True)
                 ev = np.linalg.eigvalsh(lm.covariance)
-                log = self.volume.setdefault(lid, VolumeLog())
-                log.append(stamp, float(np.sum(np.log(np.maximum(ev, 1e-300)))))
+                self.volume.append(lid, stamp, float(np.sum(np.log(np.maximum(ev, 1e-300)))))
 
     def _spheres(self) -> tuple[list[int], np.ndarray, np.ndarray]:
         n = len(self._sphere_ids)

@@ -44,6 +44,7 @@ from semslam.mission.config import ReaderConfig
 from semslam.mission.conversions import CODECS, ROS1_FAST, Ros1Fast
 from semslam.mission.measurements import Depth, Measurement, PointCloud
 from semslam.mission.mission import Mission, MissionMetadata, SensorInfo
+from semslam.mission.plausible import implausible
 from semslam.mission.probe import LARGE, probe_topics
 from semslam.mission.stamps import ClockOffset, StampChoice, choose_stamp, estimate_offset
 from semslam.mission.surface import Resolved, resolve_atmosphere, resolve_datum
@@ -187,14 +188,13 @@ class BagMission(Mission):
                     if m.stamp != stamp:
                         m = dataclasses.replace(m, stamp=stamp)
                     bad = m.nonfinite_field()
-                    if bad is not None:
+                    wild = implausible(m, cfg.plausible) if bad is None else None
+                    if bad is not None or wild is not None:
                         if cfg.on_nonfinite == "error":
-                            raise MissionError(
-                                f"{where[topic]}: field {bad} is not finite or not a covariance "
-                                f"(message at t={stamp * 1e-9:.6f} s)"
-                            )
+                            why = f"field {bad} is not finite or not a covariance" if wild is None else wild
+                            raise MissionError(f"{where[topic]}: {why} (message at t={stamp * 1e-9:.6f} s)")
                         dropped[b.sensor] += 1
-                        fields[b.sensor][bad] += 1
+                        fields[b.sensor][bad or wild] += 1
                         continue
                     r = role[topic]
                     if r is None:

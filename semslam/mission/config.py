@@ -48,6 +48,21 @@ class AssumedSigmas(BaseModel):
     gps_vertical_m: float = Field(5.0, gt=0, description="GPS height")
 
 
+class PlausibleBounds(BaseModel):
+    """Physical bounds of a reading, generous: a finite value beyond them is nonsense (damaged bytes,
+    a driver's sentinel such as a velocity of 1e188 m/s), dropped and counted like a non-finite one
+    (``reader.on_nonfinite``). Point clouds are left to ``cloud_range_m`` (they may be in a world frame)."""
+
+    model_config = ConfigDict(extra="forbid")
+    speed_m_s: float = Field(10.0, gt=0, description="DVL velocity magnitude")
+    depth_m: float = Field(12000.0, gt=0, description="depth (either sign) and DVL altitude")
+    angular_rate_rad_s: float = Field(50.0, gt=0, description="AHRS angular rate magnitude")
+    position_m: float = Field(
+        2.1e7, gt=0, description="GPS fix and ground-truth position from the local origin (half the Earth's girth)"
+    )
+    range_m: float = Field(20000.0, gt=0, description="a sonar beam's range")
+
+
 class ReaderConfig(BaseModel):
     """Bag reading. With no ``sensors`` given, the sidecar's sensors and one topic per sensor kind,
     chosen by the rule of ``semslam.mission.binding`` (``semslam info`` prints the choice)."""
@@ -91,8 +106,11 @@ class ReaderConfig(BaseModel):
         "stamp order; a message later than that is an error",
     )
     on_nonfinite: Literal["drop", "error"] = Field(
-        "drop", description="a measurement with NaN/inf: drop it and count it (reported by info), or fail"
+        "drop",
+        description="a measurement with NaN/inf, a covariance that cannot be one or a value beyond "
+        "reader.plausible: drop it and count it (reported by info, run and metrics.json), or fail",
     )
+    plausible: PlausibleBounds = Field(default_factory=PlausibleBounds)
     on_clock_jump: Literal["error", "split"] = Field(
         "error",
         description="header stamps that go back on every topic at once (a clock reset): error refuses the "

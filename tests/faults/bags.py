@@ -1,5 +1,5 @@
 """Faulty recordings, made by the tests: a vehicle's navigation topics (AHRS 20 Hz, pressure 8 Hz,
-DVL 5 Hz, a laser at 1 Hz) with a topic left out, a clock reset, repeated stamps or NaN readings."""
+DVL 5 Hz, a laser at 1 Hz) with a topic left out, a clock reset, repeated stamps, NaN readings or finite nonsense."""
 
 from __future__ import annotations
 
@@ -27,6 +27,8 @@ class Faults:
     recorder_too: bool = False  # ... and the recorder's clock with them (one computer, one clock)
     reset_only: tuple[str, ...] = ()  # the reset hits only these topics (a sensor's own clock); () = all
     nan_dvl_at: tuple[int, ...] = ()  # DVL readings (by index) with a NaN velocity
+    huge_dvl_at: tuple[int, ...] = ()  # DVL readings (by index) of 1e188 m/s, finite, with a sane covariance
+    huge_pressure_at: tuple[int, ...] = ()  # pressure readings (by index) of 1e12 Pa: ~1e8 m deep
     repeat_dvl_at: tuple[int, ...] = ()  # DVL readings (by index) stamped like the one before, different data
     wild_dvl_at: tuple[int, ...] = ()  # DVL readings (by index) stamped 100 s in the past, alone
     ahrs_zero_stamps: bool = False  # an AHRS driver that leaves header stamps at zero (read by receive time)
@@ -56,6 +58,10 @@ def recording(fmt: str, seconds: float = 60.0, faults: Faults = Faults()) -> Rec
             if topic == "/ahrs" and f.ahrs_zero_stamps:
                 stamp = 0
             msg = _message(rec, topic, stamp, t, rng, nan=topic == "/dvl" and k in f.nan_dvl_at)
+            if topic == "/dvl" and k in f.huge_dvl_at:
+                msg = rec.twist(stamp, (1e188, 0.0, 0.0))
+            if topic == "/pressure" and k in f.huge_pressure_at:
+                msg = rec.pressure(stamp, 1e12)
             rec.add(topic, TYPES[topic], receive, msg)
             if topic == "/dvl" and k in f.duplicate_dvl_at:
                 rec.add(topic, TYPES[topic], receive + 1_000_000, msg)

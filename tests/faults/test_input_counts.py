@@ -11,7 +11,7 @@ import pytest
 from faults.bags import Faults, recording
 from faults.cli import assert_accepted, info
 from semslam.errors import MissionError
-from semslam.mission import DvlVelocity, Mission
+from semslam.mission import Depth, DvlVelocity, Mission
 from semslam.mission.bag import read_mission, write_mission
 from semslam.mission.check import input_block, input_line
 from semslam.mission.config import ReaderConfig
@@ -64,3 +64,25 @@ def test_a_part_read_is_said_in_the_block(tmp_path):
     m = read_mission(path, ReaderConfig(on_clock_jump="split", segment=2))
     list(m)
     assert input_block(m)["segment"] == 2
+
+
+def test_finite_nonsense_is_dropped_and_counted_like_non_finite_readings(tmp_path):
+    """A DVL velocity of 1e188 m/s with a sane covariance, a pressure of 1e12 Pa (~1e8 m deep): finite,
+    and no vehicle's; before, the reader passed them on and the estimators took them."""
+    path = recording("ros1", 20.0, Faults(huge_dvl_at=(7, 60), huge_pressure_at=(30,))).write(tmp_path)
+    m = read_mission(path)
+    got = list(m)
+    dvl = [x for x in got if isinstance(x, DvlVelocity)]
+    assert len(dvl) == 100 - 2 and max(abs(x.velocity).max() for x in dvl) < 1.0
+    assert max(x.depth for x in got if isinstance(x, Depth)) < 2.0  # 0.1 m/s for 15 s
+    assert input_block(m)["dropped"] == {"ahrs": 0, "dvl": 2, "laser": 0, "pressure": 1}
+    assert input_line(m) == (
+        "input: dropped dvl 2 (velocity beyond 10 m/s ×2), pressure 1 (depth beyond ±12000 m ×1), no invalid reading"
+    )
+    assert "dvl: 2 message(s) dropped" in assert_accepted(info(path))
+    # the bounds are configuration; the policy of non-finite readings holds for them too
+    wide = read_mission(path, ReaderConfig(plausible={"speed_m_s": 1e200, "depth_m": 1e9}))
+    assert max(x.velocity[0] for x in wide if isinstance(x, DvlVelocity)) == 1e188
+    assert input_block(wide)["dropped"] == {"ahrs": 0, "dvl": 0, "laser": 0, "pressure": 0}
+    with pytest.raises(MissionError, match=rf"^{path}: topic /dvl: velocity beyond 10 m/s \(message at t="):
+        list(read_mission(path, ReaderConfig(on_nonfinite="error")))
