@@ -314,8 +314,9 @@ class MapBuilder:
     def _duplicate_pipes(self, touched: set[int], separators: np.ndarray) -> list[tuple[float, int, int, float]]:
         """Pipes on one axis by the paper's collinearity criterion (angle, distance, extent gap, no
         object between) that are one pipe: their line difference compatible with zero, or sharing a
-        stretch of pipe (two estimates of one short pipe can disagree by 5–8° with line covariances
-        overconfident by then, yet two pipes cannot share a stretch closer than a diameter)."""
+        stretch of pipe within ``duplicate_pipe_angle_rad`` (two estimates of one short pipe can disagree
+        by 5–15° with line covariances overconfident by then, yet two pipes cannot share a stretch closer
+        than a diameter)."""
         pipes = self.state.pipes()
         if len(pipes) < 2 or not any(pid in touched for pid, _, _ in pipes):
             return []
@@ -330,19 +331,22 @@ class MapBuilder:
                 continue
             r = mids - c_a
             off = np.linalg.norm(r - np.outer(r @ d_a, d_a), axis=1)
-            screen = (np.abs(dirs @ d_a) >= math.cos(a_cfg.merge_angle_rad)) & (off <= a_cfg.merge_distance_m)
+            cos_ab = np.abs(dirs @ d_a)
+            screen = (cos_ab >= math.cos(a_cfg.duplicate_pipe_angle_rad)) & (off <= a_cfg.merge_distance_m)
             ext_a = self.book.extent(pid_a)
             for b in np.flatnonzero(screen):
                 pid_b, c_b, d_b = pipes[b]
                 if pid_b == pid_a or (pid_b in touched and pid_b < pid_a):  # each pair once
                     continue
-                ends_b = self.book.extent(pid_b).ends(c_b, d_b)
-                if not self._on_pipe(ends_b, pid_a, c_a, d_a, separators, cutters):
-                    continue
-                nis = self.state.difference_nis(pid_a, pid_b)
-                if nis is not None and nis < gate:
-                    out.append((nis, pid_a, pid_b, gate))
-                    continue
+                nis = None
+                if cos_ab[b] >= math.cos(a_cfg.merge_angle_rad):
+                    ends_b = self.book.extent(pid_b).ends(c_b, d_b)
+                    if not self._on_pipe(ends_b, pid_a, c_a, d_a, separators, cutters):
+                        continue
+                    nis = self.state.difference_nis(pid_a, pid_b)
+                    if nis is not None and nis < gate:
+                        out.append((nis, pid_a, pid_b, gate))
+                        continue
                 # sharing a stretch: what each pipe is, cut at the mapped in-line objects (a fit through a
                 # socket spans two pipes, and the pipe beyond the socket shares none of the other)
                 r = a_cfg.inline_object_radius_m
