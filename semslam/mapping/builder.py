@@ -323,17 +323,20 @@ class MapBuilder:
         a_cfg = self.assoc
         gate = chi2_gate(a_cfg.confidence, 4)
         dirs = np.array([d for _, _, d in pipes])
+        points = np.array([c for _, c, _ in pipes])
         mids = np.array([self.book.extent(pid).centre() for pid, _, _ in pipes])
         _, cutters = self.state.objects()
         out = []
-        for pid_a, c_a, d_a in pipes:
+        for a, (pid_a, c_a, d_a) in enumerate(pipes):
             if pid_a not in touched:
                 continue
             r = mids - c_a
-            off = np.linalg.norm(r - np.outer(r @ d_a, d_a), axis=1)
+            off = np.linalg.norm(r - np.outer(r @ d_a, d_a), axis=1)  # each pipe's middle from a's axis
+            r = mids[a] - points
+            back = np.linalg.norm(r - np.sum(r * dirs, axis=1)[:, None] * dirs, axis=1)  # a's middle from each axis
             cos_ab = np.abs(dirs @ d_a)
-            screen = (cos_ab >= math.cos(a_cfg.duplicate_pipe_angle_rad)) & (off <= a_cfg.merge_distance_m)
-            ext_a = self.book.extent(pid_a)
+            near = np.minimum(off, back) <= a_cfg.merge_distance_m
+            screen = (cos_ab >= math.cos(a_cfg.duplicate_pipe_angle_rad)) & near
             for b in np.flatnonzero(screen):
                 pid_b, c_b, d_b = pipes[b]
                 if pid_b == pid_a or (pid_b in touched and pid_b < pid_a):  # each pair once
@@ -347,16 +350,27 @@ class MapBuilder:
                     if nis is not None and nis < gate:
                         out.append((nis, pid_a, pid_b, gate))
                         continue
-                # sharing a stretch: what each pipe is, cut at the mapped in-line objects (a fit through a
-                # socket spans two pipes, and the pipe beyond the socket shares none of the other)
-                r = a_cfg.inline_object_radius_m
-                cut_b = self.book.extent(pid_b).ends(c_b, d_b, cutters, r)
-                if (
-                    off_axis(cut_b, c_a, d_a) <= a_cfg.duplicate_pipe_distance_m
-                    and ext_a.overlap_fraction(cut_b, c_a, d_a, cutters, r) >= 0.5
+                # sharing a stretch, either way round: a short twin 12° off lies along its pipe's axis, while
+                # the pipe's ends are far from the twin's axis
+                if self._shares_stretch(pipes[b], pipes[a], cutters) or self._shares_stretch(
+                    pipes[a], pipes[b], cutters
                 ):
                     out.append((math.inf if nis is None else nis, pid_a, pid_b, gate))
         return out
+
+    def _shares_stretch(self, pipe, along, cutters: np.ndarray) -> bool:
+        """What was seen of ``pipe`` (id, c, d) lies within ``duplicate_pipe_distance_m`` of the axis of
+        ``along`` over at least half of the shorter of the two seen stretches; both cut at the mapped
+        in-line objects ``cutters`` (a fit through a socket spans two pipes, and the pipe beyond the
+        socket shares none of the other)."""
+        a = self.assoc
+        r = a.inline_object_radius_m
+        (pid, c, d), (pid_x, c_x, d_x) = pipe, along
+        cut = self.book.extent(pid).ends(c, d, cutters, r)
+        return (
+            off_axis(cut, c_x, d_x) <= a.duplicate_pipe_distance_m
+            and self.book.extent(pid_x).overlap_fraction(cut, c_x, d_x, cutters, r) >= 0.5
+        )
 
     def _on_pipe(self, ends: np.ndarray, pipe: int, c, d, separators, cutters) -> bool:
         """The paper's collinear merge: the segment is within ``merge_angle_rad`` of the pipe's axis,
