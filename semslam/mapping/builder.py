@@ -137,6 +137,7 @@ class MapBuilder:
         a = self.assoc
         paired: list[tuple[Observation, int, PairLinearization]] = []
         unpaired: list[Observation] = []
+        lines = None  # the mapped pipes before the batch's update, once a segment needs them
         if obs:
             found, ids = self.state.candidates(obs, max(a.confidence, a.track_gate_confidence), scan)
             strict = found.subset(found.passing(a.confidence))
@@ -154,7 +155,9 @@ class MapBuilder:
                     if isinstance(z, LineObservation) and j in taken and k is not None:
                         paired.append((z, ids[j], strict.lin[k]))  # a second segment of a pipe paired now
                     continue  # ambiguous: that landmark seen badly
-                if not self._overlaps_mapped(z, mapped):
+                if isinstance(z, LineObservation) and lines is None:
+                    lines = self._lines()
+                if not self._overlaps_mapped(z, mapped, separators, lines):
                     unpaired.append(z)
         if paired:
             self.state.update(paired)
@@ -241,11 +244,12 @@ class MapBuilder:
         # the batch's order kept (a merged segment where its first member was)
         return [merged.get(i, z) for i, z in enumerate(obs) if not isinstance(z, LineObservation) or i in merged]
 
-    def _overlaps_mapped(self, z: Observation, mapped_objects: np.ndarray) -> bool:
+    def _overlaps_mapped(self, z: Observation, mapped_objects: np.ndarray, separators: np.ndarray, lines) -> bool:
         """An observation that failed the χ² gates but lies where a mapped landmark of its kind
         physically is (objects: closer than ``association.object_body_m``; pipes: both ends within
         ``min_separation_m`` of the line, nearly parallel, half of it within what was seen of it, no
-        object between) is that landmark seen badly: it must not start a second one."""
+        object between; ``separators``: the mapped and tentative objects; ``lines``: the mapped pipes, see
+        :meth:`_lines`) is that landmark seen badly: it must not start a second one."""
         a = self.assoc
         sep = a.min_separation_m
         if isinstance(z, PointObservation):
@@ -256,20 +260,29 @@ class MapBuilder:
             return False
         seg = self.state.place(z)[0]
         u = (seg[1] - seg[0]) / np.linalg.norm(seg[1] - seg[0])
-        separators = np.vstack([mapped_objects, self.tracks.object_points()])
-        for pid, c, d in self.state.pipes():
-            if np.arccos(min(1.0, abs(float(u @ d)))) > a.merge_angle_rad:
-                continue
-            r = seg - c
-            if np.linalg.norm(r - np.outer(r @ d, d), axis=1).max() >= sep:
-                continue
-            s_ = r @ d
+        ids, points, dirs = lines
+        if not ids:
+            return False
+        # the pipes nearly parallel with both ends of the segment close to their axis, all at once
+        r = seg[None, :, :] - points[:, None, :]  # (P, 2, 3)
+        s = np.einsum("pkj,pj->pk", r, dirs)
+        off = np.linalg.norm(r - s[:, :, None] * dirs[:, None, :], axis=2).max(axis=1)
+        parallel = np.arccos(np.minimum(1.0, np.abs(dirs @ u))) <= a.merge_angle_rad
+        for k in np.flatnonzero(parallel & (off < sep)):
+            pid, c, d, s_ = ids[k], points[k], dirs[k], s[k]
             lo, hi = seen = self.book.extent(pid).interval(c, d, mapped_objects, a.inline_object_radius_m)
             if min(s_.max(), hi) - max(s_.min(), lo) < 0.5 * (s_.max() - s_.min()):
                 continue  # mostly beyond what was seen: possibly the next pipe in line
             if not object_between(seen, seg, c, d, separators, a.inline_object_radius_m):
                 return True
         return False
+
+    def _lines(self) -> tuple[list[int], np.ndarray, np.ndarray]:
+        """The mapped pipes as arrays: their ids, a point of each line (P×3) and its direction (P×3)."""
+        pipes = self.state.pipes()
+        ids = [pid for pid, _, _ in pipes]
+        points = np.array([c for _, c, _ in pipes], float).reshape(-1, 3)
+        return ids, points, np.array([d for _, _, d in pipes], float).reshape(-1, 3)
 
     # ------------------------------------------------------------------ duplicates
     def merge_duplicates(self, touched: set[int], separators: np.ndarray | None = None) -> None:
