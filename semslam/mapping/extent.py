@@ -44,7 +44,7 @@ class PipeExtent:
         self._cuts: dict[tuple, tuple] = {}  # (line key, cutters, radius, depths) → (view count, interval)
         self._centre: tuple | None = None  # (view count, centre)
         self._w: tuple | None = None  # (view count, 6 × median σ)
-        self._sep_memo: tuple | None = None  # (objects key, c, d, on-line objects' positions along it)
+        self._sep_memo: tuple | None = None  # ((line, objects, radius), the objects on the line)
 
     def __len__(self) -> int:
         return self._k
@@ -155,15 +155,15 @@ class PipeExtent:
         per line and object set)."""
         if len(objects) == 0:
             return False
-        key = (objects.shape, float(objects.sum()), radius)
+        key = (_line_key(c, d), np.ascontiguousarray(objects, float).tobytes(), float(radius))
         memo = self._sep_memo
-        if memo is not None and memo[0] == key and np.array_equal(memo[1], c) and np.array_equal(memo[2], d):
-            on_line = memo[3]
+        if memo is not None and memo[0] == key:
+            on_line = memo[1]
         else:
             r = objects - c
             s_obj = r @ d
             on_line = objects[np.linalg.norm(r - s_obj[:, None] * d, axis=1) < radius]
-            self._sep_memo = (key, np.array(c, float), np.array(d, float), on_line)
+            self._sep_memo = (key, on_line)
         return object_between(span, ends_W, c, d, on_line, radius)
 
     def excludes(
