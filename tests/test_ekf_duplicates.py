@@ -146,6 +146,16 @@ def test_two_features_of_one_pipe_are_fused_and_the_younger_dropped():
     assert np.abs(np.sort(ends[:, 0]) - [-0.8, 0.8]).max() < 0.05
 
 
+def test_a_twin_turned_beyond_the_collinearity_angle_but_sharing_the_stretch_is_dropped():
+    """A short pipe's first views can leave its direction 12° off (replayed tank seed 10): beyond
+    merge_angle_rad (10°), yet its ends lie within a diameter of the pipe's axis over its stretch."""
+    est = _scene_run()
+    pipe_a = _pipe_a(est)
+    twin = _add_pipe(est, np.array([-0.3, -0.064, 4.5]), np.array([0.3, 0.064, 4.5]), sigma=0.001)  # 12°
+    est.mapper.merge_duplicates({twin})
+    assert _kinds(est) == ["object", "object", "pipe", "pipe"] and pipe_a in est.map.features
+
+
 def test_pipes_beside_or_beyond_an_in_line_object_are_not_fused():
     est = _scene_run()
     beside = _add_pipe(est, np.array([-0.8, 0.3, 4.5]), np.array([0.8, 0.3, 4.5]))  # parallel, 0.3 m off

@@ -160,3 +160,26 @@ def test_pipe_extent_gap_and_inline_object_radius_are_the_shared_association_set
         f.write_text(f"ekf:\n  {key}: 0.5\n")
         with pytest.raises(ConfigError, match=rf"ekf\.{key}"):
             load_config(f)
+
+
+def test_what_is_kept_between_queries_follows_new_views_lines_and_cutting_objects():
+    """An extent keeps what it computed for a line and a set of cutting objects: asked again along
+    another line, with other objects, or after a new view, it answers as a fresh extent would."""
+    ranges = [(-1.0, 1.0)] * 5
+    ext = _views(ranges)
+    c, d = np.zeros(3), np.array([1.0, 0.0, 0.0])
+    tee = np.array([[0.5, 0.0, 0.0]])  # on the line: cuts the pipe's far end
+    aside = np.array([[0.5, 1.0, 0.0]])  # a metre off the line: cuts nothing
+    assert ext.interval(c, d, tee, 0.15) == pytest.approx((-1.0, 0.5))
+    assert ext.interval(c, d, aside, 0.15) == pytest.approx((-1.0, 1.0))
+    assert ext.interval(c, d) == pytest.approx((-1.0, 1.0))
+    assert ext.interval(c, d, tee, 0.15) == pytest.approx((-1.0, 0.5))
+    shifted = np.array([0.3, 0.0, 0.0])  # the same line, measured from another point
+    assert ext.interval(shifted, d) == pytest.approx((-1.3, 0.7))
+    before = ext.centre().copy()
+    for _ in range(5):  # the pipe seen further now
+        ext.add(np.array([[0.2, 0.0, 0.0], [1.6, 0.0, 0.0]]), 0.01)
+    assert ext.interval(c, d) == _views(ranges + [(0.2, 1.6)] * 5).interval(c, d)
+    assert ext.interval(c, d)[1] == pytest.approx(1.6)
+    assert ext.centre()[0] > before[0]
+    assert ext.interval(c, d, tee, 0.15) == _views(ranges + [(0.2, 1.6)] * 5).interval(c, d, tee, 0.15)

@@ -173,7 +173,15 @@ class AssociationConfig(BaseModel):
     duplicate_pipe_distance_m: float = Field(
         0.1,
         gt=0,
-        description="two mapped pipes within the collinearity angle whose seen extents overlap over half "
+        description="two mapped pipes within duplicate_pipe_angle_rad whose seen extents overlap over half "
         "the shorter and whose axes are closer than this (a pipe diameter: pipes cannot interpenetrate) "
         "are one pipe mapped twice, even when their estimates fail the χ² test; the younger is dropped",
+    )
+    duplicate_pipe_angle_rad: float = Field(
+        0.44,
+        gt=0,
+        lt=1.5708,
+        description="the largest angle between two mapped pipes judged by duplicate_pipe_distance_m: wider than "
+        "merge_angle_rad, as a short pipe's first views can leave its direction 10-15° off (a 4-view EKF twin 12° "
+        "from its pipe), and narrower than a branch leaving a pipe at a fitting",
     )

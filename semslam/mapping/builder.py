@@ -137,6 +137,7 @@ class MapBuilder:
         a = self.assoc
         paired: list[tuple[Observation, int, PairLinearization]] = []
         unpaired: list[Observation] = []
+        lines = None  # the mapped pipes before the batch's update, once a segment needs them
         if obs:
             found, ids = self.state.candidates(obs, max(a.confidence, a.track_gate_confidence), scan)
             strict = found.subset(found.passing(a.confidence))
@@ -154,7 +155,9 @@ class MapBuilder:
                     if isinstance(z, LineObservation) and j in taken and k is not None:
                         paired.append((z, ids[j], strict.lin[k]))  # a second segment of a pipe paired now
                     continue  # ambiguous: that landmark seen badly
-                if not self._overlaps_mapped(z, mapped):
+                if isinstance(z, LineObservation) and lines is None:
+                    lines = self._lines()
+                if not self._overlaps_mapped(z, mapped, separators, lines):
                     unpaired.append(z)
         if paired:
             self.state.update(paired)
@@ -241,11 +244,12 @@ class MapBuilder:
         # the batch's order kept (a merged segment where its first member was)
         return [merged.get(i, z) for i, z in enumerate(obs) if not isinstance(z, LineObservation) or i in merged]
 
-    def _overlaps_mapped(self, z: Observation, mapped_objects: np.ndarray) -> bool:
+    def _overlaps_mapped(self, z: Observation, mapped_objects: np.ndarray, separators: np.ndarray, lines) -> bool:
         """An observation that failed the χ² gates but lies where a mapped landmark of its kind
         physically is (objects: closer than ``association.object_body_m``; pipes: both ends within
         ``min_separation_m`` of the line, nearly parallel, half of it within what was seen of it, no
-        object between) is that landmark seen badly: it must not start a second one."""
+        object between; ``separators``: the mapped and tentative objects; ``lines``: the mapped pipes, see
+        :meth:`_lines`) is that landmark seen badly: it must not start a second one."""
         a = self.assoc
         sep = a.min_separation_m
         if isinstance(z, PointObservation):
@@ -256,20 +260,29 @@ class MapBuilder:
             return False
         seg = self.state.place(z)[0]
         u = (seg[1] - seg[0]) / np.linalg.norm(seg[1] - seg[0])
-        separators = np.vstack([mapped_objects, self.tracks.object_points()])
-        for pid, c, d in self.state.pipes():
-            if np.arccos(min(1.0, abs(float(u @ d)))) > a.merge_angle_rad:
-                continue
-            r = seg - c
-            if np.linalg.norm(r - np.outer(r @ d, d), axis=1).max() >= sep:
-                continue
-            s_ = r @ d
+        ids, points, dirs = lines
+        if not ids:
+            return False
+        # the pipes nearly parallel with both ends of the segment close to their axis, all at once
+        r = seg[None, :, :] - points[:, None, :]  # (P, 2, 3)
+        s = np.einsum("pkj,pj->pk", r, dirs)
+        off = np.linalg.norm(r - s[:, :, None] * dirs[:, None, :], axis=2).max(axis=1)
+        parallel = np.arccos(np.minimum(1.0, np.abs(dirs @ u))) <= a.merge_angle_rad
+        for k in np.flatnonzero(parallel & (off < sep)):
+            pid, c, d, s_ = ids[k], points[k], dirs[k], s[k]
             lo, hi = seen = self.book.extent(pid).interval(c, d, mapped_objects, a.inline_object_radius_m)
             if min(s_.max(), hi) - max(s_.min(), lo) < 0.5 * (s_.max() - s_.min()):
                 continue  # mostly beyond what was seen: possibly the next pipe in line
             if not object_between(seen, seg, c, d, separators, a.inline_object_radius_m):
                 return True
         return False
+
+    def _lines(self) -> tuple[list[int], np.ndarray, np.ndarray]:
+        """The mapped pipes as arrays: their ids, a point of each line (P×3) and its direction (P×3)."""
+        pipes = self.state.pipes()
+        ids = [pid for pid, _, _ in pipes]
+        points = np.array([c for _, c, _ in pipes], float).reshape(-1, 3)
+        return ids, points, np.array([d for _, _, d in pipes], float).reshape(-1, 3)
 
     # ------------------------------------------------------------------ duplicates
     def merge_duplicates(self, touched: set[int], separators: np.ndarray | None = None) -> None:
@@ -314,45 +327,63 @@ class MapBuilder:
     def _duplicate_pipes(self, touched: set[int], separators: np.ndarray) -> list[tuple[float, int, int, float]]:
         """Pipes on one axis by the paper's collinearity criterion (angle, distance, extent gap, no
         object between) that are one pipe: their line difference compatible with zero, or sharing a
-        stretch of pipe (two estimates of one short pipe can disagree by 5–8° with line covariances
-        overconfident by then, yet two pipes cannot share a stretch closer than a diameter)."""
+        stretch of pipe within ``duplicate_pipe_angle_rad`` (two estimates of one short pipe can disagree
+        by 5–15° with line covariances overconfident by then, yet two pipes cannot share a stretch closer
+        than a diameter)."""
         pipes = self.state.pipes()
         if len(pipes) < 2 or not any(pid in touched for pid, _, _ in pipes):
             return []
         a_cfg = self.assoc
         gate = chi2_gate(a_cfg.confidence, 4)
         dirs = np.array([d for _, _, d in pipes])
+        points = np.array([c for _, c, _ in pipes])
         mids = np.array([self.book.extent(pid).centre() for pid, _, _ in pipes])
         _, cutters = self.state.objects()
         out = []
-        for pid_a, c_a, d_a in pipes:
+        for a, (pid_a, c_a, d_a) in enumerate(pipes):
             if pid_a not in touched:
                 continue
             r = mids - c_a
-            off = np.linalg.norm(r - np.outer(r @ d_a, d_a), axis=1)
-            screen = (np.abs(dirs @ d_a) >= math.cos(a_cfg.merge_angle_rad)) & (off <= a_cfg.merge_distance_m)
-            ext_a = self.book.extent(pid_a)
+            off = np.linalg.norm(r - np.outer(r @ d_a, d_a), axis=1)  # each pipe's middle from a's axis
+            r = mids[a] - points
+            back = np.linalg.norm(r - np.sum(r * dirs, axis=1)[:, None] * dirs, axis=1)  # a's middle from each axis
+            cos_ab = np.abs(dirs @ d_a)
+            near = np.minimum(off, back) <= a_cfg.merge_distance_m
+            screen = (cos_ab >= math.cos(a_cfg.duplicate_pipe_angle_rad)) & near
             for b in np.flatnonzero(screen):
                 pid_b, c_b, d_b = pipes[b]
                 if pid_b == pid_a or (pid_b in touched and pid_b < pid_a):  # each pair once
                     continue
-                ends_b = self.book.extent(pid_b).ends(c_b, d_b)
-                if not self._on_pipe(ends_b, pid_a, c_a, d_a, separators, cutters):
-                    continue
-                nis = self.state.difference_nis(pid_a, pid_b)
-                if nis is not None and nis < gate:
-                    out.append((nis, pid_a, pid_b, gate))
-                    continue
-                # sharing a stretch: what each pipe is, cut at the mapped in-line objects (a fit through a
-                # socket spans two pipes, and the pipe beyond the socket shares none of the other)
-                r = a_cfg.inline_object_radius_m
-                cut_b = self.book.extent(pid_b).ends(c_b, d_b, cutters, r)
-                if (
-                    off_axis(cut_b, c_a, d_a) <= a_cfg.duplicate_pipe_distance_m
-                    and ext_a.overlap_fraction(cut_b, c_a, d_a, cutters, r) >= 0.5
+                nis = None
+                if cos_ab[b] >= math.cos(a_cfg.merge_angle_rad):
+                    ends_b = self.book.extent(pid_b).ends(c_b, d_b)
+                    if not self._on_pipe(ends_b, pid_a, c_a, d_a, separators, cutters):
+                        continue
+                    nis = self.state.difference_nis(pid_a, pid_b)
+                    if nis is not None and nis < gate:
+                        out.append((nis, pid_a, pid_b, gate))
+                        continue
+                # sharing a stretch, either way round: a short twin 12° off lies along its pipe's axis, while
+                # the pipe's ends are far from the twin's axis
+                if self._shares_stretch(pipes[b], pipes[a], cutters) or self._shares_stretch(
+                    pipes[a], pipes[b], cutters
                 ):
                     out.append((math.inf if nis is None else nis, pid_a, pid_b, gate))
         return out
+
+    def _shares_stretch(self, pipe, along, cutters: np.ndarray) -> bool:
+        """What was seen of ``pipe`` (id, c, d) lies within ``duplicate_pipe_distance_m`` of the axis of
+        ``along`` over at least half of the shorter of the two seen stretches; both cut at the mapped
+        in-line objects ``cutters`` (a fit through a socket spans two pipes, and the pipe beyond the
+        socket shares none of the other)."""
+        a = self.assoc
+        r = a.inline_object_radius_m
+        (pid, c, d), (pid_x, c_x, d_x) = pipe, along
+        cut = self.book.extent(pid).ends(c, d, cutters, r)
+        return (
+            off_axis(cut, c_x, d_x) <= a.duplicate_pipe_distance_m
+            and self.book.extent(pid_x).overlap_fraction(cut, c_x, d_x, cutters, r) >= 0.5
+        )
 
     def _on_pipe(self, ends: np.ndarray, pipe: int, c, d, separators, cutters) -> bool:
         """The paper's collinear merge: the segment is within ``merge_angle_rad`` of the pipe's axis,

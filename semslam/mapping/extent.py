@@ -28,17 +28,23 @@ def off_axis(points: np.ndarray, c: np.ndarray, d: np.ndarray) -> float:
     return float(np.linalg.norm(r - np.outer(r @ d, d), axis=1).max())
 
 
+MEMO_LINES = 16  # lines (and cuts) an extent remembers: a scan asks of a pipe along a few lines only
+
+
 class PipeExtent:
     """The views of one pipe (ends in {W}) and what they say about where the pipe is along its line.
-    The interval of the latest line asked for is kept, so that one scan's checks compute it once."""
+    What was computed for a line (and for a set of cutting objects) is kept until a view is added, so
+    that one scan's checks, which ask of each pipe along its own line many times, compute it once."""
 
     def __init__(self):
         self._pts = np.zeros((8, 2, 3))  # (2, 3) per view, in a buffer that grows by doubling
         self._sig = np.zeros(8)
         self._k = 0
-        self._memo: tuple | None = None  # (c, d, view count, interval)
+        self._lines: dict[bytes, tuple] = {}  # line key → (view count, robust interval, views' median middle)
+        self._cuts: dict[tuple, tuple] = {}  # (line key, cutters, radius, depths) → (view count, interval)
+        self._centre: tuple | None = None  # (view count, centre)
         self._w: tuple | None = None  # (view count, 6 × median σ)
-        self._sep_memo: tuple | None = None  # (objects key, c, d, on-line objects' positions along it)
+        self._sep_memo: tuple | None = None  # ((line, objects, radius), the objects on the line)
 
     def __len__(self) -> int:
         return self._k
@@ -58,7 +64,9 @@ class PipeExtent:
 
     def centre(self) -> np.ndarray:
         """Mean of the saved view ends in {W}: a point near the pipe, inside what was seen of it."""
-        return self._pts[: self._k].reshape(-1, 3).mean(axis=0)
+        if self._centre is None or self._centre[0] != self._k:
+            self._centre = (self._k, self._pts[: self._k].reshape(-1, 3).mean(axis=0))
+        return self._centre[1]
 
     def outer(self, c: np.ndarray, d: np.ndarray) -> tuple[float, float]:
         """The extreme view ends along the line (every view's, noise included)."""
@@ -77,23 +85,30 @@ class PipeExtent:
         ``cutters`` (N×3, {W}) within ``radius`` of the line inside it, keeping the side that holds
         most of the views (at their port mouths where ``depths`` gives them, see
         :func:`~semslam.mapping.pipes.cut_at_objects`)."""
-        out = self._robust(c, d)
+        line = _line_key(c, d)
+        out, middle = self._along(line, c, d)
         if cutters is None or not len(cutters):
             return out
-        middle = small_median(((self._pts[: self._k] - c) @ d).mean(axis=1))
-        return cut_at_objects(out, c, d, cutters, radius, middle, depths=depths)
+        cutters = np.ascontiguousarray(cutters, float)
+        key = (line, cutters.tobytes(), float(radius), None if depths is None else np.asarray(depths, float).tobytes())
+        memo = self._cuts.get(key)
+        if memo is None or memo[0] != self._k:
+            memo = (self._k, cut_at_objects(out, c, d, cutters, radius, middle, depths=depths))
+            _remember(self._cuts, key, memo)
+        return memo[1]
 
-    def _robust(self, c: np.ndarray, d: np.ndarray) -> tuple[float, float]:
-        memo = self._memo
-        if memo is not None and memo[2] == self._k and np.array_equal(memo[0], c) and np.array_equal(memo[1], d):
-            return memo[3]
+    def _along(self, line: bytes, c: np.ndarray, d: np.ndarray) -> tuple[tuple[float, float], float]:
+        """The robust interval on the line (c, d) and the median of the views' middles along it."""
+        memo = self._lines.get(line)
+        if memo is not None and memo[0] == self._k:
+            return memo[1], memo[2]
         s = (self._pts[: self._k] - c) @ d  # (K, 2)
         lo, hi = s.min(axis=1), s.max(axis=1)
         if self._w is None or self._w[0] != self._k:
             self._w = (self._k, 6.0 * small_median(self._sig[: self._k]))
-        out = robust_ends(lo, hi, self._w[1])
-        self._memo = (np.array(c, float), np.array(d, float), self._k, out)
-        return out
+        memo = (self._k, robust_ends(lo, hi, self._w[1]), small_median(s.mean(axis=1)))
+        _remember(self._lines, line, memo)
+        return memo[1], memo[2]
 
     def ends(
         self,
@@ -140,15 +155,15 @@ class PipeExtent:
         per line and object set)."""
         if len(objects) == 0:
             return False
-        key = (objects.shape, float(objects.sum()), radius)
+        key = (_line_key(c, d), np.ascontiguousarray(objects, float).tobytes(), float(radius))
         memo = self._sep_memo
-        if memo is not None and memo[0] == key and np.array_equal(memo[1], c) and np.array_equal(memo[2], d):
-            on_line = memo[3]
+        if memo is not None and memo[0] == key:
+            on_line = memo[1]
         else:
             r = objects - c
             s_obj = r @ d
             on_line = objects[np.linalg.norm(r - s_obj[:, None] * d, axis=1) < radius]
-            self._sep_memo = (key, np.array(c, float), np.array(d, float), on_line)
+            self._sep_memo = (key, on_line)
         return object_between(span, ends_W, c, d, on_line, radius)
 
     def excludes(
@@ -167,3 +182,16 @@ class PipeExtent:
         tentative) lies between them."""
         span = self.interval(c, d, cutters, radius)
         return self.gap(ends_W, c, d, span) > max_gap or self.separated(ends_W, c, d, separators, radius, span)
+
+
+def _line_key(c: np.ndarray, d: np.ndarray) -> bytes:
+    """The exact numbers of a line (c, d): what the memos of an extent are kept by."""
+    return np.asarray(c, np.float64).tobytes() + np.asarray(d, np.float64).tobytes()
+
+
+def _remember(memo: dict, key, value) -> None:
+    """Keep ``value`` under ``key``, forgetting everything once ``MEMO_LINES`` entries are kept (the
+    lines of earlier scans are not asked again: every update moves them)."""
+    if len(memo) >= MEMO_LINES and key not in memo:
+        memo.clear()
+    memo[key] = value

@@ -65,8 +65,12 @@ def merge_collinear(
             i = parent[i]
         return i
 
+    # a screen of all pairs at once: directions further apart than max_angle (with a margin for rounding)
+    # cannot be collinear, so the exact test below runs only on the pairs it leaves
+    dirs = np.array([segment_axis(z.p, z.q)[0] for z in observations]).reshape(-1, 3)
+    near_parallel = np.abs(dirs @ dirs.T) >= np.cos(max_angle + 1e-6)
     for i in range(n):
-        for j in range(i + 1, n):
+        for j in (np.flatnonzero(near_parallel[i, i + 1 :]) + i + 1).tolist():
             a, b = observations[i], observations[j]
             if a.sensor == b.sensor and collinear(a.p, a.q, b.p, b.q, max_angle, max_distance):
                 d, length = segment_axis(a.p, a.q)
