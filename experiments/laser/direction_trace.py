@@ -51,6 +51,28 @@ def geometric_axis(P: np.ndarray, a0: np.ndarray, c0: np.ndarray, r0: float, rou
     return a
 
 
+def pipe_views(mission, every: int, wanted: set[int] | None):
+    """Every ``every``-th scan of a pipeline mission with ≥ 0.2 m of a wanted pipe in view: (scan,
+    {visible pipe ids}, R and t of the laser in {W} at the nearest true pose)."""
+    from semslam.mission.measurements import GroundTruthPose, PointCloud
+
+    meta = mission.metadata
+    T_BS = next(s for s in meta.sensors.values() if s.kind == "laser").T_BS
+    poses = {m.stamp: m.matrix() for m in mission.of_type(GroundTruthPose)}
+    stamps = np.array(sorted(poses))
+    visible = {s["stamp"]: {int(k): v for k, v in s["pipe_visible_m"].items()} for s in meta.extras["scans"]}
+    k = 0
+    for m in mission.of_type(PointCloud):
+        vis = {g for g, v in visible.get(m.stamp, {}).items() if v >= 0.2 and (wanted is None or g in wanted)}
+        if not vis:
+            continue
+        k += 1
+        if k % every:
+            continue
+        T = poses[int(stamps[np.argmin(np.abs(stamps - m.stamp))])] @ T_BS
+        yield m, vis, T[:3, :3], T[:3, 3]
+
+
 def angles(a: np.ndarray, g: np.ndarray) -> tuple[float, float]:
     """(yaw, pitch) of ``a`` from ``g`` (world, NED; deg): the turn about down, the tilt out of level."""
     a = a * np.sign(a @ g)
@@ -64,7 +86,6 @@ def main(argv=None) -> int:
     from frontends.laser.config import LaserConfig
     from frontends.laser.evaluation import matching_pipe
     from frontends.laser.frontend import segment_scan
-    from semslam.mission.measurements import GroundTruthPose, PointCloud
     from semslam.sim.pipeline_config import PipelineSimConfig
     from semslam.sim.pipeline_mission import simulate_pipeline
 
@@ -84,21 +105,8 @@ def main(argv=None) -> int:
     meta = mission.metadata
     gt = meta.ground_truth
     wanted = None if args.pipes is None else {int(x) for x in args.pipes.split(",")}
-    T_BS = next(s for s in meta.sensors.values() if s.kind == "laser").T_BS
-    poses = {m.stamp: m.matrix() for m in mission.of_type(GroundTruthPose)}
-    stamps = np.array(sorted(poses))
-    visible = {s["stamp"]: {int(k): v for k, v in s["pipe_visible_m"].items()} for s in meta.extras["scans"]}
     rows: dict[int, list] = {}
-    k = 0
-    for m in mission.of_type(PointCloud):
-        vis = {g for g, v in visible.get(m.stamp, {}).items() if v >= 0.2 and (wanted is None or g in wanted)}
-        if not vis:
-            continue
-        k += 1
-        if k % args.every:
-            continue
-        T = poses[int(stamps[np.argmin(np.abs(stamps - m.stamp))])] @ T_BS
-        R, t = T[:3, :3], T[:3, 3]
+    for m, vis, R, t in pipe_views(mission, args.every, wanted):
         seg = segment_scan(m.points, cfg, up=R.T @ np.array([0.0, 0.0, -1.0]), rgb=m.rgb)
         S = seg.structure_points
         for pipe in seg.pipes:

@@ -68,12 +68,13 @@ def seabed_verdict(pipe, seabed) -> str:
 
 
 def main(argv=None) -> int:
+    from direction_trace import pipe_views
+
     import frontends.laser.pipe_shape as pipe_shape
     from frontends.laser.config import LaserConfig
     from frontends.laser.evaluation import matching_pipe
     from frontends.laser.frontend import segment_scan
     from frontends.laser.pipes import inlier_mask
-    from semslam.mission.measurements import GroundTruthPose, PointCloud
     from semslam.sim.pipeline_config import PipelineSimConfig
     from semslam.sim.pipeline_mission import simulate_pipeline
 
@@ -90,9 +91,6 @@ def main(argv=None) -> int:
     gt = meta.ground_truth
     print("true pipes:", {g.id: round(float(g.radius), 4) for g in gt.pipes})
     wanted = None if args.pipes is None else {int(x) for x in args.pipes.split(",")}
-    T_BS = next(s for s in meta.sensors.values() if s.kind == "laser").T_BS
-    poses = {m.stamp: m.matrix() for m in mission.of_type(GroundTruthPose)}
-    stamps = np.array(sorted(poses))
     visible = {s["stamp"]: {int(k): v for k, v in s["pipe_visible_m"].items()} for s in meta.extras["scans"]}
     by_id = {g.id: g for g in gt.pipes}
     verdicts: list = []  # (pipe, verdict) of the seabed tests of the current cloud
@@ -106,16 +104,7 @@ def main(argv=None) -> int:
 
     pipe_shape.Seabed.accept = recording_accept
     rows: dict[int, list] = {}
-    k = 0
-    for m in mission.of_type(PointCloud):
-        vis = {g for g, v in visible.get(m.stamp, {}).items() if v >= 0.2 and (wanted is None or g in wanted)}
-        if not vis:
-            continue
-        k += 1
-        if k % args.every:
-            continue
-        T = poses[int(stamps[np.argmin(np.abs(stamps - m.stamp))])] @ T_BS
-        R, t = T[:3, :3], T[:3, 3]
+    for m, vis, R, t in pipe_views(mission, args.every, wanted):
         verdicts.clear()
         seg = segment_scan(m.points, cfg, up=R.T @ np.array([0.0, 0.0, -1.0]), rgb=m.rgb)
         raw = np.asarray(m.points, float)
