@@ -295,7 +295,8 @@ def icp(
 def evaluate(md: ModelData, pts: np.ndarray, T: np.ndarray, cfg: StructureRegistrationConfig) -> Registration:
     """Quality and covariance of the registration T_F,M of points ``pts`` (frame F)."""
     y = transform(inv(T), pts)
-    struct = (y[:, 2] < -STRUCTURE_MIN_HEIGHT_M) & md.on_footprint(y[:, :2])
+    on = md.on_footprint(y[:, :2])
+    struct = (y[:, 2] < -STRUCTURE_MIN_HEIGHT_M) & on
     ys = y[struct]
     if len(ys):
         dist = md.distance(ys)
@@ -330,7 +331,7 @@ def evaluate(md: ModelData, pts: np.ndarray, T: np.ndarray, cfg: StructureRegist
     high = (y[:, 2] < -UNEXPLAINED_HEIGHT_M) & (
         np.hypot(y[:, 0], y[:, 1]) <= md.model.footprint_radius + UNEXPLAINED_RING_M
     )
-    unexplained = float(np.mean(~md.on_footprint(y[high, :2]))) if high.any() else 0.0
+    unexplained = float(np.mean(~on[high])) if high.any() else 0.0
     # a partial view (a 1 m strip over the structure) constrains the pose less than its points
     # suggest: the linearised part grows as the footprint coverage shrinks; the floors stand for
     # what the points cannot tell (a structure seen from one side, the CAD's small departures)
