@@ -197,8 +197,8 @@ def _paired(scans: list, overrides: dict, against: Path, repeat: int, process: b
             w.stdin.close()
             w.wait()
 
-    def med(name, j):
-        return round(float(np.median([r[j] for r in res[name]])), 4)
+    def med(name, j, q=50):
+        return round(float(np.percentile([r[j] for r in res[name]], q)), 4)
 
     ratio = {j: round(float(np.median([b[j] / a[j] for a, b in zip(res["A"], res["B"])])), 3) for j in (0, 1)}
     stages = sorted(res["A"][0][2])
@@ -208,7 +208,9 @@ def _paired(scans: list, overrides: dict, against: Path, repeat: int, process: b
         "runs": len(res["A"]),
         "identical_results": bool(identical),
         "cpu_median_s": {"A": med("A", 0), "B": med("B", 0), "median_ratio_B_A": ratio[0]},
+        "cpu_p95_s": {"A": med("A", 0, 95), "B": med("B", 0, 95)},
         "wall_median_s": {"A": med("A", 1), "B": med("B", 1), "median_ratio_B_A": ratio[1]},
+        "wall_p95_s": {"A": med("A", 1, 95), "B": med("B", 1, 95)},
         "stage_cpu_median_s": {
             st: {n: round(float(np.median([r[2][st] for r in res[n]])), 4) for n in ("A", "B")} for st in stages
         },
@@ -243,6 +245,23 @@ def _mission_scans(source: str, seed: int, every: int, n: int, overrides: dict) 
     return out
 
 
+def _profile(scans: list[dict], cfg, top: int) -> int:
+    """cProfile of ``segment_scan`` over the scans: the top functions by own time and by cumulative
+    time (per scan: divide by the number of scans)."""
+    import cProfile
+    import pstats
+
+    prof = cProfile.Profile()
+    prof.enable()
+    for scan in scans:
+        _segment(scan, cfg)
+    prof.disable()
+    print(f"{len(scans)} scans")
+    for key in ("tottime", "cumulative"):
+        pstats.Stats(prof).strip_dirs().sort_stats(key).print_stats(top)
+    return 0
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scans", type=int, default=8)
@@ -253,6 +272,7 @@ def main(argv=None) -> int:
     ap.add_argument("--source", choices=("tank", "pipeline", "synthetic"), default="tank")
     ap.add_argument("--every", type=int, default=25, help="tank, pipeline: every n-th scan")
     ap.add_argument("--process", action="store_true", help="also time LaserFrontend.process (with recognition)")
+    ap.add_argument("--profile", type=int, default=0, help="print cProfile's top N functions of segment_scan")
     ap.add_argument("--against", type=Path, default=None, help="paired A/B against this checkout (see above)")
     ap.add_argument(
         "--scans-file", type=Path, default=None, help="the scans are read from this .npz if it exists, else saved to it"
@@ -285,6 +305,8 @@ def main(argv=None) -> int:
         return 0
     cfg = LaserConfig.model_validate(overrides)
     _segment(scans[0], cfg)  # warm-up (imports, open3d initialisation)
+    if args.profile:
+        return _profile(scans, cfg, args.profile)
     wall, cpu, stages, voxels = [], [], {}, []
     for scan in scans:
         for _ in range(args.repeat):
@@ -305,7 +327,9 @@ def main(argv=None) -> int:
         "voxel_size": cfg.preprocess.voxel_size,
         "runs": len(wall),
         "wall_median_s": round(float(np.median(wall)), 4),
+        "wall_p95_s": round(float(np.percentile(wall, 95)), 4),
         "cpu_median_s": round(float(np.median(cpu)), 4),
+        "cpu_p95_s": round(float(np.percentile(cpu, 95)), 4),
         "stage_median_s": {k: round(float(np.median(v)), 4) for k, v in stages.items()},  # wall; cpu_*: CPU
         "load_average_1min": round(load, 2),
         "cores": os.cpu_count(),

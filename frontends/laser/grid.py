@@ -164,6 +164,18 @@ def row_dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1] + a[:, 2] * b[:, 2]
 
 
+def median_of(x: np.ndarray) -> float:
+    """``np.median`` of a 1-D array of finite values, to the last bit (the same partition and the
+    same mean of the two middle values), without its ~20 µs of overhead per call: it runs a few
+    times per pipe hypothesis on a few hundred values."""
+    n = len(x)
+    k = n // 2
+    if n % 2:
+        return float(np.partition(x, k)[k])
+    s = np.partition(x, (k - 1, k))
+    return float((s[k - 1] + s[k]) / 2)
+
+
 def adjacency_of(nb: np.ndarray) -> csr_matrix:
     """M×M 0/1 matrix linking every cell to the cells of its row of ``nb`` (M×K indices, −1 for
     none), as given by :meth:`VoxelGrid.neighbours` (``h = 1``: itself and its 26-neighbours)."""

@@ -47,11 +47,13 @@ def _basis(up: np.ndarray) -> np.ndarray:
 
 
 def _box_sum(x: np.ndarray, k: int) -> np.ndarray:
-    """Sum over the (2k+1)² square around every cell of a 2-D array (zeros outside), by cumulative sums."""
-    c = np.pad(x, ((k + 1, k), (k + 1, k))).cumsum(0).cumsum(1)
-    n0, n1 = x.shape
+    """Sum over the (2k+1)² square around every cell of the 2-D arrays x[..., :, :] (zeros outside),
+    by cumulative sums (several layers in one call: on a grid of ~100×100 cells the calls, not the
+    arithmetic, are the cost)."""
+    c = np.pad(x, ((0, 0),) * (x.ndim - 2) + ((k + 1, k), (k + 1, k))).cumsum(-2).cumsum(-1)
+    n0, n1 = x.shape[-2:]
     w = 2 * k + 1
-    return c[w : w + n0, w : w + n1] - c[:n0, w : w + n1] - c[w : w + n0, :n1] + c[:n0, :n1]
+    return c[..., w : w + n0, w : w + n1] - c[..., :n0, w : w + n1] - c[..., w : w + n0, :n1] + c[..., :n0, :n1]
 
 
 @dataclass
@@ -76,9 +78,12 @@ class GroundModel:
     def height(self, points: np.ndarray) -> np.ndarray:
         """Height (m) of each point above the ground under it; NaN where there is no ground."""
         x, ij, inside = self._cells(points)
-        out = np.full(len(x), np.nan)
-        c = self.coef[ij[inside, 0], ij[inside, 1]]
-        out[inside] = x[inside, 2] - (c[:, 0] + c[:, 1] * x[inside, 0] + c[:, 2] * x[inside, 1])
+        # (every point's cell by one flat gather, cell 0 for those outside, which are then set to
+        # NaN: the same products per point as boolean selections of the inside ones, ~3x faster)
+        cell = np.where(inside, ij[:, 0] * self.coef.shape[1] + ij[:, 1], 0)
+        c = np.take(self.coef.reshape(-1, 3), cell, axis=0)
+        out = x[:, 2] - (c[:, 0] + c[:, 1] * x[:, 0] + c[:, 2] * x[:, 1])
+        out[~inside] = np.nan
         return out
 
     def is_ground(self, points: np.ndarray) -> np.ndarray:
@@ -110,9 +115,11 @@ def _fit_planes(a, b, h, w, ij, shape, k: int, ridge: float, max_slope: float, m
     flat = ij[:, 0] * shape[1] + ij[:, 1]
     n = shape[0] * shape[1]
     moments = [np.ones_like(a), w, w * a, w * b, w * h, w * a * a, w * a * b, w * b * b, w * a * h, w * b * h]
-    num, cnt, sa, sb, sh, saa, sab, sbb, sah, sbh = [
-        _box_sum(np.bincount(flat, m, n).reshape(shape), k) for m in moments
-    ]
+    # (all ten moments binned by one bincount, layer m of cell f at m·n + f, and box-summed at once:
+    # each bin adds its points in the same order as a bincount per moment, so the same sums)
+    layer = (np.arange(len(moments))[:, None] * n + flat[None, :]).ravel()
+    binned = np.bincount(layer, np.concatenate(moments), len(moments) * n).reshape((len(moments),) + shape)
+    num, cnt, sa, sb, sh, saa, sab, sbb, sah, sbh = _box_sum(binned, k)
     coef = np.full(shape + (3,), np.nan)
     ok = num >= _MIN_FIT
     if not ok.any():

@@ -30,6 +30,7 @@ from frontends.laser.grid import row_dot
 from frontends.laser.pipes import Pipe
 
 _AXIS_SAMPLES = 9  # points along the axis where the ground's height is read
+_SAMPLE_STEPS = np.arange(float(_AXIS_SAMPLES))
 
 
 def arc_span_deg(pipe: Pipe, points: np.ndarray) -> float:
@@ -72,8 +73,11 @@ def axis_height(pipe: Pipe, ground) -> float | None:
 def axis_height_of(p: np.ndarray, axis: np.ndarray, length: float, ground) -> float | None:
     """Median height (m) above the ground model of the axis from ``p`` along ``axis`` over
     ``length``, None where it knows no ground."""
-    t = np.linspace(0.0, length, _AXIS_SAMPLES)
-    h = ground.height(p + np.outer(t, axis))
+    # np.linspace(0, length, 9)'s values (k × length / 8, the last exactly length) and np.outer's
+    # products, without their Python overhead: this runs a few times per pipe segment
+    t = _SAMPLE_STEPS * (length / (_AXIS_SAMPLES - 1))
+    t[-1] = length
+    h = ground.height(p + t[:, None] * axis)
     h = np.sort(h[np.isfinite(h)])
     if not len(h):
         return None

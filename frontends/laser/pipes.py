@@ -29,7 +29,7 @@ import numpy as np
 
 from frontends.laser.config import PipeConfig
 from frontends.laser.eigen import eigen3_parts
-from frontends.laser.grid import row_dot, single_threaded_blas
+from frontends.laser.grid import median_of, row_dot, single_threaded_blas
 
 _REFINE_REACH = 0.05  # m beyond a pipe's surface over which a refinement looks for its inliers
 # A patch's normals must turn (mean sin² of their spread across the axis, a pipe of radius r over
@@ -359,7 +359,7 @@ def _circle_fit(x: np.ndarray) -> tuple[np.ndarray, float]:
         cx, r = cx + step[:2], r + step[2]
         if it in (2, 4):
             res = np.linalg.norm(x - cx, axis=1) - r
-            sigma = 1.4826 * np.median(np.abs(res[use]))
+            sigma = 1.4826 * median_of(np.abs(res[use]))
             keep = np.abs(res) <= max(3.0 * sigma, 0.003)
             if keep.sum() >= 6:
                 use = keep
@@ -443,7 +443,7 @@ def bump_profile(t: np.ndarray, residual: np.ndarray, cfg: PipeConfig) -> BumpPr
     s3 = np.convolve(sums, np.ones(3), "same")
     c3 = np.convolve(cnt, np.ones(3), "same")
     smooth = np.where(c3 >= 6, s3 / np.maximum(c3, 1), np.nan)
-    sigma = 1.4826 * float(np.median(np.abs(residual - med[b]))) if len(t) >= 10 else np.nan
+    sigma = 1.4826 * median_of(np.abs(residual - med[b])) if len(t) >= 10 else np.nan
     return BumpProfile(float(t0), b, cnt, med, level, smooth, sigma)
 
 
