@@ -80,11 +80,15 @@ class GroundModel:
         x, ij, inside = self._cells(points)
         # (every point's cell by one flat gather, cell 0 for those outside, which are then set to
         # NaN: the same products per point as boolean selections of the inside ones, ~3x faster)
-        cell = np.where(inside, ij[:, 0] * self.coef.shape[1] + ij[:, 1], 0)
-        c = np.take(self.coef.reshape(-1, 3), cell, axis=0)
-        out = x[:, 2] - (c[:, 0] + c[:, 1] * x[:, 0] + c[:, 2] * x[:, 1])
+        out = self._above_plane(x, np.where(inside, ij[:, 0] * self.coef.shape[1] + ij[:, 1], 0))
         out[~inside] = np.nan
         return out
+
+    def _above_plane(self, x: np.ndarray, cell: np.ndarray) -> np.ndarray:
+        """Height of points ``x`` (in the frame ``basis``) above the planes of their cells (flat
+        indices into the grid)."""
+        c = np.take(self.coef.reshape(-1, 3), cell, axis=0)
+        return x[:, 2] - (c[:, 0] + c[:, 1] * x[:, 0] + c[:, 2] * x[:, 1])
 
     def is_ground(self, points: np.ndarray) -> np.ndarray:
         """Points less than ``threshold`` above the ground (or below it)."""
@@ -196,12 +200,14 @@ def fit_ground(
         return _fit_planes(x[sel, 0], x[sel, 1], x[sel, 2], w[sel], ij[sel], *fit)
 
     model = GroundModel(basis, cfg.cell, lo, planes(cand), max(cfg.height, cfg.height_sigmas * sigma))
+    # (the points' heights above the planes from their frame coordinates and cells, known here: what
+    # model.height(points) computes again, every point inside the grid)
     for _ in range(_REFITS):  # on the candidates near the last fit (a pipe or a stone's flank in the band pulls it)
-        res = model.height(points)
+        res = model._above_plane(x, flat)
         near = cand & np.isfinite(res) & (np.abs(res) <= max(_REFIT_SIGMAS * sigma, cfg.height))
         model.coef = planes(near)
     # the ground's own roughness (ripples, gravel) about the planes counts as its noise
-    res = model.height(points)
+    res = model._above_plane(x, flat)
     near &= np.isfinite(res)
     if near.sum() >= _MIN_FIT:
         rough = 1.4826 * float(np.median(np.abs(res[near])))
