@@ -24,6 +24,9 @@ same checkout gives a ratio within ~2 % of 1. With ``--process`` too, the worker
     python experiments/bench_laser.py --source pipeline --against /tmp/before --every 5 --scans 40 --repeat 1
     python experiments/bench_laser.py --against /tmp/before --every 3 --scans 82 --repeat 1
     python experiments/bench_laser.py --against /tmp/before --every 3 --scans 40 --repeat 1 --process
+    python experiments/bench_laser.py --scans-file /tmp/tank.npz --profile 40   # cProfile, top 40 functions
+
+Reports medians and 95th percentiles of the per-scan times (paired: of both checkouts).
 """
 
 from __future__ import annotations
