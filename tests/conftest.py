@@ -13,6 +13,29 @@ import pytest
 signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
+# The longest files first: the suite runs whole files in two processes (pyproject's addopts), and a
+# long file drawn last would keep one process busy while the other has nothing left.
+LONGEST_FILES = (
+    "test_study.py",
+    "test_graph_window.py",
+    "test_odometry_frontend.py",
+    "test_gps_dive.py",
+    "test_memory_pipeline.py",
+    "test_laser_real.py",
+    "test_frontend_process.py",
+    "test_sonar_frontend.py",
+    "test_signals.py",
+)
+
+
+def pytest_collection_modifyitems(items):
+    def rank(item):
+        name = item.path.name
+        return LONGEST_FILES.index(name) if name in LONGEST_FILES else len(LONGEST_FILES)
+
+    items.sort(key=rank)  # stable: the order within a file and among the others is kept
+
+
 @pytest.fixture
 def sample_mission():
     """Factory: a small Mission with every measurement type, sidecar metadata and ground truth.
