@@ -18,8 +18,7 @@ For each batch of observations (one front-end's, of one measurement) the builder
    of each pipe, placed with the pose after the update);
 6. merges duplicates among the landmarks touched: two objects whose difference is compatible with zero
    (χ² at ``confidence``) or whose centres are closer than ``association.object_body_m``; two pipes on one axis
-   by the collinearity criterion (each one's seen stretch cut at the mapped in-line objects) whose line
-   difference is compatible with zero or which share over
+   by the collinearity criterion whose line difference is compatible with zero or which share over
    half of a stretch within ``duplicate_pipe_distance_m`` of each other's axis. The younger goes into the older (the estimator constrains the two to be one
    where the χ² test passed; otherwise it just drops the younger).
 
@@ -368,9 +367,7 @@ class MapBuilder:
                     continue
                 nis = None
                 if cos_ab[b] >= math.cos(a_cfg.merge_angle_rad):
-                    # b's stretch cut at the mapped in-line objects, as a's is: views of b that ran on
-                    # through a tee into a's stretch must not make the two collinear pipes one
-                    ends_b = self.book.extent(pid_b).ends(c_b, d_b, cutters, a_cfg.inline_object_radius_m)
+                    ends_b = self.book.extent(pid_b).ends(c_b, d_b)
                     if not self._on_pipe(ends_b, pid_a, c_a, d_a, separators, cutters):
                         continue
                     nis = self.state.difference_nis(pid_a, pid_b)
