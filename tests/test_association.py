@@ -172,7 +172,8 @@ def test_many_landmarks_and_numpy_candidate_indices():
     L = np.column_stack([np.arange(m) * 1.0, np.zeros(m), np.zeros(m)])
     Z = [L[j] + [0.001, 0, 0] for j in (3, 70, 99)]
     prob = UncorrelatedPointProblem(np.zeros(3), L, _joint_cov(m, 0.01, 0.01), Z, np.eye(3) * 0.01**2)
-    prob.candidate_landmarks = lambda i: np.arange(m, dtype=np.int64)
+    # a few candidates each, beyond bit 64 too (every landmark a candidate costs 300² cross blocks)
+    prob.candidate_landmarks = lambda i: np.array([0, 3, 64, 70, 71, 98, 99], dtype=np.int64)
     assert solve(prob, joint="low_rank") == [3, 70, 99]
     found, S = candidates(prob)
     assert jcbb(found, DenseJoint(found, S)) == [3, 70, 99]

@@ -428,6 +428,10 @@ class GraphLandmarks:
         S = la.information_covariance(gate=True) + lb.information_covariance(gate=True)
         return float(d @ inv_small(S) @ d)  # closed form: asked of every object pair after every scan
 
+    def gating_spread(self, ids: list[int]) -> np.ndarray:
+        """√trace of each object's gating covariance (the one :meth:`difference_nis` adds up)."""
+        return np.sqrt([np.trace(self.landmarks[lid].information_covariance(gate=True)) for lid in ids])
+
     def merge(self, keep: int, drop: int, constrain: bool) -> None:
         """``drop`` leaves the map; with ``constrain`` (objects) it is first tied to ``keep`` by a stiff
         zero-offset factor. An unconstrained one stays in the graph with its factors, unmapped."""

@@ -271,6 +271,13 @@ class FeatureMap:
         except np.linalg.LinAlgError:
             return None
 
+    def gating_spread(self, ids: list[int]) -> np.ndarray:
+        """√trace of each object's block of the state covariance (|tr P_ab| ≤ √(tr P_aa tr P_bb) bounds
+        the correlation :meth:`difference_nis` counts)."""
+        var = np.diag(self.nav.state.P)
+        index = {f.id: f.index for f in self.features}
+        return np.sqrt(var[np.array([index[lid] for lid in ids], int)[:, None] + np.arange(3)].sum(axis=1))
+
     def merge(self, keep: int, drop: int, constrain: bool) -> None:
         """Impose keep = drop (their difference, :meth:`_difference`, as a perfect measurement of zero)
         unless not ``constrain`` (the constraint would pull the state, the vehicle too, across a

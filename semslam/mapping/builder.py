@@ -45,6 +45,7 @@ from semslam.mapping.visibility import InView
 from semslam.observations import LineObservation, Observation, PointObservation, StructureObservation
 
 MAPPED_TYPES = (PointObservation, LineObservation, StructureObservation)
+SCREEN_SLACK = 1.0 + 1e-6  # the duplicate screen's bound widened past rounding: it skips only sure misses
 
 
 class Scan:
@@ -107,6 +108,11 @@ class LandmarkState(Protocol):
 
     def difference_nis(self, a: int, b: int) -> float | None:
         """χ² of the hypothesis that landmarks a and b are one (None: the estimator cannot test it)."""
+
+    def gating_spread(self, ids: list[int]) -> np.ndarray:
+        """Of each object (ids as :meth:`objects` gives them): √trace of the covariance its
+        :meth:`difference_nis` counts for it, so that the covariance S of the difference of two
+        objects a, b has λ_max(S) ≤ (spread_a + spread_b)² (correlations included)."""
 
     def merge(self, keep: int, drop: int, constrain: bool) -> None:
         """Landmark ``drop`` is ``keep`` mapped twice: it leaves the map; with ``constrain`` the two
@@ -311,16 +317,21 @@ class MapBuilder:
         gate = chi2_gate(self.assoc.confidence, 3)
         out = []
         row = {lid: r for r, lid in enumerate(ids)}
+        spread = self.state.gating_spread(ids)
         for a in sorted(touched & set(row)):
-            near = np.flatnonzero(np.linalg.norm(pos - pos[row[a]], axis=1) < self.assoc.pre_gate_m)
-            for r in near:
+            dist = np.linalg.norm(pos - pos[row[a]], axis=1)
+            # an exact screen: ν'S⁻¹ν ≥ |ν|² / λ_max(S) ≥ |ν|² / (spread_a + spread_b)², so a pair farther
+            # apart than that bound allows cannot pass the gate (a pair within one body is tested anyway, below)
+            can_pass = dist**2 < gate * SCREEN_SLACK * (spread + spread[row[a]]) ** 2
+            body = dist < self.assoc.object_body_m
+            for r in np.flatnonzero((dist < self.assoc.pre_gate_m) & (can_pass | body)):
                 b = ids[r]
                 if b == a or (b in touched and b < a):  # each pair once
                     continue
                 nis = self.state.difference_nis(a, b)
                 if nis is not None and nis < gate:
                     out.append((nis, a, b, gate))
-                elif np.linalg.norm(pos[r] - pos[row[a]]) < self.assoc.object_body_m:  # one body: dropped, not fused
+                elif body[r]:  # one body: dropped, not fused
                     out.append((math.inf if nis is None else nis, a, b, gate))
         return out
 
