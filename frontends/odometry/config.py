@@ -143,10 +143,10 @@ class OdometryConfig(BaseModel):
     )
     attitude: Literal["registration", "roll_pitch", "navigation"] = Field(
         "navigation",
-        description="where the scan's attitude comes from: 'registration' (kiss-icp's 6 DoF), 'roll_pitch' (the AHRS's "
-        "roll and pitch, kiss-icp's heading) or 'navigation' (the AHRS's whole attitude); with the last two the "
-        "translation is re-estimated with that attitude held, and the relative pose's rotation covariance is the "
-        "AHRS's where it is the AHRS's",
+        description="where the scan's rotation comes from: 'navigation' (the AHRS's angular rate integrated since "
+        "the last scan, or its attitude readings without rates), 'roll_pitch' (the AHRS's tilt, kiss-icp's heading) "
+        "or 'registration' (kiss-icp's 6 DoF); with the first two the translation is re-solved with that rotation "
+        "held, and the relative pose's rotation covariance is the navigation prior's",
     )
     restart_after: int = Field(
         3, ge=1, description="this many rejected scans in a row start a new local map at the next usable scan"

@@ -161,8 +161,11 @@ class ScanMatcher:
             pose[:3, 3] = planes.translation(source, pose, 3 * sigma, sigma / 3)
             info, n_in, residual_var = planes.information(source, pose, 3 * sigma)
             cov = self._held_covariance(info, residual_var, n_in, cov, rotation_cov, pose[:3, :3])
-        rejected = self._judge(icp_correction, cov, n_in, len(source))
         correction = np.linalg.inv(predicted) @ pose
+        # kiss-icp's rotation is judged, and the translation where it ends (re-solved: it may walk further)
+        judged = icp_correction.copy()
+        judged[:3, 3] = max((icp_correction[:3, 3], correction[:3, 3]), key=np.linalg.norm)
+        rejected = self._judge(judged, cov, n_in, len(source))
         if rejected is None:
             self.kiss.adaptive_threshold.update_model_deviation(correction)
             self._add(stamp, down, pose)
