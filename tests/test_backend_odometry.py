@@ -58,7 +58,7 @@ def _ate(result, mission):
 def drifting_mission():
     # A long DVL dropout: dead reckoning drifts, relative poses across it bound the drift.
     return simulate(
-        SyntheticConfig(duration_s=120.0, n_objects=0, n_pipes=0, n_structures=0, dropouts=((30.0, 40.0),), seed=5)
+        SyntheticConfig(duration_s=75.0, n_objects=0, n_pipes=0, n_structures=0, dropouts=((20.0, 40.0),), seed=5)
     )
 
 

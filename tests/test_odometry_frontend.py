@@ -28,6 +28,13 @@ def mission():
     return simulate_tank(TankSimConfig.model_validate({"seed": 3, "trajectory": {"loops": 0.32}}))
 
 
+@pytest.fixture(scope="module")
+def registered(mission):
+    """The front-end's summary and observations on ``mission``, with its default settings."""
+    fe, obs = _register(mission)
+    return fe.finish().metrics, obs
+
+
 def _truth(mission):
     poses = {m.stamp: m.matrix() for m in mission if isinstance(m, GroundTruthPose)}
     stamps = np.array(sorted(poses))
@@ -59,19 +66,21 @@ def test_registered_through_the_entry_point_like_the_others():
     assert load_frontend_class("odometry") is OdometryFrontend
 
 
-def test_relative_poses_are_accurate_and_consistent(mission):
-    fe, obs = _register(mission)
+def test_relative_poses_are_accurate_and_consistent(mission, registered):
+    metrics, obs = registered
     n_scans = sum(isinstance(m, PointCloud) for m in mission)
     assert len(obs) >= n_scans // 2  # the scans from the surface see too little; the rest register
     err = _errors(mission, obs)
     trans = np.linalg.norm(err[:, 3:], axis=1)
-    # The navigation prior alone is off by ~3 cm per 2 s scan interval here; ICP does better.
-    assert np.median(trans) < 0.025
+    # The navigation prior alone is off by ~3 cm per 2 s scan interval here, kiss-icp's own attitude by ~0.5°
+    # (2–4 cm at the rack's 3 m); with the rotation from the AHRS's rates (~0.05°) the translation is to mm.
+    assert np.median(trans) < 0.01
+    assert np.degrees(np.median(np.linalg.norm(err[:, :3], axis=1))) < 0.15
     assert trans.max() < 0.12
     nees = np.array([e @ np.linalg.solve(z.covariance, e) for e, z in zip(err, obs)])
     # 6-DoF: a consistent covariance gives a mean near 6; within a factor 2 either way
     assert 3.0 < nees.mean() < 12.0
-    assert fe.finish().metrics["accepted"] == len(obs)
+    assert metrics["accepted"] == len(obs)
 
 
 def _corrupted(mission, shifted: int, floor_only: int):
@@ -93,8 +102,8 @@ def _corrupted(mission, shifted: int, floor_only: int):
     return Mission.from_measurements(mission.metadata, [corrupt(m) for m in mission]), bad
 
 
-def test_gate_rejects_a_shifted_and_a_featureless_scan(mission):
-    _, clean = _register(mission)
+def test_gate_rejects_a_shifted_and_a_featureless_scan(mission, registered):
+    _, clean = registered
     registered = [z.stamp for z in clean]
     corrupted, bad = _corrupted(mission, shifted=-8, floor_only=-4)
     assert set(bad) <= set(registered)  # both scans registered when clean
@@ -133,10 +142,10 @@ def test_run_with_odometry_alone(tmp_path):
     assert e["ate_rmse_m"] is not None
 
 
-def test_odometry_observations_are_body_motion(mission):
+def test_odometry_observations_are_body_motion(mission, registered):
     """The relative pose is the body's (T_B(from),B(to)), not the sensor's: against the truth's body
     motion, the sensor's would be off by the lever arm's rotation (~cm for a 0.6 m arm turning)."""
-    _, obs = _register(mission)
+    _, obs = registered
     assert all(isinstance(z, OdometryObservation) and z.sensor == "laser" for z in obs)
     err = _errors(mission, obs)
     T_BS = mission.metadata.extrinsic("laser")

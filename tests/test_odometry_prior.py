@@ -57,3 +57,34 @@ def test_deep_in_a_dropout_the_velocity_error_since_the_reading_counts():
     p = _prior(valid=lambda t: not (1 * S < t < 9 * S), seconds=8.0, depth_var=0.0, sigma_att=0.0)
     var = p.motion_covariance(5 * S, 7 * S)[3, 3]
     assert var == pytest.approx(0.01**2 * 2.0**2 + 0.02**2 * (4.0 * 2.0**2 + 2.0**3 / 3), rel=1e-6)
+
+
+def test_rotation_between_stamps_is_the_integrated_angular_rate_with_its_own_noise():
+    """Turning at 0.04 rad/s while the pitch wobbles, AHRS attitudes with 0.5° of heading noise and
+    rates with 3 mrad/s: the rotation between two stamps 2 s apart is the rates' (error ~0.04°, where
+    two attitude readings differ by ~0.7°), the rates' noise is estimated from their second differences,
+    and the covariance says so."""
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(0)
+    sigma_w, turn = 0.003, 0.04
+
+    def true_R(t):
+        return Rotation.from_euler("ZYX", [turn * t, 0.02 * np.sin(2 * np.pi * t / 7.3), 0.0])
+
+    p = NavigationPrior(META, horizon_s=60.0)
+    errors, nees = [], []
+    for k in range(20 * 30 + 1):
+        t = k / 20
+        noisy = true_R(t) * Rotation.from_rotvec(rng.normal(0.0, [0.002, 0.002, np.radians(0.5)]))
+        rate = (true_R(t - 1e-4).inv() * true_R(t + 1e-4)).as_rotvec() / 2e-4 + rng.normal(0.0, sigma_w, 3)
+        p.add(Attitude(int(t * S), "ahrs", orientation=noisy.as_quat(), covariance=np.eye(3), angular_rate=rate))
+        if t >= 4 and k % 20 == 0:
+            a, b = int((t - 2) * S), int(t * S)
+            truth = (true_R(t - 2).inv() * true_R(t)).as_matrix()
+            e = Rotation.from_matrix(truth.T @ p.motion(a, b)[:3, :3]).as_rotvec()
+            errors.append(np.linalg.norm(e))
+            nees.append(e @ np.linalg.solve(p.motion_covariance(a, b)[:3, :3], e))
+    assert np.sqrt(p.gyro_variance()) == pytest.approx(sigma_w, rel=0.1)
+    assert np.degrees(np.median(errors)) < 0.1
+    assert 1.5 < np.mean(nees) < 5.0  # 3 DoF

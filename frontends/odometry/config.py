@@ -14,6 +14,8 @@ more than 0.05 rad or 0.35 m is rejected.
 
 from __future__ import annotations
 
+from typing import Literal
+
 from pydantic import BaseModel, ConfigDict, Field
 
 
@@ -110,6 +112,20 @@ class CovarianceSettings(BaseModel):
         "(m/s per √s)",
     )
 
+    held_scale: float = Field(
+        0.39,
+        gt=0,
+        description="multiplies the scaled and floored σ²·H_tt⁻¹ of the translation solved with the attitude held "
+        "(attitude 'navigation' or 'roll_pitch'; fitted on tuning seeds, experiments/odometry/README.md)",
+    )
+    gyro_sigma_rad_s: float | None = Field(
+        None,
+        gt=0,
+        description="white noise of the AHRS's angular rate per reading (rad/s; the messages carry none; null: "
+        "estimated from the readings' second differences): the rotation between two scans, integrated from it, "
+        "has σ²·dt·T (dt the readings' interval, T the scans')",
+    )
+
 
 class OdometryConfig(BaseModel):
     """Laser odometry from kiss-icp, seeded and gated by the navigation prior (DVL + AHRS + depth)."""
@@ -124,6 +140,13 @@ class OdometryConfig(BaseModel):
         gt=0,
         description="the local map holds the scans accepted in the last this many seconds (kiss-icp forgets only "
         "by distance, and a vehicle circling a structure stays within range: a map a loop old holds that loop's drift)",
+    )
+    attitude: Literal["registration", "roll_pitch", "navigation"] = Field(
+        "navigation",
+        description="where the scan's rotation comes from: 'navigation' (the AHRS's angular rate integrated since "
+        "the last scan, or its attitude readings without rates), 'roll_pitch' (the AHRS's tilt, kiss-icp's heading) "
+        "or 'registration' (kiss-icp's 6 DoF); with the first two the translation is re-solved with that rotation "
+        "held, and the relative pose's rotation covariance is the navigation prior's",
     )
     restart_after: int = Field(
         3, ge=1, description="this many rejected scans in a row start a new local map at the next usable scan"

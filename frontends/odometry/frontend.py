@@ -45,7 +45,10 @@ class OdometryFrontend(Frontend):
         self.config = validated(OdometryConfig, config, "frontends.odometry")
         self.metadata = metadata
         self.prior = NavigationPrior(
-            metadata, horizon_s=self.config.max_interval_s + 5.0, hold_walk_m_s=self.config.covariance.hold_walk_m_s
+            metadata,
+            horizon_s=self.config.max_interval_s + 5.0,
+            hold_walk_m_s=self.config.covariance.hold_walk_m_s,
+            gyro_sigma_rad_s=self.config.covariance.gyro_sigma_rad_s,
         )
         self.sensors = set(self.config.sensors) or {s.name for s in metadata.sensors_of_kind("laser")}
         self._tracks: dict[str, _Track] = {}
@@ -72,7 +75,7 @@ class OdometryFrontend(Frontend):
             self._start(track, scan)
             return []
         predicted = track.last_pose @ np.linalg.inv(T_BS) @ motion @ T_BS
-        reg = track.matcher.register(scan.points, predicted, scan.stamp)
+        reg = track.matcher.register(scan.points, predicted, scan.stamp, self._rotation_cov(T_BS, track, scan.stamp))
         track.last_stamp = scan.stamp
         if reg.rejected is not None:
             track.last_pose = predicted  # the chain goes on with the prior; the map is untouched
@@ -97,6 +100,17 @@ class OdometryFrontend(Frontend):
             )
         ]
 
+    def _rotation_cov(self, T_BS: np.ndarray, track: _Track, stamp: int) -> np.ndarray | None:
+        """The navigation prior's covariance of the sensor's rotation since the map's last accepted scan
+        (3×3, sensor frame): what the registration's attitude is when it is held to the AHRS's."""
+        if track.anchor_stamp is None:
+            return None
+        prior_B = self.prior.motion_covariance(track.anchor_stamp, stamp)
+        if prior_B is None:
+            return None
+        R_SB = T_BS[:3, :3].T
+        return R_SB @ prior_B[:3, :3] @ R_SB.T
+
     def _tail_scaled(self, reg, A: np.ndarray, stamp_from: int, stamp_to: int) -> np.ndarray:
         """The registration's covariance (sensor frame) times (ν + d²)/(ν + 6), d² the correction
         ICP made to the prior, under the prior's covariance over the same interval."""
@@ -111,10 +125,12 @@ class OdometryFrontend(Frontend):
     def _start(self, track: _Track, scan: PointCloud) -> None:
         """A new local map anchored at this scan (first scan, long gap, or lost overlap); a scan too
         sparse to anchor one leaves the map empty until the next."""
-        track.last_stamp, track.last_pose = scan.stamp, np.eye(4)
+        start = np.eye(4)  # the map frame: the navigation frame's axes (z down, the vertical), at this scan
+        start[:3, :3] = self.prior.pose_at(scan.stamp)[:3, :3] @ self.metadata.extrinsic(scan.sensor)[:3, :3]
+        track.last_stamp, track.last_pose = scan.stamp, start
         track.rejections = 0
-        if track.matcher.start(scan.points, np.eye(4), scan.stamp):
-            track.anchor_stamp, track.anchor_pose = scan.stamp, np.eye(4)
+        if track.matcher.start(scan.points, start, scan.stamp):
+            track.anchor_stamp, track.anchor_pose = scan.stamp, start
             self.counts["map_starts"] += 1
         else:
             self.counts["rejected_sparse"] += 1

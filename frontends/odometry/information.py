@@ -48,17 +48,29 @@ def rotation_angle(R: np.ndarray) -> float:
     return float(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0)))
 
 
+def fitted_planes(neighbours: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(unit normals (n, 3), centroids (n, 3)) of the planes fitted to each point's map ``neighbours`` (n, k, 3)."""
+    centroids = neighbours.mean(axis=1)
+    centred = neighbours - centroids[:, None]
+    _, vecs = np.linalg.eigh(np.einsum("nki,nkj->nij", centred, centred))
+    return vecs[..., 0], centroids  # the direction of least spread
+
+
+def twist_angle(R: np.ndarray, axis: np.ndarray) -> float:
+    """The angle of R's rotation about the unit ``axis`` (swing-twist decomposition: R = swing · twist,
+    the swing about an axis perpendicular to it)."""
+    x, y, z, w = Rotation.from_matrix(R).as_quat()
+    return float(2.0 * np.arctan2(np.dot([x, y, z], axis), w))
+
+
 def plane_information(
     source: np.ndarray, world: np.ndarray, neighbours: np.ndarray, R: np.ndarray
 ) -> tuple[np.ndarray, int, float]:
     """Information (Σ JᵀJ, 6×6) of point-to-plane residuals nᵢ·(R pᵢ + t − qᵢ) about the pose T_OS,
     with the plane of each matched point fitted to its map ``neighbours`` (n, k, 3), and the
     residuals' variance. ``source`` are the scan points in {S}, ``world`` the same in {O}."""
-    centred = neighbours - neighbours.mean(axis=1, keepdims=True)
-    scatter = np.einsum("nki,nkj->nij", centred, centred)
-    _, vecs = np.linalg.eigh(scatter)
-    normals = vecs[..., 0]  # the direction of least spread
-    residual = np.einsum("ni,ni->n", normals, world - neighbours.mean(axis=1))
+    normals, centroids = fitted_planes(neighbours)
+    residual = np.einsum("ni,ni->n", normals, world - centroids)
     # d/dξ of n·(R(p + ω×p) + t + R v) = nᵀR [−[p]×, I]
     nR = normals @ R  # rows nᵀR
     J = np.concatenate([np.einsum("ni,nij->nj", nR, -skew(source)), nR], axis=1)

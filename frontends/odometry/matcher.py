@@ -16,11 +16,14 @@ import numpy as np
 from kiss_icp.config import KISSConfig
 from kiss_icp.kiss_icp import KissICP
 from scipy.spatial import cKDTree
+from scipy.spatial.transform import Rotation
 
 from frontends.odometry.config import OdometryConfig
-from frontends.odometry.information import plane_information, rotation_angle
+from frontends.odometry.information import fitted_planes, plane_information, rotation_angle, twist_angle
 
 NORMAL_NEIGHBOURS = 8
+TRANSLATION_ITERATIONS = 10
+VERTICAL = np.array([0.0, 0.0, 1.0])  # the map frame's z: the navigation frame's (NED) down
 
 
 @dataclass(frozen=True)
@@ -133,9 +136,14 @@ class ScanMatcher:
         self._add(stamp, down, pose)
         return True
 
-    def register(self, points: np.ndarray, predicted: np.ndarray, stamp: int) -> Registration:
+    def register(
+        self, points: np.ndarray, predicted: np.ndarray, stamp: int, rotation_cov: np.ndarray | None = None
+    ) -> Registration:
         """Align ``points`` (sensor frame, taken at ``stamp``) to the map starting from ``predicted``
-        (T_OS); the map takes the scan only if the registration passes the gate."""
+        (T_OS, in a map frame whose z axis is the vertical); the map takes the scan only if the
+        registration passes the gate. ``rotation_cov``: the navigation prior's covariance (3×3, sensor
+        frame) of the scan's rotation relative to the map's, used where the attitude is held to it
+        (``attitude``)."""
         source, down = self._prepared(points)
         gate = self.cfg.gate
         if len(source) < gate.min_inliers:
@@ -143,34 +151,60 @@ class ScanMatcher:
             return Registration(predicted, np.eye(4), nan, nan, np.nan, 0, len(source), "too few points")
         sigma = self.kiss.adaptive_threshold.get_threshold()
         pose = self.kiss.registration.align_points_to_map(source, self.kiss.local_map, predicted, 3 * sigma, sigma)
-        correction = np.linalg.inv(predicted) @ pose
-        info, n_in, residual_var = self._information(source, pose, 3 * sigma)
+        icp_correction = np.linalg.inv(predicted) @ pose
+        world = source @ pose[:3, :3].T + pose[:3, 3]
+        planes = _MapPlanes(np.asarray(self.kiss.local_map.point_cloud()), world, 3 * sigma)
+        info, n_in, residual_var = planes.information(source, pose, 3 * sigma)
         cov = self._covariance(info, residual_var, n_in)
-        rejected = self._judge(correction, cov, n_in, len(source))
+        if self.cfg.attitude != "registration" and rotation_cov is not None and np.isfinite(cov).all():
+            pose[:3, :3] = self._held_rotation(pose[:3, :3], predicted[:3, :3])
+            pose[:3, 3] = planes.translation(source, pose, 3 * sigma, sigma / 3)
+            info, n_in, residual_var = planes.information(source, pose, 3 * sigma)
+            cov = self._held_covariance(info, residual_var, n_in, cov, rotation_cov, pose[:3, :3])
+        correction = np.linalg.inv(predicted) @ pose
+        # kiss-icp's rotation is judged, and the translation where it ends (re-solved: it may walk further)
+        judged = icp_correction.copy()
+        judged[:3, 3] = max((icp_correction[:3, 3], correction[:3, 3]), key=np.linalg.norm)
+        rejected = self._judge(judged, cov, n_in, len(source))
         if rejected is None:
             self.kiss.adaptive_threshold.update_model_deviation(correction)
             self._add(stamp, down, pose)
         return Registration(pose, correction, cov, info, residual_var, n_in, len(source), rejected)
 
-    def _information(self, source: np.ndarray, pose: np.ndarray, max_distance: float):
-        """Point-to-plane information of the aligned scan against the map (6×6, per unit residual
-        variance), its inlier count and the residuals' variance. Point-to-plane, not the
-        point-to-point cost ICP minimised: its Hessian is n·I in translation whatever the geometry,
-        while the plane residuals see that a flat floor fixes nothing along itself."""
-        world = source @ pose[:3, :3].T + pose[:3, 3]
-        map_points = np.asarray(self.kiss.local_map.point_cloud())
-        reach = 2 * max_distance  # the map beyond the scan's box by more than the query's bound is never a neighbour
-        box = np.all((map_points >= world.min(axis=0) - reach) & (map_points <= world.max(axis=0) + reach), axis=1)
-        map_points = map_points[box]
-        if len(map_points) < NORMAL_NEIGHBOURS:
-            return np.zeros((6, 6)), 0, np.inf
-        tree = cKDTree(map_points)
-        dist, idx = tree.query(world, k=NORMAL_NEIGHBOURS, distance_upper_bound=max_distance * 2)
-        near = np.isfinite(dist[:, 0]) & (dist[:, 0] <= max_distance) & np.isfinite(dist).all(axis=1)
-        if near.sum() < 6:
-            return np.zeros((6, 6)), int(near.sum()), np.inf
-        neighbours = map_points[idx[near]]  # (n, k, 3)
-        return plane_information(source[near], world[near], neighbours, pose[:3, :3])
+    def _held_rotation(self, R_icp: np.ndarray, R_pred: np.ndarray) -> np.ndarray:
+        """The scan's rotation with the navigation's attitude: the prior's whole (``navigation``), or
+        the prior's tilt turned about the vertical by kiss-icp's heading correction (``roll_pitch``)."""
+        if self.cfg.attitude == "navigation":
+            return R_pred.copy()
+        heading = twist_angle(R_icp @ R_pred.T, VERTICAL)
+        return Rotation.from_rotvec(heading * VERTICAL).as_matrix() @ R_pred
+
+    def _held_covariance(self, info, residual_var, n, icp_cov, rotation_cov, R_OS) -> np.ndarray:
+        """Covariance of the pose whose rotation is held and whose translation is solved given it: the
+        rotation's is the prior's ``rotation_cov`` (with ``roll_pitch``, the heading's variance is
+        kiss-icp's); the translation's is σ²·H_tt⁻¹ of the point-to-plane residuals with the rotation
+        fixed, scaled and floored like the free one, plus what the held rotation's error moves it by
+        (−H_tt⁻¹·H_tr per radian: the scan's points are metres from the sensor)."""
+        c = self.cfg.covariance
+        if n < 6 or not np.isfinite(residual_var):
+            return np.full((6, 6), np.inf)
+        try:
+            H_tt_inv = np.linalg.inv(info[3:, 3:])
+        except np.linalg.LinAlgError:
+            return np.full((6, 6), np.inf)
+        cov_rot = rotation_cov
+        if self.cfg.attitude == "roll_pitch":
+            up = R_OS.T @ VERTICAL  # the vertical in the sensor frame
+            tilt = np.eye(3) - np.outer(up, up)
+            cov_rot = tilt @ rotation_cov @ tilt + (up @ icp_cov[:3, :3] @ up) * np.outer(up, up)
+        K = -H_tt_inv @ info[3:, :3]  # translation error per rotation error
+        cov = np.zeros((6, 6))
+        cov[:3, :3] = cov_rot
+        cov[3:, :3] = K @ cov_rot
+        cov[:3, 3:] = cov[3:, :3].T
+        measured = c.scale * residual_var * H_tt_inv + np.eye(3) * c.floor_sigma_m**2
+        cov[3:, 3:] = c.held_scale * measured + K @ cov_rot @ K.T
+        return cov
 
     def _covariance(self, info: np.ndarray, residual_var: float, n: int) -> np.ndarray:
         c = self.cfg.covariance
@@ -199,3 +233,53 @@ class ScanMatcher:
         if np.linalg.norm(correction[:3, 3]) > g.max_translation_correction_m:
             return "translation_correction"
         return None
+
+
+class _MapPlanes:
+    """The local map's points near one scan, with the plane of each scan point's map neighbours: the
+    point-to-plane residuals behind the covariance, and the translation solved with the rotation held."""
+
+    def __init__(self, map_points: np.ndarray, world: np.ndarray, max_distance: float):
+        reach = 2 * max_distance  # the map beyond the scan's box by more than the queries' bound is never a neighbour
+        box = np.all((map_points >= world.min(axis=0) - reach) & (map_points <= world.max(axis=0) + reach), axis=1)
+        self.points = map_points[box]
+        self.tree = cKDTree(self.points) if len(self.points) >= NORMAL_NEIGHBOURS else None
+
+    def _match(self, world: np.ndarray, max_distance: float):
+        """(scan points with a map neighbour within ``max_distance``, their neighbours (n, k, 3))."""
+        if self.tree is None:
+            return np.zeros(len(world), bool), np.zeros((0, NORMAL_NEIGHBOURS, 3))
+        dist, idx = self.tree.query(world, k=NORMAL_NEIGHBOURS, distance_upper_bound=max_distance * 2)
+        near = np.isfinite(dist[:, 0]) & (dist[:, 0] <= max_distance) & np.isfinite(dist).all(axis=1)
+        return near, self.points[idx[near]]
+
+    def information(self, source: np.ndarray, pose: np.ndarray, max_distance: float):
+        """Point-to-plane information of the scan at ``pose`` against the map (6×6, per unit residual
+        variance), its inlier count and the residuals' variance. Point-to-plane, not the
+        point-to-point cost ICP minimised: its Hessian is n·I in translation whatever the geometry,
+        while the plane residuals see that a flat floor fixes nothing along itself."""
+        world = source @ pose[:3, :3].T + pose[:3, 3]
+        near, neighbours = self._match(world, max_distance)
+        if near.sum() < 6:
+            return np.zeros((6, 6)), int(near.sum()), np.inf
+        return plane_information(source[near], world[near], neighbours, pose[:3, :3])
+
+    def translation(self, source: np.ndarray, pose: np.ndarray, max_distance: float, kernel: float) -> np.ndarray:
+        """The translation that minimises the robust (Geman-McClure, kiss-icp's kernel) point-to-plane
+        residuals with the rotation held at ``pose``'s: given R each step is closed-form (3×3 normal
+        equations); a direction the planes do not fix keeps its start."""
+        R, t = pose[:3, :3], pose[:3, 3].copy()
+        rotated = source @ R.T
+        for _ in range(TRANSLATION_ITERATIONS):
+            near, neighbours = self._match(rotated + t, max_distance)
+            if near.sum() < 6:
+                break
+            normals, centroids = fitted_planes(neighbours)
+            r = np.einsum("ni,ni->n", normals, rotated[near] + t - centroids)
+            w = kernel**2 / (kernel + r**2) ** 2
+            H = (normals * w[:, None]).T @ normals
+            step = -np.linalg.lstsq(H, normals.T @ (w * r), rcond=1e-6)[0]
+            t += step
+            if np.linalg.norm(step) < 1e-5:
+                break
+        return t
