@@ -102,7 +102,9 @@ class LeftCovariances(Mapping):
     def _all(self) -> dict[int, np.ndarray]:
         if self._read is None:
             rows = self._rows.array()
-            self._read = {int(k): np.asfortranarray(c[:d, :d]) for k, d, c in zip(rows["key"], rows["dim"], rows["cov"])}
+            self._read = {
+                int(k): np.asfortranarray(c[:d, :d]) for k, d, c in zip(rows["key"], rows["dim"], rows["cov"])
+            }
         return self._read
 
     def __getitem__(self, key: int) -> np.ndarray:
