@@ -20,6 +20,10 @@ GTSAM's C++ ones not; the run is ~2× slower) and lists the allocation sites (by
 allocated after the window filled (1.5 × window_s, its first slide) and is still held when the
 estimator finishes: what grows with the mission.
 
+After the mission, the RSS and the peak RSS so far are taken at each stage of the run's end
+(``end_phases``: the mission streamed, the estimator's result, the metrics, the outputs written):
+which of them makes the peak.
+
 ``run`` keeps no observation: of each labelled object observation, the numbers the recognition
 tables read (``PipelineResult.labelled``, ~100 bytes a view).
 
@@ -131,6 +135,29 @@ class MemoryProbe:
         }
 
 
+class EndPhases:
+    """The RSS and the peak RSS so far after each stage of the run's end (the peak is reached after
+    the mission: which stage raised it)."""
+
+    def __init__(self):
+        self.rows: list[dict] = []
+
+    def mark(self, phase: str) -> None:
+        peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024 / 1e6  # ru_maxrss: KiB
+        self.rows.append({"phase": phase, "rss_mb": rss_mb(), "peak_rss_mb": peak})
+
+    def after(self, module, name: str, phase: str) -> None:
+        """Mark ``phase`` after each call of ``module.name`` (looked up there at call time by the command)."""
+        fn = getattr(module, name)
+
+        def marked(*args, **kwargs):
+            out = fn(*args, **kwargs)
+            self.mark(phase)
+            return out
+
+        setattr(module, name, marked)
+
+
 def growth(end, filled, by: str, n: int) -> list[dict]:
     """The ``n`` allocation sites (``by``: "lineno" or "traceback") that grew most from ``filled`` to ``end``."""
     rows = []
@@ -161,6 +188,7 @@ def measure(bag: Path, every_s: float, out_json: Path, trace: bool, count: bool,
     import tracemalloc
 
     import semslam.estimators
+    import semslam.eval.outputs
     from semslam.cli import app
     from semslam.pipeline import observed_by
 
@@ -174,12 +202,18 @@ def measure(bag: Path, every_s: float, out_json: Path, trace: bool, count: bool,
         def finish_after_snapshot():  # what the estimator holds before it assembles its result
             if trace:
                 probe.end, probe.end_mb = tracemalloc.take_snapshot(), tracemalloc.get_traced_memory()[0] / 1e6
-            return finish()
+            phases.mark("mission streamed")
+            result = finish()
+            phases.mark("estimator finished (marginals, map, histories)")
+            return result
 
         est.finish = finish_after_snapshot
         return est
 
     semslam.estimators.create_estimator = capture
+    phases = EndPhases()
+    phases.after(semslam.eval.outputs, "build_metrics", "metrics built")
+    phases.after(semslam.eval.outputs, "write_run", "outputs written")
     out_dir = out_json.with_suffix(".run")
     t0 = time.perf_counter()
     with observed_by(probe):
@@ -201,6 +235,7 @@ def measure(bag: Path, every_s: float, out_json: Path, trace: bool, count: bool,
         "window_s": probe.graph.cfg.window_s,
         "graph": metrics["estimators"]["graph"],
         "growth_after_window_filled": grew,
+        "end_phases": phases.rows,
     }
     out_json.write_text(json.dumps(result, indent=1))
 
@@ -288,6 +323,8 @@ def main() -> None:
         if len(after) >= 2:
             slope = slope_mb_per_min(after)
             print(f"RSS after the window filled ({fill_s / 60:.1f} min of mission on): {slope:+.2f} MB/min")
+    for row in result.get("end_phases", []):
+        print(f"after {row['phase']}: RSS {row['rss_mb']:.0f} MB, peak so far {row['peak_rss_mb']:.0f} MB")
     g = result["graph"]
     print(
         f"peak RSS {result['peak_rss_mb']:.0f} MB; wall {result['wall_s']:.0f} s; graph ATE {g['ate_rmse_m']}, "

@@ -6,34 +6,63 @@ through an :class:`EstimateView`, and at the end returns an :class:`EstimatorRes
 
 from __future__ import annotations
 
+import os
 import tempfile
 from abc import ABC, abstractmethod
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
+from contextlib import contextmanager
+from contextvars import ContextVar
 from dataclasses import dataclass, field
+from tempfile import TemporaryFile
 from typing import ClassVar
 
 import numpy as np
 
+from semslam.errors import SemslamError
 from semslam.mission.measurements import Measurement
 from semslam.observations import Observation
 
 LANDMARK_KINDS = ("object", "pipe", "structure")
 
 
+class SpillError(SemslamError):
+    """A run's spill file (what it appends for hours, on disk) cannot be written or read back:
+    a full disk, a quota, a directory gone."""
+
+
+SPILL_CHUNK_ROWS = 4096  # rows a SpillLog holds in memory, by default
+
+_SPILL_DIR: ContextVar[str | os.PathLike | None] = ContextVar("semslam_spill_dir", default=None)
+
+
+@contextmanager
+def spilling_into(directory: str | os.PathLike | None) -> Iterator[None]:
+    """Every :class:`SpillLog` that opens its file inside the block and was given no directory of its
+    own opens it in ``directory`` (None: the enclosing block's, else the system's temporary directory):
+    a run puts them on its output's filesystem (its staging directory), not on a /tmp that may be memory."""
+    token = _SPILL_DIR.set(directory if directory is not None else _SPILL_DIR.get())
+    try:
+        yield
+    finally:
+        _SPILL_DIR.reset(token)
+
+
 class SpillLog:
     """Rows of one numpy ``dtype`` appended one at a time over a run of any length (a survey's
     ground truth, views, timings), kept on disk: only the last ``chunk`` rows are in memory, the
-    rest in an anonymous temporary file in ``directory`` (default: the system's), which no directory
-    lists and which goes with the process however it ends. :meth:`array` reads them all back."""
+    rest in an anonymous temporary file in ``directory`` (default: that of the enclosing
+    :func:`spilling_into` when the file is opened, else the system's), which no directory lists and
+    which goes with the process however it ends. :meth:`array` reads them all back. A file that
+    cannot be written or read (a full disk) raises :class:`SpillError`, one line naming the directory."""
 
     __slots__ = ("dtype", "_plain", "_directory", "_file", "_buffer", "_buffered", "_spilled")
 
-    def __init__(self, dtype, chunk: int = 4096, directory=None):
+    def __init__(self, dtype, chunk: int | None = None, directory=None):
         self.dtype = np.dtype(dtype)
         self._plain = self.dtype.names is None  # one value a row, not a record
         self._directory = directory
         self._file = None  # opened when the first chunk is full
-        self._buffer = np.empty(chunk, self.dtype)
+        self._buffer = np.empty(chunk or SPILL_CHUNK_ROWS, self.dtype)
         self._buffered = 0
         self._spilled = 0
 
@@ -45,22 +74,39 @@ class SpillLog:
         self._buffer[self._buffered] = row[0] if self._plain else row
         self._buffered += 1
         if self._buffered == len(self._buffer):
+            self._spill()
+
+    def _spill(self) -> None:
+        try:
             if self._file is None:
-                self._file = tempfile.TemporaryFile(prefix="semslam-", suffix=".rows", dir=self._directory)
+                if self._directory is None:
+                    self._directory = _SPILL_DIR.get()
+                self._file = TemporaryFile(prefix="semslam-", suffix=".rows", dir=self._directory)
             self._file.write(self._buffer.tobytes())
-            self._spilled += self._buffered
-            self._buffered = 0
+        except OSError as exc:
+            raise SpillError(self._failure(exc)) from None
+        self._spilled += self._buffered
+        self._buffered = 0
+
+    def _failure(self, exc: OSError) -> str:
+        where = self._directory if self._directory is not None else tempfile.gettempdir()
+        return f"{where}: the run's spill file: {exc.strerror or exc}"
 
     def array(self) -> np.ndarray:
         """Every row appended, in order (a new array: the log goes on)."""
         rows = np.empty(len(self), self.dtype)
         if self._spilled:
-            self._file.flush()
-            self._file.seek(0)
-            got = self._file.readinto(rows[: self._spilled].view(np.uint8))
+            try:
+                self._file.flush()
+                self._file.seek(0)
+                got = self._file.readinto(rows[: self._spilled].view(np.uint8))
+                self._file.seek(0, 2)
+            except OSError as exc:
+                raise SpillError(self._failure(exc)) from None
             if got != self._spilled * self.dtype.itemsize:
-                raise OSError(f"{self._file.name}: {got} bytes read back of {self._spilled * self.dtype.itemsize}")
-            self._file.seek(0, 2)
+                raise SpillError(
+                    self._failure(OSError(f"{got} bytes read back of {self._spilled * self.dtype.itemsize}"))
+                )
         rows[self._spilled :] = self._buffer[: self._buffered]
         return rows
 

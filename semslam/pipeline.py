@@ -11,7 +11,7 @@ from contextvars import ContextVar
 from pathlib import Path
 from typing import Protocol
 
-from semslam.estimation import EstimateView, Estimator
+from semslam.estimation import EstimateView, Estimator, spilling_into
 from semslam.frontend_process import FrontendProcess, default_workers, runs_in_process
 from semslam.mapping.book import labelled
 from semslam.mission.measurements import GroundTruthPose, Measurement
@@ -77,9 +77,12 @@ def run_pipeline(
     observation (:func:`semslam.mapping.book.labelled`; ``PipelineResult.labelled``, kept with True
     too), not the observations: a long survey's observations are much of its memory. ``observers``
     (and those of an enclosing :func:`observed_by`) see every step; without any, nothing is
-    collected for them. The ground truth and the labelled views go to anonymous files in
-    ``spill_dir`` (default: the system's temporary directory) as they come
-    (:class:`semslam.estimation.SpillLog`), so that an hours-long survey's memory stays flat.
+    collected for them. What the run appends for hours (the ground truth, the labelled views, the
+    estimators' logs) goes to anonymous files in ``spill_dir`` as it comes
+    (:class:`semslam.estimation.SpillLog`), so that an hours-long survey's memory stays flat; give
+    the output's staging directory, so that they are on its filesystem (default: that of an
+    enclosing :func:`semslam.estimation.spilling_into`, else the system's temporary directory, on
+    some machines memory). A full disk there is a :class:`semslam.estimation.SpillError`.
 
     BLAS runs single-threaded meanwhile: the matrices here are small (an EKF of a few hundred
     states, 3×3 to 100×100 blocks), and OpenBLAS's threads spinning against GTSAM's and each other
@@ -93,7 +96,7 @@ def run_pipeline(
     apart = [fe for fe in frontends if frontend_process and runs_in_process(fe)]
     worker = FrontendProcess(apart, frontend_workers or default_workers()) if apart else None
     try:
-        with threadpool_limits(limits=1, user_api="blas"):
+        with threadpool_limits(limits=1, user_api="blas"), spilling_into(spill_dir):
             result = _run_pipeline(
                 mission, estimators, frontends, view_estimator, progress, keep_observations, worker, watchers, spill_dir
             )

@@ -14,12 +14,13 @@ from __future__ import annotations
 
 import bisect
 import time
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 
 import gtsam
 import numpy as np
 
 from semslam.errors import solver_failure
+from semslam.estimation import SpillLog
 
 LANDMARK_CHARS = frozenset(map(ord, "lps"))  # object points, pipe lines, structures
 POSE_CHARS = frozenset(map(ord, "xs"))  # Pose3-valued keys (keyframes, structures)
@@ -77,6 +78,45 @@ def marginal_factors(leaving: list[tuple], values: gtsam.Values, drop: set[int])
 # the result samples result_covariance_keyframes of a mission's keyframes, fewer on long missions).
 LEFT_COVARIANCE_EVERY = 10
 
+
+class LeftCovariances(Mapping):
+    """Key -> the marginal covariance it had when it left the window (the last given, as a dict's
+    ``update`` keeps it), on disk as they come (:class:`SpillLog`: a survey of hours leaves thousands);
+    read back, once, when the result asks (in the column-major order GTSAM gives them)."""
+
+    DIM = 6  # the largest variable: a pose (keyframes, structures)
+
+    def __init__(self):
+        self._rows = SpillLog([("key", "<u8"), ("dim", "<i8"), ("cov", "<f8", (self.DIM, self.DIM))], chunk=256)
+        self._read: dict[int, np.ndarray] | None = {}
+
+    def update(self, covariances: Mapping[int, np.ndarray]) -> None:
+        for key, cov in covariances.items():
+            d = len(cov)
+            padded = np.zeros((self.DIM, self.DIM))
+            padded[:d, :d] = cov
+            self._rows.append(key, d, padded)
+        if covariances:
+            self._read = None
+
+    def _all(self) -> dict[int, np.ndarray]:
+        if self._read is None:
+            rows = self._rows.array()
+            self._read = {
+                int(k): np.asfortranarray(c[:d, :d]) for k, d, c in zip(rows["key"], rows["dim"], rows["cov"])
+            }
+        return self._read
+
+    def __getitem__(self, key: int) -> np.ndarray:
+        return self._all()[key]
+
+    def __iter__(self):
+        return iter(self._all())
+
+    def __len__(self) -> int:
+        return len(self._all())
+
+
 # Keyframe variable keys: pose, body velocity, AHRS heading bias.
 X = gtsam.symbol_shorthand.X
 V = gtsam.symbol_shorthand.V
@@ -95,7 +135,7 @@ class SlidingWindow:
         self.keep_covariances = keep_covariances
         self.first_active = 0  # the oldest keyframe in the window
         self.frozen = gtsam.Values()  # the estimates of what left it
-        self.left_covariance: dict[int, np.ndarray] = {}  # key -> marginal covariance when it left
+        self.left_covariance = LeftCovariances()  # key -> marginal covariance when it left
         self.slides: list[dict] = []  # one row per marginalisation, for benchmarks
         self.returns = 0  # marginalised landmarks seen again
         self._slide_after = 0  # stamp before which no slide is tried (after a failed one)

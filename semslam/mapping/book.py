@@ -5,13 +5,11 @@ connect."""
 
 from __future__ import annotations
 
-import sys
-from array import array
 from collections.abc import Hashable, Iterable
 
 import numpy as np
 
-from semslam.estimation import LandmarkEstimate
+from semslam.estimation import LandmarkEstimate, SpillLog
 from semslam.mapping.extent import PipeExtent
 from semslam.mapping.pipes import point_segment_distance
 from semslam.observations import LineObservation, Observation, PointObservation
@@ -34,67 +32,85 @@ def view_key(stamp: int, sensor: str, position) -> tuple:
 
 NO_TRUTH = -(2**63)  # a view's truth id when the front-end gave none
 
+_VIEW_ROW = [("segment", "<i8"), ("stamp", "<i8"), ("truth", "<i8")]
+_LABELLED_ROW = [("segment", "<i8"), ("stamp", "<i8"), ("sensor", "<i4"), ("position", "<f8", 3)]
 
-class ViewLog:
-    """One landmark's views, packed: what the map and the evaluation need of them, not the observations
-    (a landmark of a long survey is seen tens of thousands of times, ~900 bytes an observation)."""
 
-    __slots__ = (
-        "stamps",
-        "truth_ids",
-        "labelled_stamps",
-        "labelled_sensors",
-        "labelled_positions",
-        "models",
-        "saw_pipes",
-    )
+class ViewRows:
+    """The views of every landmark of a book, packed and on disk as they come (:class:`SpillLog`: a
+    landmark of a long survey is seen tens of thousands of times): rows of (segment, stamp, truth
+    id), and of each labelled view (segment, its view_key). A segment is a run of one landmark's
+    views; a landmark is a list of segments (merged ones after its own), read back at the end."""
 
     def __init__(self):
-        self.stamps = array("q")
-        self.truth_ids = array("q")  # NO_TRUTH for None
-        # the view_key of each labelled view: its own stamp, its sensor (interned) and its position
-        self.labelled_stamps = array("q")
-        self.labelled_sensors: list[str] = []
-        self.labelled_positions = array("d")
+        self.views = SpillLog(_VIEW_ROW)
+        self.labelled = SpillLog(_LABELLED_ROW)
+        self.sensors: dict[str, int] = {}
+        self.segments = 0
+
+    def new_segment(self) -> int:
+        self.segments += 1
+        return self.segments - 1
+
+    def add(self, segment: int, stamp: int, z: Observation) -> None:
+        truth = getattr(z, "truth_id", None)
+        self.views.append(segment, stamp, NO_TRUTH if truth is None else truth)
+        if labelled(z):
+            sensor = self.sensors.setdefault(z.sensor, len(self.sensors))
+            self.labelled.append(segment, z.stamp, sensor, np.asarray(z.position, np.float64))
+
+    def read(self) -> tuple[_Segments, _Segments]:
+        """The views and the labelled views, by segment."""
+        return _Segments(self.views.array()), _Segments(self.labelled.array())
+
+
+class _Segments:
+    """Rows grouped by segment, each group in the order appended."""
+
+    def __init__(self, rows: np.ndarray):
+        order = np.argsort(rows["segment"], kind="stable")
+        self.rows = rows[order]
+        self.bounds = np.searchsorted(self.rows["segment"], np.arange(self.rows["segment"].max(initial=-1) + 2))
+
+    def of(self, segments: list[int]) -> np.ndarray:
+        parts = [self.rows[self.bounds[s] : self.bounds[s + 1]] for s in segments if s + 1 < len(self.bounds)]
+        return np.concatenate(parts) if parts else self.rows[:0]
+
+
+class ViewLog:
+    """One landmark's views: how many, the segments of the book's :class:`ViewRows` they are in, and
+    what the map needs of them during the run (not the observations: ~900 bytes an observation)."""
+
+    __slots__ = ("n", "segments", "open", "models", "saw_pipes")
+
+    def __init__(self):
+        self.n = 0
+        self.segments: list[int] = []
+        self.open = False  # views go to the last segment (none yet, or merged ones are after it)
         self.models: frozenset[str] = frozenset()  # the CAD models the pipe's segments were seen to end at
         self.saw_pipes = False  # an object view reported pipes attached to it
 
     def __len__(self) -> int:
-        return len(self.stamps)
+        return self.n
 
-    def add(self, stamp: int, z: Observation) -> None:
-        self.stamps.append(stamp)
-        truth = getattr(z, "truth_id", None)
-        self.truth_ids.append(NO_TRUTH if truth is None else truth)
-        if labelled(z):
-            self.labelled_stamps.append(z.stamp)
-            self.labelled_sensors.append(sys.intern(z.sensor))
-            self.labelled_positions.extend(np.asarray(z.position, np.float64))
+    def add(self, rows: ViewRows, stamp: int, z: Observation) -> None:
+        if not self.open:
+            self.segments.append(rows.new_segment())
+            self.open = True
+        rows.add(self.segments[-1], stamp, z)
+        self.n += 1
         if isinstance(z, PointObservation):
             self.saw_pipes |= z.connectivity is not None and z.connectivity.n_pipes > 0
         elif isinstance(z, LineObservation) and z.connected_models:
             self.models |= frozenset(z.connected_models)
 
     def extend(self, other: ViewLog) -> None:
-        self.stamps.extend(other.stamps)
-        self.truth_ids.extend(other.truth_ids)
-        self.labelled_stamps.extend(other.labelled_stamps)
-        self.labelled_sensors.extend(other.labelled_sensors)
-        self.labelled_positions.extend(other.labelled_positions)
+        """``other``'s views after these (the views added later after both)."""
+        self.n += other.n
+        self.segments.extend(other.segments)
+        self.open = False
         self.models |= other.models
         self.saw_pipes |= other.saw_pipes
-
-    def labelled_keys(self) -> list[tuple]:
-        """The view_key of each labelled view, in the order seen."""
-        pos = self.labelled_positions
-        return [
-            view_key(s, n, pos[3 * i : 3 * i + 3])
-            for i, (s, n) in enumerate(zip(self.labelled_stamps, self.labelled_sensors))
-        ]
-
-    def stamped_truth(self) -> list[tuple[int, int | None]]:
-        """(stamp, truth id) of each view, in the order seen."""
-        return [(s, None if t == NO_TRUTH else t) for s, t in zip(self.stamps, self.truth_ids)]
 
 
 class LandmarkBook:
@@ -103,6 +119,7 @@ class LandmarkBook:
     def __init__(self):
         self.classes = ClassFusion(None)  # the class set grows with the likelihoods received
         self.views: dict[Hashable, ViewLog] = {}
+        self.rows = ViewRows()  # the views themselves, on disk
         self.extents: dict[Hashable, PipeExtent] = {}  # pipes: what was seen of them
 
     def extent(self, key: Hashable) -> PipeExtent:
@@ -113,7 +130,7 @@ class LandmarkBook:
 
     def observe(self, key: Hashable, stamp: int, z: Observation) -> None:
         """One view of landmark ``key``: its class likelihood and the pipe configuration seen with it."""
-        self._log(key).add(stamp, z)
+        self._log(key).add(self.rows, stamp, z)
         if isinstance(z, PointObservation) and (z.class_likelihood or z.connectivity is not None):
             conf = z.connectivity.configuration if z.connectivity is not None else None
             self.classes.update(key, dict(z.class_likelihood) if z.class_likelihood else None, conf)
@@ -149,11 +166,19 @@ class LandmarkBook:
         """For evaluation: which landmark each labelled observation ended in (by :func:`view_key`: the
         book keeps no observation), and each landmark's views as (stamp, truth id)."""
         ids = list(ids)
-        empty = ViewLog()
-        return {
-            "landmark_of_observation": {k: lid for lid in ids for k in self.views.get(lid, empty).labelled_keys()},
-            "landmark_observations": {lid: self.views.get(lid, empty).stamped_truth() for lid in ids},
-        }
+        views, labelled_views = self.rows.read()
+        sensors = list(self.rows.sensors)
+        of_observation, observations = {}, {}
+        for lid in ids:
+            segments = self.views[lid].segments if lid in self.views else []
+            seen = labelled_views.of(segments)
+            for s, n, xyz in zip(seen["stamp"].tolist(), seen["sensor"].tolist(), seen["position"].tolist()):
+                of_observation[view_key(s, sensors[n], xyz)] = lid
+            rows = views.of(segments)
+            observations[lid] = [
+                (s, None if t == NO_TRUTH else t) for s, t in zip(rows["stamp"].tolist(), rows["truth"].tolist())
+            ]
+        return {"landmark_of_observation": of_observation, "landmark_observations": observations}
 
     def connect(self, estimates: list[LandmarkEstimate], max_distance: float) -> None:
         """Object ↔ pipe and pipe ↔ structure links of the map (``connected`` of each estimate): an
