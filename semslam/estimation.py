@@ -71,6 +71,8 @@ class SpillLog:
 
     def append(self, *row) -> None:
         """One row: a value per field of ``dtype``, in its order (sub-arrays as sequences)."""
+        if self._buffered == len(self._buffer):  # its spill failed (a full disk) and the run goes on
+            self._spill()  # (a cleanup that records one more row): the same SpillError, not an IndexError
         self._buffer[self._buffered] = row[0] if self._plain else row
         self._buffered += 1
         if self._buffered == len(self._buffer):

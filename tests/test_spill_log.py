@@ -41,6 +41,28 @@ def test_the_rows_are_in_no_file_a_directory_lists(tmp_path):
     assert os.listdir(tmp_path) == []  # nothing half-written to see, nothing to clean after a crash
 
 
+def test_a_failed_spill_fails_the_same_way_on_every_later_row(tmp_path, monkeypatch):
+    """A full disk: the row that fills the chunk raises SpillError, and so does any row a cleanup
+    appends after it (not an IndexError past the full chunk, which would print a traceback)."""
+    import semslam.estimation as estimation
+
+    class FullDisk:
+        def __init__(self, **kwargs):
+            pass
+
+        def write(self, data):
+            raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(estimation, "TemporaryFile", FullDisk)
+    log = SpillLog(ROW, chunk=4, directory=tmp_path)
+    for i in range(3):
+        log.append(i, (i, i, i))
+    for i in range(3, 6):
+        with pytest.raises(estimation.SpillError, match="No space left on device"):
+            log.append(i, (i, i, i))
+    assert len(log) == 4
+
+
 def test_memory_held_is_a_chunk_not_the_rows(tmp_path):
     n, chunk = 100_000, 1000
     log = SpillLog(ROW, chunk=chunk, directory=tmp_path)

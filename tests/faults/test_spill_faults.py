@@ -63,7 +63,7 @@ def test_a_full_spill_disk_is_one_line_and_leaves_no_output_and_no_process(missi
     )
     stdout, stderr = proc.communicate(timeout=300)  # until every process that holds stderr is gone too
     assert proc.returncode == 1, stderr
-    assert "Traceback" not in stderr
+    assert "Traceback" not in stderr, stderr  # whole, to see which exception escaped
     lines = stderr.strip().splitlines()
     assert len(lines) == 1, stderr
     # the directory named: the system's temporary one (TMPDIR), or the run's staging directory beside the output
