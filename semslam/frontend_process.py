@@ -54,6 +54,7 @@ import pickle
 import queue
 import signal
 import socket
+import tempfile
 import threading
 import time
 import traceback
@@ -62,6 +63,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from multiprocessing.connection import wait
 
+from semslam.errors import SemslamError
 from semslam.mission.measurements import Measurement
 from semslam.registry import Frontend
 
@@ -354,6 +356,11 @@ class _Worker:
         if self._starter is not None:
             self._starter.join()
             self._starter = None
+        if isinstance(self._start_error, OSError):  # e.g. a TMPDIR too long for the fork server's socket
+            raise SemslamError(
+                f"cannot start a front-end process ({self._start_error}); its fork server's socket goes in "
+                f"{tempfile.gettempdir()} (TMPDIR)"
+            ) from None
         if self._start_error is not None:
             raise self._start_error
 

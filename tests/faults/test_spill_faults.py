@@ -8,8 +8,10 @@ from __future__ import annotations
 
 import errno
 import os
+import shutil
 import subprocess
 import sys
+import tempfile
 from pathlib import Path
 
 import pytest
@@ -47,9 +49,16 @@ def mission(tmp_path_factory) -> Path:
     return short_tank_mission(tmp_path_factory.mktemp("spill") / "tank.bag", seconds=8.0)
 
 
-def test_a_full_spill_disk_is_one_line_and_leaves_no_output_and_no_process(mission, tmp_path):
-    spill = tmp_path / "spill"
-    spill.mkdir()
+@pytest.fixture
+def spill() -> Path:
+    """The spill's directory, as TMPDIR: a short path (multiprocessing puts its fork server's socket
+    there, and a socket's path has at most 107 bytes; pytest's tmp_path under xdist can be longer)."""
+    d = Path(tempfile.mkdtemp(prefix="semslam-spill-"))
+    yield d
+    shutil.rmtree(d, ignore_errors=True)
+
+
+def test_a_full_spill_disk_is_one_line_and_leaves_no_output_and_no_process(mission, spill, tmp_path):
     out = tmp_path / "outputs" / "out"
     out.parent.mkdir()
     cmd = [sys.executable, "-c", FULL_DISK_RUN, "run", str(mission), "-e", "graph", "--frontends", "oracle"]
@@ -73,3 +82,19 @@ def test_a_full_spill_disk_is_one_line_and_leaves_no_output_and_no_process(missi
     assert in_session(proc.pid) == []  # the command, its front-end worker and the fork server gone
     assert list(out.parent.iterdir()) == []  # no output, no staging directory
     assert list(spill.iterdir()) == []  # the spill files were anonymous: nothing to clean
+
+
+def test_a_temporary_directory_too_long_for_the_fork_servers_socket_is_one_line(mission, tmp_path):
+    """multiprocessing's fork server binds a socket in TMPDIR, whose path may have at most 107 bytes:
+    a longer TMPDIR is one line naming it, not a traceback from the front-end process's start."""
+    long = tmp_path / ("d" * 110)
+    long.mkdir()
+    out = tmp_path / "out"
+    cmd = [sys.executable, "-m", "semslam.cli", "run", str(mission), "-e", "graph", "--frontends", "oracle"]
+    proc = subprocess.run(
+        [*cmd, "--out", str(out)], capture_output=True, text=True, env={**os.environ, "TMPDIR": str(long)}, timeout=300
+    )
+    assert proc.returncode == 1, proc.stderr
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and "cannot start a front-end process" in lines[0] and str(long) in lines[0], proc.stderr
+    assert not out.exists()
