@@ -98,7 +98,7 @@ def run_pipeline(
     try:
         with threadpool_limits(limits=1, user_api="blas"), spilling_into(spill_dir):
             result = _run_pipeline(
-                mission, estimators, frontends, view_estimator, progress, keep_observations, worker, watchers, spill_dir
+                mission, estimators, frontends, view_estimator, progress, keep_observations, worker, watchers
             )
     except BaseException:  # an error, Ctrl-C or SIGTERM: the workers' work is of no use, kill them now
         if worker is not None:
@@ -145,7 +145,7 @@ def _in_order(mission: Mission, worker: FrontendProcess | None, timing: dict):
 
 
 def _run_pipeline(
-    mission, estimators, frontends, view_estimator, progress, keep_observations, worker, watchers, spill_dir
+    mission, estimators, frontends, view_estimator, progress, keep_observations, worker, watchers
 ) -> PipelineResult:
     if not estimators:
         raise ValueError("at least one estimator is needed")
@@ -153,9 +153,9 @@ def _run_pipeline(
     by_name = {e.name: e for e in estimators}
     view_source = by_name.get(view_estimator or "graph", estimators[0])
     timing: dict[str, float] = defaultdict(float)
-    truth = PoseLog(spill_dir)  # on disk: the ground truth of a long survey is its largest stream
+    truth = PoseLog()  # on disk (run_pipeline's spill_dir): the ground truth of a long survey is its largest stream
     records: list[ObservationRecord] = []
-    labelled_views = LabelledViews(spill_dir)
+    labelled_views = LabelledViews()
     consumers = [(fe, tuple(fe.consumes)) for fe in frontends]
     apart = set(worker.names) if worker is not None else set()
 
