@@ -9,11 +9,15 @@ everywhere those cost up to a fraction of a second each). It ignores the pose–
 like the association problem does, which makes the innovation covariance larger than the joint one.
 
 That pose uncertainty is taken relative to the map (:class:`GaugeFreeCovariance`): what the vehicle's
-pose had accumulated when the first landmark was mapped (every tank mission starts ~15 s without DVL
-at the surface: metres of horizontal σ) moves the whole map with it and is common to the pose and every
-landmark; folded into both sides of every gate it made every observation compatible with every
-landmark within the pre-gate, hence "ambiguous": the graph mapped 3 of tank seed 1's 11 objects.
-The absolute information is kept for the prior of a landmark that re-enters the window.
+pose had accumulated when the map's first view was placed (a tank mission starts up to ~30 s without
+DVL at the surface) moves the whole map with it and is common to the pose and every landmark; folded
+into both sides of every gate it made every observation compatible with every landmark within the
+pre-gate, hence "ambiguous": the graph mapped 3 of tank seed 1's 11 objects. The same holds for the
+views of the tentative landmarks, which the map starts from: taken with the pose's absolute
+uncertainty until the first landmark was mapped, views of two objects one lattice spacing apart made
+one track under the start at rest (tank world 79), and its views, a factor each at its own keyframe,
+bent the trajectory onto the wrong object and shifted the whole map. The absolute information is kept
+for the prior of a landmark that re-enters the window.
 """
 
 from __future__ import annotations
@@ -140,10 +144,10 @@ class Landmark:
 
 class GaugeFreeCovariance:
     """A pose covariance (6×6, GTSAM's body-frame tangent: rotation, translation) relative to the map:
-    less what it had when the map was started, in the world-aligned frame, clipped to stay positive
-    (semi)definite. Until a landmark is mapped, the pose's own. Where a later pose is surer than that
-    common part (the first DVL velocities after the descent shrink the position's σ from metres), the
-    common part shrinks to it: never more certain relative to the map than absolutely."""
+    less what it had when the map was started (its first view), in the world-aligned frame, clipped to
+    stay positive (semi)definite. Before the map's first view, the pose's own. Where a later pose is
+    surer than that common part (the first DVL velocities after the descent), the common part shrinks
+    to it: never more certain relative to the map than absolutely."""
 
     FLOOR = 1e-10
 
@@ -268,6 +272,9 @@ class GraphLandmarks:
         """An observation in {W} with the batch's keyframe as estimated now (point: (3,), pipe: (2, 3),
         structure: 4×4) and, for points and structures, its position covariance there (observation
         and pose); the keyframe, for the landmark's factors."""
+        if self.gauge.gauge is None:  # the map's first view: what the pose has accumulated so far moves it all
+            self.gauge.start(self._pose, self._abs_pose_cov)
+            self._pose_cov = self.gauge.relative(self._pose, self._abs_pose_cov)
         T_BS = self.metadata.extrinsic(z.sensor)
         pose = self.keyframes.pose_of(self._k)
         T_WS = pose.compose(gtsam.Pose3(T_BS))
@@ -372,9 +379,6 @@ class GraphLandmarks:
         """A tentative landmark enters the graph: its initial value from its views re-expressed with
         the current keyframe estimates (views from keyframes that left the window are dropped), and
         one factor per view."""
-        if self.gauge.gauge is None:  # the map starts: what the pose has accumulated so far moves it all
-            self.gauge.start(self._pose, self._abs_pose_cov)
-            self._pose_cov = self.gauge.relative(self._pose, self._abs_pose_cov)
         lid = self._next_id
         self._next_id += 1
         key = KEY_OF_KIND[track.kind](lid)
