@@ -9,15 +9,17 @@ everywhere those cost up to a fraction of a second each). It ignores the pose–
 like the association problem does, which makes the innovation covariance larger than the joint one.
 
 That pose uncertainty is taken relative to the map (:class:`GaugeFreeCovariance`): what the vehicle's
-pose had accumulated when the map's first view was placed (a tank mission starts up to ~30 s without
-DVL at the surface) moves the whole map with it and is common to the pose and every landmark; folded
-into both sides of every gate it made every observation compatible with every landmark within the
-pre-gate, hence "ambiguous": the graph mapped 3 of tank seed 1's 11 objects. The same holds for the
-views of the tentative landmarks, which the map starts from: taken with the pose's absolute
-uncertainty until the first landmark was mapped, views of two objects one lattice spacing apart made
-one track under the start at rest (tank world 79), and its views, a factor each at its own keyframe,
-bent the trajectory onto the wrong object and shifted the whole map. The absolute information is kept
+pose had accumulated when the first landmark was mapped (a tank mission starts up to ~30 s without DVL
+at the surface) moves the whole map with it and is common to the pose and every landmark; folded into
+both sides of every gate it made every observation compatible with every landmark within the pre-gate,
+hence "ambiguous": the graph mapped 3 of tank seed 1's 11 objects. The absolute information is kept
 for the prior of a landmark that re-enters the window.
+
+The views of the tentative landmarks (:meth:`GraphLandmarks.place`), compared with one another before
+any landmark exists, take it relative to the map's first view in the same way: with the pose's
+absolute uncertainty (0.10 m at 4 s, 0.19 m at 16 s under the start at rest), views of two objects one
+lattice spacing (0.45 m) apart made one track, and its views, a factor each at its own keyframe, bent
+the trajectory onto the wrong object and shifted the whole map (tank world 79).
 """
 
 from __future__ import annotations
@@ -144,10 +146,10 @@ class Landmark:
 
 class GaugeFreeCovariance:
     """A pose covariance (6×6, GTSAM's body-frame tangent: rotation, translation) relative to the map:
-    less what it had when the map was started (its first view), in the world-aligned frame, clipped to
-    stay positive (semi)definite. Before the map's first view, the pose's own. Where a later pose is
-    surer than that common part (the first DVL velocities after the descent), the common part shrinks
-    to it: never more certain relative to the map than absolutely."""
+    less what it had when the map was started (:meth:`start`), in the world-aligned frame, clipped to
+    stay positive (semi)definite. Before that, the pose's own. Where a later pose is surer than that
+    common part (the first DVL velocities after the descent), the common part shrinks to it: never more
+    certain relative to the map than absolutely."""
 
     FLOOR = 1e-10
 
@@ -210,8 +212,10 @@ class GraphLandmarks:
         self._k = 0
         self._pose = gtsam.Pose3()
         self._pose_cov = np.eye(6)  # relative to the map (gating)
+        self._view_cov = np.eye(6)  # relative to the map's first view (tentative landmarks' views)
         self._abs_pose_cov = np.eye(6)
-        self.gauge = GaugeFreeCovariance()
+        self.gauge = GaugeFreeCovariance()  # started by the first landmark
+        self.view_gauge = GaugeFreeCovariance()  # started by the first view
         self._factors: list[Owned] = []
         self._priors: list[Owned] = []
         self._values = gtsam.Values()
@@ -225,6 +229,7 @@ class GraphLandmarks:
         self._k = k
         self._pose, self._abs_pose_cov = self.keyframes.pose_and_cov(k)
         self._pose_cov = self.gauge.relative(self._pose, self._abs_pose_cov)
+        self._view_cov = self.view_gauge.relative(self._pose, self._abs_pose_cov)
         self._factors = list(factors)
         self._priors = []
         self._values = gtsam.Values()
@@ -271,10 +276,11 @@ class GraphLandmarks:
     def place(self, z: Observation) -> tuple[np.ndarray, np.ndarray | None, int]:
         """An observation in {W} with the batch's keyframe as estimated now (point: (3,), pipe: (2, 3),
         structure: 4×4) and, for points and structures, its position covariance there (observation
-        and pose); the keyframe, for the landmark's factors."""
-        if self.gauge.gauge is None:  # the map's first view: what the pose has accumulated so far moves it all
-            self.gauge.start(self._pose, self._abs_pose_cov)
-            self._pose_cov = self.gauge.relative(self._pose, self._abs_pose_cov)
+        and pose, relative to the map's first view: see the module); the keyframe, for the landmark's
+        factors."""
+        if self.view_gauge.gauge is None:  # the map's first view: what the pose has accumulated so far moves it all
+            self.view_gauge.start(self._pose, self._abs_pose_cov)
+            self._view_cov = self.view_gauge.relative(self._pose, self._abs_pose_cov)
         T_BS = self.metadata.extrinsic(z.sensor)
         pose = self.keyframes.pose_of(self._k)
         T_WS = pose.compose(gtsam.Pose3(T_BS))
@@ -287,7 +293,7 @@ class GraphLandmarks:
             w, p_S, C_S = T_WS.compose(gtsam.Pose3(z.pose)).matrix(), z.pose[:3, 3], z.covariance[3:, 3:]
         e_B = T_BS[:3, :3] @ p_S + T_BS[:3, 3]
         J = pose_point_jacobian(R, e_B)
-        return w, R @ T_BS[:3, :3] @ C_S @ T_BS[:3, :3].T @ R.T + J @ self._pose_cov @ J.T, self._k
+        return w, R @ T_BS[:3, :3] @ C_S @ T_BS[:3, :3].T @ R.T + J @ self._view_cov @ J.T, self._k
 
     def objects(self) -> tuple[list[int], np.ndarray]:
         """Mapped objects and their positions (N×3, {W}), from the cached spheres (an object's centre
@@ -379,6 +385,9 @@ class GraphLandmarks:
         """A tentative landmark enters the graph: its initial value from its views re-expressed with
         the current keyframe estimates (views from keyframes that left the window are dropped), and
         one factor per view."""
+        if self.gauge.gauge is None:  # the first landmark: what the pose has accumulated so far moves the map
+            self.gauge.start(self._pose, self._abs_pose_cov)
+            self._pose_cov = self.gauge.relative(self._pose, self._abs_pose_cov)
         lid = self._next_id
         self._next_id += 1
         key = KEY_OF_KIND[track.kind](lid)
