@@ -22,7 +22,9 @@ For each batch of observations (one front-end's, of one measurement) the builder
    other's at the mapped fittings that end pipes) whose line difference is compatible with zero or which
    share over
    half of a stretch within ``duplicate_pipe_distance_m`` of each other's axis. The younger goes into the older (the estimator constrains the two to be one
-   where the χ² test passed; otherwise it just drops the younger).
+   where the χ² test passed; otherwise it just drops the younger), except that of two χ²-incompatible
+   objects within one body the one with fewer views goes (one of them is misplaced: e.g. a track that
+   joined views of two objects while the pose was uncertain).
 
 Each estimator keeps only what is its own: its state, how it linearises a pair, its update, how it
 initialises a landmark and merges two (:class:`LandmarkState`).
@@ -300,12 +302,16 @@ class MapBuilder:
         (default: the mapped and tentative ones)."""
         if separators is None:
             separators = np.vstack([self.state.objects()[1], self.tracks.object_points()])
-        found = self._duplicate_objects(touched) + self._duplicate_pipes(touched, separators)
+        objects = self._duplicate_objects(touched)
+        found = objects + self._duplicate_pipes(touched, separators)
+        by_views = {(a, b) for nis, a, b, gate in objects if not nis < gate}
         gone: set[int] = set()
         for nis, a, b, gate in sorted(found):
             if a in gone or b in gone:
                 continue
             keep, drop = min(a, b), max(a, b)
+            if (a, b) in by_views and self.book.n_views(drop) > self.book.n_views(keep):
+                keep, drop = drop, keep  # one of two incompatible objects is wrong: the one seen more stays
             self.state.merge(keep, drop, constrain=nis < gate)
             self.book.merge(keep, drop)
             self.in_view.merge(keep, drop)
