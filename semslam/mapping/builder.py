@@ -18,9 +18,13 @@ For each batch of observations (one front-end's, of one measurement) the builder
    of each pipe, placed with the pose after the update);
 6. merges duplicates among the landmarks touched: two objects whose difference is compatible with zero
    (χ² at ``confidence``) or whose centres are closer than ``association.object_body_m``; two pipes on one axis
-   by the collinearity criterion whose line difference is compatible with zero or which share over
+   by the collinearity criterion (the touched one's seen stretch cut at the mapped in-line objects, the
+   other's at the mapped fittings that end pipes) whose line difference is compatible with zero or which
+   share over
    half of a stretch within ``duplicate_pipe_distance_m`` of each other's axis. The younger goes into the older (the estimator constrains the two to be one
-   where the χ² test passed; otherwise it just drops the younger).
+   where the χ² test passed; otherwise it just drops the younger), except that of two χ²-incompatible
+   objects within one body the one with fewer views goes (one of them is misplaced: e.g. a track that
+   joined views of two objects while the pose was uncertain).
 
 Each estimator keeps only what is its own: its state, how it linearises a pair, its update, how it
 initialises a landmark and merges two (:class:`LandmarkState`).
@@ -39,6 +43,7 @@ from semslam.estimation import LandmarkEstimate
 from semslam.mapping.association import Candidates, JointCovariance, PairLinearization, chi2_gate, jcbb
 from semslam.mapping.book import LandmarkBook
 from semslam.mapping.extent import along_sigma, off_axis
+from semslam.mapping.fittings import port_depths
 from semslam.mapping.pipes import merge_collinear, object_between
 from semslam.mapping.tracks import Track, TrackSet, TrackView
 from semslam.mapping.visibility import InView
@@ -297,12 +302,16 @@ class MapBuilder:
         (default: the mapped and tentative ones)."""
         if separators is None:
             separators = np.vstack([self.state.objects()[1], self.tracks.object_points()])
-        found = self._duplicate_objects(touched) + self._duplicate_pipes(touched, separators)
+        objects = self._duplicate_objects(touched)
+        found = objects + self._duplicate_pipes(touched, separators)
+        by_views = {(a, b) for nis, a, b, gate in objects if not nis < gate}
         gone: set[int] = set()
         for nis, a, b, gate in sorted(found):
             if a in gone or b in gone:
                 continue
             keep, drop = min(a, b), max(a, b)
+            if (a, b) in by_views and self.book.n_views(drop) > self.book.n_views(keep):
+                keep, drop = drop, keep  # one of two incompatible objects is wrong: the one seen more stays
             self.state.merge(keep, drop, constrain=nis < gate)
             self.book.merge(keep, drop)
             self.in_view.merge(keep, drop)
@@ -349,7 +358,8 @@ class MapBuilder:
         dirs = np.array([d for _, _, d in pipes])
         points = np.array([c for _, c, _ in pipes])
         mids = np.array([self.book.extent(pid).centre() for pid, _, _ in pipes])
-        _, cutters = self.state.objects()
+        ids, cutters = self.state.objects()
+        fittings = None  # the mapped objects that end pipes, once a collinear pair needs them
         out = []
         for a, (pid_a, c_a, d_a) in enumerate(pipes):
             if pid_a not in touched:
@@ -367,7 +377,12 @@ class MapBuilder:
                     continue
                 nis = None
                 if cos_ab[b] >= math.cos(a_cfg.merge_angle_rad):
-                    ends_b = self.book.extent(pid_b).ends(c_b, d_b)
+                    # b's stretch cut at the mapped fittings: views of b that ran on through a tee into
+                    # a's stretch must not make the two collinear pipes one (an object without ports,
+                    # which a pipe may run through, cuts a's stretch only)
+                    if fittings is None:
+                        fittings = self._fittings(ids, cutters)
+                    ends_b = self.book.extent(pid_b).ends(c_b, d_b, fittings, a_cfg.inline_object_radius_m)
                     if not self._on_pipe(ends_b, pid_a, c_a, d_a, separators, cutters):
                         continue
                     nis = self.state.difference_nis(pid_a, pid_b)
@@ -381,6 +396,16 @@ class MapBuilder:
                 ):
                     out.append((math.inf if nis is None else nis, pid_a, pid_b, gate))
         return out
+
+    def _fittings(self, ids: list[int], positions: np.ndarray) -> np.ndarray:
+        """The mapped objects (``ids`` at ``positions``, N×3) that end pipes: fittings, whose class
+        posterior names classes with ports (:func:`~semslam.mapping.fittings.port_depths`). A pipe's
+        views run on through a fitting into the next pipe; an object of no such class (no class
+        evidence, a class without ports) may sit on a pipe that runs on through it."""
+        if not len(ids):
+            return positions
+        depths = port_depths([self.book.class_posterior(i) for i in ids])
+        return positions[depths > 0]
 
     def _shares_stretch(self, pipe, along, cutters: np.ndarray) -> bool:
         """What was seen of ``pipe`` (id, c, d) lies within ``duplicate_pipe_distance_m`` of the axis of

@@ -17,7 +17,7 @@ from pathlib import Path
 import pytest
 
 from faults.commands import short_tank_mission
-from faults.processes import in_session
+from faults.processes import left_in_session
 
 pytestmark = pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads the process tree from /proc")
 
@@ -79,7 +79,7 @@ def test_a_full_spill_disk_is_one_line_and_leaves_no_output_and_no_process(missi
     where, _, reason = lines[0].removeprefix("semslam: error: ").partition(": the run's spill file: ")
     assert reason == os.strerror(errno.ENOSPC), lines[0]
     assert where == str(spill) or Path(where).parent == out.parent, lines[0]
-    assert in_session(proc.pid) == []  # the command, its front-end worker and the fork server gone
+    assert left_in_session(proc.pid) == []  # the command, its front-end worker and the fork server gone
     assert list(out.parent.iterdir()) == []  # no output, no staging directory
     assert list(spill.iterdir()) == []  # the spill files were anonymous: nothing to clean
 
