@@ -150,7 +150,8 @@ class Seabed:
         return lies_like_a_pipe(pipe, self.points, self.ground, self.cfg, contrast, seen_length)
 
     def accept_runs(self, runs: list[Pipe]) -> list[Pipe]:
-        """The ``runs`` (the segments cut from one cylinder fit at its fittings) that pass the tests
+        """The ``runs`` (the segments cut from one cylinder fit at its fittings, or at gaps too long to
+        bridge: :func:`frontends.laser.pipes.split_at_fittings`) that pass the tests
         of a pipe on the seabed. Those that pass the geometric tests lie on one axis with one radius
         (one fit to all their points): the colour test judges them only when their lengths add up
         to less than ``color_max_length``, as it judges a lone segment by its own length."""
