@@ -199,3 +199,48 @@ def test_ransac_budget_grows_as_pipes_get_rare():
     assert budgets[0] == cfg.max_failures  # common pipes: the fixed budget
     assert budgets == sorted(budgets) and budgets[-1] == cfg.max_failures_cap > budgets[2] > cfg.max_failures
     assert failure_budget(0.001, PipeConfig()) == cfg.max_failures  # off by default
+
+
+def _valve_on_sand(both_sides: bool, sigma: float = 0.002):
+    """1.4 m below the sensor ({S}: z down), rippled sand and a 22 mm pipe resting on it along x,
+    with a valve body (50 mm radius, 8 cm long) on it at x = 0; the pipe in view over 0.04-0.24 m,
+    and over -0.24 to -0.04 m too when ``both_sides``. Everything the sand's colour (a pale pipe in
+    turbid water). Returns points and RGB."""
+    rng = np.random.default_rng(0)
+    a, b = rng.uniform(-0.5, 0.5, (2, 60000))
+    parts = [np.column_stack([a, b, 1.4 + 0.003 * np.sin(2 * np.pi * a / 0.15) + rng.normal(0, sigma, len(a))])]
+    r, h = 0.022, 1.4 - 0.022  # the axis, the pipe resting on the sand
+
+    def shell(x0, x1, radius, n):
+        th, t = rng.uniform(-1.4, 1.4, n), rng.uniform(x0, x1, n)
+        rr = radius + rng.normal(0, sigma, n)
+        return np.column_stack([t, rr * np.sin(th), h - rr * np.cos(th)])
+
+    parts += [shell(0.04, 0.24, r, 3000), shell(-0.04, 0.04, 0.05, 2500)]
+    if both_sides:
+        parts.append(shell(-0.24, -0.04, r, 3000))
+    for x in (-0.04, 0.04):  # the body's faces
+        rho, th = np.sqrt(rng.uniform(r**2, 0.05**2, 800)), rng.uniform(-1.4, 1.4, 800)
+        parts.append(np.column_stack([np.full(800, x), rho * np.sin(th), h - rho * np.cos(th)]))
+    pts = np.vstack(parts)
+    rgb = np.clip(np.array([60.0, 70.0, 64.0]) + rng.normal(0, 3, pts.shape), 0, 255).astype(np.uint8)
+    return pts, rgb
+
+
+def test_a_dull_pipe_cut_by_a_valve_is_judged_by_its_runs_together():
+    """Two short runs of one cylinder either side of a valve, as dull as the sand, add up to a
+    straight pipe long enough to be one by its shape: both kept, and the valve between them is an
+    object. One such run alone is a partial view and the colour test rejects it."""
+    from frontends.laser.config import LaserConfig
+    from frontends.laser.frontend import segment_scan
+
+    cfg, up = LaserConfig(), np.array([0.0, 0.0, -1.0])
+    pts, rgb = _valve_on_sand(both_sides=True)
+    seg = segment_scan(pts, cfg, up=up, rgb=rgb)
+    assert len(seg.pipes) == 2
+    assert all(p.length < cfg.pipes.color_max_length <= sum(q.length for q in seg.pipes) for p in seg.pipes)
+    assert all(abs(p.axis[0]) > 0.99 and np.linalg.norm(p.p[1:] - [0.0, 1.378]) < 0.01 for p in seg.pipes)
+    assert [np.linalg.norm(o.position[:2]) < 0.05 for o in seg.objects] == [True]
+    pts, rgb = _valve_on_sand(both_sides=False)
+    assert not segment_scan(pts, cfg, up=up, rgb=rgb).pipes
+    assert segment_scan(pts, cfg, up=up).pipes  # (without colour the geometry alone keeps it)

@@ -41,8 +41,8 @@ def collect(seeds: list[int], every: int, out: Path) -> None:
     seen: list = []
     accept = pipe_shape.Seabed.accept
 
-    def recording_accept(self, pipe):
-        ok = accept(self, pipe)
+    def recording_accept(self, pipe, seen_length=0.0):
+        ok = accept(self, pipe, seen_length)
         row = {"ok": bool(ok), "length": pipe.length, "radius": pipe.radius}
         row["axis_h"] = axis_height(pipe, self.ground)
         row["arc"] = arc_span_deg(pipe, self.points)

@@ -97,8 +97,8 @@ def main(argv=None) -> int:
 
     accept = pipe_shape.Seabed.accept
 
-    def recording_accept(self, pipe):
-        ok = accept(self, pipe)
+    def recording_accept(self, pipe, seen_length=0.0):
+        ok = accept(self, pipe, seen_length)
         verdicts.append((pipe, seabed_verdict(pipe, self) if not ok else "ok"))
         return ok
 

@@ -1,14 +1,16 @@
 """Why a valve of the pipeline scenario is not mapped (issue 22: "every valve mapped once"): the object
 views the laser front-end makes of it, cloud by cloud.
 
-    python experiments/laser/valve_trace.py --seed 9 [--valve 1] [--min-points 200]
+    python experiments/laser/valve_trace.py --seed 9 [--valve 1] [--min-points 200] [--segments]
 
 Simulates pipeline ``--seed`` and segments every cloud that holds at least ``--min-points`` valid
 points on a valve (``--valve``: its id; default every valve) with this checkout's front-end ("up" from
 the true pose). Per cloud: the valve's points, its range, the pipe segments whose fitted end lies
 within 0.3 m of it (their length and how far their end stops from the valve), and the object views
 within 0.2 m of it (configuration, error). Prints one line per cloud and the count of clouds with a
-view.
+view. With ``--segments``, also every segment the pipe stage cut (accepted or not) whose axis passes
+within 0.15 m of the valve, with the seabed test that rejected it (``small_pipe_trace.seabed_verdict``),
+its colour contrast and the RANSAC round (cylinder) it was cut from.
 """
 
 from __future__ import annotations
@@ -24,6 +26,54 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 VALVES = ("Ball-Valve", "Butterfly-Valve", "3-Way-Ball-Valve")
 
 
+def record_segments(cut: list) -> None:
+    """Make the pipe stage append (round, pipe, seabed verdict, colour contrast) to ``cut`` for every
+    segment it cuts from a refined cylinder (the round: the cylinder's count in the scan)."""
+    from small_pipe_trace import seabed_verdict
+
+    import frontends.laser.pipe_shape as pipe_shape
+    import frontends.laser.pipes as pipes_mod
+
+    cut_into = pipes_mod._cut_into_segments
+    state = {"round": 0, "seabed": None}
+
+    def recording_cut(*a, **k):
+        state["round"] += 1
+        out = cut_into(*a, **k)
+        for pipe in out:
+            cut.append([state["round"], pipe, "untested", None])
+        return out
+
+    accept = pipe_shape.Seabed.accept
+
+    def recording_accept(self, pipe, seen_length=0.0):
+        ok = accept(self, pipe, seen_length)
+        for row in cut:
+            if row[1] is pipe:
+                row[2] = "ok" if ok else seabed_verdict(pipe, self)
+                if self._rgb is not None:
+                    row[3] = self._contrast(pipe)
+        return ok
+
+    pipes_mod._cut_into_segments = recording_cut
+    pipe_shape.Seabed.accept = recording_accept
+
+
+def near_segments(cut: list, x: np.ndarray, reach: float = 0.15) -> list[str]:
+    """The recorded segments whose axis (between its ends) passes within ``reach`` of ``x``."""
+    out = []
+    for rnd, pipe, verdict, contrast in cut:
+        t = float(np.clip((x - pipe.p) @ pipe.axis, 0.0, pipe.length))
+        d = float(np.linalg.norm(pipe.p + t * pipe.axis - x))
+        if d <= reach:
+            end = min(np.linalg.norm(pipe.p - x), np.linalg.norm(pipe.q - x))
+            c = "-" if contrast is None else f"{contrast:.0f}"
+            out.append(
+                f"r{rnd} {pipe.length:.2f} m r {pipe.radius * 1000:.0f} mm axis {d:.2f} end {end:.2f} {verdict} c {c}"
+            )
+    return out
+
+
 def main(argv=None) -> int:
     from frontends.laser.config import LaserConfig
     from frontends.laser.frontend import segment_scan
@@ -35,7 +85,11 @@ def main(argv=None) -> int:
     ap.add_argument("--seed", type=int, default=9)
     ap.add_argument("--valve", type=int, default=None)
     ap.add_argument("--min-points", type=int, default=200)
+    ap.add_argument("--segments", action="store_true")
     args = ap.parse_args(argv)
+    cut: list = []  # (round, pipe, verdict, contrast) of the current cloud
+    if args.segments:
+        record_segments(cut)
     cfg = LaserConfig()
     mission = simulate_pipeline(PipelineSimConfig(seed=args.seed))
     meta = mission.metadata
@@ -54,6 +108,7 @@ def main(argv=None) -> int:
             continue
         T = poses[int(stamps[np.argmin(np.abs(stamps - m.stamp))])] @ T_BS
         R, t = T[:3, :3], T[:3, 3]
+        cut.clear()
         seg = segment_scan(m.points, cfg, up=R.T @ np.array([0.0, 0.0, -1.0]), rgb=m.rgb)
         for v in show:
             x = R.T @ (np.asarray(valves[v].position) - t)  # the valve in {S}
@@ -67,6 +122,8 @@ def main(argv=None) -> int:
                 for ob in seg.objects
                 if np.linalg.norm(ob.position - x) <= 0.2
             ]
+            if args.segments:
+                print(f"  valve {v} segments: {near_segments(cut, x)}")
             clouds[v] = clouds.get(v, 0) + 1
             with_view[v] = with_view.get(v, 0) + bool(views)
             print(

@@ -204,7 +204,9 @@ class PipeConfig(_Section):
         0.30,
         ge=0,
         description="the colour test applies to segments shorter than this only (m): a longer one on the ground "
-        "is judged by its geometry alone. Turbid water and a pale coating can leave a pipe as dull as the sand "
+        "is judged by its geometry alone, and so are the runs of one cylinder fit cut at fittings whose lengths "
+        "add up to this (those passing the geometric tests: one axis, one radius, interrupted by a valve or a "
+        "socket). Turbid water and a pale coating can leave a pipe as dull as the sand "
         "(pipeline seed 9: contrast 4-16 on 0.45 m views of its pipes); the seabed's cylinder-like shapes that "
         "pass the geometric tests are shorter (pipeline seeds 1, 4, 9, every 3rd cloud: 0.22-0.28 m, none of "
         "10 at 0.30 m or more)",

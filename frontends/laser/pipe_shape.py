@@ -18,7 +18,10 @@ what a pipe has and those shapes lack:
 * with colour (an RGB cloud), a segment shorter than ``color_max_length`` (a partial view, as long
   as a stone's top): it does not look like the ground around it, its median colour at least
   ``min_color_contrast`` (0-255 scale) from the ground's within ``color_reach`` of it. A longer
-  straight cylinder is a pipe by its shape, however dull its colour in turbid water.
+  straight cylinder is a pipe by its shape, however dull its colour in turbid water; so are the
+  runs of one cylinder cut at a fitting (:meth:`Seabed.accept_runs`) when those that pass the
+  geometric tests are that long together: one axis and one radius over that length, interrupted by
+  a valve or a socket, which a stone's top does not have.
 """
 
 from __future__ import annotations
@@ -137,16 +140,36 @@ class Seabed:
             pipe, self._raw_index, self._raw, np.asarray(self._rgb, float), self._raw_ground, self.cfg.color_reach
         )
 
-    def accept(self, pipe: Pipe) -> bool:
-        """The tests of a pipe on the seabed (:func:`lies_like_a_pipe`), with colour when the scan has it."""
-        colour = self._rgb is not None and self._raw is not None and self.cfg.min_color_contrast > 0
-        return lies_like_a_pipe(pipe, self.points, self.ground, self.cfg, self._contrast if colour else None)
+    def _colour(self) -> bool:
+        return self._rgb is not None and self._raw is not None and self.cfg.min_color_contrast > 0
+
+    def accept(self, pipe: Pipe, seen_length: float = 0.0) -> bool:
+        """The tests of a pipe on the seabed (:func:`lies_like_a_pipe`), with colour when the scan has
+        it; ``seen_length``: the length of straight cylinder the segment is part of (see there)."""
+        contrast = self._contrast if self._colour() else None
+        return lies_like_a_pipe(pipe, self.points, self.ground, self.cfg, contrast, seen_length)
+
+    def accept_runs(self, runs: list[Pipe]) -> list[Pipe]:
+        """The ``runs`` (the segments cut from one cylinder fit at its fittings, or at gaps too long to
+        bridge: :func:`frontends.laser.pipes.split_at_fittings`) that pass the tests
+        of a pipe on the seabed. Those that pass the geometric tests lie on one axis with one radius
+        (one fit to all their points): the colour test judges them only when their lengths add up
+        to less than ``color_max_length``, as it judges a lone segment by its own length."""
+        if len(runs) < 2 or not self._colour():
+            return [pipe for pipe in runs if self.accept(pipe)]
+        shaped = [pipe for pipe in runs if lies_like_a_pipe(pipe, self.points, self.ground, self.cfg)]
+        seen = float(sum(pipe.length for pipe in shaped))
+        return [pipe for pipe in shaped if self.accept(pipe, seen)]
 
 
-def lies_like_a_pipe(pipe: Pipe, points: np.ndarray, ground, cfg: PipeConfig, contrast=None) -> bool:
+def lies_like_a_pipe(
+    pipe: Pipe, points: np.ndarray, ground, cfg: PipeConfig, contrast=None, seen_length: float = 0.0
+) -> bool:
     """Whether a segment passes the tests of a pipe lying on the ground (True for one standing clear
     of it, or where there is no ground model). ``contrast``: a callable giving the segment's colour
-    contrast with the ground (:func:`color_contrast`), or None without colour."""
+    contrast with the ground (:func:`color_contrast`), or None without colour; the colour test
+    applies when both the segment and ``seen_length`` (the straight cylinder it is part of, m) are
+    shorter than ``color_max_length``."""
     if ground is None:
         return True
     h = axis_height(pipe, ground)
@@ -162,7 +185,7 @@ def lies_like_a_pipe(pipe: Pipe, points: np.ndarray, ground, cfg: PipeConfig, co
         b, se = bow(pipe, points)
         if b > max(cfg.max_bow, cfg.bow_sigmas * se):
             return False
-    if contrast is not None and cfg.min_color_contrast > 0 and pipe.length < cfg.color_max_length:
+    if contrast is not None and cfg.min_color_contrast > 0 and max(pipe.length, seen_length) < cfg.color_max_length:
         c = contrast(pipe)
         if c is not None and c < cfg.min_color_contrast:
             return False

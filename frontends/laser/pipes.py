@@ -839,7 +839,7 @@ def detect_pipes(
         cb, ab, rb, idx = refined
         found = _cut_into_segments(points, normals, sq, cb, ab, rb, idx, cfg, foreign, seabed, rays)
         if seabed is not None:
-            found = [pipe for pipe in found if seabed.accept(pipe)]
+            found = seabed.accept_runs(found)
         for pipe in found:
             free[pipe.inliers] = False
             stale = True
