@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -52,6 +53,16 @@ def in_session(sid: int) -> list[Proc]:
     """Every living process of session ``sid`` (zombies aside): what a command started with
     ``start_new_session`` left behind, even once reparented after its exit."""
     return [p for p in all_processes() if p.session == sid and p.state != "Z"]
+
+
+def left_in_session(sid: int, within_s: float = 2.0) -> list[Proc]:
+    """What of session ``sid`` is still alive ``within_s`` after the command ended (issue 26's bound
+    for every worker to stop): a process whose exit has begun (its pipes closed, so the caller's
+    ``communicate`` returned) may still be listed for a moment; one still alive at the deadline stayed."""
+    deadline = time.monotonic() + within_s
+    while (left := in_session(sid)) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    return left
 
 
 def survivors(procs: list[Proc]) -> list[Proc]:

@@ -14,7 +14,7 @@ from typer.testing import CliRunner
 
 from faults.bags import Faults, recording
 from faults.commands import semslam_command
-from faults.processes import in_session
+from faults.processes import left_in_session
 from semslam.cli import app
 
 DR = ("-e", "dr", "--frontends", "")  # the quickest run: dead reckoning, no front-end
@@ -163,5 +163,5 @@ def test_a_clock_reset_stops_the_run_and_its_front_end_workers(tmp_path):
     assert "Traceback" not in stderr
     error = [line for line in stderr.splitlines() if "warning" not in line]
     assert len(error) == 1 and error[0].startswith(f"semslam: error: {path}: clock reset at mission time 14.950 s")
-    assert in_session(proc.pid) == []
+    assert left_in_session(proc.pid) == []
     assert sorted(p.name for p in tmp_path.iterdir()) == [path.name]

@@ -19,7 +19,7 @@ import pytest
 from typer.testing import CliRunner
 
 from faults.commands import short_tank_mission
-from faults.processes import in_session
+from faults.processes import left_in_session
 
 pytestmark = pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads the process tree from /proc")
 
@@ -82,7 +82,7 @@ def test_a_full_spill_disk_is_one_line_and_leaves_no_output_and_no_process(missi
     where, _, reason = lines[0].removeprefix("semslam: error: ").partition(": the run's spill file: ")
     assert reason == os.strerror(errno.ENOSPC), lines[0]
     assert where == str(out), lines[0]
-    assert in_session(proc.pid) == []  # the command, its front-end worker and the fork server gone
+    assert left_in_session(proc.pid) == []  # the command, its front-end worker and the fork server gone
     assert list(out.parent.iterdir()) == []  # no output, no staging directory
     assert list(spill.iterdir()) == []  # nothing spilled to TMPDIR
 
