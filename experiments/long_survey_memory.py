@@ -213,7 +213,7 @@ def measure(bag: Path, every_s: float, out_json: Path, trace: bool, count: bool,
     semslam.estimators.create_estimator = capture
     phases = EndPhases()
     phases.after(semslam.eval.outputs, "build_metrics", "metrics built")
-    phases.after(semslam.eval.outputs, "write_run", "outputs written")
+    phases.after(semslam.eval.outputs, "write_staged", "outputs written")
     out_dir = out_json.with_suffix(".run")
     t0 = time.perf_counter()
     with observed_by(probe):

@@ -10,7 +10,7 @@ from semslam.estimation import EstimatorResult
 from semslam.estimators import create_estimator
 from semslam.eval.gps_reference import GpsReference, HoldOut, add_gps_reference
 from semslam.eval.metrics import recovered_failures
-from semslam.eval.outputs import build_metrics, write_run
+from semslam.eval.outputs import build_metrics, staged_output, write_staged
 from semslam.mission.check import input_block, stream_findings, where
 from semslam.mission.mission import Mission, MissionMetadata
 from semslam.mission.rest import at_rest_until_velocity
@@ -102,6 +102,7 @@ def compare_to_dir(
 ) -> tuple[dict, Path]:
     """:func:`run_comparison`, its results and report written to ``out`` as one transaction;
     returns metrics.json's content and the report's path."""
-    result, metrics = run_comparison(mission, config, frontends, progress=progress)
-    out = write_run(out, config, result, metrics, mission.metadata, overwrite=overwrite, report=True)
+    with staged_output(out, overwrite) as stage:  # opened first: the run spills into it
+        result, metrics = run_comparison(mission, config, frontends, progress=progress)
+        write_staged(stage, config, result, metrics, mission.metadata, report=True)
     return metrics, Path(out) / "report.html"

@@ -100,19 +100,21 @@ def run_demo(
     default) the run's replay too. Returns metrics.json's content (plus the wall time) and the
     output directory."""
     from semslam.compare import run_comparison
-    from semslam.eval.outputs import check_output_dir, write_run
+    from semslam.eval.outputs import staged_output, write_staged
     from semslam.eval.replay import make_recorder
     from semslam.mission.bag import read_mission
     from semslam.pipeline import observed_by
 
-    out = check_output_dir(out or default_out_dir(), overwrite)
-    cfg = demo_config()
-    path = demo_mission(progress)
-    mission = read_mission(path, cfg.reader)
-    recorder = make_recorder(record, mission.metadata, record_points)
-    t0 = time.perf_counter()
-    with observed_by(*([recorder] if recorder is not None else [])):
-        result, metrics = run_comparison(mission, cfg, progress=progress)
-    write_run(out, cfg, result, metrics, mission.metadata, overwrite=overwrite, report=True, recorder=recorder)
+    out = Path(out or default_out_dir())
+    # The output opened first: its path checked before any work, the run's spill files on its filesystem.
+    with staged_output(out, overwrite) as stage:
+        cfg = demo_config()
+        path = demo_mission(progress)
+        mission = read_mission(path, cfg.reader)
+        recorder = make_recorder(record, mission.metadata, record_points)
+        t0 = time.perf_counter()
+        with observed_by(*([recorder] if recorder is not None else [])):
+            result, metrics = run_comparison(mission, cfg, progress=progress)
+        write_staged(stage, cfg, result, metrics, mission.metadata, report=True, recorder=recorder)
     metrics["wall_time_s"] = time.perf_counter() - t0
     return metrics, out

@@ -32,19 +32,30 @@ class SpillError(SemslamError):
 
 SPILL_CHUNK_ROWS = 4096  # rows a SpillLog holds in memory, by default
 
-_SPILL_DIR: ContextVar[str | os.PathLike | None] = ContextVar("semslam_spill_dir", default=None)
+# (the directory, what an error calls it)
+_SPILL_DIR: ContextVar[tuple[str | os.PathLike | None, str | os.PathLike | None]] = ContextVar(
+    "semslam_spill_dir", default=(None, None)
+)
 
 
 @contextmanager
-def spilling_into(directory: str | os.PathLike | None) -> Iterator[None]:
+def spilling_into(directory: str | os.PathLike | None, named: str | os.PathLike | None = None) -> Iterator[None]:
     """Every :class:`SpillLog` that opens its file inside the block and was given no directory of its
     own opens it in ``directory`` (None: the enclosing block's, else the system's temporary directory):
-    a run puts them on its output's filesystem (its staging directory), not on a /tmp that may be memory."""
-    token = _SPILL_DIR.set(directory if directory is not None else _SPILL_DIR.get())
+    a run puts them on its output's filesystem (its staging directory), not on a /tmp that may be memory.
+    ``named``: what a failure's message calls the directory (default: its path), e.g. the output
+    directory as the user knows it rather than the hidden stage that is removed with the failure."""
+    token = _SPILL_DIR.set((directory, named) if directory is not None else _SPILL_DIR.get())
     try:
         yield
     finally:
         _SPILL_DIR.reset(token)
+
+
+def spill_directory() -> str | os.PathLike | None:
+    """The directory where a :class:`SpillLog` opening its file now would open it (None: the
+    system's temporary directory)."""
+    return _SPILL_DIR.get()[0]
 
 
 class SpillLog:
@@ -55,12 +66,13 @@ class SpillLog:
     which goes with the process however it ends. :meth:`array` reads them all back. A file that
     cannot be written or read (a full disk) raises :class:`SpillError`, one line naming the directory."""
 
-    __slots__ = ("dtype", "_plain", "_directory", "_file", "_buffer", "_buffered", "_spilled")
+    __slots__ = ("dtype", "_plain", "_directory", "_named", "_file", "_buffer", "_buffered", "_spilled")
 
     def __init__(self, dtype, chunk: int | None = None, directory=None):
         self.dtype = np.dtype(dtype)
         self._plain = self.dtype.names is None  # one value a row, not a record
         self._directory = directory
+        self._named = None  # what a failure's message calls the directory (spilling_into's ``named``)
         self._file = None  # opened when the first chunk is full
         self._buffer = np.empty(chunk or SPILL_CHUNK_ROWS, self.dtype)
         self._buffered = 0
@@ -82,7 +94,7 @@ class SpillLog:
         try:
             if self._file is None:
                 if self._directory is None:
-                    self._directory = _SPILL_DIR.get()
+                    self._directory, self._named = _SPILL_DIR.get()
                 self._file = TemporaryFile(prefix="semslam-", suffix=".rows", dir=self._directory)
             self._file.write(self._buffer.tobytes())
         except OSError as exc:
@@ -91,7 +103,7 @@ class SpillLog:
         self._buffered = 0
 
     def _failure(self, exc: OSError) -> str:
-        where = self._directory if self._directory is not None else tempfile.gettempdir()
+        where = self._named or (self._directory if self._directory is not None else tempfile.gettempdir())
         return f"{where}: the run's spill file: {exc.strerror or exc}"
 
     def array(self) -> np.ndarray:

@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from semslam.estimation import EstimatorResult, Trajectory
+from semslam.eval import recognition
 from semslam.eval.recognition import recognition_block
 from semslam.mapping.book import view_key
 from semslam.mission import GroundTruthMap, GtObject, MissionMetadata, SensorInfo
@@ -90,3 +91,29 @@ def test_labelled_views_give_back_what_the_tables_read():
         assert list(v.class_likelihood.items()) == list(o.class_likelihood.items())
         assert view_key(v.view_stamp, v.sensor, v.position) == view_key(o.stamp, o.sensor, o.position)
     assert [v.configuration for v in got] == [None, None, 4]
+
+
+def test_the_tables_of_a_long_survey_never_hold_every_view_at_once(monkeypatch):
+    """A 2-hour survey has ~72,000 labelled views: the tables read them a chunk at a time and keep a
+    few numbers of each (its true and recognised classes), not every view's Python objects (~2 kB a
+    view: its likelihood dict, position array and record), which made the run's memory peak."""
+    import tracemalloc
+
+    pipe, meta = _setup()
+    recognition_block(pipe, meta)  # what it imports (scipy's rotations) is not what is measured
+    monkeypatch.setattr(recognition, "RECORD_CHUNK", 256)  # views placed at once: a constant, kept small here
+    n = 5_000
+    views, landmark_of = LabelledViews(), pipe.results["graph"].history["landmark_of_observation"]
+    for k in range(n):  # object A, 2 m ahead of the sensor, seen from the pose at 1 s, all in landmark 7
+        z = PointObservation(1_000_000_000 + k, "laser", position=[2.0, 0, 0], class_likelihood={"A": 0.7, "B": 0.3})
+        views.append(1_000_000_000, z)
+        landmark_of[view_key(z.stamp, z.sensor, z.position)] = 7
+    pipe.labelled = views
+    tracemalloc.start()
+    try:
+        rec = recognition_block(pipe, meta)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert rec["DESC"]["n"] == n and rec["SEM"]["accuracy"] == 1.0
+    assert peak < 400 * n, f"{peak / n:.0f} bytes a view at the peak"

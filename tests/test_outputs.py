@@ -117,6 +117,26 @@ def test_a_directory_that_appears_during_the_run_is_not_overwritten(tmp_path):
     assert [p.name for p in out.iterdir()] == ["someone_elses.txt"] and _hidden(tmp_path) == []
 
 
+def test_a_stage_no_run_holds_is_removed_by_the_next_run_into_that_output(tmp_path):
+    out = tmp_path / "run"
+    with staged_output(out) as stage:  # held by this run: another run into "run" leaves it alone
+        (stage / "metrics.json").write_text("{}")
+        with pytest.raises(OutputError, match="exists already"):
+            with staged_output(out) as other:
+                (other / "metrics.json").write_text("{}")
+                out.mkdir()  # appears meanwhile (as another run's output would)
+                (out / "theirs.txt").write_text("x")
+        (out / "theirs.txt").unlink()
+        out.rmdir()
+        assert stage.is_dir()
+    abandoned = tmp_path / ".run.x1y2.partial"  # what a run killed by SIGKILL leaves
+    (abandoned / ".spill").mkdir(parents=True)
+    elsewhere = tmp_path / ".other.x1y2.partial"  # another output's: not this one's to remove
+    elsewhere.mkdir()
+    _write(out, overwrite=True)
+    assert _hidden(tmp_path) == [elsewhere.name]
+
+
 def test_the_cli_checks_the_output_before_any_work(tmp_path):
     from semslam.cli import app
 

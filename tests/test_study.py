@@ -142,6 +142,7 @@ def test_local_cluster_interrupted_then_resumed(inputs, serial, tmp_path):
     assert [m["reused"] for m in study["missions"]] == [m["mission"] in done for m in study["missions"]]
     assert study_numbers(out) == {name: s["numbers"] for name, s in serial.items()}
     assert not list((out / ".study").glob("staging/*"))
+    assert not list(out.glob("tank-*/.*"))  # each mission spilled into its stage's .spill, removed before it committed
     # A simulated mission's warnings name the mission, not its bag in the stage (gone once committed).
     warned = {
         d.name: json.loads((d / "metrics.json").read_text())["input"].get("warnings", []) for d in out.glob("tank-*")

@@ -49,29 +49,30 @@ def run(
     from semslam.config import load_config
     from semslam.estimators import create_estimator
     from semslam.eval.gps_reference import GpsReference, HoldOut, add_gps_reference
-    from semslam.eval.outputs import build_metrics, check_output_dir, write_run
+    from semslam.eval.outputs import build_metrics, staged_output, write_staged
     from semslam.eval.replay import make_recorder
     from semslam.pipeline import run_pipeline
     from semslam.registry import create_frontends
 
-    check_output_dir(out, overwrite)
-    cfg = load_config(config)
-    m, names, warnings = checked_mission(mission, cfg, frontends, allow_missing)
-    est = create_estimator(estimator, m.metadata, cfg, batch=batch)
-    fes = create_frontends(names, m.metadata, cfg.frontends)
-    recorder = make_recorder(record, m.metadata, record_points)
-    observers = [recorder] if recorder is not None else []
-    ref = GpsReference.hold_out(m, HoldOut.parse(hold_out_gps)) if hold_out_gps is not None else None
-    seen = estimators_input(m, cfg, ref)
-    # Only the labelled object observations (what the recognition tables read): a long survey's
-    # records would otherwise keep every observation of the mission.
-    result = run_pipeline(
-        seen, [est], fes, progress=sys.stderr.isatty(), observers=observers, keep_observations="labelled"
-    )
-    metrics = add_gps_reference(build_metrics(result, m.metadata), ref, result, m.metadata)
-    metrics["frontends"] = names
-    after_the_pass(m, result, metrics, warnings)
-    write_run(out, cfg, result, metrics, m.metadata, overwrite=overwrite, recorder=recorder)
+    # The output opened first: its path checked before any work, the run's spill files on its filesystem.
+    with staged_output(out, overwrite) as stage:
+        cfg = load_config(config)
+        m, names, warnings = checked_mission(mission, cfg, frontends, allow_missing)
+        est = create_estimator(estimator, m.metadata, cfg, batch=batch)
+        fes = create_frontends(names, m.metadata, cfg.frontends)
+        recorder = make_recorder(record, m.metadata, record_points)
+        observers = [recorder] if recorder is not None else []
+        ref = GpsReference.hold_out(m, HoldOut.parse(hold_out_gps)) if hold_out_gps is not None else None
+        seen = estimators_input(m, cfg, ref)
+        # Only the labelled object observations (what the recognition tables read): a long survey's
+        # records would otherwise keep every observation of the mission.
+        result = run_pipeline(
+            seen, [est], fes, progress=sys.stderr.isatty(), observers=observers, keep_observations="labelled"
+        )
+        metrics = add_gps_reference(build_metrics(result, m.metadata), ref, result, m.metadata)
+        metrics["frontends"] = names
+        after_the_pass(m, result, metrics, warnings)
+        write_staged(stage, cfg, result, metrics, m.metadata, recorder=recorder)
     e = metrics["estimators"][est.name]
     ate = "n/a" if e["ate_rmse_m"] is None else f"{e['ate_rmse_m']:.3f} m"
     typer.echo(

@@ -4,12 +4,16 @@ and (compare, demo) the report and (``--record``) the replay.
 An output directory appears whole or not at all: :func:`staged_output` stages everything in a
 hidden sibling directory (same file system) and renames it into place at the end; an existing
 directory is refused unless ``overwrite``, which replaces it whole. :func:`check_output_dir` says
-before a run whether its output could be written at all.
+before a run whether its output could be written at all. A command opens the stage before its
+pipeline runs: the run's spill files (:class:`semslam.estimation.SpillLog`) go into a hidden
+directory of the stage (:data:`SPILL_DIR`), on the output's filesystem, removed before the rename.
 """
 
 from __future__ import annotations
 
 import errno
+import fcntl
+import glob
 import json
 import os
 import shutil
@@ -22,7 +26,7 @@ import numpy as np
 
 from semslam.config import SemslamConfig, dump_config
 from semslam.errors import SemslamError
-from semslam.estimation import EstimatorResult, LandmarkEstimate
+from semslam.estimation import EstimatorResult, LandmarkEstimate, spilling_into
 from semslam.eval.metrics import estimator_metrics, sonar_metrics
 from semslam.eval.recognition import recognition_block
 from semslam.mission.mission import MissionMetadata
@@ -30,6 +34,9 @@ from semslam.results import OBSERVATION_MAPS, PipelineResult
 
 # What marks a directory as a semslam output (every run writes it): only such a directory is replaced.
 MARKER_FILE = "metrics.json"
+# The stage's directory of the run's spill files (anonymous: it lists none), removed before the rename.
+SPILL_DIR = ".spill"
+STAGE_SUFFIX = ".partial"  # a stage is ".<output's name>.<random>.partial" beside the output
 
 
 class OutputError(SemslamError):
@@ -81,23 +88,81 @@ def check_output_dir(out_dir: str | Path, overwrite: bool = False) -> Path:
 def staged_output(out_dir: str | Path, overwrite: bool = False) -> Iterator[Path]:
     """Yield a staging directory to write an output into; on leaving the block without error it
     becomes ``out_dir`` (replacing an existing one only with ``overwrite``); on any error it is
-    removed and ``out_dir`` is left as it was. OSErrors become one-line :class:`OutputError`s."""
+    removed and ``out_dir`` is left as it was. OSErrors on the output (a file of the stage or beside
+    ``out_dir``, or one naming no file once the output is being written) become one-line
+    :class:`OutputError`s; others pass unchanged.
+
+    Open it before the run: every spill file opened in the block
+    (:func:`semslam.estimation.spilling_into`) goes into the stage's hidden :data:`SPILL_DIR`, on
+    the output's filesystem, and a full disk there is one line naming ``out_dir``."""
     out_dir = check_output_dir(out_dir, overwrite)
+    _remove_abandoned_stages(out_dir)
+    lock = None
     try:
-        stage = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", suffix=".partial", dir=out_dir.parent))
+        stage = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", suffix=STAGE_SUFFIX, dir=out_dir.parent))
+        lock = _lock(stage)
+        spill = stage / SPILL_DIR
+        spill.mkdir()
     except OSError as exc:
+        if lock is not None:
+            os.close(lock)
         raise _os_error(out_dir.parent, exc) from None
     try:
         try:
-            yield stage
+            with spilling_into(spill, named=out_dir):  # a full disk there: one line naming out_dir
+                yield stage
+            shutil.rmtree(spill)  # empty: the spill files are anonymous (they live on while open)
             umask = os.umask(0)
             os.umask(umask)
             stage.chmod(0o777 & ~umask)  # mkdtemp's 0700 would make a private output
             _commit(stage, out_dir, overwrite)
         except OSError as exc:
+            if not _on_the_output(exc, out_dir, stage):
+                raise
             raise _os_error(out_dir, exc, stage) from None
     finally:
         shutil.rmtree(stage, ignore_errors=True)
+        os.close(lock)
+
+
+def _lock(stage: Path) -> int:
+    """Hold ``stage`` for this process (released when it ends, however: SIGKILL too); the descriptor."""
+    fd = os.open(stage, os.O_RDONLY | os.O_DIRECTORY)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        os.close(fd)
+        raise
+    return fd
+
+
+def _remove_abandoned_stages(out_dir: Path) -> None:
+    """The stages of earlier runs into ``out_dir`` that no process holds any more: a run killed with
+    SIGKILL (or a machine that stopped) cannot remove its own, hidden but taking room beside the output."""
+    for stage in out_dir.parent.glob(f".{glob.escape(out_dir.name)}.*{STAGE_SUFFIX}"):
+        try:
+            fd = _lock(stage)
+        except OSError:  # held by a running run (or gone meanwhile)
+            continue
+        try:
+            shutil.rmtree(stage, ignore_errors=True)
+        finally:
+            os.close(fd)
+
+
+def _on_the_output(exc: OSError, out_dir: Path, stage: Path) -> bool:
+    """Whether ``exc`` is a failure of the output (not of the run inside the block, e.g. reading
+    the mission): it names a file of the stage, ``out_dir`` or a hidden sibling of it; or it names
+    none (a failed write() on a full disk) and the output is being written (the stage holds a file)."""
+    if not exc.filename:
+        return _newest_file(stage) is not None
+    where = Path(os.path.abspath(exc.filename))
+    out = Path(os.path.abspath(out_dir))
+    return (
+        where.is_relative_to(os.path.abspath(stage))
+        or where.is_relative_to(out)
+        or (where.parent == out.parent and where.name.startswith(f".{out.name}."))
+    )
 
 
 def _commit(stage: Path, out_dir: Path, overwrite: bool) -> None:
@@ -338,17 +403,32 @@ def write_run(
     report.html, figures/) and the replay (a :class:`semslam.eval.replay.ReplayRecorder` that
     watched the run: replay.mcap and its Foxglove layout)."""
     with staged_output(out_dir, overwrite) as stage:
-        write_results(stage, config, pipeline, metrics)
-        if recorder is not None:
-            from semslam.eval.replay import LAYOUT_FILE, LAYOUT_PATH, REPLAY_FILE
-
-            recorder.write(stage / REPLAY_FILE, pipeline)
-            shutil.copyfile(LAYOUT_PATH, stage / LAYOUT_FILE)
-        if report:
-            from semslam.eval.report import write_report
-
-            write_report(stage, pipeline, metadata, metrics, replay=recorder is not None)
+        write_staged(stage, config, pipeline, metrics, metadata, report=report, recorder=recorder)
     return Path(out_dir)
+
+
+def write_staged(
+    stage: Path,
+    config: SemslamConfig,
+    pipeline: PipelineResult,
+    metrics: dict,
+    metadata: MissionMetadata,
+    *,
+    report: bool = False,
+    recorder=None,
+) -> None:
+    """What :func:`write_run` writes, into the stage of a :func:`staged_output` block that the
+    command opened before its run (so that the run spilled into it)."""
+    write_results(stage, config, pipeline, metrics)
+    if recorder is not None:
+        from semslam.eval.replay import LAYOUT_FILE, LAYOUT_PATH, REPLAY_FILE
+
+        recorder.write(stage / REPLAY_FILE, pipeline)
+        shutil.copyfile(LAYOUT_PATH, stage / LAYOUT_FILE)
+    if report:
+        from semslam.eval.report import write_report
+
+        write_report(stage, pipeline, metadata, metrics, replay=recorder is not None)
 
 
 def observation_map_to_dict(result: EstimatorResult, decimals: int = 4) -> dict:

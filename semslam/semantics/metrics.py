@@ -104,13 +104,13 @@ def stage_predictions(
     """The recognised class of every record at the DESC, BAYS and SEM stages (record order)."""
     if mode not in ("online", "final"):
         raise ValueError(f"mode must be 'online' or 'final', got {mode!r}")
-    records = list(records)
     fusion = ClassFusion(classes, prior=prior, connectivity=connectivity)
     out: dict[str, list[str]] = {"DESC": [], "BAYS": [], "SEM": []}
     keys = []
-    for i, r in enumerate(records):
+    for i, r in enumerate(records):  # one pass: records may stream (a long survey's, never all kept)
         key = r.landmark_id if r.landmark_id is not None else ("__unassociated__", i)
-        keys.append(key)
+        if mode == "final":
+            keys.append(key)
         fusion.update(key, r.likelihood, r.configuration)
         out["DESC"].append(_argmax(r.likelihood, classes))
         if mode == "online":
@@ -133,10 +133,16 @@ def recognition_metrics(
 ) -> dict[str, dict | None]:
     """Metrics of the four stages, in the ``metrics.json`` "recognition" layout
     (``{stage: {accuracy, precision, recall, f1, confusion, ...}}``); SYN is None without its
-    confusion matrix, and a stage without observations has ``None`` figures."""
-    records = list(records)
-    preds = stage_predictions(records, classes, connectivity=connectivity, prior=prior, mode=mode)
-    truth = [r.true_class for r in records]
+    confusion matrix, and a stage without observations has ``None`` figures. ``records`` are read
+    once, in order (an iterator is enough: none is kept)."""
+    truth: list[str] = []
+
+    def noted(rows):  # the true classes noted as the records pass: one pass over a stream
+        for r in rows:
+            truth.append(r.true_class)
+            yield r
+
+    preds = stage_predictions(noted(records), classes, connectivity=connectivity, prior=prior, mode=mode)
     out: dict[str, dict | None] = {
         "SYN": classification_metrics(syn_confusion, classes) if syn_confusion is not None else None
     }

@@ -3,8 +3,8 @@ the :class:`~semslam.study.plan.MissionTask` as JSON on stdin.
 
 Simulates the mission if it is a scenario's (into ``STAGE/mission.bag``, kept with ``--keep-bags``),
 reads the bag, compares dr / ekf / graph as ``semslam compare`` does
-(:func:`semslam.compare.run_comparison`, its results and report written into ``STAGE``, which is
-itself the study's transaction), and writes the mission's record
+(:func:`semslam.compare.run_comparison`, spilling into ``STAGE``'s hidden ``.spill``, its results and
+report written into ``STAGE``, which is itself the study's transaction), and writes the mission's record
 (``study_mission.json``) last: a stage without it is incomplete. GTSAM and Open3D live only here.
 
 Why a process and not the Dask worker itself: a timeout can kill it (a Python thread cannot be
@@ -77,8 +77,9 @@ def compute(task: MissionTask, stage: Path) -> dict:
     """Compute the mission into ``stage``; returns its record (also written there, last)."""
     from semslam.compare import default_frontends, run_comparison
     from semslam.config import SemslamConfig
+    from semslam.estimation import spilling_into
     from semslam.eval.gps_reference import HoldOut
-    from semslam.eval.outputs import write_results
+    from semslam.eval.outputs import SPILL_DIR, write_results
     from semslam.eval.report import write_report
     from semslam.mission.check import check_mission
 
@@ -93,14 +94,20 @@ def compute(task: MissionTask, stage: Path) -> dict:
     t_mission = time.perf_counter() - t0
     # As many front-end workers as the cores the study left this mission (one when it runs one per core).
     hold_out = HoldOut.parse(task.hold_out_gps) if task.hold_out_gps else None
-    result, metrics = run_comparison(
-        mission,
-        config,
-        task.frontends,
-        frontend_workers=task.frontend_workers,
-        hold_out_gps=hold_out,
-        check_warnings=check.warnings,
-    )
+    # The run's spill files in the mission's own stage (on the study's filesystem), removed before it
+    # commits; a full disk there is this mission's failure, one line naming its folder.
+    spill = stage / SPILL_DIR
+    spill.mkdir()
+    with spilling_into(spill, named=Path(task.study_dir) / task.mission):
+        result, metrics = run_comparison(
+            mission,
+            config,
+            task.frontends,
+            frontend_workers=task.frontend_workers,
+            hold_out_gps=hold_out,
+            check_warnings=check.warnings,
+        )
+    spill.rmdir()  # empty: the spill files are anonymous (they live on while open)
     write_results(stage, config, result, metrics)
     report = write_report(stage, result, mission.metadata, metrics)
     if not task.keep_bag:

@@ -21,6 +21,7 @@ import pytest
 
 from faults.commands import semslam_command, short_tank_mission
 from faults.processes import Proc, descendants, survivors
+from semslam.eval.outputs import staged_output
 
 pytestmark = pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads the process tree from /proc")
 
@@ -149,4 +150,13 @@ def test_the_workers_exit_when_the_command_is_killed(mission, tmp_path):
     assert stopped.left == [], f"left running: {stopped.left}"
     assert stopped.returncode == -signal.SIGKILL
     assert stopped.workers_s is not None and stopped.workers_s <= WORKERS_STOP_S, stopped
-    assert_nothing_written(tmp_path / "out")
+    # Nothing visible; the hidden stage the command opened before its run (its spill files were
+    # anonymous: gone with it) is removed by the next run into the same output.
+    out = tmp_path / "out"
+    assert not out.exists()
+    left = [p for p in out.parent.iterdir() if p.name.startswith(f".{out.name}.")]
+    assert [p.name.endswith(".partial") for p in left] == [True], left
+    assert [p.name for p in left[0].iterdir()] == [".spill"] and not any((left[0] / ".spill").iterdir())
+    with staged_output(out) as stage:
+        (stage / "metrics.json").write_text("{}")
+    assert [p.name for p in out.parent.iterdir() if p.name.startswith(f".{out.name}.")] == []
