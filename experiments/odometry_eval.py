@@ -5,6 +5,7 @@ the error of the accepted relative poses, their NEES against the front-end's cov
 
     python experiments/odometry_eval.py [--seeds 0,1] [--duration 120] [--config JSON] [--profile N]
     python experiments/odometry_eval.py --scenario pipeline --seeds 1 [--outage 40,60] [--cache DIR]
+    python experiments/odometry_eval.py --seeds 9 --duration 200 --pairs /tmp/pairs  # one JSON line per pair
 """
 
 from __future__ import annotations
@@ -70,8 +71,11 @@ def pose_error(T_true: np.ndarray, T_meas: np.ndarray) -> np.ndarray:
     return np.concatenate([Rotation.from_matrix(E[:3, :3]).as_rotvec(), E[:3, 3]])
 
 
-def evaluate(mission, config: dict | None = None, window: tuple[int, int] | None = None) -> dict:
-    """The summary; with ``window`` (stamps), also the NEES of the registrations ending inside it and outside."""
+def evaluate(
+    mission, config: dict | None = None, window: tuple[int, int] | None = None, pairs: list | None = None
+) -> dict:
+    """The summary; with ``window`` (stamps), also the NEES of the registrations ending inside it and outside;
+    ``pairs`` (a list) receives one record per accepted registration (its error, σ and NEES by block)."""
     items = list(mission)
     truth = TruthInterpolator([m for m in items if isinstance(m, GroundTruthPose)])
     fe = OdometryFrontend(mission.metadata, config or {})
@@ -90,6 +94,18 @@ def evaluate(mission, config: dict | None = None, window: tuple[int, int] | None
         nees.append(float(xi @ np.linalg.solve(z.covariance, xi)))
         nees_rot.append(float(xi[:3] @ np.linalg.solve(z.covariance[:3, :3], xi[:3])))
         nees_trans.append(float(xi[3:] @ np.linalg.solve(z.covariance[3:, 3:], xi[3:])))
+        if pairs is not None:
+            pairs.append(
+                {
+                    "stamp": z.stamp,
+                    "stamp_from": z.stamp_from,
+                    "error": xi.tolist(),  # body frame: rotation (rad), translation (m)
+                    "sigma": np.sqrt(np.diag(z.covariance)).tolist(),
+                    "nees": nees[-1],
+                    "nees_rotation": nees_rot[-1],
+                    "nees_translation": nees_trans[-1],
+                }
+            )
     errors = np.array(errors).reshape(-1, 6)
     n = len(nees)
     band = (chi2.ppf(0.025, 6 * n) / n, chi2.ppf(0.975, 6 * n) / n) if n else (None, None)
@@ -137,6 +153,7 @@ def main() -> None:
     )
     ap.add_argument("--cache", type=Path, help="keep the simulated missions here (pickled) and reuse them")
     ap.add_argument("--sim", default="{}", help="simulator overrides as JSON (sections merged over the seed's draws)")
+    ap.add_argument("--pairs", type=Path, help="write each seed's registrations to DIR/seed<N>.jsonl (error, σ, NEES)")
     ap.add_argument("--profile", type=int, default=0, help="print this many functions by own CPU time")
     args = ap.parse_args()
     config = json.loads(args.config) if args.config else STEREO_SEABED if args.scenario == "pipeline" else {}
@@ -155,7 +172,11 @@ def main() -> None:
         profiler = cProfile.Profile(time.process_time) if args.profile else None
         if profiler:
             profiler.enable()
-        r = evaluate(mission, config, window)
+        pairs = [] if args.pairs else None
+        r = evaluate(mission, config, window, pairs)
+        if args.pairs:
+            args.pairs.mkdir(parents=True, exist_ok=True)
+            (args.pairs / f"seed{seed}.jsonl").write_text("".join(json.dumps(p) + "\n" for p in pairs))
         print(f"seed {seed}: " + json.dumps(r), flush=True)
         if profiler:
             profiler.disable()

@@ -148,6 +148,13 @@ class OdometryConfig(BaseModel):
         "or 'registration' (kiss-icp's 6 DoF); with the first two the translation is re-solved with that rotation "
         "held, and the relative pose's rotation covariance is the navigation prior's",
     )
+    held_max_distance_m: float | None = Field(
+        None,
+        gt=0,
+        description="with the attitude held, re-solve the translation (and take its covariance) from the scan points "
+        "within min(kiss-icp's 3σ threshold, this) of the map, and judge the overlap at kiss-icp's threshold; null: "
+        "kiss-icp's 3σ for both (an experiment's setting: experiments/odometry/README.md, stop 36)",
+    )
     restart_after: int = Field(
         3, ge=1, description="this many rejected scans in a row start a new local map at the next usable scan"
     )

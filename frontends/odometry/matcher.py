@@ -156,20 +156,24 @@ class ScanMatcher:
         planes = _MapPlanes(np.asarray(self.kiss.local_map.point_cloud()), world, 3 * sigma)
         info, n_in, residual_var = planes.information(source, pose, 3 * sigma)
         cov = self._covariance(info, residual_var, n_in)
+        overlap = n_in  # judged at kiss-icp's threshold where the re-solve's bound is tighter
         if self.cfg.attitude != "registration" and rotation_cov is not None and np.isfinite(cov).all():
+            bound = self.cfg.held_max_distance_m
+            near = 3 * sigma if bound is None else min(3 * sigma, bound)
             pose[:3, :3] = self._held_rotation(pose[:3, :3], predicted[:3, :3])
-            pose[:3, 3] = planes.translation(source, pose, 3 * sigma, sigma / 3)
-            info, n_in, residual_var = planes.information(source, pose, 3 * sigma)
+            pose[:3, 3] = planes.translation(source, pose, near, sigma / 3)
+            info, n_in, residual_var = planes.information(source, pose, near)
             cov = self._held_covariance(info, residual_var, n_in, cov, rotation_cov, pose[:3, :3])
+            overlap = n_in if bound is None else overlap
         correction = np.linalg.inv(predicted) @ pose
         # kiss-icp's rotation is judged, and the translation where it ends (re-solved: it may walk further)
         judged = icp_correction.copy()
         judged[:3, 3] = max((icp_correction[:3, 3], correction[:3, 3]), key=np.linalg.norm)
-        rejected = self._judge(judged, cov, n_in, len(source))
+        rejected = self._judge(judged, cov, overlap, len(source))
         if rejected is None:
             self.kiss.adaptive_threshold.update_model_deviation(correction)
             self._add(stamp, down, pose)
-        return Registration(pose, correction, cov, info, residual_var, n_in, len(source), rejected)
+        return Registration(pose, correction, cov, info, residual_var, overlap, len(source), rejected)
 
     def _held_rotation(self, R_icp: np.ndarray, R_pred: np.ndarray) -> np.ndarray:
         """The scan's rotation with the navigation's attitude: the prior's whole (``navigation``), or
