@@ -20,6 +20,7 @@ from semslam.config import SemslamConfig
 from semslam.estimation import SpillError, SpillLog, spilling_into
 from semslam.mapping.book import LandmarkBook, view_key
 from semslam.observations import LineObservation, PointObservation
+from semslam.pipeline import run_pipeline
 from tests.support.synthetic_mission import SyntheticConfig, simulate
 
 
@@ -133,12 +134,7 @@ def _run_small_graph(duration_s: float = 40.0):
     mission = simulate(SyntheticConfig(duration_s=duration_s, n_pipes=0, n_structures=0, seed=3))
     est = GraphEstimator(mission.metadata, SemslamConfig())
     fe = OracleFrontend(mission.metadata, {"seed": 1})
-    view = est.view()
-    for m in mission:
-        est.process_measurement(m)
-        if isinstance(m, fe.consumes):
-            est.process_observations(m.stamp, fe.process(m, view))
-    return est, est.finish()
+    return est, run_pipeline(mission, [est], [fe], keep_observations=False).results[est.name]
 
 
 def test_online_poses_come_back_as_the_list_of_poses_held(small_chunks):
