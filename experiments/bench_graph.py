@@ -146,8 +146,8 @@ def bench_long(hours: float) -> dict:
                 est.process_observations(m.stamp, obs)
         if (m.stamp - start) * 1e-9 >= next_report:
             # The updates of the last 600 s of mission (keyframes and observations).
-            recent = np.array(est.update_times[i0:]) * 1e3
-            i0 = len(est.update_times)
+            recent = est.updates.array()["wall_s"][i0:] * 1e3
+            i0 = len(est.updates)
             w = {
                 "t_s": next_report,
                 "landmarks": len(est.map),

@@ -10,7 +10,17 @@ from test_backend_graph import DROPOUTS, ate, dr_ate, indeterminate_landmark
 
 from frontends.oracle import OracleFrontend
 from semslam.backend.graph import GraphEstimator
-from semslam.backend.window import LEFT_COVARIANCE_EVERY, X, marginal_factors, split_factors, subset
+from semslam.backend.window import (
+    LEFT_COVARIANCE_EVERY,
+    B,
+    FrozenValues,
+    V,
+    X,
+    marginal_factors,
+    split_factors,
+    subset,
+    value_of,
+)
 from semslam.config import SemslamConfig
 from tests.support.synthetic_mission import SyntheticConfig, landmark_report, run_graph, simulate
 
@@ -205,3 +215,35 @@ def test_failed_marginalisation_keeps_the_full_smoother(monkeypatch):
     assert not est.window.slides and est.window.first_active == 0
     assert sum("marginalising" in d for d in res.diagnostics) == 1  # retried after half a window, not at every keyframe
     assert est.session.isam.valueExists(X(0)) and len(res.trajectory) == len(est.keyframes.stamps)
+
+
+def test_frozen_estimates_come_back_as_gtsam_values_held_them():
+    """What left the window is kept compactly (keyframes as numpy rows): read at random and all at the
+    end, it is what a ``gtsam.Values`` updated the same way held, bit for bit."""
+    rng = np.random.default_rng(1)
+    L = gtsam.symbol_shorthand.L
+    estimate = gtsam.Values()
+    for k in range(100):
+        estimate.insert(X(k), gtsam.Pose3(gtsam.Rot3.Expmap(rng.normal(size=3)), rng.normal(size=3) * 50))
+        estimate.insert(V(k), rng.normal(size=3))
+        if k % 2:  # a bias at some keyframes only
+            estimate.insert(B(k), rng.normal(size=1))
+    estimate.insert(L(3), rng.normal(size=3))
+    frozen, held = FrozenValues(), gtsam.Values()
+    for lo, hi in ((0, 40), (40, 100)):  # two slides; the landmark leaves twice, the second time moved
+        drop = {key for i in range(lo, hi) for key in (X(i), V(i), B(i))} | {L(3)}
+        frozen.insert_or_assign(estimate, drop)
+        held.insert_or_assign(subset(estimate, [k for k in drop if estimate.exists(k)]))
+        estimate.update(L(3), rng.normal(size=3))
+    assert frozen._rows.nbytes < 200 * 100  # ~131 bytes a keyframe
+    assert np.array_equal(frozen.atPose3(X(77)).matrix(), held.atPose3(X(77)).matrix())
+    back = gtsam.Values()
+    back.insert(L(3), np.zeros(3))  # a landmark that came back keeps the window's estimate
+    frozen.insert_into(back)
+    assert list(back.keys()) == list(held.keys())
+    for key in back.keys():
+        a, b = value_of(back, key), value_of(held, key)
+        if gtsam.Symbol(key).chr() == ord("x"):
+            a, b = a.matrix(), b.matrix()
+        assert np.array_equal(a, b) or key == L(3)
+    assert np.array_equal(value_of(back, L(3)), np.zeros(3))

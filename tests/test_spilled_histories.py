@@ -8,12 +8,20 @@ from __future__ import annotations
 import gtsam
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 import semslam.estimation as estimation
+from frontends.oracle import OracleFrontend
+from semslam.backend.graph import GraphEstimator
+from semslam.backend.keyframes import OnlinePoses
+from semslam.backend.result import online_trajectory
 from semslam.backend.window import LeftCovariances
+from semslam.config import SemslamConfig
 from semslam.estimation import SpillError, SpillLog, spilling_into
 from semslam.mapping.book import LandmarkBook, view_key
 from semslam.observations import LineObservation, PointObservation
+from semslam.pipeline import run_pipeline
+from tests.support.synthetic_mission import SyntheticConfig, simulate
 
 
 @pytest.fixture
@@ -119,3 +127,52 @@ def test_logs_spill_into_the_directory_of_the_enclosing_block(tmp_path, small_ch
         for i in range(12):
             elsewhere.append(i)
     assert np.array_equal(elsewhere.array(), np.arange(12))
+
+
+def _run_small_graph(duration_s: float = 40.0):
+
+    mission = simulate(SyntheticConfig(duration_s=duration_s, n_pipes=0, n_structures=0, seed=3))
+    est = GraphEstimator(mission.metadata, SemslamConfig())
+    fe = OracleFrontend(mission.metadata, {"seed": 1})
+    return est, run_pipeline(mission, [est], [fe], keep_observations=False).results[est.name]
+
+
+def test_online_poses_come_back_as_the_list_of_poses_held(small_chunks):
+    """Each keyframe's online pose (the newest renewed after its landmarks) is on disk past a chunk and
+    comes back as the trajectory a list of (stamp, Pose3, covariance) gave."""
+
+    rng = np.random.default_rng(4)
+    log, held = OnlinePoses(), []
+    for k in range(13):
+        for renewed in range(int(rng.integers(1, 3))):  # appended, then renewed once or not at all
+            pose = gtsam.Pose3(gtsam.Rot3.Expmap(rng.normal(size=3)), rng.normal(size=3))
+            cov = rng.normal(size=(3, 3))
+            if renewed:
+                log.renew(pose, cov)
+                held[-1] = (held[-1][0], pose, cov)
+            else:
+                log.append(1000 + k, pose, cov)
+                held.append((1000 + k, pose, cov))
+    assert len(log) == 13 and log._rows._spilled == 10  # two chunks on disk, the newest not yet in the log
+    traj = online_trajectory(log.array())
+    assert np.array_equal(traj.stamps, [s for s, _, _ in held])
+    assert np.array_equal(traj.positions, [p.translation() for _, p, _ in held])
+    assert np.array_equal(
+        traj.orientations, [Rotation.from_matrix(p.rotation().matrix()).as_quat() for _, p, _ in held]
+    )
+    assert np.array_equal(traj.position_cov, [c for _, _, c in held])
+
+
+def test_graph_keeps_a_chunk_of_its_timings_and_online_poses(small_chunks):
+    """What the graph appends an update or a keyframe (its timings, each keyframe's online pose) is on
+    disk past a chunk during the mission, and the result has every one of them."""
+    est, result = _run_small_graph()
+    n_updates, n_keyframes = len(result.update_times_s), len(result.online_trajectory)
+    assert n_updates > 20 and n_keyframes > 20
+    assert est.updates._buffered < 5 and est.updates._spilled == n_updates - est.updates._buffered
+    assert est.keyframes.online._rows._buffered < 5 and len(est.keyframes.online) == n_keyframes
+    kinds = result.history["update_kinds"]
+    assert len(kinds) == len(result.update_n_landmarks) == len(result.history["update_cpu_s"]) == n_updates
+    assert set(kinds) <= {"gps", "keyframe", "observations"} and "observations" in kinds
+    assert result.update_n_landmarks.dtype == int and result.update_n_landmarks[-1] == len(est.map)
+    assert np.array_equal(result.online_trajectory.stamps, est.keyframes.stamps)

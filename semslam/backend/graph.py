@@ -24,12 +24,15 @@ from semslam.backend.result import final_values, keyframe_trajectory, online_tra
 from semslam.backend.session import IsamSession
 from semslam.backend.window import SlidingWindow
 from semslam.config import GraphConfig, SemslamConfig
-from semslam.estimation import EstimateView, Estimator, EstimatorResult, LandmarkEstimate, Trajectory
+from semslam.estimation import EstimateView, Estimator, EstimatorResult, LandmarkEstimate, SpillLog, Trajectory
 from semslam.mapping.book import LandmarkBook
 from semslam.mapping.builder import MapBuilder
 from semslam.mission.measurements import GpsFix, Measurement
 from semslam.mission.mission import MissionMetadata
 from semslam.observations import Observation, OdometryObservation
+
+UPDATE_KINDS = ("gps", "keyframe", "observations")  # what an update was (the timings' ``kind`` column)
+UPDATE_ROW = np.dtype([("wall_s", "f8"), ("cpu_s", "f8"), ("n_landmarks", "i8"), ("kind", "u1")])
 
 
 class GraphView(EstimateView):
@@ -72,10 +75,9 @@ class GraphEstimator(Estimator):
         )
         self.mapper = MapBuilder(self.map, self.assoc, self.book, self.diagnostics)
         self.gps = GraphGps(metadata, config.initial.pose, self.keyframes, self.session, self.diagnostics)
-        self.update_times: list[float] = []
-        self.update_cpu_times: list[float] = []  # CPU seconds of the process: wall time says little under load
-        self.update_n_landmarks: list[int] = []
-        self.update_kinds: list[str] = []
+        # One row an update (wall and CPU seconds, landmarks then, kind), on disk past a chunk: CPU
+        # seconds of the process too, as wall time says little under load.
+        self.updates = SpillLog(UPDATE_ROW)
 
     # ------------------------------------------------------------------ protocol
     def view(self) -> GraphView:
@@ -102,10 +104,8 @@ class GraphEstimator(Estimator):
     def _timed(self, fn, kind: str) -> None:
         t0, c0 = time.perf_counter(), time.process_time()
         fn()
-        self.update_times.append(time.perf_counter() - t0)
-        self.update_cpu_times.append(time.process_time() - c0)
-        self.update_n_landmarks.append(len(self.map))
-        self.update_kinds.append(kind)
+        wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+        self.updates.append(wall, cpu, len(self.map), UPDATE_KINDS.index(kind))
 
     # ------------------------------------------------------------------ updates
     def _keyframe(self, stamp: int) -> int:
@@ -138,9 +138,10 @@ class GraphEstimator(Estimator):
     # ------------------------------------------------------------------ result
     def finish(self) -> EstimatorResult:
         n = len(self.keyframes)
+        updates = self.updates.array()
         history: dict = {
-            "update_kinds": list(self.update_kinds),
-            "update_cpu_s": np.array(self.update_cpu_times),
+            "update_kinds": [UPDATE_KINDS[i] for i in updates["kind"]],
+            "update_cpu_s": np.array(updates["cpu_s"]),
             "n_keyframes": n,
             "window_slides": list(self.window.slides),
             "window_returns": self.window.returns,
@@ -168,9 +169,9 @@ class GraphEstimator(Estimator):
             name=self.name,
             trajectory=keyframe_trajectory(self.keyframes.stamps, values, marginals, self.session, self.cfg, left),
             landmarks=landmarks,
-            online_trajectory=online_trajectory(self.keyframes.online),
-            update_times_s=np.array(self.update_times),
-            update_n_landmarks=np.array(self.update_n_landmarks, int),
+            online_trajectory=online_trajectory(self.keyframes.online.array()),
+            update_times_s=np.array(updates["wall_s"]),
+            update_n_landmarks=np.array(updates["n_landmarks"], int),
             history=history,
             diagnostics=list(self.diagnostics),
         )

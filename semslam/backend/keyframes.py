@@ -29,8 +29,43 @@ from semslam.backend.navigation import NavigationBuffer
 from semslam.backend.session import IsamSession, Owned
 from semslam.backend.window import B, SlidingWindow, V, X
 from semslam.config import SemslamConfig
+from semslam.estimation import SpillLog
 from semslam.mission.measurements import GroundTruthPose, Measurement
 from semslam.mission.mission import MissionMetadata
+
+ONLINE_ROW = np.dtype([("stamp", "i8"), ("R", "f8", (3, 3)), ("t", "f8", 3), ("position_cov", "f8", (3, 3))])
+
+
+class OnlinePoses:
+    """Each keyframe's pose as the online smoother gave it at its time (stamp, rotation, translation,
+    position covariance in {W}), one :data:`ONLINE_ROW` a keyframe, on disk past a chunk
+    (:class:`~semslam.estimation.SpillLog`); the newest stays in memory until the next, as it is
+    renewed after its landmarks. :meth:`array` reads them back once, at the end."""
+
+    __slots__ = ("_rows", "_newest")
+
+    def __init__(self):
+        self._rows = SpillLog(ONLINE_ROW)
+        self._newest: tuple | None = None
+
+    def __len__(self) -> int:
+        return len(self._rows) + (self._newest is not None)
+
+    def append(self, stamp: int, pose: gtsam.Pose3, position_cov: np.ndarray) -> None:
+        if self._newest is not None:
+            self._rows.append(*self._newest)
+        self._newest = (stamp, pose.rotation().matrix(), pose.translation(), position_cov)
+
+    def renew(self, pose: gtsam.Pose3, position_cov: np.ndarray) -> None:
+        """The newest keyframe's pose and covariance, again."""
+        self._newest = (self._newest[0], pose.rotation().matrix(), pose.translation(), position_cov)
+
+    def array(self) -> np.ndarray:
+        """Every keyframe's row, in order."""
+        rows = self._rows.array()
+        if self._newest is None:
+            return rows
+        return np.concatenate([rows, np.array([self._newest], ONLINE_ROW)])
 
 
 class Keyframes:
@@ -55,7 +90,7 @@ class Keyframes:
         self.bias_walk = config.sensors.heading_bias_walk(metadata)
         self.bias_sigma0 = config.sensors.heading_bias_sigma0(metadata)
         self.bias = 0.0  # the newest keyframe's bias estimate (rad)
-        self.online: list[tuple[int, gtsam.Pose3, np.ndarray]] = []  # (stamp, pose, position covariance in {W})
+        self.online = OnlinePoses()  # each keyframe's online pose and position covariance in {W}
         # relative-pose factors' m-estimator, by measuring sensor (the config names sensor kinds)
         self.odometry_kernels = {
             s.name: gtsam.noiseModel.mEstimator.Cauchy.Create(config.graph.odometry_cauchy_k[s.kind])
@@ -189,7 +224,7 @@ class Keyframes:
         R, _ = self.nav.attitude_at(t)
         att_sigma = float(np.sqrt(np.trace(self.nav.attitude.cov) / 3))
         self.nav.start_interval(t, R, att_sigma)
-        self.online.append((stamp, self.pose, self._position_cov()))
+        self.online.append(stamp, self.pose, self._position_cov())
 
     def _position_cov(self) -> np.ndarray:
         R = self.pose.rotation().matrix()
@@ -210,7 +245,7 @@ class Keyframes:
     def renew_online(self, k: int) -> None:
         """Keyframe k's online pose is the one after its landmarks (when k is the newest)."""
         if k == self.newest:
-            self.online[-1] = (self.online[-1][0], self.pose, self._position_cov())
+            self.online.renew(self.pose, self._position_cov())
 
     def unbiased(self, R_ahrs: np.ndarray) -> np.ndarray:
         """An AHRS attitude with the current heading-bias estimate taken out: Rz(−b) R."""

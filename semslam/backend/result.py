@@ -90,11 +90,12 @@ def _nearest_known(sample: np.ndarray, n: int, known: dict[int, np.ndarray]) -> 
     return out
 
 
-def online_trajectory(online: list[tuple[int, gtsam.Pose3, np.ndarray]]) -> Trajectory:
-    """Each keyframe as the online smoother gave it at its time, with its position covariance then."""
+def online_trajectory(online: np.ndarray) -> Trajectory:
+    """Each keyframe as the online smoother gave it at its time, with its position covariance then
+    (``online``: :data:`~semslam.backend.keyframes.ONLINE_ROW` rows)."""
     return Trajectory(
-        stamps=np.array([s for s, _, _ in online], np.int64),
-        positions=np.array([p.translation() for _, p, _ in online]),
-        orientations=_quaternions([p for _, p, _ in online]),
-        position_cov=np.array([c for _, _, c in online]),
+        stamps=np.array(online["stamp"], np.int64),
+        positions=np.array(online["t"]),
+        orientations=np.array([Rotation.from_matrix(R).as_quat() for R in online["R"]]),
+        position_cov=np.array(online["position_cov"]),
     )

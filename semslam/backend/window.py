@@ -123,6 +123,77 @@ V = gtsam.symbol_shorthand.V
 B = gtsam.symbol_shorthand.B
 
 
+KEYFRAME_CHARS = (ord("x"), ord("v"), ord("b"))  # a keyframe's pose, velocity and heading bias
+FROZEN_ROW = np.dtype([("R", "f8", (3, 3)), ("t", "f8", 3), ("v", "f8", 3), ("b", "f8"), ("has", "?", 3)])
+
+
+class FrozenValues:
+    """The estimates of what left the window, read at random (a keyframe's pose for an older
+    observation) and all at the end: each keyframe's pose, velocity and heading bias in one
+    :data:`FROZEN_ROW` by its index (131 bytes a keyframe, where GTSAM ``Values`` take ~450), the
+    landmarks' in a ``gtsam.Values`` (a landmark may come back and leave again). A pose comes back as
+    the same ``Pose3`` (``Rot3`` holds its matrix)."""
+
+    __slots__ = ("landmarks", "_rows")
+
+    def __init__(self):
+        self.landmarks = gtsam.Values()
+        self._rows = np.zeros(0, FROZEN_ROW)
+
+    def insert_or_assign(self, values: gtsam.Values, keys: Iterable[int]) -> None:
+        """The estimates in ``values`` of ``keys`` (those it holds)."""
+        for key in keys:
+            if not values.exists(key):
+                continue
+            symbol = gtsam.Symbol(key)
+            c = symbol.chr()
+            if c not in KEYFRAME_CHARS:
+                self.landmarks.insert_or_assign(key, value_of(values, key))
+                continue
+            row = self._row(symbol.index())
+            if c == KEYFRAME_CHARS[0]:
+                pose = values.atPose3(key)
+                row["R"], row["t"] = pose.rotation().matrix(), pose.translation()
+            elif c == KEYFRAME_CHARS[1]:
+                row["v"] = values.atVector(key)
+            else:
+                row["b"] = values.atVector(key)[0]
+            row["has"][KEYFRAME_CHARS.index(c)] = True
+
+    def _row(self, k: int) -> np.ndarray:
+        if k >= len(self._rows):
+            grown = np.zeros(max(k + 1, 2 * len(self._rows), 64), FROZEN_ROW)
+            grown[: len(self._rows)] = self._rows
+            self._rows = grown
+        return self._rows[k : k + 1][0]
+
+    def atPose3(self, key: int) -> gtsam.Pose3:  # noqa: N802 (gtsam.Values' name)
+        k = gtsam.Symbol(key).index()
+        if k >= len(self._rows) or not self._rows["has"][k, 0]:
+            raise IndexError(f"no frozen pose of keyframe {k}")
+        row = self._rows[k]
+        return gtsam.Pose3(gtsam.Rot3(row["R"]), row["t"])
+
+    def insert_into(self, values: gtsam.Values) -> None:
+        """Every frozen estimate that ``values`` does not hold (not a landmark that came back)."""
+        for key in self.landmarks.keys():
+            if not values.exists(key):
+                values.insert(key, value_of(self.landmarks, key))
+        for k in np.flatnonzero(self._rows["has"].any(axis=1)):
+            row = self._rows[k]
+            has = row["has"]
+            for j, c in enumerate(KEYFRAME_CHARS):
+                key = gtsam.Symbol(chr(c), int(k)).key()
+                if not has[j] or values.exists(key):
+                    continue
+                if j == 0:
+                    values.insert(key, gtsam.Pose3(gtsam.Rot3(row["R"]), row["t"]))
+                elif j == 1:
+                    values.insert(key, np.array(row["v"]))
+                else:
+                    values.insert(key, np.array([row["b"]]))
+
+
 class SlidingWindow:
     """The online smoother's window of ``window_s`` seconds: the oldest keyframe in it, and the frozen
     estimates of everything that left it; with ``keep_covariances``, also the marginal covariances
@@ -134,7 +205,7 @@ class SlidingWindow:
         self.diagnostics = diagnostics
         self.keep_covariances = keep_covariances
         self.first_active = 0  # the oldest keyframe in the window
-        self.frozen = gtsam.Values()  # the estimates of what left it
+        self.frozen = FrozenValues()  # the estimates of what left it
         self.left_covariance = LeftCovariances()  # key -> marginal covariance when it left
         self.slides: list[dict] = []  # one row per marginalisation, for benchmarks
         self.returns = 0  # marginalised landmarks seen again
@@ -186,7 +257,7 @@ class SlidingWindow:
                 "covariance_seconds": t_cov,
             }
         )
-        self.frozen.insert_or_assign(subset(estimate, [k for k in drop if estimate.exists(k)]))
+        self.frozen.insert_or_assign(estimate, drop)
         self.left_covariance.update(covariances)
         return drop, estimate
 
@@ -208,7 +279,5 @@ class SlidingWindow:
     def estimate(self, session) -> gtsam.Values:
         """The window's estimate with the frozen estimates of everything that left it."""
         values = session.estimate()
-        for key in self.frozen.keys():
-            if not values.exists(key):  # not a landmark that came back
-                values.insert(key, value_of(self.frozen, key))
+        self.frozen.insert_into(values)
         return values
