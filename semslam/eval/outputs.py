@@ -388,25 +388,6 @@ def write_outputs(
     return Path(out_dir)
 
 
-def write_run(
-    out_dir: str | Path,
-    config: SemslamConfig,
-    pipeline: PipelineResult,
-    metrics: dict,
-    metadata: MissionMetadata,
-    *,
-    overwrite: bool = False,
-    report: bool = False,
-    recorder=None,
-) -> Path:
-    """A command's whole output as one transaction: the results, the report (``report``: report.md,
-    report.html, figures/) and the replay (a :class:`semslam.eval.replay.ReplayRecorder` that
-    watched the run: replay.mcap and its Foxglove layout)."""
-    with staged_output(out_dir, overwrite) as stage:
-        write_staged(stage, config, pipeline, metrics, metadata, report=report, recorder=recorder)
-    return Path(out_dir)
-
-
 def write_staged(
     stage: Path,
     config: SemslamConfig,
@@ -417,8 +398,10 @@ def write_staged(
     report: bool = False,
     recorder=None,
 ) -> None:
-    """What :func:`write_run` writes, into the stage of a :func:`staged_output` block that the
-    command opened before its run (so that the run spilled into it)."""
+    """A command's whole output into the stage of the :func:`staged_output` block it opened before its
+    run (so that the run spilled into it): the results, the report (``report``: report.md,
+    report.html, figures/) and the replay (a :class:`semslam.eval.replay.ReplayRecorder` that
+    watched the run: replay.mcap and its Foxglove layout)."""
     write_results(stage, config, pipeline, metrics)
     if recorder is not None:
         from semslam.eval.replay import LAYOUT_FILE, LAYOUT_PATH, REPLAY_FILE
