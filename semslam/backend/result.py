@@ -35,8 +35,9 @@ def final_values(
     return values
 
 
-def _quaternions(poses: list[gtsam.Pose3]) -> np.ndarray:
-    return np.array([Rotation.from_matrix(p.rotation().matrix()).as_quat() for p in poses])
+def _quaternions(rotations) -> np.ndarray:
+    """(x, y, z, w) of each 3×3 rotation matrix."""
+    return np.array([Rotation.from_matrix(R).as_quat() for R in rotations])
 
 
 def keyframe_trajectory(
@@ -68,7 +69,7 @@ def keyframe_trajectory(
     return Trajectory(
         stamps=np.array(stamps, np.int64),
         positions=np.array([p.translation() for p in poses]),
-        orientations=_quaternions(poses),
+        orientations=_quaternions([p.rotation().matrix() for p in poses]),
         position_cov=pos_cov,
         velocities=np.array([values.atVector(V(i)) for i in range(n)]),
         velocity_cov=vel_cov,
@@ -96,6 +97,6 @@ def online_trajectory(online: np.ndarray) -> Trajectory:
     return Trajectory(
         stamps=np.array(online["stamp"], np.int64),
         positions=np.array(online["t"]),
-        orientations=np.array([Rotation.from_matrix(R).as_quat() for R in online["R"]]),
+        orientations=_quaternions(online["R"]),
         position_cov=np.array(online["position_cov"]),
     )
