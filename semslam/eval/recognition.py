@@ -5,7 +5,7 @@ the ground truth and fused by the landmark ids of the estimator the front-ends s
 from __future__ import annotations
 
 from collections.abc import Iterator
-from itertools import islice
+from itertools import chain, islice
 
 import numpy as np
 
@@ -77,13 +77,13 @@ def recognition_block(
 ) -> dict:
     """metrics.json's "recognition" block: ``syn`` is the recogniser's own SYN entry (if any)."""
     out: dict = {}
-    first = next(iter_labelled_object_records(pipeline, metadata, view), None)
+    records = iter_labelled_object_records(pipeline, metadata, view)
+    first = next(records, None)
     if first is not None:  # the records streamed (a long survey has tens of thousands), never all kept
         classes = list(metadata.ground_truth.classes) or sorted(
             {r.true_class for r in iter_labelled_object_records(pipeline, metadata, view)}
         )
-        records = iter_labelled_object_records(pipeline, metadata, view)
-        stages = recognition_metrics(records, classes, mode="online")
+        stages = recognition_metrics(chain([first], records), classes, mode="online")
         out = {k: v for k, v in stages.items() if k != "SYN" and v is not None}
     if syn:
         out = {"SYN": syn, **out}
