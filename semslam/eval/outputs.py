@@ -101,17 +101,14 @@ def staged_output(out_dir: str | Path, overwrite: bool = False) -> Iterator[Path
     try:
         stage = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", suffix=STAGE_SUFFIX, dir=out_dir.parent))
         lock = _lock(stage)
-        spill = stage / SPILL_DIR
-        spill.mkdir()
     except OSError as exc:
         if lock is not None:
             os.close(lock)
         raise _os_error(out_dir.parent, exc) from None
     try:
         try:
-            with spilling_into(spill, named=out_dir):  # a full disk there: one line naming out_dir
+            with spilling_in_stage(stage, named=out_dir):  # a full disk there: one line naming out_dir
                 yield stage
-            shutil.rmtree(spill)  # empty: the spill files are anonymous (they live on while open)
             umask = os.umask(0)
             os.umask(umask)
             stage.chmod(0o777 & ~umask)  # mkdtemp's 0700 would make a private output
@@ -123,6 +120,17 @@ def staged_output(out_dir: str | Path, overwrite: bool = False) -> Iterator[Path
     finally:
         shutil.rmtree(stage, ignore_errors=True)
         os.close(lock)
+
+
+@contextmanager
+def spilling_in_stage(stage: Path, named: Path) -> Iterator[None]:
+    """Every spill file opened in the block goes into ``stage``'s hidden :data:`SPILL_DIR` (made here,
+    removed when the block ends without error); a full disk there is one line naming ``named``."""
+    spill = stage / SPILL_DIR
+    spill.mkdir()
+    with spilling_into(spill, named=named):
+        yield
+    shutil.rmtree(spill)  # empty: the spill files are anonymous (they live on while open)
 
 
 def _lock(stage: Path) -> int:

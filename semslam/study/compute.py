@@ -77,9 +77,8 @@ def compute(task: MissionTask, stage: Path) -> dict:
     """Compute the mission into ``stage``; returns its record (also written there, last)."""
     from semslam.compare import default_frontends, run_comparison
     from semslam.config import SemslamConfig
-    from semslam.estimation import spilling_into
     from semslam.eval.gps_reference import HoldOut
-    from semslam.eval.outputs import SPILL_DIR, write_results
+    from semslam.eval.outputs import spilling_in_stage, write_results
     from semslam.eval.report import write_report
     from semslam.mission.check import check_mission
 
@@ -96,9 +95,7 @@ def compute(task: MissionTask, stage: Path) -> dict:
     hold_out = HoldOut.parse(task.hold_out_gps) if task.hold_out_gps else None
     # The run's spill files in the mission's own stage (on the study's filesystem), removed before it
     # commits; a full disk there is this mission's failure, one line naming its folder.
-    spill = stage / SPILL_DIR
-    spill.mkdir()
-    with spilling_into(spill, named=Path(task.study_dir) / task.mission):
+    with spilling_in_stage(stage, named=Path(task.study_dir) / task.mission):
         result, metrics = run_comparison(
             mission,
             config,
@@ -107,7 +104,6 @@ def compute(task: MissionTask, stage: Path) -> dict:
             hold_out_gps=hold_out,
             check_warnings=check.warnings,
         )
-    spill.rmdir()  # empty: the spill files are anonymous (they live on while open)
     write_results(stage, config, result, metrics)
     report = write_report(stage, result, mission.metadata, metrics)
     if not task.keep_bag:
