@@ -175,9 +175,11 @@ def test_batch_after_a_window_spans_the_whole_mission(windowed):
     mission, full, win = windowed
     assert len(win.trajectory) == win.history["n_keyframes"] == full.history["n_keyframes"]
     # LM over every factor of the mission, none of the window's marginals or priors: it lands where
-    # the full smoother's batch does (the two differ only by a few associations; 5.6 mm at most)
+    # the full smoother's batch does (the two differ only by a few associations, which move with the
+    # online estimates: 8.4 mm at most with keyframes committed one by one, 11.3 mm with them deferred
+    # to the scan's update; the median 2 mm either way)
     gap = np.linalg.norm(win.trajectory.positions - full.trajectory.positions, axis=1)
-    assert gap.max() < 0.01
+    assert gap.max() < 0.015 and np.median(gap) < 0.004
     assert np.isfinite(win.trajectory.position_cov[0]).all()  # covariances reach the keyframes that left
 
 

@@ -220,6 +220,7 @@ class SlidingWindow:
         now = kf_stamps[-1]
         if w is None or now < self._slide_after or (now - kf_stamps[self.first_active]) * 1e-9 < 1.5 * w:
             return None
+        session.flush(now)  # deferred keyframes (see IsamSession.defer) into iSAM2 first
         b = min(bisect.bisect_left(kf_stamps, now - int(w * 1e9)), len(kf_stamps) - 1)
         kept_kf = {key for i in range(b, len(kf_stamps)) for key in (X(i), V(i), B(i))}
         live, landmark_keys = set(), set()
