@@ -273,9 +273,8 @@ class SlidingWindow:
     def _covariances(self, session, drop: set[int], b: int, chunk: int = 60) -> dict[int, np.ndarray]:
         """iSAM2's marginal covariances of the landmarks about to leave and of every
         ``LEFT_COVARIANCE_EVERY``-th keyframe's pose and velocity (before the restart, while iSAM2
-        still holds them): the diagonal blocks of joint marginals over chunks of them (one joint of
-        a dozen keys cost ~1/8 of their single marginals on the tank, each of which walks the Bayes
-        tree again), a chunk iSAM2 cannot give key by key. A key iSAM2 cannot give is left out (its
+        still holds them): the diagonal blocks of joint marginals over chunks of them (each single
+        marginal walks the Bayes tree again), a chunk iSAM2 cannot give key by key. A key iSAM2 cannot give is left out (its
         covariance is unknown: NaN)."""
         first = -(-self.first_active // LEFT_COVARIANCE_EVERY) * LEFT_COVARIANCE_EVERY
         keys = [k for i in range(first, b, LEFT_COVARIANCE_EVERY) for k in (X(i), V(i))]
