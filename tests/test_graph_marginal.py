@@ -3,7 +3,13 @@
 import gtsam
 import numpy as np
 
-from semslam.backend.marginal import _root_conditional, marginal_covariance, root_marginal_covariance
+from semslam.backend.marginal import (
+    _root_conditional,
+    joint_covariance,
+    marginal_covariance,
+    root_joint_covariance,
+    root_marginal_covariance,
+)
 
 X, L = gtsam.symbol_shorthand.X, gtsam.symbol_shorthand.L
 
@@ -59,3 +65,19 @@ def test_key_outside_the_root_falls_back():
     isam = _isam()
     assert root_marginal_covariance(isam, X(0)) is None
     np.testing.assert_array_equal(marginal_covariance(isam, X(0)), isam.marginalCovariance(X(0)))
+
+
+def test_joint_of_root_keys_matches_isam2():
+    # The joint marginal of several root frontals (in any order) is iSAM2's, cross-covariances included.
+    isam = _isam()
+    root_keys = list(_root_conditional(isam, X(11)).keys())
+    for keys in (root_keys[::-1], root_keys[1:], [X(11), root_keys[0]]):
+        cov = root_joint_covariance(isam, keys)
+        joint = isam.jointMarginalCovariance(gtsam.KeyVector(keys))
+        ref = np.block([[np.asarray(joint.at(a, b)) for b in keys] for a in keys])
+        assert cov is not None and cov.shape == ref.shape
+        assert np.max(np.abs(cov - ref)) <= 1e-9 * np.max(np.abs(ref))
+    # a key outside the root: iSAM2's joint marginal
+    assert root_joint_covariance(isam, [X(11), X(0)]) is None
+    joint = isam.jointMarginalCovariance(gtsam.KeyVector([X(11), X(0)]))
+    np.testing.assert_allclose(joint_covariance(isam, [X(11), X(0)])[6:, :6], np.asarray(joint.at(X(0), X(11))))

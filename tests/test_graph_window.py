@@ -10,10 +10,12 @@ from test_backend_graph import DROPOUTS, ate, dr_ate, indeterminate_landmark
 
 from frontends.oracle import OracleFrontend
 from semslam.backend.graph import GraphEstimator
+from semslam.backend.session import IsamSession
 from semslam.backend.window import (
     LEFT_COVARIANCE_EVERY,
     B,
     FrozenValues,
+    SlidingWindow,
     V,
     X,
     marginal_factors,
@@ -175,9 +177,11 @@ def test_batch_after_a_window_spans_the_whole_mission(windowed):
     mission, full, win = windowed
     assert len(win.trajectory) == win.history["n_keyframes"] == full.history["n_keyframes"]
     # LM over every factor of the mission, none of the window's marginals or priors: it lands where
-    # the full smoother's batch does (the two differ only by a few associations; 5.6 mm at most)
+    # the full smoother's batch does (the two differ only by a few associations, which move with the
+    # online estimates: 8.4 mm at most with keyframes committed one by one, 11.3 mm with them deferred
+    # to the scan's update; the median 2 mm either way)
     gap = np.linalg.norm(win.trajectory.positions - full.trajectory.positions, axis=1)
-    assert gap.max() < 0.01
+    assert gap.max() < 0.015 and np.median(gap) < 0.004
     assert np.isfinite(win.trajectory.position_cov[0]).all()  # covariances reach the keyframes that left
 
 
@@ -247,3 +251,32 @@ def test_frozen_estimates_come_back_as_gtsam_values_held_them():
             a, b = a.matrix(), b.matrix()
         assert np.array_equal(a, b) or key == L(3)
     assert np.array_equal(value_of(back, L(3)), np.zeros(3))
+
+
+def test_left_covariances_from_joint_chunks_are_isam2s_marginals():
+    # What leaves keeps iSAM2's marginal covariance: the diagonal blocks of joint marginals over
+    # chunks of keys are the single marginals; a chunk with a key iSAM2 does not hold is asked key
+    # by key, and that key left out.
+    session = IsamSession(0.02, 5, [])
+    Lk = gtsam.symbol_shorthand.L
+    rng = np.random.default_rng(5)
+    for i in range(25):
+        factors, values = [], gtsam.Values()
+        pose = gtsam.Pose3(gtsam.Rot3.Yaw(0.1 * i), np.array([i, 0.3 * i, 0.0]))
+        values.insert(X(i), pose)
+        values.insert(V(i), rng.normal(size=3))
+        if i == 0:
+            factors.append(gtsam.PriorFactorPose3(X(0), pose, gtsam.noiseModel.Isotropic.Sigma(6, 0.1)))
+        else:
+            step = gtsam.Pose3(gtsam.Rot3.Yaw(0.1), np.array([1.0, 0.3, 0.0]))
+            factors.append(gtsam.BetweenFactorPose3(X(i - 1), X(i), step, gtsam.noiseModel.Isotropic.Sigma(6, 0.05)))
+        factors.append(gtsam.PriorFactorVector(V(i), values.atVector(V(i)), gtsam.noiseModel.Isotropic.Sigma(3, 0.2)))
+        session.commit([(f, None) for f in factors], values, (X(i), V(i)))
+    window = SlidingWindow(10.0, [], keep_covariances=True)
+    keys = [k for i in range(0, 25, LEFT_COVARIANCE_EVERY) for k in (X(i), V(i))]
+    for chunk in (60, 3):
+        out = window._covariances(session, {Lk(99)}, 25, chunk=chunk)  # L(99): not in iSAM2
+        assert sorted(out) == sorted(keys)
+        for k in keys:
+            ref = session.marginal(k)
+            assert np.abs(out[k] - ref).max() <= 1e-9 * np.abs(ref).max()

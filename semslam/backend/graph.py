@@ -137,6 +137,7 @@ class GraphEstimator(Estimator):
 
     # ------------------------------------------------------------------ result
     def finish(self) -> EstimatorResult:
+        self.keyframes.flush()  # deferred keyframes into iSAM2
         n = len(self.keyframes)
         updates = self.updates.array()
         history: dict = {

@@ -5,6 +5,14 @@ modelled, B(k) (see factors.navigation). Between consecutive keyframes: the prei
 displacement (with the velocity motion model across dropouts) and, over intervals with no DVL at
 all, the velocity random walk. At each keyframe: the AHRS attitude, the depth and the latest DVL
 velocity.
+
+The newest keyframe's factors are deferred (:meth:`IsamSession.defer`) until the next update that
+goes to iSAM2 (a scan's landmark factors, the next keyframe, a GPS fix, a window slide, the end), so
+that a scan's keyframe goes into iSAM2 in one update with the scan's landmark factors: its estimate and covariance
+meanwhile are predicted locally (:meth:`Keyframes._predict`), one Gauss–Newton step of its factors
+with the previous keyframe's joint marginal as a prior — what iSAM2's update of those factors alone
+gives, up to the linearisation point, without re-eliminating the root clique (which on the tank
+holds every landmark) at every keyframe.
 """
 
 from __future__ import annotations
@@ -86,6 +94,8 @@ class Keyframes:
         self.pose: gtsam.Pose3 | None = None  # the newest keyframe's estimate
         self.vel: np.ndarray | None = None
         self.pose_cov: np.ndarray | None = None
+        # joint marginal covariance of the newest keyframe's (pose, velocity[, bias]), for the prediction
+        self.state_cov: np.ndarray | None = None
         # AHRS heading bias as a random walk (0: not modelled, the AHRS heading taken as unbiased).
         self.bias_walk = config.sensors.heading_bias_walk(metadata)
         self.bias_sigma0 = config.sensors.heading_bias_sigma0(metadata)
@@ -188,6 +198,11 @@ class Keyframes:
 
     def next(self, stamp: int) -> int:
         """Keyframe k at ``stamp`` with its navigation factors; returns k."""
+        # One keyframe waits at most: the one before is committed first, so that the prediction
+        # starts from iSAM2's estimate and joint marginal. A chain of predictions, each linearised
+        # once, drifts from the smoother where the position is loosely held (centimetres after a
+        # 10 s DVL dropout, where iSAM2's one step over the chain stays with the sequential result).
+        self.flush()
         k = len(self.stamps)
         t = stamp * 1e-9
         factors, R, v_prior, has_attitude = self._nav_factors_at(k, t)
@@ -213,14 +228,65 @@ class Keyframes:
         if self.bias_walk > 0:
             factors.append(heading_bias_walk_factor(B(k - 1), B(k), d.dt, self.bias_walk))
             values.insert(B(k), np.array([self.bias]))
-        self._commit(stamp, [(f, None) for f in factors], values)
+        if self.state_cov is None:  # no joint marginal to predict from
+            self._commit(stamp, [(f, None) for f in factors], values)
+            return k
+        self._predict(k, factors, values)
+        self.stamps.append(stamp)
+        # iSAM2 starts the new variables where it would have (not at the prediction): it linearises
+        # there, as it did with each keyframe its own update
+        self.session.defer([(f, None) for f in factors], values, self.anchor())
+        self._started(stamp)
         return k
+
+    def _keys(self, k: int) -> list[int]:
+        return [X(k), V(k), B(k)] if self.bias_walk > 0 else [X(k), V(k)]
+
+    def _predict(self, k: int, factors: list, values: gtsam.Values) -> None:
+        """Keyframe k's estimate and joint covariance from its factors and keyframe k−1's estimate
+        and joint marginal (a Gaussian prior): one Gauss–Newton step from ``values`` (the step iSAM2
+        takes on new variables), the prior's keys at their estimate."""
+        prev, new = self._keys(k - 1), self._keys(k)
+        at = gtsam.Values(values)
+        at.insert(X(k - 1), self.pose)
+        at.insert(V(k - 1), np.asarray(self.vel, float))
+        if self.bias_walk > 0:
+            at.insert(B(k - 1), np.array([self.bias]))
+        graph = gtsam.NonlinearFactorGraph()
+        for f in factors:
+            graph.add(f)
+        ordering = gtsam.Ordering()
+        for key in [*prev, *new]:
+            ordering.push_back(key)
+        H, eta = graph.linearize(at).hessian(ordering)
+        n = len(self.state_cov)
+        H[:n, :n] += np.linalg.inv(self.state_cov)
+        cov = np.linalg.inv(H)
+        step = cov @ np.ravel(eta)
+        cov = 0.5 * (cov[n:, n:] + cov[n:, n:].T)
+        dx = step[n:]
+        self.pose = values.atPose3(X(k)).retract(dx[:6])
+        self.vel = values.atVector(V(k)) + dx[6:9]
+        if self.bias_walk > 0:
+            self.bias = float(values.atVector(B(k))[0] + dx[9])
+        self.state_cov = cov
+        self.pose_cov = cov[:6, :6]
+
+    def flush(self) -> None:
+        """The deferred keyframes into iSAM2 now (what needs iSAM2 itself: an older keyframe's
+        marginal, a window slide, the result), and the newest keyframe's estimate from it."""
+        if self.session.flush(self.stamps[-1] if self.stamps else 0):
+            self.refresh()
 
     def _commit(self, stamp: int, factors: list[Owned], values: gtsam.Values) -> None:
         self.stamps.append(stamp)
         self.session.commit(factors, values, self.anchor(), stamp=stamp)
-        t = stamp * 1e-9
         self.refresh()
+        self._started(stamp)
+
+    def _started(self, stamp: int) -> None:
+        """The navigation interval from the new keyframe at ``stamp``, and its online pose."""
+        t = stamp * 1e-9
         R, _ = self.nav.attitude_at(t)
         att_sigma = float(np.sqrt(np.trace(self.nav.attitude.cov) / 3))
         self.nav.start_interval(t, R, att_sigma)
@@ -237,9 +303,11 @@ class Keyframes:
         self.vel = self.session.vector(V(k))
         if self.bias_walk > 0:
             self.bias = float(self.session.vector(B(k))[0])
-        try:
-            self.pose_cov = self.session.root_marginal(X(k))  # from the root clique: it holds X(k)
+        try:  # from the root clique: it holds the newest keyframe
+            self.state_cov = self.session.root_joint(self._keys(k))
+            self.pose_cov = self.state_cov[:6, :6]
         except RuntimeError:
+            self.state_cov = None
             self.pose_cov = np.eye(6) * 1e2
 
     def renew_online(self, k: int) -> None:

@@ -49,19 +49,27 @@ def _root_conditional(isam: gtsam.ISAM2, key: int) -> gtsam.GaussianConditional 
 def root_marginal_covariance(isam: gtsam.ISAM2, key: int) -> np.ndarray | None:
     """Marginal covariance of ``key`` from the root clique's conditional; None if ``key`` is not
     a frontal of the root (or the conditional is not one this reads)."""
-    c = _root_conditional(isam, key)
+    return root_joint_covariance(isam, [key])
+
+
+def root_joint_covariance(isam: gtsam.ISAM2, keys: list[int]) -> np.ndarray | None:
+    """Joint marginal covariance of ``keys`` (in that order, each key's tangent block after the
+    other) from the root clique's conditional, one triangular solve; None if a key is not a frontal
+    of the root (or the conditional is not one this reads)."""
+    c = _root_conditional(isam, keys[0])
     if c is None or c.S().size:  # not the root: it has parents
         return None
-    keys = c.keys()
+    ckeys = c.keys()
     try:
-        i = keys.index(key)
-        dims = [KEY_DIM[k >> 56] for k in keys]  # a Symbol's character is the key's top byte
+        dims = [KEY_DIM[k >> 56] for k in ckeys]  # a Symbol's character is the key's top byte
+        idx = [ckeys.index(k) for k in keys]
     except (ValueError, KeyError):
         return None
     R = c.R()
     if sum(dims) != R.shape[0]:
         return None
-    a, d = sum(dims[:i]), dims[i]
+    offsets = np.cumsum([0, *dims])
+    a = int(min(offsets[i] for i in idx))
     R = R[a:, a:]
     model = c.get_model()
     if model is not None:
@@ -69,8 +77,9 @@ def root_marginal_covariance(isam: gtsam.ISAM2, key: int) -> np.ndarray | None:
         if not np.all(sigmas > 0):
             return None
         R = R / sigmas[:, None]
-    E = np.zeros((R.shape[0], d), order="F")
-    E[:d] = np.eye(d)
+    cols = [j for i in idx for j in range(offsets[i] - a, offsets[i] + dims[i] - a)]
+    E = np.zeros((R.shape[0], len(cols)), order="F")
+    E[cols, np.arange(len(cols))] = 1.0
     Y, info = dtrtrs(R, E, lower=0, trans=1)
     if info != 0:
         return None
@@ -81,3 +90,13 @@ def marginal_covariance(isam: gtsam.ISAM2, key: int) -> np.ndarray:
     """iSAM2's marginal covariance of ``key`` (raises as ``marginalCovariance`` does)."""
     cov = root_marginal_covariance(isam, key)
     return cov if cov is not None else isam.marginalCovariance(key)
+
+
+def joint_covariance(isam: gtsam.ISAM2, keys: list[int]) -> np.ndarray:
+    """iSAM2's joint marginal covariance of ``keys`` (blocks in that order), from the root clique when
+    they are all its frontals, else ``jointMarginalCovariance`` (raises as it does)."""
+    cov = root_joint_covariance(isam, keys)
+    if cov is not None:
+        return cov
+    joint = isam.jointMarginalCovariance(gtsam.KeyVector(keys))
+    return np.block([[np.asarray(joint.at(a, b)) for b in keys] for a in keys])

@@ -10,7 +10,7 @@ from collections.abc import Iterable
 import gtsam
 import numpy as np
 
-from semslam.backend.marginal import marginal_covariance
+from semslam.backend.marginal import joint_covariance, marginal_covariance
 from semslam.backend.window import subset, value_of
 from semslam.errors import solver_failure
 
@@ -26,14 +26,24 @@ class IsamSession:
     first value of every variable in it (a fallback for recovery). With ``keep_all`` (the batch),
     ``factors`` is every factor of the mission; otherwise it stays empty, so that memory stays bounded
     once the window has filled (a 2-hour survey created 154k factors, ~3 KB each), and ``initial``
-    forgets what left the window. ``n_committed`` counts the factors committed either way."""
+    forgets what left the window. ``n_committed`` counts the factors committed either way.
+
+    A keyframe's navigation factors may be *deferred* (:meth:`defer`): they wait, with their new
+    variables, for the next update (:meth:`commit`, :meth:`flush`), so that a scan's keyframe goes
+    into iSAM2 with the scan's landmark factors in one update.
+    iSAM2 checks for relinearisation every ``relinearize_skip`` updates *as if* each deferred
+    keyframe had been its own update (``force_relinearize`` on the update that holds the one that
+    would have checked), so the cadence in mission time is the one of committing them one by one."""
 
     def __init__(
         self, relinearize_threshold: float, relinearize_skip: int, diagnostics: list[str], keep_all: bool = True
     ):
         params = gtsam.ISAM2Params()
         params.setRelinearizeThreshold(relinearize_threshold)
-        params.relinearizeSkip = relinearize_skip
+        # iSAM2's own count never checks (its first update only: nothing to relinearise yet); the
+        # session asks for the checks by its count of updates, deferred keyframes included.
+        params.relinearizeSkip = 1 << 30
+        self.relinearize_skip = relinearize_skip
         self.diagnostics = diagnostics
         self.keep_all = keep_all
         self.factors: list[Owned] = []
@@ -41,6 +51,10 @@ class IsamSession:
         self.owners: set[int] = set()  # every landmark a committed factor observes
         self.n_committed = 0
         self.initial = gtsam.Values()
+        self.pending: list[Owned] = []  # deferred navigation factors (:meth:`defer`)
+        self.pending_values = gtsam.Values()
+        self.n_pending = 0  # the updates they would have been
+        self._anchor: tuple[int, int] | None = None  # the newest keyframe's keys when they were deferred
         self._start(params)
 
     def _start(self, params: gtsam.ISAM2Params) -> None:
@@ -55,6 +69,15 @@ class IsamSession:
         callbacks."""
         self.isam = gtsam.ISAM2(params)
         self.theta = self.isam.getLinearizationPoint()
+        self.n_updates = 0  # updates of this iSAM2, deferred keyframes counted one each
+
+    def _update(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, n: int = 1) -> None:
+        """iSAM2 ``update`` standing for ``n`` updates; relinearisation is checked if one of them
+        would have checked (every ``relinearize_skip``-th)."""
+        first = self.n_updates + 1
+        self.n_updates += n
+        check = (self.n_updates // self.relinearize_skip) > ((first - 1) // self.relinearize_skip)
+        self.isam.update(graph, values, force_relinearize=check)
 
     # ------------------------------------------------------------------ estimates
     def value(self, key: int):
@@ -73,10 +96,32 @@ class IsamSession:
         """The marginal covariance of a variable of the root clique (the newest keyframe), cheaply."""
         return marginal_covariance(self.isam, key)
 
+    def root_joint(self, keys: list[int]) -> np.ndarray:
+        """The joint marginal covariance of variables of the root clique (the newest keyframe's), cheaply."""
+        return joint_covariance(self.isam, keys)
+
     def marginal(self, key: int) -> np.ndarray:
         return self.isam.marginalCovariance(key)
 
     # ------------------------------------------------------------------ updates
+    def defer(self, factors: list[Owned], values: gtsam.Values, anchor: tuple[int, int]) -> None:
+        """Navigation factors and their new variables for the next update (see the class)."""
+        self.pending.extend(factors)
+        self.pending_values.insert(values)
+        self.n_pending += 1
+        self._anchor = anchor
+
+    def is_pending(self, key: int) -> bool:
+        """``key`` is a deferred variable, not yet in iSAM2."""
+        return self.pending_values.exists(key)
+
+    def flush(self, stamp: int = 0) -> bool:
+        """The deferred factors into iSAM2 now; False if there were none."""
+        if not self.pending:
+            return False
+        self.commit([], gtsam.Values(), self._anchor, stamp=stamp)
+        return True
+
     def commit(
         self,
         factors: list[Owned],
@@ -88,12 +133,19 @@ class IsamSession:
         """Add factors (with their owners) and new variables to iSAM2, and ``priors`` that only the
         window holds (a returning landmark's). On a failure, the landmark factors of this update are
         dropped and iSAM2 is rebuilt from the rest (:meth:`rebuild`, ``anchor``: the newest keyframe's
-        pose and velocity keys). Returns None when the update went through, else the owners dropped."""
+        pose and velocity keys). Deferred factors (:meth:`defer`) go in with them. Returns None when
+        the update went through, else the owners dropped."""
+        n = 1
+        if self.pending:
+            merged = gtsam.Values(self.pending_values)
+            merged.insert(values)
+            factors, values, n = [*self.pending, *factors], merged, self.n_pending + (len(factors) > 0)
+            self.pending, self.pending_values, self.n_pending = [], gtsam.Values(), 0
         graph = gtsam.NonlinearFactorGraph()
         for f, _ in [*factors, *priors]:
             graph.add(f)
         try:
-            self.isam.update(graph, values)
+            self._update(graph, values, n)
         except RuntimeError as exc:
             msg = solver_failure(exc)
             owners = sorted({o for _, o in factors if o is not None})
@@ -142,7 +194,7 @@ class IsamSession:
         params = self.isam.params()
         self._start(params)
         try:
-            self.isam.update(graph, full)
+            self._update(graph, full)
         except RuntimeError as exc:
             x, v = anchor
             prior = gtsam.PriorFactorPose3(x, full.atPose3(x), gtsam.noiseModel.Isotropic.Sigma(6, 10.0))
@@ -152,7 +204,7 @@ class IsamSession:
             graph.add(prior)
             graph.add(vprior)
             self._start(params)
-            self.isam.update(graph, full)
+            self._update(graph, full)
             self.diagnostics.append(
                 f"rebuild needed a weak re-anchoring prior on {gtsam.Symbol(x).string()} ({solver_failure(exc)})"
             )
@@ -161,15 +213,15 @@ class IsamSession:
     def restart(self, window: list[Owned], values: gtsam.Values) -> None:
         """iSAM2 afresh on ``window`` (the smoothing window after a slide) at ``values``; on a failure
         the session is left as it was and the RuntimeError raised."""
-        old = self.isam, self.theta
+        old = self.isam, self.theta, self.n_updates
         graph = gtsam.NonlinearFactorGraph()
         for f, _ in window:
             graph.add(f)
         try:
             self._start(self.isam.params())
-            self.isam.update(graph, values)
+            self._update(graph, values)
         except RuntimeError:
-            self.isam, self.theta = old
+            self.isam, self.theta, self.n_updates = old
             raise
         self.window = window
         if not self.keep_all:
