@@ -128,6 +128,19 @@ def test_gate_rejects_a_shifted_and_a_featureless_scan(mission, registered):
             assert err.max() < baseline + 0.02
 
 
+def test_gate_rejects_the_shifted_scan_with_the_tight_re_solve_bound(mission):
+    """With ``held_max_distance_m`` the translation is re-solved among the correspondences within a few
+    centimetres, which holds kiss-icp's wrong minimum for the shifted scan in place (0.16 m from the prior,
+    half the scan's points matched): the gate also judges the re-solve at kiss-icp's own threshold, where
+    that minimum walks off past the 0.35 m bound."""
+    corrupted, bad = _corrupted(mission, shifted=-8, floor_only=-4)
+    fe, obs = _register(corrupted, {"held_max_distance_m": 0.045})
+    assert not set(bad) & {z.stamp for z in obs}
+    rejected = fe.finish().metrics["rejected"]
+    assert rejected.get("translation_correction", 0) >= 1  # the shifted scan, for its walk (registered when clean)
+    assert sum(z.stamp > max(bad) for z in obs) >= 2
+
+
 def test_run_with_odometry_alone(tmp_path):
     m = simulate_tank(TankSimConfig.model_validate({"seed": 1, "trajectory": {"loops": 0.2}}))
     bag = write_mission(m, tmp_path / "short.bag")

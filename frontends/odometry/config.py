@@ -152,8 +152,10 @@ class OdometryConfig(BaseModel):
         None,
         gt=0,
         description="with the attitude held, re-solve the translation (and take its covariance) from the scan points "
-        "within min(kiss-icp's 3σ threshold, this) of the map, and judge the overlap at kiss-icp's threshold; null: "
-        "kiss-icp's 3σ for both (an experiment's setting: experiments/odometry/README.md, stop 36)",
+        "within min(kiss-icp's 3σ threshold, this) of the map; the overlap is judged at kiss-icp's threshold, and the "
+        "gate's translation bound also on a second re-solve at that threshold (a wrong minimum of ICP that the tight "
+        "bound holds in place walks off in it). null: kiss-icp's 3σ for all. An experiment's setting: it needs its own "
+        "held_scale (experiments/odometry/README.md, stops 36–37)",
     )
     restart_after: int = Field(
         3, ge=1, description="this many rejected scans in a row start a new local map at the next usable scan"

@@ -157,18 +157,27 @@ class ScanMatcher:
         info, n_in, residual_var = planes.information(source, pose, 3 * sigma)
         cov = self._covariance(info, residual_var, n_in)
         overlap = n_in  # judged at kiss-icp's threshold where the re-solve's bound is tighter
+        walks = [icp_correction[:3, 3]]  # the translations the gate judges (as corrections to the prior)
         if self.cfg.attitude != "registration" and rotation_cov is not None and np.isfinite(cov).all():
-            bound = self.cfg.held_max_distance_m
-            near = 3 * sigma if bound is None else min(3 * sigma, bound)
             pose[:3, :3] = self._held_rotation(pose[:3, :3], predicted[:3, :3])
-            pose[:3, 3] = planes.translation(source, pose, near, sigma / 3)
-            info, n_in, residual_var = planes.information(source, pose, near)
+            wide = pose.copy()
+            wide[:3, 3] = planes.translation(source, pose, 3 * sigma, sigma / 3)
+            walks.append((np.linalg.inv(predicted) @ wide)[:3, 3])
+            bound = self.cfg.held_max_distance_m
+            if bound is None or bound >= 3 * sigma:
+                pose = wide
+                info, n_in, residual_var = planes.information(source, pose, 3 * sigma)
+                overlap = n_in
+            else:  # the wide re-solve is kept for the gate alone: a wrong minimum of ICP does not hold in it
+                pose[:3, 3] = planes.translation(source, pose, bound, sigma / 3)
+                info, n_in, residual_var = planes.information(source, pose, bound)
             cov = self._held_covariance(info, residual_var, n_in, cov, rotation_cov, pose[:3, :3])
-            overlap = n_in if bound is None else overlap
         correction = np.linalg.inv(predicted) @ pose
-        # kiss-icp's rotation is judged, and the translation where it ends (re-solved: it may walk further)
+        walks.append(correction[:3, 3])
+        # kiss-icp's rotation is judged, and the farthest translation: ICP's, the re-solves' at its threshold
+        # and at the tight bound (a wrong minimum of ICP, kept in place by the tight bound, walks off in the wide one)
         judged = icp_correction.copy()
-        judged[:3, 3] = max((icp_correction[:3, 3], correction[:3, 3]), key=np.linalg.norm)
+        judged[:3, 3] = max(walks, key=np.linalg.norm)
         rejected = self._judge(judged, cov, overlap, len(source))
         if rejected is None:
             self.kiss.adaptive_threshold.update_model_deviation(correction)
