@@ -42,11 +42,7 @@ def off_truth(P: np.ndarray, Q: np.ndarray, truth) -> tuple[float, float, int]:
     return best
 
 
-def main(argv=None) -> int:
-    from frontends.laser import LaserConfig, segment_scan
-    from semslam.demo import demo_config
-    from semslam.mission.bag import read_mission
-    from semslam.mission.measurements import GroundTruthPose, PointCloud
+def _arguments(argv) -> argparse.Namespace:
     from semslam.study.plan import parse_seeds
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -54,7 +50,16 @@ def main(argv=None) -> int:
     ap.add_argument("--seeds", type=parse_seeds, required=True)
     ap.add_argument("--every", type=int, default=4)
     ap.add_argument("--long", action="store_true", help="also tally the segments reported by their length")
-    args = ap.parse_args(argv)
+    return ap.parse_args(argv)
+
+
+def main(argv=None) -> int:
+    args = _arguments(argv)
+    from frontends.laser import LaserConfig, segment_scan
+    from semslam.demo import demo_config
+    from semslam.mission.bag import read_mission
+    from semslam.mission.measurements import GroundTruthPose, PointCloud
+
     config = demo_config()
     cfg = LaserConfig.model_validate(config.frontends["laser"])
     for seed in args.seeds:
