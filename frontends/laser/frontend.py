@@ -175,15 +175,23 @@ def scan_pipe_config(cfg: PipeConfig, noise: NoiseModel | None, points: np.ndarr
     return cfg if tol == cfg.distance_tolerance else cfg.model_copy(update={"distance_tolerance": tol})
 
 
-def _objects(spts, pipes: list[Pipe], up, cfg: LaserConfig, pcfg: PipeConfig, on_ground, ground, rays: Rays):
+def _lying(pipes: list[Pipe], ground, pcfg: PipeConfig) -> np.ndarray:
+    """Per pipe segment: whether it lies on the ground (none without a ground model)."""
+    if ground is None:
+        return np.zeros(len(pipes), bool)
+    heights = [axis_height(p, ground) for p in pipes]
+    return np.array([h is not None and lies_on_ground(h, p.radius, pcfg) for h, p in zip(heights, pipes)], bool)
+
+
+def _objects(
+    spts, pipes: list[Pipe], up, cfg: LaserConfig, pcfg: PipeConfig, on_ground, ground, rays: Rays, lying: np.ndarray
+):
     """The objects at the pipes' ends (:func:`segment_objects`). On the seabed, a segment lying on
     the ground and shorter than ``min_partial_length`` (not reported: a valve's lever or body, a
     stone's flank fitted as a pipe) connects no object: its points go to the objects instead (in the
     tank, where no pipe lies on the ground, the short pipes between fittings do connect them)."""
     if ground is None:
         return segment_objects(spts, pipes, up, cfg.objects, on_ground, None, None, rays.seen_at)
-    heights = [axis_height(p, ground) for p in pipes]
-    lying = np.array([h is not None and lies_on_ground(h, p.radius, pcfg) for h, p in zip(heights, pipes)])
     arms = [k for k, p in enumerate(pipes) if not (lying[k] and p.length < pcfg.min_partial_length)]
     objects = segment_objects(
         spts, [pipes[k] for k in arms], up, cfg.objects, on_ground, ground, lying[arms], rays.seen_at
@@ -230,7 +238,12 @@ def segment_scan(
             seabed = Seabed(ground, spts, pcfg, raw, rgb, RawIndex(raw_to_s, len(spts)))
         pipes = detect_pipes(spts, normals, grid, pcfg, rays, ~on_ground, ~on_ground, seabed)
     clock.lap("pipes")
-    objects = _objects(spts, pipes, up, cfg, pcfg, on_ground, ground, rays)
+    lying = _lying(pipes, ground, pcfg)
+    for pipe in (p for p, lies in zip(pipes, lying) if lies):
+        # on the seabed a run between two "fittings" may be a stone's top between two stones, and a
+        # short segment lying there connects no object (_objects): only its length reports it
+        pipe.between_fittings = False
+    objects = _objects(spts, pipes, up, cfg, pcfg, on_ground, ground, rays, lying)
     clock.lap("objects")
     clock.total()
     return ScanSegmentation(

@@ -40,12 +40,17 @@ _MAX_OFF_AXIS = 0.5
 # A pipe's bare end (split_at_fittings' open_beyond): the cylinder continued from 2 to 10 cm past its
 # last inlier (past an end cap's rim) is seen through by at least half of at least 5 crossing rays.
 _OPEN_FROM, _OPEN_TO, _MIN_OPEN_RAYS = 0.02, 0.10, 5
+# A run's end stops at a fitting when flagged bins (split_at_fittings) begin within this many bins
+# of its outermost inlier's (2 bins of 2 cm: the bin of a fitting's first points, and one more
+# for a partly filled bin or a thin gap of missing returns at the joint).
+_FITTED_END_BINS = 2
 
 
 @dataclass
 class Pipe:
     """A detected pipe segment: axis endpoints ``p``, ``q`` (m, {S}), unit ``axis`` (p→q), radius,
-    the indices of its inlier points, and the 6×6 covariance of [p; q]."""
+    the indices of its inlier points, and the 6×6 covariance of [p; q]; ``between_fittings``: both
+    its ends stop at a fitting (it was cut there from its cylinder fit's inliers on both sides)."""
 
     p: np.ndarray
     q: np.ndarray
@@ -53,14 +58,23 @@ class Pipe:
     radius: float
     inliers: np.ndarray
     covariance: np.ndarray
+    between_fittings: bool = False
 
     @property
     def length(self) -> float:
         return float(np.linalg.norm(self.q - self.p))
 
     def reported(self, cfg: PipeConfig) -> bool:
-        """Long enough to be an observation (shorter ones only serve segmentation and connectivity)."""
-        return self.length >= cfg.min_partial_length
+        """Long enough to be an observation (shorter ones only serve segmentation and connectivity),
+        or, with ``report_between_fittings``, a whole pipe between two fittings at least
+        ``between_fittings_radii`` radii long: its extent is seen from end to end."""
+        if self.length >= cfg.min_partial_length:
+            return True
+        return (
+            cfg.report_between_fittings
+            and self.between_fittings
+            and self.length >= cfg.between_fittings_radii * self.radius
+        )
 
 
 def hypotheses(p1, n1, p2, n2, cfg: PipeConfig):
@@ -454,6 +468,7 @@ def split_at_fittings(
     cfg: PipeConfig,
     t_around: np.ndarray | None = None,
     open_beyond=None,
+    ends: list | None = None,
 ) -> list[np.ndarray]:
     """Runs of a pipe's inliers, cut where a fitting sits on it (index arrays into ``t``).
 
@@ -469,7 +484,9 @@ def split_at_fittings(
     faces are not cylinder inliers): fittings, not gaps, are what separate two pipes. With
     ``t_around``, a bump beyond the outermost segment must have some of them around it to cut the
     pipe (:func:`_bare_ends`; ``open_beyond(t0, t1)``, when given, must also tell that the sensor
-    sees through the cylinder continued over [t0, t1]: the pipe ends there).
+    sees through the cylinder continued over [t0, t1]: the pipe ends there). ``ends``, when given, is
+    filled with one (low, high) pair per run: whether that end of the run stops at a fitting
+    (:func:`_fitted_ends`).
     """
     if len(t) == 0:
         return []
@@ -495,8 +512,30 @@ def split_at_fittings(
     if ta is not None and cfg.end_fitting_points > 0:
         bare = _bare_ends(flag, first, t, t0, runs, ta, cfg, open_beyond)
         if bare is not None:
-            runs = _kept_runs(bare, first, b, t, t0, ta, cfg)
+            flag = bare
+            runs = _kept_runs(flag, first, b, t, t0, ta, cfg)
+    if ends is not None:
+        bumped = np.zeros_like(flag)
+        bumped[-first : n_bins - first] = bad_bin
+        ends[:] = _fitted_ends(flag & bumped, first, b, runs)
     return runs
+
+
+def _fitted_ends(flag, first: int, b, runs: list[np.ndarray]) -> list[tuple[bool, bool]]:
+    """Per run (inliers in bins ``b``): whether its low and its high end stop at a fitting, a bin
+    flagged for standing out of the pipe's profile (``flag[k - first]`` is bin k's: a bump left
+    flagged by the cut) within ``_FITTED_END_BINS`` bins beyond its outermost inlier's bin. Such an
+    end is where the pipe enters a coaxial part wider than itself (a socket, a valve's port), not the
+    view's edge, an occlusion, or the side of a valve's body fitted as a pipe (beyond which the
+    valve's other parts crowd without a coaxial shell)."""
+    bad = np.flatnonzero(flag) + first
+    out = []
+    for run in runs:
+        lo, hi = int(b[run].min()), int(b[run].max())
+        below = np.any((bad >= lo - _FITTED_END_BINS) & (bad < lo))
+        above = np.any((bad > hi) & (bad <= hi + _FITTED_END_BINS))
+        out.append((bool(below), bool(above)))
+    return out
 
 
 def _kept_runs(flag, first: int, b, t, t0: float, ta, cfg: PipeConfig) -> list[np.ndarray]:
@@ -735,11 +774,14 @@ def _cut_into_segments(
             behind, crossing = rays.see_through(cb, ab, rb, t0, t1, cfg)
             return crossing >= _MIN_OPEN_RAYS and behind >= 0.5 * crossing
 
-    for run in split_at_fittings(t, residual, t_all[near], cfg, t_all[around], open_beyond):
+    ends: list[tuple[bool, bool]] = []
+    runs = split_at_fittings(t, residual, t_all[near], cfg, t_all[around], open_beyond, ends)
+    for run, (lo, hi) in zip(runs, ends):
         seg = idx[run]
         if len(seg) < cfg.min_points:
             continue
         pipe = _make_pipe(points, normals, seg, ab, cfg)
+        pipe.between_fittings = lo and hi
         if pipe.length >= cfg.min_detect_length and cfg.min_radius <= pipe.radius <= cfg.max_radius:
             out.append(pipe)
     return out
