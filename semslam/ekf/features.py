@@ -35,13 +35,14 @@ from semslam.mapping.association import Candidates, DenseJoint, PairLinearizatio
 from semslam.mapping.book import LandmarkBook
 from semslam.mapping.builder import Scan
 from semslam.mapping.fittings import port_depths
-from semslam.mapping.tracks import Track
+from semslam.mapping.tracks import Track, split_pose_covariance
 from semslam.observations import Observation, StructureObservation
 
 _I3, _Z3 = np.eye(3), np.zeros(3)  # {B} itself as the "sensor" (a pipe seen from the vehicle)
 # A pipe's moment is about a point this far from its first view, square to it (geometry.line_anchor): the
 # distance at which the tank's level pipes lie below the world origin, where the origin's chart works.
 LINE_ANCHOR_DISTANCE_M = 4.0
+DRIFTING = (0, 1, 5)  # north, east and yaw in the vehicle state: no sensor holds them absolutely
 
 
 @dataclass
@@ -111,17 +112,19 @@ class FeatureMap:
         T[:3, :3], T[:3, 3] = R, t
         return T
 
-    def place(self, z: Observation) -> tuple[np.ndarray, np.ndarray | None, Prepared]:
-        """The observation in {W} with the current pose: an object's position and its covariance (the
-        vehicle's included), a pipe segment's ends; and the prepared observation."""
+    def place(self, z: Observation) -> tuple[np.ndarray, np.ndarray | None, Prepared, np.ndarray | None]:
+        """The observation in {W} with the current pose: an object's position, its covariance from the
+        observation and the vehicle's absolutely measured components (depth, roll, pitch) and that from
+        its drifting ones (north, east, yaw: :class:`~semslam.mapping.tracks.TrackView`); a pipe
+        segment's ends; and the prepared observation."""
         (o,) = self.prepared([z])
         x = self.nav.state.xv
         if o.kind == "object":
             l, G_x, G_z = mdl.point_initialise(x, o.obs.position, o.R_BS, o.t_BS)
-            Pvv = self.nav.state.P[:NX, :NX]
-            return l, G_x @ Pvv @ G_x.T + G_z @ o.obs.covariance @ G_z.T, o
+            drifting, measured = split_pose_covariance(self.nav.state.P[:NX, :NX], DRIFTING)
+            return l, G_x @ measured @ G_x.T + G_z @ o.obs.covariance @ G_z.T, o, G_x @ drifting @ G_x.T
         R, t, _, _ = mdl.sensor_pose(x, o.R_BS, o.t_BS)
-        return np.array([o.obs.p, o.obs.q]) @ R.T + t, None, o
+        return np.array([o.obs.p, o.obs.q]) @ R.T + t, None, o, None
 
     def objects(self) -> tuple[list[int], np.ndarray]:
         fs = [f for f in self.features if f.kind == "object"]

@@ -15,6 +15,19 @@ structures continue a track when the Mahalanobis distance of their position to t
 information-weighted mean passes ``association.track_gate_confidence``; pipe segments when they are
 collinear with the track's line by the paper's criterion (``merge_angle_rad``, ``merge_distance_m``),
 within ``pipe_extent_gap_m`` of what the track saw, with no in-line object between.
+
+A track follows its object as the vehicle's estimate drifts: each view's covariance is split into
+what is independent from view to view (the observation, and the pose's components measured absolutely:
+depth by the pressure sensor, roll and pitch by gravity) and what the pose's drifting components put on
+it (north, east, yaw: :func:`split_pose_covariance`). Between two views of a track only the drift the
+pose accumulated between their keyframes (the difference of the latter, :meth:`Track.drift_since`)
+separates them, so the track is a small filter (:meth:`Track.mean_position`): its position grows by
+that drift and takes each view with its independent covariance. Before the DVL's bottom lock the
+drift over one scan interval (2 s) is a third of a lattice spacing of the tank's objects, over the
+mission's first ~20 s the lattice spacing itself: a track gated against a mean of all its views with
+the pose's accumulated uncertainty joined views of neighbouring objects (tank world 79), and one
+that took the depth as common with the map's first view rejected the right object's view for a few
+centimetres of depth (tank world 10; experiments/estimators/README.md, stop 37).
 """
 
 from __future__ import annotations
@@ -38,14 +51,17 @@ KIND_OF_OBSERVATION = {PointObservation: "object", LineObservation: "pipe", Stru
 class TrackView:
     """One view of a tentative landmark: the observation, where it puts the landmark in {W} with the
     pose of its time (object: (3,); pipe: segment ends (2, 3); structure: T_W,model (4, 4)) and, for
-    objects and structures, that position's covariance (observation and pose). ``payload``: what the
-    estimator needs to initialise the landmark from it (the graph: the keyframe)."""
+    objects and structures, that position's covariance from what is independent from view to view
+    (``cov``: the observation, the pose's depth, roll and pitch) and from the pose's drifting
+    components (``drift``: north, east, yaw, as accumulated at its time; None: none). ``payload``: what
+    the estimator needs to initialise the landmark from it (the graph: the keyframe)."""
 
     stamp: int
     z: Observation
     world: np.ndarray
     cov: np.ndarray | None = None
     payload: Any = None
+    drift: np.ndarray | None = None
 
     @property
     def position(self) -> np.ndarray:
@@ -60,21 +76,40 @@ class Track:
     views: list[TrackView] = field(default_factory=list)
     in_view: int = 0  # scans that saw anything within object_view_reach_m of it since its first view
     _in_view_stamp: int | None = None
+    # the filter over the views (objects, structures): views folded in, mean, covariance, last view's drift
+    _folded: int = field(default=0, repr=False)
+    _mean: np.ndarray | None = field(default=None, repr=False)
+    _cov: np.ndarray | None = field(default=None, repr=False)
+    _drift: np.ndarray | None = field(default=None, repr=False)
 
     @property
     def last_stamp(self) -> int:
         return self.views[-1].stamp
 
+    def drift_since(self, v: TrackView) -> np.ndarray:
+        """The drift the pose accumulated from the track's last view to view ``v``: the difference of
+        their drifting covariances, clipped to stay positive semidefinite (zero without drift)."""
+        if v.drift is None or self._drift is None:
+            return np.zeros((3, 3))
+        w, V = np.linalg.eigh(0.5 * (v.drift - self._drift + (v.drift - self._drift).T))
+        return (V * np.maximum(w, 0.0)) @ V.T
+
     def mean_position(self) -> tuple[np.ndarray, np.ndarray]:
-        """Information-weighted mean of the views' positions and its covariance (objects, structures)."""
-        info = np.zeros((3, 3))
-        vec = np.zeros(3)
-        for v in self.views:
-            Ci = np.linalg.inv(v.cov)
-            info += Ci
-            vec += Ci @ v.position
-        cov = np.linalg.inv(info)
-        return cov @ vec, cov
+        """Where the track's object is as the pose of its last view places it, and its covariance
+        (objects, structures): each view's position taken in turn with its independent covariance,
+        after the drift since the view before (without drift: the information-weighted mean)."""
+        for v in self.views[self._folded :]:
+            if self._mean is None:
+                self._mean, self._cov = np.array(v.position, float), np.array(v.cov, float)
+            else:
+                P = self._cov + self.drift_since(v)
+                K = P @ np.linalg.inv(P + v.cov)
+                self._mean = self._mean + K @ (v.position - self._mean)
+                C = (np.eye(3) - K) @ P
+                self._cov = 0.5 * (C + C.T)
+            self._drift = v.drift
+        self._folded = len(self.views)
+        return self._mean, self._cov
 
     def line_fit(self) -> tuple[np.ndarray, np.ndarray]:
         """Principal axis of all the views' segment ends (pipes): (point, unit direction)."""
@@ -182,7 +217,7 @@ class TrackSet:
             return np.inf
         mean, mcov = tr.mean_position()
         r = v.position - mean
-        d2 = float(r @ np.linalg.solve(v.cov + mcov, r))
+        d2 = float(r @ np.linalg.solve(v.cov + mcov + tr.drift_since(v), r))
         return d2 if d2 < self._gate(v.z) else np.inf
 
 
@@ -190,3 +225,13 @@ def _in_view(tr: Track, stamp: int) -> None:
     if tr._in_view_stamp != stamp:
         tr.in_view += 1
         tr._in_view_stamp = stamp
+
+
+def split_pose_covariance(P: np.ndarray, drifting) -> tuple[np.ndarray, np.ndarray]:
+    """A pose covariance as (its drifting part, its absolutely measured part): the blocks of the
+    components ``drifting`` (indices: north, east and yaw in the estimator's parameters) and of the
+    others, their cross-covariances dropped (small: at rest the two groups are measured apart)."""
+    on = np.zeros(len(P), bool)
+    on[list(drifting)] = True
+    mask = np.equal.outer(on, on)
+    return np.where(mask & on, P, 0.0), np.where(mask & ~on, P, 0.0)
