@@ -276,17 +276,18 @@ class GraphLandmarks:
     def sensor_pose(self, sensor: str) -> np.ndarray:
         return self._pose.compose(gtsam.Pose3(self.metadata.extrinsic(sensor))).matrix()
 
-    def place(self, z: Observation) -> tuple[np.ndarray, np.ndarray | None, int, np.ndarray | None]:
+    def place(self, z: Observation) -> tuple:
         """An observation in {W} with the batch's keyframe as estimated now (point: (3,), pipe: (2, 3),
         structure: 4×4); for points and structures, its position's covariance from the observation and
-        the pose's absolutely measured components, and that from the pose's drifting ones (see the
-        module); the keyframe, for the landmark's factors."""
+        the pose's absolutely measured components; the keyframe, for the landmark's factors; the
+        position's Jacobian in the world-aligned pose tangent and the covariance of the pose's
+        drifting components there (see the module)."""
         T_BS = self.metadata.extrinsic(z.sensor)
         pose = self.keyframes.pose_of(self._k)
         T_WS = pose.compose(gtsam.Pose3(T_BS))
         R = pose.rotation().matrix()
         if isinstance(z, LineObservation):
-            return np.vstack([T_WS.transformFrom(z.p), T_WS.transformFrom(z.q)]), None, self._k, None
+            return np.vstack([T_WS.transformFrom(z.p), T_WS.transformFrom(z.q)]), None, self._k, None, None
         if isinstance(z, PointObservation):
             w, p_S, C_S = T_WS.transformFrom(z.position), z.position, z.covariance
         else:
@@ -296,7 +297,7 @@ class GraphLandmarks:
         J_W = pose_point_jacobian(R, e_B) @ B.T  # the world-aligned pose tangent: rotation, translation
         drifting, measured = split_pose_covariance(B @ self._abs_pose_cov @ B.T, DRIFTING)
         C = R @ T_BS[:3, :3] @ C_S @ T_BS[:3, :3].T @ R.T + J_W @ measured @ J_W.T
-        return w, C, self._k, J_W @ drifting @ J_W.T
+        return w, C, self._k, J_W, drifting
 
     def objects(self) -> tuple[list[int], np.ndarray]:
         """Mapped objects and their positions (N×3, {W}), from the cached spheres (an object's centre

@@ -112,19 +112,20 @@ class FeatureMap:
         T[:3, :3], T[:3, 3] = R, t
         return T
 
-    def place(self, z: Observation) -> tuple[np.ndarray, np.ndarray | None, Prepared, np.ndarray | None]:
-        """The observation in {W} with the current pose: an object's position, its covariance from the
-        observation and the vehicle's absolutely measured components (depth, roll, pitch) and that from
-        its drifting ones (north, east, yaw: :class:`~semslam.mapping.tracks.TrackView`); a pipe
-        segment's ends; and the prepared observation."""
+    def place(self, z: Observation) -> tuple:
+        """The observation in {W} with the current pose: an object's position and its covariance from the
+        observation and the vehicle's absolutely measured components (depth, roll, pitch), a pipe
+        segment's ends; the prepared observation; an object's Jacobian in the vehicle state and the
+        covariance of the vehicle's drifting components (north, east, yaw:
+        :class:`~semslam.mapping.tracks.TrackView`)."""
         (o,) = self.prepared([z])
         x = self.nav.state.xv
         if o.kind == "object":
             l, G_x, G_z = mdl.point_initialise(x, o.obs.position, o.R_BS, o.t_BS)
             drifting, measured = split_pose_covariance(self.nav.state.P[:NX, :NX], DRIFTING)
-            return l, G_x @ measured @ G_x.T + G_z @ o.obs.covariance @ G_z.T, o, G_x @ drifting @ G_x.T
+            return l, G_x @ measured @ G_x.T + G_z @ o.obs.covariance @ G_z.T, o, G_x, drifting
         R, t, _, _ = mdl.sensor_pose(x, o.R_BS, o.t_BS)
-        return np.array([o.obs.p, o.obs.q]) @ R.T + t, None, o, None
+        return np.array([o.obs.p, o.obs.q]) @ R.T + t, None, o, None, None
 
     def objects(self) -> tuple[list[int], np.ndarray]:
         fs = [f for f in self.features if f.kind == "object"]

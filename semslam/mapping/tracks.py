@@ -52,16 +52,29 @@ class TrackView:
     """One view of a tentative landmark: the observation, where it puts the landmark in {W} with the
     pose of its time (object: (3,); pipe: segment ends (2, 3); structure: T_W,model (4, 4)) and, for
     objects and structures, that position's covariance from what is independent from view to view
-    (``cov``: the observation, the pose's depth, roll and pitch) and from the pose's drifting
-    components (``drift``: north, east, yaw, as accumulated at its time; None: none). ``payload``: what
-    the estimator needs to initialise the landmark from it (the graph: the keyframe)."""
+    (``cov``: the observation, the pose's depth, roll and pitch), the position's Jacobian ``jac`` in
+    the pose's parameters and the covariance of the pose's drifting components (``pose_drift``: north,
+    east, yaw, as accumulated at its time; None: none). ``payload``: what the estimator needs to
+    initialise the landmark from it (the graph: the keyframe)."""
 
     stamp: int
     z: Observation
     world: np.ndarray
     cov: np.ndarray | None = None
     payload: Any = None
-    drift: np.ndarray | None = None
+    jac: np.ndarray | None = None
+    pose_drift: np.ndarray | None = None
+
+    def drifted(self, since: np.ndarray | None, other: TrackView | None = None) -> np.ndarray:
+        """The covariance the pose's drift from ``since`` (a pose_drift) to this view's keyframe puts on
+        this view's position, or, with ``other`` (a view of the same scan), its cross-covariance with
+        that view's (the difference of the two pose_drifts clipped to stay positive semidefinite)."""
+        if self.pose_drift is None or since is None:
+            return np.zeros((3, 3))
+        d = self.pose_drift - since
+        w, V = np.linalg.eigh(0.5 * (d + d.T))
+        J = self.jac if other is None else other.jac
+        return self.jac @ (V * np.maximum(w, 0.0)) @ V.T @ J.T
 
     @property
     def position(self) -> np.ndarray:
@@ -87,12 +100,10 @@ class Track:
         return self.views[-1].stamp
 
     def drift_since(self, v: TrackView) -> np.ndarray:
-        """The drift the pose accumulated from the track's last view to view ``v``: the difference of
-        their drifting covariances, clipped to stay positive semidefinite (zero without drift)."""
-        if v.drift is None or self._drift is None:
-            return np.zeros((3, 3))
-        w, V = np.linalg.eigh(0.5 * (v.drift - self._drift + (v.drift - self._drift).T))
-        return (V * np.maximum(w, 0.0)) @ V.T
+        """The covariance of the drift the pose accumulated from the track's last view to view ``v``, on
+        ``v``'s position (zero without drift)."""
+        self.mean_position()
+        return v.drifted(self._drift)
 
     def mean_position(self) -> tuple[np.ndarray, np.ndarray]:
         """Where the track's object is as the pose of its last view places it, and its covariance
@@ -102,12 +113,12 @@ class Track:
             if self._mean is None:
                 self._mean, self._cov = np.array(v.position, float), np.array(v.cov, float)
             else:
-                P = self._cov + self.drift_since(v)
+                P = self._cov + v.drifted(self._drift)
                 K = P @ np.linalg.inv(P + v.cov)
                 self._mean = self._mean + K @ (v.position - self._mean)
                 C = (np.eye(3) - K) @ P
                 self._cov = 0.5 * (C + C.T)
-            self._drift = v.drift
+            self._drift = v.pose_drift
         self._folded = len(self.views)
         return self._mean, self._cov
 
@@ -168,6 +179,7 @@ class TrackSet:
             np.fill_diagonal(new, [self._gate(v.z) for v in views])
             rows, cols = linear_sum_assignment(np.hstack([np.where(np.isfinite(cost), cost, 1e12), new]))
             chosen = {r: tracks[c] for r, c in zip(rows, cols) if c < len(tracks) and np.isfinite(cost[r, c])}
+            self._jointly_compatible(chosen, views, cost, tracks)
         went, promoted = [], []
         for i, v in enumerate(views):
             tr = chosen.get(i)
@@ -182,6 +194,40 @@ class TrackSet:
                 self.tracks.remove(tr)
                 promoted.append(tr)
         return went, promoted
+
+    def _jointly_compatible(self, chosen: dict[int, Track], views: list[TrackView], cost, tracks) -> None:
+        """Drop continuations from ``chosen`` (view index → track) until the scan's object and structure
+        continuations are jointly compatible at ``track_gate_confidence``: their views share the scan's
+        pose, so the drift since the tracks' views is common to them (each pair of continuations shares
+        the drift since the later of its two tracks' last views), and one view on a neighbour's track
+        while the others stay on theirs is not. The continuation whose removal leaves the smallest joint
+        χ² goes first."""
+        keys = [i for i in chosen if views[i].cov is not None]
+        while len(keys) > 1:
+            nis = self._joint_nis(keys, chosen, views)
+            if nis < chi2_gate(self.assoc.track_gate_confidence, 3 * len(keys)):
+                return
+            drop = min(keys, key=lambda i: self._joint_nis([k for k in keys if k != i], chosen, views))
+            keys.remove(drop)
+            del chosen[drop]
+
+    @staticmethod
+    def _joint_nis(keys: list[int], chosen: dict[int, Track], views: list[TrackView]) -> float:
+        n = len(keys)
+        r = np.zeros(3 * n)
+        S = np.zeros((3 * n, 3 * n))
+        for a, i in enumerate(keys):
+            tr, v = chosen[i], views[i]
+            mean, mcov = tr.mean_position()
+            r[3 * a : 3 * a + 3] = v.position - mean
+            S[3 * a : 3 * a + 3, 3 * a : 3 * a + 3] = v.cov + mcov + tr.drift_since(v)
+            for b in range(a):
+                k = keys[b]
+                later = tr if tr.last_stamp >= chosen[k].last_stamp else chosen[k]
+                X = v.drifted(later._drift, views[k])
+                S[3 * a : 3 * a + 3, 3 * b : 3 * b + 3] = X
+                S[3 * b : 3 * b + 3, 3 * a : 3 * a + 3] = X.T
+        return float(r @ np.linalg.solve(S, r))
 
     def _seen_when_in_view(self, tr: Track) -> bool:
         """An object was seen in at least ``object_view_ratio`` of the scans that had it in view
