@@ -87,3 +87,17 @@ def test_the_depth_sensors_noise_between_two_views_does_not_give_the_object_to_i
     assert len(objects) == 2
     np.testing.assert_allclose(np.array(objects)[:, :2], [A[:2], b[:2]], atol=0.03)  # their depths: the sensor's
     assert np.abs(trajectory.positions[:, :2]).max() < 0.03
+
+
+def test_a_view_does_not_join_a_neighbours_track_while_the_scans_other_view_stays_on_its_own():
+    """Tank world 79 (stop 37): objects P and Q seen at 2 s, then, 12 s later without bottom lock, Q and
+    R, R a lattice spacing (0.45 m) north of P, P out of view. Alone, R's view passes P's track (the pose
+    drifted up to 0.17 m meanwhile); with Q's view on its own track in the same scan, it would need
+    the scan's pose to have both stayed and moved 0.45 m: the two continuations are jointly
+    incompatible and R's view starts its own track."""
+    q, r = A + np.array([0.0, 0.6, 0.0]), A + np.array([0.45, 0.0, 0.0])
+    scans = {2: [A, q], **{t: [q, r] for t in range(14, 26, 2)}}
+    objects, trajectory = mapped(descent(), scans)
+    assert len(objects) == 2  # P, seen once, stays tentative
+    np.testing.assert_allclose(sorted(objects, key=lambda p: p[1]), [r, q], atol=0.03)
+    assert np.abs(trajectory.positions[:, :2]).max() < 0.03
