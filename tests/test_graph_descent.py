@@ -1,6 +1,7 @@
-"""Views of a tentative landmark are compared relative to the map from the map's first view on: what the
-pose had already accumulated then (the start at rest's growing uncertainty while the DVL has no bottom
-lock) is common to every view and moves the whole map, not one view against another.
+"""Views of a tentative landmark are compared with what the pose drifted (north, east, yaw) between them,
+not with what it had accumulated since the start (the start at rest's growing uncertainty while the DVL
+has no bottom lock: common to every view, it moves the whole map, not one view against another); the
+depth, measured absolutely, is each view's own; and a scan's continuations share its pose (stop 37).
 
 Tank world 79 (experiments/estimators/README.md, stop 36): before its first landmark was promoted, the
 graph gated its tentative views with the vehicle's absolute pose uncertainty (0.10 m at 4 s, 0.19 m at
