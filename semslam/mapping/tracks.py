@@ -16,18 +16,24 @@ information-weighted mean passes ``association.track_gate_confidence``; pipe seg
 collinear with the track's line by the paper's criterion (``merge_angle_rad``, ``merge_distance_m``),
 within ``pipe_extent_gap_m`` of what the track saw, with no in-line object between.
 
-A track follows its object as the vehicle's estimate drifts: each view's covariance is split into
-what is independent from view to view (the observation, and the pose's components measured absolutely:
-depth by the pressure sensor, roll and pitch by gravity) and what the pose's drifting components put on
-it (north, east, yaw: :func:`split_pose_covariance`). Between two views of a track only the drift the
-pose accumulated between their keyframes (the difference of the latter, :meth:`Track.drift_since`)
+A track follows its object as the vehicle's estimate drifts. An estimator may split each view's
+covariance into what is independent from view to view (the observation, and the pose's components
+measured absolutely: depth by the pressure sensor, roll and pitch by gravity) and what the pose's
+drifting components put on it (north, east, yaw: :func:`split_pose_covariance`; the graph does, the
+EKF gives its whole covariance as independent). Between two views of a track only the drift the pose
+accumulated between their keyframes (the difference of the latter, :meth:`Track.drift_since`)
 separates them, so the track is a small filter (:meth:`Track.mean_position`): its position grows by
-that drift and takes each view with its independent covariance. Before the DVL's bottom lock the
-drift over one scan interval (2 s) is a third of a lattice spacing of the tank's objects, over the
-mission's first ~20 s the lattice spacing itself: a track gated against a mean of all its views with
-the pose's accumulated uncertainty joined views of neighbouring objects (tank world 79), and one
-that took the depth as common with the map's first view rejected the right object's view for a few
-centimetres of depth (tank world 10; experiments/estimators/README.md, stop 37).
+that drift and takes each view with its independent covariance. And a scan's continuations must be
+jointly compatible (:meth:`TrackSet.extend`): its views share one pose, so the drift is common to
+them, and one view on a neighbour's track while the others stay on theirs is not.
+
+Before the DVL's bottom lock the drift over one scan interval (2 s) is a third of a lattice spacing of
+the tank's objects, over the mission's first ~20 s the lattice spacing itself: a track gated against
+a mean of all its views with the pose's accumulated uncertainty joined views of neighbouring objects
+(tank world 79), one that took the depth as common with the map's first view rejected the right
+object's view for a few centimetres of depth (tank world 10), and without the joint test a view 12 s
+after its neighbour's track had last been seen joined it while the scan's other view stayed on its
+own (world 79 again; experiments/estimators/README.md, stop 37).
 """
 
 from __future__ import annotations
@@ -164,7 +170,8 @@ class TrackSet:
 
     def extend(self, views: list[TrackView], separators: np.ndarray) -> tuple[list[Track], list[Track]]:
         """The scan's unpaired views continue tracks or start new ones (``separators``: objects in
-        {W}, N×3, that keep collinear pipe segments apart). Returns (the tracks each view went to,
+        {W}, N×3, that keep collinear pipe segments apart): the assignment of least cost, then
+        :meth:`_jointly_compatible`. Returns (the tracks each view went to,
         the tracks promoted now), the promoted ones leaving the set."""
         tracks = list(self.tracks)
         cost = np.full((len(views), len(tracks)), np.inf)
