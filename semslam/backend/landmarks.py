@@ -24,7 +24,8 @@ under the start at rest), views of two objects one lattice spacing (0.45 m) apar
 whose views, a factor each at its own keyframe, bent the trajectory onto the wrong object (tank
 world 79); taken relative to the map's first view in all six components (stop 36), the depth's
 noise cancelled as if it were common and the right object's view failed its track for 3.5 cm of
-depth (tank world 10).
+depth (tank world 10). The tracks also test a scan's continuations jointly, with the drift common to
+the scan's views (:class:`semslam.mapping.tracks.TrackSet`).
 """
 
 from __future__ import annotations
