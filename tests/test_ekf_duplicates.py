@@ -83,9 +83,13 @@ def _add_twin(est, z, sigma=None):
     """Map a feature directly from observation z seen from the current pose, as a track of three views
     of it would enter; returns its id."""
     est.map.begin()
-    world, cov, prepared = est.map.place(z)
+    world, cov, prepared, *drift = est.map.place(z)
     lid = est.map.promote(
-        Track(-1, "pipe" if isinstance(z, LineObservation) else "object", views=[TrackView(0, z, world, cov, prepared)])
+        Track(
+            -1,
+            "pipe" if isinstance(z, LineObservation) else "object",
+            views=[TrackView(0, z, world, cov, prepared, *drift)],
+        )
     )
     for _ in range(3):  # the track's three views
         est.book.observe(lid, 0, z)

@@ -48,8 +48,8 @@ def _add_pipe_twin(est, a_W, b_W, sigma=0.01) -> int:
     R, t, _, _ = mdl.sensor_pose(est.nav.state.xv, T[:3, :3], T[:3, 3])
     z = LineObservation(0, "laser", p=(a_W - t) @ R, q=(b_W - t) @ R, covariance=np.eye(6) * sigma**2)
     est.map.begin()
-    world, cov, prepared = est.map.place(z)
-    lid = est.map.promote(Track(-1, "pipe", views=[TrackView(0, z, world, cov, prepared)]))
+    world, cov, prepared, *drift = est.map.place(z)
+    lid = est.map.promote(Track(-1, "pipe", views=[TrackView(0, z, world, cov, prepared, *drift)]))
     for _ in range(3):
         est.book.observe(lid, 0, z)
     est.book.extent(lid).add(world, sigma)

@@ -1,6 +1,7 @@
-"""Views of a tentative landmark are compared relative to the map from the map's first view on: what the
-pose had already accumulated then (the start at rest's growing uncertainty while the DVL has no bottom
-lock) is common to every view and moves the whole map, not one view against another.
+"""Views of a tentative landmark are compared with what the pose drifted (north, east, yaw) between them,
+not with what it had accumulated since the start (the start at rest's growing uncertainty while the DVL
+has no bottom lock: common to every view, it moves the whole map, not one view against another); the
+depth, measured absolutely, is each view's own; and a scan's continuations share its pose (stop 37).
 
 Tank world 79 (experiments/estimators/README.md, stop 36): before its first landmark was promoted, the
 graph gated its tentative views with the vehicle's absolute pose uncertainty (0.10 m at 4 s, 0.19 m at
@@ -27,8 +28,9 @@ B = A + np.array([0.45, 0.0, 0.0])
 SCANS = {6: [A], 8: [B], **{t: [A, B] for t in range(10, 26, 2)}}
 
 
-def descent() -> Mission:
-    """26 s at rest at the origin (yaw 0, on the surface) with no bottom lock: AHRS, depth, invalid DVL."""
+def descent(depth=lambda t: 0.0, depth_variance=1e-4) -> Mission:
+    """26 s at rest at the origin (yaw 0, on the surface) with no bottom lock: AHRS, depth (``depth(t)``
+    read, t in s), invalid DVL."""
     sensors = {
         n: SensorInfo(n, kind, f"/{n}", "x", np.eye(4))
         for n, kind in (
@@ -42,7 +44,7 @@ def descent() -> Mission:
     q, ms = np.array([0.0, 0.0, 0.0, 1.0]), []
     acov = np.diag(np.radians([0.1, 0.1, 0.3]) ** 2)
     ms += [Attitude(k * S // 20, "ahrs", orientation=q, covariance=acov) for k in range(26 * 20)]
-    ms += [Depth(k * S // 8 + 1, "depth", depth=0.0, variance=1e-4) for k in range(26 * 8)]
+    ms += [Depth(k * S // 8 + 1, "depth", depth=depth(k / 8), variance=depth_variance) for k in range(26 * 8)]
     nan = np.full(3, np.nan)
     ms += [DvlVelocity(k * S // 5 + 2, "dvl", velocity=nan, covariance=np.eye(3), valid=False) for k in range(26 * 5)]
     ms += [GroundTruthPose(k * S // 10 + 3, "gt", position=np.zeros(3), orientation=q) for k in range(26 * 10)]
@@ -50,19 +52,53 @@ def descent() -> Mission:
     return Mission.from_measurements(MissionMetadata(name="descent", sensors=sensors), ms)
 
 
-def test_two_objects_a_lattice_spacing_apart_seen_in_turn_during_the_descent_stay_two_landmarks():
+def mapped(mission: Mission, scans: dict):
+    """The graph on ``mission`` with the objects of ``scans`` (s → positions) seen exactly where they
+    are: its objects sorted along north, and its trajectory."""
     config = SemslamConfig()  # the start at rest on (σ 0.1 m/s): the pose's σ grows to ~0.15 m by 24 s
-    mission = descent()
     est = GraphEstimator(mission.metadata, config)
-    cov = np.eye(3) * 0.005**2  # each scan sees its objects exactly where they are
+    cov = np.eye(3) * 0.005**2
     seen = {
         t * S + 4: [PointObservation(t * S + 4, "laser", position=p, covariance=cov) for p in ps]
-        for t, ps in SCANS.items()
+        for t, ps in scans.items()
     }
     result = run_pipeline(estimators_input(mission, config), [est], [Replay(seen)], keep_observations=False)
     graph = result.results["graph"]
     objects = sorted((lm.position for lm in graph.landmarks if lm.kind == "object"), key=lambda p: p[0])
+    return objects, graph.trajectory
+
+
+def test_two_objects_a_lattice_spacing_apart_seen_in_turn_during_the_descent_stay_two_landmarks():
+    objects, trajectory = mapped(descent(), SCANS)
     assert len(objects) == 2
     np.testing.assert_allclose(objects, [A, B], atol=0.03)
     # the vehicle held where it was: no view of B bent its pose onto A
-    assert np.abs(graph.trajectory.positions[:, :2]).max() < 0.03
+    assert np.abs(trajectory.positions[:, :2]).max() < 0.03
+
+
+def test_the_depth_sensors_noise_between_two_views_does_not_give_the_object_to_its_neighbour():
+    """Tank world 10 (stop 37): the pressure sensor's noise (σ 2 cm a reading) moved the vehicle's depth
+    estimate 3.5 cm between an object's first view and the scan that saw it with its neighbour 0.42 m
+    away. Depth is measured absolutely: that error is each pose's own, not shared with the track's
+    first view, so the object's view stays its track's and the neighbour's starts another."""
+    b = A + np.array([0.42, 0.0, -0.035])  # 3.5 cm higher: its view lands at the depth of A's first
+    scans = {4: [A], **{t: [A, b] for t in range(10, 26, 2)}}
+    # the vehicle stays on the surface; from 9 s the depth sensor reads 3.5 cm deeper
+    objects, trajectory = mapped(descent(lambda t: 0.035 * (t > 9), depth_variance=0.02**2), scans)
+    assert len(objects) == 2
+    np.testing.assert_allclose(np.array(objects)[:, :2], [A[:2], b[:2]], atol=0.03)  # their depths: the sensor's
+    assert np.abs(trajectory.positions[:, :2]).max() < 0.03
+
+
+def test_a_view_does_not_join_a_neighbours_track_while_the_scans_other_view_stays_on_its_own():
+    """Tank world 79 (stop 37): objects P and Q seen at 2 s, then, 12 s later without bottom lock, Q and
+    R, R a lattice spacing (0.45 m) north of P, P out of view. Alone, R's view passes P's track (the pose
+    drifted up to 0.17 m meanwhile); with Q's view on its own track in the same scan, it would need
+    the scan's pose to have both stayed and moved 0.45 m: the two continuations are jointly
+    incompatible and R's view starts its own track."""
+    q, r = A + np.array([0.0, 0.6, 0.0]), A + np.array([0.45, 0.0, 0.0])
+    scans = {2: [A, q], **{t: [q, r] for t in range(14, 26, 2)}}
+    objects, trajectory = mapped(descent(), scans)
+    assert len(objects) == 2  # P, seen once, stays tentative
+    np.testing.assert_allclose(sorted(objects, key=lambda p: p[1]), [r, q], atol=0.03)
+    assert np.abs(trajectory.positions[:, :2]).max() < 0.03

@@ -76,8 +76,8 @@ def test_the_bound_holds_for_a_twin_with_a_wide_covariance_beside_a_sure_object(
         z = PointObservation(
             0, "laser", position=(OBJECTS[0] + [offset, 0, 0] - t) @ R, covariance=np.eye(3) * sigma**2
         )
-        world, cov, prepared = est.map.place(z)
-        est.map.promote(Track(-1, "object", views=[TrackView(0, z, world, cov, prepared)]))
+        world, cov, prepared, *drift = est.map.place(z)
+        est.map.promote(Track(-1, "object", views=[TrackView(0, z, world, cov, prepared, *drift)]))
     ids, pos = est.map.objects()
     assert len(ids) == 5
     _bound_holds(est.map, ids, pos)

@@ -34,7 +34,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from typing import Any, Protocol
+from typing import Protocol
 
 import numpy as np
 
@@ -81,10 +81,12 @@ class LandmarkState(Protocol):
     def sensor_pose(self, sensor: str) -> np.ndarray:
         """T_WS (4×4) of ``sensor`` with the pose of the current batch."""
 
-    def place(self, z: Observation) -> tuple[np.ndarray, np.ndarray | None, Any]:
-        """``z`` in {W} with the current pose (see :class:`~semslam.mapping.tracks.TrackView`): the
-        landmark it shows, the covariance of that position (objects, structures; the pose's
-        uncertainty included) and what the estimator needs to initialise a landmark from it."""
+    def place(self, z: Observation) -> tuple:
+        """``z`` in {W} with the current pose, as :class:`~semslam.mapping.tracks.TrackView` takes it
+        after its stamp and observation: the landmark it shows, the covariance of that position
+        (objects, structures) from the observation and the pose's absolutely measured components,
+        what the estimator needs to initialise a landmark from it, the position's Jacobian in the
+        pose's parameters and the covariance of the pose's drifting components (or None, None)."""
 
     def objects(self) -> tuple[list[int], np.ndarray]:
         """The mapped objects: their ids and positions in {W} (N×3)."""

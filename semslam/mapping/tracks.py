@@ -15,6 +15,25 @@ structures continue a track when the Mahalanobis distance of their position to t
 information-weighted mean passes ``association.track_gate_confidence``; pipe segments when they are
 collinear with the track's line by the paper's criterion (``merge_angle_rad``, ``merge_distance_m``),
 within ``pipe_extent_gap_m`` of what the track saw, with no in-line object between.
+
+A track follows its object as the vehicle's estimate drifts. An estimator may split each view's
+covariance into what is independent from view to view (the observation, and the pose's components
+measured absolutely: depth by the pressure sensor, roll and pitch by gravity) and what the pose's
+drifting components put on it (north, east, yaw: :func:`split_pose_covariance`; the graph does, the
+EKF gives its whole covariance as independent). Between two views of a track only the drift the pose
+accumulated between their keyframes (the difference of the latter, :meth:`Track.drift_since`)
+separates them, so the track is a small filter (:meth:`Track.mean_position`): its position grows by
+that drift and takes each view with its independent covariance. And a scan's continuations must be
+jointly compatible (:meth:`TrackSet.extend`): its views share one pose, so the drift is common to
+them, and one view on a neighbour's track while the others stay on theirs is not.
+
+Before the DVL's bottom lock the drift over one scan interval (2 s) is a third of a lattice spacing of
+the tank's objects, over the mission's first ~20 s the lattice spacing itself: a track gated against
+a mean of all its views with the pose's accumulated uncertainty joined views of neighbouring objects
+(tank world 79), one that took the depth as common with the map's first view rejected the right
+object's view for a few centimetres of depth (tank world 10), and without the joint test a view 12 s
+after its neighbour's track had last been seen joined it while the scan's other view stayed on its
+own (world 79 again; experiments/estimators/README.md, stop 37).
 """
 
 from __future__ import annotations
@@ -38,14 +57,30 @@ KIND_OF_OBSERVATION = {PointObservation: "object", LineObservation: "pipe", Stru
 class TrackView:
     """One view of a tentative landmark: the observation, where it puts the landmark in {W} with the
     pose of its time (object: (3,); pipe: segment ends (2, 3); structure: T_W,model (4, 4)) and, for
-    objects and structures, that position's covariance (observation and pose). ``payload``: what the
-    estimator needs to initialise the landmark from it (the graph: the keyframe)."""
+    objects and structures, that position's covariance from what is independent from view to view
+    (``cov``: the observation, the pose's depth, roll and pitch), the position's Jacobian ``jac`` in
+    the pose's parameters and the covariance of the pose's drifting components (``pose_drift``: north,
+    east, yaw, as accumulated at its time; None: none). ``payload``: what the estimator needs to
+    initialise the landmark from it (the graph: the keyframe)."""
 
     stamp: int
     z: Observation
     world: np.ndarray
     cov: np.ndarray | None = None
     payload: Any = None
+    jac: np.ndarray | None = None
+    pose_drift: np.ndarray | None = None
+
+    def drifted(self, since: np.ndarray | None, other: TrackView | None = None) -> np.ndarray:
+        """The covariance the pose's drift from ``since`` (a pose_drift) to this view's keyframe puts on
+        this view's position, or, with ``other`` (a view of the same scan), its cross-covariance with
+        that view's (the difference of the two pose_drifts clipped to stay positive semidefinite)."""
+        if self.pose_drift is None or since is None:
+            return np.zeros((3, 3))
+        d = self.pose_drift - since
+        w, V = np.linalg.eigh(0.5 * (d + d.T))
+        J = self.jac if other is None else other.jac
+        return self.jac @ (V * np.maximum(w, 0.0)) @ V.T @ J.T
 
     @property
     def position(self) -> np.ndarray:
@@ -60,21 +95,38 @@ class Track:
     views: list[TrackView] = field(default_factory=list)
     in_view: int = 0  # scans that saw anything within object_view_reach_m of it since its first view
     _in_view_stamp: int | None = None
+    # the filter over the views (objects, structures): views folded in, mean, covariance, last view's drift
+    _folded: int = field(default=0, repr=False)
+    _mean: np.ndarray | None = field(default=None, repr=False)
+    _cov: np.ndarray | None = field(default=None, repr=False)
+    _drift: np.ndarray | None = field(default=None, repr=False)
 
     @property
     def last_stamp(self) -> int:
         return self.views[-1].stamp
 
+    def drift_since(self, v: TrackView) -> np.ndarray:
+        """The covariance of the drift the pose accumulated from the track's last view to view ``v``, on
+        ``v``'s position (zero without drift)."""
+        self.mean_position()
+        return v.drifted(self._drift)
+
     def mean_position(self) -> tuple[np.ndarray, np.ndarray]:
-        """Information-weighted mean of the views' positions and its covariance (objects, structures)."""
-        info = np.zeros((3, 3))
-        vec = np.zeros(3)
-        for v in self.views:
-            Ci = np.linalg.inv(v.cov)
-            info += Ci
-            vec += Ci @ v.position
-        cov = np.linalg.inv(info)
-        return cov @ vec, cov
+        """Where the track's object is as the pose of its last view places it, and its covariance
+        (objects, structures): each view's position taken in turn with its independent covariance,
+        after the drift since the view before (without drift: the information-weighted mean)."""
+        for v in self.views[self._folded :]:
+            if self._mean is None:
+                self._mean, self._cov = np.array(v.position, float), np.array(v.cov, float)
+            else:
+                P = self._cov + v.drifted(self._drift)
+                K = P @ np.linalg.inv(P + v.cov)
+                self._mean = self._mean + K @ (v.position - self._mean)
+                C = (np.eye(3) - K) @ P
+                self._cov = 0.5 * (C + C.T)
+            self._drift = v.pose_drift
+        self._folded = len(self.views)
+        return self._mean, self._cov
 
     def line_fit(self) -> tuple[np.ndarray, np.ndarray]:
         """Principal axis of all the views' segment ends (pipes): (point, unit direction)."""
@@ -118,7 +170,8 @@ class TrackSet:
 
     def extend(self, views: list[TrackView], separators: np.ndarray) -> tuple[list[Track], list[Track]]:
         """The scan's unpaired views continue tracks or start new ones (``separators``: objects in
-        {W}, N×3, that keep collinear pipe segments apart). Returns (the tracks each view went to,
+        {W}, N×3, that keep collinear pipe segments apart): the assignment of least cost, then
+        :meth:`_jointly_compatible`. Returns (the tracks each view went to,
         the tracks promoted now), the promoted ones leaving the set."""
         tracks = list(self.tracks)
         cost = np.full((len(views), len(tracks)), np.inf)
@@ -133,6 +186,7 @@ class TrackSet:
             np.fill_diagonal(new, [self._gate(v.z) for v in views])
             rows, cols = linear_sum_assignment(np.hstack([np.where(np.isfinite(cost), cost, 1e12), new]))
             chosen = {r: tracks[c] for r, c in zip(rows, cols) if c < len(tracks) and np.isfinite(cost[r, c])}
+            self._jointly_compatible(chosen, views, cost, tracks)
         went, promoted = [], []
         for i, v in enumerate(views):
             tr = chosen.get(i)
@@ -147,6 +201,40 @@ class TrackSet:
                 self.tracks.remove(tr)
                 promoted.append(tr)
         return went, promoted
+
+    def _jointly_compatible(self, chosen: dict[int, Track], views: list[TrackView], cost, tracks) -> None:
+        """Drop continuations from ``chosen`` (view index → track) until the scan's object and structure
+        continuations are jointly compatible at ``track_gate_confidence``: their views share the scan's
+        pose, so the drift since the tracks' views is common to them (each pair of continuations shares
+        the drift since the later of its two tracks' last views), and one view on a neighbour's track
+        while the others stay on theirs is not. The continuation whose removal leaves the smallest joint
+        χ² goes first."""
+        keys = [i for i in chosen if views[i].cov is not None]
+        while len(keys) > 1:
+            nis = self._joint_nis(keys, chosen, views)
+            if nis < chi2_gate(self.assoc.track_gate_confidence, 3 * len(keys)):
+                return
+            drop = min(keys, key=lambda i: self._joint_nis([k for k in keys if k != i], chosen, views))
+            keys.remove(drop)
+            del chosen[drop]
+
+    @staticmethod
+    def _joint_nis(keys: list[int], chosen: dict[int, Track], views: list[TrackView]) -> float:
+        n = len(keys)
+        r = np.zeros(3 * n)
+        S = np.zeros((3 * n, 3 * n))
+        for a, i in enumerate(keys):
+            tr, v = chosen[i], views[i]
+            mean, mcov = tr.mean_position()
+            r[3 * a : 3 * a + 3] = v.position - mean
+            S[3 * a : 3 * a + 3, 3 * a : 3 * a + 3] = v.cov + mcov + tr.drift_since(v)
+            for b in range(a):
+                k = keys[b]
+                later = tr if tr.last_stamp >= chosen[k].last_stamp else chosen[k]
+                X = v.drifted(later._drift, views[k])
+                S[3 * a : 3 * a + 3, 3 * b : 3 * b + 3] = X
+                S[3 * b : 3 * b + 3, 3 * a : 3 * a + 3] = X.T
+        return float(r @ np.linalg.solve(S, r))
 
     def _seen_when_in_view(self, tr: Track) -> bool:
         """An object was seen in at least ``object_view_ratio`` of the scans that had it in view
@@ -182,7 +270,7 @@ class TrackSet:
             return np.inf
         mean, mcov = tr.mean_position()
         r = v.position - mean
-        d2 = float(r @ np.linalg.solve(v.cov + mcov, r))
+        d2 = float(r @ np.linalg.solve(v.cov + mcov + tr.drift_since(v), r))
         return d2 if d2 < self._gate(v.z) else np.inf
 
 
@@ -190,3 +278,13 @@ def _in_view(tr: Track, stamp: int) -> None:
     if tr._in_view_stamp != stamp:
         tr.in_view += 1
         tr._in_view_stamp = stamp
+
+
+def split_pose_covariance(P: np.ndarray, drifting) -> tuple[np.ndarray, np.ndarray]:
+    """A pose covariance as (its drifting part, its absolutely measured part): the blocks of the
+    components ``drifting`` (indices: north, east and yaw in the estimator's parameters) and of the
+    others, their cross-covariances dropped (small: at rest the two groups are measured apart)."""
+    on = np.zeros(len(P), bool)
+    on[list(drifting)] = True
+    mask = np.equal.outer(on, on)
+    return np.where(mask & on, P, 0.0), np.where(mask & ~on, P, 0.0)
