@@ -354,3 +354,40 @@ def test_keyframe_between_ahrs_readings_keeps_its_rotation():
     for s in extra:  # the pair 10 ms apart turns as the vehicle can in 50 ms, no more
         R_a, R_b = (est.view().pose_at(t)[:3, :3] for t in (s - 10_000_000, s))
         assert np.linalg.norm(Rotation.from_matrix(R_a.T @ R_b).as_rotvec()) < rate + np.radians(0.05)
+
+
+def test_dvl_interval_starts_from_the_fused_attitude():
+    """Each DVL interval is integrated relative to its start keyframe's rotation: that reference is the
+    keyframe's fused attitude (every reading since the last keyframe, as its attitude factor uses them),
+    not the newest reading alone, whose heading noise would turn the whole interval's displacement."""
+    from semslam.mission.measurements import GroundTruthPose
+
+    sigma = 0.016  # rad, one reading's heading noise (the field simulator's 0.9°)
+    mission = simulate(
+        SyntheticConfig(
+            duration_s=40.0,
+            n_objects=0,
+            n_pipes=0,
+            n_structures=0,
+            ahrs_yaw_bias_rad=0.0,
+            ahrs_sigma_yaw_rad=sigma,
+            seed=4,
+        )
+    )
+    est = GraphEstimator(mission.metadata, SemslamConfig())
+    truth, starts, seen = {}, [], 0
+    for m in mission:
+        est.process_measurement(m)
+        if isinstance(m, GroundTruthPose):
+            truth[m.stamp] = m.matrix()[:3, :3]
+        if len(est.keyframes) > seen:
+            seen = len(est.keyframes)
+            starts.append((est.keyframes.stamps[-1], est.keyframes.nav.preint.R_i_T.T.copy()))
+    gt = np.array(sorted(truth))
+    errors = []
+    for t, R_i in starts[2:]:
+        R_true = truth[int(gt[np.argmin(np.abs(gt - t))])]
+        errors.append(np.linalg.norm(Rotation.from_matrix(R_true.T @ R_i).as_rotvec()))
+    assert len(errors) > 20
+    # one reading's error is ~σ; twenty fused readings' ~σ/√20 (plus the truth's 50 ms sampling)
+    assert np.sqrt(np.mean(np.square(errors))) < 0.5 * sigma
