@@ -96,7 +96,6 @@ class Keyframes:
         self.pose_cov: np.ndarray | None = None
         # joint marginal covariance of the newest keyframe's (pose, velocity[, bias]), for the prediction
         self.state_cov: np.ndarray | None = None
-        self._fused_at: tuple[float, np.ndarray, np.ndarray] | None = None  # (t, R_WB, covariance)
         # AHRS heading bias as a random walk (0: not modelled, the AHRS heading taken as unbiased).
         self.bias_walk = config.sensors.heading_bias_walk(metadata)
         self.bias_sigma0 = config.sensors.heading_bias_sigma0(metadata)
@@ -143,9 +142,6 @@ class Keyframes:
         R, _ = self.nav.attitude_at(t)
         fused = self.nav.take_fused_attitude(t)
         has_attitude = fused is not None and t - self.nav.attitude.t <= self.cfg.ahrs_max_age_s
-        # The fused attitude, also the reference rotation of the DVL interval that starts here
-        # (_started): the newest reading alone carries a single reading's noise into the interval.
-        self._fused_at = (t, fused[0], fused[1]) if has_attitude else None
         if has_attitude:
             R_f, cov_f, _ = fused
             factors.append(
@@ -291,12 +287,9 @@ class Keyframes:
     def _started(self, stamp: int) -> None:
         """The navigation interval from the new keyframe at ``stamp``, and its online pose."""
         t = stamp * 1e-9
-        if self._fused_at is not None and self._fused_at[0] == t:
-            _, R, cov = self._fused_at
-        else:
-            R, _ = self.nav.attitude_at(t)
-            cov = self.nav.attitude.cov
-        self.nav.start_interval(t, R, float(np.sqrt(np.trace(cov) / 3)))
+        R, _ = self.nav.attitude_at(t)
+        att_sigma = float(np.sqrt(np.trace(self.nav.attitude.cov) / 3))
+        self.nav.start_interval(t, R, att_sigma)
         self.online.append(stamp, self.pose, self._position_cov())
 
     def _position_cov(self) -> np.ndarray:
