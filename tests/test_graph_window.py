@@ -71,7 +71,7 @@ def test_marginal_of_what_leaves_is_exact_on_a_linear_problem():
     full, full_marg = _solve(factors, values)
     # x0, x1 leave; landmark l0 (seen from x0..x2) stays, seen from x2
     drop = {x[0], x[1]}
-    kept, leaving = split_factors(factors, drop)
+    kept, leaving, _ = split_factors(factors, drop)
     assert all(not drop & set(f.keys()) for f, _ in kept) and leaving
     marginal = marginal_factors(leaving, full, drop)
     assert {k for m in marginal for k in m.keys()} == {x[2], lm[0], lm[1]}  # x1 saw l1
@@ -88,7 +88,7 @@ def test_marginal_without_the_leaving_factors_is_not_the_full_answer():
     # the check above is not vacuous: dropping what leaves (no marginal) changes the estimate
     x, lm, factors, values = _chain(np.random.default_rng(4))
     full, _ = _solve(factors, values)
-    kept, _ = split_factors(factors, {x[0], x[1]})
+    kept, _, _ = split_factors(factors, {x[0], x[1]})
     kept.append((gtsam.PriorFactorVector(x[2], full.atVector(x[2]), gtsam.noiseModel.Isotropic.Sigma(2, 1.0)), None))
     rest, _ = _solve(kept, subset(full, x[2:] + lm))
     assert np.linalg.norm(rest.atVector(lm[0]) - full.atVector(lm[0])) > 1e-3

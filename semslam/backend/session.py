@@ -261,9 +261,10 @@ class IsamSession:
         self, marginals, keys: Iterable[int], chunk: int = 60, known: dict[int, np.ndarray] | None = None
     ) -> dict[int, np.ndarray]:
         """Marginal covariances of ``keys``: those in ``known`` as given (what left the window, at the
-        time it left), the others from joint marginals over chunks of them (in a graph where every
-        landmark links to every pose, one joint marginal of 60 variables costs about as much as one
-        or two single ones), else iSAM2's one by one. A key that fails is left out."""
+        time it left), the others from joint marginals over chunks of them (``marginals``: a
+        ``gtsam.Marginals``, or the iSAM2 itself; in a graph where every landmark links to every pose,
+        one joint marginal of 60 variables costs about as much as one or two single ones), else
+        iSAM2's one by one. A key that fails is left out."""
         known = known or {}
         out: dict[int, np.ndarray] = {k: known[k] for k in keys if k in known}
         keys = [k for k in keys if k not in out]
@@ -273,7 +274,7 @@ class IsamSession:
                 try:
                     J = marginals.jointMarginalCovariance(gtsam.KeyVector(part))
                     out.update({k: np.asarray(J.at(k, k)) for k in part})
-                except RuntimeError:
+                except (RuntimeError, IndexError):  # indeterminate, or not in the graph: key by key
                     pass
         for k in keys:
             if k not in out:

@@ -47,12 +47,21 @@ def subset(values: gtsam.Values, keys: Iterable[int]) -> gtsam.Values:
     return out
 
 
-def split_factors(factors: list[tuple], drop: set[int]) -> tuple[list[tuple], list[tuple]]:
-    """(kept, leaving): the factors touching no dropped key, and the others."""
-    kept, leaving = [], []
-    for item in factors:
-        (leaving if any(k in drop for k in item[0].keys()) else kept).append(item)
-    return kept, leaving
+def split_factors(
+    factors: list[tuple], drop: set[int], factor_keys: list | None = None
+) -> tuple[list[tuple], list[tuple], set[int]]:
+    """(kept, leaving, the kept ones' keys): the factors touching no dropped key, and the others
+    (``factor_keys``: each factor's keys, when already read: each ``keys()`` call copies them)."""
+    if factor_keys is None:
+        factor_keys = [item[0].keys() for item in factors]
+    kept, leaving, kept_keys = [], [], set()
+    for item, keys in zip(factors, factor_keys):
+        if any(k in drop for k in keys):
+            leaving.append(item)
+        else:
+            kept.append(item)
+            kept_keys.update(keys)
+    return kept, leaving, kept_keys
 
 
 def marginal_factors(leaving: list[tuple], values: gtsam.Values, drop: set[int]) -> list[gtsam.LinearContainerFactor]:
@@ -236,13 +245,7 @@ class SlidingWindow:
         estimate = session.estimate()
         covariances = self._covariances(session, drop, b) if self.keep_covariances else {}
         t_cov = time.perf_counter() - t1
-        kept, leaving, kept_keys = [], [], set()
-        for item, keys in zip(session.window, factor_keys):
-            if any(k in drop for k in keys):
-                leaving.append(item)
-            else:
-                kept.append(item)
-                kept_keys.update(keys)
+        kept, leaving, kept_keys = split_factors(session.window, drop, factor_keys)
         try:
             marginal = marginal_factors(leaving, estimate, drop)
             window = kept + [(m, None) for m in marginal]
@@ -273,27 +276,13 @@ class SlidingWindow:
     def _covariances(self, session, drop: set[int], b: int, chunk: int = 60) -> dict[int, np.ndarray]:
         """iSAM2's marginal covariances of the landmarks about to leave and of every
         ``LEFT_COVARIANCE_EVERY``-th keyframe's pose and velocity (before the restart, while iSAM2
-        still holds them): the diagonal blocks of joint marginals over chunks of them (each single
-        marginal walks the Bayes tree again), a chunk iSAM2 cannot give key by key. A key iSAM2 cannot give is left out (its
-        covariance is unknown: NaN)."""
+        still holds them): the diagonal blocks of joint marginals over chunks of them
+        (:meth:`IsamSession.joint_blocks`: each single marginal walks the Bayes tree again). A key
+        iSAM2 cannot give is left out (its covariance is unknown: NaN)."""
         first = -(-self.first_active // LEFT_COVARIANCE_EVERY) * LEFT_COVARIANCE_EVERY
         keys = [k for i in range(first, b, LEFT_COVARIANCE_EVERY) for k in (X(i), V(i))]
         keys += sorted(k for k in drop if gtsam.Symbol(k).chr() in LANDMARK_CHARS)
-        out = {}
-        for a in range(0, len(keys), chunk):
-            part = keys[a : a + chunk]
-            try:
-                joint = session.isam.jointMarginalCovariance(gtsam.KeyVector(part))
-                out.update({k: np.asarray(joint.at(k, k)) for k in part})
-                continue
-            except (RuntimeError, IndexError):
-                pass
-            for k in part:
-                try:
-                    out[k] = session.marginal(k)
-                except (RuntimeError, IndexError):
-                    pass
-        return out
+        return session.joint_blocks(session.isam, keys, chunk)
 
     def estimate(self, session) -> gtsam.Values:
         """The window's estimate with the frozen estimates of everything that left it."""
