@@ -320,18 +320,19 @@ def _session_with_a_chain(n=40, n_landmarks=6, seed=3):
 
 
 def test_a_slide_removes_what_leaves_and_keeps_the_rest_as_it_was():
-    # A slide removes the factors of what leaves from iSAM2 and adds their marginal, linearised at
-    # iSAM2's own linearisation point, without a restart: the kept variables' estimate and marginal
-    # covariance are those of before the slide (exact on iSAM2's linear system), what left is no
-    # longer in iSAM2, and iSAM2 holds exactly the window's factors (the removed slots reused).
+    # A slide removes the factors of what leaves from iSAM2 and adds their marginal, without a
+    # restart. With the marginal linearised at iSAM2's own linearisation point the kept variables'
+    # estimate and marginal covariance are exactly those of before the slide (on iSAM2's linear
+    # system); what left is no longer in iSAM2, and iSAM2 holds exactly the window's factors (the
+    # removed slots reused by the next update).
     session, stamps = _session_with_a_chain()
-    window = SlidingWindow(20.0, [])
     before = session.isam.calculateBestEstimate()
     kept = [k for k in before.keys() if session.isam.valueExists(k)]
     cov_before = {k: session.marginal(k) for k in kept}
-    drop, _ = window.slide(session, stamps)
-    assert window.first_active == 19 and X(18) in drop and X(19) not in drop and not session.pending
-    assert gtsam.symbol_shorthand.L(0) in drop  # seen only from keyframes 0..7
+    drop = {key for i in range(19) for key in (X(i), V(i))} | {gtsam.symbol_shorthand.L(0)}  # L0: seen from x0..x7
+    out = [i for i, keys in enumerate(session.window_factor_keys) if not drop.isdisjoint(keys)]
+    marginal = marginal_factors([session.window[i] for i in out], session.theta, drop)
+    session.slide_out(out, [(m, None) for m in marginal], before)
     after = session.isam.calculateBestEstimate()
     for k in kept:
         if k in drop:
@@ -363,8 +364,8 @@ def test_a_slide_without_the_restart_is_the_restart_within_relinearisation():
     ref_session, _ = _session_with_a_chain()
 
     def restart_instead(leaving, marginal, values):
-        kept = [item for i, item in enumerate(ref_session.window) if i not in set(leaving)]
-        ref_session.restart(kept + list(marginal), values)
+        window = [item for i, item in enumerate(ref_session.window) if i not in set(leaving)] + list(marginal)
+        ref_session.restart(window, subset(values, {k for f, _ in window for k in f.keys()}))
 
     ref_session.slide_out = restart_instead
     SlidingWindow(20.0, []).slide(session, stamps)
@@ -379,3 +380,29 @@ def test_a_slide_without_the_restart_is_the_restart_within_relinearisation():
             d = gtsam.Pose3.Logmap(d[1].between(d[0])), np.zeros(6)
         worst = max(worst, float(np.max(np.abs(np.asarray(d[0]) - np.asarray(d[1])) / sigma)))
     assert worst < 0.05
+
+
+def test_a_slide_whose_removal_fails_restarts_isam2_on_the_window():
+    # Should iSAM2 refuse the update that removes what leaves, the slide restarts it on the kept
+    # window and the marginal (the slides of before), says so, and the window has slid.
+    session, stamps = _session_with_a_chain()
+    before = session.isam.calculateBestEstimate()
+
+    def refuse(*args):
+        raise RuntimeError("Indeterminant linear system detected while working near variable 1 (Symbol: x1).")
+
+    session.slide_out = refuse
+    diagnostics = []
+    window = SlidingWindow(20.0, diagnostics)
+    drop, _ = window.slide(session, stamps)
+    assert window.first_active == 19 and len(window.slides) == 1
+    assert len(diagnostics) == 1 and "removing what left failed" in diagnostics[0] and "restarted" in diagnostics[0]
+    assert not session.isam.valueExists(X(0)) and session.isam.valueExists(X(19))
+    held = session.isam.getFactorsUnsafe()
+    assert held.size() == len(session.window)  # a fresh iSAM2 holding the window
+    after = session.isam.calculateBestEstimate()
+    for k in after.keys():
+        a, b = value_of(after, k), value_of(before, k)
+        if gtsam.Symbol(k).chr() == ord("x"):
+            a, b = a.translation(), b.translation()
+        assert np.linalg.norm(np.asarray(a) - np.asarray(b)) < 0.01

@@ -248,11 +248,14 @@ class IsamSession:
         are removed from iSAM2 and the ``marginal`` of what they carried on the rest added, in one
         update. iSAM2 drops the variables left without a factor (the keyframes and landmarks that
         leave); it relinearises nothing and re-eliminates the cliques the removed factors touched.
-        With the marginal linearised at iSAM2's own linearisation point, the kept variables' estimate
-        and covariance are those of before, exactly on the linear system (a restart relinearised the
-        whole window at the estimate: a batch elimination). ``values``: the kept variables' estimate
-        (the fallback of a later rebuild). The update counts as the first of a fresh iSAM2 (the
-        relinearisation cadence of a restart). On a failure iSAM2 may be left broken: the caller
+        The kept factors stay linearised where iSAM2 had them (a restart relinearised the whole
+        window at the estimate: a batch linearisation and elimination, and a fill-reducing order of
+        the whole window in place of iSAM2's incremental one). With the marginal linearised at
+        iSAM2's linearisation point, the kept variables' estimate and covariance would stay exactly
+        those of before (on the linear system); at the estimate they move by second-order terms.
+        ``values``: the estimate (that of the kept variables is the fallback of a later rebuild).
+        The update counts as the first of a fresh iSAM2 (the relinearisation cadence of a restart).
+        On a failure iSAM2 may be left broken: the caller
         restarts it (:meth:`restart`); the RuntimeError is raised."""
         gone = set(leaving)
         remove = [self._slots[i] for i in leaving]
@@ -268,7 +271,7 @@ class IsamSession:
         self._slots = [old[i] for i in kept]
         self._hold(marginal, slots)
         if not self.keep_all:
-            self.initial = gtsam.Values(values)
+            self.initial = subset(values, self.window_keys())
 
     # ------------------------------------------------------------------ the whole mission
     def graph(self) -> gtsam.NonlinearFactorGraph:
