@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from test_backend_graph import DROPOUTS, ate, dr_ate, indeterminate_landmark
 
+from factors.landmarks import point_factor
 from frontends.oracle import OracleFrontend
 from semslam.backend.graph import GraphEstimator
 from semslam.backend.session import IsamSession
@@ -280,3 +281,128 @@ def test_left_covariances_from_joint_chunks_are_isam2s_marginals():
         for k in keys:
             ref = session.marginal(k)
             assert np.abs(out[k] - ref).max() <= 1e-9 * np.abs(ref).max()
+
+
+def _session_with_a_chain(n=40, n_landmarks=6, seed=3):
+    """An iSAM2 session of ``n`` keyframes 1 s apart (pose chain, velocity priors) seeing point
+    landmarks (object factors, the built-in the graph uses), each from a stretch of keyframes,
+    committed one keyframe an update from noisy initial values (so iSAM2's linearisation point is
+    not its estimate)."""
+    rng = np.random.default_rng(seed)
+    Lk = gtsam.symbol_shorthand.L
+    session = IsamSession(0.02, 5, [], keep_all=False)
+    truth = [gtsam.Pose3(gtsam.Rot3.Yaw(0.05 * i), np.array([0.5 * i, 0.1 * i * i / n, 1.0])) for i in range(n)]
+    points = [np.array([0.5 * n * j / n_landmarks, 2.0, 3.0]) for j in range(n_landmarks)]
+    cov_S = np.diag([0.02, 0.02, 0.03]) ** 2
+    stamps, seen = [], set()
+    for i in range(n):
+        factors, values = [], gtsam.Values()
+        values.insert(X(i), truth[i].retract(rng.normal(scale=0.05, size=6)))
+        values.insert(V(i), rng.normal(scale=0.1, size=3))
+        if i == 0:
+            factors.append((gtsam.PriorFactorPose3(X(0), truth[0], gtsam.noiseModel.Isotropic.Sigma(6, 0.01)), None))
+        else:
+            step = truth[i - 1].between(truth[i]).retract(rng.normal(scale=0.01, size=6))
+            factors.append(
+                (gtsam.BetweenFactorPose3(X(i - 1), X(i), step, gtsam.noiseModel.Isotropic.Sigma(6, 0.02)), None)
+            )
+        factors.append((gtsam.PriorFactorVector(V(i), np.zeros(3), gtsam.noiseModel.Isotropic.Sigma(3, 0.2)), None))
+        for j, p in enumerate(points):
+            if abs(p[0] - 0.5 * i) < 4.0:  # seen from 16 keyframes about it
+                z = truth[i].transformTo(p) + rng.normal(scale=0.02, size=3)
+                factors.append((point_factor(X(i), Lk(j), z, cov_S, np.eye(4)), j))
+                if j not in seen:
+                    seen.add(j)
+                    values.insert(Lk(j), p + rng.normal(scale=0.1, size=3))
+        session.commit(factors, values, (X(i), V(i)))
+        stamps.append(int(i * 1e9))
+    return session, stamps
+
+
+def test_a_slide_removes_what_leaves_and_keeps_the_rest_as_it_was():
+    # A slide removes the factors of what leaves from iSAM2 and adds their marginal, without a
+    # restart. With the marginal linearised at iSAM2's own linearisation point the kept variables'
+    # estimate and marginal covariance are exactly those of before the slide (on iSAM2's linear
+    # system); what left is no longer in iSAM2, and iSAM2 holds exactly the window's factors (the
+    # removed slots reused by the next update).
+    session, stamps = _session_with_a_chain()
+    before = session.isam.calculateBestEstimate()
+    kept = [k for k in before.keys() if session.isam.valueExists(k)]
+    cov_before = {k: session.marginal(k) for k in kept}
+    drop = {key for i in range(19) for key in (X(i), V(i))} | {gtsam.symbol_shorthand.L(0)}  # L0: seen from x0..x7
+    out = [i for i, keys in enumerate(session.window_factor_keys) if not drop.isdisjoint(keys)]
+    marginal = marginal_factors([session.window[i] for i in out], session.theta, drop)
+    session.slide_out(out, [(m, None) for m in marginal], before)
+    after = session.isam.calculateBestEstimate()
+    for k in kept:
+        if k in drop:
+            assert not session.isam.valueExists(k)
+            continue
+        a, b = value_of(after, k), value_of(before, k)
+        if gtsam.Symbol(k).chr() == ord("x"):
+            a, b = gtsam.Pose3.Logmap(b.between(a)), np.zeros(6)
+        sigma = np.sqrt(np.diag(cov_before[k]))
+        assert np.all(np.abs(np.asarray(a) - np.asarray(b)) <= 1e-6 * sigma)
+        cov = session.marginal(k)
+        assert np.abs(cov - cov_before[k]).max() <= 1e-6 * np.abs(cov_before[k]).max()
+    held = session.isam.getFactorsUnsafe()
+    assert sum(held.at(i) is not None for i in range(held.size())) == len(session.window)
+    assert session.window_keys() == {k for k in kept if k not in drop}
+    # the next updates go on from there, their factors in the slots of those removed
+    more, values = (
+        [(gtsam.PriorFactorVector(V(39), np.zeros(3), gtsam.noiseModel.Isotropic.Sigma(3, 0.2)), None)],
+        gtsam.Values(),
+    )
+    assert session.commit(more, values, (X(39), V(39))) is None
+    assert session.isam.getFactorsUnsafe().size() == held.size() and len(session.window) == 85
+
+
+def test_a_slide_without_the_restart_is_the_restart_within_relinearisation():
+    # Against the slide of before (iSAM2 restarted on the kept window and the marginal, all
+    # relinearised at the estimate): the same estimates to a small fraction of their σ.
+    session, stamps = _session_with_a_chain()
+    ref_session, _ = _session_with_a_chain()
+
+    def restart_instead(leaving, marginal, values):
+        window = [item for i, item in enumerate(ref_session.window) if i not in set(leaving)] + list(marginal)
+        ref_session.restart(window, subset(values, {k for f, _ in window for k in f.keys()}))
+
+    ref_session.slide_out = restart_instead
+    SlidingWindow(20.0, []).slide(session, stamps)
+    SlidingWindow(20.0, []).slide(ref_session, stamps)
+    a, b = session.isam.calculateBestEstimate(), ref_session.isam.calculateBestEstimate()
+    assert sorted(a.keys()) == sorted(b.keys())
+    worst = 0.0
+    for k in a.keys():
+        sigma = np.sqrt(np.diag(ref_session.marginal(k)))
+        d = value_of(a, k), value_of(b, k)
+        if gtsam.Symbol(k).chr() == ord("x"):
+            d = gtsam.Pose3.Logmap(d[1].between(d[0])), np.zeros(6)
+        worst = max(worst, float(np.max(np.abs(np.asarray(d[0]) - np.asarray(d[1])) / sigma)))
+    assert worst < 0.05
+
+
+def test_a_slide_whose_removal_fails_restarts_isam2_on_the_window():
+    # Should iSAM2 refuse the update that removes what leaves, the slide restarts it on the kept
+    # window and the marginal (the slides of before), says so, and the window has slid.
+    session, stamps = _session_with_a_chain()
+    before = session.isam.calculateBestEstimate()
+
+    def refuse(*args):
+        raise RuntimeError("Indeterminant linear system detected while working near variable 1 (Symbol: x1).")
+
+    session.slide_out = refuse
+    diagnostics = []
+    window = SlidingWindow(20.0, diagnostics)
+    drop, _ = window.slide(session, stamps)
+    assert window.first_active == 19 and len(window.slides) == 1
+    assert len(diagnostics) == 1 and "removing what left failed" in diagnostics[0] and "restarted" in diagnostics[0]
+    assert not session.isam.valueExists(X(0)) and session.isam.valueExists(X(19))
+    held = session.isam.getFactorsUnsafe()
+    assert held.size() == len(session.window)  # a fresh iSAM2 holding the window
+    after = session.isam.calculateBestEstimate()
+    for k in after.keys():
+        a, b = value_of(after, k), value_of(before, k)
+        if gtsam.Symbol(k).chr() == ord("x"):
+            a, b = a.translation(), b.translation()
+        assert np.linalg.norm(np.asarray(a) - np.asarray(b)) < 0.01

@@ -43,11 +43,16 @@ class IsamSession:
         # iSAM2's own count never checks (its first update only: nothing to relinearise yet); the
         # session asks for the checks by its count of updates, deferred keyframes included.
         params.relinearizeSkip = 1 << 30
+        # a slide removes the factors of what leaves (:meth:`slide_out`): new factors take their slots,
+        # so that iSAM2's factor list stays the window's size on a survey of hours
+        params.findUnusedFactorSlots = True
         self.relinearize_skip = relinearize_skip
         self.diagnostics = diagnostics
         self.keep_all = keep_all
         self.factors: list[Owned] = []
         self.window: list[Owned] = []
+        self.window_factor_keys: list[tuple[int, ...]] = []  # each window factor's keys (read once: keys() copies)
+        self._slots: list[int] = []  # each window factor's index in iSAM2
         self.owners: set[int] = set()  # every landmark a committed factor observes
         self.n_committed = 0
         self.initial = gtsam.Values()
@@ -71,13 +76,22 @@ class IsamSession:
         self.theta = self.isam.getLinearizationPoint()
         self.n_updates = 0  # updates of this iSAM2, deferred keyframes counted one each
 
-    def _update(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, n: int = 1) -> None:
+    def _update(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, n: int = 1) -> list[int]:
         """iSAM2 ``update`` standing for ``n`` updates; relinearisation is checked if one of them
-        would have checked (every ``relinearize_skip``-th)."""
+        would have checked (every ``relinearize_skip``-th). Returns iSAM2's indices of the new factors."""
         first = self.n_updates + 1
         self.n_updates += n
         check = (self.n_updates // self.relinearize_skip) > ((first - 1) // self.relinearize_skip)
-        self.isam.update(graph, values, force_relinearize=check)
+        return list(self.isam.update(graph, values, force_relinearize=check).getNewFactorsIndices())
+
+    def _hold(self, factors: list[Owned], slots: list[int]) -> None:
+        """``factors`` join the window, at iSAM2's indices ``slots``."""
+        self.window.extend(factors)
+        self.window_factor_keys.extend(tuple(f.keys()) for f, _ in factors)
+        self._slots.extend(slots)
+
+    def _reset_window(self) -> None:
+        self.window, self.window_factor_keys, self._slots = [], [], []
 
     # ------------------------------------------------------------------ estimates
     def value(self, key: int):
@@ -145,7 +159,7 @@ class IsamSession:
         for f, _ in [*factors, *priors]:
             graph.add(f)
         try:
-            self._update(graph, values, n)
+            slots = self._update(graph, values, n)
         except RuntimeError as exc:
             msg = solver_failure(exc)
             owners = sorted({o for _, o in factors if o is not None})
@@ -154,8 +168,7 @@ class IsamSession:
             return owners
         self._keep(factors)
         self.owners.update(o for _, o in factors if o is not None)
-        self.window.extend(factors)
-        self.window.extend(priors)
+        self._hold([*factors, *priors], slots)  # the graph's order
         self.initial.insert_or_assign(values)  # a returning landmark's key is there already
         return None
 
@@ -170,7 +183,7 @@ class IsamSession:
 
     def window_keys(self) -> set[int]:
         """Every variable a factor of the window holds."""
-        return {k for f, _ in self.window for k in f.keys()}
+        return {k for keys in self.window_factor_keys for k in keys}
 
     def rebuild(self, navigation: list[Owned], values: gtsam.Values, anchor: tuple[int, int]) -> None:
         """A fresh iSAM2 from the window's factors plus ``navigation`` (this update's, the landmark
@@ -181,33 +194,35 @@ class IsamSession:
         except RuntimeError:
             estimate = gtsam.Values(self.initial)
         self._keep(navigation)
-        self.window.extend(navigation)
-        keep = self.window_keys()
+        window = [*self.window, *navigation]
+        self._reset_window()
+        keep = {k for f, _ in window for k in f.keys()}
         full = gtsam.Values()
         for src in (estimate, values, self.initial):
             for key in src.keys():
                 if key in keep and not full.exists(key):
                     full.insert(key, value_of(src, key))
         graph = gtsam.NonlinearFactorGraph()
-        for f, _ in self.window:
+        for f, _ in window:
             graph.add(f)
         params = self.isam.params()
         self._start(params)
         try:
-            self._update(graph, full)
+            slots = self._update(graph, full)
         except RuntimeError as exc:
             x, v = anchor
             prior = gtsam.PriorFactorPose3(x, full.atPose3(x), gtsam.noiseModel.Isotropic.Sigma(6, 10.0))
             vprior = gtsam.PriorFactorVector(v, value_of(full, v), gtsam.noiseModel.Isotropic.Sigma(3, 10.0))
             self._keep([(prior, None), (vprior, None)])
-            self.window += [(prior, None), (vprior, None)]
+            window += [(prior, None), (vprior, None)]
             graph.add(prior)
             graph.add(vprior)
             self._start(params)
-            self._update(graph, full)
+            slots = self._update(graph, full)
             self.diagnostics.append(
                 f"rebuild needed a weak re-anchoring prior on {gtsam.Symbol(x).string()} ({solver_failure(exc)})"
             )
+        self._hold(window, slots)
         self.initial = full
 
     def restart(self, window: list[Owned], values: gtsam.Values) -> None:
@@ -219,13 +234,44 @@ class IsamSession:
             graph.add(f)
         try:
             self._start(self.isam.params())
-            self._update(graph, values)
+            slots = self._update(graph, values)
         except RuntimeError:
             self.isam, self.theta, self.n_updates = old
             raise
-        self.window = window
+        self._reset_window()
+        self._hold(window, slots)
         if not self.keep_all:
             self.initial = gtsam.Values(values)
+
+    def slide_out(self, leaving: list[int], marginal: list[Owned], values: gtsam.Values) -> None:
+        """What leaves the window, without a restart: the window's factors at positions ``leaving``
+        are removed from iSAM2 and the ``marginal`` of what they carried on the rest added, in one
+        update. iSAM2 drops the variables left without a factor (the keyframes and landmarks that
+        leave); it relinearises nothing and re-eliminates the cliques the removed factors touched.
+        The kept factors stay linearised where iSAM2 had them (a restart relinearised the whole
+        window at the estimate: a batch linearisation and elimination, and a fill-reducing order of
+        the whole window in place of iSAM2's incremental one). With the marginal linearised at
+        iSAM2's linearisation point, the kept variables' estimate and covariance would stay exactly
+        those of before (on the linear system); at the estimate they move by second-order terms.
+        ``values``: the estimate (that of the kept variables is the fallback of a later rebuild).
+        The update counts as the first of a fresh iSAM2 (the relinearisation cadence of a restart).
+        On a failure iSAM2 may be left broken: the caller
+        restarts it (:meth:`restart`); the RuntimeError is raised."""
+        gone = set(leaving)
+        remove = [self._slots[i] for i in leaving]
+        graph = gtsam.NonlinearFactorGraph()
+        for f, _ in marginal:
+            graph.add(f)
+        slots = list(self.isam.update(graph, gtsam.Values(), remove).getNewFactorsIndices())
+        self.n_updates = 1
+        kept = [i for i in range(len(self.window)) if i not in gone]
+        window, keys, old = self.window, self.window_factor_keys, self._slots
+        self.window = [window[i] for i in kept]
+        self.window_factor_keys = [keys[i] for i in kept]
+        self._slots = [old[i] for i in kept]
+        self._hold(marginal, slots)
+        if not self.keep_all:
+            self.initial = subset(values, self.window_keys())
 
     # ------------------------------------------------------------------ the whole mission
     def graph(self) -> gtsam.NonlinearFactorGraph:
@@ -250,7 +296,7 @@ class IsamSession:
         ``keep_all`` they cover the window's variables only (with the marginal of what left it)."""
         graph = self.graph()
         if not self.keep_all:  # only the window's variables: a Values with more is refused
-            values = subset(values, {k for f, _ in self.window for k in f.keys()})
+            values = subset(values, self.window_keys())
         try:
             return gtsam.Marginals(graph, values)
         except RuntimeError as exc:
