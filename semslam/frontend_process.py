@@ -92,9 +92,9 @@ def one_thread_per_library() -> Iterator[None]:
     OpenMP, ``OMP_NUM_THREADS`` does not reach it). Every way a mission is run enters it (the pipeline,
     its front-end workers), so that a mission gives the same observations and estimates on any
     machine: a parallel reduction (Open3D's ICP normal equations, residual sums) adds its terms in an
-    order that depends on the thread count and, with work stealing, on the machine's load; the last
-    bits differ, a borderline accept/reject of the sonar front-end flips and the run goes elsewhere
-    (issue 21, experiments/estimators/README.md, stop 38). GTSAM is built without TBB here, and
+    order that depends on the thread count and, with work stealing, on the machine's load; the sonar's
+    structure observations then differ in their last bits, and a run that feeds them back through the
+    estimate can end elsewhere (issue 21; experiments/estimators/README.md, stop 38). GTSAM is built without TBB here, and
     kiss-icp takes its own ``max_num_threads`` (frontends/odometry)."""
     import open3d  # a dependency of every front-end that uses it; imported here, it is pinned before any use
     from threadpoolctl import threadpool_limits
