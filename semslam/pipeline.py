@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Protocol
 
 from semslam.estimation import EstimateView, Estimator, spilling_into
-from semslam.frontend_process import FrontendProcess, default_workers, runs_in_process
+from semslam.frontend_process import FrontendProcess, default_workers, one_thread_per_library, runs_in_process
 from semslam.mapping.book import labelled
 from semslam.mission.measurements import GroundTruthPose, Measurement
 from semslam.mission.mission import Mission
@@ -84,11 +84,14 @@ def run_pipeline(
     enclosing :func:`semslam.estimation.spilling_into`, else the system's temporary directory, on
     some machines memory). A full disk there is a :class:`semslam.estimation.SpillError`.
 
-    BLAS runs single-threaded meanwhile: the matrices here are small (an EKF of a few hundred
-    states, 3×3 to 100×100 blocks), and OpenBLAS's threads spinning against GTSAM's and each other
-    on a busy machine made the EKF 4.8× and the graph 1.6× slower (tank mission, 2 cores).
+    The numeric libraries (BLAS, OpenMP, Open3D's TBB) run on one thread each meanwhile, here and in
+    the front-end workers (:func:`semslam.frontend_process.one_thread_per_library`): a parallel sum's
+    last bits depend on the thread count and the machine's load, and a borderline decision of a
+    front-end that reads the estimate would flip with them; so a mission gives the same result in a
+    study worker, in ``compare`` and on a machine with another core count. The matrices are small
+    anyway (an EKF of a few hundred states, 3×3 to 100×100 blocks): OpenBLAS's threads spinning
+    against each other on a busy machine made the EKF 4.8× and the graph 1.6× slower (tank, 2 cores).
     """
-    from threadpoolctl import threadpool_limits
 
     if not isinstance(keep_observations, bool) and keep_observations != "labelled":
         raise ValueError(f"keep_observations: True, False or 'labelled', not {keep_observations!r}")
@@ -96,7 +99,7 @@ def run_pipeline(
     apart = [fe for fe in frontends if frontend_process and runs_in_process(fe)]
     worker = FrontendProcess(apart, frontend_workers or default_workers()) if apart else None
     try:
-        with threadpool_limits(limits=1, user_api="blas"), spilling_into(spill_dir):
+        with one_thread_per_library(), spilling_into(spill_dir):
             result = _run_pipeline(
                 mission, estimators, frontends, view_estimator, progress, keep_observations, worker, watchers
             )
