@@ -44,6 +44,11 @@ _OPEN_FROM, _OPEN_TO, _MIN_OPEN_RAYS = 0.02, 0.10, 5
 # of its outermost inlier's (2 bins of 2 cm: the bin of a fitting's first points, and one more
 # for a partly filled bin or a thin gap of missing returns at the joint).
 _FITTED_END_BINS = 2
+# A pipe seen over a narrow arc at stereo noise fits too large a radius, but not by more than this
+# factor (pipeline seeds 4, 15, 16, true poses: 58-79 mm free on 55-57 mm lines; stop 38): a free
+# radius more than twice a nominal one is something else (a 22 mm nominal radius held on seabed
+# humps fitted at > 64 mm made false pipes on seed 9).
+_MAX_ARC_BIAS = 2.0
 
 
 @dataclass
@@ -767,7 +772,7 @@ def _refine(free: _Points, c, a, r, cfg: PipeConfig):
             P, N = np.take(local.p, idx, axis=0), np.take(local.n, idx, axis=0)
             c1, a1, r1 = fit_cylinder(P, N, a, cfg, held)
             if held is None and nominal and r1 > cfg.max_radius:
-                c1, a1, r1, _ = _hold_nominal(local, P, N, a, cfg)
+                c1, a1, r1, _ = _hold_nominal(local, P, N, a, cfg, r1)
                 held = r1
             if not (cfg.min_radius <= r1 <= cfg.max_radius):
                 return None
@@ -780,13 +785,13 @@ def _refine(free: _Points, c, a, r, cfg: PipeConfig):
             return c, a, r, free.index[near[inl]], held
 
 
-def _hold_nominal(local: _Points, P, N, a0, cfg: PipeConfig):
+def _hold_nominal(local: _Points, P, N, a0, cfg: PipeConfig, free: float):
     """The cylinder fitted to points P (normals N) with a nominal radius held: of each of
-    ``nominal_radii`` in the radius range, the one with the most inliers among ``local``.
-    Returns (c, a, r, inlier count)."""
+    ``nominal_radii`` in the radius range and at least ``1 / _MAX_ARC_BIAS`` of the ``free`` fit's
+    radius, the one with the most inliers among ``local``. Returns (c, a, r, inlier count)."""
     best = None
     for rn in cfg.nominal_radii:
-        if not (cfg.min_radius <= rn <= cfg.max_radius):
+        if not (cfg.min_radius <= rn <= cfg.max_radius) or _MAX_ARC_BIAS * rn < free:
             continue
         c, a, r = fit_cylinder(P, N, a0, cfg, float(rn))
         k = int(local.test(c, a, r, cfg).sum())
