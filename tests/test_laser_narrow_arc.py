@@ -83,3 +83,14 @@ def test_a_short_cylinder_with_the_radius_held_is_not_a_pipe(beyond_the_valve):
     short = LaserConfig.model_validate({"pipes": {"nominal_radii": radii, "color_max_length": 0.15}})
     _, pipes = _found(cut, T_WS, short)
     assert [p for p in pipes if p.radius_held]  # (what the floor keeps out)
+
+
+def test_a_nominal_radius_far_below_the_range_changes_nothing(beyond_the_valve):
+    """A free fit above max_radius is never more than twice a 25 mm pipe's radius: with such a
+    nominal radius alone the segmentation is the default one, pipe for pipe."""
+    cloud, T_WS, _ = beyond_the_valve
+    seg, _ = _found(cloud, T_WS, LaserConfig())
+    small, _ = _found(cloud, T_WS, LaserConfig.model_validate({"pipes": {"nominal_radii": [0.025]}}))
+    assert len(seg.pipes) == len(small.pipes)
+    for a, b in zip(seg.pipes, small.pipes):
+        assert np.array_equal(a.inliers, b.inliers) and np.allclose(a.p, b.p) and not b.radius_held

@@ -142,13 +142,13 @@ def patch_hypotheses(points, normals, grid, seeds, usable, cfg: PipeConfig):
     sums = _sums_by_seed(np.column_stack([np.einsum("pj,pj->p", dp, dn), np.einsum("pj,pj->p", dn, dn)]), cnt)
     r = sums[:, 0] / np.maximum(sums[:, 1], 1e-300)
     ok = (cnt >= 6) & (lam1 >= _MIN_TURN * cnt) & (lam0 <= _MAX_OFF_AXIS * lam1)
-    held = np.zeros(len(seeds), bool)
     if cfg.radius_prior is None and cfg.nominal_radii:
         # A patch of a pipe seen over a narrow arc turns its normals too little for its radius: the
-        # radius reads too large, the axis stays right. Such a patch proposes the nominal radius
-        # nearest the largest in range (the patch's own radius is no guide there).
-        held = ok & (r > cfg.max_radius)
-        r = np.where(held, _nearest_nominal(cfg.max_radius, cfg), r)
+        # radius reads too large (up to _MAX_ARC_BIAS times), the axis stays right. Such a patch
+        # proposes the largest nominal radius in range (its own radius is no guide there).
+        largest = _largest_nominal(cfg)
+        if largest is not None:
+            r = np.where(ok & (r > cfg.max_radius) & (r <= _MAX_ARC_BIAS * largest), largest, r)
     ok &= (r >= cfg.min_radius) & (r <= cfg.max_radius)
     if cfg.radius_prior is not None:
         r = np.full(len(seeds), cfg.radius_prior)
@@ -158,10 +158,10 @@ def patch_hypotheses(points, normals, grid, seeds, usable, cfg: PipeConfig):
     return c, a, r, ok
 
 
-def _nearest_nominal(r: float, cfg: PipeConfig) -> float:
-    """The nominal radius (``nominal_radii``) nearest ``r``."""
-    nominal = np.asarray(cfg.nominal_radii, float)
-    return float(nominal[np.argmin(np.abs(nominal - r))])
+def _largest_nominal(cfg: PipeConfig) -> float | None:
+    """The largest of ``nominal_radii`` in the radius range, None if none is."""
+    inside = [r for r in cfg.nominal_radii if cfg.min_radius <= r <= cfg.max_radius]
+    return max(inside) if inside else None
 
 
 def _sums_by_seed(x: np.ndarray, counts: np.ndarray) -> np.ndarray:
