@@ -250,9 +250,12 @@ def relative_to_trajectory(landmarks, gt, trajectory, truth_positions: dict) -> 
     }
 
 
-def pipeline_seed(seed: int, overrides: dict, scans_only: bool, dump: Path | None = None) -> dict:
+def pipeline_seed(
+    seed: int, overrides: dict, scans_only: bool, dump: Path | None = None, nominal_radii: bool = False
+) -> dict:
     """The pipeline mission of ``seed``: per-scan scores of the laser front-end's pipe observations
-    and (unless ``scans_only``) the graph's map against the truth."""
+    and (unless ``scans_only``) the graph's map against the truth. ``nominal_radii``: the front-end
+    is given the seed's true pipe radii as ``pipes.nominal_radii`` (what an inspection knows)."""
     from frontends.laser.evaluation import score_pipe_observations
     from semslam.compare import run_comparison
     from semslam.config import SemslamConfig
@@ -264,6 +267,9 @@ def pipeline_seed(seed: int, overrides: dict, scans_only: bool, dump: Path | Non
     t0 = time.perf_counter()
     mission = simulate_pipeline(PipelineSimConfig(seed=seed))
     meta = mission.metadata
+    if nominal_radii:
+        radii = sorted({round(float(p.radius), 4) for p in meta.ground_truth.pipes})
+        overrides = {**overrides, "pipes": {**overrides.get("pipes", {}), "nominal_radii": radii}}
     cfg = SemslamConfig(frontends={"laser": overrides})
     estimators = ("dr",) if scans_only else ("dr", "ekf", "graph")
     result, metrics = run_comparison(mission, cfg, ["laser"], estimators=estimators)
@@ -336,6 +342,9 @@ def main(argv=None) -> int:
         help="segments' axes as before the geometric refit (principal direction)",
     )
     ap.add_argument("--config", default="{}", help="laser front-end overrides (JSON, frontends.laser section)")
+    ap.add_argument(
+        "--nominal-radii", action="store_true", help="pipeline: the seed's true pipe radii as pipes.nominal_radii"
+    )
     args = ap.parse_args(argv)
     if args.no_axis_refit:
         from frontends.laser import pipes
@@ -350,7 +359,9 @@ def main(argv=None) -> int:
             results[seed] = r = tank_seed(seed, json.loads(args.config), ("graph", "ekf") if args.ekf else ("graph",))
             print(tank_line(seed, r) if all(v is not None for v in r["graph"].values()) else r, flush=True)
         else:
-            results[seed] = r = pipeline_seed(seed, json.loads(args.config), args.scans_only, args.dump)
+            results[seed] = r = pipeline_seed(
+                seed, json.loads(args.config), args.scans_only, args.dump, args.nominal_radii
+            )
             print(pipeline_line(seed, r), flush=True)
         if args.json is not None:  # after each seed: a long run interrupted keeps what it measured
             args.json.parent.mkdir(parents=True, exist_ok=True)

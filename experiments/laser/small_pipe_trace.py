@@ -54,8 +54,9 @@ def seabed_verdict(pipe, seabed) -> str:
         return "clear"
     if h is not None and h < cfg.min_axis_height * pipe.radius:
         return "axis_height"
-    if arc_span_deg(pipe, seabed.points) < cfg.min_arc_deg:
-        return "arc"
+    arc = arc_span_deg(pipe, seabed.points)
+    if arc < cfg.min_arc_deg:
+        return f"arc {arc:.0f}"
     if cfg.max_bow > 0:
         b, se = bow(pipe, seabed.points)
         if b > max(cfg.max_bow, cfg.bow_sigmas * se):

@@ -1,7 +1,7 @@
 """Why a valve of the pipeline scenario is not mapped (issue 22: "every valve mapped once"): the object
 views the laser front-end makes of it, cloud by cloud.
 
-    python experiments/laser/valve_trace.py --seed 9 [--valve 1] [--min-points 200] [--segments]
+    python experiments/laser/valve_trace.py --seed 9 [--valve 1] [--min-points 200] [--segments] [--config JSON]
 
 Simulates pipeline ``--seed`` and segments every cloud that holds at least ``--min-points`` valid
 points on a valve (``--valve``: its id; default every valve) with this checkout's front-end ("up" from
@@ -10,12 +10,15 @@ within 0.3 m of it (their length and how far their end stops from the valve), an
 within 0.2 m of it (configuration, error). Prints one line per cloud and the count of clouds with a
 view. With ``--segments``, also every segment the pipe stage cut (accepted or not) whose axis passes
 within 0.15 m of the valve, with the seabed test that rejected it (``small_pipe_trace.seabed_verdict``),
-its colour contrast and the RANSAC round (cylinder) it was cut from.
+its colour contrast and the RANSAC round (cylinder) it was cut from ("h": its radius a nominal one held).
+``--config``: front-end overrides (JSON, the ``frontends.laser`` section; ``"nominal": true`` in its
+``pipes`` section sets ``pipes.nominal_radii`` to the seed's true pipe radii).
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 from pathlib import Path
 
@@ -69,7 +72,7 @@ def near_segments(cut: list, x: np.ndarray, reach: float = 0.15) -> list[str]:
             end = min(np.linalg.norm(pipe.p - x), np.linalg.norm(pipe.q - x))
             c = "-" if contrast is None else f"{contrast:.0f}"
             out.append(
-                f"r{rnd} {pipe.length:.2f} m r {pipe.radius * 1000:.0f} mm axis {d:.2f} end {end:.2f} {verdict} c {c}"
+                f"r{rnd} {pipe.length:.2f} m r {pipe.radius * 1000:.0f}{'h' if pipe.radius_held else ''} mm axis {d:.2f} end {end:.2f} {verdict} c {c}"
             )
     return out
 
@@ -86,14 +89,18 @@ def main(argv=None) -> int:
     ap.add_argument("--valve", type=int, default=None)
     ap.add_argument("--min-points", type=int, default=200)
     ap.add_argument("--segments", action="store_true")
+    ap.add_argument("--config", default="{}", help="front-end overrides (JSON)")
     args = ap.parse_args(argv)
     cut: list = []  # (round, pipe, verdict, contrast) of the current cloud
     if args.segments:
         record_segments(cut)
-    cfg = LaserConfig()
     mission = simulate_pipeline(PipelineSimConfig(seed=args.seed))
     meta = mission.metadata
     gt = meta.ground_truth
+    over = json.loads(args.config)
+    if over.get("pipes", {}).pop("nominal", False):
+        over["pipes"]["nominal_radii"] = sorted({round(float(p.radius), 4) for p in gt.pipes})
+    cfg = LaserConfig.model_validate(over)
     valves = {o.id: o for o in gt.objects if o.cls in VALVES and (args.valve is None or o.id == args.valve)}
     print("valves:", {k: (o.cls, np.round(o.position, 2).tolist()) for k, o in valves.items()})
     T_BS = next(s for s in meta.sensors.values() if s.kind == "laser").T_BS

@@ -134,6 +134,13 @@ class PipeConfig(_Section):
     radius_prior: float | None = Field(
         None, gt=0, description="known pipe radius; when given, fits use it and the fitting test is finer"
     )
+    nominal_radii: list[float] = Field(
+        default_factory=list,
+        description="without radius_prior: the nominal radii of the pipes (m; an inspection knows its pipeline's "
+        "sizes). A cylinder whose free fit reads a radius above max_radius (a pipe seen over a narrow arc at stereo "
+        "noise) is fitted again with the nominal radius that gathers the most inliers held; it must still pass "
+        "the seabed's tests. Empty: off",
+    )
     surface_offset: float = Field(
         0.0025,
         ge=0,
@@ -374,6 +381,8 @@ class PipeConfig(_Section):
     def _radii(self):
         if self.min_radius >= self.max_radius:
             raise ValueError("min_radius must be below max_radius")
+        if any(not (r > 0) for r in self.nominal_radii):
+            raise ValueError("nominal_radii: radii must be positive (m)")
         return self
 
 

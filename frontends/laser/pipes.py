@@ -44,13 +44,19 @@ _OPEN_FROM, _OPEN_TO, _MIN_OPEN_RAYS = 0.02, 0.10, 5
 # of its outermost inlier's (2 bins of 2 cm: the bin of a fitting's first points, and one more
 # for a partly filled bin or a thin gap of missing returns at the joint).
 _FITTED_END_BINS = 2
+# A pipe seen over a narrow arc at stereo noise fits too large a radius, but not by more than this
+# factor (pipeline seeds 4, 15, 16, true poses: 58-79 mm free on 55-57 mm lines; stop 38): a free
+# radius more than twice a nominal one is something else (a 22 mm nominal radius held on seabed
+# humps fitted at > 64 mm made false pipes on seed 9).
+_MAX_ARC_BIAS = 2.0
 
 
 @dataclass
 class Pipe:
     """A detected pipe segment: axis endpoints ``p``, ``q`` (m, {S}), unit ``axis`` (p→q), radius,
     the indices of its inlier points, and the 6×6 covariance of [p; q]; ``between_fittings``: both
-    its ends stop at a fitting (it was cut there from its cylinder fit's inliers on both sides)."""
+    its ends stop at a fitting (it was cut there from its cylinder fit's inliers on both sides);
+    ``radius_held``: its radius is a nominal one (``nominal_radii``), held in the fit (a narrow arc)."""
 
     p: np.ndarray
     q: np.ndarray
@@ -59,6 +65,7 @@ class Pipe:
     inliers: np.ndarray
     covariance: np.ndarray
     between_fittings: bool = False
+    radius_held: bool = False
 
     @property
     def length(self) -> float:
@@ -135,6 +142,13 @@ def patch_hypotheses(points, normals, grid, seeds, usable, cfg: PipeConfig):
     sums = _sums_by_seed(np.column_stack([np.einsum("pj,pj->p", dp, dn), np.einsum("pj,pj->p", dn, dn)]), cnt)
     r = sums[:, 0] / np.maximum(sums[:, 1], 1e-300)
     ok = (cnt >= 6) & (lam1 >= _MIN_TURN * cnt) & (lam0 <= _MAX_OFF_AXIS * lam1)
+    if cfg.radius_prior is None and cfg.nominal_radii:
+        # A patch of a pipe seen over a narrow arc turns its normals too little for its radius: the
+        # radius reads too large (up to _MAX_ARC_BIAS times), the axis stays right. Such a patch
+        # proposes the largest nominal radius in range (its own radius is no guide there).
+        largest = _largest_nominal(cfg)
+        if largest is not None:
+            r = np.where(ok & (r > cfg.max_radius) & (r <= _MAX_ARC_BIAS * largest), largest, r)
     ok &= (r >= cfg.min_radius) & (r <= cfg.max_radius)
     if cfg.radius_prior is not None:
         r = np.full(len(seeds), cfg.radius_prior)
@@ -142,6 +156,12 @@ def patch_hypotheses(points, normals, grid, seeds, usable, cfg: PipeConfig):
     ns /= np.maximum(np.linalg.norm(ns, axis=1), 1e-12)[:, None]
     c = ps - r[:, None] * ns
     return c, a, r, ok
+
+
+def _largest_nominal(cfg: PipeConfig) -> float | None:
+    """The largest of ``nominal_radii`` in the radius range, None if none is."""
+    inside = [r for r in cfg.nominal_radii if cfg.min_radius <= r <= cfg.max_radius]
+    return max(inside) if inside else None
 
 
 def _sums_by_seed(x: np.ndarray, counts: np.ndarray) -> np.ndarray:
@@ -290,11 +310,12 @@ class Rays:
         return out
 
 
-def fit_cylinder(points: np.ndarray, normals: np.ndarray, a0: np.ndarray, cfg: PipeConfig):
+def fit_cylinder(points: np.ndarray, normals: np.ndarray, a0: np.ndarray, cfg: PipeConfig, radius=None):
     """Least-squares cylinder: axis, then a circle fit across the axis.
 
     The centre and radius are an algebraic circle fit refined by Gauss–Newton on
-    the geometric distance, or the centre alone when the radius is known.
+    the geometric distance, or the centre alone when the radius is known (``radius``, else
+    ``radius_prior``).
     """
     # Axis: along a long segment the points' principal direction is the axis (the visible
     # half-shell is the same all along it) and it is far better conditioned than the normals; on a
@@ -314,10 +335,11 @@ def fit_cylinder(points: np.ndarray, normals: np.ndarray, a0: np.ndarray, cfg: P
     a = a if a @ a0 >= 0 else -a
     E = _across(a)
     x = d @ E
-    if cfg.radius_prior is not None:
+    held = cfg.radius_prior if radius is None else radius
+    if held is not None:
         nx = normals @ E
         nx /= np.sqrt(nx[:, 0] * nx[:, 0] + nx[:, 1] * nx[:, 1])[:, None]  # (the row sum, without its per-row loop)
-        r = cfg.radius_prior
+        r = held
         cx = np.add.reduce(x - (r - cfg.surface_offset) * nx, 0) / n
     else:
         cx, r = _circle_fit(x)
@@ -378,6 +400,27 @@ def _circle_fit(x: np.ndarray) -> tuple[np.ndarray, float]:
             if keep.sum() >= 6:
                 use = keep
     return cx, r
+
+
+def free_radius(points: np.ndarray, c: np.ndarray, a: np.ndarray) -> tuple[float, float]:
+    """(radius, its standard error) of the circle fitted to ``points`` across the axis (c, a), the
+    axis direction held: the error from the Gauss-Newton normal matrix and the fit's own residual
+    scatter (inf with fewer than 6 points or a singular fit). Over a narrow arc the radius is
+    ill-conditioned and its error large."""
+    if len(points) < 6:
+        return float("nan"), float("inf")
+    x = (points - c) @ _across(a)
+    cx, r = _circle_fit(x)
+    dv = x - cx
+    dn = np.maximum(np.sqrt((dv * dv).sum(axis=1)), 1e-12)
+    res = dn - r
+    J = np.column_stack([-dv / dn[:, None], -np.ones(len(x))])
+    try:
+        cov = np.linalg.inv(J.T @ J)
+    except np.linalg.LinAlgError:
+        return float(r), float("inf")
+    sigma2 = float(res @ res) / max(len(x) - 3, 1)
+    return float(r), float(np.sqrt(max(cov[2, 2], 0.0) * sigma2))
 
 
 def _runs(t: np.ndarray, max_gap: float) -> list[np.ndarray]:
@@ -686,19 +729,27 @@ def refine_cylinder(points: np.ndarray, c: np.ndarray, a: np.ndarray, r: float, 
     return c1, a1, float(rho)
 
 
-def _make_pipe(points, normals, idx, a0, cfg: PipeConfig) -> Pipe:
+def _make_pipe(points, normals, idx, a0, cfg: PipeConfig, radius: float | None = None) -> Pipe:
+    """The pipe segment of the inliers ``idx`` (``radius``: a nominal radius held in the fit)."""
     pts = np.take(points, idx, axis=0)
-    c, a, r = fit_cylinder(pts, np.take(normals, idx, axis=0), a0, cfg)
-    c, a, r = refine_cylinder(pts, c, a, r, cfg)
+    c, a, r = fit_cylinder(pts, np.take(normals, idx, axis=0), a0, cfg, radius)
+    if radius is None:
+        c, a, r = refine_cylinder(pts, c, a, r, cfg)
     t = (pts - c) @ a
     p, q = c + t.min() * a, c + t.max() * a
     rng = float(np.add.reduce(np.sqrt(np.add.reduce(pts * pts, 1))) / len(pts))  # mean range (np.linalg.norm(·).mean())
-    return Pipe(p, q, a, r, idx, endpoint_covariance(p, q, a, len(idx), rng, cfg))
+    return Pipe(p, q, a, r, idx, endpoint_covariance(p, q, a, len(idx), rng, cfg), radius_held=radius is not None)
 
 
 def _refine(free: _Points, c, a, r, cfg: PipeConfig):
     """Refit a hypothesis to its inliers among the ``free`` points until they stop changing (at
-    most ``refine_rounds``); None if the fit leaves the radius range. Returns (c, a, r, indices).
+    most ``refine_rounds``); None if the fit leaves the radius range. Returns (c, a, r, indices,
+    held): ``held`` the nominal radius the fit holds, or None.
+
+    With ``nominal_radii`` (and no ``radius_prior``), a free fit that reads a radius above the range
+    is fitted again with each nominal radius held (the centre alone), and the one with the most
+    inliers goes on, held from then on: a pipe seen over a narrow arc at stereo noise reads far too
+    large a radius while its axis is right; whether it lies like a pipe is left to the seabed's tests.
 
     The rounds run on the points near the axis only (a pipe's inliers are within its radius plus
     the tolerance; ``_REFINE_REACH`` more allows the axis to move): a few hundred points instead of
@@ -708,6 +759,8 @@ def _refine(free: _Points, c, a, r, cfg: PipeConfig):
     reach = cfg.distance_tolerance + _REFINE_REACH
     near, inl = free.test_near(c, a, r, cfg, reach)
     rounds = 0
+    held = None
+    nominal = cfg.radius_prior is None and bool(cfg.nominal_radii)
     while True:
         local = free.subset(near)
         idx = np.flatnonzero(inl)
@@ -716,15 +769,35 @@ def _refine(free: _Points, c, a, r, cfg: PipeConfig):
             prev = len(idx)
             if len(idx) < cfg.min_points:
                 return None
-            c, a, r = fit_cylinder(np.take(local.p, idx, axis=0), np.take(local.n, idx, axis=0), a, cfg)
-            if not (cfg.min_radius <= r <= cfg.max_radius):
+            P, N = np.take(local.p, idx, axis=0), np.take(local.n, idx, axis=0)
+            c1, a1, r1 = fit_cylinder(P, N, a, cfg, held)
+            if held is None and nominal and r1 > cfg.max_radius:
+                c1, a1, r1, _ = _hold_nominal(local, P, N, a, cfg, r1)
+                held = r1
+            if not (cfg.min_radius <= r1 <= cfg.max_radius):
                 return None
+            c, a, r = c1, a1, r1
             idx = np.flatnonzero(local.test(c, a, r, cfg))
             if abs(len(idx) - prev) <= 2:
                 break
         near, inl = free.test_near(c, a, r, cfg, reach)
         if inl.sum() - len(idx) <= 2 or rounds >= cfg.refine_rounds:
-            return c, a, r, free.index[near[inl]]
+            return c, a, r, free.index[near[inl]], held
+
+
+def _hold_nominal(local: _Points, P, N, a0, cfg: PipeConfig, free: float):
+    """The cylinder fitted to points P (normals N) with a nominal radius held: of each of
+    ``nominal_radii`` in the radius range and at least ``1 / _MAX_ARC_BIAS`` of the ``free`` fit's
+    radius, the one with the most inliers among ``local``. Returns (c, a, r, inlier count)."""
+    best = None
+    for rn in cfg.nominal_radii:
+        if not (cfg.min_radius <= rn <= cfg.max_radius) or _MAX_ARC_BIAS * rn < free:
+            continue
+        c, a, r = fit_cylinder(P, N, a0, cfg, float(rn))
+        k = int(local.test(c, a, r, cfg).sum())
+        if best is None or k > best[3]:
+            best = (c, a, r, k)
+    return best if best is not None else (None, a0, np.inf, 0)
 
 
 def _facing_sensor(P: np.ndarray, c: np.ndarray, a: np.ndarray, cfg: PipeConfig) -> np.ndarray:
@@ -740,12 +813,24 @@ def _facing_sensor(P: np.ndarray, c: np.ndarray, a: np.ndarray, cfg: PipeConfig)
 
 
 def _cut_into_segments(
-    points, normals, sq, cb, ab, rb, idx, cfg: PipeConfig, foreign=None, seabed=None, rays: Rays | None = None
+    points,
+    normals,
+    sq,
+    cb,
+    ab,
+    rb,
+    idx,
+    cfg: PipeConfig,
+    foreign=None,
+    seabed=None,
+    rays: Rays | None = None,
+    held: float | None = None,
 ) -> list[Pipe]:
     """The pipe segments of a refined cylinder's inliers ``idx``: cut at fittings (foreign points
     just outside its surface, wider sockets; only the points of the mask ``foreign`` count, all when
     None; along a pipe lying on the ``seabed``, only those over it, :func:`_facing_sensor`), keep
-    the runs long enough."""
+    the runs long enough (``held``: the nominal radius the cylinder was fitted with, held in the
+    segments' fits)."""
     t = np.take(points, idx, axis=0) @ ab
     if len(idx) < cfg.min_points or t.max() - t.min() < cfg.min_detect_length:
         return []  # no run of these inliers can be a segment
@@ -780,7 +865,11 @@ def _cut_into_segments(
         seg = idx[run]
         if len(seg) < cfg.min_points:
             continue
-        pipe = _make_pipe(points, normals, seg, ab, cfg)
+        pipe = _make_pipe(points, normals, seg, ab, cfg, held)
+        if held is not None and pipe.length < cfg.color_max_length:
+            # the radius held is no evidence, and a short cylinder on the seabed may be a stone's top:
+            # only a straight run long enough to be a pipe by its shape (Seabed) is one
+            continue
         pipe.between_fittings = lo and hi
         if pipe.length >= cfg.min_detect_length and cfg.min_radius <= pipe.radius <= cfg.max_radius:
             out.append(pipe)
@@ -878,8 +967,8 @@ def detect_pipes(
             seedable[sample[in_sample[tried].any(axis=0)]] = False
             failures += 1
             continue
-        cb, ab, rb, idx = refined
-        found = _cut_into_segments(points, normals, sq, cb, ab, rb, idx, cfg, foreign, seabed, rays)
+        cb, ab, rb, idx, held = refined
+        found = _cut_into_segments(points, normals, sq, cb, ab, rb, idx, cfg, foreign, seabed, rays, held)
         if seabed is not None:
             found = seabed.accept_runs(found)
         for pipe in found:
@@ -916,6 +1005,9 @@ def merge_duplicates(pipes: list[Pipe], points, normals, cfg: PipeConfig) -> lis
         x, y = pair
         seg = np.union1d(pipes[x].inliers, pipes[y].inliers)
         merged = _make_pipe(points, normals, seg, pipes[x].axis, cfg)
+        held = next((pp.radius for pp in (pipes[x], pipes[y]) if pp.radius_held), None)
+        if held is not None and not (cfg.min_radius <= merged.radius <= cfg.max_radius):
+            merged = _make_pipe(points, normals, seg, pipes[x].axis, cfg, held)  # still a narrow arc
         v = np.take(points, seg, axis=0) - merged.p
         t = v @ merged.axis
         residual = np.sqrt(np.maximum(row_dot(v, v) - t * t, 0.0)) - merged.radius
@@ -929,7 +1021,10 @@ def merge_duplicates(pipes: list[Pipe], points, normals, cfg: PipeConfig) -> lis
             pipes[x] = merged
             del pipes[y]
             continue
-        pieces = [_make_pipe(points, normals, seg[run], merged.axis, cfg) for run in runs if len(run) >= cfg.min_points]
+        held = merged.radius if merged.radius_held else None
+        pieces = [
+            _make_pipe(points, normals, seg[run], merged.axis, cfg, held) for run in runs if len(run) >= cfg.min_points
+        ]
         pieces = [pp for pp in pieces if pp.length >= cfg.min_detect_length]
         pipes = [pp for k, pp in enumerate(pipes) if k not in (x, y)] + pieces
     return pipes
