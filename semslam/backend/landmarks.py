@@ -221,6 +221,7 @@ class GraphLandmarks:
         self._pose_cov = np.eye(6)  # relative to the map (gating)
         self._abs_pose_cov = np.eye(6)
         self.gauge = GaugeFreeCovariance()  # started by the first landmark
+        self.odd_views = 0  # promoted tracks' views left without a factor (:func:`odd_view_out`)
         self._factors: list[Owned] = []
         self._priors: list[Owned] = []
         self._values = gtsam.Values()
@@ -399,6 +400,16 @@ class GraphLandmarks:
         lm = Landmark(lid, track.kind, key, model=track.model)
         views = [v for v in track.views if v.payload >= self.window.first_active]
         poses = {v.payload: self.keyframes.pose_of(v.payload) for v in views}
+        if track.kind == "object":
+            at = [poses[v.payload].compose(gtsam.Pose3(self.metadata.extrinsic(v.z.sensor))) for v in views]
+            odd = odd_view_out(
+                [T.transformFrom(v.z.position) for v, T in zip(views, at)],
+                [v.cov for v in views],
+                self.assoc.track_gate_confidence,
+            )
+            if odd is not None:  # it stays one of the landmark's views, without a factor
+                self.odd_views += 1
+                del views[odd]
         Ts = [self.metadata.extrinsic(v.z.sensor) for v in views]
         T_WS = [poses[v.payload].compose(gtsam.Pose3(T)) for v, T in zip(views, Ts)]
         if track.kind == "object":
@@ -585,3 +596,33 @@ def _information(H_x: np.ndarray, H_l: np.ndarray, R: np.ndarray, pose_cov: np.n
     """H_lᵀ (R + H_x P H_xᵀ)⁻¹ H_l."""
     S = R + H_x @ pose_cov @ H_x.T
     return H_l.T @ np.linalg.solve(S, H_l)
+
+
+def odd_view_out(points: list[np.ndarray], covs: list[np.ndarray | None], confidence: float) -> int | None:
+    """The one view of a landmark that its other views, consistent among themselves, reject: each view
+    (position in {W} with the keyframes as estimated now, its independent covariance) tested against
+    the information-weighted mean of the others at ``confidence``, without the drift allowance the
+    tentative track gave it; the worst one is out if it fails and the rest pass their joint χ² about
+    their own mean. None: fewer than three views, or none out."""
+    n = len(points)
+    if n < 3 or any(c is None for c in covs):
+        return None
+    P = np.array(points, float)
+    info = np.array([np.linalg.inv(c) for c in covs])
+
+    def spread(idx: list[int]) -> tuple[np.ndarray, np.ndarray]:
+        I = info[idx].sum(axis=0)
+        return np.linalg.solve(I, np.einsum("kij,kj->i", info[idx], P[idx])), np.linalg.inv(I)
+
+    d2 = []
+    for i in range(n):
+        mean, cov = spread([j for j in range(n) if j != i])
+        r = P[i] - mean
+        d2.append(float(r @ np.linalg.solve(covs[i] + cov, r)))
+    worst = int(np.argmax(d2))
+    if d2[worst] < chi2_gate(confidence, 3):
+        return None
+    rest = [j for j in range(n) if j != worst]
+    mean, _ = spread(rest)
+    chi2 = sum(float((P[j] - mean) @ info[j] @ (P[j] - mean)) for j in rest)
+    return worst if chi2 < chi2_gate(confidence, 3 * (len(rest) - 1)) else None
