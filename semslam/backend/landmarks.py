@@ -26,6 +26,13 @@ world 79); taken relative to the map's first view in all six components (stop 36
 noise cancelled as if it were common and the right object's view failed its track for 3.5 cm of
 depth (tank world 10). The tracks also test a scan's continuations jointly, with the drift common to
 the scan's views (:class:`semslam.mapping.tracks.TrackSet`).
+
+That drift allowance also lets in a view whose object centre the front-end put far off (a partial
+surface) while the pose had drifted little; promoted, its factor at its keyframe pulls that pose, and
+at the mission's first keyframes, held by the start prior alone, the whole map with it (tank world
+78). At promotion an object's views are tested once more, each against the others' mean with the
+keyframes as estimated now and without the drift allowance (:func:`odd_view_out`): one that the
+others, consistent among themselves, reject gets no factor (it still counts as a view).
 """
 
 from __future__ import annotations
