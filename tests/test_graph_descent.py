@@ -13,6 +13,7 @@ north of the truth.
 import numpy as np
 
 from semslam.backend.graph import GraphEstimator
+from semslam.backend.landmarks import odd_view_out
 from semslam.compare import estimators_input
 from semslam.config import SemslamConfig
 from semslam.mission.measurements import Attitude, Depth, DvlVelocity, GroundTruthPose, PointCloud
@@ -117,3 +118,14 @@ def test_a_wrong_first_view_of_an_object_does_not_move_the_map():
     assert len(objects) == 1
     np.testing.assert_allclose(objects[0], A, atol=0.03)
     assert np.abs(trajectory.positions[:, :2]).max() < 0.03
+
+
+def test_a_view_is_left_out_only_when_the_others_agree_without_it():
+    """odd_view_out: of three views (σ 2 cm), the one 16 cm off the two that agree is out; views spread
+    along a drift, none agreeing with another, keep every factor; so do views that all agree."""
+    cov = [np.eye(3) * 0.02**2] * 3
+    off = [A + np.array([0.16, 0.0, 0.0]), A, A + np.array([0.0, 0.01, 0.0])]
+    assert odd_view_out(off, cov, 0.999) == 0
+    spread = [A, A + np.array([0.12, 0.0, 0.0]), A + np.array([0.24, 0.0, 0.0])]
+    assert odd_view_out(spread, cov, 0.999) is None
+    assert odd_view_out([A, A, A + np.array([0.02, 0.0, 0.0])], cov, 0.999) is None
