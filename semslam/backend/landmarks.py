@@ -31,8 +31,10 @@ That drift allowance also lets in a view whose object centre the front-end put f
 surface) while the pose had drifted little; promoted, its factor at its keyframe pulls that pose, and
 at the mission's first keyframes, held by the start prior alone, the whole map with it (tank world
 78). At promotion an object's views are tested once more, each against the others' mean with the
-keyframes as estimated now and without the drift allowance (:func:`odd_view_out`): one that the
-others, consistent among themselves, reject gets no factor (it still counts as a view).
+keyframes as estimated now and without the drift allowance (:func:`odd_view_out`): one from a
+keyframe up to the first landmark's promotion (those set where the map lies) that the others,
+consistent among themselves, reject gets no factor (it still counts as a view). Later keyframes are
+held by the map's landmarks, and their views' disagreements are mostly the estimate's drift.
 """
 
 from __future__ import annotations
@@ -229,6 +231,7 @@ class GraphLandmarks:
         self._abs_pose_cov = np.eye(6)
         self.gauge = GaugeFreeCovariance()  # started by the first landmark
         self.odd_views = 0  # promoted tracks' views left without a factor (:func:`odd_view_out`)
+        self.map_start: int | None = None  # the keyframe of the first landmark's promotion
         self._factors: list[Owned] = []
         self._priors: list[Owned] = []
         self._values = gtsam.Values()
@@ -400,6 +403,7 @@ class GraphLandmarks:
         one factor per view."""
         if self.gauge.gauge is None:  # the first landmark: what the pose has accumulated so far moves the map
             self.gauge.start(self._pose, self._abs_pose_cov)
+            self.map_start = self._k
             self._pose_cov = self.gauge.relative(self._pose, self._abs_pose_cov)
         lid = self._next_id
         self._next_id += 1
@@ -407,14 +411,16 @@ class GraphLandmarks:
         lm = Landmark(lid, track.kind, key, model=track.model)
         views = [v for v in track.views if v.payload >= self.window.first_active]
         poses = {v.payload: self.keyframes.pose_of(v.payload) for v in views}
-        if track.kind == "object":
+        if track.kind == "object" and views and views[0].payload <= self.map_start:
             at = [poses[v.payload].compose(gtsam.Pose3(self.metadata.extrinsic(v.z.sensor))) for v in views]
             odd = odd_view_out(
                 [T.transformFrom(v.z.position) for v, T in zip(views, at)],
                 [v.cov for v in views],
                 self.assoc.track_gate_confidence,
             )
-            if odd is not None:  # it stays one of the landmark's views, without a factor
+            if (
+                odd is not None and views[odd].payload <= self.map_start
+            ):  # it stays one of the landmark's views, without a factor
                 self.odd_views += 1
                 del views[odd]
         Ts = [self.metadata.extrinsic(v.z.sensor) for v in views]
