@@ -11,9 +11,9 @@ north of the truth.
 """
 
 import numpy as np
+import pytest
 
 from semslam.backend.graph import GraphEstimator
-from semslam.backend.landmarks import odd_view_out
 from semslam.compare import estimators_input
 from semslam.config import SemslamConfig
 from semslam.mission.measurements import Attitude, Depth, DvlVelocity, GroundTruthPose, PointCloud
@@ -107,25 +107,15 @@ def test_a_view_does_not_join_a_neighbours_track_while_the_scans_other_view_stay
     assert np.abs(trajectory.positions[:, :2]).max() < 0.03
 
 
+@pytest.mark.xfail(strict=True, reason="issue 21, tank world 78: open (experiments/estimators/README.md, stop 38)")
 def test_a_wrong_first_view_of_an_object_does_not_move_the_map():
     """Tank world 78 (stop 38): the laser front-end put the first scan's view of a valve 16 cm north of
     it (declared σ 2 cm). Without bottom lock the drift over the next 4 s lets it into the valve's
-    track; its factor at the first keyframe, held only by the start prior (σ 0.1 m), then pulled the
-    whole solution north. The valve's later views agree among themselves without any drift: the
-    first one, out of their consensus, gets no factor."""
+    track; promoted, its factor at the first keyframe, held only by the start prior (σ 0.1 m), pulls
+    the whole solution north (here the object is mapped 15 cm north of where every later view puts
+    it). No graph-side rule tells it from the drift yet: this test fails until one does."""
     scans = {2: [A + np.array([0.16, 0.0, 0.0])], **{t: [A] for t in range(6, 26, 2)}}
     objects, trajectory = mapped(descent(), scans, sigma={2: 0.02})
     assert len(objects) == 1
     np.testing.assert_allclose(objects[0], A, atol=0.03)
     assert np.abs(trajectory.positions[:, :2]).max() < 0.03
-
-
-def test_a_view_is_left_out_only_when_the_others_agree_without_it():
-    """odd_view_out: of three views (σ 2 cm), the one 16 cm off the two that agree is out; views spread
-    along a drift, none agreeing with another, keep every factor; so do views that all agree."""
-    cov = [np.eye(3) * 0.02**2] * 3
-    off = [A + np.array([0.16, 0.0, 0.0]), A, A + np.array([0.0, 0.01, 0.0])]
-    assert odd_view_out(off, cov, 0.999) == 0
-    spread = [A, A + np.array([0.12, 0.0, 0.0]), A + np.array([0.24, 0.0, 0.0])]
-    assert odd_view_out(spread, cov, 0.999) is None
-    assert odd_view_out([A, A, A + np.array([0.02, 0.0, 0.0])], cov, 0.999) is None

@@ -26,15 +26,6 @@ world 79); taken relative to the map's first view in all six components (stop 36
 noise cancelled as if it were common and the right object's view failed its track for 3.5 cm of
 depth (tank world 10). The tracks also test a scan's continuations jointly, with the drift common to
 the scan's views (:class:`semslam.mapping.tracks.TrackSet`).
-
-That drift allowance also lets in a view whose object centre the front-end put far off (a partial
-surface) while the pose had drifted little; promoted, its factor at its keyframe pulls that pose, and
-at the mission's first keyframes, held by the start prior alone, the whole map with it (tank world
-78). At promotion an object's views are tested once more, each against the others' mean with the
-keyframes as estimated now and without the drift allowance (:func:`odd_view_out`): one from a
-keyframe up to the first landmark's promotion (those set where the map lies) that the others,
-consistent among themselves, reject gets no factor (it still counts as a view). Later keyframes are
-held by the map's landmarks, and their views' disagreements are mostly the estimate's drift.
 """
 
 from __future__ import annotations
@@ -230,8 +221,6 @@ class GraphLandmarks:
         self._pose_cov = np.eye(6)  # relative to the map (gating)
         self._abs_pose_cov = np.eye(6)
         self.gauge = GaugeFreeCovariance()  # started by the first landmark
-        self.odd_views = 0  # promoted tracks' views left without a factor (:func:`odd_view_out`)
-        self.map_start: int | None = None  # the keyframe of the first landmark's promotion
         self._factors: list[Owned] = []
         self._priors: list[Owned] = []
         self._values = gtsam.Values()
@@ -403,7 +392,6 @@ class GraphLandmarks:
         one factor per view."""
         if self.gauge.gauge is None:  # the first landmark: what the pose has accumulated so far moves the map
             self.gauge.start(self._pose, self._abs_pose_cov)
-            self.map_start = self._k
             self._pose_cov = self.gauge.relative(self._pose, self._abs_pose_cov)
         lid = self._next_id
         self._next_id += 1
@@ -411,18 +399,6 @@ class GraphLandmarks:
         lm = Landmark(lid, track.kind, key, model=track.model)
         views = [v for v in track.views if v.payload >= self.window.first_active]
         poses = {v.payload: self.keyframes.pose_of(v.payload) for v in views}
-        if track.kind == "object" and views and views[0].payload <= self.map_start:
-            at = [poses[v.payload].compose(gtsam.Pose3(self.metadata.extrinsic(v.z.sensor))) for v in views]
-            odd = odd_view_out(
-                [T.transformFrom(v.z.position) for v, T in zip(views, at)],
-                [v.cov for v in views],
-                self.assoc.track_gate_confidence,
-            )
-            if (
-                odd is not None and views[odd].payload <= self.map_start
-            ):  # it stays one of the landmark's views, without a factor
-                self.odd_views += 1
-                del views[odd]
         Ts = [self.metadata.extrinsic(v.z.sensor) for v in views]
         T_WS = [poses[v.payload].compose(gtsam.Pose3(T)) for v, T in zip(views, Ts)]
         if track.kind == "object":
@@ -609,33 +585,3 @@ def _information(H_x: np.ndarray, H_l: np.ndarray, R: np.ndarray, pose_cov: np.n
     """H_lᵀ (R + H_x P H_xᵀ)⁻¹ H_l."""
     S = R + H_x @ pose_cov @ H_x.T
     return H_l.T @ np.linalg.solve(S, H_l)
-
-
-def odd_view_out(points: list[np.ndarray], covs: list[np.ndarray | None], confidence: float) -> int | None:
-    """The one view of a landmark that its other views, consistent among themselves, reject: each view
-    (position in {W} with the keyframes as estimated now, its independent covariance) tested against
-    the information-weighted mean of the others at ``confidence``, without the drift allowance the
-    tentative track gave it; the worst one is out if it fails and the rest pass their joint χ² about
-    their own mean. None: fewer than three views, or none out."""
-    n = len(points)
-    if n < 3 or any(c is None for c in covs):
-        return None
-    P = np.array(points, float)
-    info = np.array([np.linalg.inv(c) for c in covs])
-
-    def spread(idx: list[int]) -> tuple[np.ndarray, np.ndarray]:
-        I = info[idx].sum(axis=0)
-        return np.linalg.solve(I, np.einsum("kij,kj->i", info[idx], P[idx])), np.linalg.inv(I)
-
-    d2 = []
-    for i in range(n):
-        mean, cov = spread([j for j in range(n) if j != i])
-        r = P[i] - mean
-        d2.append(float(r @ np.linalg.solve(covs[i] + cov, r)))
-    worst = int(np.argmax(d2))
-    if d2[worst] < chi2_gate(confidence, 3):
-        return None
-    rest = [j for j in range(n) if j != worst]
-    mean, _ = spread(rest)
-    chi2 = sum(float((P[j] - mean) @ info[j] @ (P[j] - mean)) for j in rest)
-    return worst if chi2 < chi2_gate(confidence, 3 * (len(rest) - 1)) else None
