@@ -75,6 +75,10 @@ def view_row(ob, truth_S: np.ndarray, up: np.ndarray, seg=None) -> dict:
     # horizontal error (in the world, "up" from the true pose)
     row["horiz"] = float(np.linalg.norm(e - (e @ up) * up))
     row["los_out"] = float(los @ outward)  # > 0: the sensor looks past the pipe's end onto the object
+    row["n_obj"] = len(ob.indices)
+    if seg is not None and ob.pipes:
+        lengths = [float(np.linalg.norm(seg.pipes[i].q - seg.pipes[i].p)) for i in ob.pipes]
+        row.update(pipe_len=min(lengths), n_pipe=min(len(seg.pipes[i].inliers) for i in ob.pipes))
     if seg is not None and ob.configuration == 1 and ob.pipes:
         pipe = seg.pipes[ob.pipes[0]]
         end = min((pipe.p, pipe.q), key=lambda x: float(np.linalg.norm(x - ob.position)))
@@ -131,6 +135,7 @@ def collect(
                     continue
                 row = view_row(ob, R.T @ (objs[j] - t), up, seg)
                 row.update(seed=seed, stamp=int(c.stamp), truth=int(gt.objects[j].id), cls=gt.objects[j].cls)
+                row["t"] = (c.stamp - start) / 1e9
                 rows.append(row)
         out.write_text(json.dumps(rows))
         print(f"seed {seed}: {len(rows) - n0} object views", flush=True)
