@@ -95,36 +95,39 @@ class Track:
     views: list[TrackView] = field(default_factory=list)
     in_view: int = 0  # scans that saw anything within object_view_reach_m of it since its first view
     _in_view_stamp: int | None = None
-    # the filter over the views (objects, structures): views folded in, mean, covariance, last view's drift
+    # the filter over the views (objects, structures): views folded in, mean, covariance
     _folded: int = field(default=0, repr=False)
     _mean: np.ndarray | None = field(default=None, repr=False)
     _cov: np.ndarray | None = field(default=None, repr=False)
-    _drift: np.ndarray | None = field(default=None, repr=False)
 
     @property
     def last_stamp(self) -> int:
         return self.views[-1].stamp
 
+    @property
+    def last_drift(self) -> np.ndarray | None:
+        """The pose's drifting covariance at the track's last view."""
+        return self.views[-1].pose_drift
+
     def drift_since(self, v: TrackView) -> np.ndarray:
         """The covariance of the drift the pose accumulated from the track's last view to view ``v``, on
         ``v``'s position (zero without drift)."""
-        self.mean_position()
-        return v.drifted(self._drift)
+        return v.drifted(self.last_drift)
 
     def mean_position(self) -> tuple[np.ndarray, np.ndarray]:
         """Where the track's object is as the pose of its last view places it, and its covariance
         (objects, structures): each view's position taken in turn with its independent covariance,
         after the drift since the view before (without drift: the information-weighted mean)."""
-        for v in self.views[self._folded :]:
-            if self._mean is None:
+        for k in range(self._folded, len(self.views)):
+            v = self.views[k]
+            if k == 0:
                 self._mean, self._cov = np.array(v.position, float), np.array(v.cov, float)
             else:
-                P = self._cov + v.drifted(self._drift)
+                P = self._cov + v.drifted(self.views[k - 1].pose_drift)
                 K = P @ np.linalg.inv(P + v.cov)
                 self._mean = self._mean + K @ (v.position - self._mean)
                 C = (np.eye(3) - K) @ P
                 self._cov = 0.5 * (C + C.T)
-            self._drift = v.pose_drift
         self._folded = len(self.views)
         return self._mean, self._cov
 
@@ -231,7 +234,7 @@ class TrackSet:
             for b in range(a):
                 k = keys[b]
                 later = tr if tr.last_stamp >= chosen[k].last_stamp else chosen[k]
-                X = v.drifted(later._drift, views[k])
+                X = v.drifted(later.last_drift, views[k])
                 S[3 * a : 3 * a + 3, 3 * b : 3 * b + 3] = X
                 S[3 * b : 3 * b + 3, 3 * a : 3 * a + 3] = X.T
         return float(r @ np.linalg.solve(S, r))
