@@ -142,13 +142,13 @@ def patch_hypotheses(points, normals, grid, seeds, usable, cfg: PipeConfig):
     sums = _sums_by_seed(np.column_stack([np.einsum("pj,pj->p", dp, dn), np.einsum("pj,pj->p", dn, dn)]), cnt)
     r = sums[:, 0] / np.maximum(sums[:, 1], 1e-300)
     ok = (cnt >= 6) & (lam1 >= _MIN_TURN * cnt) & (lam0 <= _MAX_OFF_AXIS * lam1)
-    if cfg.radius_prior is None and cfg.nominal_radii:
+    nominal = _nominal_radii(cfg)
+    if nominal:
         # A patch of a pipe seen over a narrow arc turns its normals too little for its radius: the
         # radius reads too large (up to _MAX_ARC_BIAS times), the axis stays right. Such a patch
         # proposes the largest nominal radius in range (its own radius is no guide there).
-        largest = _largest_nominal(cfg)
-        if largest is not None:
-            r = np.where(ok & (r > cfg.max_radius) & (r <= _MAX_ARC_BIAS * largest), largest, r)
+        largest = max(nominal)
+        r = np.where(ok & (r > cfg.max_radius) & (r <= _MAX_ARC_BIAS * largest), largest, r)
     ok &= (r >= cfg.min_radius) & (r <= cfg.max_radius)
     if cfg.radius_prior is not None:
         r = np.full(len(seeds), cfg.radius_prior)
@@ -158,10 +158,11 @@ def patch_hypotheses(points, normals, grid, seeds, usable, cfg: PipeConfig):
     return c, a, r, ok
 
 
-def _largest_nominal(cfg: PipeConfig) -> float | None:
-    """The largest of ``nominal_radii`` in the radius range, None if none is."""
-    inside = [r for r in cfg.nominal_radii if cfg.min_radius <= r <= cfg.max_radius]
-    return max(inside) if inside else None
+def _nominal_radii(cfg: PipeConfig) -> list[float]:
+    """The ``nominal_radii`` in the radius range (none when ``radius_prior`` holds every fit)."""
+    if cfg.radius_prior is not None:
+        return []
+    return [float(r) for r in cfg.nominal_radii if cfg.min_radius <= r <= cfg.max_radius]
 
 
 def _sums_by_seed(x: np.ndarray, counts: np.ndarray) -> np.ndarray:
@@ -760,7 +761,7 @@ def _refine(free: _Points, c, a, r, cfg: PipeConfig):
     near, inl = free.test_near(c, a, r, cfg, reach)
     rounds = 0
     held = None
-    nominal = cfg.radius_prior is None and bool(cfg.nominal_radii)
+    nominal = _nominal_radii(cfg)
     while True:
         local = free.subset(near)
         idx = np.flatnonzero(inl)
@@ -772,7 +773,10 @@ def _refine(free: _Points, c, a, r, cfg: PipeConfig):
             P, N = np.take(local.p, idx, axis=0), np.take(local.n, idx, axis=0)
             c1, a1, r1 = fit_cylinder(P, N, a, cfg, held)
             if held is None and nominal and r1 > cfg.max_radius:
-                c1, a1, r1, _ = _hold_nominal(local, P, N, a, cfg, r1)
+                fit = _hold_nominal(local, P, N, a, cfg, nominal, r1)
+                if fit is None:
+                    return None
+                c1, a1, r1 = fit
                 held = r1
             if not (cfg.min_radius <= r1 <= cfg.max_radius):
                 return None
@@ -785,19 +789,19 @@ def _refine(free: _Points, c, a, r, cfg: PipeConfig):
             return c, a, r, free.index[near[inl]], held
 
 
-def _hold_nominal(local: _Points, P, N, a0, cfg: PipeConfig, free: float):
-    """The cylinder fitted to points P (normals N) with a nominal radius held: of each of
-    ``nominal_radii`` in the radius range and at least ``1 / _MAX_ARC_BIAS`` of the ``free`` fit's
-    radius, the one with the most inliers among ``local``. Returns (c, a, r, inlier count)."""
-    best = None
-    for rn in cfg.nominal_radii:
-        if not (cfg.min_radius <= rn <= cfg.max_radius) or _MAX_ARC_BIAS * rn < free:
+def _hold_nominal(local: _Points, P, N, a0, cfg: PipeConfig, nominal: list[float], free: float):
+    """The cylinder fitted to points P (normals N) with a radius of ``nominal`` held: of those at least
+    ``1 / _MAX_ARC_BIAS`` of the ``free`` fit's radius, the one with the most inliers among ``local``.
+    Returns (c, a, r), or None if no nominal radius is near enough."""
+    best, most = None, -1
+    for rn in nominal:
+        if _MAX_ARC_BIAS * rn < free:
             continue
-        c, a, r = fit_cylinder(P, N, a0, cfg, float(rn))
+        c, a, r = fit_cylinder(P, N, a0, cfg, rn)
         k = int(local.test(c, a, r, cfg).sum())
-        if best is None or k > best[3]:
-            best = (c, a, r, k)
-    return best if best is not None else (None, a0, np.inf, 0)
+        if k > most:
+            best, most = (c, a, r), k
+    return best
 
 
 def _facing_sensor(P: np.ndarray, c: np.ndarray, a: np.ndarray, cfg: PipeConfig) -> np.ndarray:
