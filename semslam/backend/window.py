@@ -286,8 +286,8 @@ class SlidingWindow:
 
     def _covariances(self, session, drop: set[int], b: int, chunk: int = 60) -> dict[int, np.ndarray]:
         """iSAM2's marginal covariances of the landmarks about to leave and of every
-        ``LEFT_COVARIANCE_EVERY``-th keyframe's pose and velocity (before the restart, while iSAM2
-        still holds them): the diagonal blocks of joint marginals over chunks of them
+        ``LEFT_COVARIANCE_EVERY``-th keyframe's pose and velocity (before the slide takes them out of
+        iSAM2, while it still holds them): the diagonal blocks of joint marginals over chunks of them
         (:meth:`IsamSession.joint_blocks`: each single marginal walks the Bayes tree again). A key
         iSAM2 cannot give is left out (its covariance is unknown: NaN)."""
         first = -(-self.first_active // LEFT_COVARIANCE_EVERY) * LEFT_COVARIANCE_EVERY
