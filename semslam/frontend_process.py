@@ -59,11 +59,11 @@ import threading
 import time
 import traceback
 from collections import deque
-from collections.abc import Iterator, Sequence
-from contextlib import contextmanager
+from collections.abc import Sequence
 from dataclasses import dataclass
 from multiprocessing.connection import wait
 
+from semslam.determinism import one_thread_per_library
 from semslam.errors import SemslamError
 from semslam.mission.measurements import Measurement
 from semslam.registry import Frontend
@@ -83,29 +83,6 @@ def runs_in_process(frontend) -> bool:
 def parallel_types(frontend) -> tuple[type, ...]:
     """The measurement types a front-end takes in parallel (``parallel_consumes``; none by default)."""
     return tuple(frontend.parallel_consumes)
-
-
-@contextmanager
-def one_thread_per_library() -> Iterator[None]:
-    """Inside the block, the numeric libraries of this process work on one thread each: BLAS and
-    OpenMP (threadpoolctl) and Open3D's oneTBB (``open3d.utility.set_max_threads``; Open3D 0.20 has no
-    OpenMP, ``OMP_NUM_THREADS`` does not reach it). Every way a mission is run enters it (the pipeline,
-    its front-end workers), so that a mission gives the same observations and estimates on any
-    machine: a parallel reduction (Open3D's ICP normal equations, residual sums) adds its terms in an
-    order that depends on the thread count and, with work stealing, on the machine's load; the sonar's
-    structure observations then differ in their last bits, and a run that feeds them back through the
-    estimate can end elsewhere (issue 21; experiments/estimators/README.md, stop 38). GTSAM is built without TBB here, and
-    kiss-icp takes its own ``max_num_threads`` (frontends/odometry)."""
-    import open3d  # a dependency of every front-end that uses it; imported here, it is pinned before any use
-    from threadpoolctl import threadpool_limits
-
-    before = open3d.utility.get_max_threads()
-    open3d.utility.set_max_threads(1)
-    try:
-        with threadpool_limits(limits=1):
-            yield
-    finally:
-        open3d.utility.set_max_threads(before)
 
 
 def default_workers() -> int:

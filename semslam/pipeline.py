@@ -11,8 +11,9 @@ from contextvars import ContextVar
 from pathlib import Path
 from typing import Protocol
 
+from semslam.determinism import one_thread_per_library
 from semslam.estimation import EstimateView, Estimator, spilling_into
-from semslam.frontend_process import FrontendProcess, default_workers, one_thread_per_library, runs_in_process
+from semslam.frontend_process import FrontendProcess, default_workers, runs_in_process
 from semslam.mapping.book import labelled
 from semslam.mission.measurements import GroundTruthPose, Measurement
 from semslam.mission.mission import Mission
@@ -85,7 +86,7 @@ def run_pipeline(
     some machines memory). A full disk there is a :class:`semslam.estimation.SpillError`.
 
     The numeric libraries (BLAS, OpenMP, Open3D's TBB) run on one thread each meanwhile, here and in
-    the front-end workers (:func:`semslam.frontend_process.one_thread_per_library`): a parallel sum's
+    the front-end workers (:func:`semslam.determinism.one_thread_per_library`): a parallel sum's
     last bits depend on the thread count and the machine's load, and a borderline decision of a
     front-end that reads the estimate would flip with them; so a mission gives the same result in a
     study worker, in ``compare`` and on a machine with another core count. The matrices are small

@@ -1,6 +1,6 @@
 """A mission gives the same result whatever the machine's core count or load: inside a pipeline run,
 in the driver and in the front-end workers, the numeric libraries work on one thread each
-(semslam.frontend_process.one_thread_per_library). Open3D 0.20 parallelises with oneTBB: a
+(semslam.determinism.one_thread_per_library). Open3D 0.20 parallelises with oneTBB: a
 reduction's last bits (an ICP's residual sums) depend on its thread count and, with work stealing,
 on timing; a borderline decision of the sonar front-end flipped with them (issue 21, stop 38)."""
 
