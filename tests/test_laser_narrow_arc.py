@@ -8,7 +8,7 @@ import pytest
 from frontends.laser.config import LaserConfig, PipeConfig
 from frontends.laser.evaluation import matching_pipe
 from frontends.laser.frontend import segment_scan
-from frontends.laser.pipes import Pipe, _confirmed_held, free_radius
+from frontends.laser.pipes import free_radius
 
 
 def _seed15_cloud(t_s: float):
@@ -94,28 +94,3 @@ def test_a_nominal_radius_far_below_the_range_changes_nothing(beyond_the_valve):
     assert len(seg.pipes) == len(small.pipes)
     for a, b in zip(seg.pipes, small.pipes):
         assert np.array_equal(a.inliers, b.inliers) and np.allclose(a.p, b.p) and not b.radius_held
-
-
-def _held(p, q, radius=0.055) -> Pipe:
-    p, q = np.asarray(p, float), np.asarray(q, float)
-    a = (q - p) / np.linalg.norm(q - p)
-    return Pipe(p, q, a, radius, np.arange(0), np.eye(6), radius_held=True)
-
-
-def test_a_short_held_segment_is_kept_only_on_the_line_of_a_longer_one():
-    """Stop 39: a short segment with a nominal radius held is kept when the same cloud holds a longer
-    segment on its line (the same pipe beyond a valve or a gap), within merge_distance of that
-    segment's axis line at both its ends and merge_angle_deg of its direction; one off that line (a
-    stone's top) is dropped, and so is a short one on the line of another short one."""
-    cfg = PipeConfig(nominal_radii=[0.055])
-    long = _held([0.0, 0.0, 1.5], [0.40, 0.0, 1.5])
-    beyond = _held([0.62, 0.012, 1.5], [0.80, 0.018, 1.5])  # past a 0.22 m valve, 1-2 cm off the line
-    stone = _held([0.55, 0.25, 1.5], [0.73, 0.27, 1.5])  # beside the line
-    kept = _confirmed_held([long, beyond, stone], cfg)
-    assert [p is long or p is beyond for p in kept] == [True, True]
-    assert _confirmed_held([beyond, stone], cfg) == []  # nothing longer confirms them
-    assert _confirmed_held([_held([0.0, 0.0, 1.5], [0.2, 0.0, 1.5]), beyond], cfg) == []  # short by short
-    turned = _held([0.62, 0.0, 1.5], [0.80, 0.05, 1.5])  # off by 15°, its far end 5 cm off
-    assert _confirmed_held([long, turned], cfg) == [long]
-    off = PipeConfig(nominal_radii=[0.055], held_confirm=False)
-    assert len(_confirmed_held([long, beyond, stone], off)) == 3  # (dropped at the cut instead)

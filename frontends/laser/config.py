@@ -141,14 +141,6 @@ class PipeConfig(_Section):
         "noise) is fitted again with the nominal radius that gathers the most inliers held; it must still pass "
         "the seabed's tests. Empty: off",
     )
-    held_confirm: bool = Field(
-        True,
-        description="with nominal_radii: a segment fitted with a nominal radius held and shorter than "
-        "color_max_length (a short cylinder on the seabed with a given radius may be a stone's top) is kept only "
-        "when the same cloud confirms it: coaxial with a longer segment that is not such a one (axes within "
-        "merge_angle_deg, its ends within merge_distance of that segment's axis line), e.g. the same pipe beyond a "
-        "valve or a gap; false: every such segment is dropped",
-    )
     surface_offset: float = Field(
         0.0025,
         ge=0,

@@ -870,10 +870,9 @@ def _cut_into_segments(
         if len(seg) < cfg.min_points:
             continue
         pipe = _make_pipe(points, normals, seg, ab, cfg, held)
-        if held is not None and pipe.length < cfg.color_max_length and not cfg.held_confirm:
+        if held is not None and pipe.length < cfg.color_max_length:
             # the radius held is no evidence, and a short cylinder on the seabed may be a stone's top:
-            # only a straight run long enough to be a pipe by its shape (Seabed) is one (with
-            # held_confirm, or one the cloud confirms: _confirmed_held)
+            # only a straight run long enough to be a pipe by its shape (Seabed) is one
             continue
         pipe.between_fittings = lo and hi
         if pipe.length >= cfg.min_detect_length and cfg.min_radius <= pipe.radius <= cfg.max_radius:
@@ -987,37 +986,7 @@ def detect_pipes(
         failures = 0 if found else failures + 1
     if rays is not None:  # no segment the sensor sees through (all tested at once)
         pipes = [p for p, ok in zip(pipes, rays.solid(pipes, cfg)) if ok]
-    return _confirmed_held(merge_duplicates(pipes, points, normals, cfg), cfg)
-
-
-def _short_held(pipe: Pipe, cfg: PipeConfig) -> bool:
-    """A segment fitted with a nominal radius held, too short to be a pipe by its shape alone."""
-    return pipe.radius_held and pipe.length < cfg.color_max_length
-
-
-def _confirmed_held(pipes: list[Pipe], cfg: PipeConfig) -> list[Pipe]:
-    """The segments but the short held-radius ones (``held_confirm``) the cloud does not confirm: no
-    longer segment (not itself a short held one) whose axis is within ``merge_angle_deg`` of theirs
-    and whose axis line passes within ``merge_distance`` of both their ends. A stone's top fitted with
-    a given radius is short and lies anywhere; a short view of a pipe lies on the line of the same
-    pipe's longer view beyond a valve, a socket or a gap in the same cloud."""
-    if not cfg.held_confirm or not any(_short_held(p, cfg) for p in pipes):
-        return pipes
-    cos_max = np.cos(np.radians(cfg.merge_angle_deg))
-    long = [q for q in pipes if not _short_held(q, cfg)]
-
-    def confirmed(p: Pipe) -> bool:
-        for q in long:
-            if q.length <= p.length or abs(float(p.axis @ q.axis)) < cos_max:
-                continue
-            ends = np.array([p.p, p.q]) - q.p
-            t = ends @ q.axis
-            off = np.sqrt(np.maximum(row_dot(ends, ends) - t * t, 0.0))
-            if float(off.max()) <= cfg.merge_distance:
-                return True
-        return False
-
-    return [p for p in pipes if not _short_held(p, cfg) or confirmed(p)]
+    return merge_duplicates(pipes, points, normals, cfg)
 
 
 def merge_duplicates(pipes: list[Pipe], points, normals, cfg: PipeConfig) -> list[Pipe]:
