@@ -62,6 +62,38 @@ def record_segments(cut: list) -> None:
     pipe_shape.Seabed.accept = recording_accept
 
 
+def record_lone_ends(log: list) -> None:
+    """Make ``segment_objects``' lone-end tests append (test, end, value) to ``log``."""
+    import frontends.laser.objects as objects_mod
+    from frontends.laser.pipes import Rays
+
+    def wrap(name, fn):
+        def recording(*a, **k):
+            value = fn(*a, **k)
+            log.append((name, np.asarray(a[1], float).copy(), value))
+            return value
+
+        return recording
+
+    for name in ("own_points", "pipe_continues", "stands_over"):
+        setattr(objects_mod, name, wrap(name, getattr(objects_mod, name)))
+    seen_at = Rays.seen_at
+
+    def recording_seen_at(self, point, radius, min_rays=3):
+        value = seen_at(self, point, radius, min_rays)
+        log.append(("seen_at", np.asarray(point, float).copy(), value))
+        return value
+
+    Rays.seen_at = recording_seen_at
+
+
+def lone_end_tests(log: list, x: np.ndarray, reach: float = 0.3) -> list[str]:
+    """The recorded tests whose point (a pipe end, or the place seen) lies within ``reach`` of ``x``."""
+    return [
+        f"{name} {value}@{np.linalg.norm(at - x):.2f}" for name, at, value in log if np.linalg.norm(at - x) <= reach
+    ]
+
+
 def near_segments(cut: list, x: np.ndarray, reach: float = 0.15) -> list[str]:
     """The recorded segments whose axis (between its ends) passes within ``reach`` of ``x``."""
     out = []
@@ -89,11 +121,15 @@ def main(argv=None) -> int:
     ap.add_argument("--valve", type=int, default=None)
     ap.add_argument("--min-points", type=int, default=200)
     ap.add_argument("--segments", action="store_true")
+    ap.add_argument("--lone-ends", action="store_true")
     ap.add_argument("--config", default="{}", help="front-end overrides (JSON)")
     args = ap.parse_args(argv)
     cut: list = []  # (round, pipe, verdict, contrast) of the current cloud
     if args.segments:
         record_segments(cut)
+    tests: list = []  # (test, point, value) of the current cloud's lone ends
+    if args.lone_ends:
+        record_lone_ends(tests)
     mission = simulate_pipeline(PipelineSimConfig(seed=args.seed))
     meta = mission.metadata
     gt = meta.ground_truth
@@ -116,6 +152,7 @@ def main(argv=None) -> int:
         T = poses[int(stamps[np.argmin(np.abs(stamps - m.stamp))])] @ T_BS
         R, t = T[:3, :3], T[:3, 3]
         cut.clear()
+        tests.clear()
         seg = segment_scan(m.points, cfg, up=R.T @ np.array([0.0, 0.0, -1.0]), rgb=m.rgb)
         for v in show:
             x = R.T @ (np.asarray(valves[v].position) - t)  # the valve in {S}
@@ -131,6 +168,8 @@ def main(argv=None) -> int:
             ]
             if args.segments:
                 print(f"  valve {v} segments: {near_segments(cut, x)}")
+            if args.lone_ends:
+                print(f"  valve {v} lone-end tests: {lone_end_tests(tests, x)}")
             clouds[v] = clouds.get(v, 0) + 1
             with_view[v] = with_view.get(v, 0) + bool(views)
             print(
