@@ -6,7 +6,8 @@ from a vehicle moving a few decimetres between scans, so these of its parameters
 ``max_range_m`` / ``min_range_m`` (the sensor's useful range, not a car's), ``voxel_size_m`` (a few
 centimetres: pipes are 4–13 cm across), ``max_points_per_voxel`` (8: a voxel of 5 cm holds a
 few map points per surface, more only slow the neighbour search), ``initial_threshold_m`` (the navigation prior is good to
-centimetres, not metres), ``max_iterations`` (30: the prior starts ICP close) and no deskewing
+centimetres, not metres), ``max_iterations`` (30: the prior starts ICP close), ``convergence`` (1e-3: with the
+attitude held, kiss-icp's pose only starts the translation's own re-solve) and no deskewing
 (ours are snapshots without per-point times). kiss-icp runs single-threaded: the front-end has a
 process of its own beside the others. The gate is BUGWRIGHT2 D4.2's: a registration that corrects the navigation prior by
 more than 0.05 rad or 0.35 m is rejected.
@@ -40,7 +41,14 @@ class KissIcpSettings(BaseModel):
         None, gt=0, description="a fixed correspondence σ (m) instead of kiss-icp's adaptive one (ICP uses 3σ)"
     )
     max_iterations: int = Field(30, ge=1, description="ICP iterations per registration")
-    convergence: float = Field(1e-4, gt=0, description="ICP stops when the update is below this")
+    convergence: float = Field(
+        1e-3,
+        gt=0,
+        description="ICP stops when its update (rad and m, one norm) is below this: kiss-icp's pose only starts the "
+        "translation's re-solve (to 1e-5 m) with the attitude held (kiss-icp's 1e-4 cost ~2.5× its CPU for "
+        "relative poses a median 0.15 mm apart: experiments/odometry/README.md, stop 39); with attitude "
+        "'registration' kiss-icp's pose is emitted: set 1e-4 there",
+    )
 
 
 class PlaneSettings(BaseModel):
@@ -118,6 +126,14 @@ class CovarianceSettings(BaseModel):
         description="multiplies the scaled and floored σ²·H_tt⁻¹ of the translation solved with the attitude held "
         "(attitude 'navigation' or 'roll_pitch'; fitted on tuning seeds, experiments/odometry/README.md)",
     )
+    range_noise_scale: float = Field(
+        0.0,
+        ge=0,
+        description="multiplies σ_r²·n·H_tt⁻¹ added to the translation's covariance (attitude held): σ_r² the laser's "
+        "range noise across a surface (the largest removed plane's points' mean squared distance to it, median over "
+        "the last scans), n the inliers; the map's noise is shared by the scan points matched to it and does not "
+        "average out over them (0: not added)",
+    )
     gyro_sigma_rad_s: float | None = Field(
         None,
         gt=0,
@@ -140,6 +156,13 @@ class OdometryConfig(BaseModel):
         gt=0,
         description="the local map holds the scans accepted in the last this many seconds (kiss-icp forgets only "
         "by distance, and a vehicle circling a structure stays within range: a map a loop old holds that loop's drift)",
+    )
+    map_window_slack_s: float = Field(
+        0.0,
+        ge=0,
+        description="the map is rebuilt (from the scans of the last map_window_s) only once its oldest scan is older "
+        "than map_window_s plus this: it then holds up to this much more, and is rebuilt once per this many seconds "
+        "instead of at every scan (a rebuild re-adds every scan of the window)",
     )
     attitude: Literal["registration", "roll_pitch", "navigation"] = Field(
         "navigation",
