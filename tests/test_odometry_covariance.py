@@ -29,7 +29,7 @@ def _registered(sigma: float, range_noise_scale: float):
     rng = np.random.default_rng(3)
     matcher = ScanMatcher(OdometryConfig.model_validate({"covariance": {"range_noise_scale": range_noise_scale}}))
     assert matcher.start(_scene(rng, sigma), np.eye(4), stamp=0)
-    reg = matcher.register(_scene(rng, sigma), np.eye(4), stamp=2 * S, rotation_cov=np.eye(3) * 1e-6)
+    reg = matcher.register(_scene(rng, sigma), np.eye(4), stamp=2 * S, rotation_cov=np.eye(3) * 1e-12)
     assert reg.rejected is None
     return matcher, reg
 
@@ -40,19 +40,12 @@ def test_the_range_noise_is_measured_on_the_removed_floor():
         assert 0.7 * sigma**2 < matcher.range_variance < 1.3 * sigma**2
 
 
-def test_the_translation_covariance_grows_with_the_range_noise_along_the_weak_direction():
-    added = {}
-    for sigma in (0.002, 0.008):
-        _, without = _registered(sigma, 0.0)
-        _, with_noise = _registered(sigma, 0.1)
-        assert np.allclose(with_noise.pose, without.pose) and np.allclose(
-            with_noise.covariance[:3], without.covariance[:3]
-        )
-        added[sigma] = with_noise.covariance[3:, 3:] - without.covariance[3:, 3:]
-    ratio = np.trace(added[0.008]) / np.trace(added[0.002])
-    assert 10 < ratio < 25  # ∝ σ² (16)
-    values, vectors = np.linalg.eigh(added[0.008])
-    assert values[0] > 0 and abs(vectors[0, -1]) > 0.9  # most along the bars (x), which fix it least
+def test_the_translation_covariance_follows_the_range_noise_along_the_weak_direction():
+    covariances = {sigma: _registered(sigma, 0.08)[1].covariance[3:, 3:] for sigma in (0.002, 0.008)}
+    ratio = np.trace(covariances[0.008]) / np.trace(covariances[0.002])
+    assert 10 < ratio < 25  # ∝ σ_r² (16)
+    _, vectors = np.linalg.eigh(covariances[0.008])
+    assert abs(vectors[0, -1]) > 0.9  # largest along the bars (x), which fix it least
 
 
 def test_planes_kept_between_steps_are_the_planes_fitted_afresh():

@@ -129,10 +129,12 @@ class CovarianceSettings(BaseModel):
     range_noise_scale: float = Field(
         0.0,
         ge=0,
-        description="multiplies σ_r²·n·H_tt⁻¹ added to the translation's covariance (attitude held): σ_r² the laser's "
-        "range noise across a surface (the largest removed plane's points' mean squared distance to it, median over "
-        "the last scans), n the inliers; the map's noise is shared by the scan points matched to it and does not "
-        "average out over them (0: not added)",
+        description="with the attitude held, the translation's measured covariance is this times σ_r²·n·H_tt⁻¹ instead "
+        "of held_scale × (scale·σ²·H_tt⁻¹ + floor): σ_r² the laser's range noise across a surface (the largest removed "
+        "plane's points' mean squared distance to it, median over the last scans), n the inliers; the map's noise is "
+        "shared by the scan points matched to it and does not average out over them. Until a plane is seen, or at 0 "
+        "(the default), the residuals' form. An experiment's setting (0.08 measured: it follows the error of some "
+        "worlds and not of others, experiments/odometry/README.md, stop 39)",
     )
     gyro_sigma_rad_s: float | None = Field(
         None,
@@ -178,7 +180,8 @@ class OdometryConfig(BaseModel):
         "within min(kiss-icp's 3σ threshold, this) of the map; the overlap is judged at kiss-icp's threshold, and the "
         "gate's translation bound also on a second re-solve at that threshold (a wrong minimum of ICP that the tight "
         "bound holds in place walks off in it). null: kiss-icp's 3σ for all. An experiment's setting: it needs its own "
-        "held_scale (experiments/odometry/README.md, stops 36–37)",
+        "held_scale, and kiss_icp.convergence 1e-4 (from a minimum converged to 1e-3 the wrong one does not walk off: "
+        "experiments/odometry/README.md, stops 36–37, 39)",
     )
     restart_after: int = Field(
         3, ge=1, description="this many rejected scans in a row start a new local map at the next usable scan"
