@@ -6,8 +6,7 @@ from a vehicle moving a few decimetres between scans, so these of its parameters
 ``max_range_m`` / ``min_range_m`` (the sensor's useful range, not a car's), ``voxel_size_m`` (a few
 centimetres: pipes are 4–13 cm across), ``max_points_per_voxel`` (8: a voxel of 5 cm holds a
 few map points per surface, more only slow the neighbour search), ``initial_threshold_m`` (the navigation prior is good to
-centimetres, not metres), ``max_iterations`` (30: the prior starts ICP close), ``convergence`` (1e-3: with the
-attitude held, kiss-icp's pose only starts the translation's own re-solve) and no deskewing
+centimetres, not metres), ``max_iterations`` (30: the prior starts ICP close) and no deskewing
 (ours are snapshots without per-point times). kiss-icp runs single-threaded: the front-end has a
 process of its own beside the others. The gate is BUGWRIGHT2 D4.2's: a registration that corrects the navigation prior by
 more than 0.05 rad or 0.35 m is rejected.
@@ -42,12 +41,11 @@ class KissIcpSettings(BaseModel):
     )
     max_iterations: int = Field(30, ge=1, description="ICP iterations per registration")
     convergence: float = Field(
-        1e-3,
+        1e-4,
         gt=0,
-        description="ICP stops when its update (rad and m, one norm) is below this: kiss-icp's pose only starts the "
-        "translation's re-solve (to 1e-5 m) with the attitude held (kiss-icp's 1e-4 cost ~2.5× its CPU for "
-        "relative poses a median 0.15 mm apart: experiments/odometry/README.md, stop 39); with attitude "
-        "'registration' kiss-icp's pose is emitted: set 1e-4 there",
+        description="ICP stops when its update (rad and m, one norm) is below this (1e-3 costs ~1/3 of kiss-icp's CPU "
+        "with the attitude held, but narrows the gate's margin on a wrong minimum: experiments/odometry/README.md, "
+        "stop 39)",
     )
 
 
@@ -180,8 +178,7 @@ class OdometryConfig(BaseModel):
         "within min(kiss-icp's 3σ threshold, this) of the map; the overlap is judged at kiss-icp's threshold, and the "
         "gate's translation bound also on a second re-solve at that threshold (a wrong minimum of ICP that the tight "
         "bound holds in place walks off in it). null: kiss-icp's 3σ for all. An experiment's setting: it needs its own "
-        "held_scale, and kiss_icp.convergence 1e-4 (from a minimum converged to 1e-3 the wrong one does not walk off: "
-        "experiments/odometry/README.md, stops 36–37, 39)",
+        "held_scale (experiments/odometry/README.md, stops 36–37)",
     )
     restart_after: int = Field(
         3, ge=1, description="this many rejected scans in a row start a new local map at the next usable scan"
