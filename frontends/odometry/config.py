@@ -43,9 +43,8 @@ class KissIcpSettings(BaseModel):
     convergence: float = Field(
         1e-4,
         gt=0,
-        description="ICP stops when its update (rad and m, one norm) is below this (1e-3 costs ~1/3 of kiss-icp's CPU "
-        "with the attitude held, but narrows the gate's margin on a wrong minimum: experiments/odometry/README.md, "
-        "stop 39)",
+        description="ICP stops when its update (rad and m, one norm) is below this (a looser one is cheaper but narrows "
+        "the gate's margin on a wrong minimum: experiments/odometry/README.md, stop 39)",
     )
 
 
@@ -131,8 +130,7 @@ class CovarianceSettings(BaseModel):
         "of held_scale × (scale·σ²·H_tt⁻¹ + floor): σ_r² the laser's range noise across a surface (the largest removed "
         "plane's points' mean squared distance to it, median over the last scans), n the inliers; the map's noise is "
         "shared by the scan points matched to it and does not average out over them. Until a plane is seen, or at 0 "
-        "(the default), the residuals' form. An experiment's setting (0.08 measured: it follows the error of some "
-        "worlds and not of others, experiments/odometry/README.md, stop 39)",
+        "(the default), the residuals' form. An experiment's setting (experiments/odometry/README.md, stop 39)",
     )
     gyro_sigma_rad_s: float | None = Field(
         None,
