@@ -244,8 +244,8 @@ class ScanMatcher:
         if c.range_noise_scale > 0 and range_var is not None:
             # the laser's range noise, in the map's points as in the scan's: the map's is shared by every scan
             # point matched to the same surface and does not average out over the scan's n points (n·H_tt⁻¹: the
-            # geometry's shape per point); it follows the error across worlds where the residuals' variance
-            # (the pipes' curvature, the map's sampling) does not (experiments/odometry/README.md, stop 39)
+            # geometry's shape per point); not the default: it follows some worlds' errors and not others'
+            # (experiments/odometry/README.md, stop 39)
             measured = c.range_noise_scale * range_var * n * H_tt_inv
         else:  # no large plane seen yet (or the term off): the residuals' variance, scaled and floored
             measured = c.held_scale * (c.scale * residual_var * H_tt_inv + np.eye(3) * c.floor_sigma_m**2)
