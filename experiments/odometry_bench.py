@@ -100,6 +100,12 @@ def main() -> None:
         odometry = metrics.get("odometry") or (metrics.get("frontends") or {}).get("odometry")
         if odometry:
             row["odometry"] = odometry
+        # each front-end's seconds as the pipeline saw them (wall time in its worker: grows with the load)
+        row["frontend_wall_s"] = {
+            k.removeprefix("frontend:"): round(v, 1)
+            for k, v in metrics.get("timing_s", {}).items()
+            if k.startswith("frontend:")
+        }
         rows.append(row)
         shutil.rmtree(out.parent, ignore_errors=True)
         print(f"run {i + 1}: " + json.dumps(row), flush=True)

@@ -43,8 +43,8 @@ class RecordingMatcher(ScanMatcher):
         RecordingMatcher.log.append(("start", ok))
         return ok
 
-    def register(self, points, predicted, stamp):
-        reg = super().register(points, predicted, stamp)
+    def register(self, points, predicted, stamp, rotation_cov=None):
+        reg = super().register(points, predicted, stamp, rotation_cov)
         RecordingMatcher.log.append(("register", reg))
         return reg
 

@@ -40,7 +40,12 @@ class KissIcpSettings(BaseModel):
         None, gt=0, description="a fixed correspondence σ (m) instead of kiss-icp's adaptive one (ICP uses 3σ)"
     )
     max_iterations: int = Field(30, ge=1, description="ICP iterations per registration")
-    convergence: float = Field(1e-4, gt=0, description="ICP stops when the update is below this")
+    convergence: float = Field(
+        1e-4,
+        gt=0,
+        description="ICP stops when its update (rad and m, one norm) is below this (a looser one is cheaper but narrows "
+        "the gate's margin on a wrong minimum: experiments/odometry/README.md, stop 39)",
+    )
 
 
 class PlaneSettings(BaseModel):
@@ -118,6 +123,15 @@ class CovarianceSettings(BaseModel):
         description="multiplies the scaled and floored σ²·H_tt⁻¹ of the translation solved with the attitude held "
         "(attitude 'navigation' or 'roll_pitch'; fitted on tuning seeds, experiments/odometry/README.md)",
     )
+    range_noise_scale: float = Field(
+        0.0,
+        ge=0,
+        description="with the attitude held, the translation's measured covariance is this times σ_r²·n·H_tt⁻¹ instead "
+        "of held_scale × (scale·σ²·H_tt⁻¹ + floor): σ_r² the laser's range noise across a surface (the largest removed "
+        "plane's points' mean squared distance to it, median over the last scans), n the inliers; the map's noise is "
+        "shared by the scan points matched to it and does not average out over them. Until a plane is seen, or at 0 "
+        "(the default), the residuals' form. An experiment's setting (experiments/odometry/README.md, stop 39)",
+    )
     gyro_sigma_rad_s: float | None = Field(
         None,
         gt=0,
@@ -140,6 +154,13 @@ class OdometryConfig(BaseModel):
         gt=0,
         description="the local map holds the scans accepted in the last this many seconds (kiss-icp forgets only "
         "by distance, and a vehicle circling a structure stays within range: a map a loop old holds that loop's drift)",
+    )
+    map_window_slack_s: float = Field(
+        0.0,
+        ge=0,
+        description="the map is rebuilt (from the scans of the last map_window_s) only once its oldest scan is older "
+        "than map_window_s plus this: it then holds up to this much more, and is rebuilt once per this many seconds "
+        "instead of at every scan (a rebuild re-adds every scan of the window)",
     )
     attitude: Literal["registration", "roll_pitch", "navigation"] = Field(
         "navigation",

@@ -64,12 +64,11 @@ def twist_angle(R: np.ndarray, axis: np.ndarray) -> float:
 
 
 def plane_information(
-    source: np.ndarray, world: np.ndarray, neighbours: np.ndarray, R: np.ndarray
+    source: np.ndarray, world: np.ndarray, normals: np.ndarray, centroids: np.ndarray, R: np.ndarray
 ) -> tuple[np.ndarray, int, float]:
     """Information (Σ JᵀJ, 6×6) of point-to-plane residuals nᵢ·(R pᵢ + t − qᵢ) about the pose T_OS,
-    with the plane of each matched point fitted to its map ``neighbours`` (n, k, 3), and the
-    residuals' variance. ``source`` are the scan points in {S}, ``world`` the same in {O}."""
-    normals, centroids = fitted_planes(neighbours)
+    with each matched point's plane (unit ``normals``, ``centroids``: :func:`fitted_planes` of its map
+    neighbours), and the residuals' variance. ``source`` are the scan points in {S}, ``world`` the same in {O}."""
     residual = np.einsum("ni,ni->n", normals, world - centroids)
     # d/dξ of n·(R(p + ω×p) + t + R v) = nᵀR [−[p]×, I]
     nR = normals @ R  # rows nᵀR

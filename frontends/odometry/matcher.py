@@ -22,6 +22,8 @@ from frontends.odometry.config import OdometryConfig
 from frontends.odometry.information import fitted_planes, plane_information, rotation_angle, twist_angle
 
 NORMAL_NEIGHBOURS = 8
+PLANE_NOISE_SCANS = 50  # scans over which the range noise's median is taken
+PLANE_NOISE_POINTS = 50  # fewest plane points for a scan's range noise
 TRANSLATION_ITERATIONS = 10
 VERTICAL = np.array([0.0, 0.0, 1.0])  # the map frame's z: the navigation frame's (NED) down
 
@@ -91,7 +93,16 @@ class ScanMatcher:
 
     def __init__(self, cfg: OdometryConfig):
         self.cfg = cfg
+        # the mean squared distance of the largest removed plane's points to it, per scan: the laser's
+        # range noise across a flat floor (kept across maps: it is the sensor's)
+        self._plane_var: deque[float] = deque(maxlen=PLANE_NOISE_SCANS)
         self.reset()
+
+    @property
+    def range_variance(self) -> float | None:
+        """The laser's range noise (m², across the surface), the median over the last scans with a large
+        plane; None before any."""
+        return float(np.median(self._plane_var)) if self._plane_var else None
 
     def reset(self) -> None:
         self.kiss = KissICP(kiss_config(self.cfg))
@@ -102,7 +113,7 @@ class ScanMatcher:
         world = down @ pose[:3, :3].T + pose[:3, 3]
         self._scans.append((stamp, world))
         horizon = stamp - int(self.cfg.map_window_s * 1e9)
-        if self._scans[0][0] >= horizon:
+        if self._scans[0][0] >= horizon - int(self.cfg.map_window_slack_s * 1e9):
             self.kiss.local_map.update(down, pose)
             return
         while self._scans[0][0] < horizon:
@@ -121,7 +132,13 @@ class ScanMatcher:
         frame = np.asarray(points, dtype=np.float64)
         frame = self.kiss.preprocessor.preprocess(frame, np.zeros(0), np.eye(4))
         source, down = self.kiss.voxelize(frame)
-        for normal, offset in large_planes(source, self.cfg.planes):  # the coarser points: 5× fewer
+        planes = large_planes(source, self.cfg.planes)  # the coarser points: 5× fewer
+        if planes:
+            d = source @ planes[0][0] + planes[0][1]
+            d = d[np.abs(d) <= self.cfg.planes.distance_m]
+            if len(d) >= PLANE_NOISE_POINTS:
+                self._plane_var.append(float(d @ d) / len(d))
+        for normal, offset in planes:
             source = source[np.abs(source @ normal + offset) > self.cfg.planes.distance_m]
             down = down[np.abs(down @ normal + offset) > self.cfg.planes.distance_m]
         return source, down
@@ -154,17 +171,25 @@ class ScanMatcher:
         icp_correction = np.linalg.inv(predicted) @ pose
         world = source @ pose[:3, :3].T + pose[:3, 3]
         planes = _MapPlanes(np.asarray(self.kiss.local_map.point_cloud()), world, 3 * sigma)
-        info, n_in, residual_var = planes.information(source, pose, 3 * sigma)
-        cov = self._covariance(info, residual_var, n_in)
-        overlap = n_in  # judged at kiss-icp's threshold where the re-solve's bound is tighter
         walks = [icp_correction[:3, 3]]  # the translations the gate judges (as corrections to the prior)
-        if self.cfg.attitude != "registration" and rotation_cov is not None and np.isfinite(cov).all():
+        held = self.cfg.attitude != "registration" and rotation_cov is not None
+        bound = self.cfg.held_max_distance_m
+        wide_only = bound is None or bound >= 3 * sigma
+        cov = None
+        if not held or self.cfg.attitude == "roll_pitch" or not wide_only:
+            # kiss-icp's pose's own covariance: emitted (attitude 'registration'), its heading's variance
+            # ('roll_pitch'), the overlap at its threshold (tight bound); with the whole attitude held and
+            # only the wide re-solve, the pose, covariance and overlap are all the re-solve's
+            info, n_in, residual_var = planes.information(source, pose, 3 * sigma)
+            cov = self._covariance(info, residual_var, n_in)
+            overlap = n_in  # judged at kiss-icp's threshold where the re-solve's bound is tighter
+            held = held and np.isfinite(cov).all()
+        if held:
             pose[:3, :3] = self._held_rotation(pose[:3, :3], predicted[:3, :3])
             wide = pose.copy()
             wide[:3, 3] = planes.translation(source, pose, 3 * sigma, sigma / 3)
             walks.append((np.linalg.inv(predicted) @ wide)[:3, 3])
-            bound = self.cfg.held_max_distance_m
-            if bound is None or bound >= 3 * sigma:
+            if wide_only:
                 pose = wide
                 info, n_in, residual_var = planes.information(source, pose, 3 * sigma)
                 overlap = n_in
@@ -215,8 +240,16 @@ class ScanMatcher:
         cov[:3, :3] = cov_rot
         cov[3:, :3] = K @ cov_rot
         cov[:3, 3:] = cov[3:, :3].T
-        measured = c.scale * residual_var * H_tt_inv + np.eye(3) * c.floor_sigma_m**2
-        cov[3:, 3:] = c.held_scale * measured + K @ cov_rot @ K.T
+        range_var = self.range_variance
+        if c.range_noise_scale > 0 and range_var is not None:
+            # the laser's range noise, in the map's points as in the scan's: the map's is shared by every scan
+            # point matched to the same surface and does not average out over the scan's n points (n·H_tt⁻¹: the
+            # geometry's shape per point); not the default: it follows some worlds' errors and not others'
+            # (experiments/odometry/README.md, stop 39)
+            measured = c.range_noise_scale * range_var * n * H_tt_inv
+        else:  # no large plane seen yet (or the term off): the residuals' variance, scaled and floored
+            measured = c.held_scale * (c.scale * residual_var * H_tt_inv + np.eye(3) * c.floor_sigma_m**2)
+        cov[3:, 3:] = measured + K @ cov_rot @ K.T
         return cov
 
     def _covariance(self, info: np.ndarray, residual_var: float, n: int) -> np.ndarray:
@@ -250,21 +283,37 @@ class ScanMatcher:
 
 class _MapPlanes:
     """The local map's points near one scan, with the plane of each scan point's map neighbours: the
-    point-to-plane residuals behind the covariance, and the translation solved with the rotation held."""
+    point-to-plane residuals behind the covariance, and the translation solved with the rotation held.
+
+    One instance serves one scan (``n_source`` points, always queried whole and in the same order): a
+    point's plane is fitted again only when its neighbours (their indices, in distance order) change
+    between queries, as the translation re-solve moves the scan by millimetres between its steps (the
+    same neighbours give the same plane, bit for bit)."""
 
     def __init__(self, map_points: np.ndarray, world: np.ndarray, max_distance: float):
         reach = 2 * max_distance  # the map beyond the scan's box by more than the queries' bound is never a neighbour
         box = np.all((map_points >= world.min(axis=0) - reach) & (map_points <= world.max(axis=0) + reach), axis=1)
         self.points = map_points[box]
         self.tree = cKDTree(self.points) if len(self.points) >= NORMAL_NEIGHBOURS else None
+        n = len(world)
+        self._neighbours = np.full((n, NORMAL_NEIGHBOURS), -1)  # per scan point: the map indices of its last plane
+        self._normals = np.zeros((n, 3))
+        self._centroids = np.zeros((n, 3))
 
     def _match(self, world: np.ndarray, max_distance: float):
-        """(scan points with a map neighbour within ``max_distance``, their neighbours (n, k, 3))."""
+        """(scan points with a map neighbour within ``max_distance``, the unit normals and centroids of the
+        planes fitted to their neighbours)."""
         if self.tree is None:
-            return np.zeros(len(world), bool), np.zeros((0, NORMAL_NEIGHBOURS, 3))
+            return np.zeros(len(world), bool), np.zeros((0, 3)), np.zeros((0, 3))
         dist, idx = self.tree.query(world, k=NORMAL_NEIGHBOURS, distance_upper_bound=max_distance * 2)
         near = np.isfinite(dist[:, 0]) & (dist[:, 0] <= max_distance) & np.isfinite(dist).all(axis=1)
-        return near, self.points[idx[near]]
+        rows, idx = np.flatnonzero(near), idx[near]
+        changed = ~np.all(self._neighbours[rows] == idx, axis=1)
+        if changed.any():
+            new = rows[changed]
+            self._neighbours[new] = idx[changed]
+            self._normals[new], self._centroids[new] = fitted_planes(self.points[self._neighbours[new]])
+        return near, self._normals[rows], self._centroids[rows]
 
     def information(self, source: np.ndarray, pose: np.ndarray, max_distance: float):
         """Point-to-plane information of the scan at ``pose`` against the map (6×6, per unit residual
@@ -272,10 +321,10 @@ class _MapPlanes:
         point-to-point cost ICP minimised: its Hessian is n·I in translation whatever the geometry,
         while the plane residuals see that a flat floor fixes nothing along itself."""
         world = source @ pose[:3, :3].T + pose[:3, 3]
-        near, neighbours = self._match(world, max_distance)
+        near, normals, centroids = self._match(world, max_distance)
         if near.sum() < 6:
             return np.zeros((6, 6)), int(near.sum()), np.inf
-        return plane_information(source[near], world[near], neighbours, pose[:3, :3])
+        return plane_information(source[near], world[near], normals, centroids, pose[:3, :3])
 
     def translation(self, source: np.ndarray, pose: np.ndarray, max_distance: float, kernel: float) -> np.ndarray:
         """The translation that minimises the robust (Geman-McClure, kiss-icp's kernel) point-to-plane
@@ -284,10 +333,9 @@ class _MapPlanes:
         R, t = pose[:3, :3], pose[:3, 3].copy()
         rotated = source @ R.T
         for _ in range(TRANSLATION_ITERATIONS):
-            near, neighbours = self._match(rotated + t, max_distance)
+            near, normals, centroids = self._match(rotated + t, max_distance)
             if near.sum() < 6:
                 break
-            normals, centroids = fitted_planes(neighbours)
             r = np.einsum("ni,ni->n", normals, rotated[near] + t - centroids)
             w = kernel**2 / (kernel + r**2) ** 2
             H = (normals * w[:, None]).T @ normals

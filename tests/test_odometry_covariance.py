@@ -1,0 +1,62 @@
+"""The odometry's translation covariance carries the laser's range noise, measured on the floor it
+removes: the map's points carry that noise too, and it is shared by every scan point matched to the
+same map surface, so it does not average out over the scan (issue 23, experiments/odometry/README.md,
+stop 39). And the planes behind the covariance are the same whether fitted afresh or kept from the
+re-solve's previous step."""
+
+import numpy as np
+
+from frontends.odometry.config import OdometryConfig
+from frontends.odometry.matcher import ScanMatcher, _MapPlanes
+
+S = 1_000_000_000  # ns per s
+
+
+def _scene(rng, sigma: float) -> np.ndarray:
+    """A floor (y = 1.5 m in the sensor frame, 70 % of the points, ``sigma`` of noise across it) and
+    three bars along x at 3–4 m: they fix y and z well, x only by their ends."""
+    n_floor = 14000
+    floor = np.c_[rng.uniform(-2, 2, n_floor), 1.5 + rng.normal(0, sigma, n_floor), rng.uniform(1.5, 6, n_floor)]
+    bars = []
+    for y, z in ((0.0, 3.0), (0.6, 3.5), (-0.5, 4.0)):
+        m = 2000
+        angle = rng.uniform(0, 2 * np.pi, m)
+        bars.append(np.c_[rng.uniform(-1.2, 1.2, m), y + 0.06 * np.cos(angle), z + 0.06 * np.sin(angle)])
+    return np.concatenate([floor, *bars])
+
+
+def _registered(sigma: float, range_noise_scale: float):
+    rng = np.random.default_rng(3)
+    matcher = ScanMatcher(OdometryConfig.model_validate({"covariance": {"range_noise_scale": range_noise_scale}}))
+    assert matcher.start(_scene(rng, sigma), np.eye(4), stamp=0)
+    reg = matcher.register(_scene(rng, sigma), np.eye(4), stamp=2 * S, rotation_cov=np.eye(3) * 1e-12)
+    assert reg.rejected is None
+    return matcher, reg
+
+
+def test_the_range_noise_is_measured_on_the_removed_floor():
+    for sigma in (0.002, 0.008):
+        matcher, _ = _registered(sigma, 0.0)
+        assert 0.7 * sigma**2 < matcher.range_variance < 1.3 * sigma**2
+
+
+def test_the_translation_covariance_follows_the_range_noise_along_the_weak_direction():
+    covariances = {sigma: _registered(sigma, 0.08)[1].covariance[3:, 3:] for sigma in (0.002, 0.008)}
+    ratio = np.trace(covariances[0.008]) / np.trace(covariances[0.002])
+    assert 10 < ratio < 25  # ∝ σ_r² (16)
+    _, vectors = np.linalg.eigh(covariances[0.008])
+    assert abs(vectors[0, -1]) > 0.9  # largest along the bars (x), which fix it least
+
+
+def test_planes_kept_between_steps_are_the_planes_fitted_afresh():
+    rng = np.random.default_rng(5)
+    map_points = _scene(rng, 0.003)
+    source = _scene(rng, 0.003)
+    pose = np.eye(4)
+    pose[:3, 3] = [0.01, -0.005, 0.004]
+    warm = _MapPlanes(map_points, source, 0.15)
+    t = warm.translation(source, pose, 0.15, 0.05)  # fits and keeps planes at every step
+    pose[:3, 3] = t
+    cold = _MapPlanes(map_points, source, 0.15)
+    for a, b in zip(warm.information(source, pose, 0.15), cold.information(source, pose, 0.15), strict=True):
+        assert np.allclose(a, b, rtol=1e-12, atol=0)
