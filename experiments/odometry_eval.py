@@ -25,7 +25,7 @@ from scipy.stats import chi2
 
 from frontends.odometry import OdometryFrontend
 from frontends.odometry.config import STEREO_SEABED
-from semslam.frontend_process import one_thread_per_library
+from semslam.determinism import one_thread_per_library
 from semslam.mission.measurements import GroundTruthPose, PointCloud
 from semslam.mission.mission import Mission
 from semslam.sim.scenarios import resolve_config, scenario
