@@ -146,6 +146,9 @@ class TrackSet:
         self.assoc = assoc
         self.tracks: list[Track] = []
         self._next_key = 0
+        self._retired: list[Track] = []  # forgotten as ambiguous (:meth:`_ambiguous`), until :meth:`purge`
+        self.restarted_views = 0  # views that started a track as ambiguous, over the mission
+        self.restarted_scans = 0  # scans that had any
 
     def __len__(self) -> int:
         return len(self.tracks)
@@ -165,17 +168,19 @@ class TrackSet:
                 _in_view(tr, stamp)
 
     def purge(self, stamp: int) -> list[Track]:
-        """Forget the tracks not seen within ``track_timeout_s`` of ``stamp``; return them."""
+        """Forget the tracks not seen within ``track_timeout_s`` of ``stamp``; return them, and those
+        forgotten as ambiguous since the last call."""
         horizon = stamp - int(self.assoc.track_timeout_s * 1e9)
-        gone = [t for t in self.tracks if t.last_stamp < horizon]
+        gone, self._retired = self._retired + [t for t in self.tracks if t.last_stamp < horizon], []
         self.tracks = [t for t in self.tracks if t.last_stamp >= horizon]
         return gone
 
     def extend(self, views: list[TrackView], separators: np.ndarray) -> tuple[list[Track], list[Track]]:
         """The scan's unpaired views continue tracks or start new ones (``separators``: objects in
-        {W}, N×3, that keep collinear pipe segments apart): the assignment of least cost, then
-        :meth:`_jointly_compatible`. Returns (the tracks each view went to,
-        the tracks promoted now), the promoted ones leaving the set."""
+        {W}, N×3, that keep collinear pipe segments apart): the assignment of least cost, unless an
+        alternative is nearly as likely (:meth:`_ambiguous`), then :meth:`_jointly_compatible`.
+        Returns (the tracks each view went to, the tracks promoted now), the promoted ones leaving the
+        set."""
         tracks = list(self.tracks)
         cost = np.full((len(views), len(tracks)), np.inf)
         for i, v in enumerate(views):
@@ -187,9 +192,21 @@ class TrackSet:
             # one good continuation and one new track
             new = np.full((len(views), len(views)), 1e12)
             np.fill_diagonal(new, [self._gate(v.z) for v in views])
-            rows, cols = linear_sum_assignment(np.hstack([np.where(np.isfinite(cost), cost, 1e12), new]))
-            chosen = {r: tracks[c] for r, c in zip(rows, cols) if c < len(tracks) and np.isfinite(cost[r, c])}
+            full = np.hstack([np.where(np.isfinite(cost), cost, 1e12), new])
+            rows, cols = linear_sum_assignment(full)
+            moved, involved = self._ambiguous(full, dict(zip(rows, cols)), views, len(tracks))
+            chosen = {
+                r: tracks[c]
+                for r, c in zip(rows, cols)
+                if c < len(tracks) and np.isfinite(cost[r, c]) and r not in moved
+            }
             self._jointly_compatible(chosen, views, cost, tracks)
+            if moved:
+                self.restarted_views += len(moved)
+                self.restarted_scans += 1
+                gone = [tracks[c] for c in sorted(involved)]
+                self._retired += gone
+                self.tracks = [t for t in self.tracks if all(t is not g for g in gone)]
         went, promoted = [], []
         for i, v in enumerate(views):
             tr = chosen.get(i)
@@ -204,6 +221,43 @@ class TrackSet:
                 self.tracks.remove(tr)
                 promoted.append(tr)
         return went, promoted
+
+    def _ambiguous(
+        self, full: np.ndarray, best: dict[int, int], views: list[TrackView], n_tracks: int
+    ) -> tuple[set[int], set[int]]:
+        """Whether the least-cost assignment ``best`` (view → column of ``full``: a track, or beyond
+        ``n_tracks`` a new track) has an alternative nearly as likely that puts a view on another track:
+        for each object or structure continuation, the least-cost assignment without it (Murty's
+        partition: the second-best assignment is one of these). The costs are Mahalanobis distances² (a
+        new track at its gate), so their difference is −2 ln of the two assignments' likelihood ratio;
+        an alternative within ``2 ln track_ambiguity_odds`` is near. A view merely near its gate (the
+        alternative: it starts a track) is not ambiguous. Returns the views that the near alternatives
+        give differently and the columns of the tracks either assignment gives them: those tracks'
+        identity is in doubt, so they are forgotten and the views start tracks of their own (the next
+        scans, 2 s later, continue those without the drift that made the old ones ambiguous); letting
+        the views wait instead keeps the doubt as long as the old tracks' drift lasts, and starting
+        tracks beside the old ones makes twins."""
+        moved: set[int] = set()
+        involved: set[int] = set()
+        margin = 2.0 * np.log(self.assoc.track_ambiguity_odds)
+        if margin <= 0:
+            return moved, involved
+        rows = np.array(list(best))
+        total = full[rows, [best[r] for r in rows]].sum()
+        for r, c in best.items():
+            if c >= n_tracks or views[r].cov is None:
+                continue
+            forbid = full.copy()
+            forbid[r, c] = 1e12
+            ar, ac = linear_sum_assignment(forbid)
+            if forbid[ar, ac].sum() - total >= margin:
+                continue
+            alt = dict(zip(ar, ac))
+            differ = [i for i in best if alt[i] != best[i]]
+            if any(alt[i] < n_tracks for i in differ):
+                moved.update(differ)
+                involved.update(k for i in differ for k in (best[i], alt[i]) if k < n_tracks)
+        return moved, involved
 
     def _jointly_compatible(self, chosen: dict[int, Track], views: list[TrackView], cost, tracks) -> None:
         """Drop continuations from ``chosen`` (view index → track) until the scan's object and structure
