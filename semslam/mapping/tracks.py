@@ -234,16 +234,17 @@ class TrackSet:
     ) -> tuple[set[int], set[int]]:
         """Whether the least-cost assignment ``best`` (view → column of ``full``: a track, or beyond
         the tracks, a new track) has an alternative nearly as likely that shifts the scan's views onto
-        other tracks (:meth:`_shifted`): for each object or structure continuation, the least-cost assignment without it (Murty's
-        partition: the second-best assignment is one of these). The costs are Mahalanobis distances² (a
-        new track at its gate), so their difference is −2 ln of the two assignments' likelihood ratio;
-        an alternative within ``2 ln track_ambiguity_odds`` is near. A view merely near its gate (the
-        alternative: it starts a track) is not ambiguous, nor two views that could swap tracks. Returns the views that the near alternatives
-        give differently and the columns of the tracks either assignment gives them: those tracks'
-        identity is in doubt, so they are forgotten and the views start tracks of their own (the next
-        scans, 2 s later, continue those without the drift that made the old ones ambiguous); letting
-        the views wait instead keeps the doubt as long as the old tracks' drift lasts, and starting
-        tracks beside the old ones makes twins."""
+        other tracks (:meth:`_shifted`): for each object or structure continuation, the least-cost
+        assignment without it (Murty's partition: the second-best assignment is one of these). The
+        costs are Mahalanobis distances² (a new track at its gate), so their difference is −2 ln of
+        the two assignments' likelihood ratio; an alternative within ``2 ln track_ambiguity_odds`` is
+        near. A view merely near its gate (the alternative: it starts a track) is not ambiguous, nor
+        two views that could swap tracks. Returns the views that the near alternatives give
+        differently and the columns of the tracks either assignment gives them: those tracks' identity
+        is in doubt, so they are forgotten and the views start tracks of their own (the next scans, 2 s
+        later, continue those without the drift that made the old ones ambiguous); letting the views
+        wait instead keeps the doubt as long as the old tracks' drift lasts, and starting tracks beside
+        the old ones makes twins."""
         moved: set[int] = set()
         involved: set[int] = set()
         margin, n_tracks = 2.0 * np.log(self.assoc.track_ambiguity_odds), len(tracks)
