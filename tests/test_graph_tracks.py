@@ -20,7 +20,9 @@ def _scan(tracks, stamp, seen):
 
 
 def test_a_missed_object_does_not_shift_the_row_of_tracks():
-    tracks = TrackSet(AssociationConfig(min_observations=10))
+    # the assignment alone (the ambiguity rule off: the second scan's shifted pairing costs only 3.7
+    # more, and with the rule its tracks start anew; see the next test)
+    tracks = TrackSet(AssociationConfig(min_observations=10, track_ambiguity_odds=1))
     _scan(tracks, 1, [1, 2])  # object 0 missed
     # object 2 missed: both views fit the two tracks shifted by one (each 30 cm, inside the gate);
     # greedily, or by an assignment that must pair as many as it can, 0 takes 1's track, 1 takes 2's
@@ -29,6 +31,25 @@ def test_a_missed_object_does_not_shift_the_row_of_tracks():
     assert not promoted and len(went) == 3
     rows = {tuple(sorted({v.z.truth_id for v in tr.views})): len(tr.views) for tr in tracks.tracks}
     assert rows == {(0,): 2, (1,): 3, (2,): 2}
+
+
+def test_tracks_start_anew_when_the_row_shifted_by_one_object_is_nearly_as_likely():
+    """The second scan of the row above: object 1's view continues its track (d² 0) and object 0's
+    starts one (the gate, 16.3), or object 0's view takes track 1 and object 1's track 2 (d² 10 each):
+    3.7 apart, odds of 6:1. Which track is which object is in doubt: both are forgotten and the two
+    views start tracks of their own; the third scan, which sees all three, continues those."""
+    tracks = TrackSet(AssociationConfig(min_observations=10))
+    _scan(tracks, 1, [1, 2])
+    went, _ = _scan(tracks, 2, [0, 1])
+    assert [len(tr.views) for tr in went] == [1, 1] and tracks.restarted_views == 2
+    assert len(tracks.purge(2)) == 2 and len(tracks) == 2  # the scan-1 tracks, forgotten
+    _scan(tracks, 3, [0, 1, 2])
+    rows = {tuple(sorted({v.z.truth_id for v in tr.views})): len(tr.views) for tr in tracks.tracks}
+    assert rows == {(0,): 2, (1,): 2, (2,): 1}
+    # off (odds 1), the same scan continues object 1's track
+    tracks = TrackSet(AssociationConfig(min_observations=10, track_ambiguity_odds=1))
+    _scan(tracks, 1, [1, 2])
+    assert [len(tr.views) for tr in _scan(tracks, 2, [0, 1])[0]] == [1, 2]
 
 
 def test_a_track_is_promoted_at_min_observations_and_forgotten_after_the_timeout():

@@ -135,6 +135,15 @@ class AssociationConfig(BaseModel):
     track_gate_confidence: float = Field(
         0.999, gt=0, lt=1, description="χ² confidence for an observation to extend a tentative landmark"
     )
+    track_ambiguity_odds: float = Field(
+        100.0,
+        ge=1,
+        description="a scan's views continue tentative landmarks only when the least-cost assignment is at least "
+        "this many times as likely as every alternative that shifts two or more of them by one common offset onto "
+        "other tracks (a cost margin of 2 ln(odds) in χ²: 9.2 at 100); else the tracks either assignment gives those "
+        "views are forgotten and the views start tracks of their own. On a rack's periodic lattice before the DVL "
+        "locks, the row shifted by one spacing can cost nearly as little as the right one; 1: off",
+    )
     merge_angle_rad: float = Field(
         0.175, gt=0, description="pipe segments are collinear (one pipe) when their directions differ by less than this"
     )

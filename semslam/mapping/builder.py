@@ -214,6 +214,12 @@ class MapBuilder:
                 f"{len(out)} object(s) seen in fewer than {a.object_confirm_ratio:.0%} of the scans that had them in "
                 f"view left out of the map as false views (ids {sorted(out)})"
             )
+        if self.tracks.restarted_views:
+            self.diagnostics.append(
+                f"{self.tracks.restarted_views} view(s) in {self.tracks.restarted_scans} scan(s) started tentative "
+                f"landmarks anew: another assignment to the tracks was within {a.track_ambiguity_odds:g}:1 of the "
+                "least-cost one"
+            )
         return [lm for lm in landmarks if lm.id not in out]
 
     def _seen(self, paired, views: list[TrackView], mapped_ids: list[int], mapped: np.ndarray):

@@ -25,7 +25,11 @@ accumulated between their keyframes (the difference of the latter, :meth:`Track.
 separates them, so the track is a small filter (:meth:`Track.mean_position`): its position grows by
 that drift and takes each view with its independent covariance. And a scan's continuations must be
 jointly compatible (:meth:`TrackSet.extend`): its views share one pose, so the drift is common to
-them, and one view on a neighbour's track while the others stay on theirs is not.
+them, and one view on a neighbour's track while the others stay on theirs is not. The whole row
+shifted by one spacing is jointly compatible, though: so a scan's continuations are committed only
+when no alternative assignment that puts a view on another track is nearly as likely
+(``association.track_ambiguity_odds``, :meth:`TrackSet._ambiguous`); when one is, the tracks in
+doubt are forgotten and the scan's views start tracks of their own.
 
 Before the DVL's bottom lock the drift over one scan interval (2 s) is a third of a lattice spacing of
 the tank's objects, over the mission's first ~20 s the lattice spacing itself: a track gated against
@@ -33,7 +37,9 @@ a mean of all its views with the pose's accumulated uncertainty joined views of 
 (tank world 79), one that took the depth as common with the map's first view rejected the right
 object's view for a few centimetres of depth (tank world 10), and without the joint test a view 12 s
 after its neighbour's track had last been seen joined it while the scan's other view stayed on its
-own (world 79 again; experiments/estimators/README.md, stop 37).
+own (world 79 again; experiments/estimators/README.md, stop 37); and one view's covariance loosened
+along its pipe made the row shifted by one spacing the cheaper assignment by 2.3 (world 79 at 16 s,
+stop 38): the map then hung on which of two nearly equal assignments was cheaper.
 """
 
 from __future__ import annotations
@@ -146,6 +152,9 @@ class TrackSet:
         self.assoc = assoc
         self.tracks: list[Track] = []
         self._next_key = 0
+        self._retired: list[Track] = []  # forgotten as ambiguous (:meth:`_ambiguous`), until :meth:`purge`
+        self.restarted_views = 0  # views that started a track as ambiguous, over the mission
+        self.restarted_scans = 0  # scans that had any
 
     def __len__(self) -> int:
         return len(self.tracks)
@@ -165,17 +174,20 @@ class TrackSet:
                 _in_view(tr, stamp)
 
     def purge(self, stamp: int) -> list[Track]:
-        """Forget the tracks not seen within ``track_timeout_s`` of ``stamp``; return them."""
+        """Forget the tracks not seen within ``track_timeout_s`` of ``stamp``; return them, and those
+        forgotten as ambiguous since the last call."""
         horizon = stamp - int(self.assoc.track_timeout_s * 1e9)
-        gone = [t for t in self.tracks if t.last_stamp < horizon]
+        gone, self._retired = self._retired + [t for t in self.tracks if t.last_stamp < horizon], []
         self.tracks = [t for t in self.tracks if t.last_stamp >= horizon]
         return gone
 
     def extend(self, views: list[TrackView], separators: np.ndarray) -> tuple[list[Track], list[Track]]:
         """The scan's unpaired views continue tracks or start new ones (``separators``: objects in
         {W}, N×3, that keep collinear pipe segments apart): the assignment of least cost, then
-        :meth:`_jointly_compatible`. Returns (the tracks each view went to,
-        the tracks promoted now), the promoted ones leaving the set."""
+        :meth:`_jointly_compatible`, less the continuations that an alternative nearly as likely gives
+        otherwise (:meth:`_ambiguous`).
+        Returns (the tracks each view went to, the tracks promoted now), the promoted ones leaving the
+        set."""
         tracks = list(self.tracks)
         cost = np.full((len(views), len(tracks)), np.inf)
         for i, v in enumerate(views):
@@ -187,9 +199,21 @@ class TrackSet:
             # one good continuation and one new track
             new = np.full((len(views), len(views)), 1e12)
             np.fill_diagonal(new, [self._gate(v.z) for v in views])
-            rows, cols = linear_sum_assignment(np.hstack([np.where(np.isfinite(cost), cost, 1e12), new]))
+            full = np.hstack([np.where(np.isfinite(cost), cost, 1e12), new])
+            rows, cols = linear_sum_assignment(full)
+            moved, involved = self._ambiguous(full, dict(zip(rows, cols)), views, tracks)
             chosen = {r: tracks[c] for r, c in zip(rows, cols) if c < len(tracks) and np.isfinite(cost[r, c])}
+            # the joint test on the whole assignment: the ambiguous continuations, taken out first,
+            # would let a neighbour's view they contradict pass (world 79 at 16 s)
             self._jointly_compatible(chosen, views, cost, tracks)
+            for r in moved:
+                chosen.pop(r, None)
+            if moved:
+                self.restarted_views += len(moved)
+                self.restarted_scans += 1
+                gone = [tracks[c] for c in sorted(involved)]
+                self._retired += gone
+                self.tracks = [t for t in self.tracks if all(t is not g for g in gone)]
         went, promoted = [], []
         for i, v in enumerate(views):
             tr = chosen.get(i)
@@ -204,6 +228,58 @@ class TrackSet:
                 self.tracks.remove(tr)
                 promoted.append(tr)
         return went, promoted
+
+    def _ambiguous(
+        self, full: np.ndarray, best: dict[int, int], views: list[TrackView], tracks: list[Track]
+    ) -> tuple[set[int], set[int]]:
+        """Whether the least-cost assignment ``best`` (view → column of ``full``: a track, or beyond
+        the tracks, a new track) has an alternative nearly as likely that shifts the scan's views onto
+        other tracks (:meth:`_shifted`): for each object or structure continuation, the least-cost
+        assignment without it (Murty's partition: the second-best assignment is one of these). The
+        costs are Mahalanobis distances² (a new track at its gate), so their difference is −2 ln of
+        the two assignments' likelihood ratio; an alternative within ``2 ln track_ambiguity_odds`` is
+        near. A view merely near its gate (the alternative: it starts a track) is not ambiguous, nor
+        two views that could swap tracks. Returns the views that the near alternatives give
+        differently and the columns of the tracks either assignment gives them: those tracks' identity
+        is in doubt, so they are forgotten and the views start tracks of their own (the next scans, 2 s
+        later, continue those without the drift that made the old ones ambiguous); letting the views
+        wait instead keeps the doubt as long as the old tracks' drift lasts, and starting tracks beside
+        the old ones makes twins."""
+        moved: set[int] = set()
+        involved: set[int] = set()
+        margin, n_tracks = 2.0 * np.log(self.assoc.track_ambiguity_odds), len(tracks)
+        if margin <= 0:
+            return moved, involved
+        rows = np.array(list(best))
+        total = full[rows, [best[r] for r in rows]].sum()
+        for r, c in best.items():
+            if c >= n_tracks or views[r].cov is None:
+                continue
+            forbid = full.copy()
+            forbid[r, c] = 1e12
+            ar, ac = linear_sum_assignment(forbid)
+            if forbid[ar, ac].sum() - total >= margin:
+                continue
+            alt = dict(zip(ar, ac))
+            differ = [i for i in best if alt[i] != best[i]]
+            if any(self._shifted([(views[i], tracks[a[i]]) for i in differ if a[i] < n_tracks]) for a in (alt, best)):
+                moved.update(differ)
+                involved.update(k for i in differ for k in (best[i], alt[i]) if k < n_tracks)
+        return moved, involved
+
+    def _shifted(self, pairs: list[tuple[TrackView, Track]]) -> bool:
+        """Whether continuations (view, track) shift the scan's views by one common offset onto
+        neighbouring tracks: at least two, the views' offsets from their tracks' positions within
+        ``object_body_m`` of their mean, which is at least that far from zero. That is the alias of a
+        periodic row (each view on its neighbour's track), which the pose's error, common to the scan's
+        views, explains as well as the right one; two views swapping tracks (opposite offsets) it
+        does not, nor one view alone (the joint test of :meth:`_jointly_compatible` judges it with the
+        others)."""
+        if len(pairs) < 2 or any(v.cov is None for v, _ in pairs):
+            return False
+        r = np.array([v.position - tr.mean_position()[0] for v, tr in pairs])
+        c, body = r.mean(axis=0), self.assoc.object_body_m
+        return bool(np.linalg.norm(c) >= body and np.linalg.norm(r - c, axis=1).max() < body)
 
     def _jointly_compatible(self, chosen: dict[int, Track], views: list[TrackView], cost, tracks) -> None:
         """Drop continuations from ``chosen`` (view index → track) until the scan's object and structure
