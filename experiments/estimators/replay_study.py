@@ -111,8 +111,9 @@ def record(args) -> None:
         print(f"{bag.stem}: {len(records)} observations in {time.perf_counter() - t0:.0f} s", flush=True)
 
 
-def run_one(bag: Path, obs_path: Path, config: SemslamConfig, estimators: list[str]):
-    """The estimators on one recorded mission: (pipeline result, metrics.json's dict, the mission's metadata)."""
+def run_one(bag: Path, obs_path: Path, config: SemslamConfig, estimators: list[str], still_test: int | None = None):
+    """The estimators on one recorded mission: (pipeline result, metrics.json's dict, the mission's metadata);
+    with ``still_test``, the DVL's zero-velocity test at the start (graph_vs_ekf.held_while_still)."""
     from semslam.compare import estimators_input
     from semslam.estimators import create_estimator
     from semslam.eval.outputs import build_metrics
@@ -125,6 +126,10 @@ def run_one(bag: Path, obs_path: Path, config: SemslamConfig, estimators: list[s
         RecordedFrontend(n, payload["observations"].get(n, {}), payload["summaries"].get(n)) for n in payload["names"]
     ]
     ests = [create_estimator(n, mission.metadata, config) for n in estimators]
+    if still_test is not None:
+        from graph_vs_ekf import held_while_still
+
+        mission, _ = held_while_still(mission, still_test)
     seen = estimators_input(mission, config)  # as compare feeds them (the start at rest)
     result = run_pipeline(seen, ests, fes, view_estimator=estimators[0], frontend_process=False)
     return result, build_metrics(result, mission.metadata), mission.metadata
@@ -217,7 +222,7 @@ def run(args) -> None:
             print(f"{bag.stem}: not recorded", file=sys.stderr)
             continue
         t0 = time.perf_counter()
-        result, metrics, metadata = run_one(bag, obs_path, config, estimators)
+        result, metrics, metadata = run_one(bag, obs_path, config, estimators, args.still_test)
         out[bag.stem] = metrics
         print(line(bag.stem, metrics, estimators) + f" ({time.perf_counter() - t0:.0f} s)", flush=True)
         if args.dump:
@@ -245,6 +250,7 @@ def main() -> None:
     ap.add_argument("--estimators", default="graph,ekf")
     ap.add_argument("--out", help="run: write the metrics of every mission here (JSON)")
     ap.add_argument("--dump", help="run: pickle each mission's trajectories, maps and true trajectory here")
+    ap.add_argument("--still-test", type=int, help="run: the DVL's zero-velocity test at the start over N readings")
     ap.add_argument("--detail", action="store_true", help="run: list twins and missed landmarks per estimator")
     args = ap.parse_args()
     args.cache.mkdir(parents=True, exist_ok=True)
