@@ -131,39 +131,43 @@ class _Route:
 class _Balance:
     """Whose turn a parallel measurement is: the worker with the least work submitted and not yet
     answered, counting the sequential front-ends' share of the same measurement, as estimated from
-    each front-end's mean seconds per answered measurement so far (unknown: one unit each; ties in
-    turn, so equal workers alternate). Plain turns gave the laser odometry's worker half the laser's
-    scans as well: 2.3x the other worker's work on the tank (issue 23)."""
+    each front-end's mean seconds per answered measurement of that type so far (unknown: one unit
+    each; ties in turn, so equal workers alternate). Plain turns gave the laser odometry's worker half
+    the laser's scans as well: 2.3x the other worker's work on the tank (issue 23); so did a mean over
+    all of a front-end's types, which its cheap AHRS, DVL and depth readings brought near zero."""
 
     _UNKNOWN = 1.0
     _KEEP = 0.8  # weight of the old mean: a front-end's cost drifts with the scene
 
     def __init__(self, n_workers: int):
         self._busy = [0.0] * n_workers  # estimated seconds submitted to each worker, not yet answered
-        self._cost: dict[str, float] = {}
+        self._cost: dict[tuple[str, type], float] = {}  # (front-end, measurement type) → mean seconds
         self._next = 0
 
-    def place(self, route: _Route) -> tuple[int | None, dict[int, float]]:
-        """The turn (None if no front-end takes it in parallel) and each answering worker's estimated load."""
+    def place(self, route: _Route, kind: type) -> tuple[int | None, dict[int, float]]:
+        """The turn for a measurement of type ``kind`` (None if no front-end takes it in parallel) and
+        each answering worker's estimated load."""
         load: dict[int, float] = {}
         for name, home in route.sequential:
-            load[home] = load.get(home, 0.0) + self._cost.get(name, self._UNKNOWN)
+            load[home] = load.get(home, 0.0) + self._cost.get((name, kind), self._UNKNOWN)
         turn = None
         if route.parallel:
             n = len(self._busy)
             turn = min(range(n), key=lambda w: (self._busy[w] + load.get(w, 0.0), (w - self._next) % n))
             self._next = (turn + 1) % n
-            load[turn] = load.get(turn, 0.0) + sum(self._cost.get(name, self._UNKNOWN) for name in route.parallel)
+            load[turn] = load.get(turn, 0.0) + sum(
+                self._cost.get((name, kind), self._UNKNOWN) for name in route.parallel
+            )
         for w, c in load.items():
             self._busy[w] += c
         return turn, load
 
-    def answered(self, load: dict[int, float], seconds: dict[str, float]) -> None:
+    def answered(self, load: dict[int, float], kind: type, seconds: dict[str, float]) -> None:
         for w, c in load.items():
             self._busy[w] -= c
         for name, dt in seconds.items():
-            old = self._cost.get(name)
-            self._cost[name] = dt if old is None else self._KEEP * old + (1 - self._KEEP) * dt
+            old = self._cost.get((name, kind))
+            self._cost[name, kind] = dt if old is None else self._KEEP * old + (1 - self._KEEP) * dt
 
 
 @dataclass(frozen=True)
@@ -189,7 +193,7 @@ class FrontendProcess:
         self._home = {i: k % n for k, i in enumerate(sequential)}  # a sequential front-end's worker
         self._routes: dict[type, _Route] = {}
         # which workers answer each submitted measurement, and the load it was estimated to give them
-        self._owners: deque[tuple[tuple[int, ...], dict[int, float]]] = deque()
+        self._owners: deque[tuple[tuple[int, ...], dict[int, float], type]] = deque()
         self._balance = _Balance(n)
         self._state: list[Measurement] = []  # measurements nobody answers for, not yet sent
         self._relay = _SignalRelay()
@@ -227,12 +231,12 @@ class FrontendProcess:
                 self._send_state()
             return False
         self._send_state()
-        turn, load = self._balance.place(route)
+        turn, load = self._balance.place(route, type(m))
         answering = route.homes | ({turn} if turn is not None else set())
         for w in self._workers:
             if route.everywhere or w.index in answering:
                 w.send((m, w.index == turn), reply=w.index in answering)
-        self._owners.append((tuple(sorted(answering)), load))
+        self._owners.append((tuple(sorted(answering)), load, type(m)))
         return True
 
     def _send_state(self) -> None:
@@ -247,12 +251,12 @@ class FrontendProcess:
         """The results of the next submitted measurement that has some: front-end name →
         (observations, seconds), for the front-ends that consume it."""
         out: dict[str, tuple[list, float]] = {}
-        workers, load = self._owners.popleft()
+        workers, load, kind = self._owners.popleft()
         for w in workers:
             for name, (obs, dt) in self._workers[w].receive(self.names).items():
                 before, t = out.get(name, ([], 0.0))  # a replica keeping state answers with nothing
                 out[name] = (before + obs, t + dt)
-        self._balance.answered(load, {name: dt for name, (_, dt) in out.items()})
+        self._balance.answered(load, kind, {name: dt for name, (_, dt) in out.items()})
         return out
 
     def finish(self) -> dict[str, tuple[object, float]]:
