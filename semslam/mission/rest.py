@@ -54,6 +54,7 @@ class RestAssumption:
         self.last: int | None = None
         self.still_first: int | None = None  # the zero-velocity test's first and last zeroed reading
         self.still_last: int | None = None
+        self.start: int | None = None  # the mission's first stamp
 
     @property
     def held_s(self) -> float:
@@ -94,7 +95,8 @@ class RestAssumption:
         if self.still_said:
             parts.append(
                 f"the {self.sensor}'s readings were consistent with zero velocity for {self.still_s:.1f} s from "
-                f"{self.still_first * 1e-9:.1f} s: read as exactly zero horizontally until then "
+                f"{(self.still_first - self.start) * 1e-9:.1f} s into the mission: read as exactly zero horizontally "
+                "until then "
                 "(initial.still_test_readings; null turns it off)"
             )
         return "; ".join(parts)
@@ -157,7 +159,7 @@ def at_rest_until_velocity(
             if holding and valid:
                 holding = False
             if due is None:  # the first reading stands in for a DVL one PERIOD_S late, not at once
-                due = m.stamp + period
+                due, record.start = m.stamp + period, m.stamp
             if holding and m.stamp >= due:
                 yield DvlVelocity(m.stamp, dvl, velocity=np.zeros(3), covariance=cov_S)
                 record.readings += 1
