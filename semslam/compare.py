@@ -33,7 +33,10 @@ def estimators_input(mission: Mission, config: SemslamConfig, reference: GpsRefe
     """The stream every estimator reads: ``mission`` with the start at rest (:mod:`semslam.mission.rest`,
     recorded as ``mission.rest`` for the run's warnings and metrics.json's ``input``), without the GPS
     fixes held out as the ``reference``."""
-    seen, mission.rest = at_rest_until_velocity(mission, config.initial.at_rest_until_velocity_sigma_m_s)
+    initial = config.initial
+    seen, mission.rest = at_rest_until_velocity(
+        mission, initial.at_rest_until_velocity_sigma_m_s, initial.still_test_readings
+    )
     return reference.estimators_see(seen) if reference is not None else seen
 
 

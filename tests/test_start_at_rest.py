@@ -104,3 +104,53 @@ def test_a_dvl_less_descent_no_longer_throws_the_estimators_off():
     for name in held:
         assert held[name] < 0.3, (name, held[name])
         assert free[name] > 2 * held[name], (name, free[name], held[name])
+
+
+def locked_at_rest_mission(still_s: float, noise: float = 0.01, seed: int = 0) -> Mission:
+    """AHRS at 10 Hz for 10 s; a DVL with lock from the start at 5 Hz, σ ``noise`` m/s: the vehicle
+    still until ``still_s``, then moving at 0.3 m/s along the DVL's x."""
+    rng = np.random.default_rng(seed)
+    sensors = {
+        "ahrs": SensorInfo("ahrs", "ahrs", "/ahrs", "x", np.eye(4)),
+        "dvl": SensorInfo("dvl", "dvl", "/dvl", "x", DVL_MOUNT),
+    }
+    ms = [Attitude(k * S // 10, "ahrs", orientation=np.array([0, 0, 0, 1.0])) for k in range(100)]
+    for k in range(50):
+        t = k * S // 5
+        v = (np.array([0.3, 0.0, 0.0]) if t >= still_s * S else np.zeros(3)) + noise * rng.standard_normal(3)
+        ms.append(DvlVelocity(t + 1, "dvl", velocity=v, covariance=np.eye(3) * noise**2))
+    return Mission.from_measurements(MissionMetadata(name="m", sensors=sensors), ms)
+
+
+def test_a_vehicle_still_with_bottom_lock_reads_zero_horizontal_velocity_until_it_moves():
+    """The zero-velocity test: the DVL's noise while the vehicle waits is read as exactly zero along the
+    body's x and y (its vertical kept), up to the first reading that says the vehicle moves; from there
+    every reading is the DVL's own. Without it the noise is integrated (the graph's error on half of
+    33 tank worlds, stop 39)."""
+    mission = locked_at_rest_mission(still_s=4.0)
+    real = [m for m in mission if isinstance(m, DvlVelocity)]
+    seen = [m for m in estimators_input(mission, config()) if isinstance(m, DvlVelocity)]
+    assert len(seen) == len(real)
+    R_BS = DVL_MOUNT[:3, :3]
+    moving = [m.stamp >= 4 * S for m in real]
+    for r, m, moves in zip(real, seen, moving):
+        if moves:
+            assert m is r  # the DVL's own reading, from the first one that fails the test
+        else:
+            v_B, r_B = R_BS @ m.velocity, R_BS @ r.velocity
+            assert np.all(v_B[:2] == 0) and v_B[2] == pytest.approx(r_B[2])  # horizontal zero, vertical kept
+            np.testing.assert_array_equal(m.covariance, r.covariance)
+    (said,) = [f.text for f in stream_findings(mission)]
+    assert "consistent with zero velocity for 3.8 s" in said and "initial.still_test_readings" in said
+    assert input_block(mission)["still_s"] == pytest.approx(3.8, abs=1e-6)
+    assert "at_rest_s" not in input_block(mission)
+
+
+def test_the_zero_velocity_test_ends_for_good_and_can_be_turned_off():
+    mission = locked_at_rest_mission(still_s=2.0)
+    cfg = SemslamConfig.model_validate({"initial": {"still_test_readings": None}})
+    assert [m for m in estimators_input(mission, cfg)] == list(mission)  # off: the stream as recorded
+    # moving from the first reading: nothing is held, not even when it stops again later
+    moving = locked_at_rest_mission(still_s=0.0)
+    assert all(a is b for a, b in zip(estimators_input(moving, config()), moving))
+    assert stream_findings(moving) == []

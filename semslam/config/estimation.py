@@ -29,6 +29,14 @@ class InitialStateConfig(BaseModel):
         "lock dives or holds station; without it the first reading is taken as the velocity held since the "
         "start); said in the run's warnings with how long it held; null: off",
     )
+    still_test_readings: int | None = Field(
+        10,
+        ge=1,
+        description="after that, while the DVL's newest valid reading and the mean of its last this many are "
+        "consistent with zero velocity (χ²(3) at 0.999), every estimator reads the horizontal body velocity as "
+        "exactly zero (a zero-velocity test: a vehicle still on deck, in a tank or on the seabed with bottom "
+        "lock); ends for good at the first reading that fails or a GPS fix; said in the run's warnings; null: off",
+    )
 
 
 class MotionNoiseConfig(BaseModel):

@@ -225,8 +225,10 @@ def input_block(mission: Mission) -> dict:
     if cfg is not None and cfg.on_clock_jump == "split":
         block["segment"] = cfg.segment
     rest = mission.rest
-    if rest is not None and rest.said:
+    if rest is not None and rest.held_said:
         block["at_rest_s"] = round(rest.held_s, 3)
+    if rest is not None and rest.still_said:
+        block["still_s"] = round(rest.still_s, 3)
     return block
 
 
