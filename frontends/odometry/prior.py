@@ -20,45 +20,15 @@ q²·((a − h)(b − a)² + (b − a)³/3) in variance; holds of different read
 from __future__ import annotations
 
 import bisect
-import math
 from collections import deque
 
 import numpy as np
 
+from factors.geometry import quat_to_rot, so3_exp  # numpy only (scalars: the prior turns at every AHRS reading)
 from semslam.mission.measurements import Attitude, Depth, DvlVelocity, Measurement
 from semslam.mission.mission import MissionMetadata
 
 NS = 1e-9
-
-
-def rotvec_matrix(v: np.ndarray) -> np.ndarray:
-    """exp([v]×) = cos θ·I + (sin θ/θ)·[v]× + ((1 − cos θ)/θ²)·v vᵀ: scipy's ``Rotation.from_rotvec(v).as_matrix()``
-    to rounding, without its ~25 µs of overhead per call (the prior turns at every AHRS reading and every stamp it
-    is asked about)."""
-    x, y, z = float(v[0]), float(v[1]), float(v[2])
-    theta2 = x * x + y * y + z * z
-    if theta2 < 1e-12:  # the series' next terms are below 1e-18
-        a, b = 1.0 - theta2 / 6.0, 0.5 - theta2 / 24.0
-    else:
-        theta = math.sqrt(theta2)
-        a, b = math.sin(theta) / theta, (1.0 - math.cos(theta)) / theta2
-    w = np.array([x, y, z])
-    cross = np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
-    return (1.0 - b * theta2) * np.eye(3) + a * cross + b * np.outer(w, w)
-
-
-def quaternion_matrix(q) -> np.ndarray:
-    """The rotation matrix of the quaternion (x, y, z, w), normalised (scipy's convention)."""
-    x, y, z, w = (float(c) for c in q)
-    n = math.sqrt(x * x + y * y + z * z + w * w)
-    x, y, z, w = x / n, y / n, z / n, w / n
-    return np.array(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-        ]
-    )
 
 
 class NavigationPrior:
@@ -101,7 +71,7 @@ class NavigationPrior:
         self._advance(m.stamp)
         T_BS = self.metadata.extrinsic(m.sensor)
         if isinstance(m, Attitude):
-            R_WS = quaternion_matrix(m.orientation)
+            R_WS = quat_to_rot(m.orientation)
             self._R_WB = R_WS @ T_BS[:3, :3].T
             self._var_att = np.clip(np.diag(np.asarray(m.covariance, float)), 0.0, None)
             self._rate(m, T_BS)
@@ -122,7 +92,7 @@ class NavigationPrior:
         if self._t is not None and self._R_WB is not None and stamp > self._t:
             self._p = self._p + self._R_WB @ self._v_B * ((stamp - self._t) * NS)
             if self._R_GB is not None and self._w_B is not None:
-                self._R_GB = self._R_GB @ rotvec_matrix(self._w_B * ((stamp - self._t) * NS))
+                self._R_GB = self._R_GB @ so3_exp(self._w_B * ((stamp - self._t) * NS))
         self._t = stamp if self._t is None else max(self._t, stamp)
 
     def _rate(self, m: Attitude, T_BS: np.ndarray) -> None:
@@ -138,7 +108,7 @@ class NavigationPrior:
             # the last interval was integrated at the previous reading's rate: make it the trapezoid's
             # (at a 1.7° wobble the held rate alone is off by ~0.07° over a 2 s scan interval)
             self._gyro_dt = (m.stamp - self._attitude_stamp) * NS
-            self._R_GB = self._R_GB @ rotvec_matrix((w_B - self._w_B) * self._gyro_dt / 2)
+            self._R_GB = self._R_GB @ so3_exp((w_B - self._w_B) * self._gyro_dt / 2)
         self._attitude_stamp = m.stamp
         self._w_B = w_B
         self._rates.append(w_B)
@@ -205,7 +175,7 @@ class NavigationPrior:
         if i < 0 or self._gyro[i] is None:
             return None
         R, w = self._gyro[i]
-        return R @ rotvec_matrix(w * ((stamp - self._stamps[i]) * NS))
+        return R @ so3_exp(w * ((stamp - self._stamps[i]) * NS))
 
     def motion(self, stamp_from: int, stamp_to: int) -> np.ndarray | None:
         """T_B(from),B(to) predicted by the navigation sensors, or None if either end is unknown; its
