@@ -96,8 +96,7 @@ class RestAssumption:
             parts.append(
                 f"the {self.sensor}'s readings were consistent with zero velocity for {self.still_s:.1f} s from "
                 f"{(self.still_first - self.start) * 1e-9:.1f} s into the mission: read as exactly zero horizontally "
-                "until then "
-                "(initial.still_test_readings; null turns it off)"
+                "until then (initial.still_test_readings; null turns it off)"
             )
         return "; ".join(parts)
 
@@ -142,7 +141,8 @@ def at_rest_until_velocity(
         return mission, None
     dvl = dvls[0].name
     R_BS = mission.metadata.extrinsic(dvl)[:3, :3]
-    cov_S = R_BS.T @ np.diag([(sigma_m_s or 1.0) ** 2, (sigma_m_s or 1.0) ** 2, VERTICAL_SIGMA_M_S**2]) @ R_BS
+    if sigma_m_s is not None:
+        cov_S = R_BS.T @ np.diag([sigma_m_s**2, sigma_m_s**2, VERTICAL_SIGMA_M_S**2]) @ R_BS
     period = int(PERIOD_S * 1e9)
     record = RestAssumption(sigma_m_s, dvl)
 
@@ -150,13 +150,13 @@ def at_rest_until_velocity(
         record.readings, record.first, record.last = 0, None, None
         record.still_first = record.still_last = None
         holding, due = sigma_m_s is not None, None
-        testing, test, bridge = still_readings is not None, _StillTest(still_readings or 1), None
+        test = _StillTest(still_readings) if still_readings is not None else None  # None: not (or no longer) testing
+        bridge = None
         for m in mission:
-            is_dvl = isinstance(m, DvlVelocity) and m.sensor == dvl
-            valid = is_dvl and m.valid and m.is_finite()
+            valid = isinstance(m, DvlVelocity) and m.valid and m.is_finite()
             if isinstance(m, GpsFix):  # a fix says where the vehicle is: nothing is assumed from here on
-                holding = testing = False
-            if holding and valid:
+                holding, test = False, None
+            if holding and valid:  # any DVL's valid reading ends the start at rest
                 holding = False
             if due is None:  # the first reading stands in for a DVL one PERIOD_S late, not at once
                 due, record.start = m.stamp + period, m.stamp
@@ -165,8 +165,8 @@ def at_rest_until_velocity(
                 record.readings += 1
                 record.first = m.stamp if record.first is None else record.first
                 record.last, due = m.stamp, m.stamp + period
-            if testing and not holding:
-                if valid:
+            if test is not None and not holding:
+                if valid and m.sensor == dvl:  # the test reads the DVL whose readings it stands in for
                     v, cov = np.asarray(m.velocity, float), np.asarray(m.covariance, float)
                     if test.still(v, cov):
                         record.still_first = m.stamp if record.still_first is None else record.still_first
@@ -174,8 +174,8 @@ def at_rest_until_velocity(
                         bridge = (m.stamp + period, _without_vertical(R_BS, cov))
                         yield DvlVelocity(m.stamp, m.sensor, velocity=_zero_horizontal(R_BS, v), covariance=cov)
                         continue
-                    testing = False
-                elif bridge is not None and m.stamp >= bridge[0]:  # a dropout while still
+                    test = None
+                elif not valid and bridge is not None and m.stamp >= bridge[0]:  # a dropout while still
                     yield DvlVelocity(m.stamp, dvl, velocity=np.zeros(3), covariance=bridge[1])
                     record.still_last = m.stamp
                     bridge = (m.stamp + period, bridge[1])
