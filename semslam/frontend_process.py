@@ -149,18 +149,19 @@ class _Balance:
         each answering worker's estimated load."""
         load: dict[int, float] = {}
         for name, home in route.sequential:
-            load[home] = load.get(home, 0.0) + self._cost.get((name, kind), self._UNKNOWN)
+            load[home] = load.get(home, 0.0) + self._estimate(name, kind)
         turn = None
         if route.parallel:
             n = len(self._busy)
             turn = min(range(n), key=lambda w: (self._busy[w] + load.get(w, 0.0), (w - self._next) % n))
             self._next = (turn + 1) % n
-            load[turn] = load.get(turn, 0.0) + sum(
-                self._cost.get((name, kind), self._UNKNOWN) for name in route.parallel
-            )
+            load[turn] = load.get(turn, 0.0) + sum(self._estimate(name, kind) for name in route.parallel)
         for w, c in load.items():
             self._busy[w] += c
         return turn, load
+
+    def _estimate(self, name: str, kind: type) -> float:
+        return self._cost.get((name, kind), self._UNKNOWN)
 
     def answered(self, load: dict[int, float], kind: type, seconds: dict[str, float]) -> None:
         for w, c in load.items():
