@@ -117,21 +117,31 @@ class CovarianceSettings(BaseModel):
         "(m/s per √s)",
     )
 
-    held_scale: float = Field(
-        0.39,
-        gt=0,
-        description="multiplies the scaled and floored σ²·H_tt⁻¹ of the translation solved with the attitude held "
-        "(attitude 'navigation' or 'roll_pitch'; fitted on tuning seeds, experiments/odometry/README.md)",
+    held_residual_scale: float = Field(
+        2.449,
+        ge=0,
+        description="with the attitude held (attitude 'navigation' or 'roll_pitch'), the translation's measured "
+        "covariance is this times σ²·H_tt⁻¹ (σ² the point-to-plane residuals' variance) plus range_noise_scale's "
+        "part plus held_floor_sigma_m² per axis (fitted by likelihood on tuning seeds: experiments/odometry/README.md)",
     )
     range_noise_scale: float = Field(
-        0.0,
+        0.0911,
         ge=0,
-        description="with the attitude held, the translation's measured covariance is this times σ_r²·n·H_tt⁻¹ instead "
-        "of held_scale × (scale·σ²·H_tt⁻¹ + floor): σ_r² the laser's range noise across a surface (the largest removed "
-        "plane's points' mean squared distance to it, median over the last scans), n the inliers; the map's noise is "
-        "shared by the scan points matched to it and does not average out over them. Until a plane is seen, or at 0 "
-        "(the default), the residuals' form. An experiment's setting (experiments/odometry/README.md, stop 39)",
+        description="with the attitude held, adds this times σ_r²·n·H_tt⁻¹ to the translation's measured covariance: "
+        "σ_r² the laser's range noise across a surface (the largest removed plane's points' mean squared distance to "
+        "it, median over the last scans), n the inliers; the map's noise is shared by the scan points matched to it "
+        "and does not average out over them. Until a plane is seen: without it",
     )
+    held_floor_sigma_m: float = Field(
+        0.0, ge=0, description="with the attitude held, the translation's least σ per axis (m)"
+    )
+    rotation_scale: float = Field(
+        1.0,
+        gt=0,
+        description="with the attitude held, the rotation's covariance is this times the navigation prior's (the "
+        "AHRS's rate integrated between the scans) plus rotation_floor_rad² per axis",
+    )
+    rotation_floor_rad: float = Field(0.0, ge=0, description="with the attitude held, the rotation's least σ (rad)")
     gyro_sigma_rad_s: float | None = Field(
         None,
         gt=0,
