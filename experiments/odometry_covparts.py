@@ -100,14 +100,14 @@ def model_covariances(d: dict, c: CovarianceSettings, tail_rotation: bool = Fals
     ``tail_rotation``: the Student-t factor multiplies the whole covariance (main before stop 40), not
     the translation's measured part alone. :func:`held_covariance` written for all the records at once
     (``check`` asserts the two agree)."""
-    nu0 = float(d["tail_dof"]) if "tail_dof" in d else 34.0  # the records' ν, 34 before stop 40's recorder
+    nu0 = float(np.ravel(d["tail_dof"])[0]) if "tail_dof" in d else 34.0  # the records' ν, 34 before stop 40's recorder
     d2 = d["tail"] * (nu0 + 6) - nu0
     tail = (c.tail_dof + d2) / (c.tail_dof + 6) if c.tail_dof > 0 else np.ones(len(d2))
     H = d["information_S"]
     H_tt_inv = np.linalg.inv(H[:, 3:, 3:])
     K = -H_tt_inv @ H[:, 3:, :3]
     eye = np.eye(3)
-    rot = c.rotation_scale * d["rotation_cov_S"] + eye * c.rotation_floor_rad**2
+    rot = d["rotation_cov_S"]
     per_point = c.held_residual_scale * d["residual_var"]
     if c.range_noise_scale > 0:
         per_point = per_point + c.range_noise_scale * np.nan_to_num(d["range_var"]) * d["inliers"]
@@ -161,19 +161,12 @@ MODELS = {
     "both": (["held_residual_scale", "range_noise_scale", "held_floor_sigma_m"], False),
     "both_tail_r": (["held_residual_scale", "range_noise_scale", "held_floor_sigma_m"], True),
     "both_nu": (["held_residual_scale", "range_noise_scale", "held_floor_sigma_m", "tail_dof"], False),
-    "both_rot": (["held_residual_scale", "range_noise_scale", "held_floor_sigma_m", "rotation_scale"], False),
-    "both_rotfloor": (
-        ["held_residual_scale", "range_noise_scale", "held_floor_sigma_m", "rotation_scale", "rotation_floor_rad"],
-        False,
-    ),
 }
 #: main's coefficients (held_scale 0.39 × (scale 8.2 · σ²H⁻¹ + floor (3.5 mm)²))
 MAIN = CovarianceSettings(
     held_residual_scale=0.39 * 8.2,
     held_floor_sigma_m=0.39**0.5 * 0.0035,
     range_noise_scale=0.0,
-    rotation_scale=1.0,
-    rotation_floor_rad=0.0,
     tail_dof=34.0,
 )
 
@@ -195,7 +188,7 @@ def fitted(data: dict[int, dict], tuning: list[int], model: str, base: Covarianc
             total += np.sum(np.linalg.slogdet(cov)[1] + nees(data[s]["error_B"], cov))
         return total if np.isfinite(total) else 1e30
 
-    start = {"rotation_floor_rad": 1e-4, "range_variance_offset_m2": 1e-6, "held_floor_sigma_m": 1e-3}
+    start = {"held_floor_sigma_m": 1e-3}
     x0 = [np.log(max(getattr(base, k), start.get(k, 0.01))) for k in free]
     best = minimize(cost, x0, method="Nelder-Mead", options={"xatol": 1e-3, "fatol": 1e-3, "maxiter": 4000})
     return settings(best.x)

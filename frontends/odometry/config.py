@@ -91,7 +91,10 @@ class CovarianceSettings(BaseModel):
     prior's own covariance (a Student-t error: most registrations are good to a centimetre, a few
     converge wrong, and those are the ones that disagree with the prior). Shape tuned on tank seeds
     0–5 (150 s); scale and floors recalibrated (× 0.833) on whole missions of tuning seeds 0–1 with
-    the windowed map (experiments/odometry_covariance.py; experiments/odometry/README.md)."""
+    the windowed map (experiments/odometry_covariance.py; experiments/odometry/README.md). With the
+    attitude held (the default) the covariance is made of the parts ``held_*`` and ``range_noise_scale``
+    name, and the Student-t factor multiplies the translation's measured part alone
+    (``frontends.odometry.matcher.held_covariance``; coefficients fitted by likelihood, stop 40)."""
 
     model_config = ConfigDict(extra="forbid")
     scale: float = Field(
@@ -135,13 +138,6 @@ class CovarianceSettings(BaseModel):
     held_floor_sigma_m: float = Field(
         0.0, ge=0, description="with the attitude held, the translation's least σ per axis (m)"
     )
-    rotation_scale: float = Field(
-        1.0,
-        gt=0,
-        description="with the attitude held, the rotation's covariance is this times the navigation prior's (the "
-        "AHRS's rate integrated between the scans) plus rotation_floor_rad² per axis",
-    )
-    rotation_floor_rad: float = Field(0.0, ge=0, description="with the attitude held, the rotation's least σ (rad)")
     gyro_sigma_rad_s: float | None = Field(
         None,
         gt=0,
@@ -186,7 +182,7 @@ class OdometryConfig(BaseModel):
         "within min(kiss-icp's 3σ threshold, this) of the map; the overlap is judged at kiss-icp's threshold, and the "
         "gate's translation bound also on a second re-solve at that threshold (a wrong minimum of ICP that the tight "
         "bound holds in place walks off in it). null: kiss-icp's 3σ for all. An experiment's setting: it needs its own "
-        "held_scale (experiments/odometry/README.md, stops 36–37)",
+        "held_residual_scale (experiments/odometry/README.md, stops 36–37)",
     )
     restart_after: int = Field(
         3, ge=1, description="this many rejected scans in a row start a new local map at the next usable scan"

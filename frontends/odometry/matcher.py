@@ -93,8 +93,7 @@ def held_covariance(
     c: CovarianceSettings,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Covariance (6×6, sensor frame) of a pose whose rotation is held to the navigation's and whose
-    translation is solved given it, from its parts: the rotation's is the prior's ``rotation_cov``
-    times ``rotation_scale`` plus a floor; the translation's measured part is
+    translation is solved given it, from its parts: the rotation's is the prior's ``rotation_cov``; the translation's measured part is
     a·σ²·H_tt⁻¹ + b·σ_r²·n·H_tt⁻¹ + f²·I (σ² the point-to-plane residuals' variance, σ_r² the laser's
     range noise across a surface — shared by the scan points matched to the same map surface, so not
     divided by their number n —, a, b, f the coefficients ``held_residual_scale``, ``range_noise_scale``,
@@ -108,7 +107,7 @@ def held_covariance(
         H_tt_inv = np.linalg.inv(info[3:, 3:])
     except np.linalg.LinAlgError:
         return inf, inf
-    cov_rot = c.rotation_scale * rotation_cov + np.eye(3) * c.rotation_floor_rad**2
+    cov_rot = rotation_cov
     K = -H_tt_inv @ info[3:, :3]  # translation error per rotation error
     measured = c.held_residual_scale * residual_var * H_tt_inv + np.eye(3) * c.held_floor_sigma_m**2
     if c.range_noise_scale > 0 and range_var is not None:  # until a plane is seen: without it
