@@ -171,22 +171,27 @@ MAIN = CovarianceSettings(
 )
 
 
+def deviance(data: dict[int, dict], seeds: list[int], c: CovarianceSettings, tail_rotation: bool) -> float:
+    """−2 log-likelihood (up to a constant) of the seeds' errors, Gaussian with the model's covariances."""
+    total = 0.0
+    for s in seeds:
+        cov = model_covariances(data[s], c, tail_rotation)
+        total += np.sum(np.linalg.slogdet(cov)[1] + nees(data[s]["error_B"], cov))
+    return total if np.isfinite(total) else 1e30
+
+
 def fitted(data: dict[int, dict], tuning: list[int], model: str, base: CovarianceSettings = MAIN) -> CovarianceSettings:
     """The model's coefficients of largest Gaussian likelihood of the tuning seeds' errors (6-DoF)."""
     free, tail_rotation = MODELS[model]
-    if not free:
-        return base
 
     def settings(x):
         return base.model_copy(update={k: float(np.exp(v)) for k, v in zip(free, x)})
 
     def cost(x):
-        c = settings(x)
-        total = 0.0
-        for s in tuning:
-            cov = model_covariances(data[s], c, tail_rotation)
-            total += np.sum(np.linalg.slogdet(cov)[1] + nees(data[s]["error_B"], cov))
-        return total if np.isfinite(total) else 1e30
+        return deviance(data, tuning, settings(x), tail_rotation)
+
+    if not free:
+        return base
 
     start = {"held_floor_sigma_m": 1e-3}
     x0 = [np.log(max(getattr(base, k), start.get(k, 0.01))) for k in free]
@@ -250,10 +255,12 @@ def main() -> None:
         return
     if args.cmd == "judge":
         data = load(args.directory, [int(s) for s in args.seeds.split(",")])
-        print("main (7b17c54):")
-        table(data, {s: (MAIN, True) for s in data}, [])
-        print("the front-end's defaults:")
-        table(data, {s: (CovarianceSettings(), False) for s in data}, [])
+        for name, c, tail_rotation in (
+            ("main (7b17c54)", MAIN, True),
+            ("the front-end's defaults", CovarianceSettings(), False),
+        ):
+            print(f"{name}: −2 log-likelihood {deviance(data, list(data), c, tail_rotation):.1f}")
+            table(data, {s: (c, tail_rotation) for s in data}, [])
         return
     tuning = [int(s) for s in args.tuning.split(",")]
     report = [int(s) for s in args.report.split(",") if s]
@@ -264,6 +271,7 @@ def main() -> None:
         print(
             f"model {model} (tail on the rotation: {tail_rotation}): "
             + ", ".join(f"{k} {getattr(c, k):.4g}" for k in free)
+            + f"; −2 log-likelihood on the tuning seeds {deviance(data, tuning, c, tail_rotation):.1f}"
         )
         table(data, {s: (c, tail_rotation) for s in data}, tuning)
         if args.cross and len(tuning) > 2:  # each tuning seed judged with the coefficients fitted on the others
