@@ -100,18 +100,25 @@ class CovarianceSettings(BaseModel):
     scale: float = Field(
         8.2,
         gt=0,
-        description="multiplies σ²·H⁻¹: neighbouring residuals of a voxelised map are not independent, "
-        "so the raw Hessian bound is overconfident (experiments/odometry_eval.py measures the NEES)",
+        description="multiplies σ²·H⁻¹ of the 6-DoF registration (attitude 'registration', and the heading's with "
+        "'roll_pitch'; the held translation's is held_residual_scale): neighbouring residuals of a voxelised map "
+        "are not independent, so the raw Hessian bound is overconfident (experiments/odometry_eval.py measures the NEES)",
     )
     floor_sigma_m: float = Field(
-        0.0035, ge=0, description="least translation σ per axis (m): what ICP's sampling bias leaves"
+        0.0035,
+        ge=0,
+        description="least translation σ per axis (m) of the 6-DoF registration (the held translation's is "
+        "held_floor_sigma_m): what ICP's sampling bias leaves",
     )
-    floor_sigma_rad: float = Field(0.0024, ge=0, description="least rotation σ per axis (rad)")
+    floor_sigma_rad: float = Field(
+        0.0024, ge=0, description="least rotation σ per axis (rad) of the 6-DoF registration (not the held rotation)"
+    )
     tail_dof: float = Field(
         34.0,
         ge=0,
-        description="ν of the Student-t scaling: the covariance is multiplied by (ν + d²)/(ν + 6), d² the "
-        "squared Mahalanobis distance of ICP's correction under the prior's covariance (0: no scaling)",
+        description="ν of the Student-t scaling: the covariance (with the attitude held, the translation's measured "
+        "part alone) is multiplied by (ν + d²)/(ν + 6), d² the squared Mahalanobis distance of ICP's correction "
+        "under the prior's covariance (0: no scaling)",
     )
     hold_walk_m_s: float = Field(
         0.02,

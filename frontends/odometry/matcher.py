@@ -93,8 +93,8 @@ def held_covariance(
     c: CovarianceSettings,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Covariance (6×6, sensor frame) of a pose whose rotation is held to the navigation's and whose
-    translation is solved given it, from its parts: the rotation's is the prior's ``rotation_cov``; the translation's measured part is
-    a·σ²·H_tt⁻¹ + b·σ_r²·n·H_tt⁻¹ + f²·I (σ² the point-to-plane residuals' variance, σ_r² the laser's
+    translation is solved given it, from its parts: the rotation's is the prior's ``rotation_cov``; the
+    translation's measured part is a·σ²·H_tt⁻¹ + b·σ_r²·n·H_tt⁻¹ + f²·I (σ² the point-to-plane residuals' variance, σ_r² the laser's
     range noise across a surface — shared by the scan points matched to the same map surface, so not
     divided by their number n —, a, b, f the coefficients ``held_residual_scale``, ``range_noise_scale``,
     ``held_floor_sigma_m``), plus what the held rotation's error moves it by (K = −H_tt⁻¹·H_tr per
@@ -107,16 +107,15 @@ def held_covariance(
         H_tt_inv = np.linalg.inv(info[3:, 3:])
     except np.linalg.LinAlgError:
         return inf, inf
-    cov_rot = rotation_cov
     K = -H_tt_inv @ info[3:, :3]  # translation error per rotation error
     measured = c.held_residual_scale * residual_var * H_tt_inv + np.eye(3) * c.held_floor_sigma_m**2
     if c.range_noise_scale > 0 and range_var is not None:  # until a plane is seen: without it
         measured = measured + c.range_noise_scale * range_var * n * H_tt_inv
     cov = np.zeros((6, 6))
-    cov[:3, :3] = cov_rot
-    cov[3:, :3] = K @ cov_rot
+    cov[:3, :3] = rotation_cov
+    cov[3:, :3] = K @ rotation_cov
     cov[:3, 3:] = cov[3:, :3].T
-    cov[3:, 3:] = measured + K @ cov_rot @ K.T
+    cov[3:, 3:] = measured + K @ rotation_cov @ K.T
     part = np.zeros((6, 6))
     part[3:, 3:] = measured
     return cov, part
