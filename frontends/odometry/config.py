@@ -105,10 +105,7 @@ class CovarianceSettings(BaseModel):
         "are not independent, so the raw Hessian bound is overconfident (experiments/odometry_eval.py measures the NEES)",
     )
     floor_sigma_m: float = Field(
-        0.0035,
-        ge=0,
-        description="least translation σ per axis (m) of the 6-DoF registration (the held translation's is "
-        "held_floor_sigma_m): what ICP's sampling bias leaves",
+        0.0035, ge=0, description="least translation σ per axis (m) of the 6-DoF registration: ICP's sampling bias"
     )
     floor_sigma_rad: float = Field(
         0.0024, ge=0, description="least rotation σ per axis (rad) of the 6-DoF registration (not the held rotation)"
