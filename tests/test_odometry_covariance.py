@@ -6,6 +6,7 @@ re-solve's previous step."""
 
 import numpy as np
 
+from frontends.odometry import OdometryFrontend
 from frontends.odometry.config import OdometryConfig
 from frontends.odometry.matcher import ScanMatcher, _MapPlanes
 
@@ -60,3 +61,32 @@ def test_planes_kept_between_steps_are_the_planes_fitted_afresh():
     cold = _MapPlanes(map_points, source, 0.15)
     for a, b in zip(warm.information(source, pose, 0.15), cold.information(source, pose, 0.15), strict=True):
         assert np.allclose(a, b, rtol=1e-12, atol=0)
+
+
+def test_the_held_covariance_is_its_parts_and_the_tail_leaves_the_rotation_alone():
+    """The covariance of a registration with the attitude held is the sum of its stated parts
+    (a·σ²·H_tt⁻¹ + b·σ_r²·n·H_tt⁻¹ + f², the rotation's prior, and what the rotation moves
+    the translation by), and the Student-t factor multiplies the translation's measured part alone: the
+    held rotation is the navigation's, whatever ICP did (experiments/odometry/README.md, stop 40)."""
+    a, b, f = 2.0, 0.1, 0.002
+    covariance = {"held_residual_scale": a, "range_noise_scale": b, "held_floor_sigma_m": f}
+    rng = np.random.default_rng(3)
+    matcher = ScanMatcher(OdometryConfig.model_validate({"covariance": covariance}))
+    assert matcher.start(_scene(rng, 0.004), np.eye(4), stamp=0)
+    rotation_cov = np.diag([1.0, 2.0, 3.0]) * 1e-6
+    reg = matcher.register(_scene(rng, 0.004), np.eye(4), stamp=2 * S, rotation_cov=rotation_cov)
+    assert reg.rejected is None
+    H_tt_inv = np.linalg.inv(reg.information[3:, 3:])
+    K = -H_tt_inv @ reg.information[3:, :3]
+    measured = (a * reg.residual_var + b * matcher.range_variance * reg.inliers) * H_tt_inv + f**2 * np.eye(3)
+    assert np.allclose(reg.covariance[:3, :3], rotation_cov, rtol=1e-12, atol=0)
+    assert np.allclose(reg.covariance[3:, :3], K @ rotation_cov, rtol=1e-9, atol=1e-18)
+    assert np.allclose(reg.covariance[3:, 3:], measured + K @ rotation_cov @ K.T, rtol=1e-9, atol=1e-15)
+    # the range part is there: the floor's noise, times the inliers, is most of the measured part here
+    assert b * matcher.range_variance * reg.inliers > a * reg.residual_var
+
+    frontend = OdometryFrontend.__new__(OdometryFrontend)  # the tail's factor alone, without a mission
+    frontend._tail_factor = lambda *args: 5.0
+    scaled = frontend._tail_scaled(reg, np.eye(6), 0, 2 * S)
+    assert np.array_equal(scaled[:3, :], reg.covariance[:3, :])  # the rotation and the cross terms: unchanged
+    assert np.allclose(scaled[3:, 3:] - reg.covariance[3:, 3:], 4.0 * measured, rtol=1e-9, atol=1e-15)

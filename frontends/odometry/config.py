@@ -91,24 +91,31 @@ class CovarianceSettings(BaseModel):
     prior's own covariance (a Student-t error: most registrations are good to a centimetre, a few
     converge wrong, and those are the ones that disagree with the prior). Shape tuned on tank seeds
     0–5 (150 s); scale and floors recalibrated (× 0.833) on whole missions of tuning seeds 0–1 with
-    the windowed map (experiments/odometry_covariance.py; experiments/odometry/README.md)."""
+    the windowed map (experiments/odometry_covariance.py; experiments/odometry/README.md). With the
+    attitude held (the default) the covariance is made of the parts ``held_*`` and ``range_noise_scale``
+    name, and the Student-t factor multiplies the translation's measured part alone
+    (``frontends.odometry.matcher.held_covariance``; coefficients fitted by likelihood, stop 40)."""
 
     model_config = ConfigDict(extra="forbid")
     scale: float = Field(
         8.2,
         gt=0,
-        description="multiplies σ²·H⁻¹: neighbouring residuals of a voxelised map are not independent, "
-        "so the raw Hessian bound is overconfident (experiments/odometry_eval.py measures the NEES)",
+        description="multiplies σ²·H⁻¹ of the 6-DoF registration (attitude 'registration', and the heading's with "
+        "'roll_pitch'; the held translation's is held_residual_scale): neighbouring residuals of a voxelised map "
+        "are not independent, so the raw Hessian bound is overconfident (experiments/odometry_eval.py measures the NEES)",
     )
     floor_sigma_m: float = Field(
-        0.0035, ge=0, description="least translation σ per axis (m): what ICP's sampling bias leaves"
+        0.0035, ge=0, description="least translation σ per axis (m) of the 6-DoF registration: ICP's sampling bias"
     )
-    floor_sigma_rad: float = Field(0.0024, ge=0, description="least rotation σ per axis (rad)")
+    floor_sigma_rad: float = Field(
+        0.0024, ge=0, description="least rotation σ per axis (rad) of the 6-DoF registration (not the held rotation)"
+    )
     tail_dof: float = Field(
         34.0,
         ge=0,
-        description="ν of the Student-t scaling: the covariance is multiplied by (ν + d²)/(ν + 6), d² the "
-        "squared Mahalanobis distance of ICP's correction under the prior's covariance (0: no scaling)",
+        description="ν of the Student-t scaling: the covariance (with the attitude held, the translation's measured "
+        "part alone) is multiplied by (ν + d²)/(ν + 6), d² the squared Mahalanobis distance of ICP's correction "
+        "under the prior's covariance (0: no scaling)",
     )
     hold_walk_m_s: float = Field(
         0.02,
@@ -117,20 +124,23 @@ class CovarianceSettings(BaseModel):
         "(m/s per √s)",
     )
 
-    held_scale: float = Field(
-        0.39,
-        gt=0,
-        description="multiplies the scaled and floored σ²·H_tt⁻¹ of the translation solved with the attitude held "
-        "(attitude 'navigation' or 'roll_pitch'; fitted on tuning seeds, experiments/odometry/README.md)",
+    held_residual_scale: float = Field(
+        2.449,
+        ge=0,
+        description="with the attitude held (attitude 'navigation' or 'roll_pitch'), the translation's measured "
+        "covariance is this times σ²·H_tt⁻¹ (σ² the point-to-plane residuals' variance) plus range_noise_scale's "
+        "part plus held_floor_sigma_m² per axis (fitted by likelihood on tuning seeds: experiments/odometry/README.md)",
     )
     range_noise_scale: float = Field(
-        0.0,
+        0.0911,
         ge=0,
-        description="with the attitude held, the translation's measured covariance is this times σ_r²·n·H_tt⁻¹ instead "
-        "of held_scale × (scale·σ²·H_tt⁻¹ + floor): σ_r² the laser's range noise across a surface (the largest removed "
-        "plane's points' mean squared distance to it, median over the last scans), n the inliers; the map's noise is "
-        "shared by the scan points matched to it and does not average out over them. Until a plane is seen, or at 0 "
-        "(the default), the residuals' form. An experiment's setting (experiments/odometry/README.md, stop 39)",
+        description="with the attitude held, adds this times σ_r²·n·H_tt⁻¹ to the translation's measured covariance: "
+        "σ_r² the laser's range noise across a surface (the largest removed plane's points' mean squared distance to "
+        "it, median over the last scans), n the inliers; the map's noise is shared by the scan points matched to it "
+        "and does not average out over them. Until a plane is seen: without it",
+    )
+    held_floor_sigma_m: float = Field(
+        0.0, ge=0, description="with the attitude held, the translation's least σ per axis (m)"
     )
     gyro_sigma_rad_s: float | None = Field(
         None,
@@ -176,7 +186,7 @@ class OdometryConfig(BaseModel):
         "within min(kiss-icp's 3σ threshold, this) of the map; the overlap is judged at kiss-icp's threshold, and the "
         "gate's translation bound also on a second re-solve at that threshold (a wrong minimum of ICP that the tight "
         "bound holds in place walks off in it). null: kiss-icp's 3σ for all. An experiment's setting: it needs its own "
-        "held_scale (experiments/odometry/README.md, stops 36–37)",
+        "held_residual_scale (experiments/odometry/README.md, stops 36–37)",
     )
     restart_after: int = Field(
         3, ge=1, description="this many rejected scans in a row start a new local map at the next usable scan"

@@ -112,15 +112,23 @@ class OdometryFrontend(Frontend):
         return R_SB @ prior_B[:3, :3] @ R_SB.T
 
     def _tail_scaled(self, reg, A: np.ndarray, stamp_from: int, stamp_to: int) -> np.ndarray:
-        """The registration's covariance (sensor frame) times (ν + d²)/(ν + 6), d² the correction
-        ICP made to the prior, under the prior's covariance over the same interval."""
+        """The registration's covariance (sensor frame) with its part that ICP's disagreement with the prior
+        makes (``Registration.tail_part``: with the attitude held, the translation's measured part; the
+        rotation is the prior's own) times :meth:`_tail_factor`."""
+        factor = self._tail_factor(reg, A, stamp_from, stamp_to)
+        part = reg.covariance if reg.tail_part is None else reg.tail_part
+        return reg.covariance + (factor - 1.0) * part
+
+    def _tail_factor(self, reg, A: np.ndarray, stamp_from: int, stamp_to: int) -> float:
+        """(ν + d²)/(ν + 6), d² the correction ICP made to the prior, under the prior's covariance over the
+        same interval (1 without the scaling or a prior)."""
         nu = self.config.covariance.tail_dof
         prior_B = self.prior.motion_covariance(stamp_from, stamp_to)
         if nu <= 0 or prior_B is None:
-            return reg.covariance
+            return 1.0
         A_inv = np.linalg.inv(A)
         d2 = mahalanobis2(tangent(reg.correction), A_inv @ prior_B @ A_inv.T)
-        return reg.covariance if d2 is None else reg.covariance * (nu + d2) / (nu + 6)
+        return 1.0 if d2 is None else (nu + d2) / (nu + 6)
 
     def _start(self, track: _Track, scan: PointCloud) -> None:
         """A new local map anchored at this scan (first scan, long gap, or lost overlap); a scan too

@@ -18,7 +18,7 @@ from kiss_icp.kiss_icp import KissICP
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
-from frontends.odometry.config import OdometryConfig
+from frontends.odometry.config import CovarianceSettings, OdometryConfig
 from frontends.odometry.information import fitted_planes, plane_information, rotation_angle, twist_angle
 
 NORMAL_NEIGHBOURS = 8
@@ -40,6 +40,9 @@ class Registration:
     inliers: int
     points: int
     rejected: str | None  # why it is not trusted, or None
+    # the part of ``covariance`` that grows with ICP's disagreement with the prior (the front-end's Student-t
+    # factor multiplies it): all of it, or with the attitude held the translation's measured part alone
+    tail_part: np.ndarray | None = None
 
 
 def large_planes(points: np.ndarray, cfg) -> list[tuple[np.ndarray, float]]:
@@ -79,6 +82,43 @@ def kiss_config(cfg: OdometryConfig) -> KISSConfig:
             "fixed_threshold": k.fixed_threshold_m,
         },
     )
+
+
+def held_covariance(
+    info: np.ndarray,
+    residual_var: float,
+    range_var: float | None,
+    n: int,
+    rotation_cov: np.ndarray,
+    c: CovarianceSettings,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Covariance (6×6, sensor frame) of a pose whose rotation is held to the navigation's and whose
+    translation is solved given it, from its parts: the rotation's is the prior's ``rotation_cov``; the
+    translation's measured part is a·σ²·H_tt⁻¹ + b·σ_r²·n·H_tt⁻¹ + f²·I (σ² the point-to-plane residuals' variance, σ_r² the laser's
+    range noise across a surface — shared by the scan points matched to the same map surface, so not
+    divided by their number n —, a, b, f the coefficients ``held_residual_scale``, ``range_noise_scale``,
+    ``held_floor_sigma_m``), plus what the held rotation's error moves it by (K = −H_tt⁻¹·H_tr per
+    radian: the scan's points are metres from the sensor). Returns (the covariance, its translation's
+    measured part alone, 6×6): infinite where the geometry fixes nothing."""
+    inf = np.full((6, 6), np.inf)
+    if n < 6 or not np.isfinite(residual_var):
+        return inf, inf
+    try:
+        H_tt_inv = np.linalg.inv(info[3:, 3:])
+    except np.linalg.LinAlgError:
+        return inf, inf
+    K = -H_tt_inv @ info[3:, :3]  # translation error per rotation error
+    measured = c.held_residual_scale * residual_var * H_tt_inv + np.eye(3) * c.held_floor_sigma_m**2
+    if c.range_noise_scale > 0 and range_var is not None:  # until a plane is seen: without it
+        measured = measured + c.range_noise_scale * range_var * n * H_tt_inv
+    cov = np.zeros((6, 6))
+    cov[:3, :3] = rotation_cov
+    cov[3:, :3] = K @ rotation_cov
+    cov[:3, 3:] = cov[3:, :3].T
+    cov[3:, 3:] = measured + K @ rotation_cov @ K.T
+    part = np.zeros((6, 6))
+    part[3:, 3:] = measured
+    return cov, part
 
 
 class ScanMatcher:
@@ -175,7 +215,7 @@ class ScanMatcher:
         held = self.cfg.attitude != "registration" and rotation_cov is not None
         bound = self.cfg.held_max_distance_m
         wide_only = bound is None or bound >= 3 * sigma
-        cov = None
+        cov = tail_part = None
         if not held or self.cfg.attitude == "roll_pitch" or not wide_only:
             # kiss-icp's pose's own covariance: emitted (attitude 'registration'), its heading's variance
             # ('roll_pitch'), the overlap at its threshold (tight bound); with the whole attitude held and
@@ -196,7 +236,7 @@ class ScanMatcher:
             else:  # the wide re-solve is kept for the gate alone: a wrong minimum of ICP does not hold in it
                 pose[:3, 3] = planes.translation(source, pose, bound, sigma / 3)
                 info, n_in, residual_var = planes.information(source, pose, bound)
-            cov = self._held_covariance(info, residual_var, n_in, cov, rotation_cov, pose[:3, :3])
+            cov, tail_part = self._held_covariance(info, residual_var, n_in, cov, rotation_cov, pose[:3, :3])
         correction = np.linalg.inv(predicted) @ pose
         walks.append(correction[:3, 3])
         # kiss-icp's rotation is judged, and the farthest translation: ICP's, the re-solves' at its threshold
@@ -207,7 +247,8 @@ class ScanMatcher:
         if rejected is None:
             self.kiss.adaptive_threshold.update_model_deviation(correction)
             self._add(stamp, down, pose)
-        return Registration(pose, correction, cov, info, residual_var, overlap, len(source), rejected)
+        tail_part = cov if tail_part is None else tail_part
+        return Registration(pose, correction, cov, info, residual_var, overlap, len(source), rejected, tail_part)
 
     def _held_rotation(self, R_icp: np.ndarray, R_pred: np.ndarray) -> np.ndarray:
         """The scan's rotation with the navigation's attitude: the prior's whole (``navigation``), or
@@ -217,40 +258,15 @@ class ScanMatcher:
         heading = twist_angle(R_icp @ R_pred.T, VERTICAL)
         return Rotation.from_rotvec(heading * VERTICAL).as_matrix() @ R_pred
 
-    def _held_covariance(self, info, residual_var, n, icp_cov, rotation_cov, R_OS) -> np.ndarray:
-        """Covariance of the pose whose rotation is held and whose translation is solved given it: the
-        rotation's is the prior's ``rotation_cov`` (with ``roll_pitch``, the heading's variance is
-        kiss-icp's); the translation's is σ²·H_tt⁻¹ of the point-to-plane residuals with the rotation
-        fixed, scaled and floored like the free one, plus what the held rotation's error moves it by
-        (−H_tt⁻¹·H_tr per radian: the scan's points are metres from the sensor)."""
-        c = self.cfg.covariance
-        if n < 6 or not np.isfinite(residual_var):
-            return np.full((6, 6), np.inf)
-        try:
-            H_tt_inv = np.linalg.inv(info[3:, 3:])
-        except np.linalg.LinAlgError:
-            return np.full((6, 6), np.inf)
+    def _held_covariance(self, info, residual_var, n, icp_cov, rotation_cov, R_OS) -> tuple[np.ndarray, np.ndarray]:
+        """Covariance of the pose whose rotation is held and whose translation is solved given it, and its
+        measured part (:func:`held_covariance`); with ``roll_pitch``, the rotation's heading variance is kiss-icp's."""
         cov_rot = rotation_cov
         if self.cfg.attitude == "roll_pitch":
             up = R_OS.T @ VERTICAL  # the vertical in the sensor frame
             tilt = np.eye(3) - np.outer(up, up)
             cov_rot = tilt @ rotation_cov @ tilt + (up @ icp_cov[:3, :3] @ up) * np.outer(up, up)
-        K = -H_tt_inv @ info[3:, :3]  # translation error per rotation error
-        cov = np.zeros((6, 6))
-        cov[:3, :3] = cov_rot
-        cov[3:, :3] = K @ cov_rot
-        cov[:3, 3:] = cov[3:, :3].T
-        range_var = self.range_variance
-        if c.range_noise_scale > 0 and range_var is not None:
-            # the laser's range noise, in the map's points as in the scan's: the map's is shared by every scan
-            # point matched to the same surface and does not average out over the scan's n points (n·H_tt⁻¹: the
-            # geometry's shape per point); not the default: it follows some worlds' errors and not others'
-            # (experiments/odometry/README.md, stop 39)
-            measured = c.range_noise_scale * range_var * n * H_tt_inv
-        else:  # no large plane seen yet (or the term off): the residuals' variance, scaled and floored
-            measured = c.held_scale * (c.scale * residual_var * H_tt_inv + np.eye(3) * c.floor_sigma_m**2)
-        cov[3:, 3:] = measured + K @ cov_rot @ K.T
-        return cov
+        return held_covariance(info, residual_var, self.range_variance, n, cov_rot, self.cfg.covariance)
 
     def _covariance(self, info: np.ndarray, residual_var: float, n: int) -> np.ndarray:
         c = self.cfg.covariance
