@@ -29,7 +29,7 @@ import numpy as np
 
 from frontends.laser.config import PipeConfig
 from frontends.laser.eigen import eigen3_parts
-from frontends.laser.grid import median_of, row_dot, single_threaded_blas
+from frontends.laser.grid import median_of, row_dot, single_threaded_blas, split_sorted
 
 _REFINE_REACH = 0.05  # m beyond a pipe's surface over which a refinement looks for its inliers
 # A patch's normals must turn (mean sin² of their spread across the axis, a pipe of radius r over
@@ -232,11 +232,17 @@ class _Points:
     def _inliers(self, c, a, r, cfg: PipeConfig, along, dist, rows=None):
         """Inlier mask (of the points ``rows``, all when None): within the distance tolerance of the
         surface, normal within the normal tolerance of radial. (The products with c and a are of
-        all points, then gathered: the same values as before a subset.)"""
-        nc, na = self.n @ c, self.n @ a
+        the rows' normals only when they are at least two: a matrix-vector product gives every
+        row the same value whichever other rows it holds, the one-row product does not.)"""
         pn = self.pn
-        if rows is not None:
-            pn, nc, na, along, dist = pn[rows], nc[rows], na[rows], along[rows], dist[rows]
+        if rows is None:
+            nc, na = self.n @ c, self.n @ a
+        elif len(rows) >= 2:
+            n = np.take(self.n, rows, axis=0)
+            nc, na, pn, along, dist = n @ c, n @ a, pn[rows], along[rows], dist[rows]
+        else:
+            nc, na = (self.n @ c)[rows], (self.n @ a)[rows]
+            pn, along, dist = pn[rows], along[rows], dist[rows]
         rn = pn - nc - along * na
         return (np.abs(dist - r) <= cfg.distance_tolerance) & (
             rn >= np.cos(np.radians(cfg.normal_tolerance_deg)) * dist
@@ -428,7 +434,7 @@ def _runs(t: np.ndarray, max_gap: float) -> list[np.ndarray]:
     """Split positions along the axis into runs without gaps above ``max_gap`` (index arrays)."""
     order = np.argsort(t)
     cuts = np.flatnonzero(np.diff(t[order]) > max_gap) + 1
-    return np.split(order, cuts)
+    return split_sorted(order, cuts)
 
 
 def _nanmedian_rows(a: np.ndarray) -> np.ndarray:
@@ -572,13 +578,15 @@ def _fitted_ends(flag, first: int, b, runs: list[np.ndarray]) -> list[tuple[bool
     end is where the pipe enters a coaxial part wider than itself (a socket, a valve's port), not the
     view's edge, an occlusion, or the side of a valve's body fitted as a pipe (beyond which the
     valve's other parts crowd without a coaxial shell)."""
-    bad = np.flatnonzero(flag) + first
+    bad = set((np.flatnonzero(flag) + first).tolist())
     out = []
     for run in runs:
-        lo, hi = int(b[run].min()), int(b[run].max())
-        below = np.any((bad >= lo - _FITTED_END_BINS) & (bad < lo))
-        above = np.any((bad > hi) & (bad <= hi + _FITTED_END_BINS))
-        out.append((bool(below), bool(above)))
+        # (a run's inliers are sorted along the axis, so are their bins: its first and last hold
+        # the lowest and the highest bin)
+        lo, hi = int(b[run[0]]), int(b[run[-1]])
+        below = any(k in bad for k in range(lo - _FITTED_END_BINS, lo))
+        above = any(k in bad for k in range(hi + 1, hi + _FITTED_END_BINS + 1))
+        out.append((below, above))
     return out
 
 
@@ -599,7 +607,7 @@ def _kept_runs(flag, first: int, b, t, t0: float, ta, cfg: PipeConfig) -> list[n
     if ta is not None and len(ta):
         inside = np.searchsorted(ta, tk[1:]) - np.searchsorted(ta, tk[:-1], side="right")
         cut |= (gap > cfg.min_fitting_length) & (inside >= cfg.fitting_points)
-    return np.split(kept, np.flatnonzero(cut) + 1)
+    return split_sorted(kept, np.flatnonzero(cut) + 1)
 
 
 def _bare_ends(flag, first: int, t, t0: float, runs: list[np.ndarray], te, cfg: PipeConfig, open_beyond=None):
@@ -614,25 +622,31 @@ def _bare_ends(flag, first: int, t, t0: float, runs: list[np.ndarray], te, cfg: 
     socket's surface does (measured on the tank's free pipe ends), and cut there, the pipe stops short
     and its rest reads as an object. A fitting shows more: end faces, a body, a branch, a handle off the
     cylinder. (Flagged bins in between, or a short run beyond them, join the segment.)"""
-    segments = [r for r in runs if len(r) >= cfg.min_points and np.ptp(t[r]) >= cfg.min_detect_length]
+    # (the runs' inliers are sorted along the axis: a run's first and last are its extremes)
+    ends = [(float(t[r[0]]), float(t[r[-1]])) for r in runs if len(r) >= cfg.min_points]
+    segments = [(a, b) for a, b in ends if b - a >= cfg.min_detect_length]
     if not segments:
         return None
     out = flag.copy()
     reach, bin_of = cfg.end_fitting_reach, lambda x: int(np.floor((x - t0) / cfg.bump_bin)) - first
-    hi, lo = max(float(t[r].max()) for r in segments), min(float(t[r].min()) for r in segments)
+    hi, lo = max(b for _, b in segments), min(a for a, _ in segments)
+    t_max, t_min = t.max(), t.min()
+    cleared = False
     if (
-        t.max() > hi
-        and np.searchsorted(te, t.max() + reach, "right") - np.searchsorted(te, hi) < cfg.end_fitting_points
-        and (open_beyond is None or open_beyond(t.max() + _OPEN_FROM, t.max() + _OPEN_TO))
+        t_max > hi
+        and np.searchsorted(te, t_max + reach, "right") - np.searchsorted(te, hi) < cfg.end_fitting_points
+        and (open_beyond is None or open_beyond(t_max + _OPEN_FROM, t_max + _OPEN_TO))
     ):
         out[bin_of(hi) + 1 :] = False
+        cleared = True
     if (
-        t.min() < lo
-        and np.searchsorted(te, lo, "right") - np.searchsorted(te, t.min() - reach) < cfg.end_fitting_points
-        and (open_beyond is None or open_beyond(t.min() - _OPEN_TO, t.min() - _OPEN_FROM))
+        t_min < lo
+        and np.searchsorted(te, lo, "right") - np.searchsorted(te, t_min - reach) < cfg.end_fitting_points
+        and (open_beyond is None or open_beyond(t_min - _OPEN_TO, t_min - _OPEN_FROM))
     ):
         out[: max(bin_of(lo), 0)] = False
-    return None if np.array_equal(out, flag) else out
+        cleared = True
+    return out if cleared and not np.array_equal(out, flag) else None
 
 
 def _bin_medians(b: np.ndarray, residual: np.ndarray, n_bins: int) -> tuple[np.ndarray, np.ndarray]:
