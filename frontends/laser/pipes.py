@@ -184,12 +184,27 @@ def inlier_mask(points, normals, c, a, r, cfg: PipeConfig, sq=None, pn=None) -> 
     """
     sq = row_dot(points, points) if sq is None else sq
     pn = row_dot(points, normals) if pn is None else pn
-    along = a @ points.T - np.einsum("hj,hj->h", a, c)[:, None]
-    v2 = sq[None, :] - 2.0 * (c @ points.T) + (c * c).sum(axis=1)[:, None]
-    dist = np.sqrt(np.maximum(v2 - along * along, 1e-18))
-    rn = pn[None, :] - c @ normals.T - along * (a @ normals.T)
-    close = np.abs(dist - r[:, None]) <= cfg.distance_tolerance
-    return close & (rn >= np.cos(np.radians(cfg.normal_tolerance_deg)) * dist)
+    # (the same operations in the same order as written out in the comments, into as few H×N
+    # temporaries as possible: allocating them was a good part of the cost)
+    along = a @ points.T  # along = a·p − a·c
+    along -= np.einsum("hj,hj->h", a, c)[:, None]
+    v2 = c @ points.T  # v2 = |p|² − 2 c·p + |c|²
+    v2 *= 2.0
+    np.subtract(sq[None, :], v2, out=v2)
+    v2 += (c * c).sum(axis=1)[:, None]
+    tmp = along * along  # dist = √max(v2 − along², 1e-18)
+    np.subtract(v2, tmp, out=v2)
+    dist = np.sqrt(np.maximum(v2, 1e-18, out=v2), out=v2)
+    rn = c @ normals.T  # rn = p·n − c·n − along (a·n)
+    np.subtract(pn[None, :], rn, out=rn)
+    an = a @ normals.T
+    np.multiply(along, an, out=an)
+    rn -= an
+    np.subtract(dist, r[:, None], out=tmp)  # |dist − r| within the tolerance
+    close = np.abs(tmp, out=tmp) <= cfg.distance_tolerance
+    np.multiply(np.cos(np.radians(cfg.normal_tolerance_deg)), dist, out=tmp)
+    close &= rn >= tmp
+    return close
 
 
 class _Points:
@@ -270,7 +285,11 @@ class Rays:
         cos = np.sqrt(1.0 - np.minimum(halves / np.maximum(dist, 1e-12), 1.0) ** 2)
         unit = (centres / np.maximum(dist, 1e-12)[:, None]).astype(np.float32)
         C = unit @ self.directions.T
-        return [np.flatnonzero(C[j] >= cos[j]) if ok[j] else np.zeros(0, np.int64) for j in range(len(centres))]
+        # (the rays' float32 cosines against the least float32 not below each cone's cosine: the
+        # same test as against the float64 cosine, without converting the N cosines to float64)
+        lim = cos.astype(np.float32)
+        lim = np.where(lim.astype(np.float64) < cos, np.nextafter(lim, np.float32(np.inf)), lim)
+        return [np.flatnonzero(C[j] >= lim[j]) if ok[j] else np.zeros(0, np.int64) for j in range(len(centres))]
 
     def _count(self, sel, c, a, r, t0, t1, cfg: PipeConfig) -> tuple[int, int]:
         d, rng = np.take(self.directions, sel, axis=0).astype(np.float64), self.ranges[sel]
@@ -280,14 +299,14 @@ class Rays:
         A = np.maximum(row_dot(w, w), 1e-12)
         B = -2.0 * (w @ cp)
         disc = B * B - 4.0 * A * (cp @ cp - r * r)
+        hit = np.flatnonzero(disc > 0)  # (the rest miss the cylinder: the chords of these only)
+        A, B, disc, da, rng = A[hit], B[hit], disc[hit], da[hit], rng[hit]
         root = np.sqrt(np.maximum(disc, 0.0))
         s1, s2 = (-B - root) / (2 * A), (-B + root) / (2 * A)
         t_mid = 0.5 * (s1 + s2) * da - c @ a
-        crossing = (
-            (disc > 0) & (s1 > 0) & (s2 - s1 >= cfg.see_through_chord) & (t_mid > t0 + 0.01) & (t_mid < t1 - 0.01)
-        )
+        crossing = (s1 > 0) & (s2 - s1 >= cfg.see_through_chord) & (t_mid > t0 + 0.01) & (t_mid < t1 - 0.01)
         behind = crossing & (rng > s2 + cfg.see_through_margin)
-        return int(behind.sum()), int(crossing.sum())
+        return int(np.count_nonzero(behind)), int(np.count_nonzero(crossing))
 
     def see_through(self, c, a, r, t0, t1, cfg: PipeConfig) -> tuple[int, int]:
         """(rays returning behind the cylinder (c, a, r) between t0 and t1 along a, rays crossing
