@@ -125,8 +125,9 @@ def patch_hypotheses(points, normals, grid, seeds, usable, cfg: PipeConfig):
     only ~15 % give a radius near the tank's at this resolution: fewer, better hypotheses.
     """
     nb = grid.neighbours(2, rows=seeds)
-    s_of, col = np.nonzero(np.append(usable, False)[nb])  # (seed, neighbour) pairs, by seed; −1 reads False
-    j = nb[s_of, col]
+    # (seed, neighbour) pairs, by seed (−1 reads False), by flat positions: np.nonzero's order
+    pair = np.flatnonzero(np.append(usable, False)[nb])
+    s_of, j = pair // nb.shape[1], np.take(nb, pair)
     cnt = np.bincount(s_of, minlength=len(seeds))
     # (rows gathered by np.take: several times faster than fancy indexing on N×3 arrays)
     N = np.take(normals, j, axis=0)
@@ -280,6 +281,12 @@ class Rays:
     def _cones(self, centres: np.ndarray, halves: np.ndarray) -> list[np.ndarray]:
         """Indices of the rays inside the cone around each bounding sphere (centre, radius), all
         spheres in one matrix product (a sphere around the sensor gets no rays)."""
+        C, lim, ok = self._cosines(centres, halves)
+        return [np.flatnonzero(C[j] >= lim[j]) if ok[j] else np.zeros(0, np.int64) for j in range(len(centres))]
+
+    def _cosines(self, centres: np.ndarray, halves: np.ndarray):
+        """(the cosines of every ray to the direction of every sphere's centre (S×N, float32), the
+        cones' least cosines (S, float32), whether each cone is defined) of :meth:`_cones`."""
         dist = np.sqrt((centres * centres).sum(axis=1))
         ok = dist > halves
         cos = np.sqrt(1.0 - np.minimum(halves / np.maximum(dist, 1e-12), 1.0) ** 2)
@@ -289,7 +296,7 @@ class Rays:
         # same test as against the float64 cosine, without converting the N cosines to float64)
         lim = cos.astype(np.float32)
         lim = np.where(lim.astype(np.float64) < cos, np.nextafter(lim, np.float32(np.inf)), lim)
-        return [np.flatnonzero(C[j] >= lim[j]) if ok[j] else np.zeros(0, np.int64) for j in range(len(centres))]
+        return C, lim, ok
 
     def _count(self, sel, c, a, r, t0, t1, cfg: PipeConfig) -> tuple[int, int]:
         d, rng = np.take(self.directions, sel, axis=0).astype(np.float64), self.ranges[sel]
@@ -320,8 +327,8 @@ class Rays:
     def seen_at(self, point: np.ndarray, radius: float, min_rays: int = 3) -> bool:
         """Whether at least ``min_rays`` of the scan's rays pass within ``radius`` of ``point``
         (seen there: outside the field of view, or in a hole of a stereo cloud, none do)."""
-        (sel,) = self._cones(np.asarray(point, float)[None], np.array([radius]))
-        return len(sel) >= min_rays
+        C, lim, ok = self._cosines(np.asarray(point, float)[None], np.array([radius]))
+        return (int(np.count_nonzero(C[0] >= lim[0])) if ok[0] else 0) >= min_rays
 
     def solid(self, pipes: list[Pipe], cfg: PipeConfig) -> np.ndarray:
         """Per pipe segment: whether the rays crossing its cylinder end on it (``see_through``)."""
@@ -868,26 +875,32 @@ def _cut_into_segments(
     None; along a pipe lying on the ``seabed``, only those over it, :func:`_facing_sensor`), keep
     the runs long enough (``held``: the nominal radius the cylinder was fitted with, held in the
     segments' fits)."""
-    t = np.take(points, idx, axis=0) @ ab
+    P = np.take(points, idx, axis=0)
+    t = P @ ab
     if len(idx) < cfg.min_points or t.max() - t.min() < cfg.min_detect_length:
         return []  # no run of these inliers can be a segment
-    pc = points @ cb
     t_all = points @ ab - ab @ cb
-    res_all = np.sqrt(np.maximum(sq - 2.0 * pc + cb @ cb - t_all * t_all, 0.0)) - rb
-    t, residual = t_all[idx], res_all[idx]
-    span = (t_all > t.min() - cfg.max_gap) & (t_all < t.max() + cfg.max_gap)
-    outside = (res_all > cfg.distance_tolerance) & span
+    t = t_all[idx]
+    # Distances to the surface of the inliers and of the points along their span only: a
+    # matrix-vector product gives every row the same value whichever other rows it holds, when
+    # it has at least two (the inliers are at least min_points ≥ 5 here).
+    residual = np.sqrt(np.maximum(sq[idx] - 2.0 * (P @ cb) + cb @ cb - t * t, 0.0)) - rb
+    span = np.flatnonzero((t_all > t.min() - cfg.max_gap) & (t_all < t.max() + cfg.max_gap))
+    P_span, t_span = np.take(points, span, axis=0), t_all[span]
+    pc = P_span @ cb if len(span) >= 2 else (points @ cb)[span]
+    res_span = np.sqrt(np.maximum(sq[span] - 2.0 * pc + cb @ cb - t_span * t_span, 0.0)) - rb
+    outside = res_span > cfg.distance_tolerance
     if foreign is not None:
-        outside &= foreign
+        outside &= foreign[span]
     if (
         seabed is not None
         and cfg.fitting_window_deg < 180.0
         and outside.any()  # (nothing to narrow down otherwise: the ground's height is not read)
         and seabed.on_or_unknown(cb, ab, rb, t.min(), t.max())
     ):
-        outside[outside] = _facing_sensor(np.take(points, np.flatnonzero(outside), axis=0), cb, ab, cfg)
-    near = outside & (res_all < cfg.fitting_reach)
-    around = outside & (res_all < cfg.gap_reach)
+        outside[outside] = _facing_sensor(np.take(P_span, np.flatnonzero(outside), axis=0), cb, ab, cfg)
+    near = outside & (res_span < cfg.fitting_reach)
+    around = outside & (res_span < cfg.gap_reach)
     out = []
     open_beyond = None
     if rays is not None and cfg.end_see_through:
@@ -897,7 +910,7 @@ def _cut_into_segments(
             return crossing >= _MIN_OPEN_RAYS and behind >= 0.5 * crossing
 
     ends: list[tuple[bool, bool]] = []
-    runs = split_at_fittings(t, residual, t_all[near], cfg, t_all[around], open_beyond, ends)
+    runs = split_at_fittings(t, residual, t_span[near], cfg, t_span[around], open_beyond, ends)
     for run, (lo, hi) in zip(runs, ends):
         seg = idx[run]
         if len(seg) < cfg.min_points:
