@@ -414,10 +414,10 @@ def _circle_fit(x: np.ndarray) -> tuple[np.ndarray, float]:
     sol, *_ = np.linalg.lstsq(A, (x**2).sum(axis=1), rcond=None)
     cx = sol[:2]
     r = float(np.sqrt(max(sol[2] + cx @ cx, 1e-12)))
-    use = np.ones(len(x), bool)
+    use = None  # all points, until trimmed
     for it in range(6):
-        dv = x[use] - cx
-        dn = np.maximum(np.sqrt((dv * dv).sum(axis=1)), 1e-12)
+        dv = (x if use is None else x[use]) - cx
+        dn = np.maximum(_norms2(dv), 1e-12)
         J = np.empty((len(dv), 3))
         J[:, :2] = -dv / dn[:, None]
         J[:, 2] = -1.0
@@ -427,12 +427,20 @@ def _circle_fit(x: np.ndarray) -> tuple[np.ndarray, float]:
             break
         cx, r = cx + step[:2], r + step[2]
         if it in (2, 4):
-            res = np.linalg.norm(x - cx, axis=1) - r
-            sigma = 1.4826 * median_of(np.abs(res[use]))
+            res = _norms2(x - cx) - r
+            sigma = 1.4826 * median_of(np.abs(res if use is None else res[use]))
             keep = np.abs(res) <= max(3.0 * sigma, 0.003)
             if keep.sum() >= 6:
                 use = keep
     return cx, r
+
+
+def _norms2(v: np.ndarray) -> np.ndarray:
+    """Lengths of the rows of an N×2 array: ``np.linalg.norm(v, axis=1)`` and
+    ``np.sqrt((v * v).sum(axis=1))`` to the last bit (a row sum of two is their one addition),
+    without the per-row loop of a reduction along rows of 2."""
+    v0, v1 = v[:, 0], v[:, 1]
+    return np.sqrt(v0 * v0 + v1 * v1)
 
 
 def free_radius(points: np.ndarray, c: np.ndarray, a: np.ndarray) -> tuple[float, float]:
