@@ -294,9 +294,7 @@ class Rays:
         C = unit @ self.directions.T
         # (the rays' float32 cosines against the least float32 not below each cone's cosine: the
         # same test as against the float64 cosine, without converting the N cosines to float64)
-        lim = cos.astype(np.float32)
-        lim = np.where(lim.astype(np.float64) < cos, np.nextafter(lim, np.float32(np.inf)), lim)
-        return C, lim, ok
+        return C, least_float32_not_below(cos), ok
 
     def _count(self, sel, c, a, r, t0, t1, cfg: PipeConfig) -> tuple[int, int]:
         d, rng = np.take(self.directions, sel, axis=0).astype(np.float64), self.ranges[sel]
@@ -341,6 +339,13 @@ class Rays:
             behind, crossing = self._count(sel, p.p, p.axis, p.radius, 0.0, p.length, cfg)
             out[k] = behind <= cfg.max_see_through * crossing
         return out
+
+
+def least_float32_not_below(x: np.ndarray) -> np.ndarray:
+    """Per float64 value x, the least float32 y ≥ x: for every float32 v, v ≥ x exactly when v ≥ y
+    (a comparison of float32 values with float64 ones in float32, to the same result)."""
+    y = x.astype(np.float32)
+    return np.where(y.astype(np.float64) < x, np.nextafter(y, np.float32(np.inf)), y)
 
 
 def fit_cylinder(points: np.ndarray, normals: np.ndarray, a0: np.ndarray, cfg: PipeConfig, radius=None):
