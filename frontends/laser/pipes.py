@@ -131,8 +131,10 @@ def patch_hypotheses(points, normals, grid, seeds, usable, cfg: PipeConfig):
     cnt = np.bincount(s_of, minlength=len(seeds))
     # (rows gathered by np.take: several times faster than fancy indexing on N×3 arrays)
     N = np.take(normals, j, axis=0)
-    M = _sums_by_seed(np.take(N, [0, 0, 0, 1, 1, 2], axis=1) * np.take(N, [0, 1, 2, 1, 2, 2], axis=1), cnt)
-    lam0, lam1, _, a = eigen3_parts(M.T)
+    # (the six products n_i n_j as rows: the sums run along contiguous rows, and are the 6×S parts
+    # eigen3_parts takes)
+    M = _sums_by_seed(np.take(N.T, [0, 0, 0, 1, 1, 2], axis=0) * np.take(N.T, [0, 1, 2, 1, 2, 2], axis=0), cnt)
+    lam0, lam1, _, a = eigen3_parts(M)
     # Offsets from the seed across the axis, of positions and of normals.
     aj = np.take(a, s_of, axis=0)
     ps, ns = np.take(points, seeds, axis=0), np.take(normals, seeds, axis=0)
@@ -140,8 +142,8 @@ def patch_hypotheses(points, normals, grid, seeds, usable, cfg: PipeConfig):
     dn = N - np.take(ns, s_of, axis=0)
     dp -= np.einsum("pj,pj->p", dp, aj)[:, None] * aj
     dn -= np.einsum("pj,pj->p", dn, aj)[:, None] * aj
-    sums = _sums_by_seed(np.column_stack([np.einsum("pj,pj->p", dp, dn), np.einsum("pj,pj->p", dn, dn)]), cnt)
-    r = sums[:, 0] / np.maximum(sums[:, 1], 1e-300)
+    sums = _sums_by_seed(np.stack([np.einsum("pj,pj->p", dp, dn), np.einsum("pj,pj->p", dn, dn)]), cnt)
+    r = sums[0] / np.maximum(sums[1], 1e-300)
     ok = (cnt >= 6) & (lam1 >= _MIN_TURN * cnt) & (lam0 <= _MAX_OFF_AXIS * lam1)
     nominal = _nominal_radii(cfg)
     if nominal:
@@ -167,12 +169,12 @@ def _nominal_radii(cfg: PipeConfig) -> list[float]:
 
 
 def _sums_by_seed(x: np.ndarray, counts: np.ndarray) -> np.ndarray:
-    """Sums of consecutive row groups of ``x`` (P×k, grouped by seed, ``counts`` rows each; a
-    group may be empty), by differences of a cumulative sum."""
-    c = np.zeros((len(x) + 1, x.shape[1]))
-    np.cumsum(x, axis=0, out=c[1:])
+    """Sums of consecutive column groups of ``x`` (k×P, grouped by seed, ``counts`` columns each; a
+    group may be empty), by differences of a cumulative sum along the rows (k×S)."""
+    c = np.zeros((x.shape[0], x.shape[1] + 1))
+    np.cumsum(x, axis=1, out=c[:, 1:])
     end = np.cumsum(counts)
-    return c[end] - c[end - counts]
+    return c[:, end] - c[:, end - counts]
 
 
 def inlier_mask(points, normals, c, a, r, cfg: PipeConfig, sq=None, pn=None) -> np.ndarray:
