@@ -140,6 +140,38 @@ def test_row_dot_is_the_row_sum_to_the_last_bit():
     assert np.array_equal(row_dot(a, b), (a * b).sum(axis=1))
 
 
+def test_split_sorted_is_np_split():
+    from frontends.laser.grid import split_sorted
+
+    x = np.arange(10) * 3
+    for cuts in ([], [0], [4], [1, 2, 9], [0, 10], [3, 3, 7]):
+        got, want = split_sorted(x, np.array(cuts, np.int64)), np.split(x, cuts)
+        assert len(got) == len(want) and all(np.array_equal(g, w) for g, w in zip(got, want))
+
+
+def test_norms2_is_np_linalg_norm_to_the_last_bit():
+    from frontends.laser.pipes import _norms2
+
+    v = np.random.default_rng(6).normal(size=(1000, 2)) * 1e2
+    assert np.array_equal(_norms2(v), np.linalg.norm(v, axis=1))
+    assert np.array_equal(_norms2(v), np.sqrt((v * v).sum(axis=1)))
+
+
+def test_least_float32_not_below_compares_like_float64():
+    from frontends.laser.pipes import least_float32_not_below
+
+    rng = np.random.default_rng(7)
+    x = rng.uniform(0.0, 1.0, 200)
+    x[:3] = (0.5, 1.0, 0.0)  # exactly float32 values: their own bound
+    lim = least_float32_not_below(x)
+    assert lim.dtype == np.float32
+    # float32 values at, just below and just above every bound and every x's nearest float32
+    near = x.astype(np.float32)
+    v = np.concatenate([lim, np.nextafter(lim, np.float32(0)), np.nextafter(lim, np.float32(2)), near])
+    for xi, li in zip(x, lim):
+        assert np.array_equal(v >= li, v.astype(np.float64) >= xi)
+
+
 def test_eigen3_parts_equals_eigen3_on_the_assembled_matrices():
     from frontends.laser.eigen import eigen3_parts
 

@@ -118,11 +118,22 @@ def _fit_planes(a, b, h, w, ij, shape, k: int, ridge: float, max_slope: float, m
     seen where the floor is hidden, not ground."""
     flat = ij[:, 0] * shape[1] + ij[:, 1]
     n = shape[0] * shape[1]
-    moments = [np.ones_like(a), w, w * a, w * b, w * h, w * a * a, w * a * b, w * b * b, w * a * h, w * b * h]
+    # The ten moments 1, w, w·a, w·b, w·h, w·a·a, w·a·b, w·b·b, w·a·h, w·b·h (products taken left to
+    # right), written into one array: w·a·a is (w·a)·a, so it is row 2 times a.
+    moments = np.empty((10, len(a)))
+    moments[0], moments[1] = 1.0, w
+    np.multiply(w, a, out=moments[2])
+    np.multiply(w, b, out=moments[3])
+    np.multiply(w, h, out=moments[4])
+    np.multiply(moments[2], a, out=moments[5])
+    np.multiply(moments[2], b, out=moments[6])
+    np.multiply(moments[3], b, out=moments[7])
+    np.multiply(moments[2], h, out=moments[8])
+    np.multiply(moments[3], h, out=moments[9])
     # (all ten moments binned by one bincount, layer m of cell f at m·n + f, and box-summed at once:
     # each bin adds its points in the same order as a bincount per moment, so the same sums)
     layer = (np.arange(len(moments))[:, None] * n + flat[None, :]).ravel()
-    binned = np.bincount(layer, np.concatenate(moments), len(moments) * n).reshape((len(moments),) + shape)
+    binned = np.bincount(layer, moments.ravel(), len(moments) * n).reshape((len(moments),) + shape)
     num, cnt, sa, sb, sh, saa, sab, sbb, sah, sbh = _box_sum(binned, k)
     coef = np.full(shape + (3,), np.nan)
     ok = num >= _MIN_FIT
@@ -153,7 +164,13 @@ def _low_heights(flat: np.ndarray, h: np.ndarray, w: np.ndarray, n_cells: int) -
     """Per cell, the height below which ``_LOW_SHARE`` of its raw points lie (the voxels weighted by
     their points: a voxel of a lone return a few cm behind a dense surface weighs nothing); +inf
     for an empty cell."""
-    order = np.lexsort((h, flat))
+    if n_cells <= 1 << 16:
+        # np.lexsort((h, flat))'s order by two stable sorts, the second on 16-bit cells (a radix
+        # sort, several times faster than the comparison sort lexsort runs on int64)
+        by_h = np.argsort(h, kind="stable")
+        order = by_h[np.argsort(flat[by_h].astype(np.uint16), kind="stable")]
+    else:
+        order = np.lexsort((h, flat))
     f, hs, ws = flat[order], h[order], w[order]
     cum = np.cumsum(ws)
     start = np.flatnonzero(np.r_[True, f[1:] != f[:-1]])

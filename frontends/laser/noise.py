@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from frontends.laser.grid import row_dot
+from frontends.laser.grid import median_of, row_dot
 from frontends.laser.preprocess import Preprocessed
 
 _MIN_POINTS = 200  # fewer smooth points than this: no measurement
@@ -60,25 +60,26 @@ def measure_noise(raw: np.ndarray, pre: Preprocessed) -> NoiseModel | None:
     n = np.take(pre.normals, v, axis=0)
     rng = np.sqrt(row_dot(p, p))
     facing = np.abs(row_dot(p, n)) / np.maximum(rng, 1e-9)  # |cos| of the incidence
-    ok = facing >= _MIN_FACING
-    if ok.sum() < _MIN_POINTS:
+    ok = np.flatnonzero(facing >= _MIN_FACING)  # (gathers by index: faster than boolean selections)
+    if len(ok) < _MIN_POINTS:
         return None
-    p, v, n, rng, facing = p[ok], v[ok], n[ok], rng[ok], facing[ok]
+    p, n, v, rng, facing = np.take(p, ok, axis=0), np.take(n, ok, axis=0), v[ok], rng[ok], facing[ok]
     # the offset along the surface normal, brought back to the ray (where the noise is)
     off = np.abs(row_dot(p - np.take(pre.points, v, axis=0), n)) / facing / np.sqrt(1.0 - 1.0 / counts[v])
     edges = np.quantile(rng, np.linspace(0, 1, _BANDS + 1))
     band = np.clip(np.searchsorted(edges, rng, side="right") - 1, 0, _BANDS - 1)
     r_mid, sig, w = [], [], []
     for b in range(_BANDS):
-        sel = band == b
-        if sel.sum() < _MIN_POINTS // _BANDS:
+        sel = np.flatnonzero(band == b)
+        if len(sel) < _MIN_POINTS // _BANDS:
             continue
-        r_mid.append(float(np.median(rng[sel])))
-        sig.append(1.4826 * float(np.median(off[sel])))
-        w.append(float(sel.sum()))
+        # (median_of: np.median's values, without its overhead per call)
+        r_mid.append(median_of(rng[sel]))
+        sig.append(1.4826 * median_of(off[sel]))
+        w.append(float(len(sel)))
     if not sig:
         return None
-    r_ref = float(np.median(rng))
+    r_ref = median_of(rng)
     r_mid, sig, w = np.array(r_mid), np.maximum(np.array(sig), 1e-5), np.array(w)
     k = 0.0
     span = np.log(r_mid.max() / r_mid.min()) if len(r_mid) > 1 else 0.0

@@ -29,7 +29,7 @@ import numpy as np
 
 from frontends.laser.config import PipeConfig
 from frontends.laser.eigen import eigen3_parts
-from frontends.laser.grid import median_of, row_dot, single_threaded_blas
+from frontends.laser.grid import median_of, row_dot, single_threaded_blas, split_sorted
 
 _REFINE_REACH = 0.05  # m beyond a pipe's surface over which a refinement looks for its inliers
 # A patch's normals must turn (mean sin² of their spread across the axis, a pipe of radius r over
@@ -125,13 +125,16 @@ def patch_hypotheses(points, normals, grid, seeds, usable, cfg: PipeConfig):
     only ~15 % give a radius near the tank's at this resolution: fewer, better hypotheses.
     """
     nb = grid.neighbours(2, rows=seeds)
-    s_of, col = np.nonzero(np.append(usable, False)[nb])  # (seed, neighbour) pairs, by seed; −1 reads False
-    j = nb[s_of, col]
+    # (seed, neighbour) pairs, by seed (−1 reads False), by flat positions: np.nonzero's order
+    pair = np.flatnonzero(np.append(usable, False)[nb])
+    s_of, j = pair // nb.shape[1], np.take(nb, pair)
     cnt = np.bincount(s_of, minlength=len(seeds))
     # (rows gathered by np.take: several times faster than fancy indexing on N×3 arrays)
     N = np.take(normals, j, axis=0)
-    M = _sums_by_seed(np.take(N, [0, 0, 0, 1, 1, 2], axis=1) * np.take(N, [0, 1, 2, 1, 2, 2], axis=1), cnt)
-    lam0, lam1, _, a = eigen3_parts(M.T)
+    # (the six products n_i n_j as rows: the sums run along contiguous rows, and are the 6×S parts
+    # eigen3_parts takes)
+    M = _sums_by_seed(np.take(N.T, [0, 0, 0, 1, 1, 2], axis=0) * np.take(N.T, [0, 1, 2, 1, 2, 2], axis=0), cnt)
+    lam0, lam1, _, a = eigen3_parts(M)
     # Offsets from the seed across the axis, of positions and of normals.
     aj = np.take(a, s_of, axis=0)
     ps, ns = np.take(points, seeds, axis=0), np.take(normals, seeds, axis=0)
@@ -139,8 +142,8 @@ def patch_hypotheses(points, normals, grid, seeds, usable, cfg: PipeConfig):
     dn = N - np.take(ns, s_of, axis=0)
     dp -= np.einsum("pj,pj->p", dp, aj)[:, None] * aj
     dn -= np.einsum("pj,pj->p", dn, aj)[:, None] * aj
-    sums = _sums_by_seed(np.column_stack([np.einsum("pj,pj->p", dp, dn), np.einsum("pj,pj->p", dn, dn)]), cnt)
-    r = sums[:, 0] / np.maximum(sums[:, 1], 1e-300)
+    sums = _sums_by_seed(np.stack([np.einsum("pj,pj->p", dp, dn), np.einsum("pj,pj->p", dn, dn)]), cnt)
+    r = sums[0] / np.maximum(sums[1], 1e-300)
     ok = (cnt >= 6) & (lam1 >= _MIN_TURN * cnt) & (lam0 <= _MAX_OFF_AXIS * lam1)
     nominal = _nominal_radii(cfg)
     if nominal:
@@ -166,12 +169,12 @@ def _nominal_radii(cfg: PipeConfig) -> list[float]:
 
 
 def _sums_by_seed(x: np.ndarray, counts: np.ndarray) -> np.ndarray:
-    """Sums of consecutive row groups of ``x`` (P×k, grouped by seed, ``counts`` rows each; a
-    group may be empty), by differences of a cumulative sum."""
-    c = np.zeros((len(x) + 1, x.shape[1]))
-    np.cumsum(x, axis=0, out=c[1:])
+    """Sums of consecutive column groups of ``x`` (k×P, grouped by seed, ``counts`` columns each; a
+    group may be empty), by differences of a cumulative sum along the rows (k×S)."""
+    c = np.zeros((x.shape[0], x.shape[1] + 1))
+    np.cumsum(x, axis=1, out=c[:, 1:])
     end = np.cumsum(counts)
-    return c[end] - c[end - counts]
+    return c[:, end] - c[:, end - counts]
 
 
 def inlier_mask(points, normals, c, a, r, cfg: PipeConfig, sq=None, pn=None) -> np.ndarray:
@@ -184,12 +187,27 @@ def inlier_mask(points, normals, c, a, r, cfg: PipeConfig, sq=None, pn=None) -> 
     """
     sq = row_dot(points, points) if sq is None else sq
     pn = row_dot(points, normals) if pn is None else pn
-    along = a @ points.T - np.einsum("hj,hj->h", a, c)[:, None]
-    v2 = sq[None, :] - 2.0 * (c @ points.T) + (c * c).sum(axis=1)[:, None]
-    dist = np.sqrt(np.maximum(v2 - along * along, 1e-18))
-    rn = pn[None, :] - c @ normals.T - along * (a @ normals.T)
-    close = np.abs(dist - r[:, None]) <= cfg.distance_tolerance
-    return close & (rn >= np.cos(np.radians(cfg.normal_tolerance_deg)) * dist)
+    # (the same operations in the same order as written out in the comments, into as few H×N
+    # temporaries as possible: allocating them was a good part of the cost)
+    along = a @ points.T  # along = a·p − a·c
+    along -= np.einsum("hj,hj->h", a, c)[:, None]
+    v2 = c @ points.T  # v2 = |p|² − 2 c·p + |c|²
+    v2 *= 2.0
+    np.subtract(sq[None, :], v2, out=v2)
+    v2 += (c * c).sum(axis=1)[:, None]
+    tmp = along * along  # dist = √max(v2 − along², 1e-18)
+    np.subtract(v2, tmp, out=v2)
+    dist = np.sqrt(np.maximum(v2, 1e-18, out=v2), out=v2)
+    rn = c @ normals.T  # rn = p·n − c·n − along (a·n)
+    np.subtract(pn[None, :], rn, out=rn)
+    an = a @ normals.T
+    np.multiply(along, an, out=an)
+    rn -= an
+    np.subtract(dist, r[:, None], out=tmp)  # |dist − r| within the tolerance
+    close = np.abs(tmp, out=tmp) <= cfg.distance_tolerance
+    np.multiply(np.cos(np.radians(cfg.normal_tolerance_deg)), dist, out=tmp)
+    close &= rn >= tmp
+    return close
 
 
 class _Points:
@@ -232,11 +250,17 @@ class _Points:
     def _inliers(self, c, a, r, cfg: PipeConfig, along, dist, rows=None):
         """Inlier mask (of the points ``rows``, all when None): within the distance tolerance of the
         surface, normal within the normal tolerance of radial. (The products with c and a are of
-        all points, then gathered: the same values as before a subset.)"""
-        nc, na = self.n @ c, self.n @ a
+        the rows' normals only when they are at least two: a matrix-vector product gives every
+        row the same value whichever other rows it holds, the one-row product does not.)"""
         pn = self.pn
-        if rows is not None:
-            pn, nc, na, along, dist = pn[rows], nc[rows], na[rows], along[rows], dist[rows]
+        if rows is None:
+            nc, na = self.n @ c, self.n @ a
+        elif len(rows) >= 2:
+            n = np.take(self.n, rows, axis=0)
+            nc, na, pn, along, dist = n @ c, n @ a, pn[rows], along[rows], dist[rows]
+        else:
+            nc, na = (self.n @ c)[rows], (self.n @ a)[rows]
+            pn, along, dist = pn[rows], along[rows], dist[rows]
         rn = pn - nc - along * na
         return (np.abs(dist - r) <= cfg.distance_tolerance) & (
             rn >= np.cos(np.radians(cfg.normal_tolerance_deg)) * dist
@@ -259,12 +283,20 @@ class Rays:
     def _cones(self, centres: np.ndarray, halves: np.ndarray) -> list[np.ndarray]:
         """Indices of the rays inside the cone around each bounding sphere (centre, radius), all
         spheres in one matrix product (a sphere around the sensor gets no rays)."""
+        C, lim, ok = self._cosines(centres, halves)
+        return [np.flatnonzero(C[j] >= lim[j]) if ok[j] else np.zeros(0, np.int64) for j in range(len(centres))]
+
+    def _cosines(self, centres: np.ndarray, halves: np.ndarray):
+        """(the cosines of every ray to the direction of every sphere's centre (S×N, float32), the
+        cones' least cosines (S, float32), whether each cone is defined) of :meth:`_cones`."""
         dist = np.sqrt((centres * centres).sum(axis=1))
         ok = dist > halves
         cos = np.sqrt(1.0 - np.minimum(halves / np.maximum(dist, 1e-12), 1.0) ** 2)
         unit = (centres / np.maximum(dist, 1e-12)[:, None]).astype(np.float32)
         C = unit @ self.directions.T
-        return [np.flatnonzero(C[j] >= cos[j]) if ok[j] else np.zeros(0, np.int64) for j in range(len(centres))]
+        # (the rays' float32 cosines against the least float32 not below each cone's cosine: the
+        # same test as against the float64 cosine, without converting the N cosines to float64)
+        return C, least_float32_not_below(cos), ok
 
     def _count(self, sel, c, a, r, t0, t1, cfg: PipeConfig) -> tuple[int, int]:
         d, rng = np.take(self.directions, sel, axis=0).astype(np.float64), self.ranges[sel]
@@ -274,14 +306,14 @@ class Rays:
         A = np.maximum(row_dot(w, w), 1e-12)
         B = -2.0 * (w @ cp)
         disc = B * B - 4.0 * A * (cp @ cp - r * r)
+        hit = np.flatnonzero(disc > 0)  # (the rest miss the cylinder: the chords of these only)
+        A, B, disc, da, rng = A[hit], B[hit], disc[hit], da[hit], rng[hit]
         root = np.sqrt(np.maximum(disc, 0.0))
         s1, s2 = (-B - root) / (2 * A), (-B + root) / (2 * A)
         t_mid = 0.5 * (s1 + s2) * da - c @ a
-        crossing = (
-            (disc > 0) & (s1 > 0) & (s2 - s1 >= cfg.see_through_chord) & (t_mid > t0 + 0.01) & (t_mid < t1 - 0.01)
-        )
+        crossing = (s1 > 0) & (s2 - s1 >= cfg.see_through_chord) & (t_mid > t0 + 0.01) & (t_mid < t1 - 0.01)
         behind = crossing & (rng > s2 + cfg.see_through_margin)
-        return int(behind.sum()), int(crossing.sum())
+        return int(np.count_nonzero(behind)), int(np.count_nonzero(crossing))
 
     def see_through(self, c, a, r, t0, t1, cfg: PipeConfig) -> tuple[int, int]:
         """(rays returning behind the cylinder (c, a, r) between t0 and t1 along a, rays crossing
@@ -295,8 +327,8 @@ class Rays:
     def seen_at(self, point: np.ndarray, radius: float, min_rays: int = 3) -> bool:
         """Whether at least ``min_rays`` of the scan's rays pass within ``radius`` of ``point``
         (seen there: outside the field of view, or in a hole of a stereo cloud, none do)."""
-        (sel,) = self._cones(np.asarray(point, float)[None], np.array([radius]))
-        return len(sel) >= min_rays
+        C, lim, ok = self._cosines(np.asarray(point, float)[None], np.array([radius]))
+        return (int(np.count_nonzero(C[0] >= lim[0])) if ok[0] else 0) >= min_rays
 
     def solid(self, pipes: list[Pipe], cfg: PipeConfig) -> np.ndarray:
         """Per pipe segment: whether the rays crossing its cylinder end on it (``see_through``)."""
@@ -309,6 +341,13 @@ class Rays:
             behind, crossing = self._count(sel, p.p, p.axis, p.radius, 0.0, p.length, cfg)
             out[k] = behind <= cfg.max_see_through * crossing
         return out
+
+
+def least_float32_not_below(x: np.ndarray) -> np.ndarray:
+    """Per float64 value x, the least float32 y ≥ x: for every float32 v, v ≥ x exactly when v ≥ y
+    (a comparison of float32 values with float64 ones in float32, to the same result)."""
+    y = x.astype(np.float32)
+    return np.where(y.astype(np.float64) < x, np.nextafter(y, np.float32(np.inf)), y)
 
 
 def fit_cylinder(points: np.ndarray, normals: np.ndarray, a0: np.ndarray, cfg: PipeConfig, radius=None):
@@ -382,10 +421,10 @@ def _circle_fit(x: np.ndarray) -> tuple[np.ndarray, float]:
     sol, *_ = np.linalg.lstsq(A, (x**2).sum(axis=1), rcond=None)
     cx = sol[:2]
     r = float(np.sqrt(max(sol[2] + cx @ cx, 1e-12)))
-    use = np.ones(len(x), bool)
+    use = None  # all points, until trimmed
     for it in range(6):
-        dv = x[use] - cx
-        dn = np.maximum(np.sqrt((dv * dv).sum(axis=1)), 1e-12)
+        dv = (x if use is None else x[use]) - cx
+        dn = np.maximum(_norms2(dv), 1e-12)
         J = np.empty((len(dv), 3))
         J[:, :2] = -dv / dn[:, None]
         J[:, 2] = -1.0
@@ -395,12 +434,20 @@ def _circle_fit(x: np.ndarray) -> tuple[np.ndarray, float]:
             break
         cx, r = cx + step[:2], r + step[2]
         if it in (2, 4):
-            res = np.linalg.norm(x - cx, axis=1) - r
-            sigma = 1.4826 * median_of(np.abs(res[use]))
+            res = _norms2(x - cx) - r
+            sigma = 1.4826 * median_of(np.abs(res if use is None else res[use]))
             keep = np.abs(res) <= max(3.0 * sigma, 0.003)
             if keep.sum() >= 6:
                 use = keep
     return cx, r
+
+
+def _norms2(v: np.ndarray) -> np.ndarray:
+    """Lengths of the rows of an N×2 array: ``np.linalg.norm(v, axis=1)`` and
+    ``np.sqrt((v * v).sum(axis=1))`` to the last bit (a row sum of two is their one addition),
+    without the per-row loop of a reduction along rows of 2."""
+    v0, v1 = v[:, 0], v[:, 1]
+    return np.sqrt(v0 * v0 + v1 * v1)
 
 
 def free_radius(points: np.ndarray, c: np.ndarray, a: np.ndarray) -> tuple[float, float]:
@@ -428,7 +475,7 @@ def _runs(t: np.ndarray, max_gap: float) -> list[np.ndarray]:
     """Split positions along the axis into runs without gaps above ``max_gap`` (index arrays)."""
     order = np.argsort(t)
     cuts = np.flatnonzero(np.diff(t[order]) > max_gap) + 1
-    return np.split(order, cuts)
+    return split_sorted(order, cuts)
 
 
 def _nanmedian_rows(a: np.ndarray) -> np.ndarray:
@@ -494,9 +541,8 @@ def bump_profile(t: np.ndarray, residual: np.ndarray, cfg: PipeConfig) -> BumpPr
     w = int(np.ceil(cfg.bump_window / cfg.bump_bin))
     padded = np.full(n_bins + 2 * w, np.nan)
     padded[w : w + n_bins] = med
-    level = _nanmedian_rows(
-        np.lib.stride_tricks.as_strided(padded, (n_bins, 2 * w + 1), padded.strides * 2, writeable=False)
-    )
+    # (the windows gathered by index: as_strided's views cost more to set up than this copy)
+    level = _nanmedian_rows(padded[np.arange(n_bins)[:, None] + np.arange(2 * w + 1)])
     sums = np.bincount(b, weights=residual, minlength=n_bins)
     s3 = np.convolve(sums, np.ones(3), "same")
     c3 = np.convolve(cnt, np.ones(3), "same")
@@ -572,13 +618,15 @@ def _fitted_ends(flag, first: int, b, runs: list[np.ndarray]) -> list[tuple[bool
     end is where the pipe enters a coaxial part wider than itself (a socket, a valve's port), not the
     view's edge, an occlusion, or the side of a valve's body fitted as a pipe (beyond which the
     valve's other parts crowd without a coaxial shell)."""
-    bad = np.flatnonzero(flag) + first
+    bad = set((np.flatnonzero(flag) + first).tolist())
     out = []
     for run in runs:
-        lo, hi = int(b[run].min()), int(b[run].max())
-        below = np.any((bad >= lo - _FITTED_END_BINS) & (bad < lo))
-        above = np.any((bad > hi) & (bad <= hi + _FITTED_END_BINS))
-        out.append((bool(below), bool(above)))
+        # (a run's inliers are sorted along the axis, so are their bins: its first and last hold
+        # the lowest and the highest bin)
+        lo, hi = int(b[run[0]]), int(b[run[-1]])
+        below = any(k in bad for k in range(lo - _FITTED_END_BINS, lo))
+        above = any(k in bad for k in range(hi + 1, hi + _FITTED_END_BINS + 1))
+        out.append((below, above))
     return out
 
 
@@ -599,7 +647,7 @@ def _kept_runs(flag, first: int, b, t, t0: float, ta, cfg: PipeConfig) -> list[n
     if ta is not None and len(ta):
         inside = np.searchsorted(ta, tk[1:]) - np.searchsorted(ta, tk[:-1], side="right")
         cut |= (gap > cfg.min_fitting_length) & (inside >= cfg.fitting_points)
-    return np.split(kept, np.flatnonzero(cut) + 1)
+    return split_sorted(kept, np.flatnonzero(cut) + 1)
 
 
 def _bare_ends(flag, first: int, t, t0: float, runs: list[np.ndarray], te, cfg: PipeConfig, open_beyond=None):
@@ -614,25 +662,31 @@ def _bare_ends(flag, first: int, t, t0: float, runs: list[np.ndarray], te, cfg: 
     socket's surface does (measured on the tank's free pipe ends), and cut there, the pipe stops short
     and its rest reads as an object. A fitting shows more: end faces, a body, a branch, a handle off the
     cylinder. (Flagged bins in between, or a short run beyond them, join the segment.)"""
-    segments = [r for r in runs if len(r) >= cfg.min_points and np.ptp(t[r]) >= cfg.min_detect_length]
+    # (the runs' inliers are sorted along the axis: a run's first and last are its extremes)
+    ends = [(float(t[r[0]]), float(t[r[-1]])) for r in runs if len(r) >= cfg.min_points]
+    segments = [(a, b) for a, b in ends if b - a >= cfg.min_detect_length]
     if not segments:
         return None
     out = flag.copy()
     reach, bin_of = cfg.end_fitting_reach, lambda x: int(np.floor((x - t0) / cfg.bump_bin)) - first
-    hi, lo = max(float(t[r].max()) for r in segments), min(float(t[r].min()) for r in segments)
+    hi, lo = max(b for _, b in segments), min(a for a, _ in segments)
+    t_max, t_min = t.max(), t.min()
+    cleared = False
     if (
-        t.max() > hi
-        and np.searchsorted(te, t.max() + reach, "right") - np.searchsorted(te, hi) < cfg.end_fitting_points
-        and (open_beyond is None or open_beyond(t.max() + _OPEN_FROM, t.max() + _OPEN_TO))
+        t_max > hi
+        and np.searchsorted(te, t_max + reach, "right") - np.searchsorted(te, hi) < cfg.end_fitting_points
+        and (open_beyond is None or open_beyond(t_max + _OPEN_FROM, t_max + _OPEN_TO))
     ):
         out[bin_of(hi) + 1 :] = False
+        cleared = True
     if (
-        t.min() < lo
-        and np.searchsorted(te, lo, "right") - np.searchsorted(te, t.min() - reach) < cfg.end_fitting_points
-        and (open_beyond is None or open_beyond(t.min() - _OPEN_TO, t.min() - _OPEN_FROM))
+        t_min < lo
+        and np.searchsorted(te, lo, "right") - np.searchsorted(te, t_min - reach) < cfg.end_fitting_points
+        and (open_beyond is None or open_beyond(t_min - _OPEN_TO, t_min - _OPEN_FROM))
     ):
         out[: max(bin_of(lo), 0)] = False
-    return None if np.array_equal(out, flag) else out
+        cleared = True
+    return out if cleared and not np.array_equal(out, flag) else None
 
 
 def _bin_medians(b: np.ndarray, residual: np.ndarray, n_bins: int) -> tuple[np.ndarray, np.ndarray]:
@@ -835,26 +889,32 @@ def _cut_into_segments(
     None; along a pipe lying on the ``seabed``, only those over it, :func:`_facing_sensor`), keep
     the runs long enough (``held``: the nominal radius the cylinder was fitted with, held in the
     segments' fits)."""
-    t = np.take(points, idx, axis=0) @ ab
+    P = np.take(points, idx, axis=0)
+    t = P @ ab
     if len(idx) < cfg.min_points or t.max() - t.min() < cfg.min_detect_length:
         return []  # no run of these inliers can be a segment
-    pc = points @ cb
     t_all = points @ ab - ab @ cb
-    res_all = np.sqrt(np.maximum(sq - 2.0 * pc + cb @ cb - t_all * t_all, 0.0)) - rb
-    t, residual = t_all[idx], res_all[idx]
-    span = (t_all > t.min() - cfg.max_gap) & (t_all < t.max() + cfg.max_gap)
-    outside = (res_all > cfg.distance_tolerance) & span
+    t = t_all[idx]
+    # Distances to the surface of the inliers and of the points along their span only: a
+    # matrix-vector product gives every row the same value whichever other rows it holds, when
+    # it has at least two (the inliers are at least min_points ≥ 5 here).
+    residual = np.sqrt(np.maximum(sq[idx] - 2.0 * (P @ cb) + cb @ cb - t * t, 0.0)) - rb
+    span = np.flatnonzero((t_all > t.min() - cfg.max_gap) & (t_all < t.max() + cfg.max_gap))
+    P_span, t_span = np.take(points, span, axis=0), t_all[span]
+    pc = P_span @ cb if len(span) >= 2 else (points @ cb)[span]
+    res_span = np.sqrt(np.maximum(sq[span] - 2.0 * pc + cb @ cb - t_span * t_span, 0.0)) - rb
+    outside = res_span > cfg.distance_tolerance
     if foreign is not None:
-        outside &= foreign
+        outside &= foreign[span]
     if (
         seabed is not None
         and cfg.fitting_window_deg < 180.0
         and outside.any()  # (nothing to narrow down otherwise: the ground's height is not read)
         and seabed.on_or_unknown(cb, ab, rb, t.min(), t.max())
     ):
-        outside[outside] = _facing_sensor(np.take(points, np.flatnonzero(outside), axis=0), cb, ab, cfg)
-    near = outside & (res_all < cfg.fitting_reach)
-    around = outside & (res_all < cfg.gap_reach)
+        outside[outside] = _facing_sensor(np.take(P_span, np.flatnonzero(outside), axis=0), cb, ab, cfg)
+    near = outside & (res_span < cfg.fitting_reach)
+    around = outside & (res_span < cfg.gap_reach)
     out = []
     open_beyond = None
     if rays is not None and cfg.end_see_through:
@@ -864,7 +924,7 @@ def _cut_into_segments(
             return crossing >= _MIN_OPEN_RAYS and behind >= 0.5 * crossing
 
     ends: list[tuple[bool, bool]] = []
-    runs = split_at_fittings(t, residual, t_all[near], cfg, t_all[around], open_beyond, ends)
+    runs = split_at_fittings(t, residual, t_span[near], cfg, t_span[around], open_beyond, ends)
     for run, (lo, hi) in zip(runs, ends):
         seg = idx[run]
         if len(seg) < cfg.min_points:
