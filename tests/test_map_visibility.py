@@ -54,3 +54,36 @@ def test_metrics_say_how_many_objects_were_left_out():
     assert estimator_metrics(told, None, None, None)["objects_left_out"] == 2
     # an estimator without map building (dead reckoning) says nothing: null, not 0
     assert estimator_metrics(EstimatorResult("dr", empty), None, None, None)["objects_left_out"] is None
+
+
+def test_a_valve_outside_a_narrow_view_is_not_in_view_while_the_pipe_beside_it_is():
+    """A narrow camera (±10° × ±7.5°, {S} z forward) passes along a pipe; the valve at the pipe's end
+    is inside its frame in 6 scans (seen in 4: partly buried) and just outside it, the pipe seen up to
+    0.1-0.25 m short of it, in 20 more. Only the scans with the valve's place in the view count."""
+    from semslam.mapping.visibility import SensorView
+
+    a = AssociationConfig()
+    view = SensorView()
+    edge = np.array([[np.tan(np.radians(10)), np.tan(np.radians(7.5)), 1.0]])
+    view.add(np.vstack([edge * 1.2, edge * [-1.4, -1.4, 1.4], [[0.0, 0.0, -1.0]]]))  # behind: ignored
+    assert np.allclose(view.tan, [np.tan(np.radians(10)), np.tan(np.radians(7.5))]) and view.far == 1.4
+    at_1m = np.tan(np.radians(7.5))  # the frame's half height at 1 m
+    valve_S = np.array([[0.0, at_1m - 0.02, 1.0], [0.0, at_1m + 0.04, 1.0], [0.0, at_1m + 0.15, 1.0]])
+    assert view.contains(valve_S, 0.05).tolist() == [True, True, False]  # inside, within the margin, out
+    assert view.contains(np.array([[0.0, 0.0, 1.43], [0.0, 0.0, 1.5]]), 0.05).tolist() == [True, False]  # range
+
+    valve = np.array([[0.6, 0.0, 3.0]])
+    log, before = InView(a.object_view_reach_m), InView(a.object_view_reach_m)
+    for lg in (log, before):
+        lg.start(1, seen=3, in_view=4)
+    for k in range(26):
+        in_frame = k < 6
+        sight = np.array([in_frame])
+        seen = {1} if k < 4 else set()
+        log.scan([1], valve, np.zeros((0, 3)), PIPE, seen, sight)
+        before.scan([1], valve, np.zeros((0, 3)), PIPE, seen)  # main's rule: the pipe within reach counts
+    assert (log.seen[1], log.in_view[1]) == (7, 10) and log.unconfirmed(a.object_confirm_ratio, 1) == set()
+    assert before.in_view[1] == 30 and before.unconfirmed(a.object_confirm_ratio, 1) == {1}
+    # a seen object counts in view whatever the view says (a view is proof of sight)
+    log.scan([1], valve, np.zeros((0, 3)), np.zeros((0, 2, 3)), {1}, np.array([False]))
+    assert (log.seen[1], log.in_view[1]) == (8, 11)

@@ -46,7 +46,7 @@ from semslam.mapping.extent import along_sigma, off_axis
 from semslam.mapping.fittings import port_depths
 from semslam.mapping.pipes import merge_collinear, object_between
 from semslam.mapping.tracks import Track, TrackSet, TrackView
-from semslam.mapping.visibility import InView
+from semslam.mapping.visibility import InView, SensorView
 from semslam.observations import LineObservation, Observation, PointObservation, StructureObservation
 
 MAPPED_TYPES = (PointObservation, LineObservation, StructureObservation)
@@ -135,6 +135,7 @@ class MapBuilder:
         self.book = book
         self.tracks = TrackSet(assoc)
         self.in_view = InView(assoc.object_view_reach_m)
+        self.views: dict[str, SensorView] = {}  # each sensor's view as its observations show it
         self.diagnostics = diagnostics
         self.merged = 0  # duplicates merged
         self.left_out: list[int] = []  # objects left out of the final map (:meth:`confirmed`)
@@ -178,7 +179,7 @@ class MapBuilder:
         points, segments = self._seen(paired, views, mapped_ids, mapped)
         self.tracks.note_scan(stamp, points, segments)
         seen_objects = {lid for z, lid, _ in paired if isinstance(z, PointObservation)}
-        self.in_view.scan(mapped_ids, mapped, points, segments, seen_objects)
+        self.in_view.scan(mapped_ids, mapped, points, segments, seen_objects, self._in_sight(obs, mapped))
         went, promoted = self.tracks.extend(views, separators)
         for v, tr in zip(views, went):
             self.book.observe(("track", tr.key), stamp, v.z)
@@ -231,6 +232,22 @@ class MapBuilder:
         segments = [self.state.place(z)[0] for z, _, _ in paired if isinstance(z, LineObservation)]
         segments += [v.world for v in views if isinstance(v.z, LineObservation)]
         return np.array(points).reshape(-1, 3), np.array(segments).reshape(-1, 2, 3)
+
+    def _in_sight(self, obs: list[Observation], mapped: np.ndarray) -> np.ndarray | None:
+        """Which mapped objects (N×3, {W}) lie in the view of a sensor of the batch (:class:`SensorView`,
+        after adding the batch's observations to it); None when ``object_view_margin_m`` is off."""
+        margin = self.assoc.object_view_margin_m
+        if margin is None:
+            return None
+        sight = np.zeros(len(mapped), bool)
+        for sensor in dict.fromkeys(z.sensor for z in obs):
+            pts = [z.position for z in obs if isinstance(z, PointObservation) and z.sensor == sensor]
+            pts += [e for z in obs if isinstance(z, LineObservation) and z.sensor == sensor for e in (z.p, z.q)]
+            view = self.views.setdefault(sensor, SensorView())
+            view.add(np.array(pts, float).reshape(-1, 3))
+            T_SW = np.linalg.inv(self.state.sensor_pose(sensor))
+            sight |= view.contains(mapped @ T_SW[:3, :3].T + T_SW[:3, 3], margin)
+        return sight
 
     def _usable(self, stamp: int, observations: Sequence[Observation]) -> list[Observation]:
         mapped = [z for z in observations if isinstance(z, MAPPED_TYPES)]
