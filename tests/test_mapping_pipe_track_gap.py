@@ -36,7 +36,7 @@ def test_sonar_views_of_one_pass_across_a_gap_continue_one_track():
     """Field 53: one pass's views of a partly buried pipe at 0.8–5.0 m, then 6.1–7.5 m (1.1 m apart
     along the axis). The sonar's windows cut the pipe: its ends have σ 0.42 m along the axis, the gap
     between two views' ends σ 0.6 m, so 1.1 m is no evidence of another pipe. One track, promoted at
-    its third view; with the mapped pipes' 0.3 m gap (today's rule, the key at 0) three tracks."""
+    its third view; with the mapped pipes' 0.3 m gap (today's rule, the key at 0) two tracks, of 2 and 1 views."""
     views = [_view(1, 0.8, 5.0, SONAR_ALONG), _view(2, 6.1, 7.5, SONAR_ALONG), _view(3, 0.9, 4.9, SONAR_ALONG)]
     assert abs(along_sigma(views[0].z) - SONAR_ALONG) < 1e-12
     tracks = TrackSet(AssociationConfig(min_observations=3))
