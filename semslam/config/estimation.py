@@ -194,6 +194,14 @@ class AssociationConfig(BaseModel):
         description="an observed pipe segment pairs with a mapped pipe only if it comes within this gap "
         "(along the axis) of what has been seen of that pipe",
     )
+    pipe_track_gap_sigmas: float = Field(
+        3.0,
+        ge=0,
+        description="a pipe view continues a tentative pipe track when its gap along the axis from what the track "
+        "saw is below pipe_extent_gap_m or below this many σ of the gap (from the along-axis σ the front-end gives "
+        "the view's ends and the track's: a sonar's pipe windows cut the pipe, a laser's views end where the pipe "
+        "does); the mapped pipes keep pipe_extent_gap_m alone. 0: pipe_extent_gap_m for the tracks too",
+    )
     duplicate_pipe_distance_m: float = Field(
         0.1,
         gt=0,

@@ -22,6 +22,16 @@ def along_sigma(z: LineObservation) -> float:
     return float(np.sqrt(0.5 * (d @ C[:3, :3] @ d + d @ C[3:, 3:] @ d)))
 
 
+def track_gap(view: LineObservation, seen: list[LineObservation], extent_gap: float, n_sigma: float) -> float:
+    """How far along the axis ``view`` may lie beyond what a tentative pipe track's views ``seen`` saw
+    and still continue it: the mapped pipes' ``extent_gap``, or ``n_sigma`` σ of the gap where the ends
+    are less certain along the axis than that allows (the view's σ and the largest of the track's)."""
+    if n_sigma <= 0:
+        return extent_gap
+    sigma = float(np.hypot(along_sigma(view), max(along_sigma(z) for z in seen)))
+    return max(extent_gap, n_sigma * sigma)
+
+
 def off_axis(points: np.ndarray, c: np.ndarray, d: np.ndarray) -> float:
     """The largest distance of the points (N×3) from the line (c, d)."""
     r = np.asarray(points) - c

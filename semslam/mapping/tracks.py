@@ -14,7 +14,8 @@ choice lets each view take its neighbour's track and the shift runs down the row
 structures continue a track when the Mahalanobis distance of their position to the track's
 information-weighted mean passes ``association.track_gate_confidence``; pipe segments when they are
 collinear with the track's line by the paper's criterion (``merge_angle_rad``, ``merge_distance_m``),
-within ``pipe_extent_gap_m`` of what the track saw, with no in-line object between.
+within ``pipe_extent_gap_m`` of what the track saw (or ``pipe_track_gap_sigmas`` σ of the ends' along-axis
+uncertainty, when larger: :func:`~semslam.mapping.extent.track_gap`), with no in-line object between.
 
 A track follows its object as the vehicle's estimate drifts. An estimator may split each view's
 covariance into what is independent from view to view (the observation, and the pose's components
@@ -52,6 +53,7 @@ from scipy.optimize import linear_sum_assignment
 
 from semslam.config import AssociationConfig
 from semslam.mapping.association import chi2_gate
+from semslam.mapping.extent import track_gap
 from semslam.mapping.pipes import object_between, segment_matches_line
 from semslam.mapping.visibility import near_seen
 from semslam.observations import LineObservation, Observation, PointObservation, StructureObservation
@@ -340,9 +342,10 @@ class TrackSet:
             seen = np.vstack([u.world for u in tr.views])
             s_seen = (seen - c) @ d
             w = v.world
-            if not segment_matches_line(
-                w, c, d, seen, a.merge_angle_rad, a.merge_distance_m, a.pipe_extent_gap_m
-            ) or object_between((s_seen.min(), s_seen.max()), w, c, d, separators, a.inline_object_radius_m):
+            gap = track_gap(v.z, [u.z for u in tr.views], a.pipe_extent_gap_m, a.pipe_track_gap_sigmas)
+            if not segment_matches_line(w, c, d, seen, a.merge_angle_rad, a.merge_distance_m, gap) or object_between(
+                (s_seen.min(), s_seen.max()), w, c, d, separators, a.inline_object_radius_m
+            ):
                 return np.inf
             return float(np.linalg.norm(np.cross(w.mean(axis=0) - c, d)))
         if kind == "structure" and tr.model != v.z.model:
