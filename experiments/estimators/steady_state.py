@@ -192,8 +192,12 @@ def decompose(traj, truth, start_s: float) -> dict:
     yaw = Rotation.from_quat(truth.orientations[ti]).as_euler("ZYX")[:, 0]
     along = e[:, 0] * np.cos(yaw) + e[:, 1] * np.sin(yaw)
     across = -e[:, 0] * np.sin(yaw) + e[:, 1] * np.cos(yaw)
-    k = np.ones(11) / 11
-    slow = np.stack([np.convolve(e[:, i], k, mode="same") for i in range(3)], axis=1)[5:-5]
+    # the slow part: the mean over ±5 s (by time, so that the EKF's 7 ms poses and the graph's 1 s
+    # keyframes are split alike), on the samples at least 5 s from either end
+    c = np.vstack([np.zeros(3), np.cumsum(e, axis=0)])
+    lo, hi = np.searchsorted(t, t - 5.0), np.searchsorted(t, t + 5.0, side="right")
+    inner = (t >= t[0] + 5.0) & (t <= t[-1] - 5.0)
+    slow = ((c[hi] - c[lo]) / (hi - lo)[:, None])[inner]
     return {
         "total": _rms(np.linalg.norm(e, axis=1)),
         "x": _rms(e[:, 0]),
@@ -202,7 +206,7 @@ def decompose(traj, truth, start_s: float) -> dict:
         "along": _rms(along),
         "across": _rms(across),
         "slow": _rms(np.linalg.norm(slow, axis=1)),
-        "fast": _rms(np.linalg.norm(e[5:-5] - slow, axis=1)),
+        "fast": _rms(np.linalg.norm(e[inner] - slow, axis=1)),
     }
 
 
@@ -266,6 +270,36 @@ def analyse(args) -> None:
                     print("    lever: " + ", ".join(f"{k} {v:.2f}" for k, v in a.items()))
 
 
+def table(args) -> None:
+    """One markdown row per world: the graph's late self-aligned RMS (mm) in each run directory (the
+    first is the reference), each run's share of the reference's squared error removed, and medians."""
+    runs = [Path(d) for d in args.dirs]
+    worlds = sorted({f.name for f in runs[0].glob("*.result.pkl")}, key=lambda n: int(n.split("seed")[1].split(".")[0]))
+    cell = {}
+    for d in runs:
+        for w in worlds:
+            if (d / w).exists():
+                keep, truth = pickle.loads((d / w).read_bytes())
+                cell[d.name, w] = decompose(keep["graph"][0], truth, args.start)[args.key]
+    print("| world | " + " | ".join(d.name for d in runs) + " |")
+    print("|---" * (len(runs) + 1) + "|")
+    share = {d.name: [] for d in runs[1:]}
+    for w in worlds:
+        ref = cell[runs[0].name, w]
+        row = [f"{ref:.2f}"]
+        for d in runs[1:]:
+            v = cell.get((d.name, w))
+            if v is None:
+                row.append("-")
+                continue
+            share[d.name].append(1 - v**2 / ref**2)
+            row.append(f"{v:.2f} ({100 * share[d.name][-1]:.0f} %)")
+        print(f"| {w.split('.')[0].removeprefix('tank-')} | " + " | ".join(row) + " |")
+    med = [f"{np.median([cell[runs[0].name, w] for w in worlds]):.2f}"]
+    med += [f"{100 * np.median(share[d.name]):.0f} %" if share[d.name] else "-" for d in runs[1:]]
+    print("| median (share of the squared error) | " + " | ".join(med) + " |")
+
+
 def main() -> None:
     from semslam.study.plan import parse_seeds
 
@@ -283,8 +317,12 @@ def main() -> None:
     a.add_argument("--cache", type=Path, default=Path("/tmp/s39/all"))
     a.add_argument("--start", type=float, default=40.0, help="the late part begins here (s)")
     a.add_argument("--lever", action="store_true", help="also the attitude × lever test (reads the bags)")
+    t = sub.add_parser("table")
+    t.add_argument("dirs", nargs="+")
+    t.add_argument("--start", type=float, default=40.0)
+    t.add_argument("--key", default="total", help="total, x, y, z, along, across, slow, fast")
     args = ap.parse_args()
-    run(args) if args.step == "run" else analyse(args)
+    {"run": run, "analyse": analyse, "table": table}[args.step](args)
 
 
 if __name__ == "__main__":
