@@ -24,10 +24,10 @@ from factors.navigation import (
     attitude_factor,
     depth_factor,
     displacement_factor,
-    smoothed_displacement_factor,
     dvl_residual,
     dvl_to_body,
     dvl_velocity_factor,
+    smoothed_displacement_factor,
 )
 
 RNG = np.random.default_rng(7)
@@ -215,37 +215,23 @@ def test_depth_factor_uses_lever_arm():
 
 
 @pytest.mark.parametrize("seed", range(4))
-@pytest.mark.parametrize("gap", [False, True])
-def test_displacement_factor_jacobians(seed, gap):
+@pytest.mark.parametrize("kind", ["gap", "samples", "smoothed"])
+def test_displacement_factor_jacobians(seed, kind):
+    """The displacement factor over a dropout and over samples, and the smoothed interval's factor."""
     rng = np.random.default_rng(seed)
     Ti = random_pose(rng)
     pre = DvlPreintegrator(0.0, Ti.rotation().matrix(), accel_sigma=0.05, attitude_sigma=0.01)
-    if not gap:
+    if kind != "gap":
         for t in np.arange(0.2, 1.0, 0.2):
             R = Ti.rotation().matrix() @ so3_exp(rng.normal(size=3) * 0.05)
             pre.add(t, R, rng.normal(size=3) * 0.3, random_cov(rng, 3, 0.01))
     Rj = Ti.rotation().matrix() @ so3_exp(rng.normal(size=3) * 0.05)
     d = pre.integrate(1.1, Rj)
-    assert d.n_samples == (0 if gap else 4)
-    f = displacement_factor(1, 2, 3, 4, d)
-    v = gtsam.Values()
-    v.insert(1, Ti)
-    v.insert(2, gtsam.Pose3(gtsam.Rot3(Rj), Ti.translation() + rng.normal(size=3)))
-    v.insert(3, rng.normal(size=3))
-    v.insert(4, rng.normal(size=3))
-    check_factor_jacobians(f, v)
-
-
-@pytest.mark.parametrize("seed", range(4))
-def test_smoothed_displacement_factor_jacobians(seed):
-    rng = np.random.default_rng(seed)
-    Ti = random_pose(rng)
-    pre = DvlPreintegrator(0.0, Ti.rotation().matrix(), accel_sigma=0.05, attitude_sigma=0.01)
-    for t in np.arange(0.2, 1.0, 0.2):
-        R = Ti.rotation().matrix() @ so3_exp(rng.normal(size=3) * 0.05)
-        pre.add(t, R, rng.normal(size=3) * 0.3, random_cov(rng, 3, 0.01))
-    Rj = Ti.rotation().matrix() @ so3_exp(rng.normal(size=3) * 0.05)
-    f = smoothed_displacement_factor(1, 2, 3, 4, pre.smoothed(1.1, Rj))
+    assert d.n_samples == (0 if kind == "gap" else 4)
+    if kind == "smoothed":
+        f = smoothed_displacement_factor(1, 2, 3, 4, pre.smoothed(1.1, Rj))
+    else:
+        f = displacement_factor(1, 2, 3, 4, d)
     v = gtsam.Values()
     v.insert(1, Ti)
     v.insert(2, gtsam.Pose3(gtsam.Rot3(Rj), Ti.translation() + rng.normal(size=3)))
