@@ -5,14 +5,14 @@ A handmade stream: a level vehicle at a fixed heading dives and, from 8 s, accel
 gives no reading from 9.0 to 12.6 s; its readings are exact except the two last before the gap and the
 first after it, 2σ off (as world 70's were). What an estimator knows of the velocity at the gap's edges
 comes from the readings around them; one whose velocity is the one reading nearest the edge holds that
-reading's error over the whole gap. That is what the graph did (its velocity states were each one
-reading: the samples between keyframes were fixed knots of the displacement), and what every estimator
-did with a process noise (σ_a 0.05 m/s²) ten times the simulated vehicle's. The error of the horizontal
+reading's error over the whole gap. That is what the graph did whatever its process noise: its velocity
+states were each one reading (the samples between keyframes were fixed knots of the displacement). With
+a process noise that fits this vehicle (σ_a 0.01 m/s², set here: the default 0.05 is five times the
+simulated tank vehicle's, experiments/estimators/README.md stop 40) the error of the graph's horizontal
 displacement across the gap (8.5 → 13.5 s) is checked.
 """
 
 import numpy as np
-import pytest
 from scipy.spatial.transform import Rotation
 
 from semslam.config import SemslamConfig
@@ -29,7 +29,8 @@ ACCEL = 0.004  # m/s² sideways from 8 s
 DIVE = 0.05  # m/s down
 T_END = 16.0
 FROM, TO = 8.5, 13.5  # the displacement judged: from before the gap to after it
-TOLERANCE_M = 0.04  # main: graph 4.8 cm, EKF and dead reckoning 5.6 cm; with the fix 3.0 and 3.4 cm
+TOLERANCE_M = 0.04  # main: 4.8 cm (the same with σ_a 0.05); the smoothed intervals: 3.0 cm (EKF 3.4 cm)
+CONFIG = {"motion": {"accel_sigma_m_s2": 0.01}}
 
 
 def truth(t: float) -> tuple[np.ndarray, np.ndarray]:
@@ -82,18 +83,9 @@ def at(traj, t: float) -> np.ndarray:
     return np.array([np.interp(t, s, traj.positions[:, i]) for i in range(2)])
 
 
-@pytest.fixture(scope="module")
-def gap_errors():
-    """Per estimator, the horizontal error of its displacement across the gap (m)."""
+def test_graph_displacement_across_the_gap():
     m = mission()
-    names = ("graph", "ekf", "dr")
-    cfg = SemslamConfig()
-    res = run_pipeline(m, [create_estimator(n, m.metadata, cfg) for n in names], [], frontend_process=False).results
-    true = truth(TO)[0][:2] - truth(FROM)[0][:2]
-    return {n: at(res[n].trajectory, TO) - at(res[n].trajectory, FROM) - true for n in names}
-
-
-@pytest.mark.parametrize("name", ["graph", "ekf", "dr"])
-def test_displacement_across_the_gap(gap_errors, name):
-    err = float(np.linalg.norm(gap_errors[name]))
-    assert err < TOLERANCE_M, f"{name}: error of the displacement across the gap {err * 100:.2f} cm"
+    res = run_pipeline(m, [create_estimator("graph", m.metadata, SemslamConfig(**CONFIG))], [], frontend_process=False)
+    traj = res.results["graph"].trajectory
+    err = float(np.linalg.norm(at(traj, TO) - at(traj, FROM) - (truth(TO)[0][:2] - truth(FROM)[0][:2])))
+    assert err < TOLERANCE_M, f"error of the displacement across the gap {err * 100:.2f} cm"

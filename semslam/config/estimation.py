@@ -43,7 +43,7 @@ class MotionNoiseConfig(BaseModel):
     """Process noise of the vehicle motion model, shared by every estimator (no estimator gets its own tuning)."""
 
     model_config = ConfigDict(extra="forbid")
-    accel_sigma_m_s2: float = Field(0.01, gt=0, description="white linear-acceleration noise (body frame)")
+    accel_sigma_m_s2: float = Field(0.05, gt=0, description="white linear-acceleration noise (body frame)")
     angular_rate_sigma_rad_s: float = Field(0.01, gt=0, description="white angular-rate noise")
 
 
