@@ -164,6 +164,96 @@ class DvlPreintegrator:
             last_sample=last,
         )
 
+    def smoothed(self, t_j: float, R_j: np.ndarray) -> SmoothedInterval:
+        """The interval as the whole Wiener-velocity model sees it: the displacement δ = R_iᵀ(p_j − p_i)
+        and the velocity states v_i, v_j jointly, every DVL sample inside informing both.
+
+        :meth:`integrate` takes each sample as the velocity at its time (a knot), so the samples say
+        nothing about v_i and v_j: a velocity state is the one reading at its keyframe, and across a
+        dropout the ramp between the two readings at its edges holds their noise over the gap. Here
+        the true velocities u_m at the samples' times are latent: the samples measure them (σ of the
+        DVL), the displacement is the trapezoid over (v_i, u_1 … u_M, v_j) plus the Brownian bridges
+        between the knots (σ_a² Σ seg³ / 12, independent of the knot values), and the velocity is a
+        random walk of density σ_a through v_i, u_1 … u_M, v_j. The u_m are eliminated exactly (a
+        linear Gaussian Schur complement): what is left is a Gaussian on z = [δ, v_i, v_j], whitened
+        as r = Cᵀ (z − z0). Without samples it would be :meth:`integrate`'s displacement with the velocity
+        random walk between v_i and v_j, of rank 6 (nothing absolute in z): for intervals with samples only."""
+        dt = t_j - self.t_i
+        knots_t = np.array([self.t_i, *self._t, t_j])
+        seg = np.maximum(np.diff(knots_t), 1e-3)  # a sample at t_j itself: a stiff, not singular, link
+        w = np.zeros(len(knots_t))
+        w[:-1] += seg / 2
+        w[1:] += seg / 2
+        M = len(self._t)
+        if not M:
+            raise ValueError("no DVL sample in the interval: use integrate() and the velocity random walk")
+        n = 9 + 3 * M  # y = [δ, v_i, v_j, u_1 … u_M]
+        q = self.accel_sigma**2
+        cov_d = np.eye(3) * (q * float(np.sum(seg**3)) / 12.0 + MIN_DISPLACEMENT_SIGMA_M**2)
+        J = np.zeros((3, n))
+        J[:, 0:3] = np.eye(3)
+        J[:, 3:6] = -w[0] * np.eye(3)
+        J[:, 6:9] = -w[-1] * (self.R_i_T @ R_j)
+        H = np.zeros((n, n))
+        g = np.zeros(n)
+        for m in range(M):
+            dR, v = self._dR[m], self._v[m]
+            J[:, 9 + 3 * m : 12 + 3 * m] = -w[m + 1] * dR
+            if self.attitude_sigma > 0:  # attitude noise rotates the sample: δ = −ΔR [v]× δθ
+                Sv = dR @ skew(v)
+                cov_d += w[m + 1] ** 2 * self.attitude_sigma**2 * (Sv @ Sv.T)
+            info = np.linalg.inv(self._cov[m])
+            sl = slice(9 + 3 * m, 12 + 3 * m)
+            H[sl, sl] += info
+            g[sl] += info @ v
+        H += J.T @ np.linalg.solve(cov_d, J)
+        chain = [slice(3, 6), *(slice(9 + 3 * m, 12 + 3 * m) for m in range(M)), slice(6, 9)]
+        for a, b, s_ in zip(chain[:-1], chain[1:], seg):  # the random walk, knot to knot
+            k = 1.0 / (q * s_)
+            H[a, a] += k * np.eye(3)
+            H[b, b] += k * np.eye(3)
+            H[a, b] -= k * np.eye(3)
+            H[b, a] -= k * np.eye(3)
+        Huu_inv_Huz = np.linalg.solve(H[9:, 9:], np.column_stack([H[9:, :9], g[9:]]))
+        Lam = H[:9, :9] - H[:9, 9:] @ Huu_inv_Huz[:, :9]
+        eta = g[:9] - H[:9, 9:] @ Huu_inv_Huz[:, 9]
+        Lam = 0.5 * (Lam + Lam.T)
+        return SmoothedInterval(dt=dt, z0=np.linalg.solve(Lam, eta), C_T=np.linalg.cholesky(Lam).T, n_samples=M)
+
+
+@dataclass
+class SmoothedInterval:
+    """A Gaussian on z = [δ, v_i, v_j] (δ = R_iᵀ(p_j − p_i)): ‖Cᵀ (z − z0)‖² (:meth:`DvlPreintegrator.smoothed`)."""
+
+    dt: float
+    z0: np.ndarray
+    C_T: np.ndarray
+    n_samples: int
+
+
+def smoothed_displacement_factor(xi: int, xj: int, vi: int, vj: int, s: SmoothedInterval) -> gtsam.CustomFactor:
+    """The interval's displacement and velocity states jointly (CustomFactor on X_i, X_j, V_i, V_j, a
+    9-dimensional whitened residual Cᵀ (z − z0)); replaces :func:`displacement_factor` and the
+    velocity random walk between V_i and V_j."""
+    C_T = np.asarray(s.C_T, float)
+    C_d, z0 = C_T[:, 0:3], np.asarray(s.z0, float)
+    H_vi, H_vj = C_T[:, 3:6].copy(), C_T[:, 6:9].copy()
+
+    def error(this: gtsam.CustomFactor, values: gtsam.Values, H):
+        Ti, Tj = values.atPose3(xi), values.atPose3(xj)
+        Ri = Ti.rotation().matrix()
+        delta = Ri.T @ (Tj.translation() - Ti.translation())
+        z = np.concatenate([delta, values.atVector(vi), values.atVector(vj)])
+        r = C_T @ (z - z0)
+        if H is not None:
+            H[0] = C_d @ np.hstack([skew(delta), -np.eye(3)])
+            H[1] = C_d @ np.hstack([np.zeros((3, 3)), Ri.T @ Tj.rotation().matrix()])
+            H[2] = H_vi
+            H[3] = H_vj
+        return r
+
+    return gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(9), [xi, xj, vi, vj], error)
+
 
 def displacement_residual(T_i: gtsam.Pose3, T_j: gtsam.Pose3, v_i, v_j, d: DisplacementIntegral, jac: bool = False):
     """r = R_iᵀ (p_j − p_i) − c − A v_i − B v_j and, with ``jac``, its Jacobians

@@ -27,6 +27,7 @@ from factors.navigation import (
     dvl_residual,
     dvl_to_body,
     dvl_velocity_factor,
+    smoothed_displacement_factor,
 )
 
 RNG = np.random.default_rng(7)
@@ -214,25 +215,42 @@ def test_depth_factor_uses_lever_arm():
 
 
 @pytest.mark.parametrize("seed", range(4))
-@pytest.mark.parametrize("gap", [False, True])
-def test_displacement_factor_jacobians(seed, gap):
+@pytest.mark.parametrize("kind", ["gap", "samples", "smoothed"])
+def test_displacement_factor_jacobians(seed, kind):
+    """The displacement factor over a dropout and over samples, and the smoothed interval's factor."""
     rng = np.random.default_rng(seed)
     Ti = random_pose(rng)
     pre = DvlPreintegrator(0.0, Ti.rotation().matrix(), accel_sigma=0.05, attitude_sigma=0.01)
-    if not gap:
+    if kind != "gap":
         for t in np.arange(0.2, 1.0, 0.2):
             R = Ti.rotation().matrix() @ so3_exp(rng.normal(size=3) * 0.05)
             pre.add(t, R, rng.normal(size=3) * 0.3, random_cov(rng, 3, 0.01))
     Rj = Ti.rotation().matrix() @ so3_exp(rng.normal(size=3) * 0.05)
     d = pre.integrate(1.1, Rj)
-    assert d.n_samples == (0 if gap else 4)
-    f = displacement_factor(1, 2, 3, 4, d)
+    assert d.n_samples == (0 if kind == "gap" else 4)
+    if kind == "smoothed":
+        f = smoothed_displacement_factor(1, 2, 3, 4, pre.smoothed(1.1, Rj))
+    else:
+        f = displacement_factor(1, 2, 3, 4, d)
     v = gtsam.Values()
     v.insert(1, Ti)
     v.insert(2, gtsam.Pose3(gtsam.Rot3(Rj), Ti.translation() + rng.normal(size=3)))
     v.insert(3, rng.normal(size=3))
     v.insert(4, rng.normal(size=3))
     check_factor_jacobians(f, v)
+
+
+def test_smoothed_interval_samples_inform_the_velocity_states():
+    """Five samples of a constant velocity: the interval's Gaussian puts v_i, v_j and δ there, and
+    v_i is known better than from one sample (the samples inform it; integrate() leaves it free)."""
+    v, sigma = np.array([0.1, -0.02, 0.05]), 0.01
+    pre = DvlPreintegrator(0.0, np.eye(3), accel_sigma=0.01)
+    for t in np.arange(0.2, 1.0, 0.2):
+        pre.add(t, np.eye(3), v, np.eye(3) * sigma**2)
+    s = pre.smoothed(1.0, np.eye(3))
+    np.testing.assert_allclose(s.z0, np.r_[v * 1.0, v, v], atol=1e-9)
+    cov = np.linalg.inv(s.C_T.T @ s.C_T)
+    assert cov[3, 3] < 0.6 * sigma**2 and cov[6, 6] < 0.6 * sigma**2
 
 
 def test_preintegration_motion_model_uncertainty_grows_with_gap():

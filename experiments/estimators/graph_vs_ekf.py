@@ -3,11 +3,13 @@ stop 39): the position error over time, its mean (the rigid shift) and the mappe
 offset, for the estimators given, with the landmark observations of a time span left out.
 
     python experiments/estimators/graph_vs_ekf.py --cache DIR --seeds 81,73 [--estimators graph,ekf,dr]
-        [--drop-before S] [--drop-after S] [--every 5]
+        [--drop-before S] [--drop-after S] [--every 5] [--gaps 1]
 
 DIR holds replay_study.py's recordings (<scenario>-seed<N>.bag, .obs.pkl); the configuration is the
 study's (demo) one. ``--drop-before S``: no landmark observation from the mission's first S seconds
-(``--drop-after S`` likewise from S on), so their effect on the shift is seen.
+(``--drop-after S`` likewise from S on), so their effect on the shift is seen. ``--gaps S``: for each
+DVL dropout of S seconds or longer, the error each estimator gathered across it and the errors of the
+readings at its edges (stop 40).
 """
 
 from __future__ import annotations
@@ -35,6 +37,38 @@ def still_until(mission) -> int:
             if np.linalg.norm(p - start) > 1e-3:
                 return m.stamp
     raise ValueError("the vehicle never moves")
+
+
+def dvl_gaps(mission, min_s: float = 1.0) -> list[dict]:
+    """The DVL's dropouts of ``min_s`` or longer: the last valid reading before (``t0``) and the first
+    after (``t1``), stamps in ns, and those readings' errors against the truth in {W} (horizontal
+    velocity, m/s; the truth's velocity by central differences of its positions)."""
+    from scipy.spatial.transform import Rotation
+
+    from semslam.mission.measurements import DvlVelocity, GroundTruthPose
+
+    gt_t, gt_p, gt_R, dvl = [], [], [], []
+    for m in mission:
+        if isinstance(m, GroundTruthPose):
+            gt_t.append(m.stamp)
+            gt_p.append(np.asarray(m.position, float))
+            gt_R.append(Rotation.from_quat(m.orientation).as_matrix())
+        elif isinstance(m, DvlVelocity):
+            dvl.append((m.stamp, m.valid and m.is_finite(), np.asarray(m.velocity, float), m.sensor))
+    gt_t, gt_p = np.array(gt_t), np.array(gt_p)
+    v_W = np.gradient(gt_p, gt_t * 1e-9, axis=0)
+
+    def error_W(stamp, v_S, sensor):
+        k = int(np.clip(np.searchsorted(gt_t, stamp), 0, len(gt_t) - 1))
+        R_BS = mission.metadata.extrinsic(sensor)[:3, :3]
+        return (gt_R[k] @ R_BS @ v_S - v_W[k])[:2]
+
+    valid = [d for d in dvl if d[1]]
+    gaps = []
+    for a, b in zip(valid[:-1], valid[1:]):
+        if (b[0] - a[0]) * 1e-9 >= min_s:
+            gaps.append({"t0": a[0], "t1": b[0], "err0": error_W(a[0], a[2], a[3]), "err1": error_W(b[0], b[2], b[3])})
+    return gaps
 
 
 def held_at_rest(mission, until: int, sigma_m_s: float):
@@ -149,7 +183,7 @@ def run_filtered(bag: Path, obs_path: Path, config, estimators: list[str], keep_
     return result, mission.metadata
 
 
-def describe(name: str, traj, landmarks, truth_traj, truth_map, every: float, until: float) -> list[str]:
+def describe(name: str, traj, landmarks, truth_traj, truth_map, every: float, until: float, gaps=()) -> list[str]:
     _, pt = truth_traj.poses_at(traj.stamps)
     e = traj.positions - pt
     t = (traj.stamps - truth_traj.stamps[0]) * 1e-9
@@ -160,6 +194,15 @@ def describe(name: str, traj, landmarks, truth_traj, truth_map, every: float, un
     marks = [tt for tt in np.arange(0.0, until + 1e-9, every) if tt <= t[-1]]
     at = [f"{tt:.0f}:{_v(e[min(np.searchsorted(t, tt), len(t) - 1)])}" for tt in marks]
     rows.append("    e(t) cm: " + " ".join(at))
+    for (
+        g
+    ) in gaps:  # the error the estimator gathered across each DVL dropout (from the reading before it to the one after)
+        e0, e1 = (np.array([np.interp(s, traj.stamps, e[:, i]) for i in range(2)]) for s in (g["t0"], g["t1"]))
+        t0, t1 = ((s - truth_traj.stamps[0]) * 1e-9 for s in (g["t0"], g["t1"]))
+        rows.append(
+            f"    DVL gap {t0:.1f}–{t1:.1f} s: error gathered across it {_v(e1 - e0)} cm (the edge readings' "
+            f"errors {_v(g['err0'] * 10, '+.1f')} / {_v(g['err1'] * 10, '+.1f')} mm/s in x,y of {{W}})"
+        )
     objs = [lm for lm in landmarks if lm.kind == "object"]
     if objs and truth_map.objects:
         G = np.array([g.position for g in truth_map.objects], float)
@@ -192,6 +235,9 @@ def main() -> None:
         "--hold", type=float, help="oracle: DVL replaced by zero x/y readings of this σ until the truth moves"
     )
     ap.add_argument("--still-test", type=int, help="the DVL's zero-velocity test at the start over this many readings")
+    ap.add_argument(
+        "--gaps", type=float, help="for each DVL dropout of this many seconds or longer: the error gathered across it"
+    )
     ap.add_argument("--dump", type=Path, help="pickle each mission's trajectories, maps and true trajectory here")
     args = ap.parse_args()
     config = _config(args.config, args.scenario)
@@ -210,6 +256,7 @@ def main() -> None:
             return s >= lo and (hi is None or s < hi)
 
         result, metadata = run_filtered(bag, obs_path, config, estimators, keep, args.hold, args.still_test)
+        gaps = [] if args.gaps is None else dvl_gaps(read_mission(bag, config.reader), args.gaps)
         if args.dump:
             keep_ = {n: (r.trajectory, r.landmarks) for n, r in result.results.items()}
             (args.dump / f"{bag.stem}.result.pkl").write_bytes(pickle.dumps((keep_, result.truth)))
@@ -219,7 +266,7 @@ def main() -> None:
         for est in estimators:
             r = result.results[est]
             for row in describe(
-                est, r.trajectory, r.landmarks, result.truth, metadata.ground_truth, args.every, args.until
+                est, r.trajectory, r.landmarks, result.truth, metadata.ground_truth, args.every, args.until, gaps
             ):
                 print(row, flush=True)
 

@@ -31,6 +31,7 @@ from factors.navigation import (
     dvl_velocity_factor,
     heading_bias_walk_factor,
     rotation_carry_factor,
+    smoothed_displacement_factor,
     velocity_random_walk_factor,
 )
 from semslam.backend.navigation import NavigationBuffer
@@ -210,8 +211,12 @@ class Keyframes:
         if v_prior is not None and self.nav.preint.last_stamp == self.nav.dvl.t:
             self.nav.preint.drop_last()
         d = self.nav.preint.integrate(t, R)
-        factors.append(displacement_factor(X(k - 1), X(k), V(k - 1), V(k), d))
-        if d.n_samples == 0:  # no knot between the two velocity states: the process model links them
+        if d.n_samples:  # the displacement and both velocity states jointly, every DVL sample inside
+            # informing all three, with the velocity random walk between them (DvlPreintegrator.smoothed)
+            s = self.nav.preint.smoothed(t, R)
+            factors.append(smoothed_displacement_factor(X(k - 1), X(k), V(k - 1), V(k), s))
+        else:  # no sample: the displacement of the two velocity states, linked by the process model
+            factors.append(displacement_factor(X(k - 1), X(k), V(k - 1), V(k), d))
             factors.append(velocity_random_walk_factor(V(k - 1), V(k), d.dt, self.accel_sigma))
         v_init = v_prior if v_prior is not None else self.vel
         delta = d.c + d.A @ self.vel + d.B @ v_init  # the displacement in {B(k-1)}
