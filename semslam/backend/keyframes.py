@@ -30,6 +30,7 @@ from factors.navigation import (
     displacement_factor,
     dvl_velocity_factor,
     heading_bias_walk_factor,
+    referred_depth,
     rotation_carry_factor,
     smoothed_displacement_factor,
     velocity_random_walk_factor,
@@ -163,13 +164,34 @@ class Keyframes:
             )
             v_prior = dvl.v_B
         dep = self.nav.depth
-        if dep is not None and 0 <= t - dep.t <= self.cfg.depth_max_age_s:
+        readings = [r for r in self.nav.depths if r[0] <= t]
+        if self.stamps and readings:
+            factors += self._interval_depth_factors(k, t, R, readings)
+        elif dep is not None and 0 <= t - dep.t <= self.cfg.depth_max_age_s:
             age = t - dep.t
             # Bring the reading to t along the vertical velocity (from the DVL, else none).
             vz = float((R @ (v_prior if v_prior is not None else np.zeros(3)))[2])
             var = dep.variance + (self.accel_sigma * age**1.5) ** 2 + (0.01 * age) ** 2
             factors.append(depth_factor(X(k), dep.depth + vz * age, var, dep.t_BS))
         return factors, R, v_prior, has_attitude
+
+    def _interval_depth_factors(self, k: int, t: float, R: np.ndarray, readings: list) -> list:
+        """Every depth reading of the interval (t_{k-1}, t]: each to the nearer of X(k-1) and X(k),
+        brought to its time through the DVL's vertical velocity and averaged there
+        (:func:`~factors.navigation.referred_depth`), one factor per keyframe and pressure sensor."""
+        t_prev = self.stamps[-1] * 1e-9
+        ends = ((k - 1, t_prev, self.nav.preint.R_i_T.T), (k, t, R))
+        groups: dict[tuple, list] = {}
+        for r in readings:
+            end = 0 if r[0] - t_prev < t - r[0] else 1
+            groups.setdefault((end, tuple(r[4])), []).append(r)
+        out = []
+        for (end, t_BS), group in sorted(groups.items()):
+            key, t_key, R_key = ends[end]
+            t_BS = np.array(t_BS)
+            z, var = referred_depth(group, t_key, R_key, t_BS, self.nav.vz, self.accel_sigma)
+            out.append(depth_factor(X(key), z, var, t_BS))
+        return out
 
     def first(self, stamp: int) -> None:
         """Keyframe 0: its navigation factors and the priors of the start state."""
