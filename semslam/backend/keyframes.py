@@ -3,8 +3,9 @@
 Per keyframe k: X(k) = T_WB (Pose3), V(k) = body velocity and, when the AHRS heading bias is
 modelled, B(k) (see factors.navigation). Between consecutive keyframes: the preintegrated DVL/AHRS
 displacement (with the velocity motion model across dropouts) and, over intervals with no DVL at
-all, the velocity random walk. At each keyframe: the AHRS attitude, the depth and the latest DVL
-velocity.
+all, the velocity random walk. At each keyframe: the AHRS attitude, the latest DVL velocity and the
+depth: every reading of the interval, each at the nearer of its two keyframes, brought there through
+the DVL's vertical velocity and averaged (the newest reading alone when the interval has none).
 
 The newest keyframe's factors are deferred (:meth:`IsamSession.defer`) until the next update that
 goes to iSAM2 (a scan's landmark factors, the next keyframe, a GPS fix, a window slide, the end), so
