@@ -164,12 +164,17 @@ class TrackSet:
         pts = [tr.mean_position()[0] for tr in self.tracks if tr.kind == "object"]
         return np.array(pts).reshape(-1, 3)
 
-    def note_scan(self, stamp: int, points: np.ndarray, segments: np.ndarray) -> None:
+    def note_scan(self, stamp: int, points: np.ndarray, segments: np.ndarray, in_sight=None) -> None:
         """A scan at ``stamp`` saw these points (N×3, {W}) and segments (M×2×3): the tentative objects
-        within ``object_view_reach_m`` of any were in its view (counted once per stamp)."""
+        within ``object_view_reach_m`` of any were in its view (counted once per stamp), when their
+        place also lay inside the sensor's view (``in_sight``: a function of places N×3 → N bools, as
+        :meth:`MapBuilder._in_sight`; None: not asked)."""
         objects = [tr for tr in self.tracks if tr.kind == "object" and tr._in_view_stamp != stamp]
         at = np.array([tr.views[-1].position for tr in objects]).reshape(-1, 3)
-        for tr, near in zip(objects, near_seen(at, points, segments, self.assoc.object_view_reach_m)):
+        near = near_seen(at, points, segments, self.assoc.object_view_reach_m)
+        if in_sight is not None and len(at):
+            near &= in_sight(at)
+        for tr, near in zip(objects, near):
             if near:
                 _in_view(tr, stamp)
 
