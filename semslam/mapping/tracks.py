@@ -4,9 +4,12 @@ observations). A scan's unpaired observations continue tracks or start new ones;
 its own state); one not seen again within ``association.track_timeout_s`` is forgotten. An object
 must also have been seen in at least ``association.object_view_ratio`` of the scans that had its
 place in view since its first view: the scans that saw anything (a mapped or tentative landmark, an
-unpaired view) within ``association.object_view_reach_m`` of it. A real object in view is seen scan
-after scan; a front-end's false object views, made by a passing configuration (a pipe detected in
-part), come in a few of the many scans that see the pipe beside them.
+unpaired view) within ``association.object_view_reach_m`` of it, with its place inside the sensor's
+view (``association.object_view_margin_m``, :class:`semslam.mapping.visibility.SensorView`: a narrow
+camera that sees the pipe short of a valve outside its frame did not have the valve in view). A real
+object in view is seen scan after scan; a front-end's false object views, made by a passing
+configuration (a pipe detected in part), come in a few of the many scans that see the pipe beside
+them.
 
 A scan's views continue tracks one-to-one, by the assignment of least total cost over the scan
 (Hungarian), not view by view: in a row of objects 25–35 cm apart with a missed object, the greedy
@@ -174,8 +177,8 @@ class TrackSet:
         near = near_seen(at, points, segments, self.assoc.object_view_reach_m)
         if in_sight is not None and len(at):
             near &= in_sight(at)
-        for tr, near in zip(objects, near):
-            if near:
+        for tr, is_near in zip(objects, near):
+            if is_near:
                 _in_view(tr, stamp)
 
     def purge(self, stamp: int) -> list[Track]:
