@@ -8,7 +8,8 @@ then not again for the scans that see the pipe beside it. At the end of the miss
 fewer than ``association.object_confirm_ratio`` of at least ``object_confirm_scans`` scans that had it
 in view is left out of the map (:meth:`InView.unconfirmed`).
 
-"In view" for the confirmation also asks that the object's place lay inside the sensor's view
+"In view" for the confirmation (and for the promotion's ``object_view_ratio``,
+:mod:`semslam.mapping.tracks`) also asks that the object's place lay inside the sensor's view
 (:class:`SensorView`, with ``association.object_view_margin_m`` for the object's extent): a narrow
 camera that sees the pipe up to 0.1-0.3 m short of a valve, the valve itself outside its frame, did
 not have the valve in view. The sensor's view is what its own observations show of it: the widest
