@@ -180,8 +180,7 @@ class MapBuilder:
         in_sight = self._in_sight(obs)
         self.tracks.note_scan(stamp, points, segments, in_sight)
         seen_objects = {lid for z, lid, _ in paired if isinstance(z, PointObservation)}
-        sight = None if in_sight is None else in_sight(mapped)
-        self.in_view.scan(mapped_ids, mapped, points, segments, seen_objects, sight)
+        self.in_view.scan(mapped_ids, mapped, points, segments, seen_objects, in_sight)
         went, promoted = self.tracks.extend(views, separators)
         for v, tr in zip(views, went):
             self.book.observe(("track", tr.key), stamp, v.z)
