@@ -240,16 +240,11 @@ def smoothed_displacement_factor(xi: int, xj: int, vi: int, vj: int, s: Smoothed
     H_vi, H_vj = C_T[:, 3:6].copy(), C_T[:, 6:9].copy()
 
     def error(this: gtsam.CustomFactor, values: gtsam.Values, H):
-        Ti, Tj = values.atPose3(xi), values.atPose3(xj)
-        Ri = Ti.rotation().matrix()
-        delta = Ri.T @ (Tj.translation() - Ti.translation())
+        delta, H_i, H_j = relative_position(values.atPose3(xi), values.atPose3(xj))
         z = np.concatenate([delta, values.atVector(vi), values.atVector(vj)])
         r = C_T @ (z - z0)
         if H is not None:
-            H[0] = C_d @ np.hstack([skew(delta), -np.eye(3)])
-            H[1] = C_d @ np.hstack([np.zeros((3, 3)), Ri.T @ Tj.rotation().matrix()])
-            H[2] = H_vi
-            H[3] = H_vj
+            H[0], H[1], H[2], H[3] = C_d @ H_i, C_d @ H_j, H_vi, H_vj
         return r
 
     return gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(9), [xi, xj, vi, vj], error)
@@ -258,15 +253,20 @@ def smoothed_displacement_factor(xi: int, xj: int, vi: int, vj: int, s: Smoothed
 def displacement_residual(T_i: gtsam.Pose3, T_j: gtsam.Pose3, v_i, v_j, d: DisplacementIntegral, jac: bool = False):
     """r = R_iᵀ (p_j − p_i) − c − A v_i − B v_j and, with ``jac``, its Jacobians
     (3×6 wrt X_i, 3×6 wrt X_j, 3×3 wrt V_i, 3×3 wrt V_j)."""
-    Ri = T_i.rotation().matrix()
-    Rj = T_j.rotation().matrix()
-    delta = Ri.T @ (T_j.translation() - T_i.translation())
+    delta, H_i, H_j = relative_position(T_i, T_j)
     r = delta - d.c - d.A @ v_i - d.B @ v_j
     if not jac:
         return r
-    H_i = np.hstack([skew(delta), -np.eye(3)])
-    H_j = np.hstack([np.zeros((3, 3)), Ri.T @ Rj])
     return r, (H_i, H_j, -d.A, -d.B)
+
+
+def relative_position(T_i: gtsam.Pose3, T_j: gtsam.Pose3) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """δ = R_iᵀ (p_j − p_i), the position of X_j in {B_i}, and its Jacobians (3×6) wrt X_i and X_j."""
+    Ri = T_i.rotation().matrix()
+    delta = Ri.T @ (T_j.translation() - T_i.translation())
+    H_i = np.hstack([skew(delta), -np.eye(3)])
+    H_j = np.hstack([np.zeros((3, 3)), Ri.T @ T_j.rotation().matrix()])
+    return delta, H_i, H_j
 
 
 def displacement_factor(xi: int, xj: int, vi: int, vj: int, d: DisplacementIntegral) -> gtsam.CustomFactor:

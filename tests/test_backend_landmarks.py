@@ -122,3 +122,24 @@ def test_a_mapped_in_line_object_keeps_two_collinear_pipe_views_apart():
     valve_W = T_WS[:3, :3] @ valve_S + T_WS[:3, 3]
     assert len(builder.merge_lines([a, b], valve_W[None])) == 2
     assert len(builder.merge_lines([a, b], valve_W[None] + 0.5)) == 1  # mapped elsewhere
+
+
+def test_the_builders_sight_test_places_the_mapped_and_tentative_objects_in_the_batchs_sensor_view():
+    """``MapBuilder._in_sight``: the sensor's view grown by the batch's observations, then a function of
+    places in {W} (the mapped objects for the confirmation, the tentative ones for the promotion)."""
+    from semslam.config import AssociationConfig
+    from semslam.mapping.builder import MapBuilder
+
+    T_WS = np.eye(4)
+    T_WS[:3, :3] = [[np.cos(0.3), -np.sin(0.3), 0], [np.sin(0.3), np.cos(0.3), 0], [0, 0, 1]]
+    T_WS[:3, 3] = [1.0, 2.0, 3.0]
+    builder = MapBuilder(_SensorAt(T_WS), AssociationConfig(), LandmarkBook(), [])
+    tx, ty = np.tan(np.radians(10)), np.tan(np.radians(7.5))
+    pipe = LineObservation(0, "laser", p=[-tx * 1.2, -ty * 1.2, 1.2], q=[tx * 1.2, ty * 1.2, 1.2])
+    sight = builder._in_sight([pipe])
+    in_S = np.array([[0.0, 0.0, 1.0], [0.0, ty + 0.04, 1.0], [0.0, ty + 0.2, 1.0], [0.0, 0.0, 1.4]])
+    in_W = in_S @ T_WS[:3, :3].T + T_WS[:3, 3]
+    assert sight(in_W).tolist() == [True, True, False, False]
+    assert sight(np.zeros((0, 3))).shape == (0,)
+    off = MapBuilder(_SensorAt(T_WS), AssociationConfig(object_view_margin_m=None), LandmarkBook(), [])
+    assert off._in_sight([pipe]) is None

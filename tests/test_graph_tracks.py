@@ -105,3 +105,24 @@ def test_an_object_seen_in_few_of_the_scans_that_had_it_in_view_is_not_promoted(
         loose.note_scan(scan, none, pipe)
         got += _scan(loose, scan, [0] if scan in (1, 6, 12) else [])[1]
     assert len(got) == 1
+
+
+def test_scans_without_the_objects_place_in_the_sensors_view_do_not_count_against_its_promotion():
+    """Pipeline seed 19's valve 4 (stop 40): seen once on the way out, then for 15 scans the narrow
+    camera saw the pipe within reach of it, the valve itself outside its frame, then seen scan after
+    scan on the way back. Counted in view only inside the sensor's view (``note_scan``'s ``in_sight``)
+    the valve is promoted at its third view; counted by reach alone it is not, 5 views in 20 scans."""
+    assoc = AssociationConfig(min_observations=3, object_view_ratio=0.5, object_view_reach_m=0.3)
+    pipe = np.array([[[0.2, 0.0, 3.0], [0.8, 0.0, 3.0]]])  # ends 0.2 m from ROW[0]
+    none = np.zeros((0, 3))
+    for narrow in (True, False):
+        tracks, promoted = TrackSet(assoc), []
+        for scan in range(1, 21):
+            seen = scan == 1 or scan >= 17
+            in_sight = (lambda at, seen=seen: np.full(len(at), seen)) if narrow else None
+            tracks.note_scan(scan, none, pipe, in_sight)
+            promoted += _scan(tracks, scan, [0] if seen else [])[1]
+        if narrow:
+            assert len(promoted) == 1 and len(promoted[0].views) == 3 and promoted[0].in_view == 3
+        else:
+            assert promoted == [] and len(tracks.tracks[0].views) == 5 and tracks.tracks[0].in_view == 20

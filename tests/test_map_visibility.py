@@ -78,12 +78,11 @@ def test_a_valve_outside_a_narrow_view_is_not_in_view_while_the_pipe_beside_it_i
         lg.start(1, seen=3, in_view=4)
     for k in range(26):
         in_frame = k < 6
-        sight = np.array([in_frame])
         seen = {1} if k < 4 else set()
-        log.scan([1], valve, np.zeros((0, 3)), PIPE, seen, sight)
+        log.scan([1], valve, np.zeros((0, 3)), PIPE, seen, lambda places, f=in_frame: np.full(len(places), f))
         before.scan([1], valve, np.zeros((0, 3)), PIPE, seen)  # main's rule: the pipe within reach counts
     assert (log.seen[1], log.in_view[1]) == (7, 10) and log.unconfirmed(a.object_confirm_ratio, 1) == set()
     assert before.in_view[1] == 30 and before.unconfirmed(a.object_confirm_ratio, 1) == {1}
     # a seen object counts in view whatever the view says (a view is proof of sight)
-    log.scan([1], valve, np.zeros((0, 3)), np.zeros((0, 2, 3)), {1}, np.array([False]))
+    log.scan([1], valve, np.zeros((0, 3)), np.zeros((0, 2, 3)), {1}, lambda places: np.zeros(len(places), bool))
     assert (log.seen[1], log.in_view[1]) == (8, 11)

@@ -47,7 +47,8 @@ class Recorder:
             rec.stamp = stamp
             return process(self, stamp, observations)
 
-        def scan_(self, ids, positions, points, segments, seen, sight=None):
+        def scan_(self, ids, positions, points, segments, seen, in_sight=None):
+            sight = None if in_sight is None or not len(ids) else in_sight(positions)
             for k, (lid, x) in enumerate(zip(ids, positions, strict=True)):
                 if lid not in self.in_view:
                     continue
@@ -61,7 +62,7 @@ class Recorder:
                 if near or lid in seen:
                     row = (rec.stamp, lid in seen, None if sight is None else bool(sight[k]), x.copy(), segs)
                     rec.rows.setdefault(rec.name, {}).setdefault(lid, []).append(row)
-            return scan(self, ids, positions, points, segments, seen, sight)
+            return scan(self, ids, positions, points, segments, seen, in_sight)
 
         builder.MapBuilder.process, visibility.InView.scan = process_, scan_
 

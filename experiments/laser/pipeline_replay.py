@@ -131,9 +131,15 @@ def replay(seed: int, dump: Path, sim: dict, config: dict, fix_directions: bool 
 
 
 def line_frame(gt) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The main line's start, unit direction and horizontal unit across it (its longest true pipe's
-    axis: the main line is straight)."""
-    g = max(gt.pipes, key=lambda g: np.linalg.norm(np.subtract(g.q, g.p)))
+    """The main line's start, unit direction and horizontal unit across it: the direction that holds
+    most of the true pipes' length (the main line is straight; a branch can be its longest single
+    pipe: seed 19), from the start of the longest pipe along it."""
+    d = [np.subtract(g.q, g.p) for g in gt.pipes]
+    w, V = np.linalg.eigh(sum(np.outer(v, v) / np.linalg.norm(v) for v in d))
+    g = max(
+        (g for g, v in zip(gt.pipes, d) if abs(v @ V[:, -1]) >= np.cos(np.radians(10)) * np.linalg.norm(v)),
+        key=lambda g: np.linalg.norm(np.subtract(g.q, g.p)),
+    )
     p, q = np.asarray(g.p, float), np.asarray(g.q, float)
     a = (q - p) / np.linalg.norm(q - p)
     across = np.cross([0.0, 0.0, 1.0], a)

@@ -134,9 +134,10 @@ class AssociationConfig(BaseModel):
     object_view_margin_m: float | None = Field(
         0.05,
         ge=0,
-        description="object_confirm_ratio counts a scan as having a mapped object in view only when the object's "
-        "place also lay inside the sensor's view (the widest angles and range of what that sensor reported) widened "
-        "by this much for the object's extent; null: any scan that saw something within object_view_reach_m counts",
+        description="object_view_ratio (tentative objects) and object_confirm_ratio (mapped ones) count a scan as "
+        "having an object in view only when the object's place also lay inside the sensor's view (the widest angles "
+        "and range of what that sensor reported) widened by this much for the object's extent; null: any scan that "
+        "saw something within object_view_reach_m counts",
     )
     object_view_reach_m: float = Field(
         0.3, gt=0, description="a scan that saw anything this close to a tentative object had that object in view"

@@ -177,9 +177,10 @@ class MapBuilder:
             self.state.update(paired)
         views = [TrackView(stamp, z, *self.state.place(z)) for z in unpaired]
         points, segments = self._seen(paired, views, mapped_ids, mapped)
-        self.tracks.note_scan(stamp, points, segments)
+        in_sight = self._in_sight(obs)
+        self.tracks.note_scan(stamp, points, segments, in_sight)
         seen_objects = {lid for z, lid, _ in paired if isinstance(z, PointObservation)}
-        self.in_view.scan(mapped_ids, mapped, points, segments, seen_objects, self._in_sight(obs, mapped))
+        self.in_view.scan(mapped_ids, mapped, points, segments, seen_objects, in_sight)
         went, promoted = self.tracks.extend(views, separators)
         for v, tr in zip(views, went):
             self.book.observe(("track", tr.key), stamp, v.z)
@@ -233,20 +234,27 @@ class MapBuilder:
         segments += [v.world for v in views if isinstance(v.z, LineObservation)]
         return np.array(points).reshape(-1, 3), np.array(segments).reshape(-1, 2, 3)
 
-    def _in_sight(self, obs: list[Observation], mapped: np.ndarray) -> np.ndarray | None:
-        """Which mapped objects (N×3, {W}) lie in the view of a sensor of the batch (:class:`SensorView`,
-        after adding the batch's observations to it); None when ``object_view_margin_m`` is off."""
+    def _in_sight(self, obs: list[Observation]):
+        """Which places (N×3, {W}) lie in the view of a sensor of the batch (:class:`SensorView`, after
+        adding the batch's observations to it): a function of the places, for the mapped objects and the
+        tentative ones; None when ``object_view_margin_m`` is off."""
         margin = self.assoc.object_view_margin_m
         if margin is None:
             return None
-        sight = np.zeros(len(mapped), bool)
+        sensors = []
         for sensor in dict.fromkeys(z.sensor for z in obs):
             pts = [z.position for z in obs if isinstance(z, PointObservation) and z.sensor == sensor]
             pts += [e for z in obs if isinstance(z, LineObservation) and z.sensor == sensor for e in (z.p, z.q)]
             view = self.views.setdefault(sensor, SensorView())
             view.add(np.array(pts, float).reshape(-1, 3))
-            T_SW = np.linalg.inv(self.state.sensor_pose(sensor))
-            sight |= view.contains(mapped @ T_SW[:3, :3].T + T_SW[:3, 3], margin)
+            sensors.append((view, np.linalg.inv(self.state.sensor_pose(sensor))))
+
+        def sight(places: np.ndarray) -> np.ndarray:
+            inside = np.zeros(len(places), bool)
+            for view, T_SW in sensors:
+                inside |= view.contains(places @ T_SW[:3, :3].T + T_SW[:3, 3], margin)
+            return inside
+
         return sight
 
     def _usable(self, stamp: int, observations: Sequence[Observation]) -> list[Observation]:

@@ -4,9 +4,12 @@ observations). A scan's unpaired observations continue tracks or start new ones;
 its own state); one not seen again within ``association.track_timeout_s`` is forgotten. An object
 must also have been seen in at least ``association.object_view_ratio`` of the scans that had its
 place in view since its first view: the scans that saw anything (a mapped or tentative landmark, an
-unpaired view) within ``association.object_view_reach_m`` of it. A real object in view is seen scan
-after scan; a front-end's false object views, made by a passing configuration (a pipe detected in
-part), come in a few of the many scans that see the pipe beside them.
+unpaired view) within ``association.object_view_reach_m`` of it, with its place inside the sensor's
+view (``association.object_view_margin_m``, :class:`semslam.mapping.visibility.SensorView`: a narrow
+camera that sees the pipe short of a valve outside its frame did not have the valve in view). A real
+object in view is seen scan after scan; a front-end's false object views, made by a passing
+configuration (a pipe detected in part), come in a few of the many scans that see the pipe beside
+them.
 
 A scan's views continue tracks one-to-one, by the assignment of least total cost over the scan
 (Hungarian), not view by view: in a row of objects 25–35 cm apart with a missed object, the greedy
@@ -166,13 +169,18 @@ class TrackSet:
         pts = [tr.mean_position()[0] for tr in self.tracks if tr.kind == "object"]
         return np.array(pts).reshape(-1, 3)
 
-    def note_scan(self, stamp: int, points: np.ndarray, segments: np.ndarray) -> None:
+    def note_scan(self, stamp: int, points: np.ndarray, segments: np.ndarray, in_sight=None) -> None:
         """A scan at ``stamp`` saw these points (N×3, {W}) and segments (M×2×3): the tentative objects
-        within ``object_view_reach_m`` of any were in its view (counted once per stamp)."""
+        within ``object_view_reach_m`` of any were in its view (counted once per stamp), when their
+        place also lay inside the sensor's view (``in_sight``: a function of places N×3 → N bools, as
+        :meth:`MapBuilder._in_sight`; None: not asked)."""
         objects = [tr for tr in self.tracks if tr.kind == "object" and tr._in_view_stamp != stamp]
         at = np.array([tr.views[-1].position for tr in objects]).reshape(-1, 3)
-        for tr, near in zip(objects, near_seen(at, points, segments, self.assoc.object_view_reach_m)):
-            if near:
+        near = near_seen(at, points, segments, self.assoc.object_view_reach_m)
+        if in_sight is not None and len(at):
+            near &= in_sight(at)
+        for tr, is_near in zip(objects, near):
+            if is_near:
                 _in_view(tr, stamp)
 
     def purge(self, stamp: int) -> list[Track]:

@@ -8,7 +8,8 @@ then not again for the scans that see the pipe beside it. At the end of the miss
 fewer than ``association.object_confirm_ratio`` of at least ``object_confirm_scans`` scans that had it
 in view is left out of the map (:meth:`InView.unconfirmed`).
 
-"In view" for the confirmation also asks that the object's place lay inside the sensor's view
+"In view" for the confirmation (and for the promotion's ``object_view_ratio``,
+:mod:`semslam.mapping.tracks`) also asks that the object's place lay inside the sensor's view
 (:class:`SensorView`, with ``association.object_view_margin_m`` for the object's extent): a narrow
 camera that sees the pipe up to 0.1-0.3 m short of a valve, the valve itself outside its frame, did
 not have the valve in view. The sensor's view is what its own observations show of it: the widest
@@ -70,19 +71,20 @@ class InView:
         self.seen[lid], self.in_view[lid] = seen, in_view
 
     def scan(
-        self, ids: list[int], positions: np.ndarray, points: np.ndarray, segments: np.ndarray, seen, sight=None
+        self, ids: list[int], positions: np.ndarray, points: np.ndarray, segments: np.ndarray, seen, in_sight=None
     ) -> None:
         """One scan: the mapped objects ``ids`` at ``positions`` (N×3, {W}) with what it saw (points
-        M×3, segments S×2×3) and the ids of the objects it saw (paired views); ``sight`` (N bools,
-        None: all) whether each object's place lay inside the scan's sensor view."""
+        M×3, segments S×2×3) and the ids of the objects it saw (paired views); ``in_sight`` (a function of
+        places N×3 → N bools, as for :meth:`TrackSet.note_scan`; None: not asked) whether a place lay
+        inside the scan's sensor view."""
         seen = {lid for lid in seen if lid in self.in_view}
         for lid in seen:
             self.seen[lid] += 1
         if not len(ids):
             return
         near = near_seen(positions, points, segments, self.reach)
-        if sight is not None:
-            near &= np.asarray(sight, bool)
+        if in_sight is not None:
+            near &= in_sight(positions)
         for lid, is_near in zip(ids, near):
             if lid in self.in_view and (is_near or lid in seen):
                 self.in_view[lid] += 1
