@@ -273,13 +273,19 @@ class Keyframes:
     def _predict(self, k: int, factors: list, values: gtsam.Values) -> None:
         """Keyframe k's estimate and joint covariance from its factors and keyframe k−1's estimate
         and joint marginal (a Gaussian prior): one Gauss–Newton step from ``values`` (the step iSAM2
-        takes on new variables), the prior's keys at their estimate."""
+        takes on new variables). Keyframe k−1's factors are linearised where iSAM2 linearises them,
+        at its linearisation point θ, and the prior holds its estimate as the offset from θ (iSAM2's
+        δ), so the step is iSAM2's own unless that update relinearises (at the estimate instead, the
+        prediction was off by up to 1.2 % of σ where the interval's averaged depth holds X(k−1))."""
         prev, new = self._keys(k - 1), self._keys(k)
+        theta = self.session.theta
         at = gtsam.Values(values)
-        at.insert(X(k - 1), self.pose)
-        at.insert(V(k - 1), np.asarray(self.vel, float))
+        at.insert(X(k - 1), theta.atPose3(X(k - 1)))
+        at.insert(V(k - 1), theta.atVector(V(k - 1)))
+        offset = [at.atPose3(X(k - 1)).localCoordinates(self.pose), np.asarray(self.vel) - at.atVector(V(k - 1))]
         if self.bias_walk > 0:
-            at.insert(B(k - 1), np.array([self.bias]))
+            at.insert(B(k - 1), theta.atVector(B(k - 1)))
+            offset.append([self.bias - at.atVector(B(k - 1))[0]])
         graph = gtsam.NonlinearFactorGraph()
         for f in factors:
             graph.add(f)
@@ -288,9 +294,12 @@ class Keyframes:
             ordering.push_back(key)
         H, eta = graph.linearize(at).hessian(ordering)
         n = len(self.state_cov)
-        H[:n, :n] += np.linalg.inv(self.state_cov)
+        info = np.linalg.inv(self.state_cov)
+        H[:n, :n] += info
+        eta = np.ravel(eta).copy()
+        eta[:n] += info @ np.concatenate(offset)
         cov = np.linalg.inv(H)
-        step = cov @ np.ravel(eta)
+        step = cov @ eta
         cov = 0.5 * (cov[n:, n:] + cov[n:, n:].T)
         dx = step[n:]
         self.pose = values.atPose3(X(k)).retract(dx[:6])
