@@ -116,7 +116,8 @@ class AssociationConfig(BaseModel):
         ge=0,
         le=1,
         description="an object enters the map only when it was seen in at least this share of the scans that had "
-        "its place in view since its first view (scans that saw anything within object_view_reach_m of it): a real "
+        "its place in view since its first view (scans that saw anything within object_view_reach_m of it; the views "
+        "and scans of a track forgotten there after track_timeout_s count for the track that starts there): a real "
         "object in view is seen scan after scan, a front-end's false object views (a pipe detected in part) come in "
         "a few of the many scans that see the pipe beside them; 0: off",
     )
