@@ -22,12 +22,13 @@ class InitialStateConfig(BaseModel):
     attitude_sigma_rad: float = Field(0.05, gt=0, description="prior σ of the start roll, pitch and yaw")
     velocity_sigma_m_s: float = Field(0.5, gt=0, description="prior σ of the start body velocity (per axis)")
     at_rest_until_velocity_sigma_m_s: float | None = Field(
-        0.1,
+        0.01,
         gt=0,
-        description="until the first valid DVL reading (or GPS fix), every estimator takes the vehicle as "
-        "holding its horizontal position, a zero body x/y velocity with this σ (a vehicle waiting for bottom "
-        "lock dives or holds station; without it the first reading is taken as the velocity held since the "
-        "start); said in the run's warnings with how long it held; null: off",
+        description="until the first valid DVL reading (or GPS fix, or the depth sensor's first change: the "
+        "vehicle dives), every estimator takes the vehicle as holding its horizontal position, a zero body "
+        "x/y velocity with this σ (a vehicle waiting for bottom lock holds station; as sure as the DVL's "
+        "zero-velocity test below, ~1 cm/s; without it the first reading is taken as the velocity held since "
+        "the start); said in the run's warnings with how long it held; null: off",
     )
     still_test_readings: int | None = Field(
         10,
@@ -43,7 +44,12 @@ class MotionNoiseConfig(BaseModel):
     """Process noise of the vehicle motion model, shared by every estimator (no estimator gets its own tuning)."""
 
     model_config = ConfigDict(extra="forbid")
-    accel_sigma_m_s2: float = Field(0.05, gt=0, description="white linear-acceleration noise (body frame)")
+    accel_sigma_m_s2: float = Field(
+        0.02,
+        gt=0,
+        description="white linear-acceleration noise (body frame, m/s²/√Hz): what the vehicle's velocity may "
+        "change between velocity readings; a model looser than the vehicle throws away the DVL's averaging",
+    )
     angular_rate_sigma_rad_s: float = Field(0.01, gt=0, description="white angular-rate noise")
 
 

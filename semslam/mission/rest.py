@@ -6,14 +6,23 @@ has dived (15–20 s in the simulated tank worlds). With nothing measuring the h
 constant-velocity motion model lets the start's velocity uncertainty grow the position's to metres,
 fully correlated with the velocity: the first valid reading is then read as that velocity held since
 the start, and the position jumps by it times the wait (measured: experiments/estimators/README.md).
-A vehicle waiting for bottom lock dives or holds station; the first velocity reading says nothing
-about how it got there.
+A vehicle waiting for bottom lock holds station; the first velocity reading says nothing about how
+it got there.
 
 So, until then, every ``PERIOD_S`` the estimators get a zero body velocity reading of the DVL with
-σ ``initial.at_rest_until_velocity_sigma_m_s`` along the body's x and y and none along z (the dive's
-vertical speed is the depth sensor's to observe). The readings go into the stream every estimator
-reads, so the EKF, the graph and dead reckoning take the same assumption; it is said after the run
-with how long it held (a mission whose DVL has lock from its first second never meets it).
+σ ``initial.at_rest_until_velocity_sigma_m_s`` along the body's x and y and none along z. The
+readings go into the stream every estimator reads, so the EKF, the graph and dead reckoning take the
+same assumption; it is said after the run with how long it held (a mission whose DVL has lock from its
+first second never meets it).
+
+The claim ends, too, when the depth sensor says the vehicle has started to move: the mean of its
+readings over the last ``DEPTH_WINDOW_S`` differs from the mean of every earlier reading by more than
+χ²(1) ``DEPTH_CHI2`` allows with their declared variances. Why: a vehicle that dives is no longer
+waiting, and one that moves horizontally before its DVL locks (the simulated tank vehicle: diving from
+6 s, moving from 8 s, lock as late as 31 s, up to 1.2 m travelled by then) would be read as standing
+still for the whole stretch — a wrong measurement, which pulled the EKF up to 16 cm off before the lock
+(experiments/estimators/README.md, stop 41). From there until the first valid reading nothing is said
+about the horizontal velocity: every estimator's motion model carries it.
 
 Then, while the vehicle is still (``initial.still_test_readings``, a zero-velocity test): as long as
 the DVL's newest valid reading and the mean of its last N are consistent with zero velocity (χ²(3) ≤
@@ -33,13 +42,15 @@ from collections import deque
 
 import numpy as np
 
-from semslam.mission.measurements import DvlVelocity, GpsFix
+from semslam.mission.measurements import Depth, DvlVelocity, GpsFix
 from semslam.mission.mission import Mission
 
 PERIOD_S = 0.2  # a DVL's rate; the readings stand in for the ones it could not give
 SAID_AFTER_S = 1.0  # a hold shorter than this (a GPS fix or the lock a moment later) changes nothing worth a word
 VERTICAL_SIGMA_M_S = 1.0  # no information along z: a dive's 0.1–0.5 m/s is not held
 STILL_CHI2 = 16.27  # χ²(3) at 0.999: a reading (or a window's mean) this close to zero says "still"
+DEPTH_WINDOW_S = 1.0  # the depth sensor's newest readings, compared with every earlier one
+DEPTH_CHI2 = 10.83  # χ²(1) at 0.999: a depth change beyond this says the vehicle moves
 
 
 class RestAssumption:
@@ -55,6 +66,7 @@ class RestAssumption:
         self.still_first: int | None = None  # the zero-velocity test's first and last zeroed reading
         self.still_last: int | None = None
         self.start: int | None = None  # the mission's first stamp
+        self.moved: int | None = None  # the stamp at which the depth sensor ended the start at rest
 
     @property
     def held_s(self) -> float:
@@ -86,11 +98,19 @@ class RestAssumption:
         if not self.said:
             return None
         parts = []
-        if self.held_said:
+        if self.held_said and self.moved is None:
             parts.append(
                 f"no valid velocity reading for the first {self.held_s:.1f} s ({self.sensor} without bottom lock): the "
                 f"vehicle was taken at rest horizontally until then (σ {self.sigma_m_s:g} m/s, "
                 "initial.at_rest_until_velocity_sigma_m_s; null turns it off)"
+            )
+        elif self.held_said:
+            parts.append(
+                f"no valid velocity reading ({self.sensor} without bottom lock): the vehicle was taken at rest "
+                f"horizontally for the first {self.held_s:.1f} s, until its depth changed at "
+                f"{(self.moved - self.start) * 1e-9:.1f} s, and nothing was said of its horizontal velocity from there "
+                f"to the first reading (σ {self.sigma_m_s:g} m/s, initial.at_rest_until_velocity_sigma_m_s; null "
+                "turns it off)"
             )
         if self.still_said:
             parts.append(
@@ -113,6 +133,26 @@ def _without_vertical(R_BS: np.ndarray, cov_S: np.ndarray) -> np.ndarray:
     cov_B[2, :] = cov_B[:, 2] = 0.0
     cov_B[2, 2] = VERTICAL_SIGMA_M_S**2
     return R_BS.T @ cov_B @ R_BS
+
+
+class _DepthChange:
+    """Whether the depth sensor says the vehicle has started to move (see the module docstring)."""
+
+    def __init__(self):
+        self.window: deque = deque()  # (stamp, depth, variance) of the last DEPTH_WINDOW_S
+        self.before = np.zeros(3)  # count, sum of depths, sum of variances of every earlier reading
+
+    def moved(self, stamp: int, depth: float, variance: float) -> bool:
+        self.window.append((stamp, depth, variance))
+        while self.window[0][0] < stamp - int(DEPTH_WINDOW_S * 1e9):
+            _, z, var = self.window.popleft()
+            self.before += (1.0, z, var)
+        n0, n1 = self.before[0], len(self.window)
+        if n0 < n1:  # not yet a window's worth of readings to compare with
+            return False
+        z = np.array([w[1] for w in self.window])
+        var = self.before[2] / n0**2 + sum(w[2] for w in self.window) / n1**2
+        return (z.mean() - self.before[1] / n0) ** 2 > DEPTH_CHI2 * var
 
 
 class _StillTest:
@@ -146,10 +186,13 @@ def at_rest_until_velocity(
     period = int(PERIOD_S * 1e9)
     record = RestAssumption(sigma_m_s, dvl)
 
+    depth_sensor = next(iter(mission.metadata.sensors_of_kind("depth")), None)
+
     def stream():
         record.readings, record.first, record.last = 0, None, None
-        record.still_first = record.still_last = None
+        record.still_first = record.still_last = record.moved = None
         holding, due = sigma_m_s is not None, None
+        depth = _DepthChange() if depth_sensor is not None else None
         test = _StillTest(still_readings) if still_readings is not None else None  # None: not (or no longer) testing
         bridge = None
         for m in mission:
@@ -158,6 +201,9 @@ def at_rest_until_velocity(
                 holding, test = False, None
             if holding and valid:  # any DVL's valid reading ends the start at rest
                 holding = False
+            if holding and depth is not None and isinstance(m, Depth) and m.sensor == depth_sensor.name:
+                if depth.moved(m.stamp, m.depth, m.variance):  # the vehicle moves: no longer waiting
+                    holding, record.moved = False, m.stamp
             if due is None:  # the first reading stands in for a DVL one PERIOD_S late, not at once
                 due, record.start = m.stamp + period, m.stamp
             if holding and m.stamp >= due:
