@@ -8,7 +8,7 @@ from semslam.compare import estimators_input
 from semslam.config import SemslamConfig
 from semslam.estimators import create_estimator
 from semslam.mission.check import input_block, stream_findings
-from semslam.mission.measurements import Attitude, DvlVelocity, GpsFix, GroundTruthPose
+from semslam.mission.measurements import Attitude, Depth, DvlVelocity, GpsFix, GroundTruthPose
 from semslam.mission.mission import Mission, MissionMetadata, SensorInfo
 from semslam.pipeline import run_pipeline
 from semslam.sim.config import TankSimConfig
@@ -104,6 +104,36 @@ def test_a_dvl_less_descent_no_longer_throws_the_estimators_off():
     for name in held:
         assert held[name] < 0.3, (name, held[name])
         assert free[name] > 2 * held[name], (name, free[name], held[name])
+
+
+def diving_mission(dive_s: float | None, lock_s: float = 8.0, seed: int = 0) -> Mission:
+    """AHRS at 10 Hz and a depth sensor at 8 Hz (σ 1.3 cm) for 10 s, the DVL without lock until
+    ``lock_s``; the vehicle still until ``dive_s``, then diving at 0.1 m/s (None: still throughout)."""
+    rng = np.random.default_rng(seed)
+    mission = stream_mission(first_valid_s=lock_s)
+    sensors = dict(mission.metadata.sensors)
+    sensors["depth"] = SensorInfo("depth", "depth", "/depth", "x", np.eye(4))
+    ms = list(mission)
+    for k in range(80):
+        t = k / 8
+        z = 1.0 + (0.0 if dive_s is None else 0.1 * max(t - dive_s, 0.0)) + 0.013 * rng.standard_normal()
+        ms.append(Depth(int(t * S) + 2, "depth", depth=z, variance=0.013**2))
+    return Mission.from_measurements(MissionMetadata(name="m", sensors=sensors), ms)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_the_start_at_rest_ends_when_the_depth_changes(seed):
+    """A vehicle that dives is no longer waiting: the zero readings stop within a second of the dive's
+    start (0.1 m/s), not at the DVL's lock 4 s later (stop 41: the tank vehicle moves horizontally from
+    2 s after its dive, and a zero claim held to the lock was a wrong measurement); a vehicle that
+    stays at its depth is held to the lock as before."""
+    diving = diving_mission(dive_s=4.0, seed=seed)
+    stamps = np.array([m.stamp for m in rest_readings(diving)]) / S
+    assert 3.8 <= stamps[-1] < 5.0, stamps[-1]
+    (said,) = [f.text for f in stream_findings(diving)]
+    assert "until its depth changed at" in said and "nothing was said of its horizontal velocity" in said
+    still = diving_mission(dive_s=None, seed=seed)
+    assert np.array([m.stamp for m in rest_readings(still)])[-1] / S == 8.0
 
 
 def locked_at_rest_mission(still_s: float, noise: float = 0.01, seed: int = 0) -> Mission:

@@ -50,7 +50,7 @@ SAID_AFTER_S = 1.0  # a hold shorter than this (a GPS fix or the lock a moment l
 VERTICAL_SIGMA_M_S = 1.0  # no information along z: a dive's 0.1–0.5 m/s is not held
 STILL_CHI2 = 16.27  # χ²(3) at 0.999: a reading (or a window's mean) this close to zero says "still"
 DEPTH_WINDOW_S = 1.0  # the depth sensor's newest readings, compared with every earlier one
-DEPTH_CHI2 = 10.83  # χ²(1) at 0.999: a depth change beyond this says the vehicle moves
+DEPTH_CHI2 = 25.0  # 5σ: tested at every reading while the vehicle waits, a rarer false alarm than χ²(1) 0.999
 
 
 class RestAssumption:
