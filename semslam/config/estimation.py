@@ -22,13 +22,19 @@ class InitialStateConfig(BaseModel):
     attitude_sigma_rad: float = Field(0.05, gt=0, description="prior σ of the start roll, pitch and yaw")
     velocity_sigma_m_s: float = Field(0.5, gt=0, description="prior σ of the start body velocity (per axis)")
     at_rest_until_velocity_sigma_m_s: float | None = Field(
+        0.1,
+        gt=0,
+        description="until the first valid DVL reading (or GPS fix), every estimator takes the vehicle as "
+        "holding its horizontal position, a zero body x/y velocity with this σ (a vehicle waiting for bottom "
+        "lock dives or holds station; without it the first reading is taken as the velocity held since the "
+        "start); said in the run's warnings with how long it held; null: off",
+    )
+    at_rest_waiting_sigma_m_s: float | None = Field(
         0.01,
         gt=0,
-        description="until the first valid DVL reading (or GPS fix, or the depth sensor's first change: the "
-        "vehicle dives), every estimator takes the vehicle as holding its horizontal position, a zero body "
-        "x/y velocity with this σ (a vehicle waiting for bottom lock holds station; as sure as the DVL's "
-        "zero-velocity test below, ~1 cm/s; without it the first reading is taken as the velocity held since "
-        "the start); said in the run's warnings with how long it held; null: off",
+        description="the σ of that zero velocity while the depth sensor says the vehicle still waits (its "
+        "depth unchanged: holding station, as sure as the zero-velocity test below); from the depth's first "
+        "change (the dive) at_rest_until_velocity_sigma_m_s; null: that σ throughout",
     )
     still_test_readings: int | None = Field(
         10,

@@ -15,14 +15,15 @@ readings go into the stream every estimator reads, so the EKF, the graph and dea
 same assumption; it is said after the run with how long it held (a mission whose DVL has lock from its
 first second never meets it).
 
-The claim ends, too, when the depth sensor says the vehicle has started to move: the mean of its
-readings over the last ``DEPTH_WINDOW_S`` differs from the mean of every earlier reading by more than
-χ²(1) ``DEPTH_CHI2`` allows with their declared variances. Why: a vehicle that dives is no longer
-waiting, and one that moves horizontally before its DVL locks (the simulated tank vehicle: diving from
-6 s, moving from 8 s, lock as late as 31 s, up to 1.2 m travelled by then) would be read as standing
-still for the whole stretch — a wrong measurement, which pulled the EKF up to 16 cm off before the lock
-(experiments/estimators/README.md, stop 41). From there until the first valid reading nothing is said
-about the horizontal velocity: every estimator's motion model carries it.
+While the depth sensor says the vehicle still waits (the mean of its readings over the last
+``DEPTH_WINDOW_S`` within ``DEPTH_CHI2`` of the mean of every earlier reading, with their declared
+variances), the readings' σ is ``initial.at_rest_waiting_sigma_m_s`` (a vehicle holding station,
+about as sure as the DVL's zero-velocity test below); from its first change (the dive) to the first
+valid reading, ``initial.at_rest_until_velocity_sigma_m_s``: a vehicle that dives may start to move
+(the simulated tank vehicle: diving from 6 s, moving from 8 s, lock as late as 31 s) and the zero
+readings then only bound its speed. Why not end the claim at the dive: nothing would then bound the
+horizontal velocity until the lock, and on tank world 79 the graph took a wrong association and split
+its map by 0.45 m in that stretch (experiments/estimators/README.md, stop 41).
 
 Then, while the vehicle is still (``initial.still_test_readings``, a zero-velocity test): as long as
 the DVL's newest valid reading and the mean of its last N are consistent with zero velocity (χ²(3) ≤
@@ -57,8 +58,9 @@ class RestAssumption:
     """What the start at rest did over the last pass: ``readings`` added, and the stamps of the first
     and the last (``None``: the mission's velocity or a GPS fix came before any estimator needed one)."""
 
-    def __init__(self, sigma_m_s: float | None, sensor: str):
+    def __init__(self, sigma_m_s: float | None, sensor: str, waiting_sigma_m_s: float | None = None):
         self.sigma_m_s = sigma_m_s
+        self.waiting_sigma_m_s = waiting_sigma_m_s
         self.sensor = sensor
         self.readings = 0
         self.first: int | None = None
@@ -66,7 +68,7 @@ class RestAssumption:
         self.still_first: int | None = None  # the zero-velocity test's first and last zeroed reading
         self.still_last: int | None = None
         self.start: int | None = None  # the mission's first stamp
-        self.moved: int | None = None  # the stamp at which the depth sensor ended the start at rest
+        self.moved: int | None = None  # the stamp at which the depth sensor said the vehicle dives
 
     @property
     def held_s(self) -> float:
@@ -98,20 +100,17 @@ class RestAssumption:
         if not self.said:
             return None
         parts = []
-        if self.held_said and self.moved is None:
+        if self.held_said:
             parts.append(
                 f"no valid velocity reading for the first {self.held_s:.1f} s ({self.sensor} without bottom lock): the "
                 f"vehicle was taken at rest horizontally until then (σ {self.sigma_m_s:g} m/s, "
                 "initial.at_rest_until_velocity_sigma_m_s; null turns it off)"
             )
-        elif self.held_said:
-            parts.append(
-                f"no valid velocity reading ({self.sensor} without bottom lock): the vehicle was taken at rest "
-                f"horizontally for the first {self.held_s:.1f} s, until its depth changed at "
-                f"{(self.moved - self.start) * 1e-9:.1f} s, and nothing was said of its horizontal velocity from there "
-                f"to the first reading (σ {self.sigma_m_s:g} m/s, initial.at_rest_until_velocity_sigma_m_s; null "
-                "turns it off)"
-            )
+            if self.moved is not None:
+                parts[-1] += (
+                    f", σ {self.waiting_sigma_m_s:g} m/s (initial.at_rest_waiting_sigma_m_s) until its depth changed "
+                    f"at {(self.moved - self.start) * 1e-9:.1f} s"
+                )
         if self.still_said:
             parts.append(
                 f"the {self.sensor}'s readings were consistent with zero velocity for {self.still_s:.1f} s from "
@@ -171,7 +170,7 @@ class _StillTest:
 
 
 def at_rest_until_velocity(
-    mission: Mission, sigma_m_s: float | None, still_readings: int | None = None
+    mission: Mission, sigma_m_s: float | None, still_readings: int | None = None, waiting_sigma_m_s: float | None = None
 ) -> tuple[Mission, RestAssumption | None]:
     """``mission`` with the start at rest and the zero-velocity test after it (see the module
     docstring), and the record of what they did (filled by each pass); unchanged (and None) when both
@@ -183,8 +182,10 @@ def at_rest_until_velocity(
     R_BS = mission.metadata.extrinsic(dvl)[:3, :3]
     if sigma_m_s is not None:
         cov_S = R_BS.T @ np.diag([sigma_m_s**2, sigma_m_s**2, VERTICAL_SIGMA_M_S**2]) @ R_BS
+        w = sigma_m_s if waiting_sigma_m_s is None else waiting_sigma_m_s
+        cov_waiting = R_BS.T @ np.diag([w**2, w**2, VERTICAL_SIGMA_M_S**2]) @ R_BS
     period = int(PERIOD_S * 1e9)
-    record = RestAssumption(sigma_m_s, dvl)
+    record = RestAssumption(sigma_m_s, dvl, waiting_sigma_m_s)
 
     depth_sensor = next(iter(mission.metadata.sensors_of_kind("depth")), None)
 
@@ -192,7 +193,7 @@ def at_rest_until_velocity(
         record.readings, record.first, record.last = 0, None, None
         record.still_first = record.still_last = record.moved = None
         holding, due = sigma_m_s is not None, None
-        depth = _DepthChange() if depth_sensor is not None else None
+        depth = _DepthChange() if depth_sensor is not None and waiting_sigma_m_s is not None else None
         test = _StillTest(still_readings) if still_readings is not None else None  # None: not (or no longer) testing
         bridge = None
         for m in mission:
@@ -202,12 +203,12 @@ def at_rest_until_velocity(
             if holding and valid:  # any DVL's valid reading ends the start at rest
                 holding = False
             if holding and depth is not None and isinstance(m, Depth) and m.sensor == depth_sensor.name:
-                if depth.moved(m.stamp, m.depth, m.variance):  # the vehicle moves: no longer waiting
-                    holding, record.moved = False, m.stamp
+                if depth.moved(m.stamp, m.depth, m.variance):  # the vehicle dives: no longer waiting
+                    record.moved, depth = m.stamp, None
             if due is None:  # the first reading stands in for a DVL one PERIOD_S late, not at once
                 due, record.start = m.stamp + period, m.stamp
             if holding and m.stamp >= due:
-                yield DvlVelocity(m.stamp, dvl, velocity=np.zeros(3), covariance=cov_S)
+                yield DvlVelocity(m.stamp, dvl, velocity=np.zeros(3), covariance=cov_S if record.moved else cov_waiting)
                 record.readings += 1
                 record.first = m.stamp if record.first is None else record.first
                 record.last, due = m.stamp, m.stamp + period
