@@ -122,25 +122,38 @@ def diving_mission(dive_s: float | None, lock_s: float = 8.0, seed: int = 0) -> 
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
-def test_the_start_at_rest_ends_when_the_depth_changes(seed):
-    """A vehicle that dives is no longer waiting: the zero readings stop within a second of the dive's
-    start (0.1 m/s), not at the DVL's lock 4 s later (stop 41: the tank vehicle moves horizontally from
-    2 s after its dive, and a zero claim held to the lock was a wrong measurement); a vehicle that
-    stays at its depth is held to the lock as before."""
+def test_the_start_at_rest_is_sure_only_while_the_depth_holds(seed):
+    """While the depth sensor says the vehicle waits the zero readings' σ is the waiting one (0.01
+    m/s); within a second of the dive's start (0.1 m/s) it is the looser one (0.1 m/s) up to the lock:
+    a vehicle that dives may move (stop 41: the tank vehicle moves horizontally from 2 s after its
+    dive). A vehicle that stays at its depth is held at 0.01 m/s up to the lock."""
+    R_BS = DVL_MOUNT[:3, :3]
+
+    def sigmas(mission):
+        added = rest_readings(mission)
+        return np.array([m.stamp for m in added]) / S, np.array(
+            [np.sqrt((R_BS @ m.covariance @ R_BS.T)[0, 0]) for m in added]
+        )
+
     diving = diving_mission(dive_s=4.0, seed=seed)
-    stamps = np.array([m.stamp for m in rest_readings(diving)]) / S
-    assert 3.8 <= stamps[-1] < 5.0, stamps[-1]
+    t, sig = sigmas(diving)
+    assert t[-1] == 8.0  # held to the lock either way
+    switch = t[np.argmax(sig > 0.05)]
+    assert 4.0 < switch < 5.0, switch
+    np.testing.assert_allclose(sig[t < switch], 0.01)
+    np.testing.assert_allclose(sig[t >= switch], 0.1)
     (said,) = [f.text for f in stream_findings(diving)]
-    assert "until its depth changed at" in said and "nothing was said of its horizontal velocity" in said
-    still = diving_mission(dive_s=None, seed=seed)
-    assert np.array([m.stamp for m in rest_readings(still)])[-1] / S == 8.0
+    assert "initial.at_rest_waiting_sigma_m_s) until its depth changed at 4." in said
+    t, sig = sigmas(diving_mission(dive_s=None, seed=seed))
+    assert t[-1] == 8.0
+    np.testing.assert_allclose(sig, 0.01)
 
 
-def test_a_vehicle_moving_before_the_lock_is_not_held_to_it(monkeypatch):
+def test_a_vehicle_moving_before_the_lock_is_not_held_at_the_waiting_sigma(monkeypatch):
     """A tank mission whose vehicle dives at 6 s and starts to circle while its DVL has no lock (until
-    20 s): the zero claim ends at the dive, and at the lock every estimator's motion model takes the
-    first reading as a velocity reached since then, not since the start; held until the lock (the
-    depth test turned off) the claim is a wrong measurement and every estimator ends ~0.27 m off."""
+    20 s): from the dive the zero readings only bound the speed (σ 0.1 m/s); held at the waiting σ
+    (0.01 m/s, the depth test turned off) up to the lock they are a wrong measurement, and every
+    estimator ends further off after the lock."""
     import semslam.mission.rest as rest
 
     sim = {"seed": 0, "trajectory": {"loops": 0.15, "rest_s": 6.0}, "laser": {"rate_hz": 0.05}}
@@ -165,7 +178,7 @@ def test_a_vehicle_moving_before_the_lock_is_not_held_to_it(monkeypatch):
     monkeypatch.setattr(rest, "DEPTH_CHI2", np.inf)
     held = error_after_the_lock()
     assert mission.rest.moved is None
-    for name in held:  # measured: 0.11 against 0.27 m for each
+    for name in held:  # measured: 0.12 against 0.27 m for each
         assert ended[name] < 0.5 * held[name], (name, ended[name], held[name])
 
 

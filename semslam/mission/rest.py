@@ -6,7 +6,7 @@ has dived (15–20 s in the simulated tank worlds). With nothing measuring the h
 constant-velocity motion model lets the start's velocity uncertainty grow the position's to metres,
 fully correlated with the velocity: the first valid reading is then read as that velocity held since
 the start, and the position jumps by it times the wait (measured: experiments/estimators/README.md).
-A vehicle waiting for bottom lock holds station; the first velocity reading says nothing about how
+A vehicle waiting for bottom lock dives or holds station; the first velocity reading says nothing about how
 it got there.
 
 So, until then, every ``PERIOD_S`` the estimators get a zero body velocity reading of the DVL with
