@@ -6,16 +6,16 @@ has dived (15–20 s in the simulated tank worlds). With nothing measuring the h
 constant-velocity motion model lets the start's velocity uncertainty grow the position's to metres,
 fully correlated with the velocity: the first valid reading is then read as that velocity held since
 the start, and the position jumps by it times the wait (measured: experiments/estimators/README.md).
-A vehicle waiting for bottom lock dives or holds station; the first velocity reading says nothing about how
-it got there.
+A vehicle waiting for bottom lock dives or holds station; the first velocity reading says nothing
+about how it got there.
 
 So, until then, every ``PERIOD_S`` the estimators get a zero body velocity reading of the DVL with
-σ ``initial.at_rest_until_velocity_sigma_m_s`` along the body's x and y and none along z. The
-readings go into the stream every estimator reads, so the EKF, the graph and dead reckoning take the
-same assumption; it is said after the run with how long it held (a mission whose DVL has lock from its
-first second never meets it).
+σ ``initial.at_rest_until_velocity_sigma_m_s`` along the body's x and y and none along z (the dive's
+vertical speed is the depth sensor's to observe). The readings go into the stream every estimator
+reads, so the EKF, the graph and dead reckoning take the same assumption; it is said after the run
+with how long it held (a mission whose DVL has lock from its first second never meets it).
 
-While the depth sensor says the vehicle still waits (the mean of its readings over the last
+If the mission has a depth sensor, while it says the vehicle still waits (the mean of its readings over the last
 ``DEPTH_WINDOW_S`` within ``DEPTH_CHI2`` of the mean of every earlier reading, with their declared
 variances), the readings' σ is ``initial.at_rest_waiting_sigma_m_s`` (a vehicle holding station,
 about as sure as the DVL's zero-velocity test below); from its first change (the dive) to the first
@@ -101,16 +101,18 @@ class RestAssumption:
             return None
         parts = []
         if self.held_said:
+            sure = f"σ {self.sigma_m_s:g} m/s, initial.at_rest_until_velocity_sigma_m_s; null turns it off"
+            if self.waiting_sigma_m_s is not None:
+                waiting = f"σ {self.waiting_sigma_m_s:g} m/s (initial.at_rest_waiting_sigma_m_s)"
+                sure = (
+                    f"{waiting} while its depth held, {sure}"
+                    if self.moved is None
+                    else f"{waiting} until its depth changed at {(self.moved - self.start) * 1e-9:.1f} s, then {sure}"
+                )
             parts.append(
                 f"no valid velocity reading for the first {self.held_s:.1f} s ({self.sensor} without bottom lock): the "
-                f"vehicle was taken at rest horizontally until then (σ {self.sigma_m_s:g} m/s, "
-                "initial.at_rest_until_velocity_sigma_m_s; null turns it off)"
+                f"vehicle was taken at rest horizontally until then ({sure})"
             )
-            if self.moved is not None:
-                parts[-1] += (
-                    f", σ {self.waiting_sigma_m_s:g} m/s (initial.at_rest_waiting_sigma_m_s) until its depth changed "
-                    f"at {(self.moved - self.start) * 1e-9:.1f} s"
-                )
         if self.still_said:
             parts.append(
                 f"the {self.sensor}'s readings were consistent with zero velocity for {self.still_s:.1f} s from "
@@ -135,7 +137,7 @@ def _without_vertical(R_BS: np.ndarray, cov_S: np.ndarray) -> np.ndarray:
 
 
 class _DepthChange:
-    """Whether the depth sensor says the vehicle has started to move (see the module docstring)."""
+    """Whether the depth sensor says the vehicle no longer waits: it dives (see the module docstring)."""
 
     def __init__(self):
         self.window: deque = deque()  # (stamp, depth, variance) of the last DEPTH_WINDOW_S
@@ -185,15 +187,16 @@ def at_rest_until_velocity(
         w = sigma_m_s if waiting_sigma_m_s is None else waiting_sigma_m_s
         cov_waiting = R_BS.T @ np.diag([w**2, w**2, VERTICAL_SIGMA_M_S**2]) @ R_BS
     period = int(PERIOD_S * 1e9)
-    record = RestAssumption(sigma_m_s, dvl, waiting_sigma_m_s)
-
     depth_sensor = next(iter(mission.metadata.sensors_of_kind("depth")), None)
+    if depth_sensor is None:  # nothing tells a waiting vehicle from a moving one: the looser σ throughout
+        waiting_sigma_m_s = None
+    record = RestAssumption(sigma_m_s, dvl, waiting_sigma_m_s)
 
     def stream():
         record.readings, record.first, record.last = 0, None, None
         record.still_first = record.still_last = record.moved = None
         holding, due = sigma_m_s is not None, None
-        depth = _DepthChange() if depth_sensor is not None and waiting_sigma_m_s is not None else None
+        depth = _DepthChange() if waiting_sigma_m_s is not None else None
         test = _StillTest(still_readings) if still_readings is not None else None  # None: not (or no longer) testing
         bridge = None
         for m in mission:
@@ -208,7 +211,7 @@ def at_rest_until_velocity(
             if due is None:  # the first reading stands in for a DVL one PERIOD_S late, not at once
                 due, record.start = m.stamp + period, m.stamp
             if holding and m.stamp >= due:
-                yield DvlVelocity(m.stamp, dvl, velocity=np.zeros(3), covariance=cov_S if record.moved else cov_waiting)
+                yield DvlVelocity(m.stamp, dvl, velocity=np.zeros(3), covariance=cov_waiting if depth else cov_S)
                 record.readings += 1
                 record.first = m.stamp if record.first is None else record.first
                 record.last, due = m.stamp, m.stamp + period
