@@ -29,6 +29,13 @@ class InitialStateConfig(BaseModel):
         "lock dives or holds station; without it the first reading is taken as the velocity held since the "
         "start); said in the run's warnings with how long it held; null: off",
     )
+    at_rest_waiting_sigma_m_s: float | None = Field(
+        0.01,
+        gt=0,
+        description="the σ of that zero velocity while the depth sensor says the vehicle still waits (its "
+        "depth unchanged: holding station, as sure as the zero-velocity test below); from the depth's first "
+        "change (the dive) at_rest_until_velocity_sigma_m_s; null: that σ throughout",
+    )
     still_test_readings: int | None = Field(
         10,
         ge=1,
@@ -43,7 +50,12 @@ class MotionNoiseConfig(BaseModel):
     """Process noise of the vehicle motion model, shared by every estimator (no estimator gets its own tuning)."""
 
     model_config = ConfigDict(extra="forbid")
-    accel_sigma_m_s2: float = Field(0.05, gt=0, description="white linear-acceleration noise (body frame)")
+    accel_sigma_m_s2: float = Field(
+        0.02,
+        gt=0,
+        description="white linear-acceleration noise (body frame, m/s²/√Hz): what the vehicle's velocity may "
+        "change between velocity readings; a model looser than the vehicle throws away the DVL's averaging",
+    )
     angular_rate_sigma_rad_s: float = Field(0.01, gt=0, description="white angular-rate noise")
 
 
