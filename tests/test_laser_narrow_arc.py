@@ -114,3 +114,17 @@ def test_a_valve_at_the_end_of_a_short_held_run_is_found_and_the_run_not_reporte
         assert all(p.objects_only == (p.radius_held and p.length < cfg.pipes.color_max_length) for p in seg.pipes)
     assert not found[False]
     assert len(found[True]) == 1 and found[True][0] < 0.08
+
+
+def test_a_short_held_run_whose_points_a_pipe_took_again_is_left_out():
+    """Object-stage runs take no points from the search, so a later cylinder may fit theirs again:
+    one sharing more than half of its inliers with a pipe, or with such a run kept before it, goes."""
+    from frontends.laser.pipes import Pipe, _apart
+
+    def pipe(idx):
+        z = np.zeros(3)
+        return Pipe(z, z, np.array([1.0, 0, 0]), 0.05, np.asarray(idx), np.eye(6), objects_only=True)
+
+    kept = [pipe(range(0, 100))]
+    a, b, c, d = pipe(range(60, 140)), pipe(range(30, 130)), pipe(range(200, 260)), pipe(range(220, 300))
+    assert _apart([a, b, c, d], kept) == [a, c, d]  # b: all taken (by the pipe and a); a, d: half
