@@ -17,9 +17,12 @@ the sensor's axis (the stereo frame is ±10° × ±7.5°). ``--config``: front-e
 from __future__ import annotations
 
 import argparse
-import json
+import sys
+from pathlib import Path
 
 import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 VALVES = ("Ball-Valve", "Butterfly-Valve", "3-Way-Ball-Valve")
 FRAME_DEG = (10.0, 7.5)  # the pipeline stereo's half field of view, across and along the image (deg)
@@ -78,11 +81,10 @@ def stages(seg, valve_px: np.ndarray, x: np.ndarray, cfg) -> dict:
 
 
 def main(argv=None) -> int:
-    from frontends.laser.config import LaserConfig
+    from valve_trace import valve_mission
+
     from frontends.laser.frontend import segment_scan
-    from semslam.mission.measurements import GroundTruthPose, PointCloud
-    from semslam.sim.pipeline_config import PipelineSimConfig
-    from semslam.sim.pipeline_mission import simulate_pipeline
+    from semslam.mission.measurements import PointCloud
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seed", type=int, default=15)
@@ -92,18 +94,8 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     labels: list = []
     record_labels(labels)
-    mission = simulate_pipeline(PipelineSimConfig(seed=args.seed))
+    mission, cfg, valves, T_BS, poses, stamps = valve_mission(args.seed, args.config, args.valve)
     meta = mission.metadata
-    gt = meta.ground_truth
-    over = json.loads(args.config)
-    if over.get("pipes", {}).pop("nominal", False):
-        over["pipes"]["nominal_radii"] = sorted({round(float(p.radius), 4) for p in gt.pipes})
-    cfg = LaserConfig.model_validate(over)
-    valves = {o.id: o for o in gt.objects if o.cls in VALVES and (args.valve is None or o.id == args.valve)}
-    print("valves:", {k: (o.cls, np.round(o.position, 2).tolist()) for k, o in valves.items()}, flush=True)
-    T_BS = next(s for s in meta.sensors.values() if s.kind == "laser").T_BS
-    poses = {m.stamp: m.matrix() for m in mission.of_type(GroundTruthPose)}
-    stamps = np.array(sorted(poses))
     clouds = list(mission.of_type(PointCloud))
     labels = labels[-len(clouds) :]  # the stereo clouds' casts come last, one per cloud
     t0 = clouds[0].stamp
