@@ -498,7 +498,8 @@ def referred_depth(
     [(R_key − R) t_BS]_z. Returns (mean, variance of the mean): the readings' own noise averages down,
     the displacement's is shared (the same DVL samples for every reading) and is kept whole — each
     knot's weight is its mean weight over the readings — as is the motion model's (σ_a² h³/3 over the
-    reading's longest stretch h without a knot, taken as common to all readings: an upper bound)."""
+    reading's longest stretch h without a knot, plus σ_a² age h² where the stretch lies wholly beyond
+    the knots and holds a velocity already ``age`` old, taken as common to all readings: an upper bound)."""
     t_r = np.array([r[0] for r in readings])
     var_r = np.array([r[2] for r in readings])
     a = (1.0 / var_r) / np.sum(1.0 / var_r)
@@ -510,14 +511,17 @@ def referred_depth(
         z = z + W @ np.array([k[1] for k in knots])
         w_mean = a @ W
         var_disp = float(np.sum(w_mean**2 * np.array([k[2] for k in knots])))
-        gaps = []
+        gaps, ages = [], []
         for t in t_r:
             lo, hi = min(t, t_key), max(t, t_key)
             inside = np.r_[lo, kt[(kt > lo) & (kt < hi)], hi]
             gaps.append(float(np.max(np.diff(inside))) if len(inside) > 1 else 0.0)
-        h = np.array(gaps)
+            # a stretch wholly beyond the knots holds a velocity already that old when it starts
+            ages.append(max(lo - kt[-1], kt[0] - hi, 0.0))
+        h, age = np.array(gaps), np.array(ages)
     else:
         var_disp = float((0.01 * (a @ np.abs(t_key - t_r))) ** 2)
-        h = np.abs(t_key - t_r)
-    var_model = float((a @ (accel_sigma * h**1.5)) ** 2) / 3.0
+        h, age = np.abs(t_key - t_r), np.zeros(len(t_r))
+    # the walk over a stretch h from a velocity known `age` before it: σ_a² (h³/3 + age·h²)
+    var_model = float((a @ (accel_sigma * np.sqrt(h**3 / 3.0 + age * h**2))) ** 2)
     return float(a @ z), float(np.sum(a**2 * var_r)) + var_disp + var_model

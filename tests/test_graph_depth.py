@@ -109,3 +109,14 @@ def test_referred_depth_brings_readings_to_the_keyframe():
     assert 0.02**2 / len(readings) < var < 0.02**2 / len(readings) + 0.005**2
     _, var_more = referred_depth(readings * 4, 1.0, R(1.0), t_BS, knots, 1e-9)
     assert var_more > (var - 0.02**2 / len(readings)) * 0.99  # the shared part stays
+
+
+def test_a_vertical_velocity_held_from_an_old_sample_is_as_unsure_as_its_age():
+    """A reading and its keyframe past the last DVL sample hold that sample's vertical velocity: the walk
+    since the sample (σ_a² age h² over the held stretch h) is in the variance, so a sample 10 s old is not
+    trusted like one 0.1 s old (review, stop 41)."""
+    R, t_BS, sigma_a = np.eye(3), np.zeros(3), 0.02
+    readings = [(10.9, 5.0, 0.02**2, R)]
+    fresh = referred_depth(readings, 11.0, R, t_BS, [(10.8, 0.0, 1e-6)], sigma_a)[1]
+    stale = referred_depth(readings, 11.0, R, t_BS, [(1.0, 0.0, 1e-6)], sigma_a)[1]
+    np.testing.assert_allclose(stale - fresh, sigma_a**2 * 0.1**2 * (9.9 - 0.1), rtol=1e-6)

@@ -120,7 +120,7 @@ def test_a_wrong_first_view_of_an_object_does_not_move_the_map():
     the whole solution north (here the object is mapped 15 cm north of where every later view puts
     it). No graph-side rule tells it from the drift yet: this test fails until one does. Here the
     vehicle dives from the start (0.1 m/s), so the start at rest's zero readings have their loose σ
-    (0.1 m/s) throughout: the drift of stop 38."""
+    (0.1 m/s) throughout (the depth never says it waits): the drift of stop 38."""
     objects, trajectory = wrong_first_view(lambda t: 0.1 * t)
     assert len(objects) == 1
     np.testing.assert_allclose(objects[0], A, atol=0.03)

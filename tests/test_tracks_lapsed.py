@@ -60,6 +60,16 @@ def test_a_place_out_of_view_while_its_track_lapsed_keeps_its_share():
     assert len(got.views) == 3 and got.seen_before == 1 and got.in_view == 4
 
 
+def test_a_lapsed_place_out_of_view_for_long_is_forgotten():
+    # The place of the first test, then out of view for five track timeouts and more (the survey is
+    # elsewhere): its counts are forgotten (a long survey's memory and cost stay bounded), and a burst
+    # there is judged as a fresh track.
+    first = [(PIPE, i in (0, 11, 21)) for i in range(22)]
+    tracks = TrackSet(_assoc())
+    (got,) = _run(tracks, first + [(FAR, False)] * 160 + [(PIPE, True)] * 3)  # 320 s > 5 × 60 s
+    assert got.seen_before == 0 and got.in_view == 3
+
+
 def test_a_track_elsewhere_takes_nothing_from_a_lapsed_one():
     tracks = TrackSet(_assoc())
     _run(tracks, [(PIPE, i in (0, 11, 21)) for i in range(22)] + [(PIPE, False)] * 40)

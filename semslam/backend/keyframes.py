@@ -275,8 +275,9 @@ class Keyframes:
         and joint marginal (a Gaussian prior): one Gauss–Newton step from ``values`` (the step iSAM2
         takes on new variables). Keyframe k−1's factors are linearised where iSAM2 linearises them,
         at its linearisation point θ, and the prior holds its estimate as the offset from θ (iSAM2's
-        δ), so the step is iSAM2's own unless that update relinearises (at the estimate instead, the
-        prediction was off by up to 1.2 % of σ where the interval's averaged depth holds X(k−1))."""
+        δ), so the step is iSAM2's own unless that update relinearises (at the estimate instead, a stiff
+        factor on X(k−1) such as the averaged depth made it measurably off: experiments/estimators/README.md,
+        stop 41)."""
         prev, new = self._keys(k - 1), self._keys(k)
         theta = self.session.theta
         at = gtsam.Values(values)

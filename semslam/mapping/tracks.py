@@ -118,6 +118,13 @@ class Track:
     def last_stamp(self) -> int:
         return self.views[-1].stamp
 
+    def slim(self) -> None:
+        """Keep only what a lapsed track's place needs (its mean and covariance, its last view, its
+        counts): its views' clouds are not held for the rest of a survey."""
+        self.mean_position()
+        self.views = self.views[-1:]
+        self._folded = len(self.views)
+
     @property
     def last_drift(self) -> np.ndarray | None:
         """The pose's drifting covariance at the track's last view."""
@@ -151,6 +158,12 @@ class Track:
         c = pts.mean(axis=0)
         _, _, vt = np.linalg.svd(pts - c)
         return c, vt[0]
+
+
+# A lapsed object track's place is forgotten once out of the sensor's view for this many track
+# timeouts: it bounds a long survey's memory and the per-scan cost; a tank mission's loops bring every
+# place back into view well within it.
+LAPSED_OUT_OF_VIEW_TIMEOUTS = 5
 
 
 class TrackSet:
@@ -195,7 +208,12 @@ class TrackSet:
         lapsed = [t for t in self.tracks if t.last_stamp < horizon]
         gone, self._retired = self._retired + lapsed, []
         self.tracks = [t for t in self.tracks if t.last_stamp >= horizon]
-        self._lapsed += [t for t in lapsed if t.kind == "object"]
+        for t in lapsed:
+            if t.kind == "object":
+                t.slim()
+                self._lapsed.append(t)
+        out = stamp - int(LAPSED_OUT_OF_VIEW_TIMEOUTS * self.assoc.track_timeout_s * 1e9)
+        self._lapsed = [t for t in self._lapsed if max(t._in_view_stamp or 0, t.last_stamp) >= out]
         return gone
 
     def extend(self, views: list[TrackView], separators: np.ndarray) -> tuple[list[Track], list[Track]]:
@@ -253,10 +271,9 @@ class TrackSet:
     def _credit(self, views: list[TrackView], went: list[Track]) -> None:
         """The scan saw each object view's place: its track, and every other object track within
         ``object_body_m`` of the view (one object, by that key's definition), count the scan as seen
-        (once per scan). The front-end's scatter of an in-line object's centre along its pipe (2-3 cm,
-        more than its views' covariance says) splits one object into tracks side by side that take
-        its views in turn (tank world 81's socket: four tracks at one place, each seen in a quarter of
-        the scans that had it in view, none promoted)."""
+        (once per scan). A front-end's scatter of an in-line object's centre along its pipe, larger than
+        its views' covariance says, splits one object into tracks side by side that take its views in
+        turn, none of them then seen in enough of its scans (experiments/estimators/README.md, stop 41)."""
         objects = [tr for tr in self.tracks if tr.kind == "object"]
         if not objects:
             return
@@ -361,8 +378,8 @@ class TrackSet:
         counts: the views it had and the scans that had its place in view, before and since. The
         share of ``object_view_ratio`` is over the place's scans since its first view; without
         this, a front-end's false views at a pipe's free end, a few in each of several passes, the
-        pipe seen between them (tank world 81: 3 views in 22 scans, forgotten, then 3 in 4) pass it
-        as a new track each time the old one lapses."""
+        pipe seen between them, pass it as a new track each time the old one lapses
+        (experiments/estimators/README.md, stop 41)."""
         cost = [self._cost(old, v, separators) for old in self._lapsed]
         if not cost or not np.isfinite(min(cost)):
             return

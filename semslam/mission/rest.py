@@ -20,10 +20,10 @@ If the mission has a depth sensor, while it says the vehicle still waits (the me
 variances), the readings' σ is ``initial.at_rest_waiting_sigma_m_s`` (a vehicle holding station,
 about as sure as the DVL's zero-velocity test below); from its first change (the dive) to the first
 valid reading, ``initial.at_rest_until_velocity_sigma_m_s``: a vehicle that dives may start to move
-(the simulated tank vehicle: diving from 6 s, moving from 8 s, lock as late as 31 s) and the zero
-readings then only bound its speed. Why not end the claim at the dive: nothing would then bound the
-horizontal velocity until the lock, and on tank world 79 the graph took a wrong association and split
-its map by 0.45 m in that stretch (experiments/estimators/README.md, stop 41).
+and the zero readings then only bound its speed. Why not end the claim at the dive: nothing would then
+bound the horizontal velocity until the lock, and a wrong association in that stretch can split the map
+(both measured: experiments/estimators/README.md, stop 41). Until the depth has a window's worth of
+earlier readings to compare with, it says nothing, and the looser σ holds.
 
 Then, while the vehicle is still (``initial.still_test_readings``, a zero-velocity test): as long as
 the DVL's newest valid reading and the mean of its last N are consistent with zero velocity (χ²(3) ≤
@@ -142,6 +142,7 @@ class _DepthChange:
     def __init__(self):
         self.window: deque = deque()  # (stamp, depth, variance) of the last DEPTH_WINDOW_S
         self.before = np.zeros(3)  # count, sum of depths, sum of variances of every earlier reading
+        self.judged = False  # a window's worth of earlier readings compared once: until then it says nothing
 
     def moved(self, stamp: int, depth: float, variance: float) -> bool:
         self.window.append((stamp, depth, variance))
@@ -151,6 +152,7 @@ class _DepthChange:
         n0, n1 = self.before[0], len(self.window)
         if n0 < n1:  # not yet a window's worth of readings to compare with
             return False
+        self.judged = True
         z = np.array([w[1] for w in self.window])
         var = self.before[2] / n0**2 + sum(w[2] for w in self.window) / n1**2
         return (z.mean() - self.before[1] / n0) ** 2 > DEPTH_CHI2 * var
@@ -211,7 +213,12 @@ def at_rest_until_velocity(
             if due is None:  # the first reading stands in for a DVL one PERIOD_S late, not at once
                 due, record.start = m.stamp + period, m.stamp
             if holding and m.stamp >= due:
-                yield DvlVelocity(m.stamp, dvl, velocity=np.zeros(3), covariance=cov_waiting if depth else cov_S)
+                yield DvlVelocity(
+                    m.stamp,
+                    dvl,
+                    velocity=np.zeros(3),
+                    covariance=cov_waiting if depth is not None and depth.judged else cov_S,
+                )
                 record.readings += 1
                 record.first = m.stamp if record.first is None else record.first
                 record.last, due = m.stamp, m.stamp + period
