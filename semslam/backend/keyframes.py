@@ -164,24 +164,22 @@ class Keyframes:
                 dvl_velocity_factor(V(k), dvl.v_S, dvl.cov_S, dvl.T_BS, dvl.omega_B, self.accel_sigma**2 * age)
             )
             v_prior = dvl.v_B
-        dep = self.nav.depth
         readings = [r for r in self.nav.depths if r[0] <= t]
-        if self.stamps and readings:
+        dep = self.nav.depth
+        if not readings and not self.stamps and dep is not None and 0 <= t - dep.t <= self.cfg.depth_max_age_s:
+            # keyframe 0 with no reading since the AHRS's first: the newest one, at the keyframe's attitude
+            readings = [(dep.t, dep.depth, dep.variance, R, dep.t_BS)]
+        if readings:
             factors += self._interval_depth_factors(k, t, R, readings)
-        elif dep is not None and 0 <= t - dep.t <= self.cfg.depth_max_age_s:
-            age = t - dep.t
-            # Bring the reading to t along the vertical velocity (from the DVL, else none).
-            vz = float((R @ (v_prior if v_prior is not None else np.zeros(3)))[2])
-            var = dep.variance + (self.accel_sigma * age**1.5) ** 2 + (0.01 * age) ** 2
-            factors.append(depth_factor(X(k), dep.depth + vz * age, var, dep.t_BS))
         return factors, R, v_prior, has_attitude
 
     def _interval_depth_factors(self, k: int, t: float, R: np.ndarray, readings: list) -> list:
-        """Every depth reading of the interval (t_{k-1}, t]: each to the nearer of X(k-1) and X(k),
-        brought to its time through the DVL's vertical velocity and averaged there
-        (:func:`~factors.navigation.referred_depth`), one factor per keyframe and pressure sensor."""
-        t_prev = self.stamps[-1] * 1e-9
-        ends = ((k - 1, t_prev, self.nav.preint.R_i_T.T), (k, t, R))
+        """Every depth reading of the interval (t_{k-1}, t] (keyframe 0: those before it): each to the
+        nearer of X(k-1) and X(k), brought to its time through the DVL's vertical velocity and averaged
+        there (:func:`~factors.navigation.referred_depth`), one factor per keyframe and pressure sensor.
+        An interval without a reading adds none: the reading before it is already X(k-1)'s."""
+        t_prev = self.stamps[-1] * 1e-9 if self.stamps else -np.inf
+        ends = ((k - 1, t_prev, self.nav.preint.R_i_T.T) if self.stamps else None, (k, t, R))
         groups: dict[tuple, list] = {}
         for r in readings:
             end = 0 if r[0] - t_prev < t - r[0] else 1
@@ -233,28 +231,29 @@ class Keyframes:
         # A DVL sample used as V(k)'s prior is removed from the displacement's knots (no double use).
         if v_prior is not None and self.nav.preint.last_stamp == self.nav.dvl.t:
             self.nav.preint.drop_last()
-        d = self.nav.preint.integrate(t, R)
-        if d.n_samples:  # the displacement and both velocity states jointly, every DVL sample inside
-            # informing all three, with the velocity random walk between them (DvlPreintegrator.smoothed)
+        v_init = v_prior if v_prior is not None else self.vel
+        if self.nav.preint.n_samples:  # the displacement and both velocity states jointly, every DVL
+            # sample inside informing all three, with the velocity random walk between them
             s = self.nav.preint.smoothed(t, R)
             factors.append(smoothed_displacement_factor(X(k - 1), X(k), V(k - 1), V(k), s))
+            dt, delta = s.dt, s.z0[:3]  # the displacement in {B(k-1)}: the interval's own mean
         else:  # no sample: the displacement of the two velocity states, linked by the process model
+            d = self.nav.preint.integrate(t, R)
             factors.append(displacement_factor(X(k - 1), X(k), V(k - 1), V(k), d))
             factors.append(velocity_random_walk_factor(V(k - 1), V(k), d.dt, self.accel_sigma))
-        v_init = v_prior if v_prior is not None else self.vel
-        delta = d.c + d.A @ self.vel + d.B @ v_init  # the displacement in {B(k-1)}
+            dt, delta = d.dt, d.c + d.A @ self.vel + d.B @ v_init
         if not has_attitude:
             # No AHRS reading since X(k-1) (keyframes 10–50 ms apart) or a stale one: nothing else fixes
             # X(k)'s rotation unless a landmark does, and iSAM2 fails on the indeterminate system.
             R_prev, _ = self.nav.attitude_at(self.stamps[-1] * 1e-9)
-            rot_sigma = self.nav.rate_sigma * d.dt
+            rot_sigma = self.nav.rate_sigma * dt
             factors.append(rotation_carry_factor(X(k - 1), X(k), R_prev.T @ R, delta, rot_sigma))
         p_init = self.pose.translation() + self.pose.rotation().matrix() @ delta
         values = gtsam.Values()
         values.insert(X(k), gtsam.Pose3(gtsam.Rot3(self.unbiased(R)), p_init))
         values.insert(V(k), np.asarray(v_init, float))
         if self.bias_walk > 0:
-            factors.append(heading_bias_walk_factor(B(k - 1), B(k), d.dt, self.bias_walk))
+            factors.append(heading_bias_walk_factor(B(k - 1), B(k), dt, self.bias_walk))
             values.insert(B(k), np.array([self.bias]))
         if self.state_cov is None:  # no joint marginal to predict from
             self._commit(stamp, [(f, None) for f in factors], values)

@@ -25,7 +25,8 @@ class GraphConfig(BaseModel):
     depth_max_age_s: float = Field(
         0.5,
         gt=0,
-        description="when a keyframe interval holds no depth reading: the newest one, unless older than this at the keyframe",
+        description="keyframe 0 with no depth reading since the AHRS's first: the newest one, unless older than this "
+        "(a later interval without a reading adds none: its last reading is already the keyframe before's)",
     )
     relinearize_threshold: float = Field(
         0.02, gt=0, description="iSAM2 relinearises a variable whose update exceeds this (tangent-space norm)"

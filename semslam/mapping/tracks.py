@@ -152,6 +152,11 @@ class Track:
         self._folded = len(self.views)
         return self._mean, self._cov
 
+    @property
+    def place(self) -> np.ndarray:
+        """Where the track's object is (:meth:`mean_position`'s mean): one place for every test of it."""
+        return self.mean_position()[0]
+
     def line_fit(self) -> tuple[np.ndarray, np.ndarray]:
         """Principal axis of all the views' segment ends (pipes): (point, unit direction)."""
         pts = np.vstack([v.world for v in self.views])
@@ -183,7 +188,7 @@ class TrackSet:
 
     def object_points(self) -> np.ndarray:
         """The tentative objects' positions in {W} (N×3): they separate collinear pipes as mapped ones do."""
-        pts = [tr.mean_position()[0] for tr in self.tracks if tr.kind == "object"]
+        pts = [tr.place for tr in self.tracks if tr.kind == "object"]
         return np.array(pts).reshape(-1, 3)
 
     def note_scan(self, stamp: int, points: np.ndarray, segments: np.ndarray, in_sight=None) -> None:
@@ -193,7 +198,7 @@ class TrackSet:
         :meth:`MapBuilder._in_sight`; None: not asked)."""
         live = [tr for tr in self.tracks if tr.kind == "object"]
         objects = [tr for tr in live + self._lapsed if tr._in_view_stamp != stamp]
-        at = np.array([tr.views[-1].position for tr in objects]).reshape(-1, 3)
+        at = np.array([tr.place for tr in objects]).reshape(-1, 3)
         near = near_seen(at, points, segments, self.assoc.object_view_reach_m)
         if in_sight is not None and len(at):
             near &= in_sight(at)
@@ -281,7 +286,7 @@ class TrackSet:
             if tr.kind != "object":
                 continue
             for u in objects:
-                if u is tr or np.linalg.norm(u.mean_position()[0] - v.position) < self.assoc.object_body_m:
+                if u is tr or np.linalg.norm(u.place - v.position) < self.assoc.object_body_m:
                     if u._seen_stamp != v.stamp:
                         u.seen += 1
                         u._seen_stamp = v.stamp
@@ -334,7 +339,7 @@ class TrackSet:
         others)."""
         if len(pairs) < 2 or any(v.cov is None for v, _ in pairs):
             return False
-        r = np.array([v.position - tr.mean_position()[0] for v, tr in pairs])
+        r = np.array([v.position - tr.place for v, tr in pairs])
         c, body = r.mean(axis=0), self.assoc.object_body_m
         return bool(np.linalg.norm(c) >= body and np.linalg.norm(r - c, axis=1).max() < body)
 
