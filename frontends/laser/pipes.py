@@ -1077,6 +1077,40 @@ def detect_pipes(
     return pipes + _apart(objects_only, pipes)
 
 
+def over_a_line(pipes: list[Pipe], lying: np.ndarray, up: np.ndarray, cfg: PipeConfig) -> np.ndarray:
+    """Per segment: a fitting's part standing over a pipe line on the seabed, fitted as a short pipe
+    across it (a valve's lever, handle or gear head): shorter than ``over_line_max_radii`` radii of
+    a longer segment of the scan lying on the ground (``lying``; not one that only serves the
+    objects), at least ``over_line_angle_deg`` across it, and the closest approach of its axis to
+    that segment's axis line lies within its own extent, within that length of the longer one's
+    ends, and above that line (along the unit ``up``) by more than the two radii: a pipe joining the
+    line at a tee meets its axis there. (Only over a line lying on the ground: pipes on racks, as in
+    the tank, cross over each other.)"""
+    n = len(pipes)
+    out = np.zeros(n, bool)
+    if cfg.over_line_max_radii <= 0 or n < 2:
+        return out
+    cos_max = np.cos(np.radians(cfg.over_line_angle_deg))
+    for i, s in enumerate(pipes):
+        for line, lies in zip(pipes, lying):
+            if line is s or not lies or line.objects_only or line.length <= s.length:
+                continue
+            reach = cfg.over_line_max_radii * line.radius
+            b = float(s.axis @ line.axis)
+            if s.length >= reach or abs(b) > cos_max:
+                continue
+            w = s.p - line.p
+            d, e = float(s.axis @ w), float(line.axis @ w)
+            ts, tl = (b * e - d) / (1.0 - b * b), (e - b * d) / (1.0 - b * b)
+            if not (-line.radius <= ts <= s.length + line.radius and -reach <= tl <= line.length + reach):
+                continue
+            height = float((s.p + ts * s.axis - line.p - tl * line.axis) @ up)
+            if height > s.radius + line.radius:
+                out[i] = True
+                break
+    return out
+
+
 def merge_duplicates(pipes: list[Pipe], points, normals, cfg: PipeConfig) -> list[Pipe]:
     """Merge segments of one pipe found twice: near-parallel, coaxial, overlapping or nearly touching.
 
