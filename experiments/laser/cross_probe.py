@@ -8,7 +8,7 @@ labels cached in ``--cache``), segments each chosen cloud with this checkout's f
 true pose, the seed's true radii as ``pipes.nominal_radii``) and prints per segment: length, radius
 (held or fitted), reported or not, lying on the ground or not and its axis height, its angle to the
 scan's longest segment and the distance from its axis to that segment, the share of its inliers
-on a fitting (the ray labels), and its placement against the truth (on a true pipe or not, the nearest
+on a fitting, the seabed, a rock, a pipe (the simulator's ray labels), and its placement against the truth (on a true pipe or not, the nearest
 fitting's distance). ``--times``: seconds from the mission's start, as the stop 41 notes give them.
 """
 
@@ -27,18 +27,24 @@ sys.path[:0] = [str(HERE), str(HERE.parent)]
 
 
 def clouds_at(seed: int, times: list[float], cache: Path) -> tuple[dict, list[dict]]:
-    """(metadata as needed, per chosen time: points, rgb, T_WS, stamp, fitting label per pixel)."""
+    """(metadata as needed, per chosen time: points, rgb, T_WS, stamp, the hit kind per pixel)."""
     path = cache / f"clouds_{seed}_{'_'.join(f'{t:g}' for t in times)}.pkl"
     if path.exists():
         return pickle.loads(path.read_bytes())
-    from valve_stages import record_labels
-
     from semslam.mission.measurements import GroundTruthPose, PointCloud
+    from semslam.sim import pipeline_scene
     from semslam.sim.pipeline_config import PipelineSimConfig
     from semslam.sim.pipeline_mission import simulate_pipeline
 
-    labels: list = []
-    record_labels(labels)
+    labels: list = []  # per cast: the hit kind of every ray (seabed, rock, pipe, object)
+    cast = pipeline_scene.PipelineScene.cast_with_normals
+
+    def recording(self, origins, dirs):
+        out = cast(self, origins, dirs)
+        labels.append(np.asarray(out[1]).copy())
+        return out
+
+    pipeline_scene.PipelineScene.cast_with_normals = recording
     mission = simulate_pipeline(PipelineSimConfig(seed=seed))
     meta = mission.metadata
     clouds = list(mission.of_type(PointCloud))
@@ -51,9 +57,7 @@ def clouds_at(seed: int, times: list[float], cache: Path) -> tuple[dict, list[di
     for t in times:
         k = int(np.argmin([abs((m.stamp - t0) * 1e-9 + 0.5 - t) for m in clouds]))
         m = clouds[k]
-        hit, ident = labels[k]
-        lab = np.full(len(m.points), -1)
-        lab[hit] = ident
+        lab = labels[k]
         T = poses[int(stamps[np.argmin(np.abs(stamps - m.stamp))])] @ T_BS
         out.append({"t": t, "stamp": m.stamp, "points": m.points, "rgb": m.rgb, "T_WS": T, "label": lab})
     gt = meta.ground_truth
@@ -98,6 +102,7 @@ def main(argv=None) -> int:
             mid = P.mean(axis=0)
             h = axis_height(p, seg.ground) if seg.ground is not None else None
             lab = c["label"][raw_of(p.inliers)]
+            kinds = np.bincount(lab[(lab >= 0) & (lab < 4)], minlength=4) / max(len(lab), 1)
             L = pipes[longest]
             ang = float(np.degrees(np.arccos(min(1.0, abs(p.axis @ L.axis)))))
             # distance of this segment's middle from the longest segment's axis line, and the
@@ -109,7 +114,7 @@ def main(argv=None) -> int:
                 f"  [{k}] len {p.length:.3f} r {1000 * p.radius:.1f}{'H' if p.radius_held else ''} "
                 f"rep {p.reported(seg.pipe_config)} obj_only {p.objects_only} between {p.between_fittings} "
                 f"axis_h {h if h is None else round(h, 3)} inl {len(p.inliers)} on_fitting "
-                f"{(lab >= 0).mean() if len(lab) else 0:.2f} | vs longest: angle {ang:.0f} mid off {dl:.3f} "
+                f"{kinds[3]:.2f} (seabed {kinds[0]:.2f} rock {kinds[1]:.2f} pipe {kinds[2]:.2f}) | vs longest: angle {ang:.0f} mid off {dl:.3f} "
                 f"t {tl:.2f}/{L.length:.2f} | truth: {'pipe ' + str(g.id) if g else 'NONE'}, fitting "
                 f"{np.linalg.norm(objects - mid, axis=1).min():.3f} m",
                 flush=True,

@@ -291,6 +291,14 @@ class PipeConfig(_Section):
         gt=0,
         description="a gap without a fitting in it (occlusion) is bridged up to this length along the axis",
     )
+    min_open_gap: float = Field(
+        0.06,
+        ge=0,
+        description="along a cylinder lying on the seabed (see ground_gap), a gap in its inliers longer than this "
+        "(m) is not bridged (max_gap) where the scan's rays end inside the cylinder over it, more than half its "
+        "radius past their entry (the pipe is absent there: bare seabed; an occluder in front ends them before "
+        "it): a stone or a sand crest in line with a pipe's free end does not extend the pipe. 0: off",
+    )
     fitting_reach: float = Field(
         0.04, gt=0, description="points up to this far outside a pipe's surface are looked at for fittings"
     )
