@@ -60,3 +60,35 @@ def test_only_over_a_line_lying_on_the_ground_short_across_and_near():
     # switched off
     off = cfg.model_copy(update={"over_line_max_radii": 0.0})
     assert not over_a_line([_line(), lever], np.array([True, False]), UP, off).any()
+
+
+def _gap_runs(open_gap):
+    """The runs of a 0.40 m pipe's inliers followed, after a 0.15 m gap, by 6 cm of a stone's."""
+    from frontends.laser.pipes import split_at_fittings
+
+    t = np.concatenate([np.linspace(0.0, 0.40, 200), np.linspace(0.55, 0.61, 30)])
+    return split_at_fittings(t, np.zeros(len(t)), np.zeros(0), PipeConfig(), None, None, None, open_gap)
+
+
+def test_a_gap_where_the_pipe_is_absent_is_not_bridged():
+    assert [len(r) for r in _gap_runs(None)] == [230]  # bridged (up to max_gap: an occlusion)
+    assert [len(r) for r in _gap_runs(lambda t0, t1: False)] == [230]
+    assert [len(r) for r in _gap_runs(lambda t0, t1: True)] == [200, 30]
+
+
+def test_rays_end_inside_a_missing_pipe_and_on_a_present_one():
+    from frontends.laser.pipes import Rays
+
+    # looking down (+z) at a pipe along x, axis 1 m away, radius 5 cm, present over x 0-0.2 m and
+    # absent over 0.3-0.5 m, where the rays end on the seabed 3 cm under its axis
+    y = np.linspace(-0.03, 0.03, 7)
+    on = [(x, v, 1.0 - np.sqrt(0.05**2 - v * v)) for x in np.linspace(0.0, 0.2, 21) for v in y]
+    bare = [(x, v, 1.03) for x in np.linspace(0.3, 0.5, 21) for v in y]
+    rays = Rays(np.array(on + bare))
+    c, a, cfg = np.array([0.0, 0.0, 1.0]), np.array([1.0, 0.0, 0.0]), PipeConfig()
+    deep, crossing = rays.hollow(c, a, 0.05, 0.3, 0.5, cfg)
+    assert crossing >= 50 and deep == crossing
+    deep, crossing = rays.hollow(c, a, 0.05, 0.0, 0.2, cfg)
+    assert crossing >= 50 and deep == 0
+    # the see-through test (rays past the cylinder's far side) sees neither: the seabed is under it
+    assert rays.see_through(c, a, 0.05, 0.3, 0.5, cfg)[0] == 0
