@@ -24,6 +24,7 @@ runs it on the code before the change (the baseline).
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 import time
 from pathlib import Path
@@ -317,6 +318,7 @@ def pipeline_seed(
         out["map"].update(offsets_split(graph.landmarks, meta.ground_truth, graph.trajectory, truth))
         out["map"].update(relative_to_trajectory(graph.landmarks, meta.ground_truth, graph.trajectory, truth))
         out["map"]["valve_clouds_centre_in_frame"] = valves_in_frame(meta, poses, sensor.T_BS)
+        out["map"]["beyond_5cm"] = beyond_5cm(graph, meta.ground_truth, truth)
         g = metrics["estimators"]["graph"]
         out["graph"] = {k: g.get(k) for k in TANK_KEYS}
     if dump is not None:  # the observations, to replay the back-end on them without the front-end
@@ -324,9 +326,44 @@ def pipeline_seed(
 
         dump.mkdir(parents=True, exist_ok=True)
         (dump / f"pipeline_{seed}.pkl").write_bytes(pickle.dumps(result.observations))
+        light = dump / f"light_{seed}_{LIGHT_KEY}.pkl"  # pipeline_replay.py's cache of the mission
+        if not light.exists():
+            light.write_bytes(pickle.dumps(light_items(mission)))
     out["laser_s_per_scan"] = result.timing_s.get("frontend:laser", 0.0) / max(len(views), 1)
     out["seconds"] = round(time.perf_counter() - t0, 1)
     return out
+
+
+# pipeline_replay.light_mission's cache key of the unchanged simulator (no overrides)
+LIGHT_KEY = hashlib.sha1(json.dumps({}, sort_keys=True).encode()).hexdigest()[:8]
+
+
+def light_items(mission) -> tuple:
+    """(metadata, measurements with the clouds emptied): what ``pipeline_replay.light_mission`` caches."""
+    import dataclasses
+
+    from semslam.mission.measurements import PointCloud
+
+    empty = np.zeros((0, 3), np.float32)
+    items = [
+        dataclasses.replace(m, points=empty, intensity=None, rgb=None) if isinstance(m, PointCloud) else m
+        for m in mission
+    ]
+    return mission.metadata, items
+
+
+def beyond_5cm(graph, gt, truth_positions: dict) -> dict:
+    """The mapped pipes' length beyond 5 cm of truth by cause (``experiments/laser/beyond_5cm.py``)."""
+    import sys
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent / "laser"))
+    from beyond_5cm import split_beyond
+
+    stamps = np.array(sorted(truth_positions))
+    k = np.searchsorted(stamps, graph.trajectory.stamps).clip(0, len(stamps) - 1)
+    offset = np.median(graph.trajectory.positions - np.array([truth_positions[int(s)] for s in stamps[k]]), axis=0)
+    r = split_beyond(graph.landmarks, gt, offset)
+    return {k: r[k] for k in ("mapped_m", "beyond_m", "beyond_by_cause_m")}
 
 
 def pipeline_line(seed: int, r: dict) -> str:
@@ -350,6 +387,8 @@ def pipeline_line(seed: int, r: dict) -> str:
             f" | pose offset (median) {m['pose_error_median_vector_m']} m removed: pipe error median "
             f"{m['pipe_error_median_m_pose_offset_removed']:.3f} p95 {m['pipe_error_p95_m_pose_offset_removed']:.3f} m, "
             f"within 5 cm {m['pipe_within_5cm_share_pose_offset_removed']:.2f}"
+            f" | beyond 5 cm {m['beyond_5cm']['beyond_m']} of {m['beyond_5cm']['mapped_m']} m: "
+            f"{m['beyond_5cm']['beyond_by_cause_m']}"
         )
     return text + f" ({r['seconds']} s)"
 

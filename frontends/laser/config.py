@@ -141,6 +141,19 @@ class PipeConfig(_Section):
         "noise) is fitted again with the nominal radius that gathers the most inliers held; it must still pass "
         "the seabed's tests. Empty: off",
     )
+    over_line_max_radii: float = Field(
+        8.0,
+        ge=0,
+        description="a segment shorter than this many radii of a longer segment of the scan lying on the ground, at "
+        "least "
+        "over_line_angle_deg across it, whose axis passes over that one's axis line (above it, along up, by more "
+        "than the two radii: no branch, which meets its line axis to axis) within this length of its ends, is a "
+        "fitting's part standing over a line on the seabed (a valve's lever, handle or gear head, which scale "
+        "with the line's radius): never reported, its points left to the objects. 0: off",
+    )
+    over_line_angle_deg: float = Field(
+        60.0, gt=0, le=90, description="see over_line_max_radii: the least angle between the two axes (deg)"
+    )
     held_short_objects: bool = Field(
         True,
         description="with nominal_radii: a held-radius run shorter than color_max_length (never reported: it may be "
@@ -277,6 +290,14 @@ class PipeConfig(_Section):
         0.25,
         gt=0,
         description="a gap without a fitting in it (occlusion) is bridged up to this length along the axis",
+    )
+    min_open_gap: float = Field(
+        0.06,
+        ge=0,
+        description="along a cylinder lying on the seabed (see ground_gap), a gap in its inliers longer than this "
+        "(m) is not bridged (max_gap) where the scan's rays end inside the cylinder over it, more than half its "
+        "radius past their entry (the pipe is absent there: bare seabed; an occluder in front ends them before "
+        "it): a stone or a sand crest in line with a pipe's free end does not extend the pipe. 0: off",
     )
     fitting_reach: float = Field(
         0.04, gt=0, description="points up to this far outside a pipe's surface are looked at for fittings"

@@ -21,7 +21,7 @@ from frontends.laser.ground import GroundModel, fit_ground
 from frontends.laser.noise import NoiseModel, measure_noise
 from frontends.laser.objects import SegmentedObject, segment_objects
 from frontends.laser.pipe_shape import Seabed, axis_height, lies_on_ground
-from frontends.laser.pipes import Pipe, Rays, detect_pipes
+from frontends.laser.pipes import Pipe, Rays, detect_pipes, over_a_line
 from frontends.laser.planes import PlaneResult, remove_planes
 from frontends.laser.preprocess import Preprocessed, hop_covariance_parts, preprocess, shape_of_parts
 from semslam.errors import validated
@@ -243,6 +243,9 @@ def segment_scan(
         pipes = detect_pipes(spts, normals, grid, pcfg, rays, ~on_ground, ~on_ground, seabed)
     clock.lap("pipes")
     lying = _lying(pipes, ground, pcfg)
+    if lying.any():  # a fitting's part standing over a line lying on the seabed is no pipe
+        keep = ~over_a_line(pipes, lying, up, pcfg)
+        pipes, lying = [p for p, k in zip(pipes, keep) if k], lying[keep]
     for pipe in (p for p, lies in zip(pipes, lying) if lies):
         # on the seabed a run between two "fittings" may be a stone's top between two stones, and a
         # short segment lying there connects no object (_objects): only its length reports it

@@ -302,7 +302,7 @@ class Rays:
         # same test as against the float64 cosine, without converting the N cosines to float64)
         return C, least_float32_not_below(cos), ok
 
-    def _count(self, sel, c, a, r, t0, t1, cfg: PipeConfig) -> tuple[int, int]:
+    def _count(self, sel, c, a, r, t0, t1, cfg: PipeConfig, deep: float | None = None) -> tuple[int, int]:
         d, rng = np.take(self.directions, sel, axis=0).astype(np.float64), self.ranges[sel]
         da = d @ a
         w = d - da[:, None] * a
@@ -316,8 +316,19 @@ class Rays:
         s1, s2 = (-B - root) / (2 * A), (-B + root) / (2 * A)
         t_mid = 0.5 * (s1 + s2) * da - c @ a
         crossing = (s1 > 0) & (s2 - s1 >= cfg.see_through_chord) & (t_mid > t0 + 0.01) & (t_mid < t1 - 0.01)
-        behind = crossing & (rng > s2 + cfg.see_through_margin)
+        if deep is None:
+            behind = crossing & (rng > s2 + cfg.see_through_margin)
+        else:
+            behind = crossing & (rng > s1 + deep)
         return int(np.count_nonzero(behind)), int(np.count_nonzero(crossing))
+
+    def hollow(self, c, a, r, t0, t1, cfg: PipeConfig) -> tuple[int, int]:
+        """(rays returning more than half the radius past their entry into the cylinder (c, a, r)
+        between t0 and t1 along a, rays crossing it as in :meth:`see_through`): where a pipe is, the
+        rays end on its surface; where it is absent, they end on the seabed inside its volume or
+        beyond (a pipe lying on the ground has the ground under it, so few rays see through it)."""
+        (sel,) = self._cones((c + a * 0.5 * (t0 + t1))[None], np.array([np.hypot(0.5 * (t1 - t0), r)]))
+        return self._count(sel, c, a, r, t0, t1, cfg, deep=0.5 * r)
 
     def see_through(self, c, a, r, t0, t1, cfg: PipeConfig) -> tuple[int, int]:
         """(rays returning behind the cylinder (c, a, r) between t0 and t1 along a, rays crossing
@@ -563,6 +574,7 @@ def split_at_fittings(
     t_around: np.ndarray | None = None,
     open_beyond=None,
     ends: list | None = None,
+    open_gap=None,
 ) -> list[np.ndarray]:
     """Runs of a pipe's inliers, cut where a fitting sits on it (index arrays into ``t``).
 
@@ -580,7 +592,9 @@ def split_at_fittings(
     pipe (:func:`_bare_ends`; ``open_beyond(t0, t1)``, when given, must also tell that the sensor
     sees through the cylinder continued over [t0, t1]: the pipe ends there). ``ends``, when given, is
     filled with one (low, high) pair per run: whether that end of the run stops at a fitting
-    (:func:`_fitted_ends`).
+    (:func:`_fitted_ends`). ``open_gap(t0, t1)``, when given: whether the pipe is absent over
+    [t0, t1] (the rays end inside its cylinder there, not on it); a gap where it is, is not
+    bridged (a stone or a sand crest in line with a pipe's free end, past a stretch of bare seabed).
     """
     if len(t) == 0:
         return []
@@ -602,12 +616,12 @@ def split_at_fittings(
     # noise or a pipe passing close by, not a fitting.
     flag = _in_long_runs(flag, max(int(round(cfg.min_fitting_length / cfg.bump_bin)), 1))
     ta = None if t_around is None else np.sort(t_around)
-    runs = _kept_runs(flag, first, b, t, t0, ta, cfg)
+    runs = _kept_runs(flag, first, b, t, t0, ta, cfg, open_gap)
     if ta is not None and cfg.end_fitting_points > 0:
         bare = _bare_ends(flag, first, t, t0, runs, ta, cfg, open_beyond)
         if bare is not None:
             flag = bare
-            runs = _kept_runs(flag, first, b, t, t0, ta, cfg)
+            runs = _kept_runs(flag, first, b, t, t0, ta, cfg, open_gap)
     if ends is not None:
         bumped = np.zeros_like(flag)
         bumped[-first : n_bins - first] = bad_bin
@@ -634,10 +648,11 @@ def _fitted_ends(flag, first: int, b, runs: list[np.ndarray]) -> list[tuple[bool
     return out
 
 
-def _kept_runs(flag, first: int, b, t, t0: float, ta, cfg: PipeConfig) -> list[np.ndarray]:
+def _kept_runs(flag, first: int, b, t, t0: float, ta, cfg: PipeConfig, open_gap=None) -> list[np.ndarray]:
     """The runs of the inliers (bin ``b``, at ``t``) outside the flagged bins (``flag[k - first]``
-    is bin k's), cut at flagged bins, at gaps longer than ``max_gap`` and at gaps holding a body
-    (``fitting_points`` of the sorted ``ta``, or None)."""
+    is bin k's), cut at flagged bins, at gaps longer than ``max_gap``, at gaps holding a body
+    (``fitting_points`` of the sorted ``ta``, or None) and, with ``open_gap``, at gaps longer than
+    ``min_open_gap`` over which the pipe is absent (``open_gap(t0, t1)``)."""
     bad_bins = np.flatnonzero(flag) + first
     kept = np.flatnonzero(~flag[b - first])
     if len(kept) == 0:
@@ -651,6 +666,9 @@ def _kept_runs(flag, first: int, b, t, t0: float, ta, cfg: PipeConfig) -> list[n
     if ta is not None and len(ta):
         inside = np.searchsorted(ta, tk[1:]) - np.searchsorted(ta, tk[:-1], side="right")
         cut |= (gap > cfg.min_fitting_length) & (inside >= cfg.fitting_points)
+    if open_gap is not None and cfg.min_open_gap > 0:
+        for i in np.flatnonzero(~cut & (gap > cfg.min_open_gap)):
+            cut[i] = open_gap(float(tk[i]) + _OPEN_FROM, float(tk[i + 1]) - _OPEN_FROM)
     return split_sorted(kept, np.flatnonzero(cut) + 1)
 
 
@@ -927,8 +945,20 @@ def _cut_into_segments(
             behind, crossing = rays.see_through(cb, ab, rb, t0, t1, cfg)
             return crossing >= _MIN_OPEN_RAYS and behind >= 0.5 * crossing
 
+    open_gap = None
+    if (
+        rays is not None
+        and seabed is not None
+        and cfg.min_open_gap > 0
+        and seabed.on_or_unknown(cb, ab, rb, t.min(), t.max())
+    ):
+
+        def open_gap(t0: float, t1: float) -> bool:  # the rays end inside the cylinder there: no pipe
+            deep, crossing = rays.hollow(cb, ab, rb, t0, t1, cfg)
+            return crossing >= _MIN_OPEN_RAYS and deep >= 0.5 * crossing
+
     ends: list[tuple[bool, bool]] = []
-    runs = split_at_fittings(t, residual, t_span[near], cfg, t_span[around], open_beyond, ends)
+    runs = split_at_fittings(t, residual, t_span[near], cfg, t_span[around], open_beyond, ends, open_gap)
     for run, (lo, hi) in zip(runs, ends):
         seg = idx[run]
         if len(seg) < cfg.min_points:
@@ -1075,6 +1105,40 @@ def detect_pipes(
             objects_only = [p for p, ok in zip(objects_only, rays.solid(objects_only, cfg)) if ok]
     pipes = merge_duplicates(pipes, points, normals, cfg)
     return pipes + _apart(objects_only, pipes)
+
+
+def over_a_line(pipes: list[Pipe], lying: np.ndarray, up: np.ndarray, cfg: PipeConfig) -> np.ndarray:
+    """Per segment: a fitting's part standing over a pipe line on the seabed, fitted as a short pipe
+    across it (a valve's lever, handle or gear head): shorter than ``over_line_max_radii`` radii of
+    a longer segment of the scan lying on the ground (``lying``; not one that only serves the
+    objects), at least ``over_line_angle_deg`` across it, and the closest approach of its axis to
+    that segment's axis line lies within its own extent, within that length of the longer one's
+    ends, and above that line (along the unit ``up``) by more than the two radii: a pipe joining the
+    line at a tee meets its axis there. (Only over a line lying on the ground: pipes on racks, as in
+    the tank, cross over each other.)"""
+    n = len(pipes)
+    out = np.zeros(n, bool)
+    if cfg.over_line_max_radii <= 0 or n < 2:
+        return out
+    cos_max = np.cos(np.radians(cfg.over_line_angle_deg))
+    for i, s in enumerate(pipes):
+        for line, lies in zip(pipes, lying):
+            if line is s or not lies or line.objects_only or line.length <= s.length:
+                continue
+            reach = cfg.over_line_max_radii * line.radius
+            b = float(s.axis @ line.axis)
+            if s.length >= reach or abs(b) > cos_max:
+                continue
+            w = s.p - line.p
+            d, e = float(s.axis @ w), float(line.axis @ w)
+            ts, tl = (b * e - d) / (1.0 - b * b), (e - b * d) / (1.0 - b * b)
+            if not (-line.radius <= ts <= s.length + line.radius and -reach <= tl <= line.length + reach):
+                continue
+            height = float((s.p + ts * s.axis - line.p - tl * line.axis) @ up)
+            if height > s.radius + line.radius:
+                out[i] = True
+                break
+    return out
 
 
 def merge_duplicates(pipes: list[Pipe], points, normals, cfg: PipeConfig) -> list[Pipe]:
