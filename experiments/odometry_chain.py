@@ -85,7 +85,7 @@ def chains(obs: list, truth: TruthInterpolator, delta_s: float) -> list[dict]:
     return out
 
 
-def summary(obs, truth, delta_s, window) -> dict:
+def summary(obs, truth, delta_s, window, record: dict) -> dict:
     single = []
     for z in obs:
         xi = pose_error(np.linalg.inv(truth(z.stamp_from)) @ truth(z.stamp), z.relative_pose)
@@ -94,6 +94,8 @@ def summary(obs, truth, delta_s, window) -> dict:
                 "to": z.stamp,
                 "trans_err": float(np.linalg.norm(xi[3:])),
                 "sigma_trans": float(np.sqrt(np.trace(z.covariance[3:, 3:]))),
+                "icp_sigma": record[z.stamp][0],
+                "correction": record[z.stamp][1],
             }
         )
     ch = chains(obs, truth, delta_s)
