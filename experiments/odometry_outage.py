@@ -74,8 +74,10 @@ def run(mission: Mission, frontends: list[str], gaussian: bool = False, odometry
 
 def run_shared(mission: Mission, odometry: dict | None = None):
     """One pipeline (laser and odometry front-ends) into two graphs: "laser+odometry" and "laser", the latter
-    given every observation but the odometry's (what a laser-only run gives it)."""
-    cfg = demo_config() if odometry is None else SemslamConfig(frontends={"odometry": odometry})
+    given every observation but the odometry's (what a laser-only run gives it). The tank's demo configuration,
+    with ``odometry`` as the odometry's section if given."""
+    demo = demo_config()
+    cfg = demo if odometry is None else SemslamConfig(frontends={**demo.frontends, "odometry": odometry})
     with_odo = create_estimator("graph", mission.metadata, cfg)
     without = create_estimator("graph", mission.metadata, cfg)
     without.name = "laser"
@@ -127,6 +129,9 @@ def main() -> None:
         default="laser;laser+odometry;laser+odometry/gaussian;navigation;odometry",
         help="front-end sets, ';'-separated ('/gaussian': the odometry factors without their Cauchy m-estimator)",
     )
+    ap.add_argument(
+        "--odometry", help="with --shared: the odometry's section as JSON over the tank's demo configuration"
+    )
     ap.add_argument("--starts", help="several outage starts (s, ','-separated): one row per seed and start")
     ap.add_argument(
         "--shared",
@@ -151,7 +156,7 @@ def main() -> None:
         lo, hi = t0 + int(args.start * 1e9), t0 + int((args.start + args.outage) * 1e9)
         row = {"start_s": args.start}
         if args.shared:
-            result = run_shared(mission, odometry)
+            result = run_shared(mission, json.loads(args.odometry) if args.odometry else odometry)
             for name, key in (("laser", "laser"), ("laser+odometry", "graph")):
                 row[name] = errors(result.results[key], result.truth, lo, hi, args.delta)
             row["laser+odometry"]["odometry"] = result.frontend_summaries["odometry"].metrics
