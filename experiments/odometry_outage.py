@@ -8,6 +8,11 @@ the odometry's NEES over the mission.
 
     python experiments/odometry_outage.py [--seeds 0] [--start 200] [--outage 90] [--loops 3]
     python experiments/odometry_outage.py --scenario pipeline --seeds 1 --start 40 --outage 60 [--cache DIR]
+    python experiments/odometry_outage.py --seeds 0 --starts 20,110,200,300,390 --shared  # placements of the outage
+
+``--shared``: one pipeline feeds two graphs, one with the odometry's factors and one without them (the laser
+graph gets the very same landmark observations: a paired comparison, and the laser front-end runs once), and
+the odometry's NEES is taken on the observations of that run (no second pass of the front-end).
 """
 
 from __future__ import annotations
@@ -17,13 +22,16 @@ import json
 from pathlib import Path
 
 import numpy as np
-from odometry_eval import evaluate, scenario_config, simulated
+from odometry_eval import TruthInterpolator, evaluate, pose_error, scenario_config, simulated
+from scipy.stats import chi2
 
 from frontends.odometry.config import STEREO_SEABED
 from semslam.config import SemslamConfig
 from semslam.demo import demo_config
 from semslam.estimators import create_estimator
+from semslam.mission.measurements import GroundTruthPose
 from semslam.mission.mission import Mission
+from semslam.observations import OdometryObservation
 from semslam.pipeline import run_pipeline
 from semslam.registry import create_frontends
 
@@ -64,6 +72,43 @@ def run(mission: Mission, frontends: list[str], gaussian: bool = False, odometry
     return run_pipeline(mission, ests, fes)
 
 
+def run_shared(mission: Mission, odometry: dict | None = None):
+    """One pipeline (laser and odometry front-ends) into two graphs: "laser+odometry" and "laser", the latter
+    given every observation but the odometry's (what a laser-only run gives it). The tank's demo configuration,
+    with ``odometry`` as the odometry's section if given."""
+    demo = demo_config()
+    cfg = demo if odometry is None else SemslamConfig(frontends={**demo.frontends, "odometry": odometry})
+    with_odo = create_estimator("graph", mission.metadata, cfg)
+    without = create_estimator("graph", mission.metadata, cfg)
+    without.name = "laser"
+    feed = without.process_observations
+    without.process_observations = lambda stamp, obs: feed(
+        stamp, [z for z in obs if not isinstance(z, OdometryObservation)]
+    )
+    fes = create_frontends(["laser", "odometry"], mission.metadata, cfg.frontends)
+    return run_pipeline(mission, [with_odo, without], fes)
+
+
+def nees_of(mission: Mission, observations: list, lo: int, hi: int) -> dict:
+    """The odometry observations' 6-DoF NEES against the truth: mean over the mission (its 95 % band),
+    inside [lo, hi] and outside."""
+    truth = TruthInterpolator([m for m in mission if isinstance(m, GroundTruthPose)])
+    nees, inside = [], []
+    for z in observations:
+        xi = pose_error(np.linalg.inv(truth(z.stamp_from)) @ truth(z.stamp), z.relative_pose)
+        nees.append(float(xi @ np.linalg.solve(z.covariance, xi)))
+        inside.append(lo <= z.stamp <= hi)
+    nees, inside, n = np.array(nees), np.array(inside), len(nees)
+    return {
+        "accepted": n,
+        "accepted_in_window": int(inside.sum()),
+        "nees_mean": float(nees.mean()) if n else None,
+        "nees_band_95": [chi2.ppf(0.025, 6 * n) / n, chi2.ppf(0.975, 6 * n) / n] if n else None,
+        "nees_mean_in_window": float(nees[inside].mean()) if inside.any() else None,
+        "nees_mean_outside_window": float(nees[~inside].mean()) if (~inside).any() else None,
+    }
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scenario", choices=("tank", "pipeline"), default="tank")
@@ -84,11 +129,22 @@ def main() -> None:
         default="laser;laser+odometry;laser+odometry/gaussian;navigation;odometry",
         help="front-end sets, ';'-separated ('/gaussian': the odometry factors without their Cauchy m-estimator)",
     )
+    ap.add_argument(
+        "--odometry", help="with --shared: the odometry's section as JSON over the tank's demo configuration"
+    )
+    ap.add_argument("--starts", help="several outage starts (s, ','-separated): one row per seed and start")
+    ap.add_argument(
+        "--shared",
+        action="store_true",
+        help="laser and laser+odometry from one pipeline (two graphs; NEES from its observations); --variants ignored",
+    )
     ap.add_argument("--no-nees", action="store_true", help="skip the odometry's NEES (odometry_covariance measures it)")
     args = ap.parse_args()
     pipeline = args.scenario == "pipeline"
     odometry = json.loads(args.config) if args.config else STEREO_SEABED if pipeline else None
-    for seed in (int(s) for s in args.seeds.split(",")):
+    starts = [float(v) for v in args.starts.split(",")] if args.starts else [args.start]
+    for seed, start in ((int(s), st) for s in args.seeds.split(",") for st in starts):
+        args.start = start
         data = {"dvl": {"outage_s": [args.start, args.outage]}}  # each seed its world, with a long DVL outage
         if not pipeline:
             data["trajectory"] = {
@@ -98,7 +154,19 @@ def main() -> None:
         mission = simulated(args.scenario, scenario_config(args.scenario, seed, data), args.cache)
         t0 = next(iter(mission)).stamp
         lo, hi = t0 + int(args.start * 1e9), t0 + int((args.start + args.outage) * 1e9)
-        row = {}
+        row = {"start_s": args.start}
+        if args.shared:
+            result = run_shared(mission, json.loads(args.odometry) if args.odometry else odometry)
+            for name, key in (("laser", "laser"), ("laser+odometry", "graph")):
+                row[name] = errors(result.results[key], result.truth, lo, hi, args.delta)
+            row["laser+odometry"]["odometry"] = result.frontend_summaries["odometry"].metrics
+            odo = [r.observation for r in result.observations if isinstance(r.observation, OdometryObservation)]
+            row["odometry_nees"] = nees_of(mission, odo, lo, hi)
+            row["rpe_ratio laser+odometry / laser"] = (
+                row["laser+odometry"]["rpe_outage_rmse_m"] / row["laser"]["rpe_outage_rmse_m"]
+            )
+            print(f"seed {seed}: {json.dumps(row)}", flush=True)
+            continue
         if not args.no_nees and any("odometry" in name for name in args.variants.split(";")):
             # the registrations alone against the truth (the same scans and prior as in the pipeline's worker)
             ev = evaluate(mission, odometry, window=(lo, hi))

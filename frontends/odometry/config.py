@@ -188,6 +188,16 @@ class OdometryConfig(BaseModel):
         "bound holds in place walks off in it). null: kiss-icp's 3σ for all. An experiment's setting: it needs its own "
         "held_residual_scale (experiments/odometry/README.md, stops 36–37)",
     )
+    dropout_motion: Literal["hold", "odometry"] = Field(
+        "hold",
+        description="the translation predicted for a scan once the DVL's last valid reading is older than "
+        "dropout_after_s: 'hold' (that reading's body velocity, the navigation prior's) or 'odometry' (the body "
+        "velocity of the last accepted registration: a vehicle that speeds up or turns in a long outage leaves the "
+        "held reading behind); the rotation is the prior's either way",
+    )
+    dropout_after_s: float = Field(
+        1.0, gt=0, description="a DVL reading this old (s) is a dropout for dropout_motion (readings come at 5 Hz)"
+    )
     restart_after: int = Field(
         3, ge=1, description="this many rejected scans in a row start a new local map at the next usable scan"
     )

@@ -29,6 +29,7 @@ class _Track:
         self.anchor_stamp: int | None = None  # the last scan whose registration was accepted (or the first)
         self.anchor_pose: np.ndarray | None = None
         self.rejections = 0  # rejected registrations since the last accepted one
+        self.velocity_B: np.ndarray | None = None  # body velocity of the last accepted registration (m/s)
 
 
 class OdometryFrontend(Frontend):
@@ -74,6 +75,7 @@ class OdometryFrontend(Frontend):
         if motion is None or track.matcher.empty or track.rejections >= self.config.restart_after:
             self._start(track, scan)
             return []
+        motion = self._dropout_motion(track, motion, scan.stamp)
         predicted = track.last_pose @ np.linalg.inv(T_BS) @ motion @ T_BS
         reg = track.matcher.register(scan.points, predicted, scan.stamp, self._rotation_cov(T_BS, track, scan.stamp))
         track.last_stamp = scan.stamp
@@ -88,6 +90,7 @@ class OdometryFrontend(Frontend):
         track.anchor_stamp, track.anchor_pose = scan.stamp, reg.pose
         self.counts["accepted"] += 1
         relative_B = T_BS @ relative_S @ np.linalg.inv(T_BS)
+        track.velocity_B = relative_B[:3, 3] / ((scan.stamp - stamp_from) * 1e-9)
         A = adjoint(T_BS)
         cov_B = A @ self._tail_scaled(reg, A, stamp_from, scan.stamp) @ A.T
         return [
@@ -99,6 +102,21 @@ class OdometryFrontend(Frontend):
                 covariance=(cov_B + cov_B.T) / 2,
             )
         ]
+
+    def _dropout_motion(self, track: _Track, motion: np.ndarray, stamp: int) -> np.ndarray:
+        """``motion`` (the prior's, since the track's last scan), its translation the last accepted registration's
+        body velocity times the interval where ``dropout_motion`` says so and the DVL has been lost for long."""
+        age = self.prior.dvl_age_s(stamp)
+        if (
+            self.config.dropout_motion != "odometry"
+            or track.velocity_B is None
+            or age is None
+            or age <= self.config.dropout_after_s
+        ):
+            return motion
+        out = motion.copy()
+        out[:3, 3] = track.velocity_B * ((stamp - track.last_stamp) * 1e-9)
+        return out
 
     def _rotation_cov(self, T_BS: np.ndarray, track: _Track, stamp: int) -> np.ndarray | None:
         """The navigation prior's covariance of the sensor's rotation since the map's last accepted scan
@@ -133,6 +151,7 @@ class OdometryFrontend(Frontend):
     def _start(self, track: _Track, scan: PointCloud) -> None:
         """A new local map anchored at this scan (first scan, long gap, or lost overlap); a scan too
         sparse to anchor one leaves the map empty until the next."""
+        track.velocity_B = None
         start = np.eye(4)  # the map frame: the navigation frame's axes (z down, the vertical), at this scan
         start[:3, :3] = self.prior.pose_at(scan.stamp)[:3, :3] @ self.metadata.extrinsic(scan.sensor)[:3, :3]
         track.last_stamp, track.last_pose = scan.stamp, start

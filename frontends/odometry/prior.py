@@ -159,6 +159,10 @@ class NavigationPrior:
         while len(self._holds) > 1 and self._holds[1][0] < self._t - self.horizon_ns:
             self._holds.popleft()  # the reading held at the horizon stays
 
+    def dvl_age_s(self, stamp: int) -> float | None:
+        """Seconds from the last valid DVL reading to ``stamp`` (None before any): how long its velocity has been held."""
+        return (stamp - self._holds[-1][0]) * NS if self._holds else None
+
     def pose_at(self, stamp: int) -> np.ndarray | None:
         """T_DB at ``stamp``: the last stored pose before it, carried on at the current velocity;
         None before the first attitude or when ``stamp`` is older than the horizon."""
