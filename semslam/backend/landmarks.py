@@ -31,6 +31,7 @@ the scan's views (:class:`semslam.mapping.tracks.TrackSet`).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cache
 
 import gtsam
 import numpy as np
@@ -140,7 +141,7 @@ class Landmark:
         if cov is None:
             n = DIM_OF_KIND[self.kind]
             info = self.gate_information if gate else self.information
-            cov = np.linalg.inv((np.zeros((n, n)) if info is None else info) + np.eye(n) * 1e-9)
+            cov = np.linalg.inv((np.zeros((n, n)) if info is None else info) + _ridge(n))
             cov.flags.writeable = False
             self._inverse[gate] = cov
         return cov
@@ -474,6 +475,7 @@ class GraphLandmarks:
 
     def refresh(self, ids, covariance: bool = False) -> None:
         """Current estimates of the landmarks and, with ``covariance``, their gating covariances."""
+        fresh: list[Landmark] = []
         for lid in ids:
             lm = self.landmarks.get(lid)
             if lm is None:
@@ -481,11 +483,32 @@ class GraphLandmarks:
             lm.estimate = self.value(lm)
             self._update_sphere(lm)
             if covariance and lm.cov_stamp is None:
-                stamp = self.keyframes.stamps[-1]
-                lm.cov_stamp = stamp
-                lm.covariance = lm.information_covariance(gate=True)
-                ev = np.linalg.eigvalsh(lm.covariance)
-                self.volume.append(lid, stamp, float(np.sum(np.log(np.maximum(ev, 1e-300)))))
+                fresh.append(lm)
+        if not fresh:
+            return
+        # new gating covariances and their volumes, the landmarks of one size at once (stacked
+        # inverses and eigenvalues: LAPACK matrix by matrix, the numbers of one alone)
+        stamp = self.keyframes.stamps[-1]
+        by_kind: dict[str, list[Landmark]] = {}
+        for lm in fresh:
+            by_kind.setdefault(lm.kind, []).append(lm)
+        volume = {}
+        for kind, lms in by_kind.items():
+            todo = [lm for lm in lms if True not in lm._inverse]
+            if todo:
+                n = DIM_OF_KIND[kind]
+                info = np.array(
+                    [np.zeros((n, n)) if lm.gate_information is None else lm.gate_information for lm in todo]
+                )
+                for lm, cov in zip(todo, np.linalg.inv(info + _ridge(n))):
+                    cov.flags.writeable = False
+                    lm._inverse[True] = cov
+            logs = np.log(np.maximum(np.linalg.eigvalsh(np.array([lm._inverse[True] for lm in lms])), 1e-300))
+            volume.update((lm.id, float(np.sum(row))) for lm, row in zip(lms, logs))
+        for lm in fresh:
+            lm.cov_stamp = stamp
+            lm.covariance = lm.information_covariance(gate=True)
+            self.volume.append(lm.id, stamp, volume[lm.id])
 
     def _spheres(self) -> tuple[list[int], np.ndarray, np.ndarray]:
         n = len(self._sphere_ids)
@@ -539,6 +562,14 @@ class GraphLandmarks:
                 le.pose, le.position = est.matrix(), est.translation()
             out.append(le)
         return out
+
+
+@cache
+def _ridge(n: int) -> np.ndarray:
+    """The tiny ridge that keeps an information's inverse finite (read-only, made once)."""
+    r = np.eye(n) * 1e-9
+    r.flags.writeable = False
+    return r
 
 
 def _summary(z, pose: gtsam.Pose3, T_BS: np.ndarray) -> np.ndarray:

@@ -256,6 +256,7 @@ class LowRankJoint:
         self.cands = candidates
         self.P = vehicle_cov
         self.n_x = vehicle_cov.shape[0]
+        self._eye = np.eye(self.n_x)
         self.landmark_cov = landmark_cov
         self._terms: dict[int, tuple[float, np.ndarray, np.ndarray] | None] = {}
 
@@ -302,7 +303,7 @@ class LowRankJoint:
             return None
         a, b, M = node.a + t[0], node.b + t[1], node.M + t[2]
         try:
-            y = np.linalg.solve(np.eye(self.n_x) + self.P @ M, self.P @ b)
+            y = np.linalg.solve(self._eye + self.P @ M, self.P @ b)
         except np.linalg.LinAlgError:
             return None
         d2 = a - float(b @ y)
