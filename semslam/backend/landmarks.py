@@ -31,6 +31,7 @@ the scan's views (:class:`semslam.mapping.tracks.TrackSet`).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cache
 
 import gtsam
 import numpy as np
@@ -140,7 +141,7 @@ class Landmark:
         if cov is None:
             n = DIM_OF_KIND[self.kind]
             info = self.gate_information if gate else self.information
-            cov = np.linalg.inv((np.zeros((n, n)) if info is None else info) + np.eye(n) * 1e-9)
+            cov = np.linalg.inv((np.zeros((n, n)) if info is None else info) + _ridge(n))
             cov.flags.writeable = False
             self._inverse[gate] = cov
         return cov
@@ -359,16 +360,14 @@ class GraphLandmarks:
     def update(self, paired: list[tuple[Observation, int, PairLinearization]]) -> None:
         """A factor for each pairing (a landmark that had left the window comes back with a prior),
         and the information it carries on the landmark."""
-        for z, lid, lin in paired:
+        infos = _informations([lin for _, _, lin in paired], self._abs_pose_cov, self._pose_cov)
+        for (z, lid, lin), info in zip(paired, infos):
             lm = self.landmarks[lid]
             if not lm.active:
                 self._reactivate(lm)
             T_BS = self.metadata.extrinsic(z.sensor)
             self._factors.append((self._factor(lm, self._k, z, T_BS, self._pose, lin), lm.id))
-            lm.add_information(
-                _information(lin.H_x, lin.H_l, lin.R, self._abs_pose_cov),
-                _information(lin.H_x, lin.H_l, lin.R, self._pose_cov),
-            )
+            lm.add_information(*info)
 
     def _reactivate(self, lm: Landmark) -> None:
         """A marginalised landmark seen again re-enters the window: its frozen estimate, with the
@@ -476,6 +475,7 @@ class GraphLandmarks:
 
     def refresh(self, ids, covariance: bool = False) -> None:
         """Current estimates of the landmarks and, with ``covariance``, their gating covariances."""
+        fresh: list[Landmark] = []
         for lid in ids:
             lm = self.landmarks.get(lid)
             if lm is None:
@@ -483,11 +483,32 @@ class GraphLandmarks:
             lm.estimate = self.value(lm)
             self._update_sphere(lm)
             if covariance and lm.cov_stamp is None:
-                stamp = self.keyframes.stamps[-1]
-                lm.cov_stamp = stamp
-                lm.covariance = lm.information_covariance(gate=True)
-                ev = np.linalg.eigvalsh(lm.covariance)
-                self.volume.append(lid, stamp, float(np.sum(np.log(np.maximum(ev, 1e-300)))))
+                fresh.append(lm)
+        if not fresh:
+            return
+        # new gating covariances and their volumes, the landmarks of one size at once (stacked
+        # inverses and eigenvalues: LAPACK matrix by matrix, the numbers of one alone)
+        stamp = self.keyframes.stamps[-1]
+        by_kind: dict[str, list[Landmark]] = {}
+        for lm in fresh:
+            by_kind.setdefault(lm.kind, []).append(lm)
+        volume = {}
+        for kind, lms in by_kind.items():
+            todo = [lm for lm in lms if True not in lm._inverse]
+            if todo:
+                n = DIM_OF_KIND[kind]
+                info = np.array(
+                    [np.zeros((n, n)) if lm.gate_information is None else lm.gate_information for lm in todo]
+                )
+                for lm, cov in zip(todo, np.linalg.inv(info + _ridge(n))):
+                    cov.flags.writeable = False
+                    lm._inverse[True] = cov
+            logs = np.log(np.maximum(np.linalg.eigvalsh(np.array([lm._inverse[True] for lm in lms])), 1e-300))
+            volume.update((lm.id, float(np.sum(row))) for lm, row in zip(lms, logs))
+        for lm in fresh:
+            lm.cov_stamp = stamp
+            lm.covariance = lm.information_covariance(gate=True)
+            self.volume.append(lm.id, stamp, volume[lm.id])
 
     def _spheres(self) -> tuple[list[int], np.ndarray, np.ndarray]:
         n = len(self._sphere_ids)
@@ -543,6 +564,14 @@ class GraphLandmarks:
         return out
 
 
+@cache
+def _ridge(n: int) -> np.ndarray:
+    """The tiny ridge that keeps an information's inverse finite (read-only, made once)."""
+    r = np.eye(n) * 1e-9
+    r.flags.writeable = False
+    return r
+
+
 def _summary(z, pose: gtsam.Pose3, T_BS: np.ndarray) -> np.ndarray:
     """A world point standing for the observation (object / segment midpoint / structure origin)."""
     T_WS = pose.compose(gtsam.Pose3(T_BS))
@@ -585,3 +614,26 @@ def _information(H_x: np.ndarray, H_l: np.ndarray, R: np.ndarray, pose_cov: np.n
     """H_lᵀ (R + H_x P H_xᵀ)⁻¹ H_l."""
     S = R + H_x @ pose_cov @ H_x.T
     return H_l.T @ np.linalg.solve(S, H_l)
+
+
+def _informations(lins: list[PairLinearization], *pose_covs: np.ndarray) -> list[tuple[np.ndarray, ...]]:
+    """:func:`_information` of each pairing's linearisation with each of ``pose_covs``, the pairings of
+    one shape at once: stacked products and solves, which numpy evaluates matrix by matrix with the
+    same BLAS / LAPACK calls as one alone (the same numbers to the bit, without the per-call overheads)."""
+    out: list = [None] * len(lins)
+    shapes: dict[tuple[int, int], list[int]] = {}
+    for k, lin in enumerate(lins):
+        shapes.setdefault(lin.H_l.shape, []).append(k)
+    for ks in shapes.values():
+        H_x = np.array([lins[k].H_x for k in ks], float)
+        H_l = np.array([lins[k].H_l for k in ks], float)
+        R = np.array([lins[k].R for k in ks], float)
+        per_cov = []
+        for P in pose_covs:
+            try:
+                per_cov.append(H_l.transpose(0, 2, 1) @ np.linalg.solve(R + H_x @ P @ H_x.transpose(0, 2, 1), H_l))
+            except np.linalg.LinAlgError:  # raised as one pair alone would
+                per_cov.append([_information(lins[k].H_x, lins[k].H_l, lins[k].R, P) for k in ks])
+        for n, k in enumerate(ks):
+            out[k] = tuple(np.array(c[n]) for c in per_cov)
+    return out

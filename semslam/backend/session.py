@@ -77,13 +77,24 @@ class IsamSession:
         self.n_updates = 0  # updates of this iSAM2, deferred keyframes counted one each
         self.relinearized = 0  # variables iSAM2 relinearised, summed over its updates
 
-    def _update(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, n: int = 1) -> list[int]:
+    def _update(
+        self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, n: int = 1, last: tuple[int, ...] = ()
+    ) -> list[int]:
         """iSAM2 ``update`` standing for ``n`` updates; relinearisation is checked if one of them
-        would have checked (every ``relinearize_skip``-th). Returns iSAM2's indices of the new factors."""
+        would have checked (every ``relinearize_skip``-th). Returns iSAM2's indices of the new factors.
+        ``last``: keys of the new factors to eliminate after the others (iSAM2 orders the new
+        factors' keys last; these then form the root clique, whose marginal is cheap to read)."""
         first = self.n_updates + 1
         self.n_updates += n
         check = (self.n_updates // self.relinearize_skip) > ((first - 1) // self.relinearize_skip)
-        result = self.isam.update(graph, values, force_relinearize=check)
+        groups = None
+        observed = {k for i in range(graph.size()) for k in graph.at(i).keys()} if last else set()
+        last = tuple(k for k in last if k in observed)
+        if last and len(last) < len(observed):
+            groups = gtsam.KeyGroupMap()
+            for k in observed:
+                groups.insert2(k, 2 if k in last else 1)
+        result = self.isam.update(graph, values, constrainedKeys=groups, force_relinearize=check)
         self.relinearized += result.getVariablesRelinearized()
         return list(result.getNewFactorsIndices())
 
@@ -161,8 +172,10 @@ class IsamSession:
         graph = gtsam.NonlinearFactorGraph()
         for f, _ in [*factors, *priors]:
             graph.add(f)
+        x, v = anchor
+        last = (x, v, gtsam.Symbol("b", gtsam.Symbol(x).index()).key())
         try:
-            slots = self._update(graph, values, n)
+            slots = self._update(graph, values, n, last=last)
         except RuntimeError as exc:
             msg = solver_failure(exc)
             owners = sorted({o for _, o in factors if o is not None})

@@ -66,15 +66,20 @@ def split_factors(
     return kept, leaving, kept_keys
 
 
-def marginal_factors(leaving: list[tuple], values: gtsam.Values, drop: set[int]) -> list[gtsam.LinearContainerFactor]:
+def marginal_factors(
+    leaving: list[tuple], values: gtsam.Values, drop: set[int], leaving_keys: list | None = None
+) -> list[gtsam.LinearContainerFactor]:
     """The information the ``leaving`` factors carry on their non-dropped variables, with the
     dropped ones eliminated: linear factors at ``values`` (which must hold every variable the
-    factors touch). Raises RuntimeError if the dropped variables are not determined."""
+    factors touch). ``leaving_keys``: each factor's keys, when already read (``keys()`` copies).
+    Raises RuntimeError if the dropped variables are not determined."""
     graph = gtsam.NonlinearFactorGraph()
     for f, *_ in leaving:
         graph.add(f)
     linear = graph.linearize(values)
-    present = sorted({k for f, *_ in leaving for k in f.keys() if k in drop})
+    if leaving_keys is None:
+        leaving_keys = [f.keys() for f, *_ in leaving]
+    present = sorted({k for keys in leaving_keys for k in keys if k in drop})
     _, remaining = linear.eliminatePartialMultifrontal(gtsam.KeyVector(present))  # COLAMD order
     out = []
     for i in range(remaining.size()):
@@ -253,7 +258,8 @@ class SlidingWindow:
         try:
             # at the estimate, which the marginal keeps for good (at iSAM2's older linearisation point the
             # 0.5 h survey of bench_graph ended 7 % worse: ATE 0.175 against 0.168 m)
-            marginal = [(m, None) for m in marginal_factors([session.window[i] for i in out], estimate, drop)]
+            leaving, leaving_keys = [session.window[i] for i in out], [factor_keys[i] for i in out]
+            marginal = [(m, None) for m in marginal_factors(leaving, estimate, drop, leaving_keys)]
             try:
                 session.slide_out(out, marginal, estimate)
             except RuntimeError as exc:  # iSAM2 afresh on the window, as the slides did before
