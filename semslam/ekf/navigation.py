@@ -25,6 +25,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
+from factors.heading_bias import RATE_UNIT_S
 from semslam.config import SemslamConfig
 from semslam.ekf import geometry as geo
 from semslam.ekf import models as mdl
@@ -53,7 +54,11 @@ class FilterNavigation:
         # AHRS heading bias (the shared sensor model; 0 = not modelled): a 10th vehicle state
         self.bias_walk = config.sensors.heading_bias_walk(metadata)
         self.bias_sigma0 = config.sensors.heading_bias_sigma0(metadata)
-        self.nv = NX + 1 if self.bias_walk > 0 else NX
+        # and its drift rate ρ (rad per RATE_UNIT_S s, factors.heading_bias) an 11th, when modelled
+        rate_sigma = config.sensors.heading_bias_rate_sigma(metadata)
+        self.bias_rate_walk = config.sensors.heading_bias_rate_walk(metadata) if rate_sigma > 0 else None
+        self.rate_sigma0 = rate_sigma * RATE_UNIT_S
+        self.nv = NX + (self.bias_walk > 0) + (self.bias_rate_walk is not None)
         self.fej_yaw = self.nv > NX and self.cfg.heading_jacobians == "first_estimate"
         self.p_fe = np.zeros(3)  # the propagated (first) estimate of the position at the current time
         self.state: EkfState | None = None
@@ -92,7 +97,8 @@ class FilterNavigation:
                 pos_sigma**2,
                 [c.attitude_sigma_rad**2] * 3,
                 [c.velocity_sigma_m_s**2] * 3,
-                [self.bias_sigma0**2] * (self.nv - NX),
+                [self.bias_sigma0**2] * (self.nv > NX),
+                [self.rate_sigma0**2] * (self.nv > NX + 1),
             ]
         )
         self.state = EkfState(x0, P0)
@@ -132,7 +138,7 @@ class FilterNavigation:
         sa, sw = self.motion.accel_sigma_m_s2, self.motion.angular_rate_sigma_rad_s
         for _ in range(steps):
             if self.nv > NX:
-                xv, F, Q = mdl.predict_biased(self.state.xv, omega, dt, sa, sw, self.bias_walk)
+                xv, F, Q = mdl.predict_biased(self.state.xv, omega, dt, sa, sw, self.bias_walk, self.bias_rate_walk)
             else:
                 xv, F, Q = mdl.predict(self.state.xv.copy(), omega, dt, sa, sw)
             if self.fej_yaw:  # ∂p'/∂ψ = e_z × (p' − p) with p the propagated, not the updated, position
