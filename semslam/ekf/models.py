@@ -11,7 +11,8 @@ can assemble a sparse H.
 
 AHRS heading bias (an extension; the paper has none): when the mission's sensor model declares one
 (``SensorModelConfig.heading_bias_walk``), the vehicle state gains a 10th entry b (rad, index
-:data:`BIAS`), a random walk (:func:`predict_biased`), and the AHRS reads the heading plus b
+:data:`BIAS`), a random walk (:func:`predict_biased`) — with its drift rate modelled too
+(``heading_bias_rate_sigma``), an 11th, ρ at BIAS + 1, that carries b on (:mod:`factors.heading_bias`) — and the AHRS reads the heading plus b
 (:func:`biased_attitude_update`): R_meas = Rz(b) R_WB, the graph back-end's
 ``factors.navigation.biased_attitude_residual``. Every other model sees only the first 9 entries; its
 Jacobian column for b is zero.

@@ -7,7 +7,9 @@ AHRS heading bias (an extension: the paper's filter has none). With ``heading_bi
 :data:`semslam.ekf.models.BIAS`): b starts at 0 with σ ``heading_bias_sigma0(metadata)``, the
 prediction adds σ_b² Δt to its variance (:func:`~semslam.ekf.models.predict_biased`) and the AHRS
 update measures (φ, θ, ψ + b), R_meas = Rz(b) R_WB as the graph's ``biased_attitude_residual``.
-Nothing else sees b: only the map (a heading relative to features seen earlier) makes it observable.
+With ``heading_bias_rate_sigma(metadata)`` > 0 as well, an 11th entry ρ, the bias's drift rate in
+rad per ``factors.heading_bias.RATE_UNIT_S`` s (prior σ from the declared drift), carries b on:
+b' = b + ρ Δt/τ, ρ a random walk (the graph's ``heading_bias_drift_factor``). Nothing else sees b: only the map (a heading relative to features seen earlier) makes it observable.
 
 With b in the state a rotation of vehicle and map about the vertical is unobservable; the textbook
 EKF's Jacobians at the updated estimates observe it spuriously (Huang, Mourikis & Roumeliotis
