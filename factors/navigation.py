@@ -492,3 +492,58 @@ def depth_factor(key: int, depth: float, variance: float, t_BS: np.ndarray) -> g
         np.asarray(t_BS, float),
         gtsam.noiseModel.Diagonal.Precisions(np.array([0.0, 0.0, 1.0 / float(variance)])),
     )
+
+
+def hold_interp_weights(knots_t: np.ndarray, t_from: float, t_to: float) -> np.ndarray:
+    """w with ∫_{t_from}^{t_to} v(t) dt = w · v, v(t) linear between the knots (times ``knots_t``,
+    increasing, values v) and held at the end values outside them; signed (t_to < t_from: −w)."""
+    knots_t = np.asarray(knots_t, float)
+    a, b = min(t_from, t_to), max(t_from, t_to)
+    pts = np.unique(np.r_[a, b, knots_t[(knots_t > a) & (knots_t < b)]])
+    basis = np.stack([np.interp(pts, knots_t, e) for e in np.eye(len(knots_t))], axis=1)
+    w = np.sum(np.diff(pts)[:, None] * (basis[:-1] + basis[1:]) / 2, axis=0)
+    return w if t_to >= t_from else -w
+
+
+def referred_depth(
+    readings: list[tuple[float, float, float, np.ndarray]],
+    t_key: float,
+    R_key: np.ndarray,
+    t_BS: np.ndarray,
+    knots: list[tuple[float, float, float]],
+    accel_sigma: float,
+) -> tuple[float, float]:
+    """Depth readings (t, depth, variance, R_WB at t) of the pressure sensor at ``t_BS`` brought to
+    ``t_key`` (attitude ``R_key``) and averaged: each reading plus the vertical displacement from its
+    time to t_key (∫ v_z dt, v_z the world vertical velocity of the DVL samples ``knots`` (t, v_z,
+    variance), linear between them, held outside; none: v_z = 0 ± 1 cm/s) and the lever arm's change
+    [(R_key − R) t_BS]_z. Returns (mean, variance of the mean): the readings' own noise averages down,
+    the displacement's is shared (the same DVL samples for every reading) and is kept whole — each
+    knot's weight is its mean weight over the readings — as is the motion model's (σ_a² h³/3 over the
+    reading's longest stretch h without a knot, plus σ_a² age h² where the stretch lies wholly beyond
+    the knots and holds a velocity already ``age`` old, taken as common to all readings: an upper bound)."""
+    t_r = np.array([r[0] for r in readings])
+    var_r = np.array([r[2] for r in readings])
+    a = (1.0 / var_r) / np.sum(1.0 / var_r)
+    lever = np.array([(R_key - r[3])[2] @ t_BS for r in readings])
+    z = np.array([r[1] for r in readings]) + lever
+    if knots:
+        kt = np.array([k[0] for k in knots])
+        W = np.stack([hold_interp_weights(kt, t, t_key) for t in t_r])  # readings × knots
+        z = z + W @ np.array([k[1] for k in knots])
+        w_mean = a @ W
+        var_disp = float(np.sum(w_mean**2 * np.array([k[2] for k in knots])))
+        gaps, ages = [], []
+        for t in t_r:
+            lo, hi = min(t, t_key), max(t, t_key)
+            inside = np.r_[lo, kt[(kt > lo) & (kt < hi)], hi]
+            gaps.append(float(np.max(np.diff(inside))) if len(inside) > 1 else 0.0)
+            # a stretch wholly beyond the knots holds a velocity already that old when it starts
+            ages.append(max(lo - kt[-1], kt[0] - hi, 0.0))
+        h, age = np.array(gaps), np.array(ages)
+    else:
+        var_disp = float((0.01 * (a @ np.abs(t_key - t_r))) ** 2)
+        h, age = np.abs(t_key - t_r), np.zeros(len(t_r))
+    # the walk over a stretch h from a velocity known `age` before it: σ_a² (h³/3 + age·h²)
+    var_model = float((a @ (accel_sigma * np.sqrt(h**3 / 3.0 + age * h**2))) ** 2)
+    return float(a @ z), float(np.sum(a**2 * var_r)) + var_disp + var_model

@@ -35,7 +35,10 @@ def estimators_input(mission: Mission, config: SemslamConfig, reference: GpsRefe
     fixes held out as the ``reference``."""
     initial = config.initial
     seen, mission.rest = at_rest_until_velocity(
-        mission, initial.at_rest_until_velocity_sigma_m_s, initial.still_test_readings
+        mission,
+        initial.at_rest_until_velocity_sigma_m_s,
+        initial.still_test_readings,
+        initial.at_rest_waiting_sigma_m_s,
     )
     return reference.estimators_see(seen) if reference is not None else seen
 

@@ -94,3 +94,37 @@ def test_a_nominal_radius_far_below_the_range_changes_nothing(beyond_the_valve):
     assert len(seg.pipes) == len(small.pipes)
     for a, b in zip(seg.pipes, small.pipes):
         assert np.array_equal(a.inliers, b.inliers) and np.allclose(a.p, b.p) and not b.radius_held
+
+
+def test_a_valve_at_the_end_of_a_short_held_run_is_found_and_the_run_not_reported():
+    """Seed 15, 54.0 s: its butterfly valve at the frame's edge, the pipe beyond it seen over a narrow
+    arc for less than ``color_max_length`` (the held floor keeps it from being a pipe). With
+    ``held_short_objects`` the run serves the object stage alone: the valve is found at its end,
+    and no line observation comes of the run."""
+    cloud, T_WS, truth = _seed15_cloud(54.0)
+    radii = sorted({g.radius for g in truth})
+    valve = np.array([-1.179921572, 0.082017213, 14.868301202])  # the scene's valve 1 (W)
+    x = T_WS[:3, :3].T @ (valve - T_WS[:3, 3])
+    found = {}
+    for on in (False, True):
+        cfg = LaserConfig.model_validate({"pipes": {"nominal_radii": radii, "held_short_objects": on}})
+        seg, reported = _found(cloud, T_WS, cfg)
+        found[on] = [np.linalg.norm(o.position - x) for o in seg.objects if np.linalg.norm(o.position - x) < 0.3]
+        assert not [p for p in reported if p.radius_held]
+        assert all(p.objects_only == (p.radius_held and p.length < cfg.pipes.color_max_length) for p in seg.pipes)
+    assert not found[False]
+    assert len(found[True]) == 1 and found[True][0] < 0.08
+
+
+def test_a_short_held_run_whose_points_a_pipe_took_again_is_left_out():
+    """Object-stage runs take no points from the search, so a later cylinder may fit theirs again:
+    one sharing more than half of its inliers with a pipe, or with such a run kept before it, goes."""
+    from frontends.laser.pipes import Pipe, _apart
+
+    def pipe(idx):
+        z = np.zeros(3)
+        return Pipe(z, z, np.array([1.0, 0, 0]), 0.05, np.asarray(idx), np.eye(6), objects_only=True)
+
+    kept = [pipe(range(0, 100))]
+    a, b, c, d = pipe(range(60, 140)), pipe(range(30, 130)), pipe(range(200, 260)), pipe(range(220, 300))
+    assert _apart([a, b, c, d], kept) == [a, c, d]  # b: all taken (by the pipe and a); a, d: half

@@ -22,16 +22,7 @@ def mission():
     """Two 18 m lines of seed 23's field: its 0.25 m pipeline crosses their overlap north–south,
     the PLET lies under the second line and the manifold under the first. A drifting heading
     (2.5° over the survey) and a noisier DVL misalign the lines by 0.2–0.5 m."""
-    cfg = survey_config(
-        seed=23,
-        lines=2,
-        line_length_m=18.0,
-        centre=(5.8, 6.0),
-        sonar={"n_beams": 256},
-        ahrs={"heading_bias_drift_deg": 2.5},
-        dvl={"sigma_m_s": 0.02, "random_dropout_rate": 0.0},
-    )
-    return simulate_field(cfg)
+    return _survey(23)
 
 
 @pytest.fixture(scope="module")
@@ -67,19 +58,34 @@ def test_registered_by_entry_point_and_config_errors_name_the_key(mission):
         SonarFrontend(mission.metadata, {"recognition": {"models": ["submarine"]}})
 
 
-def test_swath_registration_makes_the_swaths_agree(mission, baseline):
-    base = baseline
-    reg, fe = _run(mission, {"recognition": {"enabled": False}, "pipes": {"enabled": False}})
-    odo = [r.observation for r in reg.observations if isinstance(r.observation, OdometryObservation)]
-    assert odo, "no swath registration accepted"
-    # The one registration accepted here measures a shift of a few cm while the anchoring poses
-    # are ~0.2 m apart as placed (flat seabed in the overlap): the absolute error of the second
-    # line moves by ±1 cm either way with it, so only the map's consistency is asserted, and that
-    # the registration does not make the navigation worse.
-    e0, e1 = _second_line_error(base), _second_line_error(reg)
-    assert e1 < 1.05 * e0, (e0, e1)
-    s = reg.frontend_summaries["sonar"].metrics
-    assert s["swath_disagreement"]["after"]["median_m"] <= s["swath_disagreement"]["before"]["median_m"]
+def _survey(seed: int):
+    """Two 18 m lines over ``seed``'s field (the fixture's survey: seed 23)."""
+    cfg = survey_config(
+        seed=seed,
+        lines=2,
+        line_length_m=18.0,
+        centre=(5.8, 6.0),
+        sonar={"n_beams": 256},
+        ahrs={"heading_bias_drift_deg": 2.5},
+        dvl={"sigma_m_s": 0.02, "random_dropout_rate": 0.0},
+    )
+    return simulate_field(cfg)
+
+
+def test_swath_registration_makes_the_second_line_agree_with_the_first(mission, baseline):
+    """Over four fields (the fixture's seed 23 and 24–26): the swath registrations between the lines are
+    accepted on most, and they bring the second line nearer the truth in sum. One survey alone hangs on
+    one or two borderline decisions (seed 23: one registration, accepted or rejected as the patches' border
+    moves with any navigation change; experiments/estimators/README.md, stop 41), so the test is a sum."""
+    accepted, before, after = 0, 0.0, 0.0
+    for seed in (23, 24, 25, 26):
+        m = mission if seed == 23 else _survey(seed)
+        reg, _ = _run(m, {"recognition": {"enabled": False}, "pipes": {"enabled": False}})
+        accepted += any(isinstance(r.observation, OdometryObservation) for r in reg.observations)
+        before += _second_line_error(baseline if seed == 23 else _run(m)[0])
+        after += _second_line_error(reg)
+    assert accepted >= 3, accepted
+    assert after < 0.95 * before, (before, after)
 
 
 def test_structure_becomes_a_graph_landmark(mission, baseline, tmp_path):

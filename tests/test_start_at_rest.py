@@ -8,7 +8,7 @@ from semslam.compare import estimators_input
 from semslam.config import SemslamConfig
 from semslam.estimators import create_estimator
 from semslam.mission.check import input_block, stream_findings
-from semslam.mission.measurements import Attitude, DvlVelocity, GpsFix, GroundTruthPose
+from semslam.mission.measurements import Attitude, Depth, DvlVelocity, GpsFix, GroundTruthPose
 from semslam.mission.mission import Mission, MissionMetadata, SensorInfo
 from semslam.pipeline import run_pipeline
 from semslam.sim.config import TankSimConfig
@@ -104,6 +104,89 @@ def test_a_dvl_less_descent_no_longer_throws_the_estimators_off():
     for name in held:
         assert held[name] < 0.3, (name, held[name])
         assert free[name] > 2 * held[name], (name, free[name], held[name])
+
+
+def diving_mission(dive_s: float | None, lock_s: float = 8.0, seed: int = 0) -> Mission:
+    """AHRS at 10 Hz and a depth sensor at 8 Hz (σ 1.3 cm) for 10 s, the DVL without lock until
+    ``lock_s``; the vehicle still until ``dive_s``, then diving at 0.1 m/s (None: still throughout)."""
+    rng = np.random.default_rng(seed)
+    mission = stream_mission(first_valid_s=lock_s)
+    sensors = dict(mission.metadata.sensors)
+    sensors["depth"] = SensorInfo("depth", "depth", "/depth", "x", np.eye(4))
+    ms = list(mission)
+    for k in range(80):
+        t = k / 8
+        z = 1.0 + (0.0 if dive_s is None else 0.1 * max(t - dive_s, 0.0)) + 0.013 * rng.standard_normal()
+        ms.append(Depth(int(t * S) + 2, "depth", depth=z, variance=0.013**2))
+    return Mission.from_measurements(MissionMetadata(name="m", sensors=sensors), ms)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_the_start_at_rest_is_sure_only_while_the_depth_holds(seed):
+    """While the depth sensor says the vehicle waits the zero readings' σ is the waiting one (0.01
+    m/s); within a second of the dive's start (0.1 m/s) it is the looser one (0.1 m/s) up to the lock:
+    a vehicle that dives may move (stop 41: the tank vehicle moves horizontally from 2 s after its
+    dive). A vehicle that stays at its depth is held at 0.01 m/s up to the lock."""
+    R_BS = DVL_MOUNT[:3, :3]
+
+    def sigmas(mission):
+        added = rest_readings(mission)
+        return np.array([m.stamp for m in added]) / S, np.array(
+            [np.sqrt((R_BS @ m.covariance @ R_BS.T)[0, 0]) for m in added]
+        )
+
+    diving = diving_mission(dive_s=4.0, seed=seed)
+    t, sig = sigmas(diving)
+    assert t[-1] == 8.0  # held to the lock either way
+    # until the depth has a window's worth of earlier readings to compare with it says nothing: loose
+    judged = np.argmax(sig < 0.05)
+    assert 0 < judged and t[judged] <= 2.5, t[judged]
+    np.testing.assert_allclose(sig[:judged], 0.1)
+    k = judged + np.argmax(sig[judged:] > 0.05)
+    assert 4.0 < t[k] < 5.0, t[k]
+    np.testing.assert_allclose(sig[judged:k], 0.01)
+    np.testing.assert_allclose(sig[k:], 0.1)
+    (said,) = [f.text for f in stream_findings(diving)]
+    assert "initial.at_rest_waiting_sigma_m_s) until its depth changed at 4." in said
+    t, sig = sigmas(diving_mission(dive_s=None, seed=seed))
+    assert t[-1] == 8.0
+    np.testing.assert_allclose(sig[t > 2.5], 0.01)
+    # diving from the start: the depth never says it waits
+    t, sig = sigmas(diving_mission(dive_s=0.0, seed=seed))
+    np.testing.assert_allclose(sig, 0.1)
+
+
+def test_a_vehicle_moving_before_the_lock_is_not_held_at_the_waiting_sigma(monkeypatch):
+    """A tank mission whose vehicle dives at 6 s and starts to circle while its DVL has no lock (until
+    20 s): from the dive the zero readings only bound the speed (σ 0.1 m/s); held at the waiting σ
+    (0.01 m/s, the depth test turned off) up to the lock they are a wrong measurement, and every
+    estimator ends further off after the lock."""
+    import semslam.mission.rest as rest
+
+    sim = {"seed": 0, "trajectory": {"loops": 0.15, "rest_s": 6.0}, "laser": {"rate_hz": 0.05}}
+    sim["dvl"] = {"outage_s": [0.0, 20.0], "random_dropout_rate": 0.0}
+    mission = simulate_tank(TankSimConfig.model_validate(sim))
+    truth = list(mission.of_type(GroundTruthPose))
+    t_true, p_true = np.array([g.stamp for g in truth]), np.array([g.position for g in truth])
+
+    def error_after_the_lock():
+        cfg = SemslamConfig()
+        ests = [create_estimator(n, mission.metadata, cfg) for n in ("dr", "ekf", "graph")]
+        result = run_pipeline(estimators_input(mission, cfg), ests, frontend_process=False)
+        out = {}
+        for name, r in result.results.items():
+            k = np.searchsorted(t_true, r.trajectory.stamps).clip(0, len(t_true) - 1)
+            t = (r.trajectory.stamps - t_true[0]) / S
+            out[name] = np.linalg.norm((r.trajectory.positions - p_true[k])[t > 20, :2], axis=1).mean()
+        return out
+
+    ended = error_after_the_lock()
+    assert mission.rest.moved is not None and (mission.rest.moved - t_true[0]) / S < 11.0
+    monkeypatch.setattr(rest, "DEPTH_CHI2", np.inf)
+    held = error_after_the_lock()
+    assert mission.rest.moved is None
+    for name in held:  # measured: 0.12 against 0.27 m for each
+        assert ended[name] < 0.5 * held[name], (name, ended[name], held[name])
 
 
 def locked_at_rest_mission(still_s: float, noise: float = 0.01, seed: int = 0) -> Mission:

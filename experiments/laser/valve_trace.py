@@ -109,12 +109,32 @@ def near_segments(cut: list, x: np.ndarray, reach: float = 0.15) -> list[str]:
     return out
 
 
-def main(argv=None) -> int:
+def valve_mission(seed: int, config: str, valve: int | None):
+    """Pipeline ``seed`` simulated; the front-end's configuration from the JSON ``config`` (``"pipes":
+    {"nominal": true}``: the seed's true radii as ``pipes.nominal_radii``); its valves (``valve``: that
+    one only), printed; the stereo's T_BS; the true poses T_WB by stamp and their sorted stamps."""
     from frontends.laser.config import LaserConfig
-    from frontends.laser.frontend import segment_scan
-    from semslam.mission.measurements import GroundTruthPose, PointCloud
+    from semslam.mission.measurements import GroundTruthPose
     from semslam.sim.pipeline_config import PipelineSimConfig
     from semslam.sim.pipeline_mission import simulate_pipeline
+
+    mission = simulate_pipeline(PipelineSimConfig(seed=seed))
+    meta = mission.metadata
+    gt = meta.ground_truth
+    over = json.loads(config)
+    if over.get("pipes", {}).pop("nominal", False):
+        over["pipes"]["nominal_radii"] = sorted({round(float(p.radius), 4) for p in gt.pipes})
+    cfg = LaserConfig.model_validate(over)
+    valves = {o.id: o for o in gt.objects if o.cls in VALVES and (valve is None or o.id == valve)}
+    print("valves:", {k: (o.cls, np.round(o.position, 2).tolist()) for k, o in valves.items()}, flush=True)
+    T_BS = next(s for s in meta.sensors.values() if s.kind == "laser").T_BS
+    poses = {m.stamp: m.matrix() for m in mission.of_type(GroundTruthPose)}
+    return mission, cfg, valves, T_BS, poses, np.array(sorted(poses))
+
+
+def main(argv=None) -> int:
+    from frontends.laser.frontend import segment_scan
+    from semslam.mission.measurements import PointCloud
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seed", type=int, default=9)
@@ -130,18 +150,8 @@ def main(argv=None) -> int:
     tests: list = []  # (test, point, value) of the current cloud's lone ends
     if args.lone_ends:
         record_lone_ends(tests)
-    mission = simulate_pipeline(PipelineSimConfig(seed=args.seed))
+    mission, cfg, valves, T_BS, poses, stamps = valve_mission(args.seed, args.config, args.valve)
     meta = mission.metadata
-    gt = meta.ground_truth
-    over = json.loads(args.config)
-    if over.get("pipes", {}).pop("nominal", False):
-        over["pipes"]["nominal_radii"] = sorted({round(float(p.radius), 4) for p in gt.pipes})
-    cfg = LaserConfig.model_validate(over)
-    valves = {o.id: o for o in gt.objects if o.cls in VALVES and (args.valve is None or o.id == args.valve)}
-    print("valves:", {k: (o.cls, np.round(o.position, 2).tolist()) for k, o in valves.items()})
-    T_BS = next(s for s in meta.sensors.values() if s.kind == "laser").T_BS
-    poses = {m.stamp: m.matrix() for m in mission.of_type(GroundTruthPose)}
-    stamps = np.array(sorted(poses))
     points = {s["stamp"]: {int(k): v for k, v in s["object_points"].items()} for s in meta.extras["scans"]}
     with_view: dict[int, int] = {}
     clouds: dict[int, int] = {}

@@ -141,6 +141,15 @@ class PipeConfig(_Section):
         "noise) is fitted again with the nominal radius that gathers the most inliers held; it must still pass "
         "the seabed's tests. Empty: off",
     )
+    held_short_objects: bool = Field(
+        True,
+        description="with nominal_radii: a held-radius run shorter than color_max_length (never reported: it may be "
+        "a stone's top) is still given to the object stage when it passes the seabed's geometric tests (not the "
+        "colour), so that a fitting at its end is found: it takes no points from the pipe search, is no line "
+        "observation, counts as lying on the seabed (a fitting at its end must rise over it) and connects no "
+        "object when shorter than min_partial_length (the edge of a narrow view shows a valve's pipe only over "
+        "such short narrow arcs)",
+    )
     surface_offset: float = Field(
         0.0025,
         ge=0,

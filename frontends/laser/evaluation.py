@@ -119,8 +119,9 @@ def score_scan(
 
     # Pipes: a detection is true when near-parallel to a truth pipe, on its axis and overlapping it.
     vis = [pipe_visibility(points, truth, k) for k in range(len(truth.pipes))]
-    match = np.full(len(seg.pipes), -1)
-    for d, det in enumerate(seg.pipes):
+    dets = [det for det in seg.pipes if not det.objects_only]  # runs that only serve the objects are no detection
+    match = np.full(len(dets), -1)
+    for d, det in enumerate(dets):
         best = np.inf
         for k, (p, q, _) in enumerate(truth.pipes):
             a = _unit(q - p)
@@ -134,7 +135,7 @@ def score_scan(
                 best, match[d] = lateral, k
     # Detections at least min_pipe_length long are the reported ones (precision, recall of long
     # pipes); shorter ones only count in the recall of all pipes.
-    reported = np.array([det.length >= min_pipe_length for det in seg.pipes], bool)
+    reported = np.array([det.length >= min_pipe_length for det in dets], bool)
     visible = [k for k, (f, _) in enumerate(vis) if f >= min_visible]
     # "long": seen over at least min_pipe_length (a pipe seen over less cannot give a reported segment)
     long = [k for k in visible if vis[k][1][1] - vis[k][1][0] >= min_pipe_length]
@@ -159,7 +160,7 @@ def score_scan(
             continue
         p, q, _ = truth.pipes[k]
         a = _unit(q - p)
-        det = seg.pipes[d]
+        det = dets[d]
         score.axis_errors_deg.append(float(np.degrees(np.arccos(min(abs(a @ det.axis), 1.0)))))
         t0, t1 = vis[k][1]
         forward = (det.q - det.p) @ a > 0
@@ -245,7 +246,7 @@ def _score_map_errors(
     # reported pipe segments through an object (on their axis, more than bridge_margin inside both
     # ends: the back-end keeps collinear segments apart when an object lies between them, reaching
     # at most 0.1 m into either)
-    for det in seg.pipes:
+    for det in (d for d in seg.pipes if not d.objects_only):
         if det.length < min_pipe_length or not len(obj_pos):
             continue
         v = obj_pos - det.p

@@ -189,9 +189,13 @@ def _objects(
     """The objects at the pipes' ends (:func:`segment_objects`). On the seabed, a segment lying on
     the ground and shorter than ``min_partial_length`` (not reported: a valve's lever or body, a
     stone's flank fitted as a pipe) connects no object: its points go to the objects instead (in the
-    tank, where no pipe lies on the ground, the short pipes between fittings do connect them)."""
+    tank, where no pipe lies on the ground, the short pipes between fittings do connect them). A
+    segment that only serves the objects (``objects_only``) counts as lying."""
     if ground is None:
         return segment_objects(spts, pipes, up, cfg.objects, on_ground, None, None, rays.seen_at)
+    # a short held run (held_short_objects: it may be a stone's top) is judged as lying on the seabed
+    # wherever the ground model puts it: a fitting at its end must rise over it
+    lying = lying | np.array([p.objects_only for p in pipes], bool)
     arms = [k for k, p in enumerate(pipes) if not (lying[k] and p.length < pcfg.min_partial_length)]
     objects = segment_objects(
         spts, [pipes[k] for k in arms], up, cfg.objects, on_ground, ground, lying[arms], rays.seen_at

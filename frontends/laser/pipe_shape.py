@@ -143,10 +143,11 @@ class Seabed:
     def _colour(self) -> bool:
         return self._rgb is not None and self._raw is not None and self.cfg.min_color_contrast > 0
 
-    def accept(self, pipe: Pipe, seen_length: float = 0.0) -> bool:
+    def accept(self, pipe: Pipe, seen_length: float = 0.0, colour: bool = True) -> bool:
         """The tests of a pipe on the seabed (:func:`lies_like_a_pipe`), with colour when the scan has
-        it; ``seen_length``: the length of straight cylinder the segment is part of (see there)."""
-        contrast = self._contrast if self._colour() else None
+        it (and ``colour``); ``seen_length``: the length of straight cylinder the segment is part of
+        (see there)."""
+        contrast = self._contrast if colour and self._colour() else None
         return lies_like_a_pipe(pipe, self.points, self.ground, self.cfg, contrast, seen_length)
 
     def accept_runs(self, runs: list[Pipe]) -> list[Pipe]:

@@ -66,6 +66,7 @@ class Pipe:
     covariance: np.ndarray
     between_fittings: bool = False
     radius_held: bool = False
+    objects_only: bool = False  # a short held run given to the object stage only (``held_short_objects``)
 
     @property
     def length(self) -> float:
@@ -74,7 +75,10 @@ class Pipe:
     def reported(self, cfg: PipeConfig) -> bool:
         """Long enough to be an observation (shorter ones only serve segmentation and connectivity),
         or, with ``report_between_fittings``, a whole pipe between two fittings at least
-        ``between_fittings_radii`` radii long: its extent is seen from end to end."""
+        ``between_fittings_radii`` radii long: its extent is seen from end to end. Never one that only
+        serves the objects (``objects_only``)."""
+        if self.objects_only:
+            return False
         if self.length >= cfg.min_partial_length:
             return True
         return (
@@ -932,11 +936,27 @@ def _cut_into_segments(
         pipe = _make_pipe(points, normals, seg, ab, cfg, held)
         if held is not None and pipe.length < cfg.color_max_length:
             # the radius held is no evidence, and a short cylinder on the seabed may be a stone's top:
-            # only a straight run long enough to be a pipe by its shape (Seabed) is one
-            continue
+            # only a straight run long enough to be a pipe by its shape (Seabed) is one; with
+            # held_short_objects it still serves the object stage (a fitting at its end)
+            if not cfg.held_short_objects:
+                continue
+            pipe.objects_only = True
         pipe.between_fittings = lo and hi
         if pipe.length >= cfg.min_detect_length and cfg.min_radius <= pipe.radius <= cfg.max_radius:
             out.append(pipe)
+    return out
+
+
+def _apart(extra: list[Pipe], pipes: list[Pipe]) -> list[Pipe]:
+    """The ``extra`` segments (object-stage only, in order) that share at most half of their inliers
+    with the ``pipes`` and with the extra ones kept before them: taking no points from the search,
+    a later cylinder may have fitted theirs again."""
+    taken = np.concatenate([p.inliers for p in pipes]) if pipes else np.zeros(0, np.int64)
+    out = []
+    for p in extra:
+        if 2 * int(np.isin(p.inliers, taken).sum()) <= len(p.inliers):
+            out.append(p)
+            taken = np.concatenate([taken, p.inliers])
     return out
 
 
@@ -982,6 +1002,7 @@ def detect_pipes(
     max_failures = cfg.max_failures  # until a pipe tells how rare pipes are among the seeds
     sq = row_dot(points, points)
     pipes: list[Pipe] = []
+    objects_only: list[Pipe] = []  # short held runs for the object stage (held_short_objects)
     failures = 0
     cand = None  # the free points, narrowed when a pipe takes some
     stale = False
@@ -1033,6 +1054,10 @@ def detect_pipes(
             continue
         cb, ab, rb, idx, held = refined
         found = _cut_into_segments(points, normals, sq, cb, ab, rb, idx, cfg, foreign, seabed, rays, held)
+        if any(pipe.objects_only for pipe in found):  # kept aside: the search goes on as without them
+            short = [pipe for pipe in found if pipe.objects_only]
+            found = [pipe for pipe in found if not pipe.objects_only]
+            objects_only += short if seabed is None else [pipe for pipe in short if seabed.accept(pipe, colour=False)]
         if seabed is not None:
             found = seabed.accept_runs(found)
         for pipe in found:
@@ -1046,7 +1071,10 @@ def detect_pipes(
         failures = 0 if found else failures + 1
     if rays is not None:  # no segment the sensor sees through (all tested at once)
         pipes = [p for p, ok in zip(pipes, rays.solid(pipes, cfg)) if ok]
-    return merge_duplicates(pipes, points, normals, cfg)
+        if objects_only:
+            objects_only = [p for p, ok in zip(objects_only, rays.solid(objects_only, cfg)) if ok]
+    pipes = merge_duplicates(pipes, points, normals, cfg)
+    return pipes + _apart(objects_only, pipes)
 
 
 def merge_duplicates(pipes: list[Pipe], points, normals, cfg: PipeConfig) -> list[Pipe]:

@@ -3,8 +3,9 @@
 Per keyframe k: X(k) = T_WB (Pose3), V(k) = body velocity and, when the AHRS heading bias is
 modelled, B(k) and, with its drift rate modelled, D(k) (see factors.navigation). Between consecutive keyframes: the preintegrated DVL/AHRS
 displacement (with the velocity motion model across dropouts) and, over intervals with no DVL at
-all, the velocity random walk. At each keyframe: the AHRS attitude, the depth and the latest DVL
-velocity.
+all, the velocity random walk. At each keyframe: the AHRS attitude, the latest DVL velocity and the
+depth: every reading of the interval, each at the nearer of its two keyframes, brought there through
+the DVL's vertical velocity and averaged (the newest reading alone when the interval has none).
 
 The newest keyframe's factors are deferred (:meth:`IsamSession.defer`) until the next update that
 goes to iSAM2 (a scan's landmark factors, the next keyframe, a GPS fix, a window slide, the end), so
@@ -32,6 +33,7 @@ from factors.navigation import (
     dvl_velocity_factor,
     heading_bias_drift_factor,
     heading_bias_walk_factor,
+    referred_depth,
     rotation_carry_factor,
     smoothed_displacement_factor,
     velocity_random_walk_factor,
@@ -171,13 +173,34 @@ class Keyframes:
             )
             v_prior = dvl.v_B
         dep = self.nav.depth
-        if dep is not None and 0 <= t - dep.t <= self.cfg.depth_max_age_s:
+        readings = [r for r in self.nav.depths if r[0] <= t]
+        if self.stamps and readings:
+            factors += self._interval_depth_factors(k, t, R, readings)
+        elif dep is not None and 0 <= t - dep.t <= self.cfg.depth_max_age_s:
             age = t - dep.t
             # Bring the reading to t along the vertical velocity (from the DVL, else none).
             vz = float((R @ (v_prior if v_prior is not None else np.zeros(3)))[2])
             var = dep.variance + (self.accel_sigma * age**1.5) ** 2 + (0.01 * age) ** 2
             factors.append(depth_factor(X(k), dep.depth + vz * age, var, dep.t_BS))
         return factors, R, v_prior, has_attitude
+
+    def _interval_depth_factors(self, k: int, t: float, R: np.ndarray, readings: list) -> list:
+        """Every depth reading of the interval (t_{k-1}, t]: each to the nearer of X(k-1) and X(k),
+        brought to its time through the DVL's vertical velocity and averaged there
+        (:func:`~factors.navigation.referred_depth`), one factor per keyframe and pressure sensor."""
+        t_prev = self.stamps[-1] * 1e-9
+        ends = ((k - 1, t_prev, self.nav.preint.R_i_T.T), (k, t, R))
+        groups: dict[tuple, list] = {}
+        for r in readings:
+            end = 0 if r[0] - t_prev < t - r[0] else 1
+            groups.setdefault((end, tuple(r[4])), []).append(r)
+        out = []
+        for (end, t_BS), group in sorted(groups.items()):
+            key, t_key, R_key = ends[end]
+            t_BS = np.array(t_BS)
+            z, var = referred_depth(group, t_key, R_key, t_BS, self.nav.vz, self.accel_sigma)
+            out.append(depth_factor(X(key), z, var, t_BS))
+        return out
 
     def first(self, stamp: int) -> None:
         """Keyframe 0: its navigation factors and the priors of the start state."""
@@ -274,15 +297,23 @@ class Keyframes:
     def _predict(self, k: int, factors: list, values: gtsam.Values) -> None:
         """Keyframe k's estimate and joint covariance from its factors and keyframe k−1's estimate
         and joint marginal (a Gaussian prior): one Gauss–Newton step from ``values`` (the step iSAM2
-        takes on new variables), the prior's keys at their estimate."""
+        takes on new variables). Keyframe k−1's factors are linearised where iSAM2 linearises them,
+        at its linearisation point θ, and the prior holds its estimate as the offset from θ (iSAM2's
+        δ), so the step is iSAM2's own unless that update relinearises (at the estimate instead, a stiff
+        factor on X(k−1) such as the averaged depth made it measurably off: experiments/estimators/README.md,
+        stop 41)."""
         prev, new = self._keys(k - 1), self._keys(k)
+        theta = self.session.theta
         at = gtsam.Values(values)
-        at.insert(X(k - 1), self.pose)
-        at.insert(V(k - 1), np.asarray(self.vel, float))
+        at.insert(X(k - 1), theta.atPose3(X(k - 1)))
+        at.insert(V(k - 1), theta.atVector(V(k - 1)))
+        offset = [at.atPose3(X(k - 1)).localCoordinates(self.pose), np.asarray(self.vel) - at.atVector(V(k - 1))]
         if self.bias_walk > 0:
-            at.insert(B(k - 1), np.array([self.bias]))
+            at.insert(B(k - 1), theta.atVector(B(k - 1)))
+            offset.append([self.bias - at.atVector(B(k - 1))[0]])
         if self.has_rate:
-            at.insert(D(k - 1), np.array([self.rate]))
+            at.insert(D(k - 1), theta.atVector(D(k - 1)))
+            offset.append([self.rate - at.atVector(D(k - 1))[0]])
         graph = gtsam.NonlinearFactorGraph()
         for f in factors:
             graph.add(f)
@@ -291,9 +322,12 @@ class Keyframes:
             ordering.push_back(key)
         H, eta = graph.linearize(at).hessian(ordering)
         n = len(self.state_cov)
-        H[:n, :n] += np.linalg.inv(self.state_cov)
+        info = np.linalg.inv(self.state_cov)
+        H[:n, :n] += info
+        eta = np.ravel(eta).copy()
+        eta[:n] += info @ np.concatenate(offset)
         cov = np.linalg.inv(H)
-        step = cov @ np.ravel(eta)
+        step = cov @ eta
         cov = 0.5 * (cov[n:, n:] + cov[n:, n:].T)
         dx = step[n:]
         self.pose = values.atPose3(X(k)).retract(dx[:6])

@@ -78,6 +78,10 @@ class NavigationBuffer:
         self.fused: FusedAttitude | None = None  # the readings since the last keyframe
         self.dvl: DvlSample | None = None
         self.depth: DepthSample | None = None
+        # the interval's depth readings (t, depth, variance, R_WB at t, the sensor's lever arm), and the world vertical velocity
+        # of its DVL samples (t, v_z, variance; the previous interval's last one kept, to hold before the first)
+        self.depths: list[tuple[float, float, float, np.ndarray, np.ndarray]] = []  # + t_BS
+        self.vz: list[tuple[float, float, float]] = []
         self.preint: DvlPreintegrator | None = None
 
     def _T_BS(self, sensor: str) -> np.ndarray:
@@ -100,6 +104,8 @@ class NavigationBuffer:
                 self.fused.update(self.attitude, self.rate_sigma)
         elif isinstance(m, Depth):
             self.depth = DepthSample(t, m.depth, m.variance, self._T_BS(m.sensor)[:3, 3])
+            if self.attitude is not None:
+                self.depths.append((t, float(m.depth), float(m.variance), self.attitude_at(t)[0], self.depth.t_BS))
         elif isinstance(m, DvlVelocity):
             if not m.valid or not np.all(np.isfinite(m.velocity)):
                 return
@@ -107,9 +113,12 @@ class NavigationBuffer:
             omega = self.omega()
             v_B, cov_B = dvl_to_body(np.asarray(m.velocity), np.asarray(m.covariance), T_BS, omega)
             self.dvl = DvlSample(t, np.asarray(m.velocity), np.asarray(m.covariance), T_BS, omega, v_B, cov_B)
-            if self.preint is not None and self.attitude is not None:
+            if self.attitude is not None:
                 R, _ = self.attitude_at(t)
-                self.preint.add(t, R, v_B, cov_B)
+                if not self.vz or t > self.vz[-1][0]:
+                    self.vz.append((t, float(R[2] @ v_B), float(R[2] @ cov_B @ R[2])))
+                if self.preint is not None:
+                    self.preint.add(t, R, v_B, cov_B)
 
     def omega(self) -> np.ndarray:
         if self.attitude is None or self.attitude.omega_B is None:
@@ -132,3 +141,5 @@ class NavigationBuffer:
 
     def start_interval(self, t: float, R_WB: np.ndarray, attitude_sigma: float) -> None:
         self.preint = DvlPreintegrator(t, R_WB, self.accel_sigma, attitude_sigma)
+        self.depths = [d for d in self.depths if d[0] > t]
+        self.vz = self.vz[-1:]

@@ -75,6 +75,7 @@ class IsamSession:
         self.isam = gtsam.ISAM2(params)
         self.theta = self.isam.getLinearizationPoint()
         self.n_updates = 0  # updates of this iSAM2, deferred keyframes counted one each
+        self.relinearized = 0  # variables iSAM2 relinearised, summed over its updates
 
     def _update(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, n: int = 1) -> list[int]:
         """iSAM2 ``update`` standing for ``n`` updates; relinearisation is checked if one of them
@@ -82,7 +83,9 @@ class IsamSession:
         first = self.n_updates + 1
         self.n_updates += n
         check = (self.n_updates // self.relinearize_skip) > ((first - 1) // self.relinearize_skip)
-        return list(self.isam.update(graph, values, force_relinearize=check).getNewFactorsIndices())
+        result = self.isam.update(graph, values, force_relinearize=check)
+        self.relinearized += result.getVariablesRelinearized()
+        return list(result.getNewFactorsIndices())
 
     def _hold(self, factors: list[Owned], slots: list[int]) -> None:
         """``factors`` join the window, at iSAM2's indices ``slots``."""

@@ -29,6 +29,13 @@ class InitialStateConfig(BaseModel):
         "lock dives or holds station; without it the first reading is taken as the velocity held since the "
         "start); said in the run's warnings with how long it held; null: off",
     )
+    at_rest_waiting_sigma_m_s: float | None = Field(
+        0.01,
+        gt=0,
+        description="the σ of that zero velocity while the depth sensor says the vehicle still waits (its "
+        "depth unchanged: holding station, as sure as the zero-velocity test below); from the depth's first "
+        "change (the dive) at_rest_until_velocity_sigma_m_s; null: that σ throughout",
+    )
     still_test_readings: int | None = Field(
         10,
         ge=1,
@@ -43,7 +50,12 @@ class MotionNoiseConfig(BaseModel):
     """Process noise of the vehicle motion model, shared by every estimator (no estimator gets its own tuning)."""
 
     model_config = ConfigDict(extra="forbid")
-    accel_sigma_m_s2: float = Field(0.05, gt=0, description="white linear-acceleration noise (body frame)")
+    accel_sigma_m_s2: float = Field(
+        0.02,
+        gt=0,
+        description="white linear-acceleration noise (body frame, m/s²/√Hz): what the vehicle's velocity may "
+        "change between velocity readings; a model looser than the vehicle throws away the DVL's averaging",
+    )
     angular_rate_sigma_rad_s: float = Field(0.01, gt=0, description="white angular-rate noise")
 
 
@@ -147,7 +159,8 @@ class AssociationConfig(BaseModel):
         ge=0,
         le=1,
         description="an object enters the map only when it was seen in at least this share of the scans that had "
-        "its place in view since its first view (scans that saw anything within object_view_reach_m of it): a real "
+        "its place in view since its first view (scans that saw anything within object_view_reach_m of it; the views "
+        "and scans of a track forgotten there after track_timeout_s count for the track that starts there): a real "
         "object in view is seen scan after scan, a front-end's false object views (a pipe detected in part) come in "
         "a few of the many scans that see the pipe beside them; 0: off",
     )

@@ -22,7 +22,11 @@ class GraphConfig(BaseModel):
         0.5, gt=0, description="a DVL sample older than this at a keyframe is not a velocity factor"
     )
     ahrs_max_age_s: float = Field(0.5, gt=0, description="an AHRS sample older than this at a keyframe is not used")
-    depth_max_age_s: float = Field(0.5, gt=0, description="a depth sample older than this at a keyframe is not used")
+    depth_max_age_s: float = Field(
+        0.5,
+        gt=0,
+        description="when a keyframe interval holds no depth reading: the newest one, unless older than this at the keyframe",
+    )
     relinearize_threshold: float = Field(
         0.02, gt=0, description="iSAM2 relinearises a variable whose update exceeds this (tangent-space norm)"
     )

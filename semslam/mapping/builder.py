@@ -191,7 +191,7 @@ class MapBuilder:
             lid = self.state.promote(tr)
             self.book.merge(lid, ("track", tr.key))
             if tr.kind == "object":
-                self.in_view.start(lid, len(tr.views), tr.in_view)
+                self.in_view.start(lid, tr.seen + tr.seen_before, tr.in_view)
             touched.add(lid)
         for tr in self.tracks.purge(stamp):
             self.book.forget(("track", tr.key))

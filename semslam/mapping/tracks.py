@@ -105,6 +105,9 @@ class Track:
     model: str | None = None
     views: list[TrackView] = field(default_factory=list)
     in_view: int = 0  # scans that saw anything within object_view_reach_m of it since its first view
+    seen: int = 0  # scans that gave it or another object track at its place a view (:meth:`TrackSet._credit`)
+    seen_before: int = 0  # the same of the forgotten tracks at its place (:meth:`TrackSet._inherit`)
+    _seen_stamp: int | None = None
     _in_view_stamp: int | None = None
     # the filter over the views (objects, structures): views folded in, mean, covariance
     _folded: int = field(default=0, repr=False)
@@ -114,6 +117,13 @@ class Track:
     @property
     def last_stamp(self) -> int:
         return self.views[-1].stamp
+
+    def slim(self) -> None:
+        """Keep only what a lapsed track's place needs (its mean and covariance, its last view, its
+        counts): its views' clouds are not held for the rest of a survey."""
+        self.mean_position()
+        self.views = self.views[-1:]
+        self._folded = len(self.views)
 
     @property
     def last_drift(self) -> np.ndarray | None:
@@ -150,6 +160,12 @@ class Track:
         return c, vt[0]
 
 
+# A lapsed object track's place is forgotten once out of the sensor's view for this many track
+# timeouts: it bounds a long survey's memory and the per-scan cost; a tank mission's loops bring every
+# place back into view well within it.
+LAPSED_OUT_OF_VIEW_TIMEOUTS = 5
+
+
 class TrackSet:
     """The tentative landmarks of one estimator."""
 
@@ -158,6 +174,7 @@ class TrackSet:
         self.tracks: list[Track] = []
         self._next_key = 0
         self._retired: list[Track] = []  # forgotten as ambiguous (:meth:`_ambiguous`), until :meth:`purge`
+        self._lapsed: list[Track] = []  # objects forgotten for the timeout: their place's counts go on
         self.restarted_views = 0  # views that started a track as ambiguous, over the mission
         self.restarted_scans = 0  # scans that had any
 
@@ -174,7 +191,8 @@ class TrackSet:
         within ``object_view_reach_m`` of any were in its view (counted once per stamp), when their
         place also lay inside the sensor's view (``in_sight``: a function of places N×3 → N bools, as
         :meth:`MapBuilder._in_sight`; None: not asked)."""
-        objects = [tr for tr in self.tracks if tr.kind == "object" and tr._in_view_stamp != stamp]
+        live = [tr for tr in self.tracks if tr.kind == "object"]
+        objects = [tr for tr in live + self._lapsed if tr._in_view_stamp != stamp]
         at = np.array([tr.views[-1].position for tr in objects]).reshape(-1, 3)
         near = near_seen(at, points, segments, self.assoc.object_view_reach_m)
         if in_sight is not None and len(at):
@@ -187,8 +205,15 @@ class TrackSet:
         """Forget the tracks not seen within ``track_timeout_s`` of ``stamp``; return them, and those
         forgotten as ambiguous since the last call."""
         horizon = stamp - int(self.assoc.track_timeout_s * 1e9)
-        gone, self._retired = self._retired + [t for t in self.tracks if t.last_stamp < horizon], []
+        lapsed = [t for t in self.tracks if t.last_stamp < horizon]
+        gone, self._retired = self._retired + lapsed, []
         self.tracks = [t for t in self.tracks if t.last_stamp >= horizon]
+        for t in lapsed:
+            if t.kind == "object":
+                t.slim()
+                self._lapsed.append(t)
+        out = stamp - int(LAPSED_OUT_OF_VIEW_TIMEOUTS * self.assoc.track_timeout_s * 1e9)
+        self._lapsed = [t for t in self._lapsed if max(t._in_view_stamp or 0, t.last_stamp) >= out]
         return gone
 
     def extend(self, views: list[TrackView], separators: np.ndarray) -> tuple[list[Track], list[Track]]:
@@ -231,13 +256,35 @@ class TrackSet:
                 tr = Track(self._next_key, KIND_OF_OBSERVATION[type(v.z)], model=getattr(v.z, "model", None))
                 self._next_key += 1
                 self.tracks.append(tr)
+                if tr.kind == "object":
+                    self._inherit(tr, v, separators)
             tr.views.append(v)
             _in_view(tr, v.stamp)
             went.append(tr)
+        self._credit(views, went)
+        for tr in went:  # (one view a track: the assignment is one-to-one)
             if len(tr.views) >= self.assoc.min_observations and self._seen_when_in_view(tr):
                 self.tracks.remove(tr)
                 promoted.append(tr)
         return went, promoted
+
+    def _credit(self, views: list[TrackView], went: list[Track]) -> None:
+        """The scan saw each object view's place: its track, and every other object track within
+        ``object_body_m`` of the view (one object, by that key's definition), count the scan as seen
+        (once per scan). A front-end's scatter of an in-line object's centre along its pipe, larger than
+        its views' covariance says, splits one object into tracks side by side that take its views in
+        turn, none of them then seen in enough of its scans (experiments/estimators/README.md, stop 41)."""
+        objects = [tr for tr in self.tracks if tr.kind == "object"]
+        if not objects:
+            return
+        for v, tr in zip(views, went):
+            if tr.kind != "object":
+                continue
+            for u in objects:
+                if u is tr or np.linalg.norm(u.mean_position()[0] - v.position) < self.assoc.object_body_m:
+                    if u._seen_stamp != v.stamp:
+                        u.seen += 1
+                        u._seen_stamp = v.stamp
 
     def _ambiguous(
         self, full: np.ndarray, best: dict[int, int], views: list[TrackView], tracks: list[Track]
@@ -325,11 +372,27 @@ class TrackSet:
                 S[3 * b : 3 * b + 3, 3 * a : 3 * a + 3] = X.T
         return float(r @ np.linalg.solve(S, r))
 
+    def _inherit(self, tr: Track, v: TrackView, separators: np.ndarray) -> None:
+        """A new object track at the place of an object track forgotten for the timeout (the one
+        ``v`` would have continued at least cost, within the gate with the drift since) takes its
+        counts: the views it had and the scans that had its place in view, before and since. The
+        share of ``object_view_ratio`` is over the place's scans since its first view; without
+        this, a front-end's false views at a pipe's free end, a few in each of several passes, the
+        pipe seen between them, pass it as a new track each time the old one lapses
+        (experiments/estimators/README.md, stop 41)."""
+        cost = [self._cost(old, v, separators) for old in self._lapsed]
+        if not cost or not np.isfinite(min(cost)):
+            return
+        old = self._lapsed.pop(int(np.argmin(cost)))
+        tr.seen_before = old.seen_before + old.seen
+        tr.in_view, tr._in_view_stamp = old.in_view, old._in_view_stamp
+
     def _seen_when_in_view(self, tr: Track) -> bool:
-        """An object was seen in at least ``object_view_ratio`` of the scans that had it in view
-        (other kinds: always)."""
+        """An object's place was seen in at least ``object_view_ratio`` of the scans that had it in
+        view (other kinds: always): by its views or those of the tracks beside it (:meth:`_credit`), its
+        lapsed tracks' scans counted (:meth:`_inherit`)."""
         ratio = self.assoc.object_view_ratio
-        return tr.kind != "object" or ratio <= 0 or len(tr.views) >= ratio * tr.in_view
+        return tr.kind != "object" or ratio <= 0 or tr.seen + tr.seen_before >= ratio * tr.in_view
 
     def _gate(self, z: Observation) -> float:
         """The largest :meth:`_cost` that continues a track."""

@@ -15,6 +15,16 @@ vertical speed is the depth sensor's to observe). The readings go into the strea
 reads, so the EKF, the graph and dead reckoning take the same assumption; it is said after the run
 with how long it held (a mission whose DVL has lock from its first second never meets it).
 
+If the mission has a depth sensor, while it says the vehicle still waits (the mean of its readings over the last
+``DEPTH_WINDOW_S`` within ``DEPTH_CHI2`` of the mean of every earlier reading, with their declared
+variances), the readings' σ is ``initial.at_rest_waiting_sigma_m_s`` (a vehicle holding station,
+about as sure as the DVL's zero-velocity test below); from its first change (the dive) to the first
+valid reading, ``initial.at_rest_until_velocity_sigma_m_s``: a vehicle that dives may start to move
+and the zero readings then only bound its speed. Why not end the claim at the dive: nothing would then
+bound the horizontal velocity until the lock, and a wrong association in that stretch can split the map
+(both measured: experiments/estimators/README.md, stop 41). Until the depth has a window's worth of
+earlier readings to compare with, it says nothing, and the looser σ holds.
+
 Then, while the vehicle is still (``initial.still_test_readings``, a zero-velocity test): as long as
 the DVL's newest valid reading and the mean of its last N are consistent with zero velocity (χ²(3) ≤
 ``STILL_CHI2`` with their declared covariance), each reading's horizontal body velocity is read as
@@ -33,21 +43,24 @@ from collections import deque
 
 import numpy as np
 
-from semslam.mission.measurements import DvlVelocity, GpsFix
+from semslam.mission.measurements import Depth, DvlVelocity, GpsFix
 from semslam.mission.mission import Mission
 
 PERIOD_S = 0.2  # a DVL's rate; the readings stand in for the ones it could not give
 SAID_AFTER_S = 1.0  # a hold shorter than this (a GPS fix or the lock a moment later) changes nothing worth a word
 VERTICAL_SIGMA_M_S = 1.0  # no information along z: a dive's 0.1–0.5 m/s is not held
 STILL_CHI2 = 16.27  # χ²(3) at 0.999: a reading (or a window's mean) this close to zero says "still"
+DEPTH_WINDOW_S = 1.0  # the depth sensor's newest readings, compared with every earlier one
+DEPTH_CHI2 = 25.0  # 5σ: tested at every reading while the vehicle waits, a rarer false alarm than χ²(1) 0.999
 
 
 class RestAssumption:
     """What the start at rest did over the last pass: ``readings`` added, and the stamps of the first
     and the last (``None``: the mission's velocity or a GPS fix came before any estimator needed one)."""
 
-    def __init__(self, sigma_m_s: float | None, sensor: str):
+    def __init__(self, sigma_m_s: float | None, sensor: str, waiting_sigma_m_s: float | None = None):
         self.sigma_m_s = sigma_m_s
+        self.waiting_sigma_m_s = waiting_sigma_m_s
         self.sensor = sensor
         self.readings = 0
         self.first: int | None = None
@@ -55,6 +68,7 @@ class RestAssumption:
         self.still_first: int | None = None  # the zero-velocity test's first and last zeroed reading
         self.still_last: int | None = None
         self.start: int | None = None  # the mission's first stamp
+        self.moved: int | None = None  # the stamp at which the depth sensor said the vehicle dives
 
     @property
     def held_s(self) -> float:
@@ -87,10 +101,17 @@ class RestAssumption:
             return None
         parts = []
         if self.held_said:
+            sure = f"σ {self.sigma_m_s:g} m/s, initial.at_rest_until_velocity_sigma_m_s; null turns it off"
+            if self.waiting_sigma_m_s is not None:
+                waiting = f"σ {self.waiting_sigma_m_s:g} m/s (initial.at_rest_waiting_sigma_m_s)"
+                sure = (
+                    f"{waiting} while its depth held, {sure}"
+                    if self.moved is None
+                    else f"{waiting} until its depth changed at {(self.moved - self.start) * 1e-9:.1f} s, then {sure}"
+                )
             parts.append(
                 f"no valid velocity reading for the first {self.held_s:.1f} s ({self.sensor} without bottom lock): the "
-                f"vehicle was taken at rest horizontally until then (σ {self.sigma_m_s:g} m/s, "
-                "initial.at_rest_until_velocity_sigma_m_s; null turns it off)"
+                f"vehicle was taken at rest horizontally until then ({sure})"
             )
         if self.still_said:
             parts.append(
@@ -115,6 +136,28 @@ def _without_vertical(R_BS: np.ndarray, cov_S: np.ndarray) -> np.ndarray:
     return R_BS.T @ cov_B @ R_BS
 
 
+class _DepthChange:
+    """Whether the depth sensor says the vehicle no longer waits: it dives (see the module docstring)."""
+
+    def __init__(self):
+        self.window: deque = deque()  # (stamp, depth, variance) of the last DEPTH_WINDOW_S
+        self.before = np.zeros(3)  # count, sum of depths, sum of variances of every earlier reading
+        self.judged = False  # a window's worth of earlier readings compared once: until then it says nothing
+
+    def moved(self, stamp: int, depth: float, variance: float) -> bool:
+        self.window.append((stamp, depth, variance))
+        while self.window[0][0] < stamp - int(DEPTH_WINDOW_S * 1e9):
+            _, z, var = self.window.popleft()
+            self.before += (1.0, z, var)
+        n0, n1 = self.before[0], len(self.window)
+        if n0 < n1:  # not yet a window's worth of readings to compare with
+            return False
+        self.judged = True
+        z = np.array([w[1] for w in self.window])
+        var = self.before[2] / n0**2 + sum(w[2] for w in self.window) / n1**2
+        return (z.mean() - self.before[1] / n0) ** 2 > DEPTH_CHI2 * var
+
+
 class _StillTest:
     """The zero-velocity test over the last ``n`` valid readings (see the module docstring)."""
 
@@ -131,7 +174,7 @@ class _StillTest:
 
 
 def at_rest_until_velocity(
-    mission: Mission, sigma_m_s: float | None, still_readings: int | None = None
+    mission: Mission, sigma_m_s: float | None, still_readings: int | None = None, waiting_sigma_m_s: float | None = None
 ) -> tuple[Mission, RestAssumption | None]:
     """``mission`` with the start at rest and the zero-velocity test after it (see the module
     docstring), and the record of what they did (filled by each pass); unchanged (and None) when both
@@ -143,13 +186,19 @@ def at_rest_until_velocity(
     R_BS = mission.metadata.extrinsic(dvl)[:3, :3]
     if sigma_m_s is not None:
         cov_S = R_BS.T @ np.diag([sigma_m_s**2, sigma_m_s**2, VERTICAL_SIGMA_M_S**2]) @ R_BS
+        w = sigma_m_s if waiting_sigma_m_s is None else waiting_sigma_m_s
+        cov_waiting = R_BS.T @ np.diag([w**2, w**2, VERTICAL_SIGMA_M_S**2]) @ R_BS
     period = int(PERIOD_S * 1e9)
-    record = RestAssumption(sigma_m_s, dvl)
+    depth_sensor = next(iter(mission.metadata.sensors_of_kind("depth")), None)
+    if depth_sensor is None:  # nothing tells a waiting vehicle from a moving one: the looser σ throughout
+        waiting_sigma_m_s = None
+    record = RestAssumption(sigma_m_s, dvl, waiting_sigma_m_s)
 
     def stream():
         record.readings, record.first, record.last = 0, None, None
-        record.still_first = record.still_last = None
+        record.still_first = record.still_last = record.moved = None
         holding, due = sigma_m_s is not None, None
+        depth = _DepthChange() if waiting_sigma_m_s is not None else None
         test = _StillTest(still_readings) if still_readings is not None else None  # None: not (or no longer) testing
         bridge = None
         for m in mission:
@@ -158,10 +207,18 @@ def at_rest_until_velocity(
                 holding, test = False, None
             if holding and valid:  # any DVL's valid reading ends the start at rest
                 holding = False
+            if holding and depth is not None and isinstance(m, Depth) and m.sensor == depth_sensor.name:
+                if depth.moved(m.stamp, m.depth, m.variance):  # the vehicle dives: no longer waiting
+                    record.moved, depth = m.stamp, None
             if due is None:  # the first reading stands in for a DVL one PERIOD_S late, not at once
                 due, record.start = m.stamp + period, m.stamp
             if holding and m.stamp >= due:
-                yield DvlVelocity(m.stamp, dvl, velocity=np.zeros(3), covariance=cov_S)
+                yield DvlVelocity(
+                    m.stamp,
+                    dvl,
+                    velocity=np.zeros(3),
+                    covariance=cov_waiting if depth is not None and depth.judged else cov_S,
+                )
                 record.readings += 1
                 record.first = m.stamp if record.first is None else record.first
                 record.last, due = m.stamp, m.stamp + period
