@@ -296,7 +296,7 @@ class FilterNavigation:
 
     def trajectory(self) -> tuple[Trajectory, dict] | None:
         """The vehicle's estimate at every recorded stamp, and its history (vehicle covariance over
-        time; with the heading bias modelled, b and its σ); None if the filter never started."""
+        time; with the heading bias modelled, b and its σ, and with its rate, the rate and its σ); None if the filter never started."""
         tr = self._traj
         if not tr["t"]:
             return None
@@ -312,6 +312,9 @@ class FilterNavigation:
         history = {"vehicle_cov": (np.array(self._history[0], np.int64), np.array(self._history[1]))}
         if self.nv > NX:  # the AHRS heading bias estimate and its σ (rad) over time
             history["heading_bias"] = (traj.stamps, X[:, BIAS].copy(), np.sqrt(P[:, BIAS, BIAS]))
+        if self.nv > NX + 1:  # and its drift rate (rad/s) and σ
+            r = BIAS + 1
+            history["heading_bias_rate"] = (traj.stamps, X[:, r] / RATE_UNIT_S, np.sqrt(P[:, r, r]) / RATE_UNIT_S)
         return traj, history
 
 
