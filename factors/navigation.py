@@ -16,6 +16,7 @@ import gtsam
 import numpy as np
 
 from factors.geometry import euler_zyx_rate_matrix, rot_to_roll_pitch, skew
+from factors.heading_bias import RATE_UNIT_S, heading_bias_drift_covariance
 
 # --------------------------------------------------------------------------------------------
 # DVL velocity
@@ -442,6 +443,27 @@ def heading_bias_walk_factor(b_i: int, b_j: int, dt: float, walk_sigma: float) -
     """The heading bias as a random walk: b_j − b_i ~ N(0, σ_b² Δt) (built-in BetweenFactorVector)."""
     sigma = walk_sigma * np.sqrt(max(dt, 1e-6))
     return gtsam.BetweenFactorVector(b_i, b_j, np.zeros(1), gtsam.noiseModel.Isotropic.Sigma(1, max(sigma, 1e-9)))
+
+
+def heading_bias_drift_factor(
+    b_i: int, d_i: int, b_j: int, d_j: int, dt: float, walk_sigma: float, rate_walk_sigma: float
+) -> gtsam.CustomFactor:
+    """The heading bias with a drift rate: b_j = b_i + r_i Δt + walk, ρ_j = ρ_i + walk (ρ = r τ, in rad
+    per τ = RATE_UNIT_S seconds; the keys D(k) hold ρ). Linear; covariance
+    :func:`heading_bias_drift_covariance`. A learned rate carries the bias on where nothing observes it."""
+    a = dt / RATE_UNIT_S
+    H_bi, H_di = np.array([[-1.0], [0.0]]), np.array([[-a], [-1.0]])
+    H_bj, H_dj = np.array([[1.0], [0.0]]), np.array([[0.0], [1.0]])
+
+    def error(this, values, H):
+        bi, di = float(values.atVector(b_i)[0]), float(values.atVector(d_i)[0])
+        bj, dj = float(values.atVector(b_j)[0]), float(values.atVector(d_j)[0])
+        if H is not None:
+            H[0], H[1], H[2], H[3] = H_bi, H_di, H_bj, H_dj
+        return np.array([bj - bi - a * di, dj - di])
+
+    cov = heading_bias_drift_covariance(dt, walk_sigma, rate_walk_sigma)
+    return gtsam.CustomFactor(gtsam.noiseModel.Gaussian.Covariance(cov), [b_i, d_i, b_j, d_j], error)
 
 
 # --------------------------------------------------------------------------------------------

@@ -31,7 +31,10 @@ def nees_run(seed: int, duration_s: float = 50.0, sample_every_s: float = 1.0, b
         track_gain=0.0,
         heading_bias_walk=bias_walk,
     )
-    cfg = SemslamConfig(motion={"accel_sigma_m_s2": ACCEL, "angular_rate_sigma_rad_s": RATE})
+    cfg = SemslamConfig(
+        motion={"accel_sigma_m_s2": ACCEL, "angular_rate_sigma_rad_s": RATE},
+        sensors={"heading_bias_rate_sigma_rad_per_s": 0.0},  # the simulated bias is a random walk, no drift rate
+    )
     est = EkfEstimator(sim.metadata, cfg)
     nv = 10 if bias_walk > 0 else 9
     assert est.nav.nv == nv
@@ -169,7 +172,9 @@ def test_heading_first_estimates_keep_the_rotation_about_the_vertical_unobservab
 
     sim = simulate_circling(seed=4, duration_s=40.0, accel_sigma=ACCEL, rate_sigma=RATE, heading_bias_walk=0.003)
     cfg = SemslamConfig(
-        motion={"accel_sigma_m_s2": ACCEL, "angular_rate_sigma_rad_s": RATE}, ekf={"heading_jacobians": mode}
+        motion={"accel_sigma_m_s2": ACCEL, "angular_rate_sigma_rad_s": RATE},
+        ekf={"heading_jacobians": mode},
+        sensors={"heading_bias_rate_sigma_rad_per_s": 0.0},  # a random-walk bias: the 10-state filter
     )
     est = EkfEstimator(sim.metadata, cfg)
     steps, worst_H, kinds, n_pairs = [], 0.0, set(), 0

@@ -101,7 +101,10 @@ def test_heading_bias_is_estimated_from_the_map_and_grows_in_dead_reckoning():
     sim = simulate_circling(
         seed=2, duration_s=T, accel_sigma=ACCEL, rate_sigma=RATE, dropouts=((30.0, 20.0),), heading_bias_walk=walk
     )
-    cfg = SemslamConfig(motion={"accel_sigma_m_s2": ACCEL, "angular_rate_sigma_rad_s": RATE})
+    cfg = SemslamConfig(
+        motion={"accel_sigma_m_s2": ACCEL, "angular_rate_sigma_rad_s": RATE},
+        sensors={"heading_bias_rate_sigma_rad_per_s": 0.0},  # the simulated bias is a random walk, no drift rate
+    )
     assert cfg.sensors.heading_bias_walk(sim.metadata) == pytest.approx(walk)
     ests = [DeadReckoning(sim.metadata, cfg), EkfEstimator(sim.metadata, cfg)]
     plain = EkfEstimator(sim.metadata, SemslamConfig(sensors={"heading_bias_walk_rad_per_sqrt_s": 0.0}))

@@ -1,10 +1,12 @@
 """GPS in simulation and estimation (issue 19): the simulated dive's surface-only GPS, the antenna
 position update and factor against numerical derivatives and truth, the start from the first fix
 without ground truth, fixes held out as the reference (``--hold-out-gps``), and the short dive's
-acceptance: graph and EKF at the held-out resurfacing fix within half of dead reckoning's error."""
+acceptance: graph and EKF at the held-out resurfacing fix's stamp within half of dead reckoning's error
+(against the truth there)."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import gtsam
@@ -153,14 +155,39 @@ def test_held_out_fixes_are_not_seen_and_are_the_reference(dive):
         GpsReference.hold_out(dive, HoldOut(len(all_fixes) + 1))
 
 
+def true_fix(mission: Mission, fix: GpsFix) -> GpsFix:
+    """``fix`` moved onto the true antenna at its stamp (the nearest ground-truth pose): the fix without its noise."""
+    truth = min(mission.of_type(GroundTruthPose), key=lambda g: abs(g.stamp - fix.stamp))
+    R = Rotation.from_quat(truth.orientation).as_matrix()
+    lever = mission.metadata.extrinsic(fix.sensor)[:3, 3]
+    return dataclasses.replace(fix, position=np.asarray(truth.position) + R @ lever)
+
+
 @pytest.mark.parametrize("seed", [0, 1])
-def test_short_dive_graph_and_ekf_at_the_resurfacing_fix_within_half_of_dr(seed):
-    """Acceptance, short: the resurfacing fix held out; the estimators start from the truth."""
+def test_short_dive_graph_and_ekf_at_the_resurfacing_within_half_of_dr(seed):
+    """Acceptance, short: the resurfacing fix held out; the estimators start from the truth. Each one's
+    error is taken at the held-out fix's stamp against the true antenna there, not against the fix.
+
+    The held-out fix carries its own noise (σ 0.5 m a horizontal axis). The graph and the EKF see the
+    ~25 fixes before it at the surface, so their distance to it is that noise, which no estimate can
+    beat; dead reckoning's distance to it is its drift plus that noise, which can be smaller than its
+    drift by up to the noise (its drift pointing where the fix's noise does). Against the fix the ratio
+    to dead reckoning measured that draw as much as the estimators (experiments/gps_dive/README.md, stop
+    42: with the heading bias's drift rate dead reckoning drifts less and the ratio failed on seed 0 while
+    the graph's and the EKF's true error at the fix went down). Against the truth the bound is the same
+    half and still fails without the surface fixes (the graph then drifts as dead reckoning does)."""
     mission = short_dive(seed)
-    _, metrics = run_comparison(mission, SemslamConfig(), frontends=[], hold_out_gps=HoldOut())
+    result, metrics = run_comparison(mission, SemslamConfig(), frontends=[], hold_out_gps=HoldOut())
     assert metrics["reference"] == "gps" and metrics["gps_reference"]["n_fixes"] == 1
-    e = {k: metrics["estimators"][k]["gps_error_last_m"] for k in ("dr", "ekf", "graph")}
+    held = GpsReference.hold_out(mission, HoldOut())
+    truth = GpsReference(held.policy, [true_fix(mission, f) for f in held.fixes])
+    levers = {s.name: s.T_BS[:3, 3] for s in mission.metadata.sensors_of_kind("gps")}
+    e = {k: truth.metrics(result.results[k].trajectory, levers)["gps_error_last_m"] for k in ("dr", "ekf", "graph")}
     assert e["ekf"] <= 0.5 * e["dr"] and e["graph"] <= 0.5 * e["dr"], e
+    # the error against the held-out fix is still reported, and differs from the truth's by the fix's noise
+    noise = float(np.linalg.norm(np.subtract(held.fixes[0].position, truth.fixes[0].position)[:2]))
+    for k in ("dr", "ekf", "graph"):
+        assert abs(metrics["estimators"][k]["gps_error_last_m"] - e[k]) <= noise + 1e-9, k
     assert metrics["estimators"]["graph"]["ate_rmse_m"] is not None  # the truth still measured too
 
 

@@ -1,7 +1,7 @@
 """Keyframes of the graph back-end and the navigation factors at and between them.
 
 Per keyframe k: X(k) = T_WB (Pose3), V(k) = body velocity and, when the AHRS heading bias is
-modelled, B(k) (see factors.navigation). Between consecutive keyframes: the preintegrated DVL/AHRS
+modelled, B(k) and, with its drift rate modelled, D(k) (see factors.navigation). Between consecutive keyframes: the preintegrated DVL/AHRS
 displacement (with the velocity motion model across dropouts) and, over intervals with no DVL at
 all, the velocity random walk. At each keyframe: the AHRS attitude, the latest DVL velocity and the
 depth: every reading of the interval, each at the nearer of its two keyframes, brought there through
@@ -24,12 +24,14 @@ import gtsam
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from factors.heading_bias import RATE_UNIT_S
 from factors.navigation import (
     attitude_factor,
     biased_attitude_factor,
     depth_factor,
     displacement_factor,
     dvl_velocity_factor,
+    heading_bias_drift_factor,
     heading_bias_walk_factor,
     referred_depth,
     rotation_carry_factor,
@@ -38,7 +40,7 @@ from factors.navigation import (
 )
 from semslam.backend.navigation import NavigationBuffer
 from semslam.backend.session import IsamSession, Owned
-from semslam.backend.window import B, SlidingWindow, V, X
+from semslam.backend.window import B, D, SlidingWindow, V, X
 from semslam.config import SemslamConfig
 from semslam.estimation import SpillLog
 from semslam.mission.measurements import GroundTruthPose, Measurement
@@ -103,6 +105,12 @@ class Keyframes:
         self.bias_walk = config.sensors.heading_bias_walk(metadata)
         self.bias_sigma0 = config.sensors.heading_bias_sigma0(metadata)
         self.bias = 0.0  # the newest keyframe's bias estimate (rad)
+        # the bias's drift rate D(k) (in rad per RATE_UNIT_S s) beside it, when modelled: a learned drift
+        # carries the bias on where nothing observes it (0: the bias a random walk alone)
+        self.rate_sigma0 = config.sensors.heading_bias_rate_sigma(metadata) * RATE_UNIT_S
+        self.rate_walk = config.sensors.heading_bias_rate_walk(metadata)
+        self.has_rate = self.bias_walk > 0 and self.rate_sigma0 > 0
+        self.rate = 0.0  # the newest keyframe's rate estimate (rad per RATE_UNIT_S s)
         self.online = OnlinePoses()  # each keyframe's online pose and position covariance in {W}
         # relative-pose factors' m-estimator, by measuring sensor (the config names sensor kinds)
         self.odometry_kernels = {
@@ -216,6 +224,11 @@ class Keyframes:
                 gtsam.PriorFactorVector(B(0), np.zeros(1), gtsam.noiseModel.Isotropic.Sigma(1, self.bias_sigma0))
             )
             values.insert(B(0), np.zeros(1))
+        if self.has_rate:
+            factors.append(
+                gtsam.PriorFactorVector(D(0), np.zeros(1), gtsam.noiseModel.Isotropic.Sigma(1, self.rate_sigma0))
+            )
+            values.insert(D(0), np.zeros(1))
         self._commit(stamp, [(f, None) for f in factors], values)
 
     def next(self, stamp: int) -> int:
@@ -252,7 +265,13 @@ class Keyframes:
         values = gtsam.Values()
         values.insert(X(k), gtsam.Pose3(gtsam.Rot3(self.unbiased(R)), p_init))
         values.insert(V(k), np.asarray(v_init, float))
-        if self.bias_walk > 0:
+        if self.has_rate:
+            factors.append(
+                heading_bias_drift_factor(B(k - 1), D(k - 1), B(k), D(k), dt, self.bias_walk, self.rate_walk)
+            )
+            values.insert(B(k), np.array([self.bias + self.rate * dt / RATE_UNIT_S]))
+            values.insert(D(k), np.array([self.rate]))
+        elif self.bias_walk > 0:
             factors.append(heading_bias_walk_factor(B(k - 1), B(k), dt, self.bias_walk))
             values.insert(B(k), np.array([self.bias]))
         if self.state_cov is None:  # no joint marginal to predict from
@@ -267,7 +286,12 @@ class Keyframes:
         return k
 
     def _keys(self, k: int) -> list[int]:
-        return [X(k), V(k), B(k)] if self.bias_walk > 0 else [X(k), V(k)]
+        keys = [X(k), V(k)]
+        if self.bias_walk > 0:
+            keys.append(B(k))
+        if self.has_rate:
+            keys.append(D(k))
+        return keys
 
     def _predict(self, k: int, factors: list, values: gtsam.Values) -> None:
         """Keyframe k's estimate and joint covariance from its factors and keyframe k−1's estimate
@@ -286,6 +310,9 @@ class Keyframes:
         if self.bias_walk > 0:
             at.insert(B(k - 1), theta.atVector(B(k - 1)))
             offset.append([self.bias - at.atVector(B(k - 1))[0]])
+        if self.has_rate:
+            at.insert(D(k - 1), theta.atVector(D(k - 1)))
+            offset.append([self.rate - at.atVector(D(k - 1))[0]])
         graph = gtsam.NonlinearFactorGraph()
         for f in factors:
             graph.add(f)
@@ -306,6 +333,8 @@ class Keyframes:
         self.vel = values.atVector(V(k)) + dx[6:9]
         if self.bias_walk > 0:
             self.bias = float(values.atVector(B(k))[0] + dx[9])
+        if self.has_rate:
+            self.rate = float(values.atVector(D(k))[0] + dx[10])
         self.state_cov = cov
         self.pose_cov = cov[:6, :6]
 
@@ -340,6 +369,8 @@ class Keyframes:
         self.vel = self.session.vector(V(k))
         if self.bias_walk > 0:
             self.bias = float(self.session.vector(B(k))[0])
+        if self.has_rate:
+            self.rate = float(self.session.vector(D(k))[0])
         try:  # from the root clique: it holds the newest keyframe
             self.state_cov = self.session.root_joint(self._keys(k))
             self.pose_cov = self.state_cov[:6, :6]

@@ -133,20 +133,21 @@ class LeftCovariances(Mapping):
         return len(self._all())
 
 
-# Keyframe variable keys: pose, body velocity, AHRS heading bias.
+# Keyframe variable keys: pose, body velocity, AHRS heading bias, and the bias's drift rate.
 X = gtsam.symbol_shorthand.X
 V = gtsam.symbol_shorthand.V
 B = gtsam.symbol_shorthand.B
+D = gtsam.symbol_shorthand.D
 
 
-KEYFRAME_CHARS = (ord("x"), ord("v"), ord("b"))  # a keyframe's pose, velocity and heading bias
-FROZEN_ROW = np.dtype([("R", "f8", (3, 3)), ("t", "f8", 3), ("v", "f8", 3), ("b", "f8"), ("has", "?", 3)])
+KEYFRAME_CHARS = (ord("x"), ord("v"), ord("b"), ord("d"))  # a keyframe's pose, velocity, heading bias, its rate
+FROZEN_ROW = np.dtype([("R", "f8", (3, 3)), ("t", "f8", 3), ("v", "f8", 3), ("b", "f8"), ("d", "f8"), ("has", "?", 4)])
 
 
 class FrozenValues:
     """The estimates of what left the window, read at random (a keyframe's pose for an older
     observation) and all at the end: each keyframe's pose, velocity and heading bias in one
-    :data:`FROZEN_ROW` by its index (131 bytes a keyframe, where GTSAM ``Values`` take ~450), the
+    :data:`FROZEN_ROW` by its index (140 bytes a keyframe, where GTSAM ``Values`` take ~450), the
     landmarks' in a ``gtsam.Values`` (a landmark may come back and leave again). A pose comes back as
     the same ``Pose3`` (``Rot3`` holds its matrix)."""
 
@@ -172,8 +173,8 @@ class FrozenValues:
                 row["R"], row["t"] = pose.rotation().matrix(), pose.translation()
             elif c == KEYFRAME_CHARS[1]:
                 row["v"] = values.atVector(key)
-            else:
-                row["b"] = values.atVector(key)[0]
+            else:  # the heading bias or its rate
+                row[chr(c)] = values.atVector(key)[0]
             row["has"][KEYFRAME_CHARS.index(c)] = True
 
     def _row(self, k: int) -> np.ndarray:
@@ -207,7 +208,7 @@ class FrozenValues:
                 elif j == 1:
                     values.insert(key, np.array(row["v"]))
                 else:
-                    values.insert(key, np.array([row["b"]]))
+                    values.insert(key, np.array([row[chr(c)]]))
 
 
 class SlidingWindow:
@@ -241,7 +242,7 @@ class SlidingWindow:
         session.flush(now)  # deferred keyframes (see IsamSession.defer) into iSAM2 first
         t0, c0 = time.perf_counter(), time.process_time()
         b = min(bisect.bisect_left(kf_stamps, now - int(w * 1e9)), len(kf_stamps) - 1)
-        kept_kf = {key for i in range(b, len(kf_stamps)) for key in (X(i), V(i), B(i))}
+        kept_kf = {key for i in range(b, len(kf_stamps)) for key in (X(i), V(i), B(i), D(i))}
         live, landmark_keys = set(), set()
         factor_keys = session.window_factor_keys
         for keys in factor_keys:
@@ -249,7 +250,7 @@ class SlidingWindow:
             landmark_keys.update(lms)
             if lms and any(k in kept_kf for k in keys):
                 live.update(lms)
-        drop = {key for i in range(self.first_active, b) for key in (X(i), V(i), B(i))} | (landmark_keys - live)
+        drop = {key for i in range(self.first_active, b) for key in (X(i), V(i), B(i), D(i))} | (landmark_keys - live)
         t1 = time.perf_counter()
         estimate = session.estimate()
         covariances = self._covariances(session, drop, b) if self.keep_covariances else {}

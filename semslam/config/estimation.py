@@ -63,6 +63,9 @@ class MotionNoiseConfig(BaseModel):
 # typically good to a degree), and the least one used (a bias declared exactly known).
 DEFAULT_BIAS_SIGMA0 = 0.0175
 MIN_BIAS_SIGMA0 = 1e-4
+# The time over which the heading bias's rate may wander by its own prior σ when the mission
+# declares no duration (s).
+RATE_WALK_OVER_S = 600.0
 
 
 class SensorModelConfig(BaseModel):
@@ -85,6 +88,14 @@ class SensorModelConfig(BaseModel):
         f"{DEFAULT_BIAS_SIGMA0} (1°)",
     )
 
+    heading_bias_rate_sigma_rad_per_s: float | None = Field(
+        None,
+        ge=0,
+        description="prior σ of the AHRS heading bias's rate of change (a drift rate state beside the bias, "
+        "so that a learned drift carries on between sightings); None: the mission's declared drift over "
+        "its duration (simulated missions), else 0 = no rate state",
+    )
+
     @staticmethod
     def _declared_ahrs(metadata: Any) -> dict:
         return (metadata.extras or {}).get("noise", {}).get("ahrs", {})
@@ -99,6 +110,26 @@ class SensorModelConfig(BaseModel):
         if drift and over:
             return float(drift) / float(over) ** 0.5  # a walk whose σ reaches the drift at the end
         return 0.0
+
+    def heading_bias_rate_sigma(self, metadata: Any) -> float:
+        """The prior σ (rad/s) of the heading bias's rate of change for the mission of ``metadata``; 0:
+        no rate state (nor without a bias state)."""
+        if self.heading_bias_walk(metadata) <= 0:
+            return 0.0
+        if self.heading_bias_rate_sigma_rad_per_s is not None:
+            return self.heading_bias_rate_sigma_rad_per_s
+        ahrs = self._declared_ahrs(metadata)
+        drift, over = ahrs.get("heading_bias_drift_rad"), ahrs.get("heading_bias_drift_over_s")
+        if drift and over:
+            return float(drift) / float(over)  # the rate that reaches the declared drift at the end
+        return 0.0
+
+    def heading_bias_rate_walk(self, metadata: Any) -> float:
+        """The random-walk intensity (rad/s/√s) of the heading bias's rate: its σ reaches the rate's
+        prior σ over the declared duration (else over RATE_WALK_OVER_S)."""
+        sigma = self.heading_bias_rate_sigma(metadata)
+        over = self._declared_ahrs(metadata).get("heading_bias_drift_over_s") or RATE_WALK_OVER_S
+        return sigma / float(over) ** 0.5
 
     def heading_bias_sigma0(self, metadata: Any) -> float:
         """The prior σ of the heading bias at the mission's start (rad), at least MIN_BIAS_SIGMA0: a

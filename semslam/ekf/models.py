@@ -11,7 +11,8 @@ can assemble a sparse H.
 
 AHRS heading bias (an extension; the paper has none): when the mission's sensor model declares one
 (``SensorModelConfig.heading_bias_walk``), the vehicle state gains a 10th entry b (rad, index
-:data:`BIAS`), a random walk (:func:`predict_biased`), and the AHRS reads the heading plus b
+:data:`BIAS`), a random walk (:func:`predict_biased`) — with its drift rate modelled too
+(``heading_bias_rate_sigma``), an 11th, ρ at BIAS + 1, that carries b on (:mod:`factors.heading_bias`) — and the AHRS reads the heading plus b
 (:func:`biased_attitude_update`): R_meas = Rz(b) R_WB, the graph back-end's
 ``factors.navigation.biased_attitude_residual``. Every other model sees only the first 9 entries; its
 Jacobian column for b is zero.
@@ -24,6 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from factors.heading_bias import RATE_UNIT_S, heading_bias_drift_covariance
 from semslam.ekf.geometry import (
     body_to_euler_rate,
     cross3,
@@ -53,7 +55,13 @@ POS, ATT, VEL = slice(0, 3), slice(3, 6), slice(6, 9)
 
 # ------------------------------------------------------------------------------ prediction
 def predict(
-    x: np.ndarray, omega_B: np.ndarray, dt: float, accel_sigma: float, rate_sigma: float, bias_walk: float | None = None
+    x: np.ndarray,
+    omega_B: np.ndarray,
+    dt: float,
+    accel_sigma: float,
+    rate_sigma: float,
+    bias_walk: float | None = None,
+    bias_rate_walk: float | None = None,
 ):
     """Constant-velocity model with the AHRS body rate ω_B as input (eqs. 20–22).
 
@@ -63,7 +71,8 @@ def predict(
 
     Returns (x', F, Q) with F = ∂x'/∂x and Q the discrete process noise (9×9). (Written out in
     scalars: it runs at every navigation measurement, where numpy's per-call cost dominates.)
-    With ``bias_walk``, the same for the 10-state [x_v; b] (:func:`predict_biased`).
+    With ``bias_walk``, the same for the 10-state [x_v; b] (:func:`predict_biased`); with
+    ``bias_rate_walk`` too, for the 11-state [x_v; b; ρ] (the bias's drift rate, :mod:`factors.heading_bias`).
     """
     px, py, pz, phi, theta, psi, u, v, w = x.tolist()[:NX]
     wx, wy, wz = map(float, omega_B)
@@ -141,7 +150,17 @@ def predict(
         [r01 * q2, r11 * q2, r21 * q2, 0.0, 0.0, 0.0, 0.0, q1, 0.0],
         [r02 * q2, r12 * q2, r22 * q2, 0.0, 0.0, 0.0, 0.0, 0.0, q1],
     ]
-    if bias_walk is not None:  # b' = b, a random walk (the rows and columns built here: no 10×10 copies)
+    if bias_rate_walk is not None:  # b' = b + ρ Δt/τ, ρ' = ρ: an integrated random walk
+        a = dt / RATE_UNIT_S
+        xn += [float(x[BIAS]) + a * float(x[BIAS + 1]), float(x[BIAS + 1])]
+        for row in F:
+            row += [0.0, 0.0]
+        for row in Q:
+            row += [0.0, 0.0]
+        (q00, q01), (_, q11) = heading_bias_drift_covariance(dt, bias_walk, bias_rate_walk).tolist()
+        F += [[0.0] * NX + [1.0, a], [0.0] * NX + [0.0, 1.0]]
+        Q += [[0.0] * NX + [q00, q01], [0.0] * NX + [q01, q11]]
+    elif bias_walk is not None:  # b' = b, a random walk (the rows and columns built here: no 10×10 copies)
         xn.append(float(x[BIAS]))
         for row in F:
             row.append(0.0)
@@ -153,12 +172,20 @@ def predict(
 
 
 def predict_biased(
-    x: np.ndarray, omega_B: np.ndarray, dt: float, accel_sigma: float, rate_sigma: float, bias_walk: float
+    x: np.ndarray,
+    omega_B: np.ndarray,
+    dt: float,
+    accel_sigma: float,
+    rate_sigma: float,
+    bias_walk: float,
+    bias_rate_walk: float | None = None,
 ):
     """:func:`predict` for the 10-state [x_v; b] with the AHRS heading bias b a random walk of intensity
     ``bias_walk`` (rad/√s): b' = b, Var(b' − b) = σ_b² Δt (the graph's ``heading_bias_walk_factor``).
+    With ``bias_rate_walk``, the 11-state [x_v; b; ρ] with the bias's drift rate ρ (rad per
+    ``RATE_UNIT_S`` s), b' = b + ρ Δt/τ (the graph's ``heading_bias_drift_factor``).
     The bias does not enter the motion (the body rate input is the gyro's, not the biased heading's)."""
-    return predict(x, omega_B, dt, accel_sigma, rate_sigma, bias_walk)
+    return predict(x, omega_B, dt, accel_sigma, rate_sigma, bias_walk, bias_rate_walk)
 
 
 # ------------------------------------------------------------------------- linear updates

@@ -7,7 +7,9 @@ AHRS heading bias (an extension: the paper's filter has none). With ``heading_bi
 :data:`semslam.ekf.models.BIAS`): b starts at 0 with σ ``heading_bias_sigma0(metadata)``, the
 prediction adds σ_b² Δt to its variance (:func:`~semslam.ekf.models.predict_biased`) and the AHRS
 update measures (φ, θ, ψ + b), R_meas = Rz(b) R_WB as the graph's ``biased_attitude_residual``.
-Nothing else sees b: only the map (a heading relative to features seen earlier) makes it observable.
+With ``heading_bias_rate_sigma(metadata)`` > 0 as well, an 11th entry ρ, the bias's drift rate in
+rad per ``factors.heading_bias.RATE_UNIT_S`` s (prior σ from the declared drift), carries b on:
+b' = b + ρ Δt/τ, ρ a random walk (the graph's ``heading_bias_drift_factor``). Nothing else sees b: only the map (a heading relative to features seen earlier) makes it observable.
 
 With b in the state a rotation of vehicle and map about the vertical is unobservable; the textbook
 EKF's Jacobians at the updated estimates observe it spuriously (Huang, Mourikis & Roumeliotis
@@ -25,6 +27,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
+from factors.heading_bias import RATE_UNIT_S
 from semslam.config import SemslamConfig
 from semslam.ekf import geometry as geo
 from semslam.ekf import models as mdl
@@ -53,7 +56,11 @@ class FilterNavigation:
         # AHRS heading bias (the shared sensor model; 0 = not modelled): a 10th vehicle state
         self.bias_walk = config.sensors.heading_bias_walk(metadata)
         self.bias_sigma0 = config.sensors.heading_bias_sigma0(metadata)
-        self.nv = NX + 1 if self.bias_walk > 0 else NX
+        # and its drift rate ρ (rad per RATE_UNIT_S s, factors.heading_bias) an 11th, when modelled
+        rate_sigma = config.sensors.heading_bias_rate_sigma(metadata)
+        self.bias_rate_walk = config.sensors.heading_bias_rate_walk(metadata) if rate_sigma > 0 else None
+        self.rate_sigma0 = rate_sigma * RATE_UNIT_S
+        self.nv = NX + (self.bias_walk > 0) + (self.bias_rate_walk is not None)
         self.fej_yaw = self.nv > NX and self.cfg.heading_jacobians == "first_estimate"
         self.p_fe = np.zeros(3)  # the propagated (first) estimate of the position at the current time
         self.state: EkfState | None = None
@@ -92,7 +99,8 @@ class FilterNavigation:
                 pos_sigma**2,
                 [c.attitude_sigma_rad**2] * 3,
                 [c.velocity_sigma_m_s**2] * 3,
-                [self.bias_sigma0**2] * (self.nv - NX),
+                [self.bias_sigma0**2] * (self.nv > NX),
+                [self.rate_sigma0**2] * (self.nv > NX + 1),
             ]
         )
         self.state = EkfState(x0, P0)
@@ -132,7 +140,7 @@ class FilterNavigation:
         sa, sw = self.motion.accel_sigma_m_s2, self.motion.angular_rate_sigma_rad_s
         for _ in range(steps):
             if self.nv > NX:
-                xv, F, Q = mdl.predict_biased(self.state.xv, omega, dt, sa, sw, self.bias_walk)
+                xv, F, Q = mdl.predict_biased(self.state.xv, omega, dt, sa, sw, self.bias_walk, self.bias_rate_walk)
             else:
                 xv, F, Q = mdl.predict(self.state.xv.copy(), omega, dt, sa, sw)
             if self.fej_yaw:  # ∂p'/∂ψ = e_z × (p' − p) with p the propagated, not the updated, position
@@ -288,7 +296,7 @@ class FilterNavigation:
 
     def trajectory(self) -> tuple[Trajectory, dict] | None:
         """The vehicle's estimate at every recorded stamp, and its history (vehicle covariance over
-        time; with the heading bias modelled, b and its σ); None if the filter never started."""
+        time; with the heading bias modelled, b and its σ, and with its rate, the rate and its σ); None if the filter never started."""
         tr = self._traj
         if not tr["t"]:
             return None
@@ -304,6 +312,9 @@ class FilterNavigation:
         history = {"vehicle_cov": (np.array(self._history[0], np.int64), np.array(self._history[1]))}
         if self.nv > NX:  # the AHRS heading bias estimate and its σ (rad) over time
             history["heading_bias"] = (traj.stamps, X[:, BIAS].copy(), np.sqrt(P[:, BIAS, BIAS]))
+        if self.nv > NX + 1:  # and its drift rate (rad/s) and σ
+            r = BIAS + 1
+            history["heading_bias_rate"] = (traj.stamps, X[:, r] / RATE_UNIT_S, np.sqrt(P[:, r, r]) / RATE_UNIT_S)
         return traj, history
 
 
