@@ -93,6 +93,11 @@ class Keyframes:
         self.session = session
         self.window = window
         self.nav = NavigationBuffer(metadata, config.motion.accel_sigma_m_s2, config.motion.angular_rate_sigma_rad_s)
+        ahrs = (metadata.extras or {}).get("noise", {}).get("ahrs", {})
+        # scratch: the gyro's declared white noise as a density (rad/√s); none declared: no link
+        self.gyro_density = (
+            float(ahrs["angular_rate_sigma_rad_s"]) / np.sqrt(float(ahrs["rate_hz"])) if ahrs.get("rate_hz") else 0.0
+        )
         self.wait_for_gt = self.initial.pose == "first_ground_truth" and bool(metadata.sensors_of_kind("ground_truth"))
         self.initial_gt: GroundTruthPose | None = None
         self.stamps: list[int] = []
@@ -261,6 +266,12 @@ class Keyframes:
             R_prev, _ = self.nav.attitude_at(self.stamps[-1] * 1e-9)
             rot_sigma = self.nav.rate_sigma * dt
             factors.append(rotation_carry_factor(X(k - 1), X(k), R_prev.T @ R, delta, rot_sigma))
+        else:
+            gyro = self.nav.gyro_rotation(t)
+            if gyro is not None and self.gyro_density > 0:
+                factors.append(
+                    rotation_carry_factor(X(k - 1), X(k), gyro[0], delta, self.gyro_density * np.sqrt(gyro[1]))
+                )
         p_init = self.pose.translation() + self.pose.rotation().matrix() @ delta
         values = gtsam.Values()
         values.insert(X(k), gtsam.Pose3(gtsam.Rot3(self.unbiased(R)), p_init))

@@ -83,6 +83,7 @@ class NavigationBuffer:
         self.depths: list[tuple[float, float, float, np.ndarray, np.ndarray]] = []  # + t_BS
         self.vz: list[tuple[float, float, float]] = []
         self.preint: DvlPreintegrator | None = None
+        self.gyro: tuple[float, float, np.ndarray] | None = None  # (interval start, integrated to, R_{k-1}ᵀ R)
 
     def _T_BS(self, sensor: str) -> np.ndarray:
         return self.metadata.extrinsic(sensor)
@@ -94,6 +95,8 @@ class NavigationBuffer:
             R_WS = quat_to_rot(m.orientation)
             R_WB, cov = ahrs_body_rotation(R_WS, np.asarray(m.covariance), R_BS)
             omega = None if m.angular_rate is None else R_BS @ np.asarray(m.angular_rate)
+            if self.gyro is not None and omega is not None:
+                self.gyro = self._gyro_to(t)
             if omega is None and self.attitude is not None and t > self.attitude.t:
                 # Finite difference of consecutive attitudes when the AHRS gives no rate.
                 omega = so3_log(self.attitude.R_WB.T @ R_WB) / (t - self.attitude.t)
@@ -139,7 +142,20 @@ class NavigationBuffer:
         n, self.fused = self.fused.n, None
         return R, cov, n
 
+    def _gyro_to(self, t: float) -> tuple[float, float, np.ndarray]:
+        t0, t1, dR = self.gyro
+        w = self.omega()
+        return t0, max(t, t1), dR @ so3_exp(w * max(t - t1, 0.0))
+
+    def gyro_rotation(self, t: float) -> tuple[np.ndarray, float] | None:
+        """The body rates integrated since the interval's start to t: (R_{k-1}ᵀ R(t), the interval's length)."""
+        if self.gyro is None or self.attitude is None or self.attitude.omega_B is None:
+            return None
+        t0, _, dR = self._gyro_to(t)
+        return dR, t - t0
+
     def start_interval(self, t: float, R_WB: np.ndarray, attitude_sigma: float) -> None:
+        self.gyro = (t, t, np.eye(3))
         self.preint = DvlPreintegrator(t, R_WB, self.accel_sigma, attitude_sigma)
         self.depths = [d for d in self.depths if d[0] > t]
         self.vz = self.vz[-1:]
