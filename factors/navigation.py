@@ -363,9 +363,10 @@ def attitude_factor(key: int, R_WB: np.ndarray, cov_tangent: np.ndarray) -> gtsa
 def rotation_carry_factor(
     xi: int, xj: int, R_ij: np.ndarray, t_ij: np.ndarray, rot_sigma: float
 ) -> gtsam.NonlinearFactor:
-    """X(j)'s rotation carried from X(i) by the angular rate when no AHRS reading arrived between the
-    two keyframes (built-in BetweenFactorPose3, rotation σ ``rot_sigma``). Its translation part,
-    ``t_ij`` at σ 1 km, carries no information: the displacement factor holds the translation."""
+    """X(j)'s rotation carried from X(i) by the angular rate ``R_ij`` = R_iᵀ R_j (the body rates integrated
+    between the two keyframes, or the AHRS's last reading carried when none arrived between them; built-in
+    BetweenFactorPose3, rotation σ ``rot_sigma``). Its translation part, ``t_ij`` at σ 1 km, carries no
+    information: the displacement factor holds the translation."""
     sigmas = np.r_[[max(rot_sigma, 1e-6)] * 3, [1e3] * 3]
     return gtsam.BetweenFactorPose3(
         xi, xj, gtsam.Pose3(gtsam.Rot3(R_ij), np.asarray(t_ij, float)), gtsam.noiseModel.Diagonal.Sigmas(sigmas)

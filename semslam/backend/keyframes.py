@@ -92,11 +92,8 @@ class Keyframes:
         self.accel_sigma = config.motion.accel_sigma_m_s2
         self.session = session
         self.window = window
-        self.nav = NavigationBuffer(metadata, config.motion.accel_sigma_m_s2, config.motion.angular_rate_sigma_rad_s)
-        ahrs = (metadata.extras or {}).get("noise", {}).get("ahrs", {})
-        # scratch: the gyro's declared white noise as a density (rad/√s); none declared: no link
-        self.gyro_density = (
-            float(ahrs["angular_rate_sigma_rad_s"]) / np.sqrt(float(ahrs["rate_hz"])) if ahrs.get("rate_hz") else 0.0
+        self.nav = NavigationBuffer(
+            metadata, config.motion.accel_sigma_m_s2, config.motion.angular_rate_density(metadata)
         )
         self.wait_for_gt = self.initial.pose == "first_ground_truth" and bool(metadata.sensors_of_kind("ground_truth"))
         self.initial_gt: GroundTruthPose | None = None
@@ -267,11 +264,12 @@ class Keyframes:
             rot_sigma = self.nav.rate_sigma * dt
             factors.append(rotation_carry_factor(X(k - 1), X(k), R_prev.T @ R, delta, rot_sigma))
         else:
+            # The body rates integrated over the interval link the two attitudes, as the EKF's prediction does
+            # between its AHRS updates: without it every keyframe's attitude stood on its own readings alone.
             gyro = self.nav.gyro_rotation(t)
-            if gyro is not None and self.gyro_density > 0:
-                factors.append(
-                    rotation_carry_factor(X(k - 1), X(k), gyro[0], delta, self.gyro_density * np.sqrt(gyro[1]))
-                )
+            if gyro is not None:
+                R_ij, h = gyro
+                factors.append(rotation_carry_factor(X(k - 1), X(k), R_ij, delta, self.nav.rate_sigma * np.sqrt(h)))
         p_init = self.pose.translation() + self.pose.rotation().matrix() @ delta
         values = gtsam.Values()
         values.insert(X(k), gtsam.Pose3(gtsam.Rot3(self.unbiased(R)), p_init))

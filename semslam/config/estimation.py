@@ -46,6 +46,11 @@ class InitialStateConfig(BaseModel):
     )
 
 
+# The gyro's noise density when neither the configuration nor the mission states it (rad/s/√Hz): loose, a
+# consumer-grade rate sensor's.
+DEFAULT_RATE_DENSITY = 0.01
+
+
 class MotionNoiseConfig(BaseModel):
     """Process noise of the vehicle motion model, shared by every estimator (no estimator gets its own tuning)."""
 
@@ -56,7 +61,20 @@ class MotionNoiseConfig(BaseModel):
         description="white linear-acceleration noise (body frame, m/s²/√Hz): what the vehicle's velocity may "
         "change between velocity readings; a model looser than the vehicle throws away the DVL's averaging",
     )
-    angular_rate_sigma_rad_s: float = Field(0.01, gt=0, description="white angular-rate noise")
+    angular_rate_sigma_rad_s: float | None = Field(
+        None,
+        gt=0,
+        description="white angular-rate noise of the gyro (rad/s/√Hz), which every estimator integrates between "
+        f"attitude readings; null: the mission's declared gyro noise (its σ over √rate), else {DEFAULT_RATE_DENSITY}",
+    )
+
+    def angular_rate_density(self, metadata: Any) -> float:
+        """The gyro's white-noise density (rad/s/√Hz) every estimator uses for the mission of ``metadata``."""
+        if self.angular_rate_sigma_rad_s is not None:
+            return self.angular_rate_sigma_rad_s
+        ahrs = (getattr(metadata, "extras", None) or {}).get("noise", {}).get("ahrs", {})
+        sigma, rate = ahrs.get("angular_rate_sigma_rad_s"), ahrs.get("rate_hz")
+        return float(sigma) / float(rate) ** 0.5 if sigma and rate else DEFAULT_RATE_DENSITY
 
 
 # The heading bias's prior σ at the start when the mission declares none (an AHRS's heading is

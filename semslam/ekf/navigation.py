@@ -51,6 +51,7 @@ class FilterNavigation:
         self.cfg = config.ekf
         self.initial = config.initial
         self.motion = config.motion
+        self.rate_density = config.motion.angular_rate_density(metadata)
         self.diagnostics = diagnostics
         self._warned: set[str] = set()
         # AHRS heading bias (the shared sensor model; 0 = not modelled): a 10th vehicle state
@@ -137,7 +138,7 @@ class FilterNavigation:
         total = (stamp - self.t) * NS
         steps = max(1, int(math.ceil(total / self.cfg.max_prediction_step_s - 1e-9)))
         dt = total / steps
-        sa, sw = self.motion.accel_sigma_m_s2, self.motion.angular_rate_sigma_rad_s
+        sa, sw = self.motion.accel_sigma_m_s2, self.rate_density
         for _ in range(steps):
             if self.nv > NX:
                 xv, F, Q = mdl.predict_biased(self.state.xv, omega, dt, sa, sw, self.bias_walk, self.bias_rate_walk)
@@ -280,9 +281,7 @@ class FilterNavigation:
             x = self.state.xv[:NX].copy()
             dt = (stamp - self.t) * NS
             if dt > 0:
-                x = mdl.predict(x, self.omega, dt, self.motion.accel_sigma_m_s2, self.motion.angular_rate_sigma_rad_s)[
-                    0
-                ]
+                x = mdl.predict(x, self.omega, dt, self.motion.accel_sigma_m_s2, self.rate_density)[0]
         else:
             ts = np.asarray(self._traj["t"])
             k = int(np.clip(np.searchsorted(ts, stamp), 0, len(ts) - 1))
