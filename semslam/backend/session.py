@@ -173,7 +173,9 @@ class IsamSession:
         for f, _ in [*factors, *priors]:
             graph.add(f)
         x, v = anchor
-        last = (x, v, gtsam.Symbol("b", gtsam.Symbol(x).index()).key())
+        idx = gtsam.Symbol(x).index()
+        # the heading bias and its drift rate too, when modelled (keys no new factor touches are dropped)
+        last = (x, v, gtsam.Symbol("b", idx).key(), gtsam.Symbol("d", idx).key())
         try:
             slots = self._update(graph, values, n, last=last)
         except RuntimeError as exc:
