@@ -2,6 +2,7 @@
 
 import gtsam
 import numpy as np
+import pytest
 
 from semslam.backend.marginal import (
     _root_conditional,
@@ -83,7 +84,8 @@ def test_joint_of_root_keys_matches_isam2():
     np.testing.assert_allclose(joint_covariance(isam, [X(11), X(0)])[6:, :6], np.asarray(joint.at(X(0), X(11))))
 
 
-def test_the_newest_keyframe_is_read_from_the_root_in_a_mission(monkeypatch):
+@pytest.mark.parametrize("drift", [False, True])
+def test_the_newest_keyframe_is_read_from_the_root_in_a_mission(monkeypatch, drift):
     # The session eliminates each update's newest keyframe (pose, velocity, heading bias) last, so
     # that every refresh reads its joint marginal from the root clique; before, half of the
     # refreshes of this mission (all of the tank's observation updates) fell back to iSAM2's
@@ -101,7 +103,11 @@ def test_the_newest_keyframe_is_read_from_the_root_in_a_mission(monkeypatch):
         marginal, "root_joint_covariance", lambda isam, keys: calls.append(root(isam, keys)) or calls[-1]
     )
     mission = simulate(SyntheticConfig(duration_s=80.0, seed=0))
+    if drift:  # a declared heading drift: the bias B(k) and its rate D(k) are states too (review, stop 42)
+        ahrs = mission.metadata.extras.setdefault("noise", {}).setdefault("ahrs", {})
+        ahrs.update(heading_bias_drift_rad=0.02, heading_bias_drift_over_s=80.0)
     est = GraphEstimator(mission.metadata, SemslamConfig(), batch=False)
+    assert est.keyframes.has_rate == drift
     run_pipeline(mission, [est], [OracleFrontend(mission.metadata, {"seed": 0})], keep_observations=False)
     assert len(calls) > 60
     assert sum(c is None for c in calls) <= 1  # the first update: iSAM2's batch, its own ordering

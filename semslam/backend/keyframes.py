@@ -187,7 +187,7 @@ class Keyframes:
         """Every depth reading of the interval (t_{k-1}, t] (keyframe 0: those before it): each to the
         nearer of X(k-1) and X(k), brought to its time through the DVL's vertical velocity and averaged
         there (:func:`~factors.navigation.referred_depth`), one factor per keyframe and pressure sensor.
-        An interval without a reading adds none: the reading before it is already X(k-1)'s."""
+        An interval without a reading adds none: the reading before it is already an earlier keyframe's."""
         t_prev = self.stamps[-1] * 1e-9 if self.stamps else -np.inf
         ends = ((k - 1, t_prev, self.nav.preint.R_i_T.T) if self.stamps else None, (k, t, R))
         groups: dict[tuple, list] = {}

@@ -59,6 +59,7 @@ from semslam.mapping.association import (
     LowRankJoint,
     PairLinearization,
     chi2_gate,
+    indices_by_shape,
     inv_small,
     uncorrelated_candidates,
 )
@@ -621,10 +622,7 @@ def _informations(lins: list[PairLinearization], *pose_covs: np.ndarray) -> list
     one shape at once: stacked products and solves, which numpy evaluates matrix by matrix with the
     same BLAS / LAPACK calls as one alone (the same numbers to the bit, without the per-call overheads)."""
     out: list = [None] * len(lins)
-    shapes: dict[tuple[int, int], list[int]] = {}
-    for k, lin in enumerate(lins):
-        shapes.setdefault(lin.H_l.shape, []).append(k)
-    for ks in shapes.values():
+    for ks in indices_by_shape(lins):
         H_x = np.array([lins[k].H_x for k in ks], float)
         H_l = np.array([lins[k].H_l for k in ks], float)
         R = np.array([lins[k].R for k in ks], float)

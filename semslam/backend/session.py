@@ -11,7 +11,7 @@ import gtsam
 import numpy as np
 
 from semslam.backend.marginal import joint_covariance, marginal_covariance
-from semslam.backend.window import subset, value_of
+from semslam.backend.window import keyframe_keys, subset, value_of
 from semslam.errors import solver_failure
 
 # A factor with its owner: None for navigation, else the id of the landmark it observes.
@@ -172,8 +172,9 @@ class IsamSession:
         graph = gtsam.NonlinearFactorGraph()
         for f, _ in [*factors, *priors]:
             graph.add(f)
-        x, v = anchor
-        last = (x, v, gtsam.Symbol("b", gtsam.Symbol(x).index()).key())
+        # the newest keyframe's variables, the heading bias and its rate when modelled (keys no new factor
+        # touches are dropped)
+        last = keyframe_keys(gtsam.Symbol(anchor[0]).index())
         try:
             slots = self._update(graph, values, n, last=last)
         except RuntimeError as exc:

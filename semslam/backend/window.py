@@ -141,6 +141,13 @@ D = gtsam.symbol_shorthand.D
 
 
 KEYFRAME_CHARS = (ord("x"), ord("v"), ord("b"), ord("d"))  # a keyframe's pose, velocity, heading bias, its rate
+
+
+def keyframe_keys(i: int) -> tuple[int, ...]:
+    """Every variable keyframe i may have (X, V, B, D): the ones a mission does not model are in no factor."""
+    return X(i), V(i), B(i), D(i)
+
+
 FROZEN_ROW = np.dtype([("R", "f8", (3, 3)), ("t", "f8", 3), ("v", "f8", 3), ("b", "f8"), ("d", "f8"), ("has", "?", 4)])
 
 
@@ -242,7 +249,7 @@ class SlidingWindow:
         session.flush(now)  # deferred keyframes (see IsamSession.defer) into iSAM2 first
         t0, c0 = time.perf_counter(), time.process_time()
         b = min(bisect.bisect_left(kf_stamps, now - int(w * 1e9)), len(kf_stamps) - 1)
-        kept_kf = {key for i in range(b, len(kf_stamps)) for key in (X(i), V(i), B(i), D(i))}
+        kept_kf = {key for i in range(b, len(kf_stamps)) for key in keyframe_keys(i)}
         live, landmark_keys = set(), set()
         factor_keys = session.window_factor_keys
         for keys in factor_keys:
@@ -250,7 +257,7 @@ class SlidingWindow:
             landmark_keys.update(lms)
             if lms and any(k in kept_kf for k in keys):
                 live.update(lms)
-        drop = {key for i in range(self.first_active, b) for key in (X(i), V(i), B(i), D(i))} | (landmark_keys - live)
+        drop = {key for i in range(self.first_active, b) for key in keyframe_keys(i)} | (landmark_keys - live)
         t1 = time.perf_counter()
         estimate = session.estimate()
         covariances = self._covariances(session, drop, b) if self.keep_covariances else {}

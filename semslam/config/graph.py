@@ -26,7 +26,7 @@ class GraphConfig(BaseModel):
         0.5,
         gt=0,
         description="keyframe 0 with no depth reading since the AHRS's first: the newest one, unless older than this "
-        "(a later interval without a reading adds none: its last reading is already the keyframe before's)",
+        "(a later interval without a reading adds none: the reading before it is already an earlier keyframe's)",
     )
     relinearize_threshold: float = Field(
         0.02, gt=0, description="iSAM2 relinearises a variable whose update exceeds this (tangent-space norm)"

@@ -133,10 +133,7 @@ def uncorrelated_candidates(
     stacked solve, which numpy evaluates matrix by matrix with the same BLAS / LAPACK calls as one pair
     alone (the same numbers to the bit); the per-call overheads were most of the cost."""
     d2s = np.empty(len(pairs))
-    shapes: dict[tuple[int, int], list[int]] = {}
-    for k, (_, _, p) in enumerate(pairs):
-        shapes.setdefault(p.H_l.shape, []).append(k)
-    for ks in shapes.values():
+    for ks in indices_by_shape([p for _, _, p in pairs]):
         d2s[ks] = _stacked_nis([pairs[k] for k in ks], vehicle_cov, landmark_cov)
     keep = []
     for (i, j, p), d2 in zip(pairs, d2s):
@@ -149,6 +146,15 @@ def uncorrelated_candidates(
         [p for *_, p, _ in keep],
         np.array([d for *_, d in keep], float),
     )
+
+
+def indices_by_shape(lins) -> list[list[int]]:
+    """The indices of the linearisations ``lins`` grouped by their H_l's shape (in first-seen order): the
+    pairs one stacked product or solve can take together."""
+    shapes: dict[tuple[int, int], list[int]] = {}
+    for k, lin in enumerate(lins):
+        shapes.setdefault(lin.H_l.shape, []).append(k)
+    return list(shapes.values())
 
 
 def _stacked_nis(pairs: list[tuple[int, int, PairLinearization]], vehicle_cov: np.ndarray, landmark_cov) -> list[float]:
@@ -266,10 +272,7 @@ class LowRankJoint:
     def _stack_terms(self) -> None:
         """Every pair's term at once, the pairs of one shape stacked (see :func:`uncorrelated_candidates`:
         the same numbers as pair by pair); a shape whose stack holds a singular D stays pair by pair."""
-        shapes: dict[tuple[int, int], list[int]] = {}
-        for k, p in enumerate(self.cands.lin):
-            shapes.setdefault(p.H_l.shape, []).append(k)
-        for ks in shapes.values():
+        for ks in indices_by_shape(self.cands.lin):
             lins = [self.cands.lin[k] for k in ks]
             H_x = np.array([p.H_x for p in lins], float)
             H_l = np.array([p.H_l for p in lins], float)
