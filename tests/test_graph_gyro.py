@@ -101,7 +101,7 @@ def test_the_rates_integrate_to_the_rotation_between_keyframes():
     nav.start_interval(0.0, np.eye(3), 0.01)
     for k in range(1, 20):  # the orientation readings do not enter: the rates alone
         nav.add(Attitude(k * S // 20, "ahrs", orientation=np.array([0, 0, 0, 1.0]), covariance=acov, angular_rate=w))
-    R_ij, h = nav.gyro_rotation(1.0)
+    R_ij, h, _ = nav.gyro_rotation(1.0)
     assert h == pytest.approx(1.0)
     np.testing.assert_allclose(R_ij, so3_exp(w * 1.0), atol=1e-12)
 
