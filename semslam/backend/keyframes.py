@@ -273,13 +273,14 @@ class Keyframes:
             factors.append(velocity_random_walk_factor(V(k - 1), V(k), d.dt, self.accel_sigma))
             dt, delta = d.dt, d.c + d.A @ self.vel + d.B @ v_init
         gyro = self.nav.gyro_rotation(t)
+        b_bar = self.nav.gyro_bias * GYRO_BIAS_UNIT_S  # what the rates were integrated with (G's estimate then)
         if not has_attitude:
             # No AHRS reading since X(k-1) (keyframes 10–50 ms apart) or a stale one: nothing else fixes
             # X(k)'s rotation unless a landmark does, and iSAM2 fails on the indeterminate system.
             rot_sigma = self.nav.rate_sigma * dt
             if self.has_gyro_bias and gyro is not None:  # the last rate carried, less the bias G(k-1)
                 R_ij, _, J_b = gyro
-                factors.append(gyro_rotation_factor(X(k - 1), X(k), G(k - 1), R_ij, J_b, self.gyro_bias, rot_sigma))
+                factors.append(gyro_rotation_factor(X(k - 1), X(k), G(k - 1), R_ij, J_b, b_bar, rot_sigma))
             else:
                 R_prev, _ = self.nav.attitude_at(self.stamps[-1] * 1e-9)
                 factors.append(rotation_carry_factor(X(k - 1), X(k), R_prev.T @ R, delta, rot_sigma))
@@ -289,7 +290,7 @@ class Keyframes:
             R_ij, h, J_b = gyro
             rot_sigma = self.nav.rate_sigma * np.sqrt(h)
             if self.has_gyro_bias:  # integrated with G(k-1)'s estimate b̄, corrected to first order
-                factors.append(gyro_rotation_factor(X(k - 1), X(k), G(k - 1), R_ij, J_b, self.gyro_bias, rot_sigma))
+                factors.append(gyro_rotation_factor(X(k - 1), X(k), G(k - 1), R_ij, J_b, b_bar, rot_sigma))
             else:
                 factors.append(rotation_carry_factor(X(k - 1), X(k), R_ij, delta, rot_sigma))
         p_init = self.pose.translation() + self.pose.rotation().matrix() @ delta
