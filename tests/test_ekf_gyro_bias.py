@@ -9,10 +9,10 @@ import pytest
 
 from semslam.config import SemslamConfig
 from semslam.ekf.estimator import DeadReckoning, EkfEstimator
-from semslam.eval.map_quality import nees_band
-from semslam.eval.metrics import position_nees
 from semslam.estimation import Trajectory
 from semslam.estimators import create_estimator
+from semslam.eval.map_quality import nees_band
+from semslam.eval.metrics import position_nees
 from semslam.pipeline import run_pipeline
 from semslam.sim.dive import DiveSimConfig, simulate_dive
 from tests.support.ekf_mission import simulate_circling
