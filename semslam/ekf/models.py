@@ -15,7 +15,9 @@ AHRS heading bias (an extension; the paper has none): when the mission's sensor 
 (``heading_bias_rate_sigma``), an 11th, ρ at BIAS + 1, that carries b on (:mod:`factors.heading_bias`) — and the AHRS reads the heading plus b
 (:func:`biased_attitude_update`): R_meas = Rz(b) R_WB, the graph back-end's
 ``factors.navigation.biased_attitude_residual``. Every other model sees only the first 9 entries; its
-Jacobian column for b is zero.
+Jacobian column for b is zero. The gyro's bias b_g (3, body axes), when modelled, is the vehicle
+block's last entries (:data:`GYRO_BIAS_SIZE`): the prediction integrates ω_B − b_g and the DVL's lever arm
+turns at it (:func:`predict`, :func:`dvl_update`).
 """
 
 from __future__ import annotations

@@ -11,6 +11,13 @@ With ``heading_bias_rate_sigma(metadata)`` > 0 as well, an 11th entry ρ, the bi
 rad per ``factors.heading_bias.RATE_UNIT_S`` s (prior σ from the declared drift), carries b on:
 b' = b + ρ Δt/τ, ρ a random walk (the graph's ``heading_bias_drift_factor``). Nothing else sees b: only the map (a heading relative to features seen earlier) makes it observable.
 
+The gyro's bias (stop 43; the shared model ``sensors.gyro_bias_sigma(metadata)`` > 0): three more
+entries b_g, body axes as the rates the prediction takes (ω_B = R_BS ω_S), last in the vehicle block
+(after b and ρ): prior σ ``gyro_bias_sigma``, a random walk of ``gyro_bias_walk``; the prediction
+integrates ω_B − b_g (:func:`~semslam.ekf.models.predict`) and the DVL's lever arm turns at it. A rate
+taken from attitude differences (an AHRS without one) is no gyro's: there b_g is not subtracted (its
+entries only walk). σ 0 = no entries, the filter as before. Dead reckoning runs this filter too.
+
 With b in the state a rotation of vehicle and map about the vertical is unobservable; the textbook
 EKF's Jacobians at the updated estimates observe it spuriously (Huang, Mourikis & Roumeliotis
 2008/2009). With ``ekf.heading_jacobians = "first_estimate"`` (the FEJ-EKF) the prediction's
