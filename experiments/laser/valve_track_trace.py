@@ -7,7 +7,7 @@ with its place in view, scans seen, the seen scans inherited from lapsed tracks)
 (timeout), tracks forgotten as ambiguous, inheritances, duplicate merges and the end-of-mission
 confirmation.
 
-    python experiments/laser/valve_track_trace.py --seeds 15 --dump DIR [--reach 0.3] [--config JSON]
+    python experiments/laser/valve_track_trace.py --seeds 15 --dump DIR [--reach 0.3] [--config JSON] [--every]
 """
 
 from __future__ import annotations
@@ -26,13 +26,13 @@ from laser_real_eval import VALVES, map_scores, parse_seeds  # noqa: E402
 from pipeline_replay import light_mission, replay  # noqa: E402
 
 
-def trace(seed: int, dump: Path, config: dict, reach: float) -> list[str]:
+def trace(seed: int, dump: Path, config: dict, reach: float, every: bool = False) -> list[str]:
     from semslam.mapping import builder, tracks
     from semslam.observations import PointObservation
 
     meta = light_mission(seed, {}, dump).metadata
     truth = meta.ground_truth
-    valves = [(o.id, np.asarray(o.position, float)) for o in truth.objects if o.cls in VALVES]
+    valves = [(o.id, np.asarray(o.position, float)) for o in truth.objects if every or o.cls in VALVES]
     t0 = meta.extras["scans"][0]["stamp"]
     log: list[str] = []
 
@@ -40,7 +40,7 @@ def trace(seed: int, dump: Path, config: dict, reach: float) -> list[str]:
         for vid, p in valves:
             d = float(np.linalg.norm(np.asarray(x) - p))
             if d < reach:
-                return f"valve {vid} {100 * d:4.1f} cm"
+                return f"{'object' if every else 'valve'} {vid} {100 * d:4.1f} cm"
         return None
 
     def t(stamp) -> str:
@@ -173,9 +173,12 @@ def main() -> None:
     ap.add_argument("--dump", required=True, help="directory (may hold {seed})")
     ap.add_argument("--reach", type=float, default=0.3)
     ap.add_argument("--config", default="{}", help="semslam configuration overrides (JSON)")
+    ap.add_argument("--every", action="store_true", help="every true object (sockets, tees...), not the valves only")
     args = ap.parse_args()
     for seed in parse_seeds(args.seeds):
-        print("\n".join(trace(seed, Path(args.dump.format(seed=seed)), json.loads(args.config), args.reach)))
+        print(
+            "\n".join(trace(seed, Path(args.dump.format(seed=seed)), json.loads(args.config), args.reach, args.every))
+        )
 
 
 if __name__ == "__main__":
