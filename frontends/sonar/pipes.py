@@ -87,8 +87,11 @@ def detect_pipes(
         dist = ndimage.distance_transform_edt(~tall) * cell
         bad |= dist <= cfg.tall_exclusion_m
     ridge = np.isfinite(h) & (h > cfg.min_height_m) & (h <= cfg.max_height_m) & ~bad
-    # remove specks (a few noisy cells): a pipe is a connected band at least ~2 cells wide
-    ridge = ndimage.binary_opening(ridge, iterations=1)
+    # remove specks (a few noisy cells): a pipe is a connected band at least ~2 cells wide; first
+    # close one-cell gaps (cells no return fell in: a pipe across the track, sampled every
+    # speed / ping rate ≈ 5 cm across it, leaves empty 4 cm cells along it, and the opening broke
+    # the band up)
+    ridge = ndimage.binary_opening(ndimage.binary_closing(ridge, iterations=1) & ~bad, iterations=1)
     # ... and at most a pipe wide: what a disc wider than the widest pipe fits in (small holes of
     # noise closed) is a raised stretch of seabed where the seabed level lags a slope (at the edge
     # of the data, beside a structure's pad), not pipe: RANSAC's lines through it took the cells of
