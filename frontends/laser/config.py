@@ -161,7 +161,8 @@ class PipeConfig(_Section):
         "colour), so that a fitting at its end is found: it takes no points from the pipe search, is no line "
         "observation, counts as lying on the seabed (a fitting at its end must rise over it) and connects no "
         "object when shorter than min_partial_length (the edge of a narrow view shows a valve's pipe only over "
-        "such short narrow arcs)",
+        "such short narrow arcs); an object at its end is placed along the pipe only to within the body box "
+        "(objects.body_size[0]/sqrt(12): the run's end need not be the fitting's port)",
     )
     surface_offset: float = Field(
         0.0025,

@@ -422,13 +422,19 @@ def _merge_overlapping(
     return [list(m) for m in _groups(label)]
 
 
-def position_covariance(config: int, R: np.ndarray, cfg: ObjectConfig) -> np.ndarray:
+def position_covariance(config: int, R: np.ndarray, cfg: ObjectConfig, held_run: bool = False) -> np.ndarray:
     """3×3 covariance of an object position found with connectivity ``config``, in {S}: the σ of
-    ``cfg`` in the box frame ``R`` (along the pipe, across, up), rotated."""
+    ``cfg`` in the box frame ``R`` (along the pipe, across, up), rotated. ``held_run``: the object
+    sits at the end of a short held-radius run given to the object stage only (``objects_only``,
+    ``pipes.held_short_objects``): such a run is a narrow arc at the view's edge, whose end need not
+    be the fitting's port, so along the pipe the position is known only to within the body box
+    (σ of a uniform over ``body_size[0]``, at least the configuration's own)."""
     if config in (3, 4):
         sig = np.full(3, cfg.junction_sigma)
     else:
         along, across = cfg.inline_sigma if config == 2 else cfg.end_sigma
+        if held_run:
+            along = max(along, cfg.body_size[0] / np.sqrt(12.0))
         sig = np.array([along, across, across])
     return (R * sig**2) @ R.T
 
@@ -550,7 +556,8 @@ def segment_objects(
                 # a second pipe in line (not detected): two collinear connections; the position
                 # is still the one found from the first pipe (and has its covariance)
                 dirs, config = np.vstack([dirs, -dirs]), 2
-        cov = position_covariance(site.config, site.R, cfg)
+        held_run = any(pipes[m // 2].objects_only for m in site.members)
+        cov = position_covariance(site.config, site.R, cfg, held_run)
         pipe_ids = tuple(int(m // 2) for m in site.members)
         objects.append(SegmentedObject(center, cov, crop, dirs, config, pipe_ids))
     return one_per_cluster(objects, pipes, len(points))

@@ -318,11 +318,19 @@ class PipeDetectionConfig(_Section):
     window_patches: int = Field(
         6,
         ge=1,
-        description="pipes are detected, every swath-registration window, on this many of the latest patches. "
-        "More than the window's own makes consecutive views of a pipe overlap (the graph associates a view "
-        "with a pipe track only where it meets what was seen of it: with the window's own 3, the graph mapped "
+        description="pipes are detected, every every_patches patches, on this many of the latest patches. "
+        "More than every_patches makes consecutive views of a pipe overlap (the graph associates a view "
+        "with a pipe track only where it meets what was seen of it: with 3 patches every 3, the graph mapped "
         "1, 2 and 0 of the 2 pipelines on seeds 0-2; with 6, 2, 2 and 2); each cell is then used "
-        "window_patches / swath_registration.window_patches times and the covariance is inflated by that factor",
+        "window_patches / every_patches times and the covariance is inflated by that factor",
+    )
+    every_patches: int = Field(
+        2,
+        ge=1,
+        description="pipes are detected every this many patches (1 m each): a pipe crossing the track is in "
+        "window_patches / every_patches windows, so in one pass it gives that many views, and a tentative "
+        "landmark needs association.min_observations of them within association.track_timeout_s "
+        "(3 in 60 s; a lawnmower's passes over it are 115-130 s apart). 3: the swath-registration windows' cadence",
     )
     seed: int = Field(0, description="RANSAC seed")
 

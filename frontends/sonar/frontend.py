@@ -7,8 +7,9 @@ Online, as the swaths arrive (each placed with the graph's current estimate thro
   of its middle swath (its anchor; :func:`.patches.make_patch`);
 * every ``swath_registration.window_patches`` patches, the window they form is registered on the
   older overlapping patches of the neighbouring line (:class:`.window_registration.WindowRegistration`)
-  → ``OdometryObservation`` between the two anchors; the same window is searched for pipelines →
-  ``LineObservation``s;
+  → ``OdometryObservation`` between the two anchors;
+* every ``pipes.every_patches`` patches, the latest ``pipes.window_patches`` patches are searched for
+  pipelines → ``LineObservation``s;
 * every ``recognition.every_patches`` patches, the newly covered area is searched for the CAD
   models (:mod:`.descriptor`, largest first) and each find registered (4-D + ICP): a new structure;
 * every patch that covers a known structure is registered on it by ICP (independent data each
@@ -81,6 +82,7 @@ class SonarFrontend(Frontend):
         self.n_points = 0
         self._queue: list[tuple[Patch, KnownStructure]] = []
         self._window_start = 0
+        self._pipes_at = 0  # patches there were at the last pipe detection
         self._recog_from = 0
         self._failed: list[tuple[str, np.ndarray, int]] = []  # (model, centre, points) of failed registrations
         self._pose_cache: dict[int, np.ndarray | None] = {}
@@ -228,13 +230,14 @@ class SonarFrontend(Frontend):
                 t0 = time.process_time()
                 out += self.windows.register(window, pts_W, self.patches, self.place, m.sensor)
                 self.timing["swath_registration_s"] += time.process_time() - t0
-            if cfg.pipes.enabled:
-                t0 = time.process_time()
-                end = self._window_start
-                extra = self.patches[max(0, end - cfg.pipes.window_patches) : end - W]
-                pts_P = np.concatenate([pts_W] + [p.world(self.place(p)) for p in extra]) if extra else pts_W
-                out += self._pipes(pts_P, m, reuse=max(1.0, (len(extra) + W) / W))
-                self.timing["pipes_s"] += time.process_time() - t0
+        pc = cfg.pipes
+        if pc.enabled and len(self.patches) - self._pipes_at >= pc.every_patches:
+            t0 = time.process_time()
+            self._pipes_at = len(self.patches)
+            used = self.patches[max(0, self._pipes_at - pc.window_patches) :]
+            pts_P = np.concatenate([p.world(self.place(p)) for p in used])
+            out += self._pipes(pts_P, m, reuse=max(1.0, len(used) / pc.every_patches))
+            self.timing["pipes_s"] += time.process_time() - t0
         return out
 
     def _covers(self, patch: Patch, ks: KnownStructure) -> bool:

@@ -2,12 +2,14 @@
 
 Ridge cells rise ``min_height_m`` to ``max_height_m`` above the seabed level; cells inside a
 recognised structure's footprint (grown by a margin) or near a taller cell (an unrecognised
-structure) are not pipe. Straight pipes are extracted one at a time by RANSAC on the ridge cells
+structure) are not pipe, nor are the cells of a raised area wider than the widest pipe (where the
+seabed level lags a slope). Straight pipes are extracted one at a time by RANSAC on the ridge cells
 (all hypotheses scored together), refined by a principal axis fit of the inliers and cut into
-runs at gaps longer than ``max_gap_m``. Each run's cross-section (lateral offset u, height h of the
-cells near the axis) gives the radius and the axis height: the upper arc of a circle,
-h = c + √(r² − (u − u₀)²), fitted by a search over r (the arc's centre height c by the median,
-so a partly buried pipe, c < r, is handled). The axis is put at the pipe-centre depth.
+runs at gaps longer than ``max_gap_m``; ``max_pipes`` counts the lines that gave a pipe (a line
+that gave none takes its cells and is not counted, up to 4 × ``max_pipes`` lines). Each run's
+cross-section (lateral offset u, height h of the cells near the axis) gives the radius and the
+axis height: the upper arc of a circle, h = c + √(r² − (u − u₀)²), fitted by a search over r (the
+arc's centre height c by the median, so a partly buried pipe, c < r, is handled). The axis is put at the pipe-centre depth.
 """
 
 from __future__ import annotations
@@ -85,14 +87,26 @@ def detect_pipes(
         dist = ndimage.distance_transform_edt(~tall) * cell
         bad |= dist <= cfg.tall_exclusion_m
     ridge = np.isfinite(h) & (h > cfg.min_height_m) & (h <= cfg.max_height_m) & ~bad
-    # remove specks (a few noisy cells): a pipe is a connected band at least ~2 cells wide
-    ridge = ndimage.binary_opening(ridge, iterations=1)
+    # remove specks (a few noisy cells): a pipe is a connected band at least ~2 cells wide; first
+    # close one-cell gaps (cells no return fell in: a pipe across the track, sampled every
+    # speed / ping rate ≈ 5 cm across it, leaves empty 4 cm cells along it, and the opening broke
+    # the band up)
+    ridge = ndimage.binary_opening(ndimage.binary_closing(ridge, iterations=1) & ~bad, iterations=1)
+    # ... and at most a pipe wide: what a disc wider than the widest pipe fits in (small holes of
+    # noise closed) is a raised stretch of seabed where the seabed level lags a slope (at the edge
+    # of the data, beside a structure's pad), not pipe: RANSAC's lines through it took the cells of
+    # the pipes crossing it and used up the window's max_pipes
+    kd = int(np.ceil((cfg.max_radius_m + 2 * cell) / cell))
+    disc = np.hypot(*np.mgrid[-kd : kd + 1, -kd : kd + 1]) <= kd
+    ridge &= ~ndimage.binary_opening(ndimage.binary_closing(ridge, iterations=2), structure=disc)
     N, E = em.spec.centres()
     ii, jj = np.nonzero(ridge)
     X = np.column_stack([N[ii], E[jj]])
     out: list[PipeSegment] = []
     alive = np.ones(len(X), bool)
-    for _ in range(cfg.max_pipes):
+    lines = tried = 0
+    while lines < cfg.max_pipes and tried < 4 * cfg.max_pipes:  # the cap bounds a window's time
+        tried += 1
         idx = np.flatnonzero(alive)
         if len(idx) < cfg.min_cells:
             break
@@ -135,8 +149,7 @@ def detect_pipes(
         # remove this line's cells (within the pipe's reach) whatever the outcome
         near = np.abs(lat_all) < max(cfg.inlier_m, cfg.max_radius_m)
         alive[idx[near]] = False
-        if not taken and not alive.any():
-            break
+        lines += 1 if taken else 0
     return out
 
 
