@@ -165,6 +165,38 @@ def stands_over(
     return int((over & (t >= -cfg.own_beyond) & (t <= reach)).sum())
 
 
+def sleeve_over(
+    points: np.ndarray,
+    end: np.ndarray,
+    out: np.ndarray,
+    up: np.ndarray,
+    pipe: Pipe,
+    all_points: np.ndarray,
+    reach: float,
+    cfg: ObjectConfig,
+) -> bool:
+    """Whether an object's ``points`` hold, over the pipe ending at ``end`` (outward unit ``out``,
+    ``up`` the unit up across it), a sleeve on its line a little wider than the pipe: of the points
+    above its axis and over it (within its radius plus ``own_margin`` across), from ``own_beyond`` to
+    ``reach`` beyond the end, a 4 cm stretch whose median distance from the axis stands above the
+    pipe's own radial level (:func:`wider_stretch`: by ``tail_tolerance`` and ``tail_sigmas`` × the
+    noise of that median) but by no more than ``own_margin`` (higher is :func:`stands_over`'s). A
+    socket or a tee's run on a pipe lying on the seabed is such a sleeve, a few millimetres proud of
+    the pipe: it does not rise over it by ``own_margin``; the seabed's clutter at a pipe's end lies
+    beside it or stands at no constant distance from its axis."""
+    if len(pipe.inliers) == 0:
+        return False
+    x = points - end
+    t, h = x @ out, x @ up
+    rad = np.sqrt(np.maximum(row_dot(x, x) - t * t, 0.0))
+    across = np.sqrt(np.maximum(rad * rad - h * h, 0.0))
+    over = (h > 0) & (across <= pipe.radius + cfg.own_margin) & (t > cfg.own_beyond) & (t <= reach)
+    if not over.any():
+        return False
+    level, sigma = surface_level(pipe, all_points)
+    return wider_stretch(t[over] - cfg.own_beyond, rad[over] - level, sigma, cfg, cap=cfg.own_margin)
+
+
 def own_points(points: np.ndarray, end: np.ndarray, out: np.ndarray, radius: float, cfg: ObjectConfig) -> int:
     """How many of an object's ``points`` are its own rather than the pipe's that ends at ``end``
     (outward unit ``out``, pipe ``radius``): off the pipe's cylinder by more than ``own_margin``
@@ -241,17 +273,18 @@ def pipe_continues(
     return not wider_stretch(t[beyond] - cfg.own_beyond, rad[beyond] - level, sigma, cfg)
 
 
-def wider_stretch(t: np.ndarray, offset: np.ndarray, sigma: float, cfg: ObjectConfig) -> bool:
+def wider_stretch(t: np.ndarray, offset: np.ndarray, sigma: float, cfg: ObjectConfig, cap: float = np.inf) -> bool:
     """Whether points at ``t`` (≥ 0) along an axis, ``offset`` outward from a pipe's surface, hold
     a stretch of two 2 cm bins (at least ``_TAIL_BIN_POINTS`` points) whose median offset exceeds
-    ``tail_tolerance`` and ``tail_sigmas`` × 1.2533 ``sigma`` / √n (the noise of a median of n)."""
+    ``tail_tolerance`` and ``tail_sigmas`` × 1.2533 ``sigma`` / √n (the noise of a median of n),
+    and is at most ``cap``."""
     stretch = (t / _TAIL_BIN).astype(np.int64)
     for s in range(int(stretch.max()) + 1 if len(stretch) else 0):
         w = (stretch == s) | (stretch == s + 1)
         n = int(w.sum())
         if n >= _TAIL_BIN_POINTS:
             need = max(cfg.tail_tolerance, cfg.tail_sigmas * 1.2533 * sigma / np.sqrt(n))
-            if float(np.median(offset[w])) > need:
+            if need < float(np.median(offset[w])) <= cap:
                 return True
     return False
 
@@ -542,7 +575,9 @@ def segment_objects(
             if site.config == 1:
                 reach = cfg.attach_distance + cfg.body_size[0] / 2
             P = np.take(points, crop, axis=0)
-            if stands_over(P, e[0], -dirs[0], site.R[:, 2], pipe.radius, reach, cfg) < cfg.min_own_points:
+            if stands_over(P, e[0], -dirs[0], site.R[:, 2], pipe.radius, reach, cfg) < cfg.min_own_points and not (
+                sleeve_over(P, e[0], -dirs[0], site.R[:, 2], pipe, points, reach, cfg)
+            ):
                 continue
             if seen_beyond is not None and not seen_beyond(center, pipe.radius):
                 continue
