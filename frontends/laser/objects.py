@@ -180,10 +180,12 @@ def sleeve_over(
     above its axis and over it (within its radius plus ``own_margin`` across), from ``own_beyond`` to
     ``reach`` beyond the end, a 4 cm stretch whose median distance from the axis stands above the
     pipe's own radial level (:func:`wider_stretch`: by ``tail_tolerance`` and ``tail_sigmas`` × the
-    noise of that median) but by no more than ``own_margin`` (higher is :func:`stands_over`'s). A
-    socket or a tee's run on a pipe lying on the seabed is such a sleeve, a few millimetres proud of
-    the pipe: it does not rise over it by ``own_margin``; the seabed's clutter at a pipe's end lies
-    beside it or stands at no constant distance from its axis."""
+    noise of that median) but by no more than ``own_margin`` (higher is :func:`stands_over`'s), the
+    distances' scatter about it within ``tail_tolerance`` or ``own_sigmas`` × the pipe's own (a
+    surface coaxial with the pipe). A socket or a tee's run on a pipe lying on the seabed is such a
+    sleeve, a few millimetres proud of the pipe: it does not rise over it by ``own_margin``; the
+    seabed's clutter at a pipe's end lies beside it, and sand over a buried pipe's end stands at no
+    constant distance from its axis."""
     if len(pipe.inliers) == 0:
         return False
     x = points - end
@@ -194,7 +196,8 @@ def sleeve_over(
     if not over.any():
         return False
     level, sigma = surface_level(pipe, all_points)
-    return wider_stretch(t[over] - cfg.own_beyond, rad[over] - level, sigma, cfg, cap=cfg.own_margin)
+    scatter = max(cfg.tail_tolerance, cfg.own_sigmas * sigma)
+    return wider_stretch(t[over] - cfg.own_beyond, rad[over] - level, sigma, cfg, cap=cfg.own_margin, scatter=scatter)
 
 
 def own_points(points: np.ndarray, end: np.ndarray, out: np.ndarray, radius: float, cfg: ObjectConfig) -> int:
@@ -273,18 +276,22 @@ def pipe_continues(
     return not wider_stretch(t[beyond] - cfg.own_beyond, rad[beyond] - level, sigma, cfg)
 
 
-def wider_stretch(t: np.ndarray, offset: np.ndarray, sigma: float, cfg: ObjectConfig, cap: float = np.inf) -> bool:
+def wider_stretch(
+    t: np.ndarray, offset: np.ndarray, sigma: float, cfg: ObjectConfig, cap: float = np.inf, scatter: float = np.inf
+) -> bool:
     """Whether points at ``t`` (≥ 0) along an axis, ``offset`` outward from a pipe's surface, hold
     a stretch of two 2 cm bins (at least ``_TAIL_BIN_POINTS`` points) whose median offset exceeds
     ``tail_tolerance`` and ``tail_sigmas`` × 1.2533 ``sigma`` / √n (the noise of a median of n),
-    and is at most ``cap``."""
+    and is at most ``cap``, the offsets' scatter about it (1.4826 × their median absolute
+    deviation) at most ``scatter``."""
     stretch = (t / _TAIL_BIN).astype(np.int64)
     for s in range(int(stretch.max()) + 1 if len(stretch) else 0):
         w = (stretch == s) | (stretch == s + 1)
         n = int(w.sum())
         if n >= _TAIL_BIN_POINTS:
             need = max(cfg.tail_tolerance, cfg.tail_sigmas * 1.2533 * sigma / np.sqrt(n))
-            if need < float(np.median(offset[w])) <= cap:
+            med = float(np.median(offset[w]))
+            if need < med <= cap and (scatter == np.inf or 1.4826 * np.median(np.abs(offset[w] - med)) <= scatter):
                 return True
     return False
 
