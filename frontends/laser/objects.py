@@ -178,26 +178,45 @@ def sleeve_over(
     """Whether an object's ``points`` hold, over the pipe ending at ``end`` (outward unit ``out``,
     ``up`` the unit up across it), a sleeve on its line a little wider than the pipe: of the points
     above its axis and over it (within its radius plus ``own_margin`` across), from ``own_beyond`` to
-    ``reach`` beyond the end, a 4 cm stretch whose median distance from the axis stands above the
-    pipe's own radial level (:func:`wider_stretch`: by ``tail_tolerance`` and ``tail_sigmas`` × the
-    noise of that median) but by no more than ``own_margin`` (higher is :func:`stands_over`'s), the
-    distances' scatter about it within ``tail_tolerance`` or ``own_sigmas`` × the pipe's own (a
-    surface coaxial with the pipe). A socket or a tee's run on a pipe lying on the seabed is such a
-    sleeve, a few millimetres proud of the pipe: it does not rise over it by ``own_margin``; the
-    seabed's clutter at a pipe's end lies beside it, and sand over a buried pipe's end stands at no
-    constant distance from its axis."""
+    ``reach`` beyond the end, a 4 cm stretch (two 2 cm bins, at least ``min_own_points`` points)
+    whose median distance from the axis stands above the pipe's own radial level (as
+    :func:`wider_stretch`: by ``tail_tolerance`` and ``tail_sigmas`` × the noise of that median) but
+    by no more than ``own_margin`` (higher is :func:`stands_over`'s), the distances' scatter about it
+    within ``tail_tolerance`` or ``own_sigmas`` × the pipe's own (a surface coaxial with the pipe),
+    its points on both sides of the axis, at least the pipe's radius apart across (over its top).
+    A socket or a tee's run on a pipe lying on the seabed is such a sleeve, a few millimetres proud
+    of the pipe: it does not rise over it by ``own_margin``; the seabed's clutter at a pipe's end
+    lies beside it, and sand over a buried pipe's end stands at no constant distance from its axis,
+    nor over the pipe's top."""
     if len(pipe.inliers) == 0:
         return False
     x = points - end
     t, h = x @ out, x @ up
+    side = x @ np.cross(out, up)  # across, signed (up is square to the pipe: box_frame's)
     rad = np.sqrt(np.maximum(row_dot(x, x) - t * t, 0.0))
-    across = np.sqrt(np.maximum(rad * rad - h * h, 0.0))
-    over = (h > 0) & (across <= pipe.radius + cfg.own_margin) & (t > cfg.own_beyond) & (t <= reach)
+    over = (h > 0) & (np.abs(side) <= pipe.radius + cfg.own_margin) & (t > cfg.own_beyond) & (t <= reach)
     if not over.any():
         return False
     level, sigma = surface_level(pipe, all_points)
+    t, offset, side = t[over] - cfg.own_beyond, rad[over] - level, side[over]
     scatter = max(cfg.tail_tolerance, cfg.own_sigmas * sigma)
-    return wider_stretch(t[over] - cfg.own_beyond, rad[over] - level, sigma, cfg, cap=cfg.own_margin, scatter=scatter)
+    stretch = (t / _TAIL_BIN).astype(np.int64)
+    for s in range(int(stretch.max()) + 1):
+        w = (stretch == s) | (stretch == s + 1)
+        n = int(w.sum())
+        if n < max(_TAIL_BIN_POINTS, cfg.min_own_points):
+            continue
+        med = float(np.median(offset[w]))
+        need = max(cfg.tail_tolerance, cfg.tail_sigmas * 1.2533 * sigma / np.sqrt(n))
+        across = side[w]
+        if (
+            need < med <= cfg.own_margin
+            and 1.4826 * float(np.median(np.abs(offset[w] - med))) <= scatter
+            and across.min() < 0.0 < across.max()
+            and float(np.ptp(across)) >= pipe.radius
+        ):
+            return True
+    return False
 
 
 def own_points(points: np.ndarray, end: np.ndarray, out: np.ndarray, radius: float, cfg: ObjectConfig) -> int:
@@ -276,22 +295,17 @@ def pipe_continues(
     return not wider_stretch(t[beyond] - cfg.own_beyond, rad[beyond] - level, sigma, cfg)
 
 
-def wider_stretch(
-    t: np.ndarray, offset: np.ndarray, sigma: float, cfg: ObjectConfig, cap: float = np.inf, scatter: float = np.inf
-) -> bool:
+def wider_stretch(t: np.ndarray, offset: np.ndarray, sigma: float, cfg: ObjectConfig) -> bool:
     """Whether points at ``t`` (≥ 0) along an axis, ``offset`` outward from a pipe's surface, hold
     a stretch of two 2 cm bins (at least ``_TAIL_BIN_POINTS`` points) whose median offset exceeds
-    ``tail_tolerance`` and ``tail_sigmas`` × 1.2533 ``sigma`` / √n (the noise of a median of n),
-    and is at most ``cap``, the offsets' scatter about it (1.4826 × their median absolute
-    deviation) at most ``scatter``."""
+    ``tail_tolerance`` and ``tail_sigmas`` × 1.2533 ``sigma`` / √n (the noise of a median of n)."""
     stretch = (t / _TAIL_BIN).astype(np.int64)
     for s in range(int(stretch.max()) + 1 if len(stretch) else 0):
         w = (stretch == s) | (stretch == s + 1)
         n = int(w.sum())
         if n >= _TAIL_BIN_POINTS:
             need = max(cfg.tail_tolerance, cfg.tail_sigmas * 1.2533 * sigma / np.sqrt(n))
-            med = float(np.median(offset[w]))
-            if need < med <= cap and (scatter == np.inf or 1.4826 * np.median(np.abs(offset[w] - med)) <= scatter):
+            if float(np.median(offset[w])) > need:
                 return True
     return False
 
