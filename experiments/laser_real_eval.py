@@ -114,7 +114,8 @@ def map_scores(landmarks, gt, scans: list[dict]) -> dict:
     centimetre along the mapped pipes (median, 95th percentile, maximum, share within 5 cm), the
     share of the seen true pipe length (the spans of the clouds that showed >= 0.2 m of a pipe)
     with a mapped pipe within 5 cm, the pipes mapped; each valve seen (≥ 500 points in a
-    cloud) mapped by how many objects (within 0.2 m), and the objects near no fitting."""
+    cloud) mapped by how many objects (within 0.2 m), the same for the other fittings (sockets,
+    tees), and the objects near no fitting."""
     pipes = [lm for lm in landmarks if lm.kind == "pipe" and lm.p is not None]
     samples = [
         lm.p + np.outer(np.arange(0, 1.0001, 0.01 / max(np.linalg.norm(lm.q - lm.p), 0.01)), lm.q - lm.p)
@@ -164,6 +165,11 @@ def map_scores(landmarks, gt, scans: list[dict]) -> dict:
     for o in gt.objects:
         if o.cls in VALVES and points.get(o.id, 0) >= VALVE_SEEN_POINTS:
             valves[o.id] = int((np.linalg.norm(objects - np.asarray(o.position), axis=1) <= VALVE_GATE_M).sum())
+    others = {}  # the other fittings (sockets, tees, flanges...), by class and id, as the valves
+    for o in gt.objects:
+        if o.cls not in VALVES and points.get(o.id, 0) >= VALVE_SEEN_POINTS:
+            n = int((np.linalg.norm(objects - np.asarray(o.position), axis=1) <= VALVE_GATE_M).sum())
+            others[f"{o.cls} {o.id}"] = n
     fittings = np.array([o.position for o in gt.objects]).reshape(-1, 3)
     stray = [
         lm.id
@@ -191,6 +197,9 @@ def map_scores(landmarks, gt, scans: list[dict]) -> dict:
         "valves_seen": len(valves),
         "valves_mapped_once": sum(v == 1 for v in valves.values()),
         "valve_counts": valves,
+        "other_fittings_seen": len(others),
+        "other_fittings_mapped_once": sum(v == 1 for v in others.values()),
+        "other_fitting_counts": others,
         "objects_mapped": len(objects),
         "objects_far_from_any_fitting": len(stray),
     }
@@ -380,6 +389,8 @@ def pipeline_line(seed: int, r: dict) -> str:
             f"max {m['pipe_error_max_m']:.3f} m, within 5 cm {m['pipe_within_5cm_share']:.2f}, "
             f"seen length covered {m['seen_pipe_length_covered']:.2f}, valves mapped once {m['valves_mapped_once']}/"
             f"{m['valves_seen']} {m['valve_counts']} (clouds framing each {m['valve_clouds_centre_in_frame']}), "
+            f"other fittings mapped once {m['other_fittings_mapped_once']}/{m['other_fittings_seen']} "
+            f"{m['other_fitting_counts']}, "
             f"objects {m['objects_mapped']} "
             f"(far from any fitting {m['objects_far_from_any_fitting']}); map offset vertical "
             f"{m['map_offset_vertical_median_m']:.3f} sideways {m['map_offset_sideways_abs_median_m']:.3f} m, pose "

@@ -1,7 +1,7 @@
 """Why a valve of the pipeline scenario is not mapped (issue 22: "every valve mapped once"): the object
 views the laser front-end makes of it, cloud by cloud.
 
-    python experiments/laser/valve_trace.py --seed 9 [--valve 1] [--min-points 200] [--segments] [--config JSON]
+    python experiments/laser/valve_trace.py --seed 9 [--valve 1] [--min-points 200] [--segments] [--config JSON] [--any-class]
 
 Simulates pipeline ``--seed`` and segments every cloud that holds at least ``--min-points`` valid
 points on a valve (``--valve``: its id; default every valve) with this checkout's front-end ("up" from
@@ -49,8 +49,8 @@ def record_segments(cut: list) -> None:
 
     accept = pipe_shape.Seabed.accept
 
-    def recording_accept(self, pipe, seen_length=0.0):
-        ok = accept(self, pipe, seen_length)
+    def recording_accept(self, pipe, *a, **k):
+        ok = accept(self, pipe, *a, **k)
         for row in cut:
             if row[1] is pipe:
                 row[2] = "ok" if ok else seabed_verdict(pipe, self)
@@ -63,7 +63,8 @@ def record_segments(cut: list) -> None:
 
 
 def record_lone_ends(log: list) -> None:
-    """Make ``segment_objects``' lone-end tests append (test, end, value) to ``log``."""
+    """Make ``segment_objects``' lone-end tests append (test, end, value) to ``log`` (and its in-line test
+    ``gap_is_pipe``: (test, the site's centre, value))."""
     import frontends.laser.objects as objects_mod
     from frontends.laser.pipes import Rays
 
@@ -75,8 +76,16 @@ def record_lone_ends(log: list) -> None:
 
         return recording
 
-    for name in ("own_points", "pipe_continues", "stands_over"):
+    for name in ("own_points", "pipe_continues", "stands_over", "sleeve_over"):
         setattr(objects_mod, name, wrap(name, getattr(objects_mod, name)))
+    gap_is_pipe = objects_mod.gap_is_pipe
+
+    def recording_gap_is_pipe(points, crop, site, *a, **k):
+        value = gap_is_pipe(points, crop, site, *a, **k)
+        log.append(("gap_is_pipe", np.asarray(site.center, float).copy(), value))
+        return value
+
+    objects_mod.gap_is_pipe = recording_gap_is_pipe
     seen_at = Rays.seen_at
 
     def recording_seen_at(self, point, radius, min_rays=3):
@@ -109,10 +118,10 @@ def near_segments(cut: list, x: np.ndarray, reach: float = 0.15) -> list[str]:
     return out
 
 
-def valve_mission(seed: int, config: str, valve: int | None):
+def valve_mission(seed: int, config: str, valve: int | None, any_class: bool = False):
     """Pipeline ``seed`` simulated; the front-end's configuration from the JSON ``config`` (``"pipes":
     {"nominal": true}``: the seed's true radii as ``pipes.nominal_radii``); its valves (``valve``: that
-    one only), printed; the stereo's T_BS; the true poses T_WB by stamp and their sorted stamps."""
+    one only; ``any_class``: every fitting, sockets and tees too), printed; the stereo's T_BS; the true poses T_WB by stamp and their sorted stamps."""
     from frontends.laser.config import LaserConfig
     from semslam.mission.measurements import GroundTruthPose
     from semslam.sim.pipeline_config import PipelineSimConfig
@@ -125,7 +134,7 @@ def valve_mission(seed: int, config: str, valve: int | None):
     if over.get("pipes", {}).pop("nominal", False):
         over["pipes"]["nominal_radii"] = sorted({round(float(p.radius), 4) for p in gt.pipes})
     cfg = LaserConfig.model_validate(over)
-    valves = {o.id: o for o in gt.objects if o.cls in VALVES and (valve is None or o.id == valve)}
+    valves = {o.id: o for o in gt.objects if (any_class or o.cls in VALVES) and (valve is None or o.id == valve)}
     print("valves:", {k: (o.cls, np.round(o.position, 2).tolist()) for k, o in valves.items()}, flush=True)
     T_BS = next(s for s in meta.sensors.values() if s.kind == "laser").T_BS
     poses = {m.stamp: m.matrix() for m in mission.of_type(GroundTruthPose)}
@@ -143,6 +152,7 @@ def main(argv=None) -> int:
     ap.add_argument("--segments", action="store_true")
     ap.add_argument("--lone-ends", action="store_true")
     ap.add_argument("--config", default="{}", help="front-end overrides (JSON)")
+    ap.add_argument("--any-class", action="store_true", help="every fitting (sockets, tees), not valves only")
     args = ap.parse_args(argv)
     cut: list = []  # (round, pipe, verdict, contrast) of the current cloud
     if args.segments:
@@ -150,7 +160,7 @@ def main(argv=None) -> int:
     tests: list = []  # (test, point, value) of the current cloud's lone ends
     if args.lone_ends:
         record_lone_ends(tests)
-    mission, cfg, valves, T_BS, poses, stamps = valve_mission(args.seed, args.config, args.valve)
+    mission, cfg, valves, T_BS, poses, stamps = valve_mission(args.seed, args.config, args.valve, args.any_class)
     meta = mission.metadata
     points = {s["stamp"]: {int(k): v for k, v in s["object_points"].items()} for s in meta.extras["scans"]}
     with_view: dict[int, int] = {}

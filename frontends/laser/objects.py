@@ -165,6 +165,60 @@ def stands_over(
     return int((over & (t >= -cfg.own_beyond) & (t <= reach)).sum())
 
 
+def sleeve_over(
+    points: np.ndarray,
+    end: np.ndarray,
+    out: np.ndarray,
+    up: np.ndarray,
+    pipe: Pipe,
+    all_points: np.ndarray,
+    reach: float,
+    cfg: ObjectConfig,
+) -> bool:
+    """Whether an object's ``points`` hold, over the pipe ending at ``end`` (outward unit ``out``,
+    ``up`` the unit up across it), a sleeve on its line a little wider than the pipe: of the points
+    above its axis and over it (within its radius plus ``own_margin`` across), from ``own_beyond`` to
+    ``reach`` beyond the end, a 4 cm stretch (two 2 cm bins, at least ``min_own_points`` points)
+    whose median distance from the axis stands above the pipe's own radial level (as
+    :func:`wider_stretch`: by ``tail_tolerance`` and ``tail_sigmas`` × the noise of that median) but
+    by no more than ``own_margin`` (higher is :func:`stands_over`'s), the distances' scatter about it
+    within ``tail_tolerance`` or ``own_sigmas`` × the pipe's own (a surface coaxial with the pipe),
+    its points on both sides of the axis, at least the pipe's radius apart across (over its top).
+    A socket or a tee's run on a pipe lying on the seabed is such a sleeve, a few millimetres proud
+    of the pipe: it does not rise over it by ``own_margin``; the seabed's clutter at a pipe's end
+    lies beside it, and sand over a buried pipe's end stands at no constant distance from its axis,
+    nor over the pipe's top."""
+    if len(pipe.inliers) == 0:
+        return False
+    x = points - end
+    t, h = x @ out, x @ up
+    side = x @ np.cross(out, up)  # across, signed (up is square to the pipe: box_frame's)
+    rad = np.sqrt(np.maximum(row_dot(x, x) - t * t, 0.0))
+    over = (h > 0) & (np.abs(side) <= pipe.radius + cfg.own_margin) & (t > cfg.own_beyond) & (t <= reach)
+    if not over.any():
+        return False
+    level, sigma = surface_level(pipe, all_points)
+    t, offset, side = t[over] - cfg.own_beyond, rad[over] - level, side[over]
+    scatter = max(cfg.tail_tolerance, cfg.own_sigmas * sigma)
+    stretch = (t / _TAIL_BIN).astype(np.int64)
+    for s in range(int(stretch.max()) + 1):
+        w = (stretch == s) | (stretch == s + 1)
+        n = int(w.sum())
+        if n < max(_TAIL_BIN_POINTS, cfg.min_own_points):
+            continue
+        med = float(np.median(offset[w]))
+        need = max(cfg.tail_tolerance, cfg.tail_sigmas * 1.2533 * sigma / np.sqrt(n))
+        across = side[w]
+        if (
+            need < med <= cfg.own_margin
+            and 1.4826 * float(np.median(np.abs(offset[w] - med))) <= scatter
+            and across.min() < 0.0 < across.max()
+            and float(np.ptp(across)) >= pipe.radius
+        ):
+            return True
+    return False
+
+
 def own_points(points: np.ndarray, end: np.ndarray, out: np.ndarray, radius: float, cfg: ObjectConfig) -> int:
     """How many of an object's ``points`` are its own rather than the pipe's that ends at ``end``
     (outward unit ``out``, pipe ``radius``): off the pipe's cylinder by more than ``own_margin``
@@ -542,7 +596,9 @@ def segment_objects(
             if site.config == 1:
                 reach = cfg.attach_distance + cfg.body_size[0] / 2
             P = np.take(points, crop, axis=0)
-            if stands_over(P, e[0], -dirs[0], site.R[:, 2], pipe.radius, reach, cfg) < cfg.min_own_points:
+            if stands_over(P, e[0], -dirs[0], site.R[:, 2], pipe.radius, reach, cfg) < cfg.min_own_points and not (
+                sleeve_over(P, e[0], -dirs[0], site.R[:, 2], pipe, points, reach, cfg)
+            ):
                 continue
             if seen_beyond is not None and not seen_beyond(center, pipe.radius):
                 continue
