@@ -6,7 +6,7 @@
 2. A long synthetic lawnmower mission (≥ 2 h, ≥ 2000 landmarks): per-update cost against map size,
    to show it stays flat as the map grows.
 3. Factor cost: linearisation time of every domain factor (the CustomFactors: line, DVL displacement,
-   biased attitude; the built-ins: object point, depth) against plain built-ins of the same size.
+   biased attitude, gyro with its bias; the built-ins: object point, depth) against plain built-ins of the same size.
 
 Run: ``python experiments/bench_graph.py [--runs 3] [--long-hours 2] [--skip-long] [--window-s 130] [--out F.json]``
 (with ``--out``, the long mission's cost per 600 s is also plotted to ``F_long.png``; ``--plot F.json`` redraws
@@ -232,10 +232,16 @@ def bench_factor_cost(n: int = 5000) -> dict:
     """Linearisation cost per factor (µs, wall and CPU, median of 5 × n): every domain factor
     against built-ins of similar size."""
     from factors.landmarks import LineAnchor, line_factor, point_factor
-    from factors.navigation import DisplacementIntegral, biased_attitude_factor, depth_factor, displacement_factor
+    from factors.navigation import (
+        DisplacementIntegral,
+        biased_attitude_factor,
+        depth_factor,
+        displacement_factor,
+        gyro_rotation_factor,
+    )
 
     rng = np.random.default_rng(0)
-    x, y, l, p, vi, vj, b = (gtsam.symbol(c, 0) for c in "xylpvwb")
+    x, y, l, p, vi, vj, b, g = (gtsam.symbol(c, 0) for c in "xylpvwbg")
     values = gtsam.Values()
     values.insert(x, gtsam.Pose3(gtsam.Rot3.Expmap(rng.normal(size=3)), rng.normal(size=3)))
     values.insert(y, gtsam.Pose3(gtsam.Rot3.Expmap(rng.normal(size=3)), rng.normal(size=3)))
@@ -244,6 +250,7 @@ def bench_factor_cost(n: int = 5000) -> dict:
     values.insert(vi, rng.normal(size=3))
     values.insert(vj, rng.normal(size=3))
     values.insert(b, np.array([0.01]))
+    values.insert(g, rng.normal(size=3) * 1e-3)
     T_BS = np.eye(4)
     T_BS[:3, 3] = [0.6, 0.0, 0.3]
     d = DisplacementIntegral(
@@ -266,6 +273,9 @@ def bench_factor_cost(n: int = 5000) -> dict:
         "displacement_factor (CustomFactor, 3)": displacement_factor(x, y, vi, vj, d),
         "biased_attitude_factor (CustomFactor, 3)": biased_attitude_factor(
             x, b, gtsam.Rot3.Expmap(rng.normal(size=3)).matrix(), np.eye(3) * 1e-4
+        ),
+        "gyro_rotation_factor (CustomFactor, 3)": gyro_rotation_factor(
+            x, y, g, gtsam.Rot3.Expmap(rng.normal(size=3) * 0.1).matrix(), -np.eye(3), np.zeros(3), 1e-3
         ),
         "depth_factor (built-in GPSFactorArm, 1)": depth_factor(x, 2.0, 1e-4, np.array([-0.5, 0.0, -0.1])),
         "point_factor (built-in BearingRangeFactor3D, 3)": point_factor(

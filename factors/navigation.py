@@ -363,13 +363,63 @@ def attitude_factor(key: int, R_WB: np.ndarray, cov_tangent: np.ndarray) -> gtsa
 def rotation_carry_factor(
     xi: int, xj: int, R_ij: np.ndarray, t_ij: np.ndarray, rot_sigma: float
 ) -> gtsam.NonlinearFactor:
-    """X(j)'s rotation carried from X(i) by the angular rate when no AHRS reading arrived between the
-    two keyframes (built-in BetweenFactorPose3, rotation σ ``rot_sigma``). Its translation part,
-    ``t_ij`` at σ 1 km, carries no information: the displacement factor holds the translation."""
+    """X(j)'s rotation carried from X(i) by the angular rate ``R_ij`` = R_iᵀ R_j (the body rates integrated
+    between the two keyframes, or the AHRS's last reading carried when none arrived between them; built-in
+    BetweenFactorPose3, rotation σ ``rot_sigma``). Its translation part, ``t_ij`` at σ 1 km, carries no
+    information: the displacement factor holds the translation."""
     sigmas = np.r_[[max(rot_sigma, 1e-6)] * 3, [1e3] * 3]
     return gtsam.BetweenFactorPose3(
         xi, xj, gtsam.Pose3(gtsam.Rot3(R_ij), np.asarray(t_ij, float)), gtsam.noiseModel.Diagonal.Sigmas(sigmas)
     )
+
+
+# The gyro bias's state G(k) is held in rad per GYRO_BIAS_UNIT_S seconds (β = b τ): a bias in rad/s is
+# ~10⁻⁵–10⁻⁴ and its random walk's information ~10¹⁴ beside a position's ~10⁴ (as the heading bias's rate).
+GYRO_BIAS_UNIT_S = 100.0
+
+
+def gyro_rotation_residual(
+    T_i: gtsam.Pose3, T_j: gtsam.Pose3, g: np.ndarray, R_ij: np.ndarray, J_b: np.ndarray, b_bar: np.ndarray, jac=False
+):
+    """r = Log((ΔR̄ Exp(J_b (g − b̄)/τ))ᵀ R_iᵀ R_j): the body rates integrated with the bias b̄/τ (``R_ij`` =
+    ΔR̄) corrected to first order for the bias g/τ (g and b̄ in rad per τ = GYRO_BIAS_UNIT_S s, body axes),
+    J_b = ∂ΔR/∂b (b in rad/s) from the integration (right perturbation, as IMU preintegration has it:
+    ΔR(b̄ + δ) ≈ ΔR̄ Exp(J_b δ)). Jacobians 3×6 wrt X(i), X(j) (right perturbation, rotation first) and
+    3×3 wrt g."""
+    Ri, Rj = T_i.rotation().matrix(), T_j.rotation().matrix()
+    J_b = np.asarray(J_b) / GYRO_BIAS_UNIT_S
+    H_exp = np.zeros((3, 3), order="F")
+    A = gtsam.Rot3.Expmap(-J_b @ (np.asarray(g, float) - b_bar), H_exp).matrix()  # Exp(J_b δ)ᵀ
+    E = np.asarray(R_ij).T @ Ri.T @ Rj
+    H_log = np.zeros((3, 3), order="F")
+    r = np.asarray(gtsam.Rot3.Logmap(gtsam.Rot3(A @ E), H_log), float)
+    if not jac:
+        return r
+    H_i, H_j = np.zeros((3, 6)), np.zeros((3, 6))
+    H_i[:, :3] = -H_log @ Rj.T @ Ri
+    H_j[:, :3] = H_log
+    H_g = -H_log @ E.T @ H_exp @ J_b
+    return r, H_i, H_j, H_g
+
+
+def gyro_rotation_factor(
+    xi: int, xj: int, g: int, R_ij: np.ndarray, J_b: np.ndarray, b_bar: np.ndarray, rot_sigma: float
+) -> gtsam.CustomFactor:
+    """X(j)'s rotation carried from X(i) by the body rates integrated between the two keyframes, with the
+    gyro's bias G(i) (a 3-vector in rad per GYRO_BIAS_UNIT_S s, body axes; ``b_bar`` too) estimated: :func:`gyro_rotation_residual` at σ
+    ``rot_sigma`` a rotation axis (CustomFactor: GTSAM's AHRSFactor holds the same residual on Rot3 keys,
+    not on our Pose3 ones)."""
+    R_ij, J_b, b_bar = np.array(R_ij, float), np.array(J_b, float), np.array(b_bar, float)
+
+    def error(this, values, H):
+        T_i, T_j, bias = values.atPose3(xi), values.atPose3(xj), values.atVector(g)
+        if H is None:
+            return gyro_rotation_residual(T_i, T_j, bias, R_ij, J_b, b_bar)
+        r, H[0], H[1], H[2] = gyro_rotation_residual(T_i, T_j, bias, R_ij, J_b, b_bar, jac=True)
+        return r
+
+    noise = gtsam.noiseModel.Isotropic.Sigma(3, max(rot_sigma, 1e-6))
+    return gtsam.CustomFactor(noise, [xi, xj, g], error)
 
 
 def biased_attitude_residual(T_WB: gtsam.Pose3, b: float, R_meas: np.ndarray, jac: bool = False):

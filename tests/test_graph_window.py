@@ -16,6 +16,7 @@ from semslam.backend.window import (
     LEFT_COVARIANCE_EVERY,
     B,
     FrozenValues,
+    G,
     SlidingWindow,
     V,
     X,
@@ -233,14 +234,16 @@ def test_frozen_estimates_come_back_as_gtsam_values_held_them():
         estimate.insert(V(k), rng.normal(size=3))
         if k % 2:  # a bias at some keyframes only
             estimate.insert(B(k), rng.normal(size=1))
+        if k % 3:  # a gyro bias at some keyframes only
+            estimate.insert(G(k), rng.normal(size=3))
     estimate.insert(L(3), rng.normal(size=3))
     frozen, held = FrozenValues(), gtsam.Values()
     for lo, hi in ((0, 40), (40, 100)):  # two slides; the landmark leaves twice, the second time moved
-        drop = {key for i in range(lo, hi) for key in (X(i), V(i), B(i))} | {L(3)}
+        drop = {key for i in range(lo, hi) for key in (X(i), V(i), B(i), G(i))} | {L(3)}
         frozen.insert_or_assign(estimate, drop)
         held.insert_or_assign(subset(estimate, [k for k in drop if estimate.exists(k)]))
         estimate.update(L(3), rng.normal(size=3))
-    assert frozen._rows.nbytes < 200 * 100  # ~140 bytes a keyframe
+    assert frozen._rows.nbytes < 200 * 128  # ~165 bytes a keyframe (the rows grow by doubling, to 128)
     assert np.array_equal(frozen.atPose3(X(77)).matrix(), held.atPose3(X(77)).matrix())
     back = gtsam.Values()
     back.insert(L(3), np.zeros(3))  # a landmark that came back keeps the window's estimate

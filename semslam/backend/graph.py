@@ -17,6 +17,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from factors.navigation import GYRO_BIAS_UNIT_S
 from semslam.backend.gps import GraphGps
 from semslam.backend.keyframes import Keyframes
 from semslam.backend.landmarks import GraphLandmarks
@@ -164,6 +165,11 @@ class GraphEstimator(Estimator):
             for lid, v in self.map.volume.items()
         }
         history["duplicates_merged"] = self.mapper.merged
+        kf = self.keyframes
+        if kf.has_gyro_bias:  # the newest keyframe's gyro bias (rad/s, body axes) and its σ per axis
+            history["gyro_bias_rad_s"] = kf.gyro_bias / GYRO_BIAS_UNIT_S
+            if kf.state_cov is not None:
+                history["gyro_bias_sigma_rad_s"] = np.sqrt(np.diag(kf.state_cov)[-3:]) / GYRO_BIAS_UNIT_S
         history["objects_left_out"] = len(self.mapper.left_out)
         history.update(self.book.history(ids))
         return EstimatorResult(

@@ -1,9 +1,11 @@
 """Keyframes of the graph back-end and the navigation factors at and between them.
 
 Per keyframe k: X(k) = T_WB (Pose3), V(k) = body velocity and, when the AHRS heading bias is
-modelled, B(k) and, with its drift rate modelled, D(k) (see factors.navigation). Between consecutive keyframes: the preintegrated DVL/AHRS
-displacement (with the velocity motion model across dropouts) and, over intervals with no DVL at
-all, the velocity random walk. At each keyframe: the AHRS attitude, the latest DVL velocity and the
+modelled, B(k) and, with its drift rate modelled, D(k), and when the gyro's bias is modelled, G(k) (see
+factors.navigation). Between consecutive keyframes: the preintegrated DVL/AHRS
+displacement (with the velocity motion model across dropouts), over intervals with no DVL at
+all, the velocity random walk, and the body rates integrated between the two attitudes (with G(k−1) to
+first order, and G's random walk, when the gyro's bias is modelled). At each keyframe: the AHRS attitude, the latest DVL velocity and the
 depth: every reading of the interval, each at the nearer of its two keyframes, brought there through
 the DVL's vertical velocity and averaged (the newest reading alone when the interval has none).
 
@@ -26,11 +28,13 @@ from scipy.spatial.transform import Rotation
 
 from factors.heading_bias import RATE_UNIT_S
 from factors.navigation import (
+    GYRO_BIAS_UNIT_S,
     attitude_factor,
     biased_attitude_factor,
     depth_factor,
     displacement_factor,
     dvl_velocity_factor,
+    gyro_rotation_factor,
     heading_bias_drift_factor,
     heading_bias_walk_factor,
     referred_depth,
@@ -40,7 +44,7 @@ from factors.navigation import (
 )
 from semslam.backend.navigation import NavigationBuffer
 from semslam.backend.session import IsamSession, Owned
-from semslam.backend.window import B, D, SlidingWindow, V, X
+from semslam.backend.window import B, D, G, SlidingWindow, V, X
 from semslam.config import SemslamConfig
 from semslam.estimation import SpillLog
 from semslam.mission.measurements import GroundTruthPose, Measurement
@@ -92,7 +96,9 @@ class Keyframes:
         self.accel_sigma = config.motion.accel_sigma_m_s2
         self.session = session
         self.window = window
-        self.nav = NavigationBuffer(metadata, config.motion.accel_sigma_m_s2, config.motion.angular_rate_sigma_rad_s)
+        self.nav = NavigationBuffer(
+            metadata, config.motion.accel_sigma_m_s2, config.motion.angular_rate_density(metadata)
+        )
         self.wait_for_gt = self.initial.pose == "first_ground_truth" and bool(metadata.sensors_of_kind("ground_truth"))
         self.initial_gt: GroundTruthPose | None = None
         self.stamps: list[int] = []
@@ -111,6 +117,12 @@ class Keyframes:
         self.rate_walk = config.sensors.heading_bias_rate_walk(metadata)
         self.has_rate = self.bias_walk > 0 and self.rate_sigma0 > 0
         self.rate = 0.0  # the newest keyframe's rate estimate (rad per RATE_UNIT_S s)
+        # the gyro's bias G(k) (in rad per GYRO_BIAS_UNIT_S s, body axes), a random walk, when modelled (0: the
+        # rates taken as unbiased)
+        self.gyro_sigma0 = config.sensors.gyro_bias_sigma(metadata) * GYRO_BIAS_UNIT_S
+        self.gyro_walk = config.sensors.gyro_bias_walk(metadata) * GYRO_BIAS_UNIT_S
+        self.has_gyro_bias = self.gyro_sigma0 > 0
+        self.gyro_bias = np.zeros(3)  # the newest keyframe's gyro-bias estimate (G's units)
         self.online = OnlinePoses()  # each keyframe's online pose and position covariance in {W}
         # relative-pose factors' m-estimator, by measuring sensor (the config names sensor kinds)
         self.odometry_kernels = {
@@ -229,6 +241,11 @@ class Keyframes:
                 gtsam.PriorFactorVector(D(0), np.zeros(1), gtsam.noiseModel.Isotropic.Sigma(1, self.rate_sigma0))
             )
             values.insert(D(0), np.zeros(1))
+        if self.has_gyro_bias:
+            factors.append(
+                gtsam.PriorFactorVector(G(0), np.zeros(3), gtsam.noiseModel.Isotropic.Sigma(3, self.gyro_sigma0))
+            )
+            values.insert(G(0), np.zeros(3))
         self._commit(stamp, [(f, None) for f in factors], values)
 
     def next(self, stamp: int) -> int:
@@ -255,12 +272,27 @@ class Keyframes:
             factors.append(displacement_factor(X(k - 1), X(k), V(k - 1), V(k), d))
             factors.append(velocity_random_walk_factor(V(k - 1), V(k), d.dt, self.accel_sigma))
             dt, delta = d.dt, d.c + d.A @ self.vel + d.B @ v_init
+        gyro = self.nav.gyro_rotation(t)
+        b_bar = self.nav.gyro_bias * GYRO_BIAS_UNIT_S  # what the rates were integrated with (G's estimate then)
         if not has_attitude:
             # No AHRS reading since X(k-1) (keyframes 10–50 ms apart) or a stale one: nothing else fixes
             # X(k)'s rotation unless a landmark does, and iSAM2 fails on the indeterminate system.
-            R_prev, _ = self.nav.attitude_at(self.stamps[-1] * 1e-9)
             rot_sigma = self.nav.rate_sigma * dt
-            factors.append(rotation_carry_factor(X(k - 1), X(k), R_prev.T @ R, delta, rot_sigma))
+            if self.has_gyro_bias and gyro is not None:  # the last rate carried, less the bias G(k-1)
+                R_ij, _, J_b = gyro
+                factors.append(gyro_rotation_factor(X(k - 1), X(k), G(k - 1), R_ij, J_b, b_bar, rot_sigma))
+            else:
+                R_prev, _ = self.nav.attitude_at(self.stamps[-1] * 1e-9)
+                factors.append(rotation_carry_factor(X(k - 1), X(k), R_prev.T @ R, delta, rot_sigma))
+        elif gyro is not None:
+            # The body rates integrated over the interval link the two attitudes, as the EKF's prediction does
+            # between its AHRS updates: without it every keyframe's attitude stood on its own readings alone.
+            R_ij, h, J_b = gyro
+            rot_sigma = self.nav.rate_sigma * np.sqrt(h)
+            if self.has_gyro_bias:  # integrated with G(k-1)'s estimate b̄, corrected to first order
+                factors.append(gyro_rotation_factor(X(k - 1), X(k), G(k - 1), R_ij, J_b, b_bar, rot_sigma))
+            else:
+                factors.append(rotation_carry_factor(X(k - 1), X(k), R_ij, delta, rot_sigma))
         p_init = self.pose.translation() + self.pose.rotation().matrix() @ delta
         values = gtsam.Values()
         values.insert(X(k), gtsam.Pose3(gtsam.Rot3(self.unbiased(R)), p_init))
@@ -274,6 +306,12 @@ class Keyframes:
         elif self.bias_walk > 0:
             factors.append(heading_bias_walk_factor(B(k - 1), B(k), dt, self.bias_walk))
             values.insert(B(k), np.array([self.bias]))
+        if self.has_gyro_bias:
+            sigma = self.gyro_walk * np.sqrt(max(dt, 1e-6))
+            factors.append(
+                gtsam.BetweenFactorVector(G(k - 1), G(k), np.zeros(3), gtsam.noiseModel.Isotropic.Sigma(3, sigma))
+            )
+            values.insert(G(k), np.array(self.gyro_bias))
         if self.state_cov is None:  # no joint marginal to predict from
             self._commit(stamp, [(f, None) for f in factors], values)
             return k
@@ -291,6 +329,8 @@ class Keyframes:
             keys.append(B(k))
         if self.has_rate:
             keys.append(D(k))
+        if self.has_gyro_bias:
+            keys.append(G(k))
         return keys
 
     def _predict(self, k: int, factors: list, values: gtsam.Values) -> None:
@@ -313,6 +353,9 @@ class Keyframes:
         if self.has_rate:
             at.insert(D(k - 1), theta.atVector(D(k - 1)))
             offset.append([self.rate - at.atVector(D(k - 1))[0]])
+        if self.has_gyro_bias:
+            at.insert(G(k - 1), theta.atVector(G(k - 1)))
+            offset.append(self.gyro_bias - at.atVector(G(k - 1)))
         graph = gtsam.NonlinearFactorGraph()
         for f in factors:
             graph.add(f)
@@ -335,6 +378,8 @@ class Keyframes:
             self.bias = float(values.atVector(B(k))[0] + dx[9])
         if self.has_rate:
             self.rate = float(values.atVector(D(k))[0] + dx[10])
+        if self.has_gyro_bias:
+            self.gyro_bias = values.atVector(G(k)) + dx[-3:]
         self.state_cov = cov
         self.pose_cov = cov[:6, :6]
 
@@ -355,7 +400,7 @@ class Keyframes:
         t = stamp * 1e-9
         R, _ = self.nav.attitude_at(t)
         att_sigma = float(np.sqrt(np.trace(self.nav.attitude.cov) / 3))
-        self.nav.start_interval(t, R, att_sigma)
+        self.nav.start_interval(t, R, att_sigma, self.gyro_bias / GYRO_BIAS_UNIT_S)
         self.online.append(stamp, self.pose, self._position_cov())
 
     def _position_cov(self) -> np.ndarray:
@@ -371,6 +416,8 @@ class Keyframes:
             self.bias = float(self.session.vector(B(k))[0])
         if self.has_rate:
             self.rate = float(self.session.vector(D(k))[0])
+        if self.has_gyro_bias:
+            self.gyro_bias = self.session.vector(G(k))
         try:  # from the root clique: it holds the newest keyframe
             self.state_cov = self.session.root_joint(self._keys(k))
             self.pose_cov = self.state_cov[:6, :6]

@@ -21,8 +21,8 @@ import numpy as np
 from scipy.linalg.lapack import dtrtrs
 
 # Tangent dimension of every symbol character the graph back-end uses (keyframe pose, velocity,
-# heading bias and its rate, object point, pipe line, structure pose).
-KEY_DIM = {ord("x"): 6, ord("v"): 3, ord("b"): 1, ord("d"): 1, ord("l"): 3, ord("p"): 4, ord("s"): 6}
+# heading bias and its rate, gyro bias, object point, pipe line, structure pose).
+KEY_DIM = {ord("x"): 6, ord("v"): 3, ord("b"): 1, ord("d"): 1, ord("g"): 3, ord("l"): 3, ord("p"): 4, ord("s"): 6}
 
 
 class _Caught(Exception):

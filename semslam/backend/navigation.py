@@ -8,7 +8,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from factors.geometry import quat_to_rot, so3_exp, so3_log
+from factors.geometry import quat_to_rot, so3_exp, so3_log, so3_right_jacobian
 from factors.navigation import DvlPreintegrator, ahrs_body_rotation, dvl_to_body
 from semslam.mission.measurements import Attitude, Depth, DvlVelocity
 from semslam.mission.mission import MissionMetadata
@@ -83,6 +83,9 @@ class NavigationBuffer:
         self.depths: list[tuple[float, float, float, np.ndarray, np.ndarray]] = []  # + t_BS
         self.vz: list[tuple[float, float, float]] = []
         self.preint: DvlPreintegrator | None = None
+        # (interval start, integrated to, R_{k-1}ᵀ R, its Jacobian wrt the gyro bias: ΔR(b̄ + δ) ≈ ΔR Exp(J δ))
+        self.gyro: tuple[float, float, np.ndarray, np.ndarray] | None = None
+        self.gyro_bias = np.zeros(3)  # b̄: the gyro bias the interval's rates are integrated with (body axes)
 
     def _T_BS(self, sensor: str) -> np.ndarray:
         return self.metadata.extrinsic(sensor)
@@ -94,6 +97,8 @@ class NavigationBuffer:
             R_WS = quat_to_rot(m.orientation)
             R_WB, cov = ahrs_body_rotation(R_WS, np.asarray(m.covariance), R_BS)
             omega = None if m.angular_rate is None else R_BS @ np.asarray(m.angular_rate)
+            if self.gyro is not None and omega is not None:
+                self.gyro = self._gyro_to(t)
             if omega is None and self.attitude is not None and t > self.attitude.t:
                 # Finite difference of consecutive attitudes when the AHRS gives no rate.
                 omega = so3_log(self.attitude.R_WB.T @ R_WB) / (t - self.attitude.t)
@@ -139,7 +144,29 @@ class NavigationBuffer:
         n, self.fused = self.fused.n, None
         return R, cov, n
 
-    def start_interval(self, t: float, R_WB: np.ndarray, attitude_sigma: float) -> None:
+    def _gyro_to(self, t: float) -> tuple[float, float, np.ndarray, np.ndarray]:
+        t0, t1, dR, J = self.gyro
+        h = max(t - t1, 0.0)
+        if h == 0.0:
+            return t0, max(t, t1), dR, J
+        phi = (self.omega() - self.gyro_bias) * h
+        step = so3_exp(phi)
+        # ΔR Exp(J δ) Exp(φ − h δ) ≈ ΔR Exp(φ) Exp((Exp(φ)ᵀ J − J_r(φ) h) δ)
+        return t0, t, dR @ step, step.T @ J - so3_right_jacobian(phi) * h
+
+    def gyro_rotation(self, t: float) -> tuple[np.ndarray, float, np.ndarray] | None:
+        """The body rates less the bias b̄ (:attr:`gyro_bias`) integrated since the interval's start to t:
+        (R_{k-1}ᵀ R(t), the interval's length, ∂ΔR/∂b: ΔR(b̄ + δ) ≈ ΔR Exp(J δ))."""
+        if self.gyro is None or self.attitude is None or self.attitude.omega_B is None:
+            return None
+        t0, _, dR, J = self._gyro_to(t)
+        return dR, t - t0, J
+
+    def start_interval(self, t: float, R_WB: np.ndarray, attitude_sigma: float, gyro_bias=None) -> None:
+        """The next interval from a keyframe at t; ``gyro_bias``: the keyframe's gyro-bias estimate, which
+        the interval's rates are integrated with (None: 0)."""
+        self.gyro = (t, t, np.eye(3), np.zeros((3, 3)))
+        self.gyro_bias = np.zeros(3) if gyro_bias is None else np.asarray(gyro_bias, float)
         self.preint = DvlPreintegrator(t, R_WB, self.accel_sigma, attitude_sigma)
         self.depths = [d for d in self.depths if d[0] > t]
         self.vz = self.vz[-1:]

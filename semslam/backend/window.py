@@ -133,28 +133,32 @@ class LeftCovariances(Mapping):
         return len(self._all())
 
 
-# Keyframe variable keys: pose, body velocity, AHRS heading bias, and the bias's drift rate.
+# Keyframe variable keys: pose, body velocity, AHRS heading bias, the bias's drift rate, and the gyro's bias.
 X = gtsam.symbol_shorthand.X
 V = gtsam.symbol_shorthand.V
 B = gtsam.symbol_shorthand.B
 D = gtsam.symbol_shorthand.D
+G = gtsam.symbol_shorthand.G
 
 
-KEYFRAME_CHARS = (ord("x"), ord("v"), ord("b"), ord("d"))  # a keyframe's pose, velocity, heading bias, its rate
+# a keyframe's pose, velocity, heading bias, its rate, the gyro's bias
+KEYFRAME_CHARS = (ord("x"), ord("v"), ord("b"), ord("d"), ord("g"))
 
 
 def keyframe_keys(i: int) -> tuple[int, ...]:
-    """Every variable keyframe i may have (X, V, B, D): the ones a mission does not model are in no factor."""
-    return X(i), V(i), B(i), D(i)
+    """Every variable keyframe i may have (X, V, B, D, G): the ones a mission does not model are in no factor."""
+    return X(i), V(i), B(i), D(i), G(i)
 
 
-FROZEN_ROW = np.dtype([("R", "f8", (3, 3)), ("t", "f8", 3), ("v", "f8", 3), ("b", "f8"), ("d", "f8"), ("has", "?", 4)])
+FROZEN_ROW = np.dtype(
+    [("R", "f8", (3, 3)), ("t", "f8", 3), ("v", "f8", 3), ("b", "f8"), ("d", "f8"), ("g", "f8", 3), ("has", "?", 5)]
+)
 
 
 class FrozenValues:
     """The estimates of what left the window, read at random (a keyframe's pose for an older
     observation) and all at the end: each keyframe's pose, velocity and heading bias in one
-    :data:`FROZEN_ROW` by its index (140 bytes a keyframe, where GTSAM ``Values`` take ~450), the
+    :data:`FROZEN_ROW` by its index (165 bytes a keyframe, where GTSAM ``Values`` take ~450), the
     landmarks' in a ``gtsam.Values`` (a landmark may come back and leave again). A pose comes back as
     the same ``Pose3`` (``Rot3`` holds its matrix)."""
 
@@ -180,6 +184,8 @@ class FrozenValues:
                 row["R"], row["t"] = pose.rotation().matrix(), pose.translation()
             elif c == KEYFRAME_CHARS[1]:
                 row["v"] = values.atVector(key)
+            elif c == KEYFRAME_CHARS[4]:
+                row["g"] = values.atVector(key)
             else:  # the heading bias or its rate
                 row[chr(c)] = values.atVector(key)[0]
             row["has"][KEYFRAME_CHARS.index(c)] = True
@@ -212,8 +218,8 @@ class FrozenValues:
                     continue
                 if j == 0:
                     values.insert(key, gtsam.Pose3(gtsam.Rot3(row["R"]), row["t"]))
-                elif j == 1:
-                    values.insert(key, np.array(row["v"]))
+                elif j in (1, 4):
+                    values.insert(key, np.array(row["v" if j == 1 else "g"]))
                 else:
                     values.insert(key, np.array([row[chr(c)]]))
 

@@ -46,6 +46,11 @@ class InitialStateConfig(BaseModel):
     )
 
 
+# The gyro's noise density when neither the configuration nor the mission states it (rad/s/√Hz): loose, a
+# consumer-grade rate sensor's.
+DEFAULT_RATE_DENSITY = 0.01
+
+
 class MotionNoiseConfig(BaseModel):
     """Process noise of the vehicle motion model, shared by every estimator (no estimator gets its own tuning)."""
 
@@ -56,7 +61,20 @@ class MotionNoiseConfig(BaseModel):
         description="white linear-acceleration noise (body frame, m/s²/√Hz): what the vehicle's velocity may "
         "change between velocity readings; a model looser than the vehicle throws away the DVL's averaging",
     )
-    angular_rate_sigma_rad_s: float = Field(0.01, gt=0, description="white angular-rate noise")
+    angular_rate_sigma_rad_s: float | None = Field(
+        None,
+        gt=0,
+        description="white angular-rate noise of the gyro (rad/s/√Hz), which every estimator integrates between "
+        f"attitude readings; null: the mission's declared gyro noise (its σ over √rate), else {DEFAULT_RATE_DENSITY}",
+    )
+
+    def angular_rate_density(self, metadata: Any) -> float:
+        """The gyro's white-noise density (rad/s/√Hz) every estimator uses for the mission of ``metadata``."""
+        if self.angular_rate_sigma_rad_s is not None:
+            return self.angular_rate_sigma_rad_s
+        ahrs = (getattr(metadata, "extras", None) or {}).get("noise", {}).get("ahrs", {})
+        sigma, rate = ahrs.get("angular_rate_sigma_rad_s"), ahrs.get("rate_hz")
+        return float(sigma) / float(rate) ** 0.5 if sigma and rate else DEFAULT_RATE_DENSITY
 
 
 # The heading bias's prior σ at the start when the mission declares none (an AHRS's heading is
@@ -66,6 +84,11 @@ MIN_BIAS_SIGMA0 = 1e-4
 # The time over which the heading bias's rate may wander by its own prior σ when the mission
 # declares no duration (s).
 RATE_WALK_OVER_S = 600.0
+# The gyro bias's prior σ per axis when the mission declares none (rad/s): a MEMS rate sensor's residual
+# bias after its own calibration, loose; the least random walk of that bias (rad/s/√s), so that a bias
+# declared constant stays a proper Gaussian process in the filter and the graph alike.
+DEFAULT_GYRO_BIAS_SIGMA = 0.005
+MIN_GYRO_BIAS_WALK = 1e-7
 
 
 class SensorModelConfig(BaseModel):
@@ -94,6 +117,20 @@ class SensorModelConfig(BaseModel):
         description="prior σ of the AHRS heading bias's rate of change (a drift rate state beside the bias, "
         "so that a learned drift carries on between sightings); None: the mission's declared drift over "
         "its duration (simulated missions), else 0 = no rate state",
+    )
+
+    gyro_bias_sigma_rad_s: float | None = Field(
+        None,
+        ge=0,
+        description="prior σ per axis of the gyro's bias (a state of every estimator that integrates the body "
+        "rates); None: the mission's declared one (simulated missions: the σ their bias is drawn from), else "
+        f"{DEFAULT_GYRO_BIAS_SIGMA}; 0 = the rates are taken as unbiased (no bias state)",
+    )
+    gyro_bias_walk_rad_s_per_sqrt_s: float | None = Field(
+        None,
+        ge=0,
+        description="random-walk intensity of the gyro's bias; None: the mission's declared one, else the prior "
+        f"σ reached over {RATE_WALK_OVER_S:.0f} s; at least {MIN_GYRO_BIAS_WALK}",
     )
 
     @staticmethod
@@ -139,6 +176,21 @@ class SensorModelConfig(BaseModel):
         if s0 is None:
             s0 = self._declared_ahrs(metadata).get("heading_bias_initial_sigma_rad", DEFAULT_BIAS_SIGMA0)
         return max(float(s0), MIN_BIAS_SIGMA0)
+
+    def gyro_bias_sigma(self, metadata: Any) -> float:
+        """The prior σ per axis (rad/s) of the gyro's bias for the mission of ``metadata``; 0: no bias state."""
+        if self.gyro_bias_sigma_rad_s is not None:
+            return self.gyro_bias_sigma_rad_s
+        return float(self._declared_ahrs(metadata).get("gyro_bias_sigma_rad_s", DEFAULT_GYRO_BIAS_SIGMA))
+
+    def gyro_bias_walk(self, metadata: Any) -> float:
+        """The random-walk intensity (rad/s/√s) of the gyro's bias, at least MIN_GYRO_BIAS_WALK."""
+        walk = self.gyro_bias_walk_rad_s_per_sqrt_s
+        if walk is None:
+            walk = self._declared_ahrs(metadata).get("gyro_bias_walk_rad_s_per_sqrt_s")
+        if walk is None:
+            walk = self.gyro_bias_sigma(metadata) / RATE_WALK_OVER_S**0.5
+        return max(float(walk), MIN_GYRO_BIAS_WALK)
 
 
 class AssociationConfig(BaseModel):

@@ -17,7 +17,8 @@ landmarks in one O(n² · n_v) pass whenever the full state is read (:attr:`x`, 
 independent of the map size.
 
 The vehicle block is the first ``nv`` entries: the 9 of :mod:`semslam.ekf.models` (pose, body
-velocity), plus the AHRS heading bias when it is modelled (``nv`` = 10) and its drift rate (``nv`` = 11). Every navigation step
+velocity), plus the AHRS heading bias when it is modelled (``nv`` = 10) and its drift rate (``nv`` = 11), plus the
+gyro's bias (3 more, last) when modelled. Every navigation step
 (including the bias's random walk and the AHRS update that sees it) is vehicle-only, so the
 compression holds unchanged. Landmark measurements and augmentations may give their vehicle
 Jacobians over the first 9 entries only (their column for the bias is zero).

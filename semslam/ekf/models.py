@@ -15,7 +15,9 @@ AHRS heading bias (an extension; the paper has none): when the mission's sensor 
 (``heading_bias_rate_sigma``), an 11th, ρ at BIAS + 1, that carries b on (:mod:`factors.heading_bias`) — and the AHRS reads the heading plus b
 (:func:`biased_attitude_update`): R_meas = Rz(b) R_WB, the graph back-end's
 ``factors.navigation.biased_attitude_residual``. Every other model sees only the first 9 entries; its
-Jacobian column for b is zero.
+Jacobian column for b is zero. The gyro's bias b_g (3, body axes), when modelled, is the vehicle
+block's last entries (:data:`GYRO_BIAS_SIZE`): the prediction integrates ω_B − b_g and the DVL's lever arm
+turns at it (:func:`predict`, :func:`dvl_update`).
 """
 
 from __future__ import annotations
@@ -49,6 +51,7 @@ from semslam.ekf.geometry import (
 
 NX = 9  # vehicle state size (the paper's: pose and body velocity)
 BIAS = NX  # index of the AHRS heading bias, when the vehicle state carries one (10 entries)
+GYRO_BIAS_SIZE = 3  # the gyro's bias (body axes), when modelled the vehicle block's last entries
 _I3 = np.eye(3)
 POS, ATT, VEL = slice(0, 3), slice(3, 6), slice(6, 9)
 
@@ -62,6 +65,7 @@ def predict(
     rate_sigma: float,
     bias_walk: float | None = None,
     bias_rate_walk: float | None = None,
+    gyro_bias_walk: float | None = None,
 ):
     """Constant-velocity model with the AHRS body rate ω_B as input (eqs. 20–22).
 
@@ -73,9 +77,14 @@ def predict(
     scalars: it runs at every navigation measurement, where numpy's per-call cost dominates.)
     With ``bias_walk``, the same for the 10-state [x_v; b] (:func:`predict_biased`); with
     ``bias_rate_walk`` too, for the 11-state [x_v; b; ρ] (the bias's drift rate, :mod:`factors.heading_bias`).
+    With ``gyro_bias_walk``, x ends with the gyro's bias b_g (3, body axes, :data:`GYRO_BIAS_SIZE`), a random
+    walk of that intensity (rad/s/√s): the rate integrated is ω_B − b_g, ∂e'/∂b_g = −E⁻¹ Δt.
     """
     px, py, pz, phi, theta, psi, u, v, w = x.tolist()[:NX]
     wx, wy, wz = map(float, omega_B)
+    if gyro_bias_walk is not None:
+        gx, gy, gz = x.tolist()[-GYRO_BIAS_SIZE:]
+        wx, wy, wz = wx - gx, wy - gy, wz - gz
     cf, sf = math.cos(phi), math.sin(phi)
     ct, st = math.cos(theta), math.sin(theta)
     cp, sp = math.cos(psi), math.sin(psi)
@@ -168,7 +177,24 @@ def predict(
             row.append(0.0)
         F.append([0.0] * NX + [1.0])
         Q.append([0.0] * NX + [bias_walk**2 * dt])
-    return np.array(xn), np.array(F), np.array(Q)
+    if gyro_bias_walk is None:
+        return np.array(xn), np.array(F), np.array(Q)
+    # the gyro's bias b_g' = b_g, a random walk; e' = e + E⁻¹ (ω − b_g) Δt
+    n = len(F) + GYRO_BIAS_SIZE
+    xg = np.empty(n)
+    xg[:-GYRO_BIAS_SIZE] = xn
+    xg[-GYRO_BIAS_SIZE:] = x[-GYRO_BIAS_SIZE:]
+    Fg, Qg = np.zeros((n, n)), np.zeros((n, n))
+    Fg[:-GYRO_BIAS_SIZE, :-GYRO_BIAS_SIZE] = F
+    Qg[:-GYRO_BIAS_SIZE, :-GYRO_BIAS_SIZE] = Q
+    Fg[-GYRO_BIAS_SIZE:, -GYRO_BIAS_SIZE:] = _I3
+    Fg[ATT, -GYRO_BIAS_SIZE:] = [
+        [-e00 * dt, -e01 * dt, -e02 * dt],
+        [0.0, -e11 * dt, -e12 * dt],
+        [0.0, -e21 * dt, -e22 * dt],
+    ]
+    Qg[-GYRO_BIAS_SIZE:, -GYRO_BIAS_SIZE:] = _I3 * (gyro_bias_walk**2 * dt)
+    return xg, Fg, Qg
 
 
 def predict_biased(
@@ -177,15 +203,17 @@ def predict_biased(
     dt: float,
     accel_sigma: float,
     rate_sigma: float,
-    bias_walk: float,
+    bias_walk: float | None,
     bias_rate_walk: float | None = None,
+    gyro_bias_walk: float | None = None,
 ):
     """:func:`predict` for the 10-state [x_v; b] with the AHRS heading bias b a random walk of intensity
     ``bias_walk`` (rad/√s): b' = b, Var(b' − b) = σ_b² Δt (the graph's ``heading_bias_walk_factor``).
     With ``bias_rate_walk``, the 11-state [x_v; b; ρ] with the bias's drift rate ρ (rad per
     ``RATE_UNIT_S`` s), b' = b + ρ Δt/τ (the graph's ``heading_bias_drift_factor``).
-    The bias does not enter the motion (the body rate input is the gyro's, not the biased heading's)."""
-    return predict(x, omega_B, dt, accel_sigma, rate_sigma, bias_walk, bias_rate_walk)
+    The heading bias does not enter the motion (the body rate input is the gyro's, not the biased heading's);
+    the gyro's bias does (``gyro_bias_walk``, :func:`predict`)."""
+    return predict(x, omega_B, dt, accel_sigma, rate_sigma, bias_walk, bias_rate_walk, gyro_bias_walk)
 
 
 # ------------------------------------------------------------------------- linear updates
@@ -247,10 +275,23 @@ def biased_attitude_update(x: np.ndarray, e_B: np.ndarray, cov_B: np.ndarray) ->
 
 
 def dvl_update(
-    x: np.ndarray, v_S: np.ndarray, cov_S: np.ndarray, R_BS: np.ndarray, t_BS: np.ndarray, omega_B: np.ndarray
+    x: np.ndarray,
+    v_S: np.ndarray,
+    cov_S: np.ndarray,
+    R_BS: np.ndarray,
+    t_BS: np.ndarray,
+    omega_B: np.ndarray,
+    gyro_bias: bool = False,
 ) -> NavUpdate:
-    """DVL: z = R_BSᵀ (v_B + ω_B × t_BS) in the DVL frame (eqs. 25–29), linear in v_B (ω_B is the input)."""
-    H = np.zeros((3, NX))
+    """DVL: z = R_BSᵀ (v_B + ω_B × t_BS) in the DVL frame (eqs. 25–29), linear in v_B (ω_B is the input).
+    With ``gyro_bias`` x ends with the gyro's bias b_g and ω_B is the gyro's reading: the lever arm turns
+    at ω_B − b_g, ∂z/∂b_g = R_BSᵀ [t_BS]× (H over the whole of x)."""
+    if gyro_bias:
+        H = np.zeros((3, len(x)))
+        H[:, -GYRO_BIAS_SIZE:] = R_BS.T @ skew(t_BS)
+        omega_B = omega_B - x[-GYRO_BIAS_SIZE:]
+    else:
+        H = np.zeros((3, NX))
     H[:, VEL] = R_BS.T
     h = R_BS.T @ (x[VEL] + cross3(omega_B, t_BS))
     return NavUpdate(v_S - h, H, cov_S)

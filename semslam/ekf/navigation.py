@@ -11,6 +11,13 @@ With ``heading_bias_rate_sigma(metadata)`` > 0 as well, an 11th entry ρ, the bi
 rad per ``factors.heading_bias.RATE_UNIT_S`` s (prior σ from the declared drift), carries b on:
 b' = b + ρ Δt/τ, ρ a random walk (the graph's ``heading_bias_drift_factor``). Nothing else sees b: only the map (a heading relative to features seen earlier) makes it observable.
 
+The gyro's bias (stop 43; the shared model ``sensors.gyro_bias_sigma(metadata)`` > 0): three more
+entries b_g, body axes as the rates the prediction takes (ω_B = R_BS ω_S), last in the vehicle block
+(after b and ρ): prior σ ``gyro_bias_sigma``, a random walk of ``gyro_bias_walk``; the prediction
+integrates ω_B − b_g (:func:`~semslam.ekf.models.predict`) and the DVL's lever arm turns at it. A rate
+taken from attitude differences (an AHRS without one) is no gyro's: there b_g is not subtracted (its
+entries only walk). σ 0 = no entries, the filter as before. Dead reckoning runs this filter too.
+
 With b in the state a rotation of vehicle and map about the vertical is unobservable; the textbook
 EKF's Jacobians at the updated estimates observe it spuriously (Huang, Mourikis & Roumeliotis
 2008/2009). With ``ekf.heading_jacobians = "first_estimate"`` (the FEJ-EKF) the prediction's
@@ -33,7 +40,7 @@ from semslam.ekf import geometry as geo
 from semslam.ekf import models as mdl
 from semslam.ekf.filter import EkfState
 from semslam.ekf.gps import FilterGps
-from semslam.ekf.models import ATT, BIAS, NX, POS, VEL
+from semslam.ekf.models import ATT, BIAS, GYRO_BIAS_SIZE, NX, POS, VEL
 from semslam.estimation import Trajectory
 from semslam.mission.measurements import Attitude, Depth, DvlVelocity, GpsFix, GroundTruthPose, Measurement
 from semslam.mission.mission import MissionMetadata
@@ -51,6 +58,7 @@ class FilterNavigation:
         self.cfg = config.ekf
         self.initial = config.initial
         self.motion = config.motion
+        self.rate_density = config.motion.angular_rate_density(metadata)
         self.diagnostics = diagnostics
         self._warned: set[str] = set()
         # AHRS heading bias (the shared sensor model; 0 = not modelled): a 10th vehicle state
@@ -60,13 +68,18 @@ class FilterNavigation:
         rate_sigma = config.sensors.heading_bias_rate_sigma(metadata)
         self.bias_rate_walk = config.sensors.heading_bias_rate_walk(metadata) if rate_sigma > 0 else None
         self.rate_sigma0 = rate_sigma * RATE_UNIT_S
-        self.nv = NX + (self.bias_walk > 0) + (self.bias_rate_walk is not None)
-        self.fej_yaw = self.nv > NX and self.cfg.heading_jacobians == "first_estimate"
+        self.n_heading = (self.bias_walk > 0) + (self.bias_rate_walk is not None)  # heading-bias entries (0–2)
+        # the gyro's bias (body axes, 3 entries after those; the shared model, 0 = not modelled)
+        self.gyro_sigma0 = config.sensors.gyro_bias_sigma(metadata)
+        self.gyro_walk = config.sensors.gyro_bias_walk(metadata) if self.gyro_sigma0 > 0 else None
+        self.nv = NX + self.n_heading + GYRO_BIAS_SIZE * (self.gyro_walk is not None)
+        self.fej_yaw = self.n_heading > 0 and self.cfg.heading_jacobians == "first_estimate"
         self.p_fe = np.zeros(3)  # the propagated (first) estimate of the position at the current time
         self.state: EkfState | None = None
         self.t: int | None = None  # stamp of the state (ns)
         self.omega = np.zeros(3)  # latest body rate (input)
         self._omega_stamp: int | None = None
+        self._omega_gyro = False  # the latest body rate is the gyro's reading (its bias applies), not differences
         self._last_att: tuple[int, np.ndarray] | None = None  # for a rate by differences
         self._last_depth: float | None = None
         self._wait_gt = self.initial.pose == "first_ground_truth" and bool(metadata.sensors_of_kind("ground_truth"))
@@ -99,8 +112,9 @@ class FilterNavigation:
                 pos_sigma**2,
                 [c.attitude_sigma_rad**2] * 3,
                 [c.velocity_sigma_m_s**2] * 3,
-                [self.bias_sigma0**2] * (self.nv > NX),
-                [self.rate_sigma0**2] * (self.nv > NX + 1),
+                [self.bias_sigma0**2] * (self.n_heading > 0),
+                [self.rate_sigma0**2] * (self.n_heading > 1),
+                [self.gyro_sigma0**2] * (GYRO_BIAS_SIZE * (self.gyro_walk is not None)),
             ]
         )
         self.state = EkfState(x0, P0)
@@ -131,16 +145,22 @@ class FilterNavigation:
     def predict_to(self, stamp: int) -> None:
         if stamp <= self.t:
             return
-        omega = self.omega
+        omega, gyro = self.omega, self._omega_gyro
         if self._omega_stamp is None or (stamp - self._omega_stamp) * NS > self.cfg.rate_max_age_s:
-            omega = np.zeros(3)
+            omega, gyro = np.zeros(3), False
         total = (stamp - self.t) * NS
         steps = max(1, int(math.ceil(total / self.cfg.max_prediction_step_s - 1e-9)))
         dt = total / steps
-        sa, sw = self.motion.accel_sigma_m_s2, self.motion.angular_rate_sigma_rad_s
+        sa, sw = self.motion.accel_sigma_m_s2, self.rate_density
+        hb = (self.bias_walk, self.bias_rate_walk) if self.n_heading else (None, None)
         for _ in range(steps):
             if self.nv > NX:
-                xv, F, Q = mdl.predict_biased(self.state.xv, omega, dt, sa, sw, self.bias_walk, self.bias_rate_walk)
+                w = omega
+                if self.gyro_walk is not None and not gyro:  # a rate not the gyro's: its bias does not apply
+                    w = omega + self.state.xv[-GYRO_BIAS_SIZE:]
+                xv, F, Q = mdl.predict_biased(self.state.xv, w, dt, sa, sw, *hb, self.gyro_walk)
+                if self.gyro_walk is not None and not gyro:
+                    F[ATT, -GYRO_BIAS_SIZE:] = 0.0
             else:
                 xv, F, Q = mdl.predict(self.state.xv.copy(), omega, dt, sa, sw)
             if self.fej_yaw:  # ∂p'/∂ψ = e_z × (p' − p) with p the propagated, not the updated, position
@@ -149,6 +169,12 @@ class FilterNavigation:
             self.p_fe = xv[:3].copy()
             self.state.predict_vehicle(xv, F, Q)
         self.t = stamp
+
+    def rate(self) -> np.ndarray:
+        """The body rate the prediction integrates now: the gyro's reading less its estimated bias."""
+        if self.gyro_walk is not None and self._omega_gyro:
+            return self.omega - self.state.xv[-GYRO_BIAS_SIZE:]
+        return self.omega
 
     def x_lin(self) -> np.ndarray:
         """The vehicle state where landmark Jacobians are evaluated: the current one with the position
@@ -183,7 +209,9 @@ class FilterNavigation:
         elif isinstance(m, DvlVelocity):
             if m.valid and np.isfinite(m.velocity).all():
                 R_BS, t_BS = self.extrinsic(m.sensor)
-                self._nav_update(mdl.dvl_update(self.state.xv, m.velocity, m.covariance, R_BS, t_BS, self.omega))
+                gyro = self.gyro_walk is not None and self._omega_gyro
+                u = mdl.dvl_update(self.state.xv, m.velocity, m.covariance, R_BS, t_BS, self.omega, gyro)
+                self._nav_update(u)
         elif isinstance(m, Depth):
             _, t_BS = self.extrinsic(m.sensor)
             self._nav_update(mdl.depth_update(self.state.xv, m.depth, m.variance, t_BS))
@@ -243,14 +271,16 @@ class FilterNavigation:
         if omega is not None:
             self.omega = omega
             self._omega_stamp = m.stamp
+            self._omega_gyro = True
         elif self._last_att is not None and m.stamp > self._last_att[0]:
             # no rate in the message: the body rate from consecutive attitudes
             dt = (m.stamp - self._last_att[0]) * NS
             R_prev = self._last_att[1] @ R_BS.T
             self.omega = geo.so3_log(R_prev.T @ (R_WS @ R_BS.T)) / dt
             self._omega_stamp = m.stamp
+            self._omega_gyro = False
         self._last_att = (m.stamp, R_WS)
-        if self.nv > NX:
+        if self.n_heading:
             self._nav_update(mdl.biased_attitude_update(self.state.xv, e_B, cov_B))
         else:
             self._nav_update(mdl.attitude_update(self.state.xv, e_B, cov_B))
@@ -280,9 +310,7 @@ class FilterNavigation:
             x = self.state.xv[:NX].copy()
             dt = (stamp - self.t) * NS
             if dt > 0:
-                x = mdl.predict(x, self.omega, dt, self.motion.accel_sigma_m_s2, self.motion.angular_rate_sigma_rad_s)[
-                    0
-                ]
+                x = mdl.predict(x, self.rate(), dt, self.motion.accel_sigma_m_s2, self.rate_density)[0]
         else:
             ts = np.asarray(self._traj["t"])
             k = int(np.clip(np.searchsorted(ts, stamp), 0, len(ts) - 1))
@@ -310,11 +338,15 @@ class FilterNavigation:
             velocity_cov=P[:, VEL, VEL].copy(),
         )
         history = {"vehicle_cov": (np.array(self._history[0], np.int64), np.array(self._history[1]))}
-        if self.nv > NX:  # the AHRS heading bias estimate and its σ (rad) over time
+        if self.n_heading:  # the AHRS heading bias estimate and its σ (rad) over time
             history["heading_bias"] = (traj.stamps, X[:, BIAS].copy(), np.sqrt(P[:, BIAS, BIAS]))
-        if self.nv > NX + 1:  # and its drift rate (rad/s) and σ
+        if self.n_heading > 1:  # and its drift rate (rad/s) and σ
             r = BIAS + 1
             history["heading_bias_rate"] = (traj.stamps, X[:, r] / RATE_UNIT_S, np.sqrt(P[:, r, r]) / RATE_UNIT_S)
+        if self.gyro_walk is not None:  # the gyro's bias (rad/s, body axes) and its σ, (K, 3) each
+            g = slice(self.nv - GYRO_BIAS_SIZE, self.nv)
+            sg = np.sqrt(np.diagonal(P[:, g, g], axis1=1, axis2=2))
+            history["gyro_bias"] = (traj.stamps, X[:, g].copy(), sg)
         return traj, history
 
 

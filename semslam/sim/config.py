@@ -167,6 +167,12 @@ class AhrsConfig(_Section):
         2.0, ge=0, description="the heading bias drifts linearly by this much over the mission (sign from the seed)"
     )
     angular_rate_sigma_rad_s: float = Field(0.002, gt=0, description="white noise of the angular rate (rad/s)")
+    gyro_bias_sigma_rad_s: float = Field(
+        5e-5,
+        ge=0,
+        description="the angular rate's constant bias, drawn per axis from N(0, σ²) for each mission (rad/s; "
+        "5e-5 ≈ 10°/h, a good MEMS gyro after its own calibration)",
+    )
     mount: Mount = Field(default_factory=Mount, description="at the body origin, axes as {B}")
 
 

@@ -188,6 +188,7 @@ def simulate_dive(config: DiveSimConfig | None = None, *, progress: bool = False
         },
         "dvl_dropouts": dvl_dropout_extras(nav.dvl),
         "heading_bias_final_rad": float(nav.heading_bias[-1]) if len(nav.heading_bias) else 0.0,
+        "gyro_bias_rad_s": [float(b) for b in nav.gyro_bias],
     }
     meta = MissionMetadata(
         name=cfg.mission_name,

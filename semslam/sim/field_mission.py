@@ -118,6 +118,7 @@ def simulate_field(config: FieldSimConfig | None = None, *, progress: bool = Fal
         },
         "dvl_dropouts": dvl_dropout_extras(nav.dvl),
         "heading_bias_final_rad": float(nav.heading_bias[-1]) if len(nav.heading_bias) else 0.0,
+        "gyro_bias_rad_s": [float(b) for b in nav.gyro_bias],
     }
     meta = MissionMetadata(
         name=cfg.mission_name, sensors=sensor_infos(SENSORS, mounts), ground_truth=ground_truth, extras=extras

@@ -205,10 +205,11 @@ def simulate_ahrs(
     t: np.ndarray,
     rng: np.random.Generator,
     bias: np.ndarray,
+    gyro_bias: np.ndarray,
     sensor: str = "ahrs",
 ) -> list[Attitude]:
     """R_WS with roll/pitch/yaw noise (σ in the covariance) and the heading bias added to the yaw;
-    angular rate ω_S = R_BSᵀ ω_B + noise."""
+    angular rate ω_S = R_BSᵀ ω_B + ``gyro_bias`` (sensor axes, constant) + noise."""
     T_BS = cfg.mount.matrix()
     R_BS = T_BS[:3, :3]
     R_WS = traj.rotation(t) * Rotation.from_matrix(R_BS)
@@ -218,7 +219,7 @@ def simulate_ahrs(
     ypr = ypr + n
     ypr[:, 0] += bias
     q = Rotation.from_euler("ZYX", ypr).as_quat()
-    w_S = traj.angular_rate(t) @ R_BS + rng.normal(0.0, cfg.angular_rate_sigma_rad_s, size=(len(t), 3))
+    w_S = traj.angular_rate(t) @ R_BS + gyro_bias + rng.normal(0.0, cfg.angular_rate_sigma_rad_s, size=(len(t), 3))
     cov = np.diag([s_rp**2, s_rp**2, s_h**2])
     return [
         Attitude(stamp=int(stamps[i]), sensor=sensor, orientation=q[i], covariance=cov, angular_rate=w_S[i])

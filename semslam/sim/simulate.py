@@ -55,6 +55,8 @@ def nav_noise(dvl: DvlConfig, ahrs: AhrsConfig, depth: DepthConfig, duration_s: 
             # The bias starts at 0: the AHRS's heading at the start defines the world's yaw.
             "heading_bias_initial_sigma_rad": 0.0,
             "angular_rate_sigma_rad_s": ahrs.angular_rate_sigma_rad_s,
+            "gyro_bias_sigma_rad_s": ahrs.gyro_bias_sigma_rad_s,
+            "gyro_bias_walk_rad_s_per_sqrt_s": 0.0,  # constant over the mission
             "rate_hz": ahrs.rate_hz,
         },
         "depth": {"sigma_m": depth.sigma_m, "rate_hz": depth.rate_hz},
@@ -79,6 +81,7 @@ class NavStreams:
     depth: list[Depth]
     ground_truth: list[GroundTruthPose]
     heading_bias: np.ndarray  # rad, at the AHRS samples
+    gyro_bias: np.ndarray  # rad/s, the AHRS's sensor axes (constant)
 
     def measurements(self) -> list:
         return [*self.dvl.measurements, *self.ahrs, *self.depth, *self.ground_truth]
@@ -100,12 +103,14 @@ def simulate_nav(
     dvl = S.simulate_dvl(cfg.dvl, traj, scene, st, t, _rng(seed, "dvl_noise"), _rng(seed, "dvl_dropout"), **dvl_options)
     st, t = S.sample_times(start_ns, cfg.ahrs.rate_hz, T, offset_s=cfg.ahrs.time_offset_s)
     bias = S.heading_bias(cfg.ahrs, t, T, _rng(seed, "heading_bias"))
-    ahrs = S.simulate_ahrs(cfg.ahrs, traj, st, t, _rng(seed, "ahrs"), bias)
+    # its own stream: every other stream (and so every mission without a gyro bias) stays as it was
+    gyro_bias = _rng(seed, "gyro_bias").normal(0.0, cfg.ahrs.gyro_bias_sigma_rad_s, 3)
+    ahrs = S.simulate_ahrs(cfg.ahrs, traj, st, t, _rng(seed, "ahrs"), bias, gyro_bias)
     st, t = S.sample_times(start_ns, cfg.depth.rate_hz, T, offset_s=cfg.depth.time_offset_s)
     depth = S.simulate_depth(cfg.depth, traj, st, t, _rng(seed, "depth"))
     st, t = S.sample_times(start_ns, cfg.ground_truth.rate_hz, T)
     gt = S.ground_truth_poses(traj, st, t)
-    return NavStreams(dvl, ahrs, depth, gt, bias)
+    return NavStreams(dvl, ahrs, depth, gt, bias, gyro_bias)
 
 
 def sensor_infos(table: dict[str, tuple[str, str, str]], mounts: dict[str, np.ndarray]) -> dict[str, SensorInfo]:
@@ -167,6 +172,7 @@ def simulate_tank(config: TankSimConfig | None = None, *, progress: bool = False
         "trajectory": {"center": center.tolist(), "duration_s": T, "loops": cfg.trajectory.loops},
         "dvl_dropouts": dvl_dropout_extras(nav.dvl),
         "heading_bias_final_rad": float(nav.heading_bias[-1]) if len(nav.heading_bias) else 0.0,
+        "gyro_bias_rad_s": [float(b) for b in nav.gyro_bias],
     }
     meta = MissionMetadata(name=cfg.mission_name, sensors=sensors, ground_truth=ground_truth, extras=extras)
     return Mission.from_measurements(meta, [*nav.measurements(), *laser.measurements])

@@ -19,6 +19,7 @@ STREAMS: dict[str, int] = {
     "seabed": 8,
     "field_layout": 9,
     "gps": 10,
+    "gyro_bias": 11,
     # the world's parameters a seed draws (semslam.sim.vary), one stream per aspect
     "vary_layout": 20,
     "vary_trajectory": 21,

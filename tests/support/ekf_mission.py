@@ -7,7 +7,9 @@ The truth follows the filter's own motion model (body velocity = nominal + rando
 integral has density ``rate_sigma``, so that a consistent filter must show NEES ≈ its dimension.
 With ``heading_bias_walk`` > 0 the AHRS heading carries a bias drawn from the filter's model too
 (b₀ ~ N(0, ``heading_bias_sigma0``²), then a random walk of that intensity), declared in the
-metadata as the tank simulator declares its drift (``extras["noise"]["ahrs"]``).
+metadata as the tank simulator declares its drift (``extras["noise"]["ahrs"]``). The gyro's bias is
+declared as the simulators declare theirs (σ ``gyro_bias_sigma``, constant): with the default 0 the rates
+are unbiased and declared so (no gyro-bias state); > 0 draws one constant bias per axis of the AHRS.
 """
 
 from __future__ import annotations
@@ -38,7 +40,8 @@ class SyntheticMission:
     observations: dict[int, list[Observation]]  # stamp → observations of that scan
     truth_stamps: np.ndarray  # (K,) ns
     truth_states: np.ndarray  # (K, 9) [x y z φ θ ψ u v w] at truth_stamps
-    extras: dict = field(default_factory=dict)  # "heading_bias": (K,) the AHRS heading bias at truth_stamps
+    extras: dict = field(default_factory=dict)  # "heading_bias": (K,) the AHRS heading bias at truth_stamps;
+    # "gyro_bias_S", "gyro_bias_B": the gyro's constant bias (rad/s) in the AHRS's axes and in {B}
 
     def stream(self):
         """(measurement, observations or None) in stamp order, as the pipeline would feed them."""
@@ -81,6 +84,7 @@ def simulate_circling(
     track_gain: float = 0.1,
     heading_bias_walk: float = 0.0,
     heading_bias_sigma0: float = 0.0175,
+    gyro_bias_sigma: float = 0.0,
 ) -> SyntheticMission:
     """Circle of ``radius_m`` at ``depth_m`` starting at the origin heading north; AHRS 20 Hz, DVL 5 Hz,
     depth 8 Hz, ground truth 10 Hz, scans every ``scan_period_s``; DVL invalid during ``dropouts``
@@ -146,14 +150,16 @@ def simulate_circling(
         steps = brng.normal(scale=heading_bias_walk * np.sqrt(dt_sim), size=n)
         steps[0] = brng.normal(scale=heading_bias_sigma0)
         bias = np.cumsum(steps)
+    # the gyro's constant bias in the AHRS's axes (its own generator too)
+    gyro_bias = np.random.default_rng([seed, 11]).normal(scale=gyro_bias_sigma, size=3)
     # AHRS: orientation of {S} with Euler noise (and the bias on the heading: Rz(b) R_WS), body rate
-    # in {S} with noise of density rate_sigma
+    # in {S} with noise of density rate_sigma, plus the gyro's bias
     dt_ahrs = 0.05
     for i in every(dt_ahrs):
         R_WS = geo.rot(*eul[i]) @ T_ahrs[:3, :3]
         e_S = geo.euler(R_WS) + rng.normal(scale=att_sigma, size=3)
         e_S[2] += bias[i]
-        rate = T_ahrs[:3, :3].T @ (w_true[i] + rng.normal(scale=rate_sigma / np.sqrt(dt_ahrs), size=3))
+        rate = T_ahrs[:3, :3].T @ (w_true[i] + rng.normal(scale=rate_sigma / np.sqrt(dt_ahrs), size=3)) + gyro_bias
         q = Rotation.from_euler("ZYX", e_S[::-1]).as_quat()
         meas.append(Attitude(ns(i), "ahrs", orientation=q, covariance=np.eye(3) * att_sigma**2, angular_rate=rate))
     for i in every(0.2):
@@ -252,15 +258,15 @@ def simulate_circling(
         seen_objects=tuple(sorted(seen_o)),
         seen_pipes=tuple(sorted(seen_p)),
     )
-    extras = {}
+    # the gyro's bias declared as the simulators declare it (0: unbiased rates, no bias state)
+    ahrs_noise = {"gyro_bias_sigma_rad_s": gyro_bias_sigma, "gyro_bias_walk_rad_s_per_sqrt_s": 0.0}
     if heading_bias_walk > 0:  # declared as the tank simulator does: a drift over the mission
-        extras["noise"] = {
-            "ahrs": {
-                "heading_bias_drift_rad": heading_bias_walk * np.sqrt(duration_s),
-                "heading_bias_drift_over_s": duration_s,
-                "heading_bias_initial_sigma_rad": heading_bias_sigma0,
-            }
+        ahrs_noise |= {
+            "heading_bias_drift_rad": heading_bias_walk * np.sqrt(duration_s),
+            "heading_bias_drift_over_s": duration_s,
+            "heading_bias_initial_sigma_rad": heading_bias_sigma0,
         }
+    extras = {"noise": {"ahrs": ahrs_noise}}
     meta = MissionMetadata("synthetic-circling", sensors, ground_truth=gt_map, extras=extras)
     truth = np.column_stack([pos, eul, v_true])
     idx = every(0.05)
@@ -270,7 +276,7 @@ def simulate_circling(
         obs,
         np.array([ns(i) for i in range(n)], np.int64)[idx],
         truth[idx],
-        extras={"heading_bias": bias[idx]},
+        extras={"heading_bias": bias[idx], "gyro_bias_S": gyro_bias, "gyro_bias_B": T_ahrs[:3, :3] @ gyro_bias},
     )
 
 
