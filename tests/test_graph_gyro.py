@@ -106,6 +106,32 @@ def test_the_rates_integrate_to_the_rotation_between_keyframes():
     np.testing.assert_allclose(R_ij, so3_exp(w * 1.0), atol=1e-12)
 
 
+def test_no_gyro_link_from_attitudes_differenced():
+    """An AHRS without rates (a ROS Imu whose angular_velocity_covariance[0] is -1): the attitudes differenced
+    are no gyro, so no rotation between keyframes is made of them; one such reading in an interval is enough."""
+    nav = NavigationBuffer(metadata(), 0.02, 0.01)
+    acov = np.eye(3) * 1e-4
+
+    def reading(k, rate):
+        q = Rotation.from_rotvec([0, 0, 0.2 * k / 20]).as_quat()
+        return Attitude(k * S // 20, "ahrs", orientation=q, covariance=acov, angular_rate=rate)
+
+    nav.add(reading(0, None))
+    nav.start_interval(0.0, np.eye(3), 0.01)
+    for k in range(1, 20):
+        nav.add(reading(k, None))
+    assert nav.gyro_rotation(1.0) is None
+    nav.start_interval(1.0, np.eye(3), 0.01)
+    for k in range(20, 40):  # measured rates but one reading without
+        nav.add(reading(k, None if k == 30 else np.array([0, 0, 0.2])))
+    assert nav.gyro_rotation(2.0) is None
+    nav.start_interval(2.0, np.eye(3), 0.01)
+    for k in range(40, 60):
+        nav.add(reading(k, np.array([0, 0, 0.2])))
+    R_ij, h, _ = nav.gyro_rotation(3.0)
+    np.testing.assert_allclose(R_ij, so3_exp(np.array([0, 0, 0.2]) * h), atol=1e-9)
+
+
 def test_the_rate_density_is_the_missions_declared_one_unless_configured():
     md = metadata()
     assert SemslamConfig().motion.angular_rate_density(md) == pytest.approx(RATE_SIGMA / np.sqrt(20.0))

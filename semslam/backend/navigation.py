@@ -20,6 +20,7 @@ class AttitudeSample:
     R_WB: np.ndarray
     cov: np.ndarray  # right-tangent covariance of R_WB (3×3)
     omega_B: np.ndarray | None  # body angular rate (rad/s), when known
+    from_gyro: bool = True  # omega_B is the AHRS's measured rate (False: attitudes differenced, or none)
 
     def carried_to(self, t: float, rate_sigma: float) -> tuple[np.ndarray, np.ndarray]:
         """R_WB at t, rotated on by the angular rate over the age; the covariance grows with the
@@ -85,6 +86,7 @@ class NavigationBuffer:
         self.preint: DvlPreintegrator | None = None
         # (interval start, integrated to, R_{k-1}ᵀ R, its Jacobian wrt the gyro bias: ΔR(b̄ + δ) ≈ ΔR Exp(J δ))
         self.gyro: tuple[float, float, np.ndarray, np.ndarray] | None = None
+        self.gyro_measured = True  # every AHRS reading of the interval so far carried a measured rate
         self.gyro_bias = np.zeros(3)  # b̄: the gyro bias the interval's rates are integrated with (body axes)
 
     def _T_BS(self, sensor: str) -> np.ndarray:
@@ -99,10 +101,13 @@ class NavigationBuffer:
             omega = None if m.angular_rate is None else R_BS @ np.asarray(m.angular_rate)
             if self.gyro is not None and omega is not None:
                 self.gyro = self._gyro_to(t)
+            from_gyro = omega is not None
+            if not from_gyro:
+                self.gyro_measured = False  # this interval's rotation is no gyro's: no gyro link for it
             if omega is None and self.attitude is not None and t > self.attitude.t:
                 # Finite difference of consecutive attitudes when the AHRS gives no rate.
                 omega = so3_log(self.attitude.R_WB.T @ R_WB) / (t - self.attitude.t)
-            self.attitude = AttitudeSample(t, R_WB, cov, omega)
+            self.attitude = AttitudeSample(t, R_WB, cov, omega, from_gyro)
             if self.fused is None:
                 self.fused = FusedAttitude(t, R_WB, cov, omega)
             else:
@@ -156,8 +161,11 @@ class NavigationBuffer:
 
     def gyro_rotation(self, t: float) -> tuple[np.ndarray, float, np.ndarray] | None:
         """The body rates less the bias b̄ (:attr:`gyro_bias`) integrated since the interval's start to t:
-        (R_{k-1}ᵀ R(t), the interval's length, ∂ΔR/∂b: ΔR(b̄ + δ) ≈ ΔR Exp(J δ))."""
-        if self.gyro is None or self.attitude is None or self.attitude.omega_B is None:
+        (R_{k-1}ᵀ R(t), the interval's length, ∂ΔR/∂b: ΔR(b̄ + δ) ≈ ΔR Exp(J δ)). None unless every rate over the
+        interval was measured by the gyro: rates differenced from the AHRS's attitudes would count its readings
+        twice (they already enter as attitude factors) and fit the gyro's bias to what is no gyro's."""
+        a = self.attitude
+        if self.gyro is None or a is None or a.omega_B is None or not (a.from_gyro and self.gyro_measured):
             return None
         t0, _, dR, J = self._gyro_to(t)
         return dR, t - t0, J
@@ -166,6 +174,7 @@ class NavigationBuffer:
         """The next interval from a keyframe at t; ``gyro_bias``: the keyframe's gyro-bias estimate, which
         the interval's rates are integrated with (None: 0)."""
         self.gyro = (t, t, np.eye(3), np.zeros((3, 3)))
+        self.gyro_measured = True
         self.gyro_bias = np.zeros(3) if gyro_bias is None else np.asarray(gyro_bias, float)
         self.preint = DvlPreintegrator(t, R_WB, self.accel_sigma, attitude_sigma)
         self.depths = [d for d in self.depths if d[0] > t]
