@@ -207,7 +207,9 @@ def test_short_dive_gps_after_the_dive_enters_and_holds(seed):
         sigma[name] = np.sqrt(np.trace(P, axis1=1, axis2=2))
         nees = float(np.mean(np.einsum("ni,ni->n", e, np.linalg.solve(P, e[..., None])[..., 0])))
         assert nees < chi2.ppf(0.99, 2), (name, nees)
-    assert np.all(sigma["ekf"] < 0.97 * sigma["dr"]), sigma["ekf"] / sigma["dr"]
+    # both used the fix (the review, stop 43: the graph was only bounded by its NEES); measured 0.91 both
+    for name in ("ekf", "graph"):
+        assert np.all(sigma[name] < 0.97 * sigma["dr"]), (name, sigma[name] / sigma["dr"])
 
 
 def test_compare_hold_out_on_a_bag_and_no_reference_at_all(tmp_path):
