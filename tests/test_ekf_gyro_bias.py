@@ -1,6 +1,6 @@
 """The gyro's bias as EKF state (issue 21, stop 43): three entries at the end of the vehicle block (body
 axes), prior σ ``sensors.gyro_bias_sigma``, random walk ``sensors.gyro_bias_walk``; the prediction
-integrates ω − b_g. σ 0 leaves today's filter. The Jacobians are in tests/test_ekf_jacobians.py."""
+integrates ω − b_g. σ 0: no bias state (the rates still integrated at the shared density, unlike before stop 43). The Jacobians are in tests/test_ekf_jacobians.py."""
 
 from __future__ import annotations
 
@@ -26,7 +26,7 @@ def _truth(sim) -> Trajectory:
     )
 
 
-def test_no_gyro_bias_declared_zero_is_todays_filter():
+def test_no_gyro_bias_declared_zero_means_no_bias_state():
     """σ 0 (declared by the mission, or configured): no state, the vehicle block as before (9, 10 or 11)."""
     sim = simulate_circling(seed=0, duration_s=2.0, with_features=False)
     assert sim.metadata.extras["noise"]["ahrs"]["gyro_bias_sigma_rad_s"] == 0.0

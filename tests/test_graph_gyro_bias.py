@@ -117,7 +117,7 @@ def test_the_graph_learns_a_drawn_gyro_bias(seed):
     z = (g - truth) / sd
     assert np.all(np.abs(z) < 3.0), (g, truth, sd)
     assert abs(truth[2]) > 5 * sd[2]  # taking the rates as unbiased (G = 0) is clearly off
-    # without the state: no G, today's factor, and the heading off (the bias integrated between keyframes)
+    # without the state: no G, the gyro link without its bias, and the heading off (the bias integrated between keyframes)
     est0, traj0 = _run(mission, 0.0)
     assert not est0.keyframes.has_gyro_bias
     assert not any(gtsam.Symbol(k).chr() == ord("g") for k in est0.session.window_keys())
