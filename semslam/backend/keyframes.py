@@ -231,21 +231,17 @@ class Keyframes:
         values = gtsam.Values()
         values.insert(X(0), pose0)
         values.insert(V(0), v0)
-        if self.bias_walk > 0:
-            factors.append(
-                gtsam.PriorFactorVector(B(0), np.zeros(1), gtsam.noiseModel.Isotropic.Sigma(1, self.bias_sigma0))
-            )
-            values.insert(B(0), np.zeros(1))
-        if self.has_rate:
-            factors.append(
-                gtsam.PriorFactorVector(D(0), np.zeros(1), gtsam.noiseModel.Isotropic.Sigma(1, self.rate_sigma0))
-            )
-            values.insert(D(0), np.zeros(1))
-        if self.has_gyro_bias:
-            factors.append(
-                gtsam.PriorFactorVector(G(0), np.zeros(3), gtsam.noiseModel.Isotropic.Sigma(3, self.gyro_sigma0))
-            )
-            values.insert(G(0), np.zeros(3))
+        # the sensor biases start at zero, each with its prior σ (when modelled)
+        for modelled, key, dim, sigma in (
+            (self.bias_walk > 0, B(0), 1, self.bias_sigma0),
+            (self.has_rate, D(0), 1, self.rate_sigma0),
+            (self.has_gyro_bias, G(0), 3, self.gyro_sigma0),
+        ):
+            if modelled:
+                factors.append(
+                    gtsam.PriorFactorVector(key, np.zeros(dim), gtsam.noiseModel.Isotropic.Sigma(dim, sigma))
+                )
+                values.insert(key, np.zeros(dim))
         self._commit(stamp, [(f, None) for f in factors], values)
 
     def next(self, stamp: int) -> int:
@@ -273,26 +269,19 @@ class Keyframes:
             factors.append(velocity_random_walk_factor(V(k - 1), V(k), d.dt, self.accel_sigma))
             dt, delta = d.dt, d.c + d.A @ self.vel + d.B @ v_init
         gyro = self.nav.gyro_rotation(t)
-        b_bar = self.nav.gyro_bias * GYRO_BIAS_UNIT_S  # what the rates were integrated with (G's estimate then)
         if not has_attitude:
             # No AHRS reading since X(k-1) (keyframes 10–50 ms apart) or a stale one: nothing else fixes
             # X(k)'s rotation unless a landmark does, and iSAM2 fails on the indeterminate system.
             rot_sigma = self.nav.rate_sigma * dt
             if self.has_gyro_bias and gyro is not None:  # the last rate carried, less the bias G(k-1)
-                R_ij, _, J_b = gyro
-                factors.append(gyro_rotation_factor(X(k - 1), X(k), G(k - 1), R_ij, J_b, b_bar, rot_sigma))
+                factors.append(self._gyro_link(k, gyro, delta, rot_sigma))
             else:
                 R_prev, _ = self.nav.attitude_at(self.stamps[-1] * 1e-9)
                 factors.append(rotation_carry_factor(X(k - 1), X(k), R_prev.T @ R, delta, rot_sigma))
         elif gyro is not None:
             # The body rates integrated over the interval link the two attitudes, as the EKF's prediction does
             # between its AHRS updates: without it every keyframe's attitude stood on its own readings alone.
-            R_ij, h, J_b = gyro
-            rot_sigma = self.nav.rate_sigma * np.sqrt(h)
-            if self.has_gyro_bias:  # integrated with G(k-1)'s estimate b̄, corrected to first order
-                factors.append(gyro_rotation_factor(X(k - 1), X(k), G(k - 1), R_ij, J_b, b_bar, rot_sigma))
-            else:
-                factors.append(rotation_carry_factor(X(k - 1), X(k), R_ij, delta, rot_sigma))
+            factors.append(self._gyro_link(k, gyro, delta, self.nav.rate_sigma * np.sqrt(gyro[1])))
         p_init = self.pose.translation() + self.pose.rotation().matrix() @ delta
         values = gtsam.Values()
         values.insert(X(k), gtsam.Pose3(gtsam.Rot3(self.unbiased(R)), p_init))
@@ -322,6 +311,16 @@ class Keyframes:
         self.session.defer([(f, None) for f in factors], values, self.anchor())
         self._started(stamp)
         return k
+
+    def _gyro_link(self, k: int, gyro: tuple, delta: np.ndarray, rot_sigma: float) -> gtsam.NonlinearFactor:
+        """X(k−1) to X(k) by the rates integrated over the interval (``gyro``: ΔR, its length, ∂ΔR/∂b); with
+        the gyro's bias modelled, through G(k−1), the rates integrated at its estimate then b̄ and corrected
+        to first order."""
+        R_ij, _, J_b = gyro
+        if not self.has_gyro_bias:
+            return rotation_carry_factor(X(k - 1), X(k), R_ij, delta, rot_sigma)
+        b_bar = self.nav.gyro_bias * GYRO_BIAS_UNIT_S  # what the rates were integrated with (G's estimate then)
+        return gyro_rotation_factor(X(k - 1), X(k), G(k - 1), R_ij, J_b, b_bar, rot_sigma)
 
     def _keys(self, k: int) -> list[int]:
         keys = [X(k), V(k)]
