@@ -10,15 +10,17 @@ the odometry's NEES over the mission.
     python experiments/odometry_outage.py --scenario pipeline --seeds 1 --start 40 --outage 60 [--cache DIR]
     python experiments/odometry_outage.py --seeds 0 --starts 20,110,200,300,390 --shared  # placements of the outage
 
-``--shared``: one pipeline feeds two graphs, one with the odometry's factors and one without them (the laser
-graph gets the very same landmark observations: a paired comparison, and the laser front-end runs once), and
-the odometry's NEES is taken on the observations of that run (no second pass of the front-end).
+``--shared``: one pipeline feeds three graphs, one with the odometry's factors, one without them (the laser
+graph gets the very same landmark observations: a paired comparison, and the laser front-end runs once) and one
+with them as ``factor_rotation: free`` emits them (the translation alone), and the odometry's NEES (6-DoF, and
+the translation's 3-DoF) is taken on the observations of that run (no second pass of the front-end).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -26,6 +28,7 @@ from odometry_eval import TruthInterpolator, evaluate, pose_error, scenario_conf
 from scipy.stats import chi2
 
 from frontends.odometry.config import STEREO_SEABED
+from frontends.odometry.information import translation_only
 from semslam.config import SemslamConfig
 from semslam.demo import demo_config
 from semslam.estimators import create_estimator
@@ -72,34 +75,55 @@ def run(mission: Mission, frontends: list[str], gaussian: bool = False, odometry
     return run_pipeline(mission, ests, fes)
 
 
+def _fed(estimator, name: str, change):
+    """``estimator`` renamed ``name``, given each stamp's observations through ``change``."""
+    estimator.name = name
+    feed = estimator.process_observations
+    estimator.process_observations = lambda stamp, obs: feed(stamp, change(obs))
+    return estimator
+
+
+def _free_rotation(obs: list) -> list:
+    """The odometry's observations as ``factor_rotation: free`` emits them (the translation alone)."""
+    return [
+        replace(z, covariance=translation_only(z.covariance)) if isinstance(z, OdometryObservation) else z for z in obs
+    ]
+
+
 def run_shared(mission: Mission, odometry: dict | None = None):
-    """One pipeline (laser and odometry front-ends) into two graphs: "laser+odometry" and "laser", the latter
-    given every observation but the odometry's (what a laser-only run gives it). The tank's demo configuration,
-    with ``odometry`` as the odometry's section if given."""
+    """One pipeline (laser and odometry front-ends) into three graphs: "laser+odometry", "laser", the latter
+    given every observation but the odometry's (what a laser-only run gives it), and "free": the odometry's
+    observations with their rotation freed (``factor_rotation: free``: the translation alone). The tank's demo
+    configuration, with ``odometry`` as the odometry's section if given."""
     demo = demo_config()
     cfg = demo if odometry is None else SemslamConfig(frontends={**demo.frontends, "odometry": odometry})
     with_odo = create_estimator("graph", mission.metadata, cfg)
-    without = create_estimator("graph", mission.metadata, cfg)
-    without.name = "laser"
-    feed = without.process_observations
-    without.process_observations = lambda stamp, obs: feed(
-        stamp, [z for z in obs if not isinstance(z, OdometryObservation)]
+    without = _fed(
+        create_estimator("graph", mission.metadata, cfg),
+        "laser",
+        lambda obs: [z for z in obs if not isinstance(z, OdometryObservation)],
     )
+    free = _fed(create_estimator("graph", mission.metadata, cfg), "free", _free_rotation)
     fes = create_frontends(["laser", "odometry"], mission.metadata, cfg.frontends)
-    return run_pipeline(mission, [with_odo, without], fes)
+    return run_pipeline(mission, [with_odo, without, free], fes)
 
 
 def nees_of(mission: Mission, observations: list, lo: int, hi: int) -> dict:
     """The odometry observations' 6-DoF NEES against the truth: mean over the mission (its 95 % band),
     inside [lo, hi] and outside."""
     truth = TruthInterpolator([m for m in mission if isinstance(m, GroundTruthPose)])
-    nees, inside = [], []
+    nees, nees_t, inside = [], [], []
     for z in observations:
         xi = pose_error(np.linalg.inv(truth(z.stamp_from)) @ truth(z.stamp), z.relative_pose)
         nees.append(float(xi @ np.linalg.solve(z.covariance, xi)))
+        nees_t.append(float(xi[3:] @ np.linalg.solve(z.covariance[3:, 3:], xi[3:])))
         inside.append(lo <= z.stamp <= hi)
-    nees, inside, n = np.array(nees), np.array(inside), len(nees)
+    nees, nees_t, inside, n = np.array(nees), np.array(nees_t), np.array(inside), len(nees)
     return {
+        # the translation's 3-DoF NEES (its marginal: what a factor with the rotation freed carries), its band
+        "nees_translation_mean": float(nees_t.mean()) if n else None,
+        "nees_translation_band_95": [chi2.ppf(0.025, 3 * n) / n, chi2.ppf(0.975, 3 * n) / n] if n else None,
+        "nees_translation_in_window": float(nees_t[inside].mean()) if inside.any() else None,
         "accepted": n,
         "accepted_in_window": int(inside.sum()),
         "nees_mean": float(nees.mean()) if n else None,
@@ -157,14 +181,13 @@ def main() -> None:
         row = {"start_s": args.start}
         if args.shared:
             result = run_shared(mission, json.loads(args.odometry) if args.odometry else odometry)
-            for name, key in (("laser", "laser"), ("laser+odometry", "graph")):
+            for name, key in (("laser", "laser"), ("laser+odometry", "graph"), ("laser+odometry/free", "free")):
                 row[name] = errors(result.results[key], result.truth, lo, hi, args.delta)
             row["laser+odometry"]["odometry"] = result.frontend_summaries["odometry"].metrics
             odo = [r.observation for r in result.observations if isinstance(r.observation, OdometryObservation)]
             row["odometry_nees"] = nees_of(mission, odo, lo, hi)
-            row["rpe_ratio laser+odometry / laser"] = (
-                row["laser+odometry"]["rpe_outage_rmse_m"] / row["laser"]["rpe_outage_rmse_m"]
-            )
+            for name in ("laser+odometry", "laser+odometry/free"):
+                row[f"rpe_ratio {name} / laser"] = row[name]["rpe_outage_rmse_m"] / row["laser"]["rpe_outage_rmse_m"]
             print(f"seed {seed}: {json.dumps(row)}", flush=True)
             continue
         if not args.no_nees and any("odometry" in name for name in args.variants.split(";")):

@@ -8,6 +8,7 @@ import numpy as np
 
 from frontends.odometry import OdometryFrontend
 from frontends.odometry.config import OdometryConfig
+from frontends.odometry.information import FREE_ROTATION_SIGMA_RAD, translation_only
 from frontends.odometry.matcher import ScanMatcher, _MapPlanes
 
 S = 1_000_000_000  # ns per s
@@ -90,3 +91,14 @@ def test_the_held_covariance_is_its_parts_and_the_tail_leaves_the_rotation_alone
     scaled = frontend._tail_scaled(reg, np.eye(6), 0, 2 * S)
     assert np.array_equal(scaled[:3, :], reg.covariance[:3, :])  # the rotation and the cross terms: unchanged
     assert np.allclose(scaled[3:, 3:] - reg.covariance[3:, 3:], 4.0 * measured, rtol=1e-9, atol=1e-15)
+
+
+def test_translation_only_keeps_the_translations_marginal_and_frees_the_rotation():
+    rng = np.random.default_rng(0)
+    a = rng.normal(size=(6, 6))
+    cov = a @ a.T
+    out = translation_only(cov)
+    np.testing.assert_array_equal(out[3:, 3:], cov[3:, 3:])
+    np.testing.assert_array_equal(out[:3, 3:], 0.0)
+    np.testing.assert_array_equal(out[3:, :3], 0.0)
+    np.testing.assert_array_equal(out[:3, :3], np.eye(3) * FREE_ROTATION_SIGMA_RAD**2)

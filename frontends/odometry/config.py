@@ -39,6 +39,13 @@ class KissIcpSettings(BaseModel):
     fixed_threshold_m: float | None = Field(
         None, gt=0, description="a fixed correspondence σ (m) instead of kiss-icp's adaptive one (ICP uses 3σ)"
     )
+    threshold_window: int | None = Field(
+        None,
+        ge=1,
+        description="kiss-icp's adaptive correspondence σ over the last this many accepted registrations only "
+        "(kiss-icp's own model error per registration; null: kiss-icp's, the RMS over every registration since the "
+        "map started, which never forgets a descent's or an outage's large corrections)",
+    )
     max_iterations: int = Field(30, ge=1, description="ICP iterations per registration")
     convergence: float = Field(
         1e-4,
@@ -197,6 +204,13 @@ class OdometryConfig(BaseModel):
     )
     dropout_after_s: float = Field(
         1.0, gt=0, description="a DVL reading this old (s) is a dropout for dropout_motion (readings come at 5 Hz)"
+    )
+    factor_rotation: Literal["prior", "free"] = Field(
+        "prior",
+        description="the rotation block of the emitted covariance: 'prior' (the registration's: with the attitude "
+        "held, the AHRS's rates integrated between the scans) or 'free' (σ 1 rad, information.FREE_ROTATION_SIGMA_RAD, no cross terms: "
+        "the relative pose constrains the translation alone, with its marginal covariance; since stop 43 the graph "
+        "links keyframes with the same integrated rates, so the held rotation would be counted twice)",
     )
     restart_after: int = Field(
         3, ge=1, description="this many rejected scans in a row start a new local map at the next usable scan"

@@ -9,7 +9,7 @@ from typing import ClassVar
 import numpy as np
 
 from frontends.odometry.config import OdometryConfig
-from frontends.odometry.information import adjoint, mahalanobis2, tangent
+from frontends.odometry.information import adjoint, mahalanobis2, tangent, translation_only
 from frontends.odometry.matcher import ScanMatcher
 from frontends.odometry.prior import NavigationPrior
 from semslam.errors import validated
@@ -93,6 +93,8 @@ class OdometryFrontend(Frontend):
         track.velocity_B = relative_B[:3, 3] / ((scan.stamp - stamp_from) * 1e-9)
         A = adjoint(T_BS)
         cov_B = A @ self._tail_scaled(reg, A, stamp_from, scan.stamp) @ A.T
+        if self.config.factor_rotation == "free":
+            cov_B = translation_only(cov_B)
         return [
             OdometryObservation(
                 scan.stamp,

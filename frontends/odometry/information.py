@@ -7,6 +7,19 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+#: σ (rad) of the rotation of a relative pose that constrains the translation alone (``factor_rotation: free``):
+#: a radian is ~1000 times the held rotation σ between two scans (~0.05°), and keeps the covariance well conditioned
+FREE_ROTATION_SIGMA_RAD = 1.0
+
+
+def translation_only(cov: np.ndarray) -> np.ndarray:
+    """``cov`` (6×6, rotation then translation) with the translation's marginal kept, the rotation's variance
+    FREE_ROTATION_SIGMA_RAD² per axis and no cross terms: a relative pose that carries its translation alone."""
+    out = np.zeros((6, 6))
+    out[:3, :3] = np.eye(3) * FREE_ROTATION_SIGMA_RAD**2
+    out[3:, 3:] = cov[3:, 3:]
+    return out
+
 
 def skew(v: np.ndarray) -> np.ndarray:
     """[v]× for one vector (3,) or a stack (n, 3) → (n, 3, 3)."""

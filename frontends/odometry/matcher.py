@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 from kiss_icp.config import KISSConfig
 from kiss_icp.kiss_icp import KissICP
+from kiss_icp.threshold import AdaptiveThreshold
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
@@ -121,6 +122,26 @@ def held_covariance(
     return cov, part
 
 
+class WindowedThreshold:
+    """kiss-icp's adaptive correspondence σ over the last ``window`` registrations' model deviations only:
+    kiss-icp's ``AdaptiveThreshold`` (its model error per deviation, its min-motion rule, its initial σ)
+    rebuilt from the window at each update, where kiss-icp's own keeps a running sum from the map's start."""
+
+    def __init__(self, config: KISSConfig, window: int):
+        self.config = config
+        self.deviations: deque[np.ndarray] = deque(maxlen=window)
+        self._threshold = AdaptiveThreshold(config)
+
+    def get_threshold(self) -> float:
+        return self._threshold.get_threshold()
+
+    def update_model_deviation(self, model_deviation: np.ndarray) -> None:
+        self.deviations.append(np.array(model_deviation, dtype=np.float64))
+        self._threshold = AdaptiveThreshold(self.config)
+        for deviation in self.deviations:
+            self._threshold.update_model_deviation(deviation)
+
+
 class ScanMatcher:
     """Registers scans to a kiss-icp local map of the scans accepted in the last ``map_window_s``;
     ``reset()`` starts a new map.
@@ -146,6 +167,9 @@ class ScanMatcher:
 
     def reset(self) -> None:
         self.kiss = KissICP(kiss_config(self.cfg))
+        k = self.cfg.kiss_icp
+        if k.threshold_window is not None and k.fixed_threshold_m is None:
+            self.kiss.adaptive_threshold = WindowedThreshold(self.kiss.config, k.threshold_window)
         self._scans: deque[tuple[int, np.ndarray]] = deque()  # (stamp, map-frame points) in the map
 
     def _add(self, stamp: int, down: np.ndarray, pose: np.ndarray) -> None:
