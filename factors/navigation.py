@@ -247,17 +247,36 @@ class SmoothedInterval:
 def smoothed_displacement_factor(xi: int, xj: int, vi: int, vj: int, s: SmoothedInterval) -> gtsam.CustomFactor:
     """The interval's displacement and velocity states jointly (CustomFactor on X_i, X_j, V_i, V_j, a
     9-dimensional whitened residual Cᵀ (z − z0)); replaces :func:`displacement_factor` and the
-    velocity random walk between V_i and V_j."""
+    velocity random walk between V_i and V_j. The callback takes δ and its Jacobians
+    (:func:`relative_position`) in scalar arithmetic; the same numbers (tested)."""
     C_T = np.asarray(s.C_T, float)
-    C_d, z0 = C_T[:, 0:3], np.asarray(s.z0, float)
+    C_d, z0 = C_T[:, 0:3].copy(), np.asarray(s.z0, float)
     H_vi, H_vj = C_T[:, 3:6].copy(), C_T[:, 6:9].copy()
 
     def error(this: gtsam.CustomFactor, values: gtsam.Values, H):
-        delta, H_i, H_j = relative_position(values.atPose3(xi), values.atPose3(xj))
-        z = np.concatenate([delta, values.atVector(vi), values.atVector(vj)])
-        r = C_T @ (z - z0)
+        # :func:`relative_position` in scalars (numpy's per-call overhead on 3-vectors dominated it)
+        (R00, R01, R02, ti0), (R10, R11, R12, ti1), (R20, R21, R22, ti2), _ = values.atPose3(xi).matrix().tolist()
+        (S00, S01, S02, tj0), (S10, S11, S12, tj1), (S20, S21, S22, tj2), _ = values.atPose3(xj).matrix().tolist()
+        d0, d1, d2 = tj0 - ti0, tj1 - ti1, tj2 - ti2
+        x = R00 * d0 + R10 * d1 + R20 * d2  # δ = R_iᵀ (p_j − p_i)
+        y = R01 * d0 + R11 * d1 + R21 * d2
+        z = R02 * d0 + R12 * d1 + R22 * d2
+        r = np.dot(C_T, np.array([x, y, z, *values.atVector(vi).tolist(), *values.atVector(vj).tolist()]) - z0)
         if H is not None:
-            H[0], H[1], H[2], H[3] = C_d @ H_i, C_d @ H_j, H_vi, H_vj
+            m00, m01, m02, m10, m11, m12, m20, m21, m22 = mat3_mul(
+                (R00, R10, R20, R01, R11, R21, R02, R12, R22), (S00, S01, S02, S10, S11, S12, S20, S21, S22)
+            )  # R_iᵀ R_j
+            H[0] = np.dot(
+                C_d,
+                np.array([[0.0, -z, y, -1.0, 0.0, 0.0], [z, 0.0, -x, 0.0, -1.0, 0.0], [-y, x, 0.0, 0.0, 0.0, -1.0]]),
+            )
+            H[1] = np.dot(
+                C_d,
+                np.array(
+                    [[0.0, 0.0, 0.0, m00, m01, m02], [0.0, 0.0, 0.0, m10, m11, m12], [0.0, 0.0, 0.0, m20, m21, m22]]
+                ),
+            )
+            H[2], H[3] = H_vi, H_vj
         return r
 
     return gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(9), [xi, xj, vi, vj], error)
