@@ -418,6 +418,17 @@ def test_line_factor_callback_equals_line_residual(seed, tilt):
             assert_same_linearization(f, ref, v)
 
 
+def _same_at_random_poses_and_velocities(f, ref, rng, n: int = 4) -> None:
+    """``f`` and ``ref`` (on poses 1, 2 and velocities 3, 4) linearise alike at ``n`` random states."""
+    for _ in range(n):
+        v = gtsam.Values()
+        v.insert(1, random_pose(rng))
+        v.insert(2, random_pose(rng))
+        v.insert(3, rng.normal(size=3))
+        v.insert(4, rng.normal(size=3))
+        assert_same_linearization(f, ref, v)
+
+
 @pytest.mark.parametrize("seed", range(4))
 @pytest.mark.parametrize("gap", [False, True])
 def test_displacement_factor_callback_equals_displacement_residual(seed, gap):
@@ -442,13 +453,7 @@ def test_displacement_factor_callback_equals_displacement_residual(seed, gap):
         return r, Hs
 
     ref = _reference_factor(gtsam.noiseModel.Gaussian.Covariance(d.cov), [1, 2, 3, 4], res)
-    for _ in range(4):
-        v = gtsam.Values()
-        v.insert(1, random_pose(rng))
-        v.insert(2, random_pose(rng))
-        v.insert(3, rng.normal(size=3))
-        v.insert(4, rng.normal(size=3))
-        assert_same_linearization(f, ref, v)
+    _same_at_random_poses_and_velocities(f, ref, rng)
 
 
 @pytest.mark.parametrize("seed", range(4))
@@ -527,13 +532,7 @@ def test_smoothed_displacement_callback_equals_relative_position(seed):
         return s.C_T @ (z - s.z0), (C_d @ H_i, C_d @ H_j, s.C_T[:, 3:6], s.C_T[:, 6:9])
 
     ref = _reference_factor(gtsam.noiseModel.Unit.Create(9), [1, 2, 3, 4], res)
-    for _ in range(4):
-        v = gtsam.Values()
-        v.insert(1, random_pose(rng))
-        v.insert(2, random_pose(rng))
-        v.insert(3, rng.normal(size=3))
-        v.insert(4, rng.normal(size=3))
-        assert_same_linearization(f, ref, v)
+    _same_at_random_poses_and_velocities(f, ref, rng)
 
 
 @pytest.mark.parametrize("seed", range(3))
