@@ -5,8 +5,9 @@
    per-update wall time median / p95 over several runs, and the whole-mission batch (LM) time.
 2. A long synthetic lawnmower mission (≥ 2 h, ≥ 2000 landmarks): per-update cost against map size,
    to show it stays flat as the map grows.
-3. Factor cost: linearisation time of every domain factor (the CustomFactors: line, DVL displacement,
-   biased attitude, gyro with its bias; the built-ins: object point, depth) against plain built-ins of the same size.
+3. Factor cost: linearisation time of every domain factor (the CustomFactors: line, DVL displacement and
+   smoothed displacement, biased attitude, gyro with its bias, heading-bias drift; the built-ins: object point,
+   depth) against plain built-ins of the same size.
 
 Run: ``python experiments/bench_graph.py [--runs 3] [--long-hours 2] [--skip-long] [--window-s 130] [--out F.json]``
 (with ``--out``, the long mission's cost per 600 s is also plotted to ``F_long.png``; ``--plot F.json`` redraws
@@ -231,17 +232,21 @@ def _slide_summary(slides: list[dict]) -> dict | None:
 def bench_factor_cost(n: int = 5000) -> dict:
     """Linearisation cost per factor (µs, wall and CPU, median of 5 × n): every domain factor
     against built-ins of similar size."""
+    from factors.geometry import so3_exp
     from factors.landmarks import LineAnchor, line_factor, point_factor
     from factors.navigation import (
         DisplacementIntegral,
+        DvlPreintegrator,
         biased_attitude_factor,
         depth_factor,
         displacement_factor,
         gyro_rotation_factor,
+        heading_bias_drift_factor,
+        smoothed_displacement_factor,
     )
 
     rng = np.random.default_rng(0)
-    x, y, l, p, vi, vj, b, g = (gtsam.symbol(c, 0) for c in "xylpvwbg")
+    x, y, l, p, vi, vj, b, g, kd, kb1, kd1 = (gtsam.symbol(c, 0) for c in "xylpvwbgdce")
     values = gtsam.Values()
     values.insert(x, gtsam.Pose3(gtsam.Rot3.Expmap(rng.normal(size=3)), rng.normal(size=3)))
     values.insert(y, gtsam.Pose3(gtsam.Rot3.Expmap(rng.normal(size=3)), rng.normal(size=3)))
@@ -251,6 +256,8 @@ def bench_factor_cost(n: int = 5000) -> dict:
     values.insert(vj, rng.normal(size=3))
     values.insert(b, np.array([0.01]))
     values.insert(g, rng.normal(size=3) * 1e-3)
+    for key, val in ((kd, -0.004), (kb1, 0.011), (kd1, 0.003)):
+        values.insert(key, np.array([val]))
     T_BS = np.eye(4)
     T_BS[:3, 3] = [0.6, 0.0, 0.3]
     d = DisplacementIntegral(
@@ -263,6 +270,9 @@ def bench_factor_cost(n: int = 5000) -> dict:
         last_sample_age=0.1,
         last_sample=None,
     )
+    pre = DvlPreintegrator(0.0, np.eye(3), accel_sigma=0.05, attitude_sigma=0.002)
+    for t in (0.2, 0.4, 0.6, 0.8):  # a 1 s interval at the tank's 5 Hz DVL
+        pre.add(t, so3_exp(rng.normal(size=3) * 0.01), rng.normal(size=3) * 0.3, np.eye(3) * 1e-4)
     huber = gtsam.noiseModel.mEstimator.Huber.Create(1.345)
     anchor = LineAnchor.from_points(np.zeros(3), np.array([1.0, 0.2, 0.1]))
     noise3 = gtsam.noiseModel.Isotropic.Sigma(3, 0.02)
@@ -271,6 +281,10 @@ def bench_factor_cost(n: int = 5000) -> dict:
             x, p, anchor, np.array([0.1, 0.2, 1.0]), np.array([0.5, 0.1, 1.1]), np.eye(4) * 1e-4, T_BS, huber
         ),
         "displacement_factor (CustomFactor, 3)": displacement_factor(x, y, vi, vj, d),
+        "smoothed_displacement_factor (CustomFactor, 9)": smoothed_displacement_factor(
+            x, y, vi, vj, pre.smoothed(1.0, so3_exp(rng.normal(size=3) * 0.01))
+        ),
+        "heading_bias_drift_factor (CustomFactor, 2)": heading_bias_drift_factor(b, kd, kb1, kd1, 1.0, 1e-4, 1e-6),
         "biased_attitude_factor (CustomFactor, 3)": biased_attitude_factor(
             x, b, gtsam.Rot3.Expmap(rng.normal(size=3)).matrix(), np.eye(3) * 1e-4
         ),

@@ -9,13 +9,14 @@ as a Wiener process, white acceleration σ_a) whose uncertainty grows with the g
 
 from __future__ import annotations
 
+import bisect
 import math
 from dataclasses import dataclass
 
 import gtsam
 import numpy as np
 
-from factors.geometry import euler_zyx_rate_matrix, rot_to_roll_pitch, skew
+from factors.geometry import euler_zyx_rate_matrix, mat3_mul, rot_to_roll_pitch, skew
 from factors.heading_bias import RATE_UNIT_S, heading_bias_drift_covariance
 
 # --------------------------------------------------------------------------------------------
@@ -31,9 +32,13 @@ def dvl_to_body(
     v_B = R_BS v_S − ω_B × t_BS exactly, with covariance R_BS Σ_S R_BSᵀ (ω_B, from the AHRS, is
     treated as known: its error times a lever arm of a few decimetres is negligible).
     """
-    R_BS, t_BS = T_BS[:3, :3], T_BS[:3, 3]
-    w = np.zeros(3) if omega_B is None else np.asarray(omega_B, float)
-    return R_BS @ v_S - np.cross(w, t_BS), R_BS @ cov_S @ R_BS.T
+    R_BS = np.ascontiguousarray(T_BS[:3, :3], float)
+    v_B = np.dot(R_BS, np.asarray(v_S, float))
+    if omega_B is not None:  # − ω × t_BS, in scalars (np.cross costs ten times as much on 3-vectors)
+        w0, w1, w2 = (float(c) for c in omega_B)
+        t0, t1, t2 = (float(c) for c in T_BS[:3, 3])
+        v_B = v_B - np.array([w1 * t2 - w2 * t1, w2 * t0 - w0 * t2, w0 * t1 - w1 * t0])
+    return v_B, np.dot(np.dot(R_BS, np.asarray(cov_S, float)), R_BS.T)
 
 
 def dvl_residual(v_B: np.ndarray, v_S: np.ndarray, T_BS: np.ndarray, omega_B: np.ndarray) -> np.ndarray:
@@ -191,30 +196,37 @@ class DvlPreintegrator:
         n = 9 + 3 * M  # y = [δ, v_i, v_j, u_1 … u_M]
         q = self.accel_sigma**2
         cov_d = np.eye(3) * (q * float(np.sum(seg**3)) / 12.0 + MIN_DISPLACEMENT_SIGMA_M**2)
+        # the samples at once (stacked: numpy's per-call overhead on 3×3 blocks was most of the time)
+        dR, v, w_u = np.array(self._dR), np.array(self._v), w[1:-1]
         J = np.zeros((3, n))
         J[:, 0:3] = np.eye(3)
         J[:, 3:6] = -w[0] * np.eye(3)
         J[:, 6:9] = -w[-1] * (self.R_i_T @ R_j)
+        J[:, 9:] = (-w_u[:, None, None] * dR).transpose(1, 0, 2).reshape(3, 3 * M)
+        if self.attitude_sigma > 0:  # attitude noise rotates the sample: δ = −ΔR [v]× δθ
+            S = np.zeros((M, 3, 3))
+            S[:, 0, 1], S[:, 0, 2], S[:, 1, 2] = -v[:, 2], v[:, 1], -v[:, 0]
+            S[:, 1, 0], S[:, 2, 0], S[:, 2, 1] = v[:, 2], -v[:, 1], v[:, 0]
+            Sv = dR @ S
+            cov_d += self.attitude_sigma**2 * np.sum((w_u**2)[:, None, None] * (Sv @ Sv.transpose(0, 2, 1)), axis=0)
+        info = np.linalg.inv(np.array(self._cov))
         H = np.zeros((n, n))
-        g = np.zeros(n)
         for m in range(M):
-            dR, v = self._dR[m], self._v[m]
-            J[:, 9 + 3 * m : 12 + 3 * m] = -w[m + 1] * dR
-            if self.attitude_sigma > 0:  # attitude noise rotates the sample: δ = −ΔR [v]× δθ
-                Sv = dR @ skew(v)
-                cov_d += w[m + 1] ** 2 * self.attitude_sigma**2 * (Sv @ Sv.T)
-            info = np.linalg.inv(self._cov[m])
-            sl = slice(9 + 3 * m, 12 + 3 * m)
-            H[sl, sl] += info
-            g[sl] += info @ v
+            H[9 + 3 * m : 12 + 3 * m, 9 + 3 * m : 12 + 3 * m] = info[m]
+        g = np.zeros(n)
+        g[9:] = (info @ v[:, :, None]).ravel()
         H += J.T @ np.linalg.solve(cov_d, J)
-        chain = [slice(3, 6), *(slice(9 + 3 * m, 12 + 3 * m) for m in range(M)), slice(6, 9)]
-        for a, b, s_ in zip(chain[:-1], chain[1:], seg):  # the random walk, knot to knot
-            k = 1.0 / (q * s_)
-            H[a, a] += k * np.eye(3)
-            H[b, b] += k * np.eye(3)
-            H[a, b] -= k * np.eye(3)
-            H[b, a] -= k * np.eye(3)
+        # the random walk, knot to knot along v_i, u_1 … u_M, v_j: k = 1/(σ_a² Δt) on each knot's
+        # diagonal per neighbour, −k between neighbours
+        pos = np.r_[3, 9 + 3 * np.arange(M), 6]
+        k = 1.0 / (q * seg)
+        diag = np.zeros(M + 2)
+        diag[:-1] += k
+        diag[1:] += k
+        for i in range(3):
+            H[pos + i, pos + i] += diag
+            H[pos[:-1] + i, pos[1:] + i] -= k
+            H[pos[1:] + i, pos[:-1] + i] -= k
         Huu_inv_Huz = np.linalg.solve(H[9:, 9:], np.column_stack([H[9:, :9], g[9:]]))
         Lam = H[:9, :9] - H[:9, 9:] @ Huu_inv_Huz[:, :9]
         eta = g[:9] - H[:9, 9:] @ Huu_inv_Huz[:, 9]
@@ -235,17 +247,36 @@ class SmoothedInterval:
 def smoothed_displacement_factor(xi: int, xj: int, vi: int, vj: int, s: SmoothedInterval) -> gtsam.CustomFactor:
     """The interval's displacement and velocity states jointly (CustomFactor on X_i, X_j, V_i, V_j, a
     9-dimensional whitened residual Cᵀ (z − z0)); replaces :func:`displacement_factor` and the
-    velocity random walk between V_i and V_j."""
+    velocity random walk between V_i and V_j. The callback takes δ and its Jacobians
+    (:func:`relative_position`) in scalar arithmetic; the same numbers (tested)."""
     C_T = np.asarray(s.C_T, float)
-    C_d, z0 = C_T[:, 0:3], np.asarray(s.z0, float)
+    C_d, z0 = C_T[:, 0:3].copy(), np.asarray(s.z0, float)
     H_vi, H_vj = C_T[:, 3:6].copy(), C_T[:, 6:9].copy()
 
     def error(this: gtsam.CustomFactor, values: gtsam.Values, H):
-        delta, H_i, H_j = relative_position(values.atPose3(xi), values.atPose3(xj))
-        z = np.concatenate([delta, values.atVector(vi), values.atVector(vj)])
-        r = C_T @ (z - z0)
+        # :func:`relative_position` in scalars (numpy's per-call overhead on 3-vectors dominated it)
+        (R00, R01, R02, ti0), (R10, R11, R12, ti1), (R20, R21, R22, ti2), _ = values.atPose3(xi).matrix().tolist()
+        (S00, S01, S02, tj0), (S10, S11, S12, tj1), (S20, S21, S22, tj2), _ = values.atPose3(xj).matrix().tolist()
+        d0, d1, d2 = tj0 - ti0, tj1 - ti1, tj2 - ti2
+        x = R00 * d0 + R10 * d1 + R20 * d2  # δ = R_iᵀ (p_j − p_i)
+        y = R01 * d0 + R11 * d1 + R21 * d2
+        z = R02 * d0 + R12 * d1 + R22 * d2
+        r = np.dot(C_T, np.array([x, y, z, *values.atVector(vi).tolist(), *values.atVector(vj).tolist()]) - z0)
         if H is not None:
-            H[0], H[1], H[2], H[3] = C_d @ H_i, C_d @ H_j, H_vi, H_vj
+            m00, m01, m02, m10, m11, m12, m20, m21, m22 = mat3_mul(
+                (R00, R10, R20, R01, R11, R21, R02, R12, R22), (S00, S01, S02, S10, S11, S12, S20, S21, S22)
+            )  # R_iᵀ R_j
+            H[0] = np.dot(
+                C_d,
+                np.array([[0.0, -z, y, -1.0, 0.0, 0.0], [z, 0.0, -x, 0.0, -1.0, 0.0], [-y, x, 0.0, 0.0, 0.0, -1.0]]),
+            )
+            H[1] = np.dot(
+                C_d,
+                np.array(
+                    [[0.0, 0.0, 0.0, m00, m01, m02], [0.0, 0.0, 0.0, m10, m11, m12], [0.0, 0.0, 0.0, m20, m21, m22]]
+                ),
+            )
+            H[2], H[3] = H_vi, H_vj
         return r
 
     return gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(9), [xi, xj, vi, vj], error)
@@ -351,8 +382,8 @@ def ahrs_body_rotation(R_WS: np.ndarray, cov_rpy: np.ndarray, R_BS: np.ndarray) 
     sensor-frame angle error (R_WS → R_WS Exp(E δ)), and R_WB → R_WB Exp(R_BS E δ).
     """
     roll, pitch = rot_to_roll_pitch(R_WS)
-    J = R_BS @ euler_zyx_rate_matrix(roll, pitch)
-    return R_WS @ R_BS.T, J @ cov_rpy @ J.T
+    J = np.dot(R_BS, euler_zyx_rate_matrix(roll, pitch))  # np.dot: a third of `@`'s time on 3×3
+    return np.dot(R_WS, R_BS.T), np.dot(np.dot(J, cov_rpy), J.T)
 
 
 def attitude_factor(key: int, R_WB: np.ndarray, cov_tangent: np.ndarray) -> gtsam.NonlinearFactor:
@@ -402,20 +433,85 @@ def gyro_rotation_residual(
     return r, H_i, H_j, H_g
 
 
+# [I, 0]: a rotation's Jacobian block placed in a pose's (rotation first): H_log [I, 0] = [H_log, 0] in one product
+_ROTATION_BLOCK = np.hstack([np.eye(3), np.zeros((3, 3))])
+
+
+def _exp_coefficients(t2: float) -> tuple[float, float, float]:
+    """sin θ/θ, (1 − cos θ)/θ², (θ − sin θ)/θ³ at θ² = t2 (their series below θ = 1e-2, where the closed forms
+    cancel: the terms left out are below 1e-16 relative)."""
+    if t2 < 1e-4:
+        return (
+            1.0 - t2 / 6.0 + t2 * t2 / 120.0,
+            0.5 - t2 / 24.0 + t2 * t2 / 720.0,
+            1.0 / 6.0 - t2 / 120.0 + t2 * t2 / 5040.0,
+        )
+    t = math.sqrt(t2)
+    s = math.sin(t)
+    return s / t, (1.0 - math.cos(t)) / t2, (t - s) / (t2 * t)
+
+
 def gyro_rotation_factor(
     xi: int, xj: int, g: int, R_ij: np.ndarray, J_b: np.ndarray, b_bar: np.ndarray, rot_sigma: float
 ) -> gtsam.CustomFactor:
     """X(j)'s rotation carried from X(i) by the body rates integrated between the two keyframes, with the
     gyro's bias G(i) (a 3-vector in rad per GYRO_BIAS_UNIT_S s, body axes; ``b_bar`` too) estimated: :func:`gyro_rotation_residual` at σ
     ``rot_sigma`` a rotation axis (CustomFactor: GTSAM's AHRSFactor holds the same residual on Rot3 keys,
-    not on our Pose3 ones)."""
-    R_ij, J_b, b_bar = np.array(R_ij, float), np.array(J_b, float), np.array(b_bar, float)
+    not on our Pose3 ones).
+
+    The callback is :func:`gyro_rotation_residual` with Exp(−J_b (g − b̄)/τ) ΔR̄ᵀ R_iᵀ R_j written out in scalar
+    arithmetic and the Jacobians' 3×3 products by ``np.dot`` (numpy's per-call overhead on 3×3 matrices, and
+    ``@``'s above ``np.dot``'s, dominated it); the same numbers (tested)."""
+    J = np.array(J_b, float) / GYRO_BIAS_UNIT_S
+    (J00, J01, J02), (J10, J11, J12), (J20, J21, J22) = J.tolist()
+    minus_J = tuple((-J).ravel().tolist())
+    dR_bar_T = tuple(np.array(R_ij, float).T.ravel().tolist())
+    c0, c1, c2 = np.array(b_bar, float).tolist()
 
     def error(this, values, H):
-        T_i, T_j, bias = values.atPose3(xi), values.atPose3(xj), values.atVector(g)
+        (a00, a01, a02, _), (a10, a11, a12, _), (a20, a21, a22, _), _ = values.atPose3(xi).matrix().tolist()
+        (b00, b01, b02, _), (b10, b11, b12, _), (b20, b21, b22, _), _ = values.atPose3(xj).matrix().tolist()
+        d0, d1, d2 = values.atVector(g).tolist()
+        d0, d1, d2 = d0 - c0, d1 - c1, d2 - c2
+        # φ = −J (g − b̄): Exp(φ) = Exp(J δ)ᵀ
+        p0 = -(J00 * d0 + J01 * d1 + J02 * d2)
+        p1 = -(J10 * d0 + J11 * d1 + J12 * d2)
+        p2 = -(J20 * d0 + J21 * d1 + J22 * d2)
+        s, a, bq = _exp_coefficients(p0 * p0 + p1 * p1 + p2 * p2)
+        # Exp(φ) = I + s K + a K² with K = [φ]×, K² = φφᵀ − θ² I
+        exp_phi = (
+            *(1.0 - a * (p1 * p1 + p2 * p2), a * p0 * p1 - s * p2, a * p0 * p2 + s * p1),
+            *(a * p0 * p1 + s * p2, 1.0 - a * (p0 * p0 + p2 * p2), a * p1 * p2 - s * p0),
+            *(a * p0 * p2 - s * p1, a * p1 * p2 + s * p0, 1.0 - a * (p0 * p0 + p1 * p1)),
+        )
+        M = mat3_mul((a00, a10, a20, a01, a11, a21, a02, a12, a22), (b00, b01, b02, b10, b11, b12, b20, b21, b22))
+        E = mat3_mul(dR_bar_T, M)  # ΔR̄ᵀ R_iᵀ R_j
+        F = gtsam.Rot3(*mat3_mul(exp_phi, E))
         if H is None:
-            return gyro_rotation_residual(T_i, T_j, bias, R_ij, J_b, b_bar)
-        r, H[0], H[1], H[2] = gyro_rotation_residual(T_i, T_j, bias, R_ij, J_b, b_bar, jac=True)
+            return gtsam.Rot3.Logmap(F)
+        H_log = np.zeros((3, 3), order="F")
+        r = gtsam.Rot3.Logmap(F, H_log)
+        m00, m01, m02, m10, m11, m12, m20, m21, m22 = M
+        H[0] = np.dot(  # [−H_log R_jᵀ R_i, 0]
+            H_log,
+            np.array(
+                [
+                    [-m00, -m10, -m20, 0.0, 0.0, 0.0],
+                    [-m01, -m11, -m21, 0.0, 0.0, 0.0],
+                    [-m02, -m12, -m22, 0.0, 0.0, 0.0],
+                ]
+            ),
+        )
+        H[1] = np.dot(H_log, _ROTATION_BLOCK)  # [H_log, 0]
+        # −H_log Eᵀ J_r(φ) J with J_r(φ) = I − a K + b K²
+        Jr = (
+            *(1.0 - bq * (p1 * p1 + p2 * p2), a * p2 + bq * p0 * p1, -a * p1 + bq * p0 * p2),
+            *(-a * p2 + bq * p0 * p1, 1.0 - bq * (p0 * p0 + p2 * p2), a * p0 + bq * p1 * p2),
+            *(a * p1 + bq * p0 * p2, -a * p0 + bq * p1 * p2, 1.0 - bq * (p0 * p0 + p1 * p1)),
+        )
+        e00, e01, e02, e10, e11, e12, e20, e21, e22 = E
+        T = mat3_mul(mat3_mul((e00, e10, e20, e01, e11, e21, e02, e12, e22), Jr), minus_J)
+        H[2] = np.dot(H_log, np.array([T[0:3], T[3:6], T[6:9]]))
         return r
 
     noise = gtsam.noiseModel.Isotropic.Sigma(3, max(rot_sigma, 1e-6))
@@ -456,34 +552,14 @@ def biased_attitude_factor(x: int, b: int, R_meas: np.ndarray, cov_tangent: np.n
         n10, n11 = c * m10 + s * m11, c * m11 - s * m10
         n20, n21 = c * m20 + s * m21, c * m21 - s * m20
         E = gtsam.Rot3(
-            np.array(
-                [
-                    [
-                        n00 * R00 + n01 * R10 + m02 * R20,
-                        n00 * R01 + n01 * R11 + m02 * R21,
-                        n00 * R02 + n01 * R12 + m02 * R22,
-                    ],
-                    [
-                        n10 * R00 + n11 * R10 + m12 * R20,
-                        n10 * R01 + n11 * R11 + m12 * R21,
-                        n10 * R02 + n11 * R12 + m12 * R22,
-                    ],
-                    [
-                        n20 * R00 + n21 * R10 + m22 * R20,
-                        n20 * R01 + n21 * R11 + m22 * R21,
-                        n20 * R02 + n21 * R12 + m22 * R22,
-                    ],
-                ]
-            )
+            *mat3_mul((n00, n01, m02, n10, n11, m12, n20, n21, m22), (R00, R01, R02, R10, R11, R12, R20, R21, R22))
         )
         if H is None:
             return gtsam.Rot3.Logmap(E)
         H_log = np.zeros((3, 3), order="F")
         r = gtsam.Rot3.Logmap(E, H_log)
-        H_x = np.zeros((3, 6))
-        H_x[:, :3] = H_log
-        H[0] = H_x
-        H[1] = (H_log @ np.array([R20, R21, R22])).reshape(3, 1)  # R_WBᵀ e_z = third row of R_WB
+        H[0] = np.dot(H_log, _ROTATION_BLOCK)  # [H_log, 0]
+        H[1] = np.dot(H_log, np.array([[R20], [R21], [R22]]))  # R_WBᵀ e_z = third row of R_WB
         return r
 
     return gtsam.CustomFactor(gtsam.noiseModel.Gaussian.Covariance(np.asarray(cov_tangent, float)), [x, b], error)
@@ -544,15 +620,31 @@ def depth_factor(key: int, depth: float, variance: float, t_BS: np.ndarray) -> g
     )
 
 
+def _hold_integral(kt: list[float], t: float) -> list[float]:
+    """F with F · v = ∫_{kt[0]}^{t} v(s) ds, v linear between the knots (times ``kt``, increasing, values v)
+    and held at the end values outside them (signed: t < kt[0] gives a negative integral): a knot's
+    full hat up to the interval that holds t, the partial trapezoid of that interval."""
+    n = len(kt)
+    if n == 1 or t <= kt[0]:
+        return [t - kt[0]] + [0.0] * (n - 1)
+    hs = [kt[m + 1] - kt[m] for m in range(n - 1)]
+    full = [(hs[j - 1] if j else 0.0) / 2 + hs[j] / 2 for j in range(n - 1)]
+    if t >= kt[-1]:
+        return [*full, hs[-1] / 2 + (t - kt[-1])]
+    i = bisect.bisect_right(kt, t) - 1  # kt[i] <= t < kt[i + 1]
+    h = hs[i]
+    lam = (t - kt[i]) / h
+    F = full[:i] + [0.0] * (n - i)
+    F[i] = (hs[i - 1] / 2 if i else 0.0) + h * (lam - lam * lam / 2)
+    F[i + 1] = h * lam * lam / 2
+    return F
+
+
 def hold_interp_weights(knots_t: np.ndarray, t_from: float, t_to: float) -> np.ndarray:
     """w with ∫_{t_from}^{t_to} v(t) dt = w · v, v(t) linear between the knots (times ``knots_t``,
     increasing, values v) and held at the end values outside them; signed (t_to < t_from: −w)."""
-    knots_t = np.asarray(knots_t, float)
-    a, b = min(t_from, t_to), max(t_from, t_to)
-    pts = np.unique(np.r_[a, b, knots_t[(knots_t > a) & (knots_t < b)]])
-    basis = np.stack([np.interp(pts, knots_t, e) for e in np.eye(len(knots_t))], axis=1)
-    w = np.sum(np.diff(pts)[:, None] * (basis[:-1] + basis[1:]) / 2, axis=0)
-    return w if t_to >= t_from else -w
+    kt = [float(k) for k in knots_t]
+    return np.subtract(_hold_integral(kt, float(t_to)), _hold_integral(kt, float(t_from)))
 
 
 def referred_depth(
@@ -571,29 +663,42 @@ def referred_depth(
     the displacement's is shared (the same DVL samples for every reading) and is kept whole — each
     knot's weight is its mean weight over the readings — as is the motion model's (σ_a² h³/3 over the
     reading's longest stretch h without a knot, plus σ_a² age h² where the stretch lies wholly beyond
-    the knots and holds a velocity already ``age`` old, taken as common to all readings: an upper bound)."""
-    t_r = np.array([r[0] for r in readings])
-    var_r = np.array([r[2] for r in readings])
-    a = (1.0 / var_r) / np.sum(1.0 / var_r)
-    lever = np.array([(R_key - r[3])[2] @ t_BS for r in readings])
-    z = np.array([r[1] for r in readings]) + lever
+    the knots and holds a velocity already ``age`` old, taken as common to all readings: an upper bound).
+
+    Written out over Python floats (a handful of readings and knots a keyframe: numpy's per-call
+    overhead, an interpolation per knot and reading, was most of a keyframe update)."""
+    t_key = float(t_key)
+    x0, x1, x2 = (float(v) for v in t_BS)
+    lever_key = float(R_key[2, 0]) * x0 + float(R_key[2, 1]) * x1 + float(R_key[2, 2]) * x2
+    info = [1.0 / float(r[2]) for r in readings]
+    total = sum(info)
+    a = [w / total for w in info]
+    t_r = [float(r[0]) for r in readings]
+    # each reading, the lever arm's change [(R_key − R) t_BS]_z
+    z = [
+        float(r[1]) + lever_key - (float(r[3][2, 0]) * x0 + float(r[3][2, 1]) * x1 + float(r[3][2, 2]) * x2)
+        for r in readings
+    ]
     if knots:
-        kt = np.array([k[0] for k in knots])
-        W = np.stack([hold_interp_weights(kt, t, t_key) for t in t_r])  # readings × knots
-        z = z + W @ np.array([k[1] for k in knots])
-        w_mean = a @ W
-        var_disp = float(np.sum(w_mean**2 * np.array([k[2] for k in knots])))
-        gaps, ages = [], []
-        for t in t_r:
+        kt = [float(k[0]) for k in knots]
+        vz = [float(k[1]) for k in knots]
+        F_key = _hold_integral(kt, t_key)
+        w_mean = [0.0] * len(kt)
+        h, age = [], []
+        for m, t in enumerate(t_r):
+            W = [fk - fr for fk, fr in zip(F_key, _hold_integral(kt, t))]  # ∫ from the reading to t_key
+            z[m] += sum(w * v for w, v in zip(W, vz))
+            w_mean = [acc + a[m] * w for acc, w in zip(w_mean, W)]
             lo, hi = min(t, t_key), max(t, t_key)
-            inside = np.r_[lo, kt[(kt > lo) & (kt < hi)], hi]
-            gaps.append(float(np.max(np.diff(inside))) if len(inside) > 1 else 0.0)
+            inside = [lo, *kt[bisect.bisect_right(kt, lo) : bisect.bisect_left(kt, hi)], hi]
+            h.append(max(q - p for p, q in zip(inside[:-1], inside[1:])))
             # a stretch wholly beyond the knots holds a velocity already that old when it starts
-            ages.append(max(lo - kt[-1], kt[0] - hi, 0.0))
-        h, age = np.array(gaps), np.array(ages)
+            age.append(max(lo - kt[-1], kt[0] - hi, 0.0))
+        var_disp = sum(w * w * float(k[2]) for w, k in zip(w_mean, knots))
     else:
-        var_disp = float((0.01 * (a @ np.abs(t_key - t_r))) ** 2)
-        h, age = np.abs(t_key - t_r), np.zeros(len(t_r))
+        var_disp = (0.01 * sum(am * abs(t_key - t) for am, t in zip(a, t_r))) ** 2
+        h, age = [abs(t_key - t) for t in t_r], [0.0] * len(t_r)
     # the walk over a stretch h from a velocity known `age` before it: σ_a² (h³/3 + age·h²)
-    var_model = float((a @ (accel_sigma * np.sqrt(h**3 / 3.0 + age * h**2))) ** 2)
-    return float(a @ z), float(np.sum(a**2 * var_r)) + var_disp + var_model
+    var_model = sum(am * accel_sigma * math.sqrt(hm**3 / 3.0 + ag * hm**2) for am, hm, ag in zip(a, h, age)) ** 2
+    var_r = sum(am * am * float(r[2]) for am, r in zip(a, readings))
+    return sum(am * zm for am, zm in zip(a, z)), var_r + var_disp + var_model

@@ -418,6 +418,17 @@ def test_line_factor_callback_equals_line_residual(seed, tilt):
             assert_same_linearization(f, ref, v)
 
 
+def _same_at_random_poses_and_velocities(f, ref, rng, n: int = 4) -> None:
+    """``f`` and ``ref`` (on poses 1, 2 and velocities 3, 4) linearise alike at ``n`` random states."""
+    for _ in range(n):
+        v = gtsam.Values()
+        v.insert(1, random_pose(rng))
+        v.insert(2, random_pose(rng))
+        v.insert(3, rng.normal(size=3))
+        v.insert(4, rng.normal(size=3))
+        assert_same_linearization(f, ref, v)
+
+
 @pytest.mark.parametrize("seed", range(4))
 @pytest.mark.parametrize("gap", [False, True])
 def test_displacement_factor_callback_equals_displacement_residual(seed, gap):
@@ -442,13 +453,7 @@ def test_displacement_factor_callback_equals_displacement_residual(seed, gap):
         return r, Hs
 
     ref = _reference_factor(gtsam.noiseModel.Gaussian.Covariance(d.cov), [1, 2, 3, 4], res)
-    for _ in range(4):
-        v = gtsam.Values()
-        v.insert(1, random_pose(rng))
-        v.insert(2, random_pose(rng))
-        v.insert(3, rng.normal(size=3))
-        v.insert(4, rng.normal(size=3))
-        assert_same_linearization(f, ref, v)
+    _same_at_random_poses_and_velocities(f, ref, rng)
 
 
 @pytest.mark.parametrize("seed", range(4))
@@ -477,6 +482,57 @@ def test_biased_attitude_factor_callback_equals_residual(seed):
         )
         v.insert(2, np.array([b]))
         assert_same_linearization(f, ref, v)
+
+
+@pytest.mark.parametrize("seed", range(4))
+@pytest.mark.parametrize("bias_scale", [0.0, 1e-3, 30.0])
+def test_gyro_factor_callback_equals_residual(seed, bias_scale):
+    """The scalar callback against :func:`gyro_rotation_residual` (GTSAM's Expmap and Logmap with their
+    Jacobians): the bias's correction at zero, of the size a mission has (its Exp by series), and large."""
+    from factors.navigation import gyro_rotation_factor, gyro_rotation_residual
+
+    rng = np.random.default_rng(400 + seed)
+    R_ij, J_b = so3_exp(rng.normal(size=3) * 0.3), rng.normal(size=(3, 3)) * 2.0
+    b_bar = rng.normal(size=3) * 0.05
+    f = gyro_rotation_factor(1, 2, 3, R_ij, J_b, b_bar, 0.01)
+
+    def res(vals):
+        r, H_i, H_j, H_g = gyro_rotation_residual(
+            vals.atPose3(1), vals.atPose3(2), vals.atVector(3), R_ij, J_b, b_bar, jac=True
+        )
+        return r, (H_i, H_j, H_g)
+
+    ref = _reference_factor(gtsam.noiseModel.Isotropic.Sigma(3, 0.01), [1, 2, 3], res)
+    for _ in range(4):
+        v = gtsam.Values()
+        v.insert(1, random_pose(rng))
+        v.insert(2, random_pose(rng))
+        v.insert(3, b_bar + rng.normal(size=3) * bias_scale)
+        assert_same_linearization(f, ref, v)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_smoothed_displacement_callback_equals_relative_position(seed):
+    """The scalar callback against Cᵀ (z − z0) with δ and its Jacobians from :func:`relative_position`."""
+    from factors.navigation import relative_position
+
+    rng = np.random.default_rng(500 + seed)
+    Ti = random_pose(rng)
+    pre = DvlPreintegrator(0.0, Ti.rotation().matrix(), accel_sigma=0.05, attitude_sigma=0.01)
+    for t in np.arange(0.2, 1.0, 0.2):
+        R = Ti.rotation().matrix() @ so3_exp(rng.normal(size=3) * 0.05)
+        pre.add(t, R, rng.normal(size=3) * 0.3, random_cov(rng, 3, 0.01))
+    s = pre.smoothed(1.1, Ti.rotation().matrix() @ so3_exp(rng.normal(size=3) * 0.05))
+    f = smoothed_displacement_factor(1, 2, 3, 4, s)
+
+    def res(vals):
+        delta, H_i, H_j = relative_position(vals.atPose3(1), vals.atPose3(2))
+        z = np.concatenate([delta, vals.atVector(3), vals.atVector(4)])
+        C_d = s.C_T[:, :3]
+        return s.C_T @ (z - s.z0), (C_d @ H_i, C_d @ H_j, s.C_T[:, 3:6], s.C_T[:, 6:9])
+
+    ref = _reference_factor(gtsam.noiseModel.Unit.Create(9), [1, 2, 3, 4], res)
+    _same_at_random_poses_and_velocities(f, ref, rng)
 
 
 @pytest.mark.parametrize("seed", range(3))
