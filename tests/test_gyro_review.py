@@ -43,9 +43,10 @@ def _held_rate_mission() -> Mission:
     return Mission.from_measurements(metadata(), ms)
 
 
-@pytest.mark.parametrize("gyro_bias_sigma", [0.0, 5e-5])
-def test_a_held_rate_carries_the_rate_noise_integrated_over_the_interval(gyro_bias_sigma, monkeypatch):
-    links = []  # (σ, interval) of every rotation link between keyframes
+def _links(monkeypatch, **config) -> tuple[list, np.ndarray, np.ndarray, GraphEstimator]:
+    """The σ of every rotation link between keyframes on the held-rate mission, the keyframes' intervals, which of
+    them have no AHRS reading, and the estimator."""
+    links = []
     for name in ("rotation_carry_factor", "gyro_rotation_factor"):
         make = getattr(keyframes_module, name)
 
@@ -55,13 +56,18 @@ def test_a_held_rate_carries_the_rate_noise_integrated_over_the_interval(gyro_bi
 
         monkeypatch.setattr(keyframes_module, name, recording)
     mission = _held_rate_mission()
-    config = SemslamConfig(graph={"keyframe_max_interval_s": 0.02}, sensors={"gyro_bias_sigma_rad_s": gyro_bias_sigma})
+    config = SemslamConfig(graph={"keyframe_max_interval_s": 0.02}, **config)
     est = GraphEstimator(mission.metadata, config)
     run_pipeline(estimators_input(mission, config), [est], [Replay({})], keep_observations=False)
     stamps = np.array(est.keyframes.stamps) * 1e-9
-    dt = np.diff(stamps)
     ahrs = np.arange(6 * 20) / 20
     no_reading = np.array([not np.any((ahrs > a) & (ahrs <= b)) for a, b in zip(stamps[:-1], stamps[1:])])
+    return links, np.diff(stamps), no_reading, est
+
+
+@pytest.mark.parametrize("gyro_bias_sigma", [0.0, 5e-5])
+def test_a_held_rate_carries_the_rate_noise_integrated_over_the_interval(gyro_bias_sigma, monkeypatch):
+    links, dt, no_reading, _ = _links(monkeypatch, sensors={"gyro_bias_sigma_rad_s": gyro_bias_sigma})
     assert len(links) == len(dt) and no_reading.sum() > 0.5 * len(dt)
     # every link, with a reading between its keyframes or not: density·√Δt (was density·Δt without one, ~7× tight)
     np.testing.assert_allclose(links, DENSITY * np.sqrt(dt), rtol=1e-9)
@@ -123,3 +129,10 @@ def test_readings_keyframes_and_the_dvl_lever_arm_turn_at_the_rate_less_the_bias
     # and the gyro link integrates the same rates (stop 43)
     dR, _, _ = nav.gyro_rotation(0.08)
     np.testing.assert_allclose(dR, so3_exp((w - b) * 0.05) @ so3_exp((w - b) * 0.03), atol=1e-12)
+
+
+def test_without_the_gyro_link_only_a_keyframe_without_a_reading_is_carried(monkeypatch):
+    links, dt, no_reading, est = _links(monkeypatch, motion={"gyro_link": False})
+    assert not est.keyframes.has_gyro_bias  # no link, no bias state (the declared σ notwithstanding)
+    assert 0 < len(links) == no_reading.sum() < len(dt)
+    np.testing.assert_allclose(links, DENSITY * np.sqrt(dt[no_reading]), rtol=1e-9)

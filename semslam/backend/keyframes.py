@@ -123,7 +123,8 @@ class Keyframes:
         self.rate = 0.0  # the newest keyframe's rate estimate (rad per RATE_UNIT_S s)
         # the gyro's bias G(k) (in rad per GYRO_BIAS_UNIT_S s, body axes), a random walk, when modelled (0: the
         # rates taken as unbiased)
-        self.gyro_sigma0 = config.sensors.gyro_bias_sigma(metadata) * GYRO_BIAS_UNIT_S
+        self.gyro_link = config.motion.gyro_link  # off: no rotation link between keyframes with AHRS readings
+        self.gyro_sigma0 = config.sensors.gyro_bias_sigma(metadata) * GYRO_BIAS_UNIT_S if self.gyro_link else 0.0
         self.gyro_walk = config.sensors.gyro_bias_walk(metadata) * GYRO_BIAS_UNIT_S
         self.has_gyro_bias = self.gyro_sigma0 > 0
         self.gyro_bias = np.zeros(3)  # the newest keyframe's gyro-bias estimate (G's units)
@@ -272,7 +273,7 @@ class Keyframes:
             factors.append(displacement_factor(X(k - 1), X(k), V(k - 1), V(k), d))
             factors.append(velocity_random_walk_factor(V(k - 1), V(k), d.dt, self.accel_sigma))
             dt, delta = d.dt, d.c + d.A @ self.vel + d.B @ v_init
-        gyro = self.nav.gyro_rotation(t)
+        gyro = self.nav.gyro_rotation(t) if self.gyro_link else None
         # The rate's white noise integrated over the interval: σ density·√Δt, whether the rates were integrated
         # reading by reading or the last one held (no reading since X(k-1), keyframes 10–50 ms apart).
         rot_sigma = self.nav.rate_sigma * np.sqrt(max(t - self.stamps[-1] * 1e-9, 0.0))
