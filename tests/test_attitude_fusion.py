@@ -38,8 +38,7 @@ def _fused_errors(rate_z, runs=200, n=20, rate_sigma=0.01):
     rng = np.random.default_rng(1)
     errs, covs = [], []
     for _ in range(runs):
-        # the buffer takes the gyro's noise density (rad/s/√Hz): the readings' σ over √rate
-        nav = NavigationBuffer(AHRS_ONLY, accel_sigma=0.05, rate_sigma=rate_sigma / np.sqrt(20.0))
+        nav = NavigationBuffer(AHRS_ONLY, accel_sigma=0.05, rate_sigma=rate_sigma)
         readings, truth = _readings(rng, n, rate_z, rate_sigma=rate_sigma)
         for m in readings:
             nav.add(m)
