@@ -14,7 +14,7 @@ from factors.geometry import so3_exp, so3_log
 from factors.navigation import GYRO_BIAS_UNIT_S, gyro_rotation_factor, gyro_rotation_residual
 from semslam.backend.graph import GraphEstimator
 from semslam.backend.navigation import NavigationBuffer
-from semslam.backend.window import G, X, keyframe_keys
+from semslam.backend.window import G, X
 from semslam.compare import estimators_input
 from semslam.config import SemslamConfig
 from semslam.mission.measurements import Attitude, GroundTruthPose
@@ -27,11 +27,18 @@ S = 1_000_000_000
 # A short dive (two survey lines, ~3.7 min) with the AHRS's heading unbiased (no heading-bias drift, so
 # that its heading is the reference the gyro's z bias is seen against) and a gyro bias drawn ten times
 # the simulators' default (5e-4 rad/s, ~100°/h, a consumer MEMS rate sensor's): large against what the
-# dive can resolve (σ ≈ 3e-5 rad/s at the end), so that a graph without the state is clearly off.
+# dive can resolve (σ ≈ 3e-5 rad/s at the end), so that a graph without the state is clearly off. The AHRS is
+# mounted upside down and turned 90° (its x along the body's y, its z along the body's −z), so that G, in body
+# axes, differs from the drawn bias, in the AHRS's axes, on every axis.
+AHRS_RPY_DEG = (180.0, 0.0, 90.0)
 DIVE = {
     "trajectory": {"lines": 2},
     "dive": {"surface_start_s": 20.0, "surface_end_s": 20.0},
-    "ahrs": {"heading_bias_drift_deg": 0.0, "gyro_bias_sigma_rad_s": 5e-4},
+    "ahrs": {
+        "heading_bias_drift_deg": 0.0,
+        "gyro_bias_sigma_rad_s": 5e-4,
+        "mount": {"rpy_deg": AHRS_RPY_DEG},
+    },
 }
 
 
@@ -108,7 +115,9 @@ def _yaw_rms(mission, traj) -> float:
 @pytest.mark.parametrize("seed", [0, 1])
 def test_the_graph_learns_a_drawn_gyro_bias(seed):
     mission = simulate_dive(DiveSimConfig.model_validate({"seed": seed, **DIVE}))
-    truth = np.array(mission.metadata.extras["gyro_bias_rad_s"])  # the AHRS's axes = the body's (mount {B})
+    R_BS = mission.metadata.extrinsic("ahrs")[:3, :3]
+    np.testing.assert_allclose(R_BS, Rotation.from_euler("ZYX", AHRS_RPY_DEG[::-1], degrees=True).as_matrix())
+    truth = R_BS @ np.array(mission.metadata.extras["gyro_bias_rad_s"])  # the drawn bias (AHRS axes) in {B}, G's
     est, traj = _run(mission, None)  # the declared σ
     kf = est.keyframes
     assert kf.has_gyro_bias
@@ -125,6 +134,17 @@ def test_the_graph_learns_a_drawn_gyro_bias(seed):
     assert without > 1.15 * with_state, (with_state, without)  # measured 0.87 / 1.14 and 0.79 / 0.98 mrad
 
 
-def test_the_gyro_bias_is_a_keyframe_key():
-    # the window marginalises it with its keyframe, and the session eliminates the newest one's last
-    assert G(4) in keyframe_keys(4)
+def test_the_window_takes_the_gyro_bias_with_its_keyframe():
+    # a window shorter than the dive: every G that left it went with its keyframe (marginalised into the
+    # prior on what stays, frozen beside its pose), and the window holds exactly its keyframes' G's
+    mission = simulate_dive(DiveSimConfig.model_validate({"seed": 0, **DIVE}))
+    config = SemslamConfig(graph={"window_s": 40.0}, association={"track_timeout_s": 10.0})
+    est = GraphEstimator(mission.metadata, config)
+    run_pipeline(estimators_input(mission, config), [est], [], keep_observations=False)
+    kf, window = est.keyframes, est.keyframes.window
+    assert window.first_active > 0
+    in_window = {k for k in est.session.window_keys() if gtsam.Symbol(k).chr() == ord("g")}
+    assert in_window == {G(i) for i in range(window.first_active, len(kf))}
+    frozen = gtsam.Values()
+    window.frozen.insert_into(frozen)
+    assert all(frozen.exists(G(i)) for i in range(window.first_active))

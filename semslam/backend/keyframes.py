@@ -96,8 +96,12 @@ class Keyframes:
         self.accel_sigma = config.motion.accel_sigma_m_s2
         self.session = session
         self.window = window
+        # an AHRS reading older than ahrs_max_age_s is not used, its rate neither (as the EKF's rate_max_age_s)
         self.nav = NavigationBuffer(
-            metadata, config.motion.accel_sigma_m_s2, config.motion.angular_rate_density(metadata)
+            metadata,
+            config.motion.accel_sigma_m_s2,
+            config.motion.angular_rate_density(metadata),
+            config.graph.ahrs_max_age_s,
         )
         self.wait_for_gt = self.initial.pose == "first_ground_truth" and bool(metadata.sensors_of_kind("ground_truth"))
         self.initial_gt: GroundTruthPose | None = None
@@ -119,7 +123,8 @@ class Keyframes:
         self.rate = 0.0  # the newest keyframe's rate estimate (rad per RATE_UNIT_S s)
         # the gyro's bias G(k) (in rad per GYRO_BIAS_UNIT_S s, body axes), a random walk, when modelled (0: the
         # rates taken as unbiased)
-        self.gyro_sigma0 = config.sensors.gyro_bias_sigma(metadata) * GYRO_BIAS_UNIT_S
+        self.gyro_link = config.motion.gyro_link  # off: no rotation link between keyframes with AHRS readings
+        self.gyro_sigma0 = config.sensors.gyro_bias_sigma(metadata) * GYRO_BIAS_UNIT_S if self.gyro_link else 0.0
         self.gyro_walk = config.sensors.gyro_bias_walk(metadata) * GYRO_BIAS_UNIT_S
         self.has_gyro_bias = self.gyro_sigma0 > 0
         self.gyro_bias = np.zeros(3)  # the newest keyframe's gyro-bias estimate (G's units)
@@ -268,20 +273,19 @@ class Keyframes:
             factors.append(displacement_factor(X(k - 1), X(k), V(k - 1), V(k), d))
             factors.append(velocity_random_walk_factor(V(k - 1), V(k), d.dt, self.accel_sigma))
             dt, delta = d.dt, d.c + d.A @ self.vel + d.B @ v_init
-        gyro = self.nav.gyro_rotation(t)
-        if not has_attitude:
-            # No AHRS reading since X(k-1) (keyframes 10–50 ms apart) or a stale one: nothing else fixes
-            # X(k)'s rotation unless a landmark does, and iSAM2 fails on the indeterminate system.
-            rot_sigma = self.nav.rate_sigma * dt
-            if self.has_gyro_bias and gyro is not None:  # the last rate carried, less the bias G(k-1)
-                factors.append(self._gyro_link(k, gyro, delta, rot_sigma))
-            else:
-                R_prev, _ = self.nav.attitude_at(self.stamps[-1] * 1e-9)
-                factors.append(rotation_carry_factor(X(k - 1), X(k), R_prev.T @ R, delta, rot_sigma))
-        elif gyro is not None:
+        gyro = self.nav.gyro_rotation(t) if self.gyro_link else None
+        # The rate's white noise integrated over the interval: σ density·√Δt, whether the rates were integrated
+        # reading by reading or the last one held (no reading since X(k-1), keyframes 10–50 ms apart).
+        rot_sigma = self.nav.rate_sigma * np.sqrt(max(t - self.stamps[-1] * 1e-9, 0.0))
+        if gyro is not None:
             # The body rates integrated over the interval link the two attitudes, as the EKF's prediction does
             # between its AHRS updates: without it every keyframe's attitude stood on its own readings alone.
-            factors.append(self._gyro_link(k, gyro, delta, self.nav.rate_sigma * np.sqrt(gyro[1])))
+            factors.append(self._gyro_link(k, gyro, delta, rot_sigma))
+        elif not has_attitude:
+            # No AHRS reading since X(k-1) or a stale one, and no gyro's rate to integrate: nothing else fixes
+            # X(k)'s rotation unless a landmark does, and iSAM2 fails on the indeterminate system.
+            R_prev, _ = self.nav.attitude_at(self.stamps[-1] * 1e-9)
+            factors.append(rotation_carry_factor(X(k - 1), X(k), R_prev.T @ R, delta, rot_sigma))
         p_init = self.pose.translation() + self.pose.rotation().matrix() @ delta
         values = gtsam.Values()
         values.insert(X(k), gtsam.Pose3(gtsam.Rot3(self.unbiased(R)), p_init))

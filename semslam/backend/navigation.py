@@ -22,11 +22,24 @@ class AttitudeSample:
     omega_B: np.ndarray | None  # body angular rate (rad/s), when known
     from_gyro: bool = True  # omega_B is the AHRS's measured rate (False: attitudes differenced, or none)
 
-    def carried_to(self, t: float, rate_sigma: float) -> tuple[np.ndarray, np.ndarray]:
-        """R_WB at t, rotated on by the angular rate over the age; the covariance grows with the
-        age (rate noise)."""
+    def rate(self, gyro_bias: np.ndarray | None = None) -> np.ndarray | None:
+        """The body rate to carry with: the gyro's less its bias ``gyro_bias`` (body axes, rad/s); a rate
+        differenced from attitudes is no gyro's and takes no bias."""
+        if self.omega_B is None or gyro_bias is None or not self.from_gyro:
+            return self.omega_B
+        return self.omega_B - gyro_bias
+
+    def carried_to(
+        self, t: float, rate_sigma: float, gyro_bias: np.ndarray | None = None, max_age: float = np.inf
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """R_WB at t, rotated on by the angular rate (less ``gyro_bias``) while the reading is younger than
+        ``max_age``, held still after; the covariance grows with the age (rate noise: (rate_sigma·|Δt|)², which
+        at the AHRS's period is the density's rate_sigma²·Δt; within a period it is tighter, see
+        experiments/estimators/README.md, stop 44)."""
         dt = t - self.t
-        R = self.R_WB if self.omega_B is None or dt == 0 else self.R_WB @ so3_exp(self.omega_B * dt)
+        w = self.rate(gyro_bias)
+        held = float(np.clip(dt, -max_age, max_age))
+        R = self.R_WB if w is None or held == 0 else self.R_WB @ so3_exp(w * held)
         return R, self.cov + np.eye(3) * (rate_sigma * abs(dt)) ** 2
 
 
@@ -40,13 +53,15 @@ class FusedAttitude(AttitudeSample):
 
     n: int = 1  # readings fused
 
-    def update(self, s: AttitudeSample, rate_sigma: float) -> None:
-        R, P = self.carried_to(s.t, rate_sigma)
+    def update(
+        self, s: AttitudeSample, rate_sigma: float, gyro_bias: np.ndarray | None = None, max_age: float = np.inf
+    ) -> None:
+        R, P = self.carried_to(s.t, rate_sigma, gyro_bias, max_age)
         K = P @ np.linalg.inv(P + s.cov)
         self.R_WB = R @ so3_exp(K @ so3_log(R.T @ s.R_WB))
         self.cov = (np.eye(3) - K) @ P
         self.cov = 0.5 * (self.cov + self.cov.T)
-        self.t, self.omega_B, self.n = s.t, s.omega_B, self.n + 1
+        self.t, self.omega_B, self.from_gyro, self.n = s.t, s.omega_B, s.from_gyro, self.n + 1
 
 
 @dataclass
@@ -71,10 +86,11 @@ class DepthSample:
 class NavigationBuffer:
     """Keeps what the keyframes need from the navigation stream, in the body frame."""
 
-    def __init__(self, metadata: MissionMetadata, accel_sigma: float, rate_sigma: float):
+    def __init__(self, metadata: MissionMetadata, accel_sigma: float, rate_sigma: float, rate_max_age: float = np.inf):
         self.metadata = metadata
         self.accel_sigma = accel_sigma
-        self.rate_sigma = rate_sigma
+        self.rate_sigma = rate_sigma  # the gyro's white-noise density (rad/s/√Hz)
+        self.rate_max_age = rate_max_age  # an AHRS rate older than this (s) carries nothing: held still after
         self.attitude: AttitudeSample | None = None
         self.fused: FusedAttitude | None = None  # the readings since the last keyframe
         self.dvl: DvlSample | None = None
@@ -109,9 +125,9 @@ class NavigationBuffer:
                 omega = so3_log(self.attitude.R_WB.T @ R_WB) / (t - self.attitude.t)
             self.attitude = AttitudeSample(t, R_WB, cov, omega, from_gyro)
             if self.fused is None:
-                self.fused = FusedAttitude(t, R_WB, cov, omega)
+                self.fused = FusedAttitude(t, R_WB, cov, omega, from_gyro)
             else:
-                self.fused.update(self.attitude, self.rate_sigma)
+                self.fused.update(self.attitude, self.rate_sigma, self.gyro_bias, self.rate_max_age)
         elif isinstance(m, Depth):
             self.depth = DepthSample(t, m.depth, m.variance, self._T_BS(m.sensor)[:3, 3])
             if self.attitude is not None:
@@ -120,7 +136,7 @@ class NavigationBuffer:
             if not m.valid or not np.all(np.isfinite(m.velocity)):
                 return
             T_BS = self._T_BS(m.sensor)
-            omega = self.omega()
+            omega = self.omega(t)
             v_B, cov_B = dvl_to_body(np.asarray(m.velocity), np.asarray(m.covariance), T_BS, omega)
             self.dvl = DvlSample(t, np.asarray(m.velocity), np.asarray(m.covariance), T_BS, omega, v_B, cov_B)
             if self.attitude is not None:
@@ -130,31 +146,36 @@ class NavigationBuffer:
                 if self.preint is not None:
                     self.preint.add(t, R, v_B, cov_B)
 
-    def omega(self) -> np.ndarray:
-        if self.attitude is None or self.attitude.omega_B is None:
+    def omega(self, t: float) -> np.ndarray:
+        """The body rate at t: the latest AHRS reading's less the gyro bias b̄ (:attr:`gyro_bias`); zero when
+        there is none or it is older than :attr:`rate_max_age`."""
+        a = self.attitude
+        if a is None or a.omega_B is None or t - a.t > self.rate_max_age:
             return np.zeros(3)
-        return self.attitude.omega_B
+        return a.rate(self.gyro_bias)
 
     def attitude_at(self, t: float) -> tuple[np.ndarray, np.ndarray]:
-        """R_WB at t from the latest AHRS reading, rotated on by the angular rate over its age;
-        the covariance grows with the age (rate noise)."""
-        return self.attitude.carried_to(t, self.rate_sigma)
+        """R_WB at t from the latest AHRS reading, rotated on by its rate less b̄ over its age (at most
+        :attr:`rate_max_age`); the covariance grows with the age (rate noise)."""
+        return self.attitude.carried_to(t, self.rate_sigma, self.gyro_bias, self.rate_max_age)
 
     def take_fused_attitude(self, t: float) -> tuple[np.ndarray, np.ndarray, int] | None:
         """The AHRS readings since the last call fused and carried to t: (R_WB, covariance, how
         many readings); the next call starts afresh, so that no reading is used twice."""
         if self.fused is None:
             return None
-        R, cov = self.fused.carried_to(t, self.rate_sigma)
+        R, cov = self.fused.carried_to(t, self.rate_sigma, self.gyro_bias, self.rate_max_age)
         n, self.fused = self.fused.n, None
         return R, cov, n
 
     def _gyro_to(self, t: float) -> tuple[float, float, np.ndarray, np.ndarray]:
         t0, t1, dR, J = self.gyro
-        h = max(t - t1, 0.0)
+        a = self.attitude
+        # the latest rate held from t1 to t, as long as it is younger than rate_max_age (held still after)
+        h = 0.0 if a is None or a.omega_B is None else max(min(t, a.t + self.rate_max_age) - t1, 0.0)
         if h == 0.0:
             return t0, max(t, t1), dR, J
-        phi = (self.omega() - self.gyro_bias) * h
+        phi = a.rate(self.gyro_bias) * h
         step = so3_exp(phi)
         # ΔR Exp(J δ) Exp(φ − h δ) ≈ ΔR Exp(φ) Exp((Exp(φ)ᵀ J − J_r(φ) h) δ)
         return t0, t, dR @ step, step.T @ J - so3_right_jacobian(phi) * h

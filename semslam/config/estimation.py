@@ -68,6 +68,14 @@ class MotionNoiseConfig(BaseModel):
         f"attitude readings; null: the mission's declared gyro noise (its σ over √rate), else {DEFAULT_RATE_DENSITY}",
     )
 
+    gyro_link: bool = Field(
+        True,
+        description="the graph links consecutive keyframes' attitudes by the body rates integrated between them, "
+        "with the gyro's bias as a state (sensors.gyro_bias_sigma_rad_s); false: no link and no bias state in the "
+        "graph, a keyframe without an AHRS reading carried from the one before, as before stop 42 (the EKF's and "
+        "dead reckoning's prediction integrates the rates either way)",
+    )
+
     def angular_rate_density(self, metadata: Any) -> float:
         """The gyro's white-noise density (rad/s/√Hz) every estimator uses for the mission of ``metadata``."""
         if self.angular_rate_sigma_rad_s is not None:
