@@ -327,13 +327,19 @@ def misses(mission, by_stamp) -> dict:
     return {k: {**v, "radius_m": radius.get(k)} for k, v in sorted(by_pipe.items())}
 
 
-def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--seeds", default="6")
+def replay_arguments(description: str, seeds: str) -> argparse.ArgumentParser:
+    """The arguments of a replay tool: ``--seeds``, ``--dump``, ``--sim``, ``--config``, ``--json``."""
+    ap = argparse.ArgumentParser(description=description)
+    ap.add_argument("--seeds", default=seeds)
     ap.add_argument("--dump", type=Path, required=True)
     ap.add_argument("--sim", default="{}", help="pipeline simulator overrides (JSON, nested sections)")
     ap.add_argument("--config", default="{}", help="semslam configuration overrides (JSON)")
     ap.add_argument("--json", type=Path, default=None)
+    return ap
+
+
+def main(argv=None) -> int:
+    ap = replay_arguments(__doc__.splitlines()[0], "6")
     ap.add_argument(
         "--true-directions", action="store_true", help="turn each line observation onto its true pipe's direction"
     )
