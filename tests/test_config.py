@@ -164,3 +164,22 @@ def test_heading_bias_prior_comes_from_the_mission_unless_configured():
     assert sensors.heading_bias_sigma0(declared) == 0.01
     assert sensors.heading_bias_sigma0(silent) == DEFAULT_BIAS_SIGMA0
     assert SemslamConfig(sensors={"heading_bias_initial_sigma_rad": 0.03}).sensors.heading_bias_sigma0(tank) == 0.03
+
+
+def test_a_gyro_bias_declared_constant_still_reaches_its_prior_sigma_in_finite_time():
+    """A constant bias (walk 0, as the simulators declare it) keeps the least walk; with a loose prior σ (a
+    user's 0.005 rad/s on such a recording) the walk is at least σ over CONSTANT_BIAS_OVER_S, so the graph's
+    chain of bias states is not rigid against the prior (the 1e-7 floor alone made iSAM2's system
+    indeterminate on tank world 62, stop 44)."""
+    from types import SimpleNamespace
+
+    from semslam.config.estimation import CONSTANT_BIAS_OVER_S, MIN_GYRO_BIAS_WALK
+    from semslam.sim.config import TankSimConfig
+    from semslam.sim.simulate import declared_noise
+
+    tank = SimpleNamespace(extras={"noise": declared_noise(TankSimConfig())})
+    assert SemslamConfig().sensors.gyro_bias_walk(tank) == MIN_GYRO_BIAS_WALK  # the simulators' σ: the floor
+    loose = SemslamConfig(sensors={"gyro_bias_sigma_rad_s": 0.005}).sensors
+    assert loose.gyro_bias_walk(tank) * CONSTANT_BIAS_OVER_S**0.5 >= 0.005 * (1 - 1e-12)
+    explicit = SemslamConfig(sensors={"gyro_bias_sigma_rad_s": 0.005, "gyro_bias_walk_rad_s_per_sqrt_s": 1e-7})
+    assert explicit.sensors.gyro_bias_walk(tank) > 10 * MIN_GYRO_BIAS_WALK

@@ -94,9 +94,13 @@ MIN_BIAS_SIGMA0 = 1e-4
 RATE_WALK_OVER_S = 600.0
 # The gyro bias's prior σ per axis when the mission declares none (rad/s): a MEMS rate sensor's residual
 # bias after its own calibration, loose; the least random walk of that bias (rad/s/√s), so that a bias
-# declared constant stays a proper Gaussian process in the filter and the graph alike.
+# declared constant stays a proper Gaussian process in the filter and the graph alike; and the least walk
+# relative to the prior σ: a walk that would take longer than CONSTANT_BIAS_OVER_S to reach σ makes the
+# graph's chain of bias states nearly rigid against a loose prior, an indeterminate system for iSAM2
+# (world 62 with σ 0.005 and the walk 1e-7, stop 44).
 DEFAULT_GYRO_BIAS_SIGMA = 0.005
 MIN_GYRO_BIAS_WALK = 1e-7
+CONSTANT_BIAS_OVER_S = 1e6
 
 
 class SensorModelConfig(BaseModel):
@@ -192,13 +196,14 @@ class SensorModelConfig(BaseModel):
         return float(self._declared_ahrs(metadata).get("gyro_bias_sigma_rad_s", DEFAULT_GYRO_BIAS_SIGMA))
 
     def gyro_bias_walk(self, metadata: Any) -> float:
-        """The random-walk intensity (rad/s/√s) of the gyro's bias, at least MIN_GYRO_BIAS_WALK."""
+        """The random-walk intensity (rad/s/√s) of the gyro's bias, at least MIN_GYRO_BIAS_WALK and at least
+        the walk that reaches the prior σ over CONSTANT_BIAS_OVER_S."""
         walk = self.gyro_bias_walk_rad_s_per_sqrt_s
         if walk is None:
             walk = self._declared_ahrs(metadata).get("gyro_bias_walk_rad_s_per_sqrt_s")
         if walk is None:
             walk = self.gyro_bias_sigma(metadata) / RATE_WALK_OVER_S**0.5
-        return max(float(walk), MIN_GYRO_BIAS_WALK)
+        return max(float(walk), MIN_GYRO_BIAS_WALK, self.gyro_bias_sigma(metadata) / CONSTANT_BIAS_OVER_S**0.5)
 
 
 class AssociationConfig(BaseModel):

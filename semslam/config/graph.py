@@ -21,7 +21,11 @@ class GraphConfig(BaseModel):
     dvl_max_age_s: float = Field(
         0.5, gt=0, description="a DVL sample older than this at a keyframe is not a velocity factor"
     )
-    ahrs_max_age_s: float = Field(0.5, gt=0, description="an AHRS sample older than this at a keyframe is not used")
+    ahrs_max_age_s: float = Field(
+        0.5,
+        gt=0,
+        description="an AHRS sample older than this at a keyframe is not used, nor its rate to carry the attitude on",
+    )
     depth_max_age_s: float = Field(
         0.5,
         gt=0,
