@@ -242,9 +242,9 @@ def test_a_freed_rotation_leaves_the_translation_and_its_marginal_alone(mission,
 def test_two_passes_over_a_mission_give_the_same_observations_to_the_bit(mission):
     """Same input, same output, wherever the front-end is called from (not only inside a run, which pins
     every library to one thread): Open3D's RANSAC on several threads gave other planes for the same scan
-    from one pass to the next, and the relative poses after it differed by up to 0.2 mm, their covariances
-    by ~1 % (experiments/odometry/README.md, stop 44). Open3D is allowed two threads here, as on a
-    two-core machine; the first 40 s (the descent and the first scans of the rack) show it."""
+    from one pass to the next, and other relative poses and covariances after it (experiments/odometry/README.md,
+    stop 44). Open3D is allowed two threads here, as on a two-core machine; the first 40 s (the descent and
+    the first scans of the rack) show it."""
     start = next(iter(mission)).stamp
     head = Mission.from_measurements(mission.metadata, [m for m in mission if m.stamp < start + 40_000_000_000])
     before = o3d.utility.get_max_threads()
