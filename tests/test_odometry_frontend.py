@@ -4,6 +4,7 @@ consistent against the simulator's truth, and gated: a corrupted scan never beco
 import dataclasses
 
 import numpy as np
+import open3d as o3d
 import pytest
 from scipy.spatial.transform import Rotation
 from typer.testing import CliRunner
@@ -230,11 +231,32 @@ def test_a_freed_rotation_leaves_the_translation_and_its_marginal_alone(mission,
         np.testing.assert_array_equal(f.covariance[:3, 3:], 0.0)
         np.testing.assert_array_equal(f.covariance[:3, :3], np.eye(3))  # σ 1 rad: no information on the rotation
     assert all(np.linalg.eigvalsh(z.covariance[:3, :3]).max() < 1e-4 for z in obs)  # the held rotation: ~0.05°
-    # the translation's marginal as the default emits it (two passes of the front-end in one process differ by
-    # up to ~0.2 mm and a few % of the covariance: measured with the default on both, not this key's doing)
-    ratio = np.median([np.trace(f.covariance[3:, 3:]) for f in free]) / np.median(
-        [np.trace(z.covariance[3:, 3:]) for z in obs]
-    )
-    assert 0.95 < ratio < 1.05
-    err = _errors(mission, free)
-    assert np.median(np.linalg.norm(err[:, 3:], axis=1)) < 0.01
+    # the same registrations as the default's, to the bit (the front-end is deterministic: see below): the
+    # relative poses and the translation's marginal as the default emits them
+    assert [z.stamp for z in free] == [z.stamp for z in obs]
+    for f, z in zip(free, obs):
+        np.testing.assert_array_equal(f.relative_pose, z.relative_pose)
+        np.testing.assert_array_equal(f.covariance[3:, 3:], z.covariance[3:, 3:])
+
+
+def test_two_passes_over_a_mission_give_the_same_observations_to_the_bit(mission):
+    """Same input, same output, wherever the front-end is called from (not only inside a run, which pins
+    every library to one thread): Open3D's RANSAC on several threads gave other planes for the same scan
+    from one pass to the next, and other relative poses and covariances after it (experiments/odometry/README.md,
+    stop 44). Open3D is allowed two threads here, as on a two-core machine; the first 40 s (the descent and
+    the first scans of the rack) show it."""
+    start = next(iter(mission)).stamp
+    head = Mission.from_measurements(mission.metadata, [m for m in mission if m.stamp < start + 40_000_000_000])
+    before = o3d.utility.get_max_threads()
+    o3d.utility.set_max_threads(2)
+    try:
+        fe_a, a = _register(head)
+        fe_b, b = _register(head)
+    finally:
+        o3d.utility.set_max_threads(before)
+    assert len(a) >= 5
+    assert fe_a.finish().metrics == fe_b.finish().metrics
+    assert [(z.stamp_from, z.stamp) for z in a] == [(z.stamp_from, z.stamp) for z in b]
+    for x, y in zip(a, b):
+        np.testing.assert_array_equal(x.relative_pose, y.relative_pose)
+        np.testing.assert_array_equal(x.covariance, y.covariance)

@@ -10,6 +10,8 @@ the same components are called one by one: preprocess (range crop), voxelise, al
 from __future__ import annotations
 
 from collections import deque
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 import numpy as np
@@ -46,9 +48,29 @@ class Registration:
     tail_part: np.ndarray | None = None
 
 
+@contextmanager
+def open3d_on_one_thread() -> Iterator[None]:
+    """Inside the block, Open3D works on one thread (its previous limit is restored after). Open3D 0.20's
+    RANSAC (``segment_plane``) runs its iterations in parallel, each drawing its sample from the one seeded
+    generator: which iteration gets which draw depends on the threads' timing, so on several threads the
+    same scan gave other planes from one call to the next, and the registrations after it other poses
+    (experiments/odometry/README.md, stop 44). A run pins every library already
+    (:func:`semslam.determinism.one_thread_per_library`); this pin holds wherever the front-end is called
+    from (tests, experiments), so that the same input gives the same output to the bit."""
+    import open3d as o3d
+
+    before = o3d.utility.get_max_threads()
+    o3d.utility.set_max_threads(1)
+    try:
+        yield
+    finally:
+        o3d.utility.set_max_threads(before)
+
+
 def large_planes(points: np.ndarray, cfg) -> list[tuple[np.ndarray, float]]:
     """(unit normal, offset) of up to ``cfg.max_planes`` planes, each holding at least
-    ``cfg.min_fraction`` of ``points`` (RANSAC, largest first; seeded: the same scan gives the same planes)."""
+    ``cfg.min_fraction`` of ``points`` (RANSAC, largest first; seeded and on one thread: the same scan gives
+    the same planes)."""
     import open3d as o3d
 
     planes, rest = [], points
@@ -57,7 +79,8 @@ def large_planes(points: np.ndarray, cfg) -> list[tuple[np.ndarray, float]]:
             break
         pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(rest))
         o3d.utility.random.seed(0)
-        model, inliers = pcd.segment_plane(cfg.distance_m, 3, 200)
+        with open3d_on_one_thread():
+            model, inliers = pcd.segment_plane(cfg.distance_m, 3, 200)
         if len(inliers) < cfg.min_fraction * len(points):
             break
         normal = np.asarray(model[:3], float)
