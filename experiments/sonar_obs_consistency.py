@@ -128,6 +128,8 @@ def surveys(out: Path, seeds: list[int]) -> None:
     from semslam.config import SemslamConfig
     from semslam.estimators import create_estimator
     from semslam.pipeline import run_pipeline
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository, for its tests' survey
     from tests.test_sonar_frontend import _survey  # the tests' own survey, so that the numbers are theirs
 
     for seed in seeds:
