@@ -83,19 +83,3 @@ def test_a_pipe_sampled_more_sparsely_than_the_cells_is_found():
     found = _found(segs, a, b, r)
     assert found, [(s.p.round(2), s.q.round(2), round(s.radius, 2)) for s in segs]
     assert max(s.length for s in found) > 5.0
-
-
-def test_the_axis_of_a_small_pipe_is_put_at_its_depth():
-    """The axis' depth comes from the crest's cells: those up to r/3 or two cells beside it lie deeper
-    by the arc's sag, which put a 0.1 m pipe's axis 12 mm low (4 mm for 0.25 m; on the fields 15-33 mm,
-    experiments/sonar_obs_consistency.py). Within 4 mm for both radii, on three noise draws."""
-    a, b = np.array([1.0, 0.5]), np.array([9.0, 2.0])
-    for r in (0.1, 0.25):
-        for seed in range(3):
-            em, ground = _scene(
-                lambda n, e, r=r: _pipe_height(n, e, a, b, r, lambda s: 0.0 * s), np.random.default_rng(seed)
-            )
-            segs = _found(detect_pipes(em, ground, PipeDetectionConfig(), rng=np.random.default_rng(0)), a, b, r)
-            assert segs, (r, seed)
-            depth = np.mean([(sg.p[2] + sg.q[2]) / 2 for sg in segs])
-            assert abs(depth - (SEABED - r)) < 0.004, (r, seed, depth - (SEABED - r))

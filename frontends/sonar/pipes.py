@@ -198,12 +198,8 @@ def _segment(em, ground, h, c, axis, normal, s0, s1, cfg) -> PipeSegment | None:
     top = ok & np.isfinite(D) & (np.abs(u - u0) < max(r / 3, 2 * cell))
     if top.sum() < 5:
         return None
-    # a cell beside the crest (up to r/3 or two cells off it) lies deeper by the arc's sag: taken back
-    # to the crest's depth (else the axis comes out low: 12 mm for a 0.1 m pipe on a 4 cm grid)
-    du = u[top] - u0
-    crest_D = D[top] - (r - np.sqrt(np.maximum(r * r - du**2, 0.0)))
     A = np.column_stack([np.ones(top.sum()), s[top]])
-    coef, *_ = np.linalg.lstsq(A, crest_D, rcond=None)
+    coef, *_ = np.linalg.lstsq(A, D[top], rcond=None)
     p = np.array([a2[0], a2[1], coef[0] + coef[1] * s0 + r])
     q = np.array([b2[0], b2[1], coef[0] + coef[1] * s1 + r])
     return PipeSegment(p, q, float(r), int(ok.sum()), float(res))
