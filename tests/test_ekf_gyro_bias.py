@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from semslam.config import SemslamConfig
+from semslam.config.estimation import CONSTANT_BIAS_OVER_S, MIN_GYRO_BIAS_WALK
 from semslam.ekf.estimator import DeadReckoning, EkfEstimator
 from semslam.estimation import Trajectory
 from semslam.estimators import create_estimator
@@ -37,7 +38,9 @@ def test_no_gyro_bias_declared_zero_means_no_bias_state():
     off = SemslamConfig(sensors={"gyro_bias_sigma_rad_s": 0.0})
     assert EkfEstimator(biased.metadata, off).nav.nv == 9
     on = EkfEstimator(biased.metadata, SemslamConfig())
-    assert on.nav.nv == 12 and on.nav.gyro_sigma0 == 1e-3 and on.nav.gyro_walk == 1e-7  # declared constant
+    # declared constant: the least walk that reaches σ over CONSTANT_BIAS_OVER_S (above MIN_GYRO_BIAS_WALK here)
+    assert on.nav.nv == 12 and on.nav.gyro_sigma0 == 1e-3
+    assert on.nav.gyro_walk == pytest.approx(1e-3 / CONSTANT_BIAS_OVER_S**0.5) and on.nav.gyro_walk > MIN_GYRO_BIAS_WALK
 
 
 def test_circling_learns_the_drawn_gyro_bias_and_stays_consistent():
