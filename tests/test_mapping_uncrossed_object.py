@@ -72,3 +72,28 @@ def test_the_pipe_beyond_a_tentative_object_is_not_the_mapped_pipe_seen_badly():
     p, q = _seg(1.0, 1.5)
     z = LineObservation(0, "stereo", p=p, q=q, covariance=np.eye(6) * 1e-4, radius=0.02)
     assert builder._overlaps_mapped(z, NONE, VALVE, lines)
+
+
+class _TwoPipes(_State):
+    """Two mapped pipes on one line (ids 2 and 4), no mapped object, their lines compatible by χ²."""
+
+    def pipes(self):
+        return [(2, C, D), (4, C, D)]
+
+    def objects(self):
+        return [], NONE
+
+    def difference_nis(self, a, b):
+        return 0.0
+
+
+def test_the_pipe_beyond_a_tentative_object_is_no_duplicate_of_the_pipe_before_it():
+    """Pipe 4 (mapped from the views beyond the valve) and pipe 2 (whose stray view crossed the valve's
+    place) are collinear and compatible, but the valve that no view of pipe 2 runs across lies between
+    them: two pipes, not one mapped twice."""
+    book = _book(SEEN + [STRAY])
+    for s0, s1 in [(2.14, 2.55), (2.2, 2.6), (2.15, 2.58)]:
+        book.extent(4).add(_seg(s0, s1), 0.01)
+    builder = MapBuilder(_TwoPipes(), AssociationConfig(), book, [])
+    assert builder._duplicate_pipes({4}, VALVE) == []
+    assert builder._duplicate_pipes({4}, NONE) != []  # without the valve they are one

@@ -28,6 +28,7 @@ from pipeline_replay import light_mission, replay, true_poses  # noqa: E402
 def trace(seed: int, pipe: int, dump: Path, sim: dict, config: dict, details: bool = False) -> list[str]:
     from frontends.laser.evaluation import matching_pipe
     from semslam.mapping import builder, tracks
+    from semslam.mapping.association import chi2_gate
     from semslam.observations import LineObservation
 
     mission = light_mission(seed, sim, dump)
@@ -54,7 +55,7 @@ def trace(seed: int, pipe: int, dump: Path, sim: dict, config: dict, details: bo
         return f"landmark {lid} (on true pipe {on_truth.get(lid)})"
 
     orig_process, orig_overlaps = builder.MapBuilder.process, builder.MapBuilder._overlaps_mapped
-    orig_extend, orig_merge = tracks.TrackSet.extend, builder.MapBuilder.merge_duplicates
+    orig_extend = tracks.TrackSet.extend
 
     def process(self, stamp, observations):
         if getattr(self.state, "_traced", None) is None:
@@ -72,6 +73,21 @@ def trace(seed: int, pipe: int, dump: Path, sim: dict, config: dict, details: bo
                     log.append(f"{t(track.last_stamp)} track {track.key} PROMOTED to landmark {lid}")
                 return lid
 
+            candidates = self.state.candidates
+
+            def traced_candidates(obs, confidence, scan):
+                found, ids = candidates(obs, confidence, scan)
+                for k, (i, j) in enumerate(zip(found.obs, found.lm)):
+                    z = obs[i]
+                    if details and isinstance(z, LineObservation) and true_pipe(z) == pipe:
+                        gate = chi2_gate(self.assoc.confidence, found.dof(k))
+                        log.append(
+                            f"        NIS with landmark {ids[j]}: {found.nis[k]:.2f} "
+                            f"(gate {gate:.2f} at association.confidence)"
+                        )
+                return found, ids
+
+            self.state.candidates = traced_candidates
             self.state.update, self.state.promote, self.state._traced = traced_update, traced_promote, True
         n = len(self.diagnostics)
         out = orig_process(self, stamp, observations)
@@ -121,7 +137,7 @@ def trace(seed: int, pipe: int, dump: Path, sim: dict, config: dict, details: bo
         results, mission, by_stamp = replay(seed, dump, sim, config)
     finally:
         builder.MapBuilder.process, builder.MapBuilder._overlaps_mapped = orig_process, orig_overlaps
-        tracks.TrackSet.extend, builder.MapBuilder.merge_duplicates = orig_extend, orig_merge
+        tracks.TrackSet.extend = orig_extend
         builder.Scan.excludes = orig_excludes
     n_obs = sum(1 for obs in by_stamp.values() for z in obs if isinstance(z, LineObservation) and true_pipe(z) == pipe)
     graph = results["graph"]
