@@ -11,7 +11,10 @@ For each batch of observations (one front-end's, of one measurement) the builder
    of it (paired too); an observation compatible at ``track_gate_confidence`` with some landmark, or
    lying where a mapped landmark of its kind is (objects closer than ``association.object_body_m``; pipes
    within ``min_separation_m`` of the axis, nearly parallel, half within what was seen of it, no object between), is that
-   landmark seen badly: ambiguous, it starts nothing;
+   landmark seen badly: ambiguous, it starts nothing. What was seen of a pipe is cut, for these rules, at the
+   mapped objects and at the tentative ones that no view of it runs across
+   (:meth:`~semslam.mapping.extent.PipeExtent.uncrossed`: a view that reached past a valve before the valve was
+   seen must not join the pipe beyond it);
 4. has the estimator apply the pairings (its own update), extends or starts tentative landmarks with
    the rest (:mod:`semslam.mapping.tracks`) and has the estimator initialise those promoted;
 5. records every view in the :class:`~semslam.mapping.book.LandmarkBook` (class evidence, what was seen
