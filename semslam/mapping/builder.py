@@ -11,7 +11,10 @@ For each batch of observations (one front-end's, of one measurement) the builder
    of it (paired too); an observation compatible at ``track_gate_confidence`` with some landmark, or
    lying where a mapped landmark of its kind is (objects closer than ``association.object_body_m``; pipes
    within ``min_separation_m`` of the axis, nearly parallel, half within what was seen of it, no object between), is that
-   landmark seen badly: ambiguous, it starts nothing;
+   landmark seen badly: ambiguous, it starts nothing. What was seen of a pipe is cut, for these rules, at the
+   mapped objects and at the tentative ones that no view of it runs across
+   (:meth:`~semslam.mapping.extent.PipeExtent.uncrossed`: a view that reached past a valve before the valve was
+   seen must not join the pipe beyond it);
 4. has the estimator apply the pairings (its own update), extends or starts tentative landmarks with
    the rest (:mod:`semslam.mapping.tracks`) and has the estimator initialise those promoted;
 5. records every view in the :class:`~semslam.mapping.book.LandmarkBook` (class evidence, what was seen
@@ -314,7 +317,8 @@ class MapBuilder:
         parallel = np.arccos(np.minimum(1.0, np.abs(dirs @ u))) <= a.merge_angle_rad
         for k in np.flatnonzero(parallel & (off < sep)):
             pid, c, d, s_ = ids[k], points[k], dirs[k], s[k]
-            lo, hi = seen = self.book.extent(pid).interval(c, d, mapped_objects, a.inline_object_radius_m)
+            extent, radius = self.book.extent(pid), a.inline_object_radius_m
+            lo, hi = seen = extent.interval(c, d, extent.cutting(mapped_objects, separators, c, d, radius), radius)
             if min(s_.max(), hi) - max(s_.min(), lo) < 0.5 * (s_.max() - s_.min()):
                 continue  # mostly beyond what was seen: possibly the next pipe in line
             if not object_between(seen, seg, c, d, separators, a.inline_object_radius_m):
@@ -415,7 +419,9 @@ class MapBuilder:
                     # which a pipe may run through, cuts a's stretch only)
                     if fittings is None:
                         fittings = self._fittings(ids, cutters)
-                    ends_b = self.book.extent(pid_b).ends(c_b, d_b, fittings, a_cfg.inline_object_radius_m)
+                    # (and at the tentative objects no view of b runs across: :meth:`PipeExtent.uncrossed`)
+                    ext_b, r = self.book.extent(pid_b), a_cfg.inline_object_radius_m
+                    ends_b = ext_b.ends(c_b, d_b, ext_b.cutting(fittings, separators, c_b, d_b, r), r)
                     if not self._on_pipe(ends_b, pid_a, c_a, d_a, separators, cutters):
                         continue
                     nis = self.state.difference_nis(pid_a, pid_b)

@@ -38,6 +38,7 @@ def off_axis(points: np.ndarray, c: np.ndarray, d: np.ndarray) -> float:
     return float(np.linalg.norm(r - np.outer(r @ d, d), axis=1).max())
 
 
+CROSSING_M = 0.05  # how far past an object's centre, both ways, a view must reach to run across it
 MEMO_LINES = 16  # lines (and cuts) an extent remembers: a scan asks of a pipe along a few lines only
 
 
@@ -176,6 +177,33 @@ class PipeExtent:
             self._sep_memo = (key, on_line)
         return object_between(span, ends_W, c, d, on_line, radius)
 
+    def uncrossed(self, objects: np.ndarray, c: np.ndarray, d: np.ndarray, radius: float) -> np.ndarray:
+        """The objects (N×3, {W}) within ``radius`` of the line (c, d) that no view of the pipe runs across
+        (from ``CROSSING_M`` before their centre along the line to ``CROSSING_M`` beyond it): where the
+        views meet only across an in-line object, they may be of two pipes, joined by it. A view that
+        reached past an in-line part before the part was seen (seed 34's pipe 3: a view of the next pipe
+        0.18 m beyond the seen end, the valve between them seen a scan later) must not make the two
+        pipes one; a pipe that runs on through an object (a valve on a run, a false object view) has
+        views across it."""
+        objects = np.asarray(objects, float).reshape(-1, 3)
+        r = objects - c
+        s_obj = r @ d
+        on = np.linalg.norm(r - np.outer(s_obj, d), axis=1) < radius
+        if not on.any() or not self._k:
+            return objects[on]
+        s = (self._pts[: self._k] - c) @ d
+        lo, hi = s.min(axis=1), s.max(axis=1)
+        crossed = ((lo[:, None] < s_obj[on] - CROSSING_M) & (hi[:, None] > s_obj[on] + CROSSING_M)).any(axis=0)
+        return objects[on][~crossed]
+
+    def cutting(
+        self, mapped: np.ndarray, others: np.ndarray, c: np.ndarray, d: np.ndarray, radius: float
+    ) -> np.ndarray:
+        """The objects that cut what was seen of the pipe (c, d) when a segment's place beside it is judged:
+        the ``mapped`` ones (N×3, {W}) and those of ``others`` (the tentative ones) that no view runs
+        across (:meth:`uncrossed`)."""
+        return np.vstack([np.asarray(mapped, float).reshape(-1, 3), self.uncrossed(others, c, d, radius)])
+
     def excludes(
         self,
         ends_W: np.ndarray,
@@ -189,8 +217,9 @@ class PipeExtent:
         """A segment (2×3, {W}) cannot be this pipe (c, d): it lies more than ``max_gap`` beyond what
         was seen of it (cut at the mapped objects ``cutters``: a pipe seen through a socket or a tee
         must not keep the views of the pipe beyond it), or an object (``separators``: mapped and
-        tentative) lies between them."""
-        span = self.interval(c, d, cutters, radius)
+        tentative) lies between them. ``cutters`` are the mapped objects; the tentative ones that no view
+        runs across cut too (:meth:`cutting`)."""
+        span = self.interval(c, d, self.cutting(cutters, separators, c, d, radius), radius)
         return self.gap(ends_W, c, d, span) > max_gap or self.separated(ends_W, c, d, separators, radius, span)
 
 
