@@ -3,7 +3,7 @@
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from semslam.backend.navigation import NavigationBuffer
+from semslam.backend.navigation import AttitudeSample, NavigationBuffer
 from semslam.mission.measurements import Attitude
 from semslam.mission.mission import MissionMetadata, SensorInfo
 
@@ -34,12 +34,13 @@ def _readings(rng, n, rate_z=0.0, hz=20.0, rate_sigma=0.01):
     return out, truth
 
 
-def _fused_errors(rate_z, runs=200, n=20, rate_sigma=0.01):
+def _fused_errors(rate_z, runs=200, n=20, rate_sigma=0.01, hz=20.0):
     rng = np.random.default_rng(1)
     errs, covs = [], []
     for _ in range(runs):
-        nav = NavigationBuffer(AHRS_ONLY, accel_sigma=0.05, rate_sigma=rate_sigma)
-        readings, truth = _readings(rng, n, rate_z, rate_sigma=rate_sigma)
+        # the buffer takes the gyro's density: a reading's σ over √rate (as the config derives it from a mission)
+        nav = NavigationBuffer(AHRS_ONLY, accel_sigma=0.05, rate_sigma=rate_sigma / np.sqrt(hz))
+        readings, truth = _readings(rng, n, rate_z, hz=hz, rate_sigma=rate_sigma)
         for m in readings:
             nav.add(m)
         t = readings[-1].stamp * 1e-9
@@ -57,3 +58,25 @@ def test_fused_attitude_averages_the_readings_and_says_so():
     assert sd[2] < 0.5 * SIG[2]
     np.testing.assert_allclose(sd, np.sqrt(np.diag(cov)), rtol=0.25)
     assert np.all(np.abs(errs.mean(axis=0)) < 3 * sd / np.sqrt(len(errs)))  # unbiased while turning
+
+
+def test_carried_covariance_grows_by_the_density_over_the_time():
+    # white rate noise of density q (rad/s/√Hz) integrated over Δt has variance q²·Δt per axis: carried
+    # over k AHRS periods the attitude's covariance has grown by k·q²·period, whether carried at once or
+    # reading by reading (variances of independent periods add)
+    q, period, k = 0.002, 0.05, 10
+    cov0 = np.diag(SIG**2)
+    s = AttitudeSample(0.0, np.eye(3), cov0, np.array([0.0, 0.0, 0.1]))
+    _, once = s.carried_to(k * period, q)
+    np.testing.assert_allclose(once - cov0, np.eye(3) * k * q**2 * period, rtol=1e-12, atol=1e-18)
+    for i in range(1, k + 1):
+        R, cov = s.carried_to(i * period, q)
+        s = AttitudeSample(i * period, R, cov, s.omega_B)
+    np.testing.assert_allclose(s.cov, once, rtol=1e-12, atol=1e-18)
+    # and through the buffer: one reading, then the attitude k periods later
+    nav = NavigationBuffer(AHRS_ONLY, accel_sigma=0.05, rate_sigma=q)
+    nav.add(
+        Attitude(stamp=0, sensor="ahrs", orientation=[0.0, 0.0, 0.0, 1.0], covariance=cov0, angular_rate=[0, 0, 0.1])
+    )
+    _, cov = nav.attitude_at(k * period)
+    np.testing.assert_allclose(cov - cov0, np.eye(3) * k * q**2 * period, rtol=1e-9, atol=1e-18)

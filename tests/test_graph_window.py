@@ -3,6 +3,8 @@ the window is exact on a linear problem, and on a simulated mission a window far
 mission keeps the estimate's accuracy, lets landmarks leave and come back without duplicates, and
 leaves the batch re-optimisation the whole mission."""
 
+from collections import Counter
+
 import gtsam
 import numpy as np
 import pytest
@@ -26,7 +28,8 @@ from semslam.backend.window import (
     value_of,
 )
 from semslam.config import SemslamConfig
-from tests.support.synthetic_mission import SyntheticConfig, landmark_report, run_graph, simulate
+from semslam.pipeline import run_pipeline
+from tests.support.synthetic_mission import SyntheticConfig, landmark_report, simulate
 
 
 def _chain(rng):
@@ -112,11 +115,18 @@ def windowed():
             seed=0,
         )
     )
-    runs = {}
+    runs, graphs = {}, {}
     for window in (None, 125.0):
         fe = OracleFrontend(mission.metadata, {"seed": 1})
-        runs[window] = run_graph(mission, SemslamConfig(graph={"window_s": window}), [fe], batch=True)
-    return mission, runs[None], runs[125.0]
+        est = GraphEstimator(mission.metadata, SemslamConfig(graph={"window_s": window}), batch=True)
+        runs[window] = run_pipeline(mission, [est], [fe], keep_observations=False).results[est.name]
+        graphs[window] = _factor_keys(est.session.graph())  # the graph the batch optimised
+    return mission, runs[None], runs[125.0], (graphs[None], graphs[125.0])
+
+
+def _factor_keys(graph: gtsam.NonlinearFactorGraph) -> Counter:
+    """The factors of ``graph`` by the variables they link (a multiset of sorted key tuples)."""
+    return Counter(tuple(sorted(graph.at(i).keys())) for i in range(graph.size()) if graph.at(i) is not None)
 
 
 def test_online_result_keeps_no_factor_of_the_whole_mission_and_its_covariances():
@@ -155,7 +165,7 @@ def test_online_result_keeps_no_factor_of_the_whole_mission_and_its_covariances(
 
 
 def test_window_slides_and_landmarks_come_back(windowed):
-    _, full, win = windowed
+    _, full, win, _ = windowed
     slides = win.history["window_slides"]
     assert len(slides) >= 3 and not full.history["window_slides"]
     assert sum(s["left_landmarks"] for s in slides) > 0
@@ -165,7 +175,7 @@ def test_window_slides_and_landmarks_come_back(windowed):
 
 
 def test_windowed_online_estimate_keeps_its_accuracy(windowed):
-    mission, full, win = windowed
+    mission, full, win, _ = windowed
     win_ate = ate(win.online_trajectory, mission)
     assert win_ate <= 0.25 * dr_ate(mission)
     assert win_ate <= 1.25 * ate(full.online_trajectory, mission)
@@ -176,14 +186,24 @@ def test_windowed_online_estimate_keeps_its_accuracy(windowed):
 
 
 def test_batch_after_a_window_spans_the_whole_mission(windowed):
-    mission, full, win = windowed
+    mission, full, win, (full_graph, win_graph) = windowed
     assert len(win.trajectory) == win.history["n_keyframes"] == full.history["n_keyframes"]
-    # LM over every factor of the mission, none of the window's marginals or priors: it lands where
-    # the full smoother's batch does (the two differ only by a few associations, which move with the
-    # online estimates: 8.4 mm at most with keyframes committed one by one, 11.3 mm with them deferred
-    # to the scan's update; the median 2 mm either way)
-    gap = np.linalg.norm(win.trajectory.positions - full.trajectory.positions, axis=1)
-    assert gap.max() < 0.015 and np.median(gap) < 0.004
+    # LM over every factor of the mission, none of the window's marginals or priors: every factor of the
+    # windowed run's batch is one of the full smoother's, which has only a few landmark observations more
+    # (associations the windowed online estimate did not make: 7-9 of ~3400 factors, all on the last lane)
+    assert not win_graph - full_graph
+    missing = full_graph - win_graph
+    assert sum(missing.values()) <= 0.01 * full_graph.total()
+    assert all(any(gtsam.Symbol(k).chr() in b"lp" for k in keys) for keys in missing)
+    # So the batch lands where the full smoother's does, up to what those few observations move: the whole
+    # trajectory, rigidly, along the gauge that the start position's prior (σ 1 cm) holds only softly
+    # (4.2 mm in x with the attitude carried at the gyro's density, 1.5 mm with the old, too tight
+    # carry; stop 44), and the keyframes near them
+    d = win.trajectory.positions - full.trajectory.positions
+    shift = d.mean(axis=0)
+    gap = np.linalg.norm(d - shift, axis=1)
+    assert np.linalg.norm(shift) < 0.01
+    assert np.linalg.norm(d, axis=1).max() < 0.015 and np.median(gap) < 0.002
     assert np.isfinite(win.trajectory.position_cov[0]).all()  # covariances reach the keyframes that left
 
 

@@ -111,7 +111,7 @@ def test_readings_keyframes_and_the_dvl_lever_arm_turn_at_the_rate_less_the_bias
     cov0 = nav.fused.cov.copy()
     nav.add(_reading(0.05, 0.0, w))
     # the reading at 0 carried to the one at 0.05 with the rate less b̄, then updated with it (identity)
-    carried, P = so3_exp((w - b) * 0.05), cov0 + np.eye(3) * (DENSITY * 0.05) ** 2
+    carried, P = so3_exp((w - b) * 0.05), cov0 + np.eye(3) * DENSITY**2 * 0.05  # white rate noise over 0.05 s
     K = P @ np.linalg.inv(P + nav.attitude.cov)
     np.testing.assert_allclose(nav.fused.R_WB, carried @ so3_exp(K @ so3_log(carried.T)), atol=1e-12)
     F = nav.fused.R_WB.copy()

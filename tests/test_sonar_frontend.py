@@ -78,13 +78,6 @@ def _survey(seed: int):
     return simulate_field(cfg)
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="since the gyro links the keyframes (stop 43) the second line's error without registrations halved "
-    "(sum 0.924 -> 0.483 m) and the registrations no longer reduce it (0.483 -> 0.498 m; main before: 0.924 -> "
-    "0.810). Stop 44: not the registrations' weight: at the true poses they are not too tight (NIS per dof median "
-    "0.42 against the χ² median 0.69, the 5 of these surveys with recognition on, all in the 95 % band); frontends/sonar/README.md, stop 44",
-)
 def test_swath_registration_makes_the_second_line_agree_with_the_first(mission, baseline):
     """Over four fields (the fixture's seed 23 and 24–26): the swath registrations between the lines are
     accepted on most, and they bring the second line nearer the truth in sum. One survey alone hangs on

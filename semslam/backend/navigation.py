@@ -33,14 +33,13 @@ class AttitudeSample:
         self, t: float, rate_sigma: float, gyro_bias: np.ndarray | None = None, max_age: float = np.inf
     ) -> tuple[np.ndarray, np.ndarray]:
         """R_WB at t, rotated on by the angular rate (less ``gyro_bias``) while the reading is younger than
-        ``max_age``, held still after; the covariance grows with the age (rate noise: (rate_sigma·|Δt|)², which
-        at the AHRS's period is the density's rate_sigma²·Δt; within a period it is tighter, see
-        experiments/estimators/README.md, stop 44)."""
+        ``max_age``, held still after; the covariance grows with the age by the white rate noise integrated
+        over it: rate_sigma²·|Δt| per axis, ``rate_sigma`` the gyro's density (rad/s/√Hz)."""
         dt = t - self.t
         w = self.rate(gyro_bias)
         held = float(np.clip(dt, -max_age, max_age))
         R = self.R_WB if w is None or held == 0 else self.R_WB @ so3_exp(w * held)
-        return R, self.cov + np.eye(3) * (rate_sigma * abs(dt)) ** 2
+        return R, self.cov + np.eye(3) * (rate_sigma**2 * abs(dt))
 
 
 @dataclass
