@@ -198,12 +198,13 @@ class SensorModelConfig(BaseModel):
     def gyro_bias_walk(self, metadata: Any) -> float:
         """The random-walk intensity (rad/s/√s) of the gyro's bias, at least MIN_GYRO_BIAS_WALK and at least
         the walk that reaches the prior σ over CONSTANT_BIAS_OVER_S."""
+        sigma = self.gyro_bias_sigma(metadata)
         walk = self.gyro_bias_walk_rad_s_per_sqrt_s
         if walk is None:
             walk = self._declared_ahrs(metadata).get("gyro_bias_walk_rad_s_per_sqrt_s")
         if walk is None:
-            walk = self.gyro_bias_sigma(metadata) / RATE_WALK_OVER_S**0.5
-        return max(float(walk), MIN_GYRO_BIAS_WALK, self.gyro_bias_sigma(metadata) / CONSTANT_BIAS_OVER_S**0.5)
+            walk = sigma / RATE_WALK_OVER_S**0.5
+        return max(float(walk), MIN_GYRO_BIAS_WALK, sigma / CONSTANT_BIAS_OVER_S**0.5)
 
 
 class AssociationConfig(BaseModel):
