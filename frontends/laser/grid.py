@@ -148,13 +148,13 @@ class VoxelGrid:
         block = self._block if rows is None else self._block[rows]
         slot = self._slot if rows is None else self._slot[rows]
         if columns is None:
-            sb, ss = np.take(step_block, slot, axis=0), np.take(step_slot, slot, axis=0)
+            sb, ss = step_block.take(slot, axis=0), step_slot.take(slot, axis=0)
         else:
             sb, ss = step_block[slot[:, None], columns], step_slot[slot[:, None], columns]
         # Flat gathers (2-D fancy indexing is several times slower): the neighbouring block of
         # each offset, then the cell in its slot.
-        nb_block = np.take(self._around, (block * 27)[:, None] + sb)
-        return np.take(self._cells, (nb_block << 3 * _B) + ss)
+        nb_block = self._around.take((block * 27)[:, None] + sb)
+        return self._cells.take((nb_block << 3 * _B) + ss)
 
 
 def row_dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -192,4 +192,4 @@ def adjacency_of(nb: np.ndarray) -> csr_matrix:
     indptr = np.zeros(m + 1, np.int32)
     np.cumsum(np.count_nonzero(ok, axis=1), out=indptr[1:])
     # (a gather at the mask's flat positions: ~3x faster than boolean indexing nb[ok], same order)
-    return csr_matrix((np.ones(int(indptr[-1]), np.float64), np.take(nb, np.flatnonzero(ok)), indptr), shape=(m, m))
+    return csr_matrix((np.ones(int(indptr[-1]), np.float64), nb.take(np.flatnonzero(ok)), indptr), shape=(m, m))
