@@ -245,9 +245,17 @@ class _Points:
         """(indices of the points within ``r + reach`` of the axis, inlier mask of those points)
         for one cylinder: the inlier test runs on the points near the axis only (inliers are
         within ``r + distance_tolerance`` ≤ ``r + reach``)."""
-        along, dist = self._along_dist(c, a)
-        near = (dist <= r + reach).nonzero()[0]
-        return near, self._inliers(c, a, r, cfg, along, dist, near)
+        along = self.p @ a - a @ c
+        d2 = self.sq - 2.0 * (self.p @ c) + c @ c - along * along
+        # (the distances, √max(d², 1e-18) as in _along_dist, of the points whose d² is within a
+        # bound a little above (r + reach)² only: no point whose rounded distance is within r + reach
+        # lies beyond it, and elementwise results do not depend on the other elements)
+        lim = r + reach
+        maybe = (d2 <= lim * lim * (1.0 + 1e-9)).nonzero()[0]
+        dist = np.sqrt(np.maximum(d2[maybe], 1e-18))
+        within = dist <= lim
+        near = maybe[within]
+        return near, self._inliers(c, a, r, cfg, along[near], dist[within], near)
 
     def _along_dist(self, c, a):
         """Position along the axis and distance to it of every point."""
@@ -255,19 +263,19 @@ class _Points:
         return along, np.sqrt(np.maximum(self.sq - 2.0 * (self.p @ c) + c @ c - along * along, 1e-18))
 
     def _inliers(self, c, a, r, cfg: PipeConfig, along, dist, rows=None):
-        """Inlier mask (of the points ``rows``, all when None): within the distance tolerance of the
-        surface, normal within the normal tolerance of radial. (The products with c and a are of
-        the rows' normals only when they are at least two: a matrix-vector product gives every
-        row the same value whichever other rows it holds, the one-row product does not.)"""
+        """Inlier mask (of the points ``rows``, all when None; ``along`` and ``dist`` those of the
+        rows): within the distance tolerance of the surface, normal within the normal tolerance of
+        radial. (The products with c and a are of the rows' normals only when they are at least
+        two: a matrix-vector product gives every row the same value whichever other rows it
+        holds, the one-row product does not.)"""
         pn = self.pn
         if rows is None:
             nc, na = self.n @ c, self.n @ a
         elif len(rows) >= 2:
             n = self.n.take(rows, axis=0)
-            nc, na, pn, along, dist = n @ c, n @ a, pn[rows], along[rows], dist[rows]
+            nc, na, pn = n @ c, n @ a, pn[rows]
         else:
-            nc, na = (self.n @ c)[rows], (self.n @ a)[rows]
-            pn, along, dist = pn[rows], along[rows], dist[rows]
+            nc, na, pn = (self.n @ c)[rows], (self.n @ a)[rows], pn[rows]
         rn = pn - nc - along * na
         return (np.abs(dist - r) <= cfg.distance_tolerance) & (
             rn >= np.cos(np.radians(cfg.normal_tolerance_deg)) * dist
