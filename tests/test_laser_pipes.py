@@ -236,3 +236,33 @@ def test_eigh_is_numpys_eigh_bit_for_bit():
         w, v = _eigh(X.T @ X)
         W, V = np.linalg.eigh(X.T @ X)
         assert np.array_equal(w, W) and np.array_equal(v, V)
+
+
+def test_near_axis_test_matches_the_test_of_every_point():
+    """``_Points.test_near`` finds the points within ``r + reach`` of the axis, and their inliers,
+    exactly as the distances of every point would (it takes square roots near the axis only), also
+    for points within a few rounding steps of the limit."""
+    from frontends.laser.pipes import _Points
+
+    rng = np.random.default_rng(7)
+    cfg = PipeConfig(radius_prior=None)
+    c, a, r, reach = np.array([0.3, -0.2, 2.0]), np.array([0.6, 0.0, 0.8]), 0.0315, 0.03
+    e1 = np.cross(a, [0.0, 1.0, 0.0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(a, e1)
+    phi = rng.uniform(0, 2 * np.pi, 6000)
+    lim = r + reach
+    rho = np.concatenate(
+        [rng.uniform(0, 3 * lim, 2000), lim * (1 + rng.integers(-6, 7, 2000) * 2.0**-52), rng.normal(r, 0.004, 2000)]
+    )
+    radial = np.cos(phi)[:, None] * e1 + np.sin(phi)[:, None] * e2
+    pts = c + rng.uniform(-1, 1, 6000)[:, None] * a + rho[:, None] * radial
+    normals = radial + rng.normal(0, 0.1, (6000, 3))
+    normals /= np.linalg.norm(normals, axis=1)[:, None]
+    P = _Points(pts, normals, np.arange(6000))
+    along, dist = P._along_dist(c, a)
+    ref = np.flatnonzero(dist <= lim)
+    near, inl = P.test_near(c, a, r, cfg, reach)
+    assert np.array_equal(near, ref)
+    assert np.array_equal(inl, P.test(c, a, r, cfg)[ref])
+    assert 0 < inl.sum() < len(ref) and len(ref) < 6000

@@ -135,9 +135,7 @@ def structure_cloud(raw: np.ndarray, pre: Preprocessed, planes: PlaneResult, cfg
     keep = np.flatnonzero(kept_voxel[pre.raw_to_voxel])
     if len(keep) == 0:
         return None, raw_to_structure, np.zeros((0, 3))
-    grid = VoxelGrid(
-        np.take(raw, keep, axis=0), cfg.preprocess.structure_voxel_size
-    )  # (np.take: faster than raw[keep])
+    grid = VoxelGrid(raw.take(keep, axis=0), cfg.preprocess.structure_voxel_size)  # (np.take: faster than raw[keep])
     raw_to_structure[keep] = grid.inverse
     A = adjacency_of(grid.neighbours(1))
     normals, _, _ = shape_of_parts(hop_covariance_parts(grid.points, A, cfg.pipes.normal_hops), grid.points)

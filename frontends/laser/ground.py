@@ -219,10 +219,14 @@ def fit_ground(
     model = GroundModel(basis, cfg.cell, lo, planes(cand), max(cfg.height, cfg.height_sigmas * sigma))
     # (the points' heights above the planes from their frame coordinates and cells, known here: what
     # model.height(points) computes again, every point inside the grid)
+    fitted = cand  # the points of the planes' last fit
     for _ in range(_REFITS):  # on the candidates near the last fit (a pipe or a stone's flank in the band pulls it)
         res = model._above_plane(x, flat)
         near = cand & np.isfinite(res) & (np.abs(res) <= max(_REFIT_SIGMAS * sigma, cfg.height))
+        if np.array_equal(near, fitted):
+            break  # the same points: the same planes again, and so every later refit (most tank scans)
         model.coef = planes(near)
+        fitted = near
     # the ground's own roughness (ripples, gravel) about the planes counts as its noise
     res = model._above_plane(x, flat)
     near &= np.isfinite(res)

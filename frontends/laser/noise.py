@@ -56,16 +56,16 @@ def measure_noise(raw: np.ndarray, pre: Preprocessed) -> NoiseModel | None:
     if len(idx) > _MAX_SAMPLE:
         idx = idx[:: len(idx) // _MAX_SAMPLE]
     v = inv[idx]
-    p = np.take(raw, idx, axis=0)
-    n = np.take(pre.normals, v, axis=0)
+    p = raw.take(idx, axis=0)
+    n = pre.normals.take(v, axis=0)
     rng = np.sqrt(row_dot(p, p))
     facing = np.abs(row_dot(p, n)) / np.maximum(rng, 1e-9)  # |cos| of the incidence
     ok = np.flatnonzero(facing >= _MIN_FACING)  # (gathers by index: faster than boolean selections)
     if len(ok) < _MIN_POINTS:
         return None
-    p, n, v, rng, facing = np.take(p, ok, axis=0), np.take(n, ok, axis=0), v[ok], rng[ok], facing[ok]
+    p, n, v, rng, facing = p.take(ok, axis=0), n.take(ok, axis=0), v[ok], rng[ok], facing[ok]
     # the offset along the surface normal, brought back to the ray (where the noise is)
-    off = np.abs(row_dot(p - np.take(pre.points, v, axis=0), n)) / facing / np.sqrt(1.0 - 1.0 / counts[v])
+    off = np.abs(row_dot(p - pre.points.take(v, axis=0), n)) / facing / np.sqrt(1.0 - 1.0 / counts[v])
     edges = np.quantile(rng, np.linspace(0, 1, _BANDS + 1))
     band = np.clip(np.searchsorted(edges, rng, side="right") - 1, 0, _BANDS - 1)
     r_mid, sig, w = [], [], []

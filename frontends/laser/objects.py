@@ -263,7 +263,7 @@ def radial_level(pipe: Pipe, points: np.ndarray) -> float:
 def surface_level(pipe: Pipe, points: np.ndarray) -> tuple[float, float]:
     """(:func:`radial_level`, the scatter of the inliers' distances about it: 1.4826 × their median
     absolute deviation, the scan's noise on that pipe)."""
-    rad = along_and_off_axis(np.take(points, pipe.inliers, axis=0), pipe.p, pipe.axis)[1]
+    rad = along_and_off_axis(points.take(pipe.inliers, axis=0), pipe.p, pipe.axis)[1]
     level = float(np.median(rad))
     return level, 1.4826 * float(np.median(np.abs(rad - level)))
 
@@ -428,7 +428,7 @@ def _crop(X: np.ndarray, rows: np.ndarray, site: _Site, cfg: ObjectConfig) -> np
     """The rows of ``X`` (among ``rows``) in the site's box, and for one connection or two collinear
     ones in the handle box above it (the mushroom: a valve's handle stands above its body)."""
     body, handle = np.asarray(cfg.body_size), np.asarray(cfg.handle_size)
-    Xr = np.take(X, rows, axis=0)
+    Xr = X.take(rows, axis=0)
     mask = in_box(Xr, site.center, site.R, body)
     if site.config in (1, 2):
         mask |= in_box(Xr, site.center + site.R[:, 2] * (body[2] + handle[2]) / 2, site.R, handle)
@@ -520,7 +520,7 @@ def segment_objects(
     for p in pipes:
         is_pipe[p.inliers] = True
     rest = np.flatnonzero(~is_pipe)
-    X = np.take(points, rest, axis=0)
+    X = points.take(rest, axis=0)
     body = np.asarray(cfg.body_size)
 
     # Pipe ends: position, outward direction (away from the pipe), guessed object centre.
@@ -556,7 +556,7 @@ def segment_objects(
             crop = np.unique(np.concatenate([crops[k] for k in group]))
         if len(crop) < cfg.min_points:
             continue
-        P = np.take(points, crop, axis=0)  # (np.take: several times faster than points[crop])
+        P = points.take(crop, axis=0)  # (np.take: several times faster than points[crop])
         # A lone pipe end is no evidence by itself (the pipe may leave the view or be hidden):
         # the object must touch the end (its cluster anchored there) and have points of its own
         # beyond the pipe's surface. Its cloud adds the largest cluster reaching back to the end
@@ -576,7 +576,7 @@ def segment_objects(
         center, dirs, e = site.center, site.dirs, site.ends
         if site.config == 1:
             pipe = pipes[site.members[0] // 2]
-            P = np.take(points, crop[cluster], axis=0)  # the object's base, at the end: is it one?
+            P = points.take(crop[cluster], axis=0)  # the object's base, at the end: is it one?
             if own_points(P, e[0], -dirs[0], pipe.radius, cfg) < cfg.min_own_points:
                 continue
             if pipe_continues(P, e[0], -dirs[0], pipe, points, cfg):
@@ -595,7 +595,7 @@ def segment_objects(
             reach = float(np.ptp((e - e[0]) @ dirs[0])) + cfg.own_beyond
             if site.config == 1:
                 reach = cfg.attach_distance + cfg.body_size[0] / 2
-            P = np.take(points, crop, axis=0)
+            P = points.take(crop, axis=0)
             if stands_over(P, e[0], -dirs[0], site.R[:, 2], pipe.radius, reach, cfg) < cfg.min_own_points and not (
                 sleeve_over(P, e[0], -dirs[0], site.R[:, 2], pipe, points, reach, cfg)
             ):
@@ -607,7 +607,7 @@ def segment_objects(
         config = site.config
         if site.config == 1:  # on the pipe's axis, at the middle of the object's own part
             radius = pipes[site.members[0] // 2].radius
-            center = e[0] - dirs[0] * lone_end_depth(np.take(points, crop, axis=0), e[0], -dirs[0], radius, cfg)
+            center = e[0] - dirs[0] * lone_end_depth(points.take(crop, axis=0), e[0], -dirs[0], radius, cfg)
             if collinear_stub(X, e[0], -dirs[0], pipes[site.members[0] // 2].radius, cfg):
                 # a second pipe in line (not detected): two collinear connections; the position
                 # is still the one found from the first pipe (and has its covariance)
@@ -631,7 +631,7 @@ def gap_is_pipe(points: np.ndarray, crop: np.ndarray, site: _Site, pipes: list[P
     (e_a, e_b), (out_a, out_b) = site.ends[:2], -site.dirs[:2]
     axis = (out_a - out_b) / np.linalg.norm(out_a - out_b)
     mid = 0.5 * (e_a + e_b)
-    t, rad = along_and_off_axis(np.take(points, crop, axis=0), mid, axis)
+    t, rad = along_and_off_axis(points.take(crop, axis=0), mid, axis)
     two = [pipes[m // 2] for m in site.members[:2]]
     radius = float(np.mean([p.radius for p in two]))
     off = int((rad > radius + cfg.own_margin).sum())

@@ -39,7 +39,7 @@ _SAMPLE_STEPS = np.arange(float(_AXIS_SAMPLES))
 def arc_span_deg(pipe: Pipe, points: np.ndarray) -> float:
     """The arc (deg) the pipe's inliers span about its axis: the 5th to 95th percentile of their
     angles about the direction from the axis towards the sensor (at the origin)."""
-    P = np.take(points, pipe.inliers, axis=0) - pipe.p
+    P = points.take(pipe.inliers, axis=0) - pipe.p
     radial = P - np.outer(P @ pipe.axis, pipe.axis)
     mid = 0.5 * (pipe.p + pipe.q)
     toward = -(mid - (mid @ pipe.axis) * pipe.axis)  # from the axis towards the sensor, across it
@@ -56,7 +56,7 @@ def bow(pipe: Pipe, points: np.ndarray) -> tuple[float, float]:
     parabola in the position along the axis, u ∈ [−1, 1] from end to end; the bow is minus its u²
     coefficient (positive for a dome, ~0 for a straight pipe); its standard error is that of the
     coefficient under the fit's own scatter (1.4826 × median absolute residual)."""
-    P = np.take(points, pipe.inliers, axis=0) - pipe.p
+    P = points.take(pipe.inliers, axis=0) - pipe.p
     t = P @ pipe.axis
     residual = np.sqrt(np.maximum(row_dot(P, P) - t * t, 0.0)) - pipe.radius
     u = (t - 0.5 * pipe.length) / max(0.5 * pipe.length, 1e-9)

@@ -23,6 +23,7 @@ that cylinder reach the valve body and the floor behind it.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -70,7 +71,9 @@ class Pipe:
 
     @property
     def length(self) -> float:
-        return float(np.linalg.norm(self.q - self.p))
+        # (np.linalg.norm's value, √(d·d), without its overhead: read ~200 times a scan)
+        d = self.q - self.p
+        return math.sqrt(d.dot(d))
 
     def reported(self, cfg: PipeConfig) -> bool:
         """Long enough to be an observation (shorter ones only serve segmentation and connectivity),
@@ -131,19 +134,19 @@ def patch_hypotheses(points, normals, grid, seeds, usable, cfg: PipeConfig):
     nb = grid.neighbours(2, rows=seeds)
     # (seed, neighbour) pairs, by seed (−1 reads False), by flat positions: np.nonzero's order
     pair = np.flatnonzero(np.append(usable, False)[nb])
-    s_of, j = pair // nb.shape[1], np.take(nb, pair)
+    s_of, j = pair // nb.shape[1], nb.take(pair)
     cnt = np.bincount(s_of, minlength=len(seeds))
     # (rows gathered by np.take: several times faster than fancy indexing on N×3 arrays)
-    N = np.take(normals, j, axis=0)
+    N = normals.take(j, axis=0)
     # (the six products n_i n_j as rows: the sums run along contiguous rows, and are the 6×S parts
     # eigen3_parts takes)
-    M = _sums_by_seed(np.take(N.T, [0, 0, 0, 1, 1, 2], axis=0) * np.take(N.T, [0, 1, 2, 1, 2, 2], axis=0), cnt)
+    M = _sums_by_seed(N.T.take([0, 0, 0, 1, 1, 2], axis=0) * N.T.take([0, 1, 2, 1, 2, 2], axis=0), cnt)
     lam0, lam1, _, a = eigen3_parts(M)
     # Offsets from the seed across the axis, of positions and of normals.
-    aj = np.take(a, s_of, axis=0)
-    ps, ns = np.take(points, seeds, axis=0), np.take(normals, seeds, axis=0)
-    dp = np.take(points, j, axis=0) - np.take(ps, s_of, axis=0)
-    dn = N - np.take(ns, s_of, axis=0)
+    aj = a.take(s_of, axis=0)
+    ps, ns = points.take(seeds, axis=0), normals.take(seeds, axis=0)
+    dp = points.take(j, axis=0) - ps.take(s_of, axis=0)
+    dn = N - ns.take(s_of, axis=0)
     dp -= np.einsum("pj,pj->p", dp, aj)[:, None] * aj
     dn -= np.einsum("pj,pj->p", dn, aj)[:, None] * aj
     sums = _sums_by_seed(np.stack([np.einsum("pj,pj->p", dp, dn), np.einsum("pj,pj->p", dn, dn)]), cnt)
@@ -220,17 +223,17 @@ class _Points:
 
     def __init__(self, points, normals, index):
         self.index = index
-        self.p = np.take(points, index, axis=0)  # (rows by np.take: several times faster than points[index])
-        self.n = np.take(normals, index, axis=0)
+        self.p = points.take(index, axis=0)  # (rows by np.take: several times faster than points[index])
+        self.n = normals.take(index, axis=0)
         self.sq = row_dot(self.p, self.p)
         self.pn = row_dot(self.p, self.n)
 
     def subset(self, mask) -> _Points:
         """The points of a mask (or of sorted indices) of these."""
         sub = object.__new__(_Points)
-        k = np.flatnonzero(mask) if mask.dtype == bool else mask
+        k = mask.nonzero()[0] if mask.dtype == bool else mask
         sub.index, sub.sq, sub.pn = self.index[k], self.sq[k], self.pn[k]
-        sub.p, sub.n = np.take(self.p, k, axis=0), np.take(self.n, k, axis=0)
+        sub.p, sub.n = self.p.take(k, axis=0), self.n.take(k, axis=0)
         return sub
 
     def test(self, c, a, r, cfg: PipeConfig):
@@ -242,9 +245,17 @@ class _Points:
         """(indices of the points within ``r + reach`` of the axis, inlier mask of those points)
         for one cylinder: the inlier test runs on the points near the axis only (inliers are
         within ``r + distance_tolerance`` ≤ ``r + reach``)."""
-        along, dist = self._along_dist(c, a)
-        near = np.flatnonzero(dist <= r + reach)
-        return near, self._inliers(c, a, r, cfg, along, dist, near)
+        along = self.p @ a - a @ c
+        d2 = self.sq - 2.0 * (self.p @ c) + c @ c - along * along
+        # (the distances, √max(d², 1e-18) as in _along_dist, of the points whose d² is within a
+        # bound a little above (r + reach)² only: no point whose rounded distance is within r + reach
+        # lies beyond it, and elementwise results do not depend on the other elements)
+        lim = r + reach
+        maybe = (d2 <= lim * lim * (1.0 + 1e-9)).nonzero()[0]
+        dist = np.sqrt(np.maximum(d2[maybe], 1e-18))
+        within = dist <= lim
+        near = maybe[within]
+        return near, self._inliers(c, a, r, cfg, along[near], dist[within], near)
 
     def _along_dist(self, c, a):
         """Position along the axis and distance to it of every point."""
@@ -252,19 +263,19 @@ class _Points:
         return along, np.sqrt(np.maximum(self.sq - 2.0 * (self.p @ c) + c @ c - along * along, 1e-18))
 
     def _inliers(self, c, a, r, cfg: PipeConfig, along, dist, rows=None):
-        """Inlier mask (of the points ``rows``, all when None): within the distance tolerance of the
-        surface, normal within the normal tolerance of radial. (The products with c and a are of
-        the rows' normals only when they are at least two: a matrix-vector product gives every
-        row the same value whichever other rows it holds, the one-row product does not.)"""
+        """Inlier mask (of the points ``rows``, all when None; ``along`` and ``dist`` those of the
+        rows): within the distance tolerance of the surface, normal within the normal tolerance of
+        radial. (The products with c and a are of the rows' normals only when they are at least
+        two: a matrix-vector product gives every row the same value whichever other rows it
+        holds, the one-row product does not.)"""
         pn = self.pn
         if rows is None:
             nc, na = self.n @ c, self.n @ a
         elif len(rows) >= 2:
-            n = np.take(self.n, rows, axis=0)
-            nc, na, pn, along, dist = n @ c, n @ a, pn[rows], along[rows], dist[rows]
+            n = self.n.take(rows, axis=0)
+            nc, na, pn = n @ c, n @ a, pn[rows]
         else:
-            nc, na = (self.n @ c)[rows], (self.n @ a)[rows]
-            pn, along, dist = pn[rows], along[rows], dist[rows]
+            nc, na, pn = (self.n @ c)[rows], (self.n @ a)[rows], pn[rows]
         rn = pn - nc - along * na
         return (np.abs(dist - r) <= cfg.distance_tolerance) & (
             rn >= np.cos(np.radians(cfg.normal_tolerance_deg)) * dist
@@ -288,7 +299,7 @@ class Rays:
         """Indices of the rays inside the cone around each bounding sphere (centre, radius), all
         spheres in one matrix product (a sphere around the sensor gets no rays)."""
         C, lim, ok = self._cosines(centres, halves)
-        return [np.flatnonzero(C[j] >= lim[j]) if ok[j] else np.zeros(0, np.int64) for j in range(len(centres))]
+        return [(C[j] >= lim[j]).nonzero()[0] if ok[j] else np.zeros(0, np.int64) for j in range(len(centres))]
 
     def _cosines(self, centres: np.ndarray, halves: np.ndarray):
         """(the cosines of every ray to the direction of every sphere's centre (S×N, float32), the
@@ -303,14 +314,14 @@ class Rays:
         return C, least_float32_not_below(cos), ok
 
     def _count(self, sel, c, a, r, t0, t1, cfg: PipeConfig, deep: float | None = None) -> tuple[int, int]:
-        d, rng = np.take(self.directions, sel, axis=0).astype(np.float64), self.ranges[sel]
+        d, rng = self.directions.take(sel, axis=0).astype(np.float64), self.ranges[sel]
         da = d @ a
         w = d - da[:, None] * a
         cp = c - (c @ a) * a
         A = np.maximum(row_dot(w, w), 1e-12)
         B = -2.0 * (w @ cp)
         disc = B * B - 4.0 * A * (cp @ cp - r * r)
-        hit = np.flatnonzero(disc > 0)  # (the rest miss the cylinder: the chords of these only)
+        hit = (disc > 0).nonzero()[0]  # (the rest miss the cylinder: the chords of these only)
         A, B, disc, da, rng = A[hit], B[hit], disc[hit], da[hit], rng[hit]
         root = np.sqrt(np.maximum(disc, 0.0))
         s1, s2 = (-B - root) / (2 * A), (-B + root) / (2 * A)
@@ -489,7 +500,7 @@ def free_radius(points: np.ndarray, c: np.ndarray, a: np.ndarray) -> tuple[float
 def _runs(t: np.ndarray, max_gap: float) -> list[np.ndarray]:
     """Split positions along the axis into runs without gaps above ``max_gap`` (index arrays)."""
     order = np.argsort(t)
-    cuts = np.flatnonzero(np.diff(t[order]) > max_gap) + 1
+    cuts = (np.diff(t[order]) > max_gap).nonzero()[0] + 1
     return split_sorted(order, cuts)
 
 
@@ -636,7 +647,7 @@ def _fitted_ends(flag, first: int, b, runs: list[np.ndarray]) -> list[tuple[bool
     end is where the pipe enters a coaxial part wider than itself (a socket, a valve's port), not the
     view's edge, an occlusion, or the side of a valve's body fitted as a pipe (beyond which the
     valve's other parts crowd without a coaxial shell)."""
-    bad = set((np.flatnonzero(flag) + first).tolist())
+    bad = set((flag.nonzero()[0] + first).tolist())
     out = []
     for run in runs:
         # (a run's inliers are sorted along the axis, so are their bins: its first and last hold
@@ -653,8 +664,8 @@ def _kept_runs(flag, first: int, b, t, t0: float, ta, cfg: PipeConfig, open_gap=
     is bin k's), cut at flagged bins, at gaps longer than ``max_gap``, at gaps holding a body
     (``fitting_points`` of the sorted ``ta``, or None) and, with ``open_gap``, at gaps longer than
     ``min_open_gap`` over which the pipe is absent (``open_gap(t0, t1)``)."""
-    bad_bins = np.flatnonzero(flag) + first
-    kept = np.flatnonzero(~flag[b - first])
+    bad_bins = flag.nonzero()[0] + first
+    kept = (~flag[b - first]).nonzero()[0]
     if len(kept) == 0:
         return []
     kept = kept[np.argsort(t[kept])]
@@ -667,9 +678,9 @@ def _kept_runs(flag, first: int, b, t, t0: float, ta, cfg: PipeConfig, open_gap=
         inside = np.searchsorted(ta, tk[1:]) - np.searchsorted(ta, tk[:-1], side="right")
         cut |= (gap > cfg.min_fitting_length) & (inside >= cfg.fitting_points)
     if open_gap is not None and cfg.min_open_gap > 0:
-        for i in np.flatnonzero(~cut & (gap > cfg.min_open_gap)):
+        for i in (~cut & (gap > cfg.min_open_gap)).nonzero()[0]:
             cut[i] = open_gap(float(tk[i]) + _OPEN_FROM, float(tk[i + 1]) - _OPEN_FROM)
-    return split_sorted(kept, np.flatnonzero(cut) + 1)
+    return split_sorted(kept, cut.nonzero()[0] + 1)
 
 
 def _bare_ends(flag, first: int, t, t0: float, runs: list[np.ndarray], te, cfg: PipeConfig, open_beyond=None):
@@ -808,8 +819,8 @@ def refine_cylinder(points: np.ndarray, c: np.ndarray, a: np.ndarray, r: float, 
 
 def _make_pipe(points, normals, idx, a0, cfg: PipeConfig, radius: float | None = None) -> Pipe:
     """The pipe segment of the inliers ``idx`` (``radius``: a nominal radius held in the fit)."""
-    pts = np.take(points, idx, axis=0)
-    c, a, r = fit_cylinder(pts, np.take(normals, idx, axis=0), a0, cfg, radius)
+    pts = points.take(idx, axis=0)
+    c, a, r = fit_cylinder(pts, normals.take(idx, axis=0), a0, cfg, radius)
     if radius is None:
         c, a, r = refine_cylinder(pts, c, a, r, cfg)
     t = (pts - c) @ a
@@ -840,13 +851,13 @@ def _refine(free: _Points, c, a, r, cfg: PipeConfig):
     nominal = _nominal_radii(cfg)
     while True:
         local = free.subset(near)
-        idx = np.flatnonzero(inl)
+        idx = inl.nonzero()[0]
         while rounds < cfg.refine_rounds:
             rounds += 1
             prev = len(idx)
             if len(idx) < cfg.min_points:
                 return None
-            P, N = np.take(local.p, idx, axis=0), np.take(local.n, idx, axis=0)
+            P, N = local.p.take(idx, axis=0), local.n.take(idx, axis=0)
             c1, a1, r1 = fit_cylinder(P, N, a, cfg, held)
             if held is None and nominal and r1 > cfg.max_radius:
                 fit = _hold_nominal(local, P, N, a, cfg, nominal, r1)
@@ -857,7 +868,7 @@ def _refine(free: _Points, c, a, r, cfg: PipeConfig):
             if not (cfg.min_radius <= r1 <= cfg.max_radius):
                 return None
             c, a, r = c1, a1, r1
-            idx = np.flatnonzero(local.test(c, a, r, cfg))
+            idx = local.test(c, a, r, cfg).nonzero()[0]
             if abs(len(idx) - prev) <= 2:
                 break
         near, inl = free.test_near(c, a, r, cfg, reach)
@@ -911,30 +922,39 @@ def _cut_into_segments(
     None; along a pipe lying on the ``seabed``, only those over it, :func:`_facing_sensor`), keep
     the runs long enough (``held``: the nominal radius the cylinder was fitted with, held in the
     segments' fits)."""
-    P = np.take(points, idx, axis=0)
+    P = points.take(idx, axis=0)
     t = P @ ab
     if len(idx) < cfg.min_points or t.max() - t.min() < cfg.min_detect_length:
         return []  # no run of these inliers can be a segment
     t_all = points @ ab - ab @ cb
     t = t_all[idx]
+    t_lo, t_hi = float(t.min()), float(t.max())
     # Distances to the surface of the inliers and of the points along their span only: a
     # matrix-vector product gives every row the same value whichever other rows it holds, when
     # it has at least two (the inliers are at least min_points ≥ 5 here).
     residual = np.sqrt(np.maximum(sq[idx] - 2.0 * (P @ cb) + cb @ cb - t * t, 0.0)) - rb
-    span = np.flatnonzero((t_all > t.min() - cfg.max_gap) & (t_all < t.max() + cfg.max_gap))
-    P_span, t_span = np.take(points, span, axis=0), t_all[span]
+    span = ((t_all > t_lo - cfg.max_gap) & (t_all < t_hi + cfg.max_gap)).nonzero()[0]
+    P_span, t_span = points.take(span, axis=0), t_all[span]
     pc = P_span @ cb if len(span) >= 2 else (points @ cb)[span]
     res_span = np.sqrt(np.maximum(sq[span] - 2.0 * pc + cb @ cb - t_span * t_span, 0.0)) - rb
     outside = res_span > cfg.distance_tolerance
     if foreign is not None:
         outside &= foreign[span]
+    on_seabed = None  # whether the cylinder lies on the seabed (or over unknown ground): read once, when first needed
+
+    def lies_on_seabed() -> bool:
+        nonlocal on_seabed
+        if on_seabed is None:
+            on_seabed = seabed.on_or_unknown(cb, ab, rb, t_lo, t_hi)
+        return on_seabed
+
     if (
         seabed is not None
         and cfg.fitting_window_deg < 180.0
         and outside.any()  # (nothing to narrow down otherwise: the ground's height is not read)
-        and seabed.on_or_unknown(cb, ab, rb, t.min(), t.max())
+        and lies_on_seabed()
     ):
-        outside[outside] = _facing_sensor(np.take(P_span, np.flatnonzero(outside), axis=0), cb, ab, cfg)
+        outside[outside] = _facing_sensor(P_span.take(outside.nonzero()[0], axis=0), cb, ab, cfg)
     near = outside & (res_span < cfg.fitting_reach)
     around = outside & (res_span < cfg.gap_reach)
     out = []
@@ -946,12 +966,7 @@ def _cut_into_segments(
             return crossing >= _MIN_OPEN_RAYS and behind >= 0.5 * crossing
 
     open_gap = None
-    if (
-        rays is not None
-        and seabed is not None
-        and cfg.min_open_gap > 0
-        and seabed.on_or_unknown(cb, ab, rb, t.min(), t.max())
-    ):
+    if rays is not None and seabed is not None and cfg.min_open_gap > 0 and lies_on_seabed():
 
         def open_gap(t0: float, t1: float) -> bool:  # the rays end inside the cylinder there: no pipe
             deep, crossing = rays.hollow(cb, ab, rb, t0, t1, cfg)
@@ -1039,11 +1054,11 @@ def detect_pipes(
     for _ in range(3 * cfg.max_pipes):
         if len(pipes) >= cfg.max_pipes or failures >= max_failures:
             break
-        seeds = np.flatnonzero(seedable & free)
+        seeds = (seedable & free).nonzero()[0]
         if len(seeds) < cfg.min_points:
             break
         if cand is None:
-            cand = _Points(points, normals, np.flatnonzero(free))
+            cand = _Points(points, normals, free.nonzero()[0])
         elif stale:  # free points only ever leave: keep the rest (and their products)
             cand, stale = cand.subset(free[cand.index]), False
         i = rng.choice(seeds, cfg.hypotheses)
@@ -1060,7 +1075,7 @@ def detect_pipes(
             in_sample = inlier_mask(cand.p, cand.n, c, a, r, cfg, cand.sq, cand.pn)
         else:
             in_sample = inlier_mask(
-                np.take(cand.p, pick, axis=0), np.take(cand.n, pick, axis=0), c, a, r, cfg, cand.sq[pick], cand.pn[pick]
+                cand.p.take(pick, axis=0), cand.n.take(pick, axis=0), c, a, r, cfg, cand.sq[pick], cand.pn[pick]
             )
         scores = in_sample.sum(axis=1)
         # A seed whose cylinder the data do not support (fewer than min_points inliers expected)
@@ -1164,7 +1179,7 @@ def merge_duplicates(pipes: list[Pipe], points, normals, cfg: PipeConfig) -> lis
         held = next((pp.radius for pp in (pipes[x], pipes[y]) if pp.radius_held), None)
         if held is not None and not (cfg.min_radius <= merged.radius <= cfg.max_radius):
             merged = _make_pipe(points, normals, seg, pipes[x].axis, cfg, held)  # still a narrow arc
-        v = np.take(points, seg, axis=0) - merged.p
+        v = points.take(seg, axis=0) - merged.p
         t = v @ merged.axis
         residual = np.sqrt(np.maximum(row_dot(v, v) - t * t, 0.0)) - merged.radius
         runs = split_at_fittings(t, residual, np.zeros(0), cfg)

@@ -54,18 +54,16 @@ def grow_regions(pre: Preprocessed, cfg: PlaneConfig) -> np.ndarray:
     m = len(pre.points)
     smooth = (pre.curvature < cfg.growth_curvature) & (pre.planarity >= cfg.min_planarity)
     rows = np.flatnonzero(smooth)
-    nb = np.take(pre.neighbours, rows, axis=0)[:, 1:]  # the 26-neighbours of smooth points (−1: empty cell)
+    nb = pre.neighbours.take(rows, axis=0)[:, 1:]  # the 26-neighbours of smooth points (−1: empty cell)
     # Each undirected edge once (j > i: also drops the −1s), between smooth points only.
     keep = np.flatnonzero((nb > rows[:, None]) & np.append(smooth, False)[nb])
     # (gathers at the mask's flat positions: several times faster than boolean indexing)
-    i = np.take(rows, keep // nb.shape[1])
-    j = np.take(nb, keep)
+    i = rows.take(keep // nb.shape[1])
+    j = nb.take(keep)
     cos_min = np.cos(np.radians(cfg.max_normal_angle_deg))
     # (rows gathered by np.take: several times faster than fancy indexing of N×3 arrays)
-    ok = np.flatnonzero(
-        np.einsum("ij,ij->i", np.take(pre.normals, i, axis=0), np.take(pre.normals, j, axis=0)) >= cos_min
-    )
-    i, j = np.take(i, ok), np.take(j, ok)
+    ok = np.flatnonzero(np.einsum("ij,ij->i", pre.normals.take(i, axis=0), pre.normals.take(j, axis=0)) >= cos_min)
+    i, j = i.take(ok), j.take(ok)
     # The edges come sorted by i: the graph in CSR directly (no COO conversion in connected_components).
     indptr = np.concatenate(([0], np.cumsum(np.bincount(i, minlength=m))))
     graph = csr_matrix((np.ones(len(j)), j, indptr), shape=(m, m))
@@ -141,12 +139,12 @@ def _keep_on_plane(points, plane_of, planes, max_offset: float):
     P = np.array([p[0] for p in planes])
     D = np.array([p[1] for p in planes])
     idx = np.flatnonzero(plane_of >= 0)
-    on, which = np.take(points, idx, axis=0), plane_of[idx]  # the points of the planes, and whose
+    on, which = points.take(idx, axis=0), plane_of[idx]  # the points of the planes, and whose
     dist = np.abs(np.einsum("ij,ij->i", on, P[which]) - D[which])
     good = dist <= max_offset
     refit = []
     for k in range(len(planes)):  # a handful of planes
-        pts = np.take(on, np.flatnonzero(good & (which == k)), axis=0)
+        pts = on.take(np.flatnonzero(good & (which == k)), axis=0)
         if len(pts) < 3:
             refit.append(planes[k])
             continue

@@ -124,7 +124,7 @@ def hop_covariance_parts(
     S = _moments(points, centre)
     for _ in range(hops):
         S = adjacency @ S
-    return _covariance_parts(S if rows is None else np.take(S, rows, axis=0))
+    return _covariance_parts(S if rows is None else S.take(rows, axis=0))
 
 
 def hop_covariances(points, adjacency, hops, rows=None, centre=None) -> np.ndarray:
@@ -203,7 +203,7 @@ def preprocess(points: np.ndarray, pre: PreprocessConfig, planes: PlaneConfig) -
     raw_to_voxel = np.full(len(raw), -1, np.int64)
     if len(keep) == 0:
         return _empty(raw_to_voxel)
-    grid = VoxelGrid(np.take(raw, keep, axis=0), pre.voxel_size)  # (np.take: ~4x faster than raw[keep] here)
+    grid = VoxelGrid(raw.take(keep, axis=0), pre.voxel_size)  # (np.take: ~4x faster than raw[keep] here)
     vox, inv, nb = grid.points, grid.inverse, grid.neighbours(1)
     A = adjacency_of(nb)
     stray = small_clusters(A, pre.outlier_min_voxels, grid.counts, (pre.sparse_cluster_voxels, pre.sparse_mean_points))
