@@ -107,7 +107,7 @@ class GraphAssociationProblem:
             return False
         _, _, d = self._line_frame(j)
         _, seg = self._segment(i)
-        return self.scan.excludes(lm.id, seg, lm.anchor.point(lm.estimate), d)
+        return self.scan.excludes(lm.id, seg, lm.line()[0], d)
 
     def landmark_covariance(self, j: int) -> np.ndarray:
         """Candidate j's gating covariance (uncorrelated with the pose and the other candidates)."""

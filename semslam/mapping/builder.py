@@ -65,13 +65,20 @@ class Scan:
         self.assoc = assoc
         self.separators = separators
         self.cutters = cutters
+        self._spans: dict[tuple, tuple[float, float]] = {}  # (pipe, its line, its views) → what was seen of it
 
     def excludes(self, pipe: int, seg_W: np.ndarray, c: np.ndarray, d: np.ndarray) -> bool:
         """Segment ``seg_W`` (2×3, {W}) cannot be mapped pipe ``pipe`` (line c, d): beyond the gap from
-        what was seen of it, or across an in-line object (:meth:`PipeExtent.excludes`)."""
+        what was seen of it, or across an in-line object (:meth:`PipeExtent.excludes`). What was seen of
+        the pipe is found once per line and views in the batch (several segments ask of one pipe)."""
         a = self.assoc
-        return self.book.extent(pipe).excludes(
-            seg_W, c, d, self.separators, self.cutters, a.inline_object_radius_m, a.pipe_extent_gap_m
+        extent = self.book.extent(pipe)
+        key = (pipe, np.asarray(c, float).tobytes(), np.asarray(d, float).tobytes(), len(extent))
+        span = self._spans.get(key)
+        if span is None:
+            span = self._spans[key] = extent.seen_span(c, d, self.separators, self.cutters, a.inline_object_radius_m)
+        return extent.excludes(
+            seg_W, c, d, self.separators, self.cutters, a.inline_object_radius_m, a.pipe_extent_gap_m, span
         )
 
 
@@ -493,4 +500,4 @@ def _finite(z: Observation) -> bool:
         arrays = (z.p, z.q, z.covariance)
     else:
         arrays = (z.pose, z.covariance)
-    return all(np.all(np.isfinite(a)) for a in arrays)
+    return all(np.isfinite(a).all() for a in arrays)

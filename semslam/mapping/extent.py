@@ -204,6 +204,14 @@ class PipeExtent:
         across (:meth:`uncrossed`)."""
         return np.vstack([np.asarray(mapped, float).reshape(-1, 3), self.uncrossed(others, c, d, radius)])
 
+    def seen_span(
+        self, c: np.ndarray, d: np.ndarray, separators: np.ndarray, cutters: np.ndarray, radius: float
+    ) -> tuple[float, float]:
+        """What was seen of the pipe (c, d) when a segment's place beside it is judged: its
+        :meth:`interval` cut at the mapped objects ``cutters`` and at the tentative ones of
+        ``separators`` that no view runs across (:meth:`cutting`)."""
+        return self.interval(c, d, self.cutting(cutters, separators, c, d, radius), radius)
+
     def excludes(
         self,
         ends_W: np.ndarray,
@@ -213,13 +221,15 @@ class PipeExtent:
         cutters: np.ndarray,
         radius: float,
         max_gap: float,
+        span: tuple[float, float] | None = None,
     ) -> bool:
         """A segment (2×3, {W}) cannot be this pipe (c, d): it lies more than ``max_gap`` beyond what
         was seen of it (cut at the mapped objects ``cutters``: a pipe seen through a socket or a tee
         must not keep the views of the pipe beyond it), or an object (``separators``: mapped and
         tentative) lies between them. ``cutters`` are the mapped objects; the tentative ones that no view
-        runs across cut too (:meth:`cutting`)."""
-        span = self.interval(c, d, self.cutting(cutters, separators, c, d, radius), radius)
+        runs across cut too (:meth:`cutting`); ``span``: that cut interval (:meth:`seen_span`) when known."""
+        if span is None:
+            span = self.seen_span(c, d, separators, cutters, radius)
         return self.gap(ends_W, c, d, span) > max_gap or self.separated(ends_W, c, d, separators, radius, span)
 
 
