@@ -71,3 +71,46 @@ def test_an_objects_gating_spread_follows_its_information():
     assert abs(state.gating_spread([0])[0] - np.sqrt(0.03)) < 1e-6
     lm.add_information(np.eye(3) * 200.0, np.eye(3) * 200.0)  # three times the information
     assert abs(state.gating_spread([0])[0] - np.sqrt(0.01)) < 1e-6
+
+
+def test_the_pairs_linearised_at_once_are_those_linearised_one_by_one():
+    """:meth:`GraphAssociationProblem.pairs` (object and pipe pairs stacked) gives each allowed pair
+    what :meth:`GraphAssociationProblem.pair` gives it alone, in the same order."""
+    import gtsam
+
+    from semslam.backend.problem import Candidate, GraphAssociationProblem
+    from semslam.observations import LineObservation, PointObservation
+
+    rng = np.random.default_rng(4)
+    pose = gtsam.Pose3(gtsam.Rot3.RzRyRx(0.1, -0.05, 1.2), np.array([1.0, -2.0, 3.0]))
+    T_a = np.eye(4)
+    T_b = gtsam.Pose3(gtsam.Rot3.RzRyRx(0.0, 0.4, 0.2), np.array([0.3, 0.0, 0.2])).matrix()
+    cands = []
+    for n in range(3):
+        lm = Landmark(n, "object", n)
+        lm.estimate = rng.normal(size=3)
+        cands.append(Candidate(lm, np.eye(3) * 1e-3))
+    for n in range(3, 6):
+        p = rng.normal(size=3)
+        lm = Landmark(n, "pipe", n, anchor=LineAnchor.from_points(p, p + rng.normal(size=3)))
+        lm.estimate = rng.normal(size=4) * 0.1
+        cands.append(Candidate(lm, np.eye(4) * 1e-3))
+    obs, T_BS = [], []
+    for n in range(6):
+        A = rng.normal(size=(6, 6))
+        if n % 2:
+            obs.append(LineObservation(0, "s", p=rng.normal(size=3), q=rng.normal(size=3), covariance=A @ A.T))
+        else:
+            obs.append(PointObservation(0, "s", position=rng.normal(size=3), covariance=A[:3, :3] @ A[:3, :3].T))
+        T_BS.append(T_a if n < 3 else T_b)
+    allowed = rng.random((6, 6)) < 0.7
+    one = GraphAssociationProblem(pose, obs, T_BS, cands, allowed, None)
+    alone = [(i, j, one.pair(i, j)) for i in range(6) for j in np.flatnonzero(allowed[i])]
+    stacked = GraphAssociationProblem(pose, obs, T_BS, cands, allowed, None).pairs()
+    assert [(i, j) for i, j, _ in stacked] == [(i, int(j)) for i, j, _ in alone]
+    assert sum(lin is not None for _, _, lin in alone) >= 8  # objects and pipes both
+    for (_, _, a), (_, _, b) in zip(alone, stacked):
+        assert (a is None) == (b is None)
+        if a is not None:
+            for f in ("innovation", "H_x", "H_l", "R"):
+                np.testing.assert_allclose(getattr(b, f), getattr(a, f), rtol=1e-12, atol=1e-12)

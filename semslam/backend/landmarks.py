@@ -353,9 +353,7 @@ class GraphLandmarks:
         gates = {d: chi2_gate(confidence, d) for d in (3, 4)}
         allowed = (dist <= self.assoc.pre_gate_m) & possible_pairs(pose, pose_cov, observations, T_BS, cands, gates)
         problem = GraphAssociationProblem(pose, observations, T_BS, cands, allowed, scan)
-        pairs = [
-            (i, int(j), problem.pair(i, int(j))) for i in range(len(observations)) for j in np.flatnonzero(allowed[i])
-        ]
+        pairs = problem.pairs()
         found = uncorrelated_candidates(
             len(observations), [t for t in pairs if t[2] is not None], pose_cov, problem.landmark_covariance, confidence
         )
