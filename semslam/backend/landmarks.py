@@ -128,6 +128,8 @@ class Landmark:
     # the inverses of ``information`` and ``gate_information`` until either changes (the duplicate
     # test asks for every pair of objects after every scan: ~190 pairs in the tank)
     _inverse: dict = field(default_factory=dict, repr=False)
+    _line: tuple | None = field(default=None, repr=False)  # (θ's bytes, (point, direction)): see :meth:`line`
+    _ends: tuple | None = field(default=None, repr=False)  # (θ's bytes, extent, its views, ends): :func:`_pipe_ends`
 
     def add_information(self, info: np.ndarray, gate_info: np.ndarray) -> None:
         self.information = info if self.information is None else self.information + info
@@ -148,9 +150,18 @@ class Landmark:
         return cov
 
     def line(self, estimate=None) -> tuple[np.ndarray, np.ndarray]:
-        """A pipe's line (point, unit direction) at ``estimate`` (default: its current one)."""
+        """A pipe's line (point, unit direction) at ``estimate`` (default: its current one). The last
+        one is kept by the exact numbers of θ (asked for many times between two updates: the map
+        building's pre-gates, pipe rules and duplicate tests). Read-only: shared."""
         theta = self.estimate if estimate is None else estimate
-        return self.anchor.point(theta), self.anchor.direction(theta)
+        key = np.asarray(theta, float).tobytes()
+        last = self._line
+        if last is not None and last[0] == key:
+            return last[1]
+        c, d = self.anchor.point(theta), self.anchor.direction(theta)
+        c.flags.writeable = False
+        self._line = (key, (c, d))
+        return c, d
 
 
 class GaugeFreeCovariance:
@@ -342,9 +353,7 @@ class GraphLandmarks:
         gates = {d: chi2_gate(confidence, d) for d in (3, 4)}
         allowed = (dist <= self.assoc.pre_gate_m) & possible_pairs(pose, pose_cov, observations, T_BS, cands, gates)
         problem = GraphAssociationProblem(pose, observations, T_BS, cands, allowed, scan)
-        pairs = [
-            (i, int(j), problem.pair(i, int(j))) for i in range(len(observations)) for j in np.flatnonzero(allowed[i])
-        ]
+        pairs = problem.pairs()
         found = uncorrelated_candidates(
             len(observations), [t for t in pairs if t[2] is not None], pose_cov, problem.landmark_covariance, confidence
         )
@@ -448,7 +457,14 @@ class GraphLandmarks:
 
     def gating_spread(self, ids: list[int]) -> np.ndarray:
         """√trace of each object's gating covariance (the one :meth:`difference_nis` adds up)."""
-        return np.sqrt([np.trace(self.landmarks[lid].information_covariance(gate=True)) for lid in ids])
+        traces = np.empty(len(ids))
+        for n, lid in enumerate(ids):  # kept with the inverse until the information changes
+            inverse = self.landmarks[lid]._inverse
+            t = inverse.get("trace")
+            if t is None:
+                t = inverse["trace"] = np.trace(self.landmarks[lid].information_covariance(gate=True))
+            traces[n] = t
+        return np.sqrt(traces)
 
     def merge(self, keep: int, drop: int, constrain: bool) -> None:
         """``drop`` leaves the map; with ``constrain`` (objects) it is first tied to ``keep`` by a stiff
@@ -590,10 +606,18 @@ def _point(lm: Landmark) -> np.ndarray:
 
 
 def _pipe_ends(lm: Landmark, book: LandmarkBook) -> tuple[np.ndarray, np.ndarray]:
-    """The extreme ends seen of a pipe, on its current line."""
+    """The extreme ends seen of a pipe, on its current line (kept until the line or the views change:
+    the sphere refresh and the candidates' pre-gate of one scan ask for the same)."""
+    extent = book.extent(lm.id)
+    key = (np.asarray(lm.estimate, float).tobytes(), id(extent), len(extent))
+    last = lm._ends
+    if last is not None and last[0] == key:
+        return last[1]
     c, d = lm.line()
-    lo, hi = book.extent(lm.id).outer(c, d)
-    return c + lo * d, c + hi * d
+    lo, hi = extent.outer(c, d)
+    ends = (c + lo * d, c + hi * d)
+    lm._ends = (key, ends)
+    return ends
 
 
 def _observation_information(lm: Landmark, z, pose: gtsam.Pose3, pose_cov: np.ndarray, T_BS: np.ndarray) -> np.ndarray:

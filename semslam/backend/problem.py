@@ -80,6 +80,71 @@ class GraphAssociationProblem:
             self._cache[key] = self._pair(i, j) if self.allowed[i, j] else None
         return self._cache[key]
 
+    def pairs(self) -> list[tuple[int, int, PairLinearization | None]]:
+        """Every allowed pair (i, j, its linearisation or None), observation by observation and the
+        candidates in order: what :meth:`pair` gives, the object and pipe pairs linearised all at once
+        (stacked products: the same formulas, numbers equal to rounding)."""
+        ii, jj = np.nonzero(self.allowed)  # row-major: observation by observation, candidates in order
+        out: list = [None] * len(ii)
+        points, lines = [], []
+        for n, (i, j) in enumerate(zip(ii.tolist(), jj.tolist())):
+            z, kind = self.observations[i], self.candidates[j].landmark.kind
+            if kind == "object" and isinstance(z, PointObservation):
+                points.append((n, i, j))
+            elif kind == "pipe" and isinstance(z, LineObservation):
+                lines.append((n, i, j))
+            else:
+                out[n] = (i, j, self.pair(i, j))
+        for rows, linearise in ((points, self._point_pairs), (lines, self._line_pairs)):
+            if rows:
+                for (n, i, j), lin in zip(rows, linearise([i for _, i, _ in rows], [j for _, _, j in rows])):
+                    self._cache[(i, j)] = lin
+                    out[n] = (i, j, lin)
+        return out
+
+    def _point_pairs(self, obs: list[int], cands: list[int]) -> list[PairLinearization]:
+        """:func:`point_residual_at` of the object pairs (observation obs[k], candidate cands[k]), stacked."""
+        R, t = self._R, self._t
+        T = np.array([self.T_BS[i] for i in obs], float)
+        R_SB = T[:, :3, :3].transpose(0, 2, 1)
+        L = np.array([np.asarray(self.candidates[j].landmark.estimate, float) for j in cands])
+        l_B = (L - t) @ R  # R_WBᵀ (l − t), row by row
+        r = (R_SB @ (l_B - T[:, :3, 3])[:, :, None])[:, :, 0] - np.array([self.observations[i].position for i in obs])
+        H_x = np.empty((len(obs), 3, 6))
+        H_x[:, :, :3] = R_SB @ _skews(l_B)
+        H_x[:, :, 3:] = -R_SB
+        H_l = R_SB @ R.T
+        return [PairLinearization(-r[k], H_x[k], H_l[k], self.observations[i].covariance) for k, i in enumerate(obs)]
+
+    def _line_pairs(self, obs: list[int], cands: list[int]) -> list[PairLinearization]:
+        """:func:`line_residual_at` and :func:`line_observation_covariance` of the pipe pairs, stacked."""
+        K = len(obs)
+        frames = [self._line_frame(j) for j in cands]
+        segments = [self._segment(i) for i in obs]
+        RL = np.array([f[0] for f in frames])
+        Jr2 = np.array([f[1] for f in frames])
+        lms = [self.candidates[j].landmark for j in cands]
+        c0 = np.array([lm.anchor.c0 for lm in lms], float)
+        ab = np.array([np.asarray(lm.estimate, float)[2:4] for lm in lms])
+        e_B = np.array([s[0] for s in segments])  # (K, 2, 3)
+        e_W = np.array([s[1] for s in segments])
+        e_L = (e_W - c0[:, None, :]) @ RL  # rows: R_Lᵀ (e_W − c0)
+        r = (e_L[:, :, :2] - ab[:, None, :]).reshape(K, 4)
+        A = RL.transpose(0, 2, 1) @ self._R
+        H_x = np.zeros((K, 4, 6))
+        H_l = np.zeros((K, 4, 4))
+        for e in range(2):
+            H_x[:, 2 * e : 2 * e + 2, :3] = -(A @ _skews(e_B[:, e]))[:, :2]
+            H_x[:, 2 * e : 2 * e + 2, 3:] = A[:, :2]
+            H_l[:, 2 * e : 2 * e + 2, :2] = (_skews(e_L[:, e]) @ Jr2)[:, :2]
+            H_l[:, 2 * e : 2 * e + 2, 2:] = -np.eye(2)
+        M = (A @ np.array([self.T_BS[i][:3, :3] for i in obs], float))[:, :2]  # R_Lᵀ R_WB R_BS, x and y rows
+        J = np.zeros((K, 4, 6))
+        J[:, :2, :3] = M
+        J[:, 2:, 3:] = M
+        cov = J @ np.array([self.observations[i].covariance for i in obs], float) @ J.transpose(0, 2, 1)
+        return [PairLinearization(-r[k], H_x[k], H_l[k], cov[k]) for k in range(K)]
+
     def _pair(self, i: int, j: int) -> PairLinearization | None:
         z, lm, T_BS = self.observations[i], self.candidates[j].landmark, self.T_BS[i]
         if isinstance(z, PointObservation) and lm.kind == "object":
@@ -107,7 +172,7 @@ class GraphAssociationProblem:
             return False
         _, _, d = self._line_frame(j)
         _, seg = self._segment(i)
-        return self.scan.excludes(lm.id, seg, lm.anchor.point(lm.estimate), d)
+        return self.scan.excludes(lm.id, seg, lm.line()[0], d)
 
     def landmark_covariance(self, j: int) -> np.ndarray:
         """Candidate j's gating covariance (uncorrelated with the pose and the other candidates)."""
@@ -186,3 +251,12 @@ def possible_pairs(
         if isinstance(z, StructureObservation):
             allowed[i] = [c.landmark.kind == "structure" and c.landmark.model == z.model for c in candidates]
     return allowed
+
+
+def _skews(w: np.ndarray) -> np.ndarray:
+    """[w]× of each row of w (N×3): N×3×3."""
+    out = np.zeros((len(w), 3, 3))
+    out[:, 0, 1], out[:, 0, 2] = -w[:, 2], w[:, 1]
+    out[:, 1, 0], out[:, 1, 2] = w[:, 2], -w[:, 0]
+    out[:, 2, 0], out[:, 2, 1] = -w[:, 1], w[:, 0]
+    return out

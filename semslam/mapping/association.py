@@ -326,7 +326,8 @@ def cannot_beat_best(masks: list[int], start: int, used: int, npairs: int, best:
     maximum bipartite matching of the remaining observations to distinct unused landmarks (Kuhn's
     augmenting paths), tighter where observations compete for a landmark."""
     free = ~used
-    if npairs + sum(1 for o in range(start, len(masks)) if masks[o] & free) <= best:
+    rest = masks[start:]
+    if npairs + sum(1 for mask in rest if mask & free) <= best:
         return True
     owner: dict[int, int] = {}
 

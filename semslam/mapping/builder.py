@@ -65,13 +65,20 @@ class Scan:
         self.assoc = assoc
         self.separators = separators
         self.cutters = cutters
+        self._spans: dict[tuple, tuple[float, float]] = {}  # (pipe, its line, its views) → what was seen of it
 
     def excludes(self, pipe: int, seg_W: np.ndarray, c: np.ndarray, d: np.ndarray) -> bool:
         """Segment ``seg_W`` (2×3, {W}) cannot be mapped pipe ``pipe`` (line c, d): beyond the gap from
-        what was seen of it, or across an in-line object (:meth:`PipeExtent.excludes`)."""
+        what was seen of it, or across an in-line object (:meth:`PipeExtent.excludes`). What was seen of
+        the pipe is found once per line and views in the batch (several segments ask of one pipe)."""
         a = self.assoc
-        return self.book.extent(pipe).excludes(
-            seg_W, c, d, self.separators, self.cutters, a.inline_object_radius_m, a.pipe_extent_gap_m
+        extent = self.book.extent(pipe)
+        key = (pipe, np.asarray(c, float).tobytes(), np.asarray(d, float).tobytes(), len(extent))
+        span = self._spans.get(key)
+        if span is None:
+            span = self._spans[key] = extent.seen_span(c, d, self.separators, self.cutters, a.inline_object_radius_m)
+        return extent.excludes(
+            seg_W, c, d, self.separators, self.cutters, a.inline_object_radius_m, a.pipe_extent_gap_m, span
         )
 
 
@@ -397,6 +404,8 @@ class MapBuilder:
         mids = np.array([self.book.extent(pid).centre() for pid, _, _ in pipes])
         ids, cutters = self.state.objects()
         fittings = None  # the mapped objects that end pipes, once a collinear pair needs them
+        scan = Scan(self.book, a_cfg, separators, cutters)  # each touched pipe's seen stretch found once
+        ends_of: dict[int, np.ndarray] = {}  # each screened pipe's stretch cut at the fittings, found once
         out = []
         for a, (pid_a, c_a, d_a) in enumerate(pipes):
             if pid_a not in touched:
@@ -420,9 +429,13 @@ class MapBuilder:
                     if fittings is None:
                         fittings = self._fittings(ids, cutters)
                     # (and at the tentative objects no view of b runs across: :meth:`PipeExtent.uncrossed`)
-                    ext_b, r = self.book.extent(pid_b), a_cfg.inline_object_radius_m
-                    ends_b = ext_b.ends(c_b, d_b, ext_b.cutting(fittings, separators, c_b, d_b, r), r)
-                    if not self._on_pipe(ends_b, pid_a, c_a, d_a, separators, cutters):
+                    ends_b = ends_of.get(pid_b)
+                    if ends_b is None:
+                        ext_b, r = self.book.extent(pid_b), a_cfg.inline_object_radius_m
+                        ends_b = ends_of[pid_b] = ext_b.ends(
+                            c_b, d_b, ext_b.cutting(fittings, separators, c_b, d_b, r), r
+                        )
+                    if not self._on_pipe(ends_b, pid_a, c_a, d_a, scan):
                         continue
                     nis = self.state.difference_nis(pid_a, pid_b)
                     if nis is not None and nis < gate:
@@ -460,14 +473,15 @@ class MapBuilder:
             and self.book.extent(pid_x).overlap_fraction(cut, c_x, d_x, cutters, r) >= 0.5
         )
 
-    def _on_pipe(self, ends: np.ndarray, pipe: int, c, d, separators, cutters) -> bool:
+    def _on_pipe(self, ends: np.ndarray, pipe: int, c, d, scan: Scan) -> bool:
         """The paper's collinear merge: the segment is within ``merge_angle_rad`` of the pipe's axis,
-        both its ends within ``merge_distance_m`` of it, within the extent gap and not across an object."""
+        both its ends within ``merge_distance_m`` of it, within the extent gap and not across an object
+        (``scan``: the separators and cutters, see :meth:`Scan.excludes`)."""
         a = self.assoc
         u = (ends[1] - ends[0]) / np.linalg.norm(ends[1] - ends[0])
         if abs(float(u @ d)) < math.cos(a.merge_angle_rad) or off_axis(ends, c, d) > a.merge_distance_m:
             return False
-        return not Scan(self.book, a, separators, cutters).excludes(pipe, ends, c, d)
+        return not scan.excludes(pipe, ends, c, d)
 
 
 def well_formed(
@@ -493,4 +507,4 @@ def _finite(z: Observation) -> bool:
         arrays = (z.p, z.q, z.covariance)
     else:
         arrays = (z.pose, z.covariance)
-    return all(np.all(np.isfinite(a)) for a in arrays)
+    return all(np.isfinite(a).all() for a in arrays)

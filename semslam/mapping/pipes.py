@@ -167,6 +167,8 @@ def cut_at_objects(
     s = r @ d
     depth = np.zeros(len(s)) if depths is None else np.asarray(depths, float)
     on = np.linalg.norm(r - s[:, None] * d, axis=1) < radius
+    if not on.any():  # nothing on the line cuts it
+        return lo, hi
     slack = np.where(depth > 0, 0.0, margin)
     face_above, face_below = s - depth, s + depth
     above = on & (s > middle) & (face_above > lo + slack) & (face_above < hi - slack)
