@@ -8,7 +8,7 @@ import numpy as np
 
 from frontends.odometry import OdometryFrontend
 from frontends.odometry.config import OdometryConfig
-from frontends.odometry.information import FREE_ROTATION_SIGMA_RAD, translation_only
+from frontends.odometry.information import FREE_ROTATION_SIGMA_RAD, translation_given_rotation, translation_only
 from frontends.odometry.matcher import ScanMatcher, _MapPlanes
 
 S = 1_000_000_000  # ns per s
@@ -102,3 +102,23 @@ def test_translation_only_keeps_the_translations_marginal_and_frees_the_rotation
     np.testing.assert_array_equal(out[:3, 3:], 0.0)
     np.testing.assert_array_equal(out[3:, :3], 0.0)
     np.testing.assert_array_equal(out[:3, :3], np.eye(3) * FREE_ROTATION_SIGMA_RAD**2)
+
+
+def test_translation_given_rotation_keeps_the_translations_dependence_on_the_rotation_and_drops_its_own():
+    # a held rotation Σ_θ and a translation that moves K per radian of its error, plus its measured part M
+    rng = np.random.default_rng(1)
+    S = np.diag([1e-6, 2e-6, 1.5e-6])
+    K = rng.normal(scale=3.0, size=(3, 3))
+    a = rng.normal(scale=1e-3, size=(3, 3))
+    M = a @ a.T + np.eye(3) * 1e-6
+    cov = np.block([[S, S @ K.T], [K @ S, M + K @ S @ K.T]])
+    out = translation_given_rotation(cov)
+    info = np.linalg.inv(out)
+    # the information of t − K·θ (M⁻¹) is the factor's; of the rotation alone, FREE_ROTATION_SIGMA_RAD's
+    J = np.hstack([-K, np.eye(3)])
+    expected = J.T @ np.linalg.solve(M, J)
+    expected[:3, :3] += np.eye(3) / FREE_ROTATION_SIGMA_RAD**2
+    np.testing.assert_allclose(info, expected, rtol=1e-6, atol=1e-3)
+    # given the rotation, the translation's covariance is M (translation_only leaves M + K·Σ_θ·Kᵀ's marginal)
+    given = out[3:, 3:] - out[3:, :3] @ np.linalg.solve(out[:3, :3], out[:3, 3:])
+    np.testing.assert_allclose(given, M, rtol=1e-6)

@@ -294,3 +294,22 @@ def test_a_watched_run_gives_the_same_result():
     watched = run_pipeline(_mission(), [watched_est], [CountingFrontend()], observers=[Watcher(watched_est)])
     assert np.array_equal(plain.results["a"].trajectory.positions, watched.results["a"].trajectory.positions)
     assert [(r.frontend, r.stamp) for r in plain.observations] == [(r.frontend, r.stamp) for r in watched.observations]
+
+
+class SecondFrontend(CountingFrontend):
+    name = "second"
+
+    def process(self, m, view):
+        return [PointObservation(m.stamp, m.sensor, position=m.points.mean(axis=0) + 1.0)]
+
+
+def test_one_measurements_observations_of_every_frontend_reach_an_estimator_in_one_call():
+    """A graph makes one update per call: one call per front-end made its result depend on how many
+    front-ends answered a scan, even when the second one's observations carried no information."""
+    a = Recorder("a")
+    res = run_pipeline(_mission(), [a], [CountingFrontend(), SecondFrontend()], frontend_process=False)
+    calls = [s for s in a.stream if s[0] == "o"]
+    assert len(calls) == 5  # one a scan, not one a scan and front-end
+    assert all(len(positions) == 2 for _, _, positions in calls)  # the first front-end's, then the second's
+    assert all(p2[0] == p1[0] + 1.0 for _, _, (p1, p2) in calls)
+    assert [r.frontend for r in res.observations] == ["counting", "second"] * 5  # kept per front-end

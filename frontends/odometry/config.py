@@ -205,12 +205,14 @@ class OdometryConfig(BaseModel):
     dropout_after_s: float = Field(
         1.0, gt=0, description="a DVL reading this old (s) is a dropout for dropout_motion (readings come at 5 Hz)"
     )
-    factor_rotation: Literal["prior", "free"] = Field(
+    factor_rotation: Literal["prior", "free", "conditional"] = Field(
         "prior",
         description="the rotation block of the emitted covariance: 'prior' (the registration's: with the attitude "
-        "held, the AHRS's rates integrated between the scans) or 'free' (σ 1 rad, information.FREE_ROTATION_SIGMA_RAD, no cross terms: "
+        "held, the AHRS's rates integrated between the scans), 'free' (σ 1 rad, information.FREE_ROTATION_SIGMA_RAD, no cross terms: "
         "the relative pose constrains the translation alone, with its marginal covariance; since stop 43 the graph "
-        "links keyframes with the same integrated rates, so the held rotation would be counted twice)",
+        "links keyframes with the same integrated rates, so the held rotation would be counted twice) or "
+        "'conditional' (the rotation's own information replaced by σ 1 rad's, the rest kept: the translation given "
+        "the rotation, information.translation_given_rotation)",
     )
     restart_after: int = Field(
         3, ge=1, description="this many rejected scans in a row start a new local map at the next usable scan"

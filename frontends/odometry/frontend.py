@@ -9,7 +9,13 @@ from typing import ClassVar
 import numpy as np
 
 from frontends.odometry.config import OdometryConfig
-from frontends.odometry.information import adjoint, mahalanobis2, tangent, translation_only
+from frontends.odometry.information import (
+    adjoint,
+    mahalanobis2,
+    tangent,
+    translation_given_rotation,
+    translation_only,
+)
 from frontends.odometry.matcher import ScanMatcher
 from frontends.odometry.prior import NavigationPrior
 from semslam.errors import validated
@@ -95,6 +101,8 @@ class OdometryFrontend(Frontend):
         cov_B = A @ self._tail_scaled(reg, A, stamp_from, scan.stamp) @ A.T
         if self.config.factor_rotation == "free":
             cov_B = translation_only(cov_B)
+        elif self.config.factor_rotation == "conditional":
+            cov_B = translation_given_rotation(cov_B)
         return [
             OdometryObservation(
                 scan.stamp,

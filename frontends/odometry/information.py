@@ -21,6 +21,20 @@ def translation_only(cov: np.ndarray) -> np.ndarray:
     return out
 
 
+def translation_given_rotation(cov: np.ndarray) -> np.ndarray:
+    """``cov`` (6×6, rotation then translation) with the rotation's own information taken out and
+    FREE_ROTATION_SIGMA_RAD's put in its place, the rest of the information kept: the relative pose then
+    constrains the translation *given* the rotation (t − K·θ, K the translation's error per rotation
+    error: the scan's points are metres away) and says nothing of the rotation itself, which the graph
+    has from its own gyro link (the same rates: counted twice otherwise). Unlike :func:`translation_only`,
+    whose translation marginal carries K·Σ_θ·Kᵀ as if the rotation's error were unknown, the graph's
+    rotation then moves the translation the factor expects."""
+    info = np.linalg.inv(cov)
+    info[:3, :3] += np.eye(3) / FREE_ROTATION_SIGMA_RAD**2 - np.linalg.inv(cov[:3, :3])
+    out = np.linalg.inv(info)
+    return (out + out.T) / 2
+
+
 def skew(v: np.ndarray) -> np.ndarray:
     """[v]× for one vector (3,) or a stack (n, 3) → (n, 3, 3)."""
     v = np.asarray(v, float)
