@@ -51,3 +51,25 @@ def test_each_map_layer_is_one_artist_with_every_landmark_where_it_is():
     y0, y1 = ax.get_ylim()
     ends = segs.reshape(-1, 2)
     assert x0 <= ends[:, 0].min() and ends[:, 0].max() <= x1 and y0 <= ends[:, 1].min() and ends[:, 1].max() <= y1
+
+
+def test_band_draws_the_polygons_of_fill_between():
+    """The ±2σ band's polygons equal fill_between's, runs split by missing covariances included."""
+    import matplotlib.pyplot as plt
+
+    from semslam.eval.figures import _band
+
+    rng = np.random.default_rng(3)
+    t = np.arange(40.0)
+    lo, hi = -rng.uniform(0.1, 1, 40), rng.uniform(0.1, 1, 40)
+    lo[[0, 7, 8, 20, 39]] = np.nan  # poses without a covariance: runs of one, several, at both ends
+    hi[[7, 8, 21, 33]] = np.nan
+    fig, (a, b) = plt.subplots(1, 2)
+    want = [p.vertices for p in a.fill_between(t, lo, hi, color="r", alpha=0.15, lw=0).get_paths()]
+    _band(b, t, lo, hi, "r")
+    got = [p.vertices for p in b.collections[0].get_paths()]
+    assert len(got) == len(want) == 4
+    for g, w in zip(got, want):
+        np.testing.assert_array_equal(g, w)
+    assert a.dataLim.bounds == b.dataLim.bounds
+    plt.close(fig)

@@ -13,7 +13,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
-from matplotlib.collections import LineCollection  # noqa: E402
+from matplotlib.collections import LineCollection, PolyCollection  # noqa: E402
 from matplotlib.ticker import FuncFormatter, NullFormatter  # noqa: E402
 
 from semslam.estimation import EstimatorResult, Trajectory  # noqa: E402
@@ -42,6 +42,25 @@ def _lay_out(fig, left=0.9, right=0.25, bottom=0.6, top=0.45, wspace=0.85, hspac
         wspace=wspace / ((inner_w - (ncols - 1) * wspace) / ncols),
         hspace=hspace / ((inner_h - (nrows - 1) * hspace) / nrows),
     )
+
+
+def _band(ax, t: np.ndarray, lo: np.ndarray, hi: np.ndarray, color) -> None:
+    """The ±2σ band between ``lo`` and ``hi`` over ``t``, the polygons ``ax.fill_between`` would draw
+    (one per run of finite values, closed along ``hi``), made from plain arrays: fill_between slices
+    masked arrays once per run, and poses without a covariance split a band into hundreds of runs."""
+    t, lo, hi = np.broadcast_arrays(np.asarray(t, float), np.asarray(lo, float), np.asarray(hi, float))
+    ok = np.isfinite(t) & np.isfinite(lo) & np.isfinite(hi)
+    edges = np.flatnonzero(np.diff(np.concatenate([[False], ok, [False]]).astype(np.int8)))
+    verts = []
+    for i0, i1 in zip(edges[::2], edges[1::2]):
+        n = i1 - i0
+        pts = np.empty((2 * n + 2, 2))
+        pts[0] = t[i0], hi[i0]
+        pts[1 : n + 1, 0], pts[1 : n + 1, 1] = t[i0:i1], lo[i0:i1]
+        pts[n + 1] = t[i1 - 1], hi[i1 - 1]
+        pts[n + 2 :, 0], pts[n + 2 :, 1] = t[i0:i1][::-1], hi[i0:i1][::-1]
+        verts.append(pts)
+    ax.add_collection(PolyCollection(verts, color=color, alpha=0.15, lw=0))
 
 
 def trajectories(truth: Trajectory | None, results: Mapping[str, EstimatorResult]):
@@ -127,7 +146,7 @@ def position_errors(truth: Trajectory, results: Mapping[str, EstimatorResult]):
             ax.plot(t, err[:, k], color=_color(name), lw=0.9, label=name)
             if tr.position_cov is not None:
                 s2 = 2 * np.sqrt(np.maximum(tr.position_cov[:, k, k], 0))
-                ax.fill_between(t, -s2, s2, color=_color(name), alpha=0.15, lw=0)
+                _band(ax, t, -s2, s2, _color(name))
     for k, (ax, lab) in enumerate(zip(axes, ("north", "east", "depth"))):
         ax.set_ylabel(f"{lab} error [m]")
         ax.grid(alpha=0.3)
@@ -155,9 +174,7 @@ def velocities(results: Mapping[str, EstimatorResult]):
             ax.plot(t, tr.velocities[:, k], color=_color(name), lw=0.8, label=name)
             if tr.velocity_cov is not None:
                 s2 = 2 * np.sqrt(np.maximum(tr.velocity_cov[:, k, k], 0))
-                ax.fill_between(
-                    t, tr.velocities[:, k] - s2, tr.velocities[:, k] + s2, color=_color(name), alpha=0.15, lw=0
-                )
+                _band(ax, t, tr.velocities[:, k] - s2, tr.velocities[:, k] + s2, _color(name))
     for ax, lab in zip(axes, ("u", "v", "w")):
         ax.set_ylabel(f"{lab} [m/s]")
         ax.grid(alpha=0.3)

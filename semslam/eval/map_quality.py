@@ -116,15 +116,18 @@ def ate_position_yaw(estimate: Trajectory, truth: Trajectory) -> tuple[float, np
 def moved(landmarks: list[LandmarkEstimate], T: np.ndarray) -> list[LandmarkEstimate]:
     """The landmarks moved by T (4×4; positions, pipe ends and structure poses), the points of all
     of them at once (dead reckoning's map places thousands)."""
-    from dataclasses import replace
-
     fields = ("position", "p", "q")
     at = [(k, f) for k, lm in enumerate(landmarks) for f in fields if getattr(lm, f) is not None]
     pts = np.array([getattr(landmarks[k], f) for k, f in at], float).reshape(-1, 3) @ T[:3, :3].T + T[:3, 3]
     new: list[dict] = [dict.fromkeys(fields) for _ in landmarks]
     for (k, f), x in zip(at, pts):
         new[k][f] = x
-    return [replace(lm, **new[k], pose=None if lm.pose is None else T @ lm.pose) for k, lm in enumerate(landmarks)]
+    out = []
+    for lm, changed in zip(landmarks, new):  # dataclasses.replace's copies, without its __init__ per landmark
+        m = object.__new__(type(lm))
+        m.__dict__.update(lm.__dict__, **changed, pose=None if lm.pose is None else T @ lm.pose)
+        out.append(m)
+    return out
 
 
 # ------------------------------------------------------------------ consistency

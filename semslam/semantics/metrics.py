@@ -90,7 +90,8 @@ def classification_metrics(confusion: np.ndarray | Sequence[Sequence[int]], clas
 
 
 def _argmax(d: Mapping[str, float], classes: Sequence[str]) -> str:
-    return classes[int(np.argmax([d.get(c, 0.0) for c in classes]))]
+    values = [d.get(c, 0.0) for c in classes]  # np.argmax's first maximum, without an array per record
+    return classes[values.index(max(values))]
 
 
 def stage_predictions(
