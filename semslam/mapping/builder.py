@@ -324,8 +324,7 @@ class MapBuilder:
         parallel = np.arccos(np.minimum(1.0, np.abs(dirs @ u))) <= a.merge_angle_rad
         for k in np.flatnonzero(parallel & (off < sep)):
             pid, c, d, s_ = ids[k], points[k], dirs[k], s[k]
-            extent, radius = self.book.extent(pid), a.inline_object_radius_m
-            lo, hi = seen = extent.interval(c, d, extent.cutting(mapped_objects, separators, c, d, radius), radius)
+            lo, hi = seen = self.book.extent(pid).seen_span(c, d, separators, mapped_objects, a.inline_object_radius_m)
             if min(s_.max(), hi) - max(s_.min(), lo) < 0.5 * (s_.max() - s_.min()):
                 continue  # mostly beyond what was seen: possibly the next pipe in line
             if not object_between(seen, seg, c, d, separators, a.inline_object_radius_m):
