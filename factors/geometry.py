@@ -18,6 +18,15 @@ def skew(w: np.ndarray) -> np.ndarray:
     return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
 
 
+def skew_batch(v: np.ndarray) -> np.ndarray:
+    """[v]× for each row of v (K×3) → (K, 3, 3)."""
+    S = np.zeros(v.shape[:-1] + (3, 3))
+    S[..., 0, 1], S[..., 0, 2] = -v[..., 2], v[..., 1]
+    S[..., 1, 0], S[..., 1, 2] = v[..., 2], -v[..., 0]
+    S[..., 2, 0], S[..., 2, 1] = -v[..., 1], v[..., 0]
+    return S
+
+
 # so3_exp and so3_log run per AHRS reading and per DVL sample (tens of thousands a mission): they
 # are written out in scalars, ~5× faster than numpy's small-matrix products or scipy's Rotation.
 

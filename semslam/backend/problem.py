@@ -15,6 +15,7 @@ from typing import Any
 import gtsam
 import numpy as np
 
+from factors.geometry import skew_batch
 from factors.landmarks import (
     line_frame,
     line_observation_covariance,
@@ -111,7 +112,7 @@ class GraphAssociationProblem:
         l_B = (L - t) @ R  # R_WBᵀ (l − t), row by row
         r = (R_SB @ (l_B - T[:, :3, 3])[:, :, None])[:, :, 0] - np.array([self.observations[i].position for i in obs])
         H_x = np.empty((len(obs), 3, 6))
-        H_x[:, :, :3] = R_SB @ _skews(l_B)
+        H_x[:, :, :3] = R_SB @ skew_batch(l_B)
         H_x[:, :, 3:] = -R_SB
         H_l = R_SB @ R.T
         return [PairLinearization(-r[k], H_x[k], H_l[k], self.observations[i].covariance) for k, i in enumerate(obs)]
@@ -134,9 +135,9 @@ class GraphAssociationProblem:
         H_x = np.zeros((K, 4, 6))
         H_l = np.zeros((K, 4, 4))
         for e in range(2):
-            H_x[:, 2 * e : 2 * e + 2, :3] = -(A @ _skews(e_B[:, e]))[:, :2]
+            H_x[:, 2 * e : 2 * e + 2, :3] = -(A @ skew_batch(e_B[:, e]))[:, :2]
             H_x[:, 2 * e : 2 * e + 2, 3:] = A[:, :2]
-            H_l[:, 2 * e : 2 * e + 2, :2] = (_skews(e_L[:, e]) @ Jr2)[:, :2]
+            H_l[:, 2 * e : 2 * e + 2, :2] = (skew_batch(e_L[:, e]) @ Jr2)[:, :2]
             H_l[:, 2 * e : 2 * e + 2, 2:] = -np.eye(2)
         M = (A @ np.array([self.T_BS[i][:3, :3] for i in obs], float))[:, :2]  # R_Lᵀ R_WB R_BS, x and y rows
         J = np.zeros((K, 4, 6))
@@ -251,12 +252,3 @@ def possible_pairs(
         if isinstance(z, StructureObservation):
             allowed[i] = [c.landmark.kind == "structure" and c.landmark.model == z.model for c in candidates]
     return allowed
-
-
-def _skews(w: np.ndarray) -> np.ndarray:
-    """[w]× of each row of w (N×3): N×3×3."""
-    out = np.zeros((len(w), 3, 3))
-    out[:, 0, 1], out[:, 0, 2] = -w[:, 2], w[:, 1]
-    out[:, 1, 0], out[:, 1, 2] = w[:, 2], -w[:, 0]
-    out[:, 2, 0], out[:, 2, 1] = -w[:, 1], w[:, 0]
-    return out

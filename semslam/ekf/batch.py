@@ -9,20 +9,12 @@ from __future__ import annotations
 
 import numpy as np
 
+from factors.geometry import skew_batch
 from semslam.ekf import geometry as geo
 from semslam.ekf.models import ATT, NX, POS
 
 _FLIP = np.array([-1.0, -1.0, 1.0])
 _FLIP4 = np.array([-1.0, -1.0, 1.0, 1.0])
-
-
-def skew_batch(v: np.ndarray) -> np.ndarray:
-    """[v]× for each row of v (K×3) → (K, 3, 3)."""
-    S = np.zeros(v.shape[:-1] + (3, 3))
-    S[..., 0, 1], S[..., 0, 2] = -v[..., 2], v[..., 1]
-    S[..., 1, 0], S[..., 1, 2] = v[..., 2], -v[..., 0]
-    S[..., 2, 0], S[..., 2, 1] = -v[..., 1], v[..., 0]
-    return S
 
 
 def so3_log_batch(R: np.ndarray) -> np.ndarray:
