@@ -169,6 +169,15 @@ def test_local_cluster_interrupted_then_resumed(inputs, serial, tmp_path):
         assert f"href='{w['report']}'" in page and (out / w["report"]).is_file()
 
 
+def _written_address(sched_file) -> str | None:
+    """The scheduler's address once its file is whole: the scheduler creates the file before it writes it,
+    so it may exist empty or half-written for a moment."""
+    try:
+        return json.loads(sched_file.read_text())["address"]
+    except (OSError, ValueError, KeyError):
+        return None
+
+
 @pytest.fixture
 def dask_cluster(tmp_path):
     """A `dask scheduler` and two `dask worker` processes (one thread each) on localhost, stopped
@@ -185,8 +194,7 @@ def dask_cluster(tmp_path):
 
     try:
         start("scheduler", "--host", "127.0.0.1", "--port", "0", "--no-dashboard", "--scheduler-file", str(sched_file))
-        wait_for(sched_file.is_file, 60, "the scheduler")
-        address = json.loads(sched_file.read_text())["address"]
+        address = wait_for(lambda: _written_address(sched_file), 60, "the scheduler")
         for name in ("w1", "w2"):
             start("worker", "--scheduler-file", str(sched_file), "--nthreads", "1", "--no-dashboard", "--name", name)
         from distributed import Client
