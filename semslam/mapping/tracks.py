@@ -187,8 +187,12 @@ class TrackSet:
         return len(self.tracks)
 
     def object_points(self) -> np.ndarray:
-        """The tentative objects' positions in {W} (N×3): they separate collinear pipes as mapped ones do."""
-        pts = [tr.place for tr in self.tracks if tr.kind == "object"]
+        """The tentative objects' positions in {W} (N×3): they separate collinear pipes as mapped ones do.
+        The object tracks forgotten for the timeout whose place is still remembered count too: a valve seen
+        in two scans of a pass, forgotten before the vehicle comes back, still lies between the pipes either
+        side of it (the pipes' views end at it; where a pipe's views run across a place, the place cuts
+        nothing: :meth:`~semslam.mapping.extent.PipeExtent.uncrossed`)."""
+        pts = [tr.place for tr in self.tracks if tr.kind == "object"] + [tr.place for tr in self._lapsed]
         return np.array(pts).reshape(-1, 3)
 
     def note_scan(self, stamp: int, points: np.ndarray, segments: np.ndarray, in_sight=None) -> None:
