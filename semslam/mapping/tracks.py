@@ -1,7 +1,8 @@
 """Tentative landmarks (Himri et al. 2018: a landmark enters the map only after consistent repeated
 observations). A scan's unpaired observations continue tracks or start new ones; a track seen
 ``association.min_observations`` times is promoted (each estimator then initialises the landmark in
-its own state); one not seen again within ``association.track_timeout_s`` is forgotten. An object
+its own state); one not seen again within ``association.track_timeout_s`` is forgotten (an object's
+place is remembered a while longer: its counts go on, and it keeps collinear pipes apart). An object
 must also have been seen in at least ``association.object_view_ratio`` of the scans that had its
 place in view since its first view: the scans that saw anything (a mapped or tentative landmark, an
 unpaired view) within ``association.object_view_reach_m`` of it, with its place inside the sensor's
