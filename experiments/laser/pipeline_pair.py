@@ -35,6 +35,7 @@ COLUMNS = (
     "pipe_error_max_m",
     "objects_far_from_any_fitting",
     "seen_pipes",
+    "mapped_pipes",
     "valve_counts",
     "other_fitting_counts",
 )
