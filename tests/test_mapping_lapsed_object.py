@@ -13,6 +13,7 @@ from semslam.mapping.book import LandmarkBook
 from semslam.mapping.builder import MapBuilder
 from semslam.mapping.tracks import TrackSet, TrackView
 from semslam.observations import LineObservation, PointObservation
+from tests.test_mapping_uncrossed_object import _TwoPipes as _MappedPair
 
 C, D = np.array([0.0, 0.0, -15.0]), np.array([1.0, 0.0, 0.0])
 NONE = np.zeros((0, 3))
@@ -36,24 +37,12 @@ def _lapsed_valve(assoc: AssociationConfig) -> TrackSet:
     return tracks
 
 
-class _TwoPipes:
-    """Two mapped pipes on one line (ids 2 and 4), no mapped object, their lines compatible by χ²; the
-    merges the builder asks for are recorded."""
+class _TwoPipes(_MappedPair):
+    """Two mapped pipes on one line (ids 2 and 4), no mapped object, their lines compatible by χ²
+    (``tests/test_mapping_uncrossed_object.py``); the merges the builder asks for are recorded."""
 
     def __init__(self):
         self.merges = []
-
-    def pipes(self):
-        return [(2, C, D), (4, C, D)]
-
-    def objects(self):
-        return [], NONE
-
-    def difference_nis(self, a, b):
-        return 0.0
-
-    def place(self, z):
-        return (np.stack([z.p, z.q]),)
 
     def merge(self, keep, drop, constrain):
         self.merges.append((keep, drop))
