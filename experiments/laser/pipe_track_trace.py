@@ -25,7 +25,9 @@ from laser_real_eval import map_scores  # noqa: E402
 from pipeline_replay import light_mission, replay, true_poses  # noqa: E402
 
 
-def trace(seed: int, pipe: int, dump: Path, sim: dict, config: dict, details: bool = False) -> list[str]:
+def trace(
+    seed: int, pipe: int, dump: Path, sim: dict, config: dict, details: bool = False, estimator: str = "graph"
+) -> list[str]:
     from frontends.laser.evaluation import matching_pipe
     from semslam.mapping import builder, tracks
     from semslam.mapping.association import chi2_gate
@@ -134,13 +136,13 @@ def trace(seed: int, pipe: int, dump: Path, sim: dict, config: dict, details: bo
     builder.MapBuilder.process, builder.MapBuilder._overlaps_mapped = process, overlaps
     tracks.TrackSet.extend = extend
     try:
-        results, mission, by_stamp = replay(seed, dump, sim, config)
+        results, mission, by_stamp = replay(seed, dump, sim, config, estimator=estimator)
     finally:
         builder.MapBuilder.process, builder.MapBuilder._overlaps_mapped = orig_process, orig_overlaps
         tracks.TrackSet.extend = orig_extend
         builder.Scan.excludes = orig_excludes
     n_obs = sum(1 for obs in by_stamp.values() for z in obs if isinstance(z, LineObservation) and true_pipe(z) == pipe)
-    graph = results["graph"]
+    graph = results[estimator]
     scores = map_scores(graph.landmarks, truth, mission.metadata.extras["scans"])
     log.insert(0, f"seed {seed}, true pipe {pipe}: {n_obs} recorded line observations on it")
     for lm in graph.landmarks:
@@ -166,8 +168,10 @@ def main(argv=None) -> int:
     ap.add_argument("--sim", default="{}", help="pipeline simulator overrides (JSON, nested sections)")
     ap.add_argument("--config", default="{}", help="semslam configuration overrides (JSON)")
     ap.add_argument("--details", action="store_true", help="each exclusion test of a view of the pipe")
+    ap.add_argument("--estimator", default="graph", choices=("graph", "ekf"), help="the estimator replayed")
     args = ap.parse_args(argv)
-    for line in trace(args.seed, args.pipe, args.dump, json.loads(args.sim), json.loads(args.config), args.details):
+    sim, config = json.loads(args.sim), json.loads(args.config)
+    for line in trace(args.seed, args.pipe, args.dump, sim, config, args.details, args.estimator):
         print(line, flush=True)
     return 0
 

@@ -110,8 +110,9 @@ def true_directions(mission, by_stamp) -> dict:
     return out
 
 
-def replay(seed: int, dump: Path, sim: dict, config: dict, fix_directions: bool = False):
-    """The graph on ``seed``'s recorded laser observations: (graph result, mission)."""
+def replay(seed: int, dump: Path, sim: dict, config: dict, fix_directions: bool = False, estimator: str = "graph"):
+    """The graph (or ``estimator``) on ``seed``'s recorded laser observations: (results by estimator,
+    mission, observations by stamp)."""
     from semslam.compare import estimators_input
     from semslam.config import SemslamConfig
     from semslam.estimators import create_estimator
@@ -125,7 +126,7 @@ def replay(seed: int, dump: Path, sim: dict, config: dict, fix_directions: bool 
     if fix_directions:
         by_stamp = true_directions(mission, by_stamp)
     fes = [RecordedFrontend("laser", by_stamp, None)]
-    ests = [create_estimator(n, mission.metadata, cfg) for n in ("dr", "graph")]
+    ests = [create_estimator(n, mission.metadata, cfg) for n in ("dr", estimator)]
     result = run_pipeline(estimators_input(mission, cfg), ests, fes, view_estimator="graph", frontend_process=False)
     return result.results, mission, by_stamp
 

@@ -14,7 +14,8 @@ For each batch of observations (one front-end's, of one measurement) the builder
    landmark seen badly: ambiguous, it starts nothing. What was seen of a pipe is cut, for these rules, at the
    mapped objects and at the tentative ones that no view of it runs across
    (:meth:`~semslam.mapping.extent.PipeExtent.uncrossed`: a view that reached past a valve before the valve was
-   seen must not join the pipe beyond it);
+   seen must not join the pipe beyond it); the tentative objects include those forgotten for the timeout whose
+   place is still remembered (:meth:`~semslam.mapping.tracks.TrackSet.object_points`);
 4. has the estimator apply the pairings (its own update), extends or starts tentative landmarks with
    the rest (:mod:`semslam.mapping.tracks`) and has the estimator initialise those promoted;
 5. records every view in the :class:`~semslam.mapping.book.LandmarkBook` (class evidence, what was seen

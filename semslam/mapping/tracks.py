@@ -1,7 +1,8 @@
 """Tentative landmarks (Himri et al. 2018: a landmark enters the map only after consistent repeated
 observations). A scan's unpaired observations continue tracks or start new ones; a track seen
 ``association.min_observations`` times is promoted (each estimator then initialises the landmark in
-its own state); one not seen again within ``association.track_timeout_s`` is forgotten. An object
+its own state); one not seen again within ``association.track_timeout_s`` is forgotten (an object's
+place is remembered a while longer: its counts go on, and it keeps collinear pipes apart). An object
 must also have been seen in at least ``association.object_view_ratio`` of the scans that had its
 place in view since its first view: the scans that saw anything (a mapped or tentative landmark, an
 unpaired view) within ``association.object_view_reach_m`` of it, with its place inside the sensor's
@@ -187,8 +188,12 @@ class TrackSet:
         return len(self.tracks)
 
     def object_points(self) -> np.ndarray:
-        """The tentative objects' positions in {W} (N×3): they separate collinear pipes as mapped ones do."""
-        pts = [tr.place for tr in self.tracks if tr.kind == "object"]
+        """The tentative objects' positions in {W} (N×3): they separate collinear pipes as mapped ones do.
+        The object tracks forgotten for the timeout whose place is still remembered count too: a valve seen
+        in two scans of a pass, forgotten before the vehicle comes back, still lies between the pipes either
+        side of it (the pipes' views end at it; where a pipe's views run across a place, the place cuts
+        nothing: :meth:`~semslam.mapping.extent.PipeExtent.uncrossed`)."""
+        pts = [tr.place for tr in self.tracks if tr.kind == "object"] + [tr.place for tr in self._lapsed]
         return np.array(pts).reshape(-1, 3)
 
     def note_scan(self, stamp: int, points: np.ndarray, segments: np.ndarray, in_sight=None) -> None:
