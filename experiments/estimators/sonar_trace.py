@@ -256,23 +256,14 @@ def _log(R: np.ndarray) -> np.ndarray:
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = p.add_subparsers(dest="cmd", required=True)
-    r = sub.add_parser("run")
-    r.add_argument("bag", type=Path)
-    r.add_argument("out", type=Path)
-    r.add_argument("name")
-    d = sub.add_parser("diff")
-    d.add_argument("a", type=Path)
-    d.add_argument("b", type=Path)
-    q = sub.add_parser("pair")
-    q.add_argument("a", type=Path)
-    q.add_argument("b", type=Path)
+    commands = {"run": (run, ("bag", "out", "name")), "diff": (diff, ("a", "b")), "pair": (pair, ("a", "b"))}
+    for name, (_, args) in commands.items():
+        sp = sub.add_parser(name)
+        for arg in args:
+            sp.add_argument(arg, type=str if arg == "name" else Path)
     a = p.parse_args()
-    if a.cmd == "run":
-        run(a.bag, a.out, a.name)
-    elif a.cmd == "pair":
-        pair(a.a, a.b)
-    else:
-        diff(a.a, a.b)
+    fn, args = commands[a.cmd]
+    fn(*(getattr(a, arg) for arg in args))
 
 
 if __name__ == "__main__":
