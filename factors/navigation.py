@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import gtsam
 import numpy as np
 
-from factors.geometry import euler_zyx_rate_matrix, mat3_mul, rot_to_roll_pitch, skew
+from factors.geometry import euler_zyx_rate_matrix, mat3_mul, rot_to_roll_pitch, skew, skew_batch
 from factors.heading_bias import RATE_UNIT_S, heading_bias_drift_covariance
 
 # --------------------------------------------------------------------------------------------
@@ -107,31 +107,60 @@ class DvlPreintegrator:
     Deviations of the true velocity from the linear interpolant between two knots Δt apart are a
     Brownian bridge whose integral has variance σ_a² Δt³ / 12 per axis; that is the motion-model
     noise, and over a dropout (no knot) it grows with the cube of the gap.
+
+    The rotation into {B_i}: R_iᵀ R(t) from the AHRS readings (``R_i`` and each sample's ``R_WB``, each with
+    its own error of σ ``attitude_sigma``), or, when every sample of the interval and its end come with the
+    gyro's rotation since t_i (``dR_gyro`` of :meth:`add`, ``dR_j`` of :meth:`integrate` and :meth:`smoothed`),
+    that one: the gyro's rates integrated since the keyframe, whose error is the rate noise integrated from
+    t_i, a random walk of density ``rate_density`` common to the samples that follow (the readings' error
+    of R_i is common to every sample of the interval and is no random walk of the keyframe's state).
     """
 
-    def __init__(self, t_i: float, R_i: np.ndarray, accel_sigma: float, attitude_sigma: float = 0.0):
+    def __init__(
+        self, t_i: float, R_i: np.ndarray, accel_sigma: float, attitude_sigma: float = 0.0, rate_density: float = 0.0
+    ):
         self.t_i = t_i
         self.R_i_T = np.asarray(R_i).T
         self.accel_sigma = accel_sigma
         self.attitude_sigma = attitude_sigma
+        self.rate_density = rate_density  # the gyro's white rate noise (rad/s/√Hz), for its rotations
         self._t: list[float] = []
         self._dR: list[np.ndarray] = []
+        self._dR_gyro: list[np.ndarray | None] = []
         self._v: list[np.ndarray] = []
         self._cov: list[np.ndarray] = []
 
-    def add(self, t: float, R_WB: np.ndarray, v_B: np.ndarray, cov_B: np.ndarray) -> None:
-        """A valid DVL sample (already in the body frame, :func:`dvl_to_body`) at time t (s)."""
+    def add(
+        self, t: float, R_WB: np.ndarray, v_B: np.ndarray, cov_B: np.ndarray, dR_gyro: np.ndarray | None = None
+    ) -> None:
+        """A valid DVL sample (already in the body frame, :func:`dvl_to_body`) at time t (s), with the AHRS's
+        attitude R_WB at t and, when known, the gyro's rotation R_iᵀ R(t) since the keyframe."""
         if t <= self.t_i or (self._t and t <= self._t[-1]):
             return  # out of order or at the keyframe itself: the keyframe's own prior carries it
         self._t.append(t)
         self._dR.append(self.R_i_T @ R_WB)
+        self._dR_gyro.append(dR_gyro)
         self._v.append(np.asarray(v_B, float))
         self._cov.append(np.asarray(cov_B, float))
 
     def drop_last(self) -> None:
         """Forget the newest sample (used when it becomes the next keyframe's velocity factor)."""
-        for lst in (self._t, self._dR, self._v, self._cov):
+        for lst in (self._t, self._dR, self._dR_gyro, self._v, self._cov):
             lst.pop()
+
+    def _by_gyro(self, dR_j: np.ndarray | None) -> bool:
+        """Whether the interval's samples are turned by the gyro: its rotation to the end and to every sample."""
+        return dR_j is not None and all(d is not None for d in self._dR_gyro)
+
+    def _gyro_rotation_cov(self, w_u: np.ndarray) -> np.ndarray:
+        """The displacement's covariance from the gyro's rotation error, the samples weighted by ``w_u``: the
+        rate noise integrated since t_i, θ(t_k) = Σ_{m≤k} η_m with η_m ~ N(0, q (t_m − t_{m−1}) I), turns
+        sample k by δ = −w_k ΔR_k [v_k]× θ(t_k), so Σ = Σ_m q (t_m − t_{m−1}) T_m T_mᵀ with T_m the sum of
+        w_k ΔR_k [v_k]× over k ≥ m (the samples after a step share it)."""
+        S = skew_batch(np.array(self._v))
+        T = np.cumsum((w_u[:, None, None] * (np.array(self._dR_gyro) @ S))[::-1], axis=0)[::-1]
+        steps = np.diff(np.r_[self.t_i, self._t]) * self.rate_density**2
+        return np.sum(steps[:, None, None] * (T @ T.transpose(0, 2, 1)), axis=0)
 
     @property
     def last_stamp(self) -> float | None:
@@ -141,23 +170,28 @@ class DvlPreintegrator:
     def n_samples(self) -> int:
         return len(self._t)
 
-    def integrate(self, t_j: float, R_j: np.ndarray) -> DisplacementIntegral:
+    def integrate(self, t_j: float, R_j: np.ndarray, dR_j: np.ndarray | None = None) -> DisplacementIntegral:
+        """The displacement to t_j, where the AHRS's attitude is ``R_j`` and the gyro's rotation since t_i
+        ``dR_j`` (None: no gyro's; the samples are then turned by the readings)."""
         dt = t_j - self.t_i
         knots_t = np.array([self.t_i, *self._t, t_j])
         seg = np.diff(knots_t)
         w = np.zeros(len(knots_t))
         w[:-1] += seg / 2
         w[1:] += seg / 2
-        dR_j = self.R_i_T @ R_j
+        gyro = self._by_gyro(dR_j)
+        dR_j = dR_j if gyro else self.R_i_T @ R_j
         c = np.zeros(3)
         cov = np.eye(3) * (self.accel_sigma**2 * float(np.sum(seg**3)) / 12.0 + MIN_DISPLACEMENT_SIGMA_M**2)
         for k in range(len(self._t)):
-            wk, dR, v = w[k + 1], self._dR[k], self._v[k]
+            wk, dR, v = w[k + 1], (self._dR_gyro if gyro else self._dR)[k], self._v[k]
             c += wk * (dR @ v)
             cov += wk**2 * (dR @ self._cov[k] @ dR.T)
-            if self.attitude_sigma > 0:  # attitude noise rotates the sample: δ = −ΔR [v]× δθ
+            if self.attitude_sigma > 0 and not gyro:  # attitude noise rotates the sample: δ = −ΔR [v]× δθ
                 Sv = dR @ skew(v)
                 cov += wk**2 * self.attitude_sigma**2 * (Sv @ Sv.T)
+        if gyro and self._t:
+            cov += self._gyro_rotation_cov(w[1:-1])
         last = (self._v[-1], self._cov[-1]) if self._t else None
         return DisplacementIntegral(
             dt=dt,
@@ -170,7 +204,7 @@ class DvlPreintegrator:
             last_sample=last,
         )
 
-    def smoothed(self, t_j: float, R_j: np.ndarray) -> SmoothedInterval:
+    def smoothed(self, t_j: float, R_j: np.ndarray, dR_j: np.ndarray | None = None) -> SmoothedInterval:
         """The interval as the whole Wiener-velocity model sees it: the displacement δ = R_iᵀ(p_j − p_i)
         and the velocity states v_i, v_j jointly, every DVL sample inside informing both.
 
@@ -183,7 +217,8 @@ class DvlPreintegrator:
         random walk of density σ_a through v_i, u_1 … u_M, v_j. The u_m are eliminated exactly (a
         linear Gaussian Schur complement): what is left is a Gaussian on z = [δ, v_i, v_j], whitened
         as r = Cᵀ (z − z0). Without samples it would be :meth:`integrate`'s displacement with the velocity
-        random walk between v_i and v_j, of rank 6 (nothing absolute in z): for intervals with samples only."""
+        random walk between v_i and v_j, of rank 6 (nothing absolute in z): for intervals with samples only.
+        ``R_j``, ``dR_j``: as :meth:`integrate`'s."""
         dt = t_j - self.t_i
         knots_t = np.array([self.t_i, *self._t, t_j])
         seg = np.maximum(np.diff(knots_t), 1e-3)  # a sample at t_j itself: a stiff, not singular, link
@@ -197,17 +232,17 @@ class DvlPreintegrator:
         q = self.accel_sigma**2
         cov_d = np.eye(3) * (q * float(np.sum(seg**3)) / 12.0 + MIN_DISPLACEMENT_SIGMA_M**2)
         # the samples at once (stacked: numpy's per-call overhead on 3×3 blocks was most of the time)
-        dR, v, w_u = np.array(self._dR), np.array(self._v), w[1:-1]
+        gyro = self._by_gyro(dR_j)
+        dR, v, w_u = np.array(self._dR_gyro if gyro else self._dR), np.array(self._v), w[1:-1]
         J = np.zeros((3, n))
         J[:, 0:3] = np.eye(3)
         J[:, 3:6] = -w[0] * np.eye(3)
-        J[:, 6:9] = -w[-1] * (self.R_i_T @ R_j)
+        J[:, 6:9] = -w[-1] * (dR_j if gyro else self.R_i_T @ R_j)
         J[:, 9:] = (-w_u[:, None, None] * dR).transpose(1, 0, 2).reshape(3, 3 * M)
-        if self.attitude_sigma > 0:  # attitude noise rotates the sample: δ = −ΔR [v]× δθ
-            S = np.zeros((M, 3, 3))
-            S[:, 0, 1], S[:, 0, 2], S[:, 1, 2] = -v[:, 2], v[:, 1], -v[:, 0]
-            S[:, 1, 0], S[:, 2, 0], S[:, 2, 1] = v[:, 2], -v[:, 1], v[:, 0]
-            Sv = dR @ S
+        if gyro:
+            cov_d += self._gyro_rotation_cov(w_u)
+        elif self.attitude_sigma > 0:  # attitude noise rotates the sample: δ = −ΔR [v]× δθ
+            Sv = dR @ skew_batch(v)
             cov_d += self.attitude_sigma**2 * np.sum((w_u**2)[:, None, None] * (Sv @ Sv.transpose(0, 2, 1)), axis=0)
         info = np.linalg.inv(np.array(self._cov))
         H = np.zeros((n, n))

@@ -97,3 +97,69 @@ def test_manifold_slid_a_bay_on_a_strip_is_refused(manifold_strip):
     assert slid.median_m <= cfg.max_median_m and slid.fitness >= cfg.new_min_fitness  # fitness cannot tell
     assert slid.unexplained > 3 * cfg.max_unexplained
     assert rec.quality_test("manifold", pts, slid) is None
+
+
+@pytest.fixture(scope="module")
+def wellhead_two_passes():
+    """Two 10 m lines over seed 23's wellhead (its returns placed with the true poses, each point's line),
+    its true pose and a recogniser of the wellhead alone."""
+    from semslam.mission.measurements import GroundTruthPose, SonarSwath
+
+    mission = simulate_field(
+        survey_config(seed=23, lines=2, line_length_m=10.0, centre="wellhead", sonar={"n_beams": 256})
+    )
+    T = true_structure_pose(mission, "wellhead")
+    T_BS = mission.metadata.sensors["sonar"].T_BS
+    poses = {m.stamp: m.matrix() for m in mission if isinstance(m, GroundTruthPose)}
+    P, stamps = [], []
+    for m in mission:
+        if isinstance(m, SonarSwath) and m.stamp in poses:
+            T_WS = poses[m.stamp] @ T_BS
+            P.append(m.points() @ T_WS[:3, :3].T + T_WS[:3, 3])
+            stamps.append(np.full(len(P[-1]), m.stamp))
+    P, stamps = np.concatenate(P), np.concatenate(stamps)
+    wellhead = structure_library()["wellhead"]
+    near = np.hypot(P[:, 0] - T[0, 3], P[:, 1] - T[1, 3]) <= wellhead.footprint_radius + 0.5
+    P, stamps = P[near], stamps[near]
+    ts = np.unique(stamps)
+    second = stamps >= ts[np.argmax(np.diff(ts)) + 1]  # the lines: after the longest gap (~35 s)
+    cfg = SonarConfig()
+    return P, second, T, Recogniser([wellhead], cfg.recognition, cfg.registration), cfg.registration
+
+
+def _second_pass_shifted(P, second, north):
+    Q = P.copy()
+    Q[second, 0] += north
+    return Q
+
+
+def test_ambiguous_final_fit_settled_by_its_passes(wellhead_two_passes):
+    """The second pass 8 cm off the first (as the navigation leaves a field's passes): on all the data the
+    wellhead's right fit and its half-turn fit within the ambiguity margin, so the final test refuses it;
+    each pass alone fits one way round only, and both vote for the fit's, which is kept (stop 45's field
+    64: passes 8.1 cm apart, fit 0.887 against 0.850)."""
+    from frontends.sonar.summary import settled_by_passes
+
+    P, second, T_true, rec, cfg = wellhead_two_passes
+    Q = _second_pass_shifted(P, second, -0.08)
+    reg = icp(rec.model_data["wellhead"], Q, T_true, cfg)
+    assert rec.quality_test("wellhead", Q, reg, cfg.final_min_fitness) is None
+    kept = settled_by_passes(rec, "wellhead", Q, second.astype(int), reg)
+    assert kept is not None
+    d, dyaw = _errors(kept.T, T_true)
+    assert d < 0.08 and dyaw < 1.0
+
+
+def test_passes_against_the_final_fit_leave_it_refused(wellhead_two_passes):
+    """The second pass 12 cm off: on all the data the half-turn fits best, within the margin of the right
+    one; each pass alone votes the right way round, against the fit: it stays refused (the vote never turns
+    a fit)."""
+    from frontends.sonar.summary import settled_by_passes
+
+    P, second, T_true, rec, cfg = wellhead_two_passes
+    Q = _second_pass_shifted(P, second, 0.12)
+    reg = icp(rec.model_data["wellhead"], Q, T_true, cfg)
+    assert rec.quality_test("wellhead", Q, reg, cfg.final_min_fitness) is None
+    assert settled_by_passes(rec, "wellhead", Q, second.astype(int), reg) is None
+    # the passes not told apart (one pass of all the data): it is as ambiguous alone, no vote
+    assert settled_by_passes(rec, "wellhead", Q, np.zeros(len(Q), int), reg) is None

@@ -59,6 +59,15 @@ def test_right_place_is_found_with_its_errors_and_symmetry():
     assert (block["structures_found"], block["structures_missed"], block["structures_false"]) == (2, 0, 0)
 
 
+def test_a_structure_settled_by_its_passes_says_so():
+    """metrics.json's row of a structure the final test confirmed only by its passes' votes says so (stop 46);
+    the others' rows are as before (no key)."""
+    settled = {**_registered("plet", (10.1, 5.0, 20.0), TRUE_YAW), "settled_by_passes": True}
+    _, true, _ = _rows(settled, _registered("manifold", (30.0, 5.2, 20.0), 0.0, symmetry=2))
+    assert true[1]["settled_by_passes"] is True
+    assert "settled_by_passes" not in true[2]
+
+
 @pytest.mark.parametrize(
     "position, yaw",
     [

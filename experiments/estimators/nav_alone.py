@@ -39,43 +39,9 @@ VARIANTS: dict[str, dict] = {
     "kf_3": {"graph.keyframe_max_interval_s": 3.0},
     "batch": {"graph.batch": True},
 }
-# Variants that change the graph's code, not a key: a monkeypatch applied in this process only (a proposed
-# fix, measured before it is written into the backend).
-PATCHED = {"gyro_dvl", "gyro_dvl_kf3", "gyro_dvl_sig"}
-VARIANTS["gyro_dvl"] = {}
-VARIANTS["gyro_dvl_sig"] = {}  # and the samples' rotation σ the gyro's over a second, not the AHRS reading's
-VARIANTS["gyro_dvl_kf3"] = {"graph.keyframe_max_interval_s": 3.0}
+# Stop 44's "gyro_dvl" variants (a monkeypatch turning the DVL samples by the gyro) are gone: since stop 45 the
+# backend does it (semslam.backend.navigation.NavigationBuffer.dvl_turn), and "nolink" turns it off with the link.
 BIN_S = 50.0
-
-
-def patch_gyro_dvl(gyro_sigma: bool = False) -> None:
-    """The graph's DVL displacement with each sample rotated into {B_i} by the gyro's rates integrated since the
-    keyframe (ΔR, as the gyro link has it) instead of R_iᵀ R(t) from two single AHRS readings (the reading
-    before the keyframe and the one before the sample, each with the AHRS's heading noise, 9.3 mrad on the
-    fields: the first is common to every sample of the interval). Falls back to the readings where the
-    interval has no gyro rotation."""
-    from semslam.backend import navigation as nav
-
-    pre = nav.DvlPreintegrator
-    buf_add, buf_start = nav.NavigationBuffer.add, nav.NavigationBuffer.start_interval
-    pre_add, pre_smoothed, pre_integrate = pre.add, pre.smoothed, pre.integrate
-
-    def gyro_R(p, t: float, R_WB):
-        g = p.buffer.gyro_rotation(t) if getattr(p, "buffer", None) is not None else None
-        return R_WB if g is None else p.R_i_T.T @ g[0]
-
-    def start_interval(self, t, R_WB, attitude_sigma, gyro_bias=None):
-        buf_start(self, t, R_WB, self.rate_sigma if gyro_sigma else attitude_sigma, gyro_bias)
-        self.preint.buffer = self
-
-    def add(self, t, R_WB, v_B, cov_B):
-        pre_add(self, t, gyro_R(self, t, R_WB), v_B, cov_B)
-
-    nav.NavigationBuffer.start_interval = start_interval
-    pre.add = add
-    pre.smoothed = lambda self, t_j, R_j: pre_smoothed(self, t_j, gyro_R(self, t_j, R_j))
-    pre.integrate = lambda self, t_j, R_j: pre_integrate(self, t_j, gyro_R(self, t_j, R_j))
-    del buf_add
 
 
 def config_for(variant: str, metadata) -> SemslamConfig:
@@ -112,8 +78,6 @@ def over_time(traj, truth) -> dict:
 
 
 def run(bag: Path, out: Path, variant: str) -> dict:
-    if variant in PATCHED:
-        patch_gyro_dvl(gyro_sigma=variant == "gyro_dvl_sig")
     cfg0 = SemslamConfig()
     mission, _, _ = checked_mission(bag, cfg0, None, "")
     cfg = config_for(variant, mission.metadata)

@@ -257,6 +257,13 @@ class StructureRegistrationConfig(_Section):
         description="a registration whose alternative (the model turned by half its symmetry period, end for "
         "end for a PLET) fits within this much of its fitness is ambiguous: not accepted until more is seen",
     )
+    final_pass_vote: bool = Field(
+        True,
+        description="at the end of the mission, a structure's fit on all its data refused only as ambiguous (its "
+        "fitness and median pass) is kept when each pass over it that passes a new structure's test alone "
+        "(passes split where the patches are swath_registration.min_age_s apart) votes for its orientation: "
+        "passes misaligned by the navigation lower both orientations' fitness on all the data",
+    )
     correlation_points: float = Field(
         8.0,
         ge=1,

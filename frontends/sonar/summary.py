@@ -11,7 +11,7 @@ import numpy as np
 from frontends.sonar.grid import ElevationMap, GridSpec, estimate_ground
 from frontends.sonar.known import KnownStructure
 from frontends.sonar.patches import overlap_area, transform
-from frontends.sonar.registration import icp
+from frontends.sonar.registration import Registration, half_turn_check, icp
 from frontends.sonar.swath_registration import _smoothed_gradient
 from semslam.registry import FrontendSummary
 
@@ -147,9 +147,56 @@ def final_registrations(fe, pts_W: np.ndarray, patch_ids: np.ndarray) -> None:
                 checked = fe.recogniser.register_anew(
                     ks.model, pts_W[wide], T0[:2, 3], fe._ground_kw(), rc.final_min_fitness
                 )
+            if checked is None and rc.final_pass_vote:
+                passes = pass_of(fe, patch_ids[near])
+                checked = settled_by_passes(fe.recogniser, ks.model, pts_W[near], passes, reg)
+                ks.settled_by_passes = checked is not None
             ks.confirmed = checked is not None
             ks.final = checked or reg
         fe.timing["registration_s"] += time.process_time() - t0
+
+
+def pass_of(fe, patch_ids: np.ndarray) -> np.ndarray:
+    """The pass of each point of the patches ``patch_ids``: their anchors in time order, a new pass where two
+    are ``swath_registration.min_age_s`` apart or more (what tells a neighbouring line from the track just
+    flown)."""
+    ids = np.unique(patch_ids)
+    stamps = np.array([fe.patches[i].anchor_stamp for i in ids], np.int64)
+    order = np.argsort(stamps, kind="stable")
+    gap = np.diff(stamps[order]) * 1e-9 >= fe.config.swath_registration.min_age_s
+    label = np.empty(len(ids), np.int64)
+    label[order] = np.r_[0, np.cumsum(gap)]
+    return label[np.searchsorted(ids, patch_ids)]
+
+
+def settled_by_passes(
+    recogniser, name: str, pts: np.ndarray, passes: np.ndarray, reg: Registration
+) -> Registration | None:
+    """A structure's fit ``reg`` on all its data ``pts`` (each point's pass in ``passes``) refused by the final
+    quality test only as ambiguous, settled by its passes: each pass is registered alone from the fit's better
+    orientation and votes when it passes a new structure's test (:meth:`Recogniser.quality_test`) for the
+    orientation that test keeps. The better orientation is returned when there is a vote and every vote is
+    for it; None otherwise, and for a fit refused for its fitness or median (passes misaligned by the
+    navigation lower both orientations' fitness on all the data: each pass alone is not misaligned)."""
+    rc = recogniser.reg_cfg
+    md = recogniser.model_data[name]
+    if reg.median_m > rc.max_median_m or reg.fitness < rc.min_fitness:
+        return None
+    best, ambiguous = half_turn_check(md, pts, reg, rc)
+    if not ambiguous or best.median_m > rc.max_median_m or best.fitness < rc.final_min_fitness:
+        return None
+    period = md.model.yaw_period
+    yaw = lambda T: np.arctan2(T[1, 0], T[0, 0])  # noqa: E731
+    votes = []
+    for k in np.unique(passes):
+        own = pts[passes == k]
+        if len(own) < rc.min_points:
+            continue
+        vote = recogniser.quality_test(name, own, icp(md, own, best.T, rc))
+        if vote is not None:
+            d = (yaw(vote.T) - yaw(best.T)) % period
+            votes.append(min(d, period - d) < period / 4)
+    return best if votes and all(votes) else None
 
 
 def summarise(fe) -> FrontendSummary:
@@ -209,6 +256,7 @@ def summarise(fe) -> FrontendSummary:
                 "recognition_coverage": float(ks.detection.coverage),
                 "recognised_at_stamp": ks.stamp if ks.stamp >= 0 else None,
                 "online": ks not in late,
+                "settled_by_passes": ks.settled_by_passes,
                 "observations_emitted": ks.n_observations,
                 "landmark_id": ks.landmark_id,
                 "landmark_pose": None if ks.landmark_id is None else fe._current_T(ks).tolist(),

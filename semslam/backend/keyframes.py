@@ -102,6 +102,7 @@ class Keyframes:
             config.motion.accel_sigma_m_s2,
             config.motion.angular_rate_density(metadata),
             config.graph.ahrs_max_age_s,
+            dvl_by_gyro=config.motion.gyro_link,
         )
         self.wait_for_gt = self.initial.pose == "first_ground_truth" and bool(metadata.sensors_of_kind("ground_truth"))
         self.initial_gt: GroundTruthPose | None = None
@@ -265,11 +266,11 @@ class Keyframes:
         v_init = v_prior if v_prior is not None else self.vel
         if self.nav.preint.n_samples:  # the displacement and both velocity states jointly, every DVL
             # sample inside informing all three, with the velocity random walk between them
-            s = self.nav.preint.smoothed(t, R)
+            s = self.nav.preint.smoothed(t, R, self.nav.dvl_turn(t))
             factors.append(smoothed_displacement_factor(X(k - 1), X(k), V(k - 1), V(k), s))
             dt, delta = s.dt, s.z0[:3]  # the displacement in {B(k-1)}: the interval's own mean
         else:  # no sample: the displacement of the two velocity states, linked by the process model
-            d = self.nav.preint.integrate(t, R)
+            d = self.nav.preint.integrate(t, R, self.nav.dvl_turn(t))
             factors.append(displacement_factor(X(k - 1), X(k), V(k - 1), V(k), d))
             factors.append(velocity_random_walk_factor(V(k - 1), V(k), d.dt, self.accel_sigma))
             dt, delta = d.dt, d.c + d.A @ self.vel + d.B @ v_init
@@ -465,7 +466,7 @@ class Keyframes:
                 return self.pose
             t = stamp * 1e-9
             R, _ = self.nav.attitude_at(t)
-            d = self.nav.preint.integrate(t, R)
+            d = self.nav.preint.integrate(t, R, self.nav.dvl_turn(t))
             p = self.pose.translation() + self.pose.rotation().matrix() @ (d.c + (d.A + d.B) @ self.vel)
             return gtsam.Pose3(gtsam.Rot3(self.unbiased(R)), p)
         i = bisect.bisect_right(self.stamps, stamp)

@@ -88,11 +88,21 @@ class DepthSample:
 class NavigationBuffer:
     """Keeps what the keyframes need from the navigation stream, in the body frame."""
 
-    def __init__(self, metadata: MissionMetadata, accel_sigma: float, rate_sigma: float, rate_max_age: float = np.inf):
+    def __init__(
+        self,
+        metadata: MissionMetadata,
+        accel_sigma: float,
+        rate_sigma: float,
+        rate_max_age: float = np.inf,
+        dvl_by_gyro: bool = False,
+    ):
         self.metadata = metadata
         self.accel_sigma = accel_sigma
         self.rate_sigma = rate_sigma  # the gyro's white-noise density (rad/s/√Hz)
         self.rate_max_age = rate_max_age  # an AHRS rate older than this (s) carries nothing: held still after
+        # the DVL samples turned into the keyframe's frame by the gyro's rotation since it (:meth:`gyro_rotation`)
+        # where the interval has one, not by two single AHRS readings
+        self.dvl_by_gyro = dvl_by_gyro
         self.attitude: AttitudeSample | None = None
         self.fused: FusedAttitude | None = None  # the readings since the last keyframe
         self.dvl: DvlSample | None = None
@@ -146,7 +156,7 @@ class NavigationBuffer:
                 if not self.vz or t > self.vz[-1][0]:
                     self.vz.append((t, float(R[2] @ v_B), float(R[2] @ cov_B @ R[2])))
                 if self.preint is not None:
-                    self.preint.add(t, R, v_B, cov_B)
+                    self.preint.add(t, R, v_B, cov_B, self.dvl_turn(t))
 
     def omega(self, t: float) -> np.ndarray:
         """The body rate at t: the latest AHRS reading's less the gyro bias b̄ (:attr:`gyro_bias`); zero when
@@ -193,12 +203,20 @@ class NavigationBuffer:
         t0, _, dR, J = self._gyro_to(t)
         return dR, t - t0, J
 
+    def dvl_turn(self, t: float) -> np.ndarray | None:
+        """R_{k-1}ᵀ R(t) by the gyro (:meth:`gyro_rotation`) to turn the DVL's samples and the end keyframe's velocity
+        into the interval's start frame with: its error is the rate noise integrated since the keyframe, where
+        R_{k-1}ᵀ R(t) from two single AHRS readings has both readings' (the first common to every sample). None
+        without :attr:`dvl_by_gyro` or without the gyro's rotation (the readings then)."""
+        g = self.gyro_rotation(t) if self.dvl_by_gyro else None
+        return None if g is None else g[0]
+
     def start_interval(self, t: float, R_WB: np.ndarray, attitude_sigma: float, gyro_bias=None) -> None:
         """The next interval from a keyframe at t; ``gyro_bias``: the keyframe's gyro-bias estimate, which
         the interval's rates are integrated with (None: 0)."""
         self.gyro = (t, t, np.eye(3), np.zeros((3, 3)))
         self.gyro_measured = True
         self.gyro_bias = np.zeros(3) if gyro_bias is None else np.asarray(gyro_bias, float)
-        self.preint = DvlPreintegrator(t, R_WB, self.accel_sigma, attitude_sigma)
+        self.preint = DvlPreintegrator(t, R_WB, self.accel_sigma, attitude_sigma, self.rate_sigma)
         self.depths = [d for d in self.depths if d[0] > t]
         self.vz = self.vz[-1:]

@@ -71,9 +71,10 @@ class MotionNoiseConfig(BaseModel):
     gyro_link: bool = Field(
         True,
         description="the graph links consecutive keyframes' attitudes by the body rates integrated between them, "
-        "with the gyro's bias as a state (sensors.gyro_bias_sigma_rad_s); false: no link and no bias state in the "
-        "graph, a keyframe without an AHRS reading carried from the one before, as before stop 42 (the EKF's and "
-        "dead reckoning's prediction integrates the rates either way)",
+        "with the gyro's bias as a state (sensors.gyro_bias_sigma_rad_s), and turns the DVL's samples into a "
+        "keyframe's frame by the same rates; false: no link and no bias state in the graph, the DVL's samples turned "
+        "by the AHRS's readings, a keyframe without an AHRS reading carried from the one before, as before stop 42 "
+        "(the EKF's and dead reckoning's prediction integrates the rates either way)",
     )
 
     def angular_rate_density(self, metadata: Any) -> float:

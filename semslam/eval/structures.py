@@ -148,6 +148,8 @@ def structure_rows(
             "pose": np.asarray(s["pose"], float).tolist(),
             "symmetry": s.get("symmetry", 1),
             "support": s.get("support"),
+            # confirmed at the end only by its passes' votes (frontends.sonar.summary.settled_by_passes)
+            **({"settled_by_passes": True} if s.get("settled_by_passes") else {}),
         }
 
     used: set[int] = set()
