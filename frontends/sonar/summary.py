@@ -10,7 +10,7 @@ import numpy as np
 
 from frontends.sonar.grid import ElevationMap, GridSpec, estimate_ground
 from frontends.sonar.known import KnownStructure
-from frontends.sonar.patches import overlap_area, transform
+from frontends.sonar.patches import overlap_area, transform, yaw_of
 from frontends.sonar.registration import Registration, half_turn_check, icp
 from frontends.sonar.swath_registration import _smoothed_gradient
 from semslam.registry import FrontendSummary
@@ -186,7 +186,6 @@ def settled_by_passes(
     if not ambiguous or best.median_m > rc.max_median_m or best.fitness < rc.final_min_fitness:
         return None
     period = md.model.yaw_period
-    yaw = lambda T: np.arctan2(T[1, 0], T[0, 0])  # noqa: E731
     votes = []
     for k in np.unique(passes):
         own = pts[passes == k]
@@ -194,7 +193,7 @@ def settled_by_passes(
             continue
         vote = recogniser.quality_test(name, own, icp(md, own, best.T, rc))
         if vote is not None:
-            d = (yaw(vote.T) - yaw(best.T)) % period
+            d = (yaw_of(vote.T) - yaw_of(best.T)) % period
             votes.append(min(d, period - d) < period / 4)
     return best if votes and all(votes) else None
 
