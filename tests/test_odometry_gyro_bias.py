@@ -111,7 +111,7 @@ def test_the_held_rotation_over_a_scan_interval_is_unbiased_on_a_mission_with_a_
     assert bias["gyro_bias_sigma_rad_s"] == 5e-4
     stamps = [m.stamp for m in biased_mission]
     half = 0.5 * (max(stamps) - min(stamps)) / S
-    fe = OdometryFrontend(biased_mission.metadata)
+    fe = OdometryFrontend(biased_mission.metadata, {"gyro_bias": {"estimate": True}})
     errors = _rotation_errors(biased_mission, fe, half)
     raw = _rotation_errors(
         biased_mission, OdometryFrontend(biased_mission.metadata, {"gyro_bias": {"estimate": False}}), half

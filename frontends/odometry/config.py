@@ -167,7 +167,10 @@ class GyroBiasSettings(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
     estimate: bool = Field(
-        True, description="turn the held rotation by the rates less the estimated bias (false: the raw rates)"
+        False,
+        description="turn the held rotation by the rates less the estimated bias (false: the raw rates). Off: on the "
+        "simulated tank the AHRS's heading drift hides the bias about the vertical, the one that matters "
+        "(experiments/odometry/README.md, stop 47)",
     )
     prior_sigma_rad_s: float | None = Field(
         None,
