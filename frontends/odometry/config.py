@@ -158,41 +158,6 @@ class CovarianceSettings(BaseModel):
     )
 
 
-class GyroBiasSettings(BaseModel):
-    """The gyro's bias, estimated by the front-end from what it reads anyway (the AHRS's attitude against its
-    rates integrated, ``frontends.odometry.prior.GyroBias``), and taken out of the held rotation. The graph's
-    gyro link integrates the same rates with a bias state of its own: uncorrected, the odometry's rotation
-    carries the bias into a second factor between the same keyframes, where the graph's bias state cannot
-    absorb it (experiments/odometry/README.md, stop 45)."""
-
-    model_config = ConfigDict(extra="forbid")
-    estimate: bool = Field(
-        False,
-        description="turn the held rotation by the rates less the estimated bias (false: the raw rates). Off: on the "
-        "simulated tank the AHRS's heading drift hides the bias about the vertical, the one that matters "
-        "(experiments/odometry/README.md, stop 47)",
-    )
-    prior_sigma_rad_s: float | None = Field(
-        None,
-        gt=0,
-        description="prior σ per axis of the bias (rad/s); null: the mission's declared one (the σ a simulated "
-        "mission's bias is drawn from, as the estimators' sensors.gyro_bias_sigma_rad_s), else 0.005 (theirs)",
-    )
-    heading_drift_sigma_rad_s: float | None = Field(
-        None,
-        ge=0,
-        description="prior σ of the rate at which the AHRS's heading bias drifts (rad/s): it and the bias about the "
-        "vertical move the heading alike, only their priors tell them apart; null: the mission's declared drift "
-        "over its duration (as the estimators' heading_bias_rate_sigma), 0 without one",
-    )
-    window_s: float = Field(
-        1800.0,
-        gt=0,
-        description="the estimate forgets readings older than about this (s): the bias and the heading's drift "
-        "rate walk so that their prior σ is reached over it (a bias constant over a mission, slow over days)",
-    )
-
-
 class OdometryConfig(BaseModel):
     """Laser odometry from kiss-icp, seeded and gated by the navigation prior (DVL + AHRS + depth)."""
 
@@ -201,7 +166,6 @@ class OdometryConfig(BaseModel):
     planes: PlaneSettings = Field(default_factory=PlaneSettings)
     gate: GateSettings = Field(default_factory=GateSettings)
     covariance: CovarianceSettings = Field(default_factory=CovarianceSettings)
-    gyro_bias: GyroBiasSettings = Field(default_factory=GyroBiasSettings)
     map_window_s: float = Field(
         30.0,
         gt=0,

@@ -17,14 +17,12 @@ from frontends.odometry.information import (
     translation_only,
 )
 from frontends.odometry.matcher import ScanMatcher
-from frontends.odometry.prior import GyroBias, NavigationPrior
+from frontends.odometry.prior import NavigationPrior
 from semslam.errors import validated
 from semslam.mission.measurements import Attitude, Depth, DvlVelocity, Measurement, PointCloud
 from semslam.mission.mission import MissionMetadata
 from semslam.observations import Observation, OdometryObservation
 from semslam.registry import Frontend, FrontendSummary
-
-DEFAULT_GYRO_BIAS_SIGMA_RAD_S = 0.005  # without a declared one: the estimators' default (semslam.config)
 
 
 class _Track:
@@ -38,25 +36,6 @@ class _Track:
         self.anchor_pose: np.ndarray | None = None
         self.rejections = 0  # rejected registrations since the last accepted one
         self.velocity_B: np.ndarray | None = None  # body velocity of the last accepted registration (m/s)
-
-
-def gyro_bias(cfg, metadata: MissionMetadata) -> GyroBias | None:
-    """The prior's bias estimator as ``cfg`` (``frontends.odometry.gyro_bias``) says, with the priors the
-    mission declares where the config leaves them null (None: the rates taken as unbiased)."""
-    if not cfg.estimate:
-        return None
-    ahrs = (metadata.extras or {}).get("noise", {}).get("ahrs", {})
-    sigma = cfg.prior_sigma_rad_s
-    if sigma is None:
-        sigma = float(ahrs.get("gyro_bias_sigma_rad_s", DEFAULT_GYRO_BIAS_SIGMA_RAD_S))
-    if sigma <= 0:  # declared unbiased
-        return None
-    drift = cfg.heading_drift_sigma_rad_s
-    if drift is None:
-        rad, over = ahrs.get("heading_bias_drift_rad"), ahrs.get("heading_bias_drift_over_s")
-        drift = float(rad) / float(over) if rad and over else 0.0
-    walk = cfg.window_s**-0.5
-    return GyroBias(sigma, drift, walk_b=sigma * walk, walk_rho=drift * walk)
 
 
 class OdometryFrontend(Frontend):
@@ -77,7 +56,6 @@ class OdometryFrontend(Frontend):
             horizon_s=self.config.max_interval_s + 5.0,
             hold_walk_m_s=self.config.covariance.hold_walk_m_s,
             gyro_sigma_rad_s=self.config.covariance.gyro_sigma_rad_s,
-            gyro_bias=gyro_bias(self.config.gyro_bias, metadata),
         )
         self.sensors = set(self.config.sensors) or {s.name for s in metadata.sensors_of_kind("laser")}
         self._tracks: dict[str, _Track] = {}
@@ -194,13 +172,6 @@ class OdometryFrontend(Frontend):
         else:
             self.counts["rejected_sparse"] += 1
 
-    def _bias_metrics(self) -> dict:
-        """The gyro's bias estimated at the end (body frame, rad/s) and its σ per axis, if estimated."""
-        b = self.prior.gyro_bias
-        if b is None:
-            return {}
-        return {"gyro_bias_rad_s": b.bias.tolist(), "gyro_bias_sigma_rad_s": np.sqrt(np.diag(b.covariance)).tolist()}
-
     def finish(self, view=None) -> FrontendSummary:
         c = self.counts
         rejected = {k.removeprefix("rejected_"): v for k, v in sorted(c.items()) if k.startswith("rejected_")}
@@ -212,6 +183,5 @@ class OdometryFrontend(Frontend):
                 "rejected": rejected,
                 "map_starts": c["map_starts"],
                 "without_prior": c["no_prior"],
-                **self._bias_metrics(),
             },
         )

@@ -7,10 +7,7 @@ integrates the DVL's body velocity rotated by it; depth readings replace the int
 rotation between two stamps is the AHRS's angular rate integrated when its readings carry one: its
 white noise integrates to σ_ω·√(dt·T) (0.04° over a 2 s scan interval at the simulator's 0.002 rad/s and
 20 Hz), where the difference of two attitude readings carries both readings' errors (0.7° of heading).
-The gyro's bias (:class:`GyroBias`) is estimated from the same readings: the AHRS's absolute attitude
-against the rates integrated, over a long window (its per-reading noise averages out, the bias drifts
-slowly); the rotation between two stamps is turned by the bias estimate, and its covariance carries
-the estimate's own uncertainty. During a DVL dropout the last valid body velocity is held: underwater vehicles keep their speed
+During a DVL dropout the last valid body velocity is held: underwater vehicles keep their speed
 through a short loss of bottom lock, and the registration's gate absorbs the rest.
 
 It also keeps how uncertain that motion is (``motion_covariance``), from the covariances the DVL,
@@ -27,79 +24,11 @@ from collections import deque
 
 import numpy as np
 
-from factors.geometry import (
-    quat_to_rot,
-    so3_exp,
-    so3_log,
-)  # numpy only (scalars: the prior turns at every AHRS reading)
+from factors.geometry import quat_to_rot, so3_exp  # numpy only (scalars: the prior turns at every AHRS reading)
 from semslam.mission.measurements import Attitude, Depth, DvlVelocity, Measurement
 from semslam.mission.mission import MissionMetadata
 
 NS = 1e-9
-_DOWN = np.array([0.0, 0.0, 1.0])  # {W}'s (NED) vertical: the axis the AHRS's heading bias turns about
-
-
-class GyroBias:
-    """The gyro's bias (body frame, rad/s) from the AHRS's own readings: a Kalman filter over the
-    misalignment e ({W}, rad) between the AHRS's attitude and the rates integrated (aligned once, at the
-    first reading), the bias b, and the AHRS's heading bias β with its drift rate ρ::
-
-        e' = e − R_WB·b·dt + w (the rates' white noise, σ_ω·dt per reading),   β' = β + ρ·dt
-        Log(R_AHRS · (C·R_gyro)ᵀ) = e + β·z + n (the reading's noise: roll/pitch, heading)
-
-    After each update e is folded into the alignment C. The heading bias and the bias about the vertical
-    are told apart only by their priors (``heading_drift_sigma``): an AHRS whose heading drifts linearly at
-    a rate as large as the bias looks exactly like a gyro bias about the vertical, and the filter then says
-    so in its covariance. ``walk`` lets b and ρ drift (σ reached over the window the estimate remembers)."""
-
-    def __init__(self, prior_sigma: float, heading_drift_sigma: float, walk_b: float, walk_rho: float):
-        self.x = np.zeros(8)  # e (3), b (3), β, ρ
-        self.P = np.diag([0.0] * 3 + [prior_sigma**2] * 3 + [0.0, heading_drift_sigma**2])
-        self.q = np.r_[np.zeros(3), [walk_b**2] * 3, 0.0, walk_rho**2]  # per second
-        self._C: np.ndarray | None = None  # R_W,G: the integrated rates' frame in {W}
-        self._t: int | None = None
-
-    @property
-    def bias(self) -> np.ndarray:
-        return self.x[3:6]
-
-    @property
-    def covariance(self) -> np.ndarray:
-        return self.P[3:6, 3:6]
-
-    def restart(self) -> None:
-        """The rates' integration started again: the next reading aligns it anew (b and ρ are kept)."""
-        self._C = None
-
-    def add(self, stamp: int, R_WB: np.ndarray, R_GB: np.ndarray, var_att: np.ndarray, var_rate: float) -> None:
-        """One AHRS reading: its attitude R_WB (variances roll, pitch, heading), the rates integrated to its
-        stamp R_GB, and the variance of one rate reading."""
-        if self._C is None:
-            self._C = R_WB @ R_GB.T
-            self.x[:3] = self.x[6] = 0.0  # the heading bias so far is in the alignment
-            self.P[:3, :] = self.P[:, :3] = self.P[6, :] = self.P[:, 6] = 0.0
-            self.P[:3, :3] = np.diag([var_att[:2].max()] * 2 + [var_att[2]])
-            self._t = stamp
-            return
-        dt = (stamp - self._t) * NS
-        self._t = stamp
-        if dt > 0:  # predict
-            F = np.eye(8)
-            F[:3, 3:6] = -(self._C @ R_GB) * dt
-            F[6, 7] = dt
-            self.x = F @ self.x
-            self.P = F @ self.P @ F.T
-            self.P[np.diag_indices(8)] += self.q * dt + np.r_[[var_rate * dt * dt] * 3, np.zeros(5)]
-        y = so3_log(R_WB @ (self._C @ R_GB).T) - self.x[:3] - self.x[6] * _DOWN
-        # H = [I₃ 0 z 0]: P·Hᵀ and H·P·Hᵀ written out
-        PH = self.P[:, :3] + np.outer(self.P[:, 6], _DOWN)
-        S = PH[:3] + np.outer(_DOWN, PH[6]) + np.diag([var_att[:2].max()] * 2 + [var_att[2]])
-        K = np.linalg.solve(S, PH.T).T
-        self.x = self.x + K @ y
-        self.P = self.P - K @ PH.T
-        self.P = (self.P + self.P.T) / 2
-        self._C = so3_exp(self.x[:3]) @ self._C  # reset: the misalignment into the alignment
-        self.x[:3] = 0.0
 
 
 class NavigationPrior:
@@ -111,7 +40,6 @@ class NavigationPrior:
         horizon_s: float = 60.0,
         hold_walk_m_s: float = 0.02,
         gyro_sigma_rad_s: float | None = None,
-        gyro_bias: GyroBias | None = None,
     ):
         self.metadata = metadata
         self.hold_walk = hold_walk_m_s  # σ of the body velocity's random walk over 1 s held (m/s/√s)
@@ -135,7 +63,6 @@ class NavigationPrior:
         self._var_att = np.zeros(3)  # the AHRS's roll, pitch, yaw variances (rad²)
         self._var_depth = 0.0  # the depth reading's variance (m²)
         self._attitude_stamp: int | None = None
-        self.gyro_bias = gyro_bias  # None: the rates are taken as unbiased
 
     def add(self, m: Measurement) -> None:
         """Feed a navigation measurement (others are ignored); stamps must not go backwards."""
@@ -177,8 +104,6 @@ class NavigationPrior:
         w_B = T_BS[:3, :3] @ np.asarray(m.angular_rate, float)
         if self._R_GB is None or self._w_B is None:
             self._R_GB = self._R_WB.copy()
-            if self.gyro_bias is not None:
-                self.gyro_bias.restart()
         elif self._attitude_stamp is not None:
             # the last interval was integrated at the previous reading's rate: make it the trapezoid's
             # (at a 1.7° wobble the held rate alone is off by ~0.07° over a 2 s scan interval)
@@ -190,8 +115,6 @@ class NavigationPrior:
         if len(self._rates) == 3:
             self._rate_curvature[0] += float(np.sum((self._rates[2] - 2 * self._rates[1] + self._rates[0]) ** 2))
             self._rate_curvature[1] += 1
-        if self.gyro_bias is not None:
-            self.gyro_bias.add(m.stamp, self._R_WB, self._R_GB, self._var_att, self.gyro_variance())
 
     def gyro_variance(self) -> float:
         """Per-axis variance of one rate reading (rad²/s²): the configured one, or estimated from the
@@ -260,8 +183,7 @@ class NavigationPrior:
 
     def motion(self, stamp_from: int, stamp_to: int) -> np.ndarray | None:
         """T_B(from),B(to) predicted by the navigation sensors, or None if either end is unknown; its
-        rotation is the integrated angular rate where the readings carry one, less the gyro's bias
-        estimated so far times the interval."""
+        rotation is the integrated angular rate where the readings carry one."""
         a, b = self.pose_at(stamp_from), self.pose_at(stamp_to)
         if a is None or b is None:
             return None
@@ -269,18 +191,15 @@ class NavigationPrior:
         ga, gb = self._gyro_at(stamp_from), self._gyro_at(stamp_to)
         if ga is not None and gb is not None:
             T[:3, :3] = ga.T @ gb
-            if self.gyro_bias is not None:
-                T[:3, :3] = T[:3, :3] @ so3_exp(-self.gyro_bias.bias * ((stamp_to - stamp_from) * NS))
         return T
 
-    def _rotation_covariance(self, stamp_from: int, stamp_to: int) -> np.ndarray:
-        """Covariance (rad², 3×3) of :meth:`motion`'s rotation: the integrated rate's white noise σ²·dt·T
-        per axis plus the bias estimate's covariance times T², or two attitude readings' errors without rates."""
+    def _rotation_variance(self, stamp_from: int, stamp_to: int) -> np.ndarray:
+        """Per-axis variance (rad²) of :meth:`motion`'s rotation: the integrated rate's white noise
+        σ²·dt·T, or two attitude readings' errors without rates."""
         if self._gyro_at(stamp_from) is not None and self._gyro_at(stamp_to) is not None:
             span = abs(stamp_to - stamp_from) * NS
-            cov = np.diag(np.full(3, self.gyro_variance() * max(self._gyro_dt, 1e-3) * span))
-            return cov if self.gyro_bias is None else cov + self.gyro_bias.covariance * span**2
-        return np.diag(2 * self._var_att)
+            return np.full(3, self.gyro_variance() * max(self._gyro_dt, 1e-3) * span)
+        return 2 * self._var_att
 
     def motion_covariance(self, stamp_from: int, stamp_to: int) -> np.ndarray | None:
         """6×6 covariance (rotation, translation; body frame) of :meth:`motion` between the stamps:
@@ -293,8 +212,7 @@ class NavigationPrior:
         i = bisect.bisect_right(self._stamps, stamp_from) - 1
         turned = self._var_att.max() * motion[:3, 3] @ motion[:3, 3]
         var_t = self._displacement_variance(stamp_from, stamp_to) + turned
-        cov = np.diag(np.r_[np.zeros(3), [var_t] * 3])
-        cov[:3, :3] = self._rotation_covariance(stamp_from, stamp_to)
+        cov = np.diag(np.r_[self._rotation_variance(stamp_from, stamp_to), [var_t] * 3])
         down_B = self._poses[i][2, :3]  # {D}'s z axis in the body frame at stamp_from
         cov[3:, 3:] += 2 * self._var_depth * np.outer(down_B, down_B)
         return cov
