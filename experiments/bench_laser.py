@@ -24,6 +24,7 @@ same checkout gives a ratio within ~2 % of 1. With ``--process`` too, the worker
     python experiments/bench_laser.py --source pipeline --against /tmp/before --every 5 --scans 40 --repeat 1
     python experiments/bench_laser.py --against /tmp/before --every 3 --scans 82 --repeat 1
     python experiments/bench_laser.py --against /tmp/before --every 3 --scans 40 --repeat 1 --process
+    python experiments/bench_laser.py --against /tmp/before --scans-file /tmp/tank.npz --config-b '{"pipes": {...}}'
     python experiments/bench_laser.py --scans-file /tmp/tank.npz --profile 40   # cProfile (CPU time), top 40 functions
 
 Reports medians and 95th percentiles of the per-scan times (paired: of both checkouts).
@@ -156,9 +157,12 @@ def _worker(path: Path, overrides: dict, process: bool = False) -> int:
     return 0
 
 
-def _paired(scans: list, overrides: dict, against: Path, repeat: int, process: bool = False) -> dict:
+def _paired(
+    scans: list, overrides: dict, against: Path, repeat: int, process: bool = False, overrides_b: dict | None = None
+) -> dict:
     """Paired A/B: this checkout (B) and ``against`` (A) in two workers, taking the scans alternately
-    (with ``process``: ``LaserFrontend.process``, recognition included)."""
+    (with ``process``: ``LaserFrontend.process``, recognition included); ``overrides_b``: merged over
+    ``overrides`` for B only (a setting A's checkout may not know)."""
     import pickle
     import subprocess
     import tempfile
@@ -175,7 +179,7 @@ def _paired(scans: list, overrides: dict, against: Path, repeat: int, process: b
                 "--worker",
                 str(path),
                 "--config",
-                json.dumps(overrides),
+                json.dumps(overrides if name == "A" else _merged(overrides, overrides_b or {})),
             ]
             cmd += ["--process"] if process else []
             env = dict(os.environ, BENCH_LASER_ROOT=str(root))
@@ -219,6 +223,14 @@ def _paired(scans: list, overrides: dict, against: Path, repeat: int, process: b
         },
         "load_average_1min": round(os.getloadavg()[0], 2),
     }
+
+
+def _merged(base: dict, over: dict) -> dict:
+    """``over`` merged into ``base`` (nested sections merged key by key)."""
+    out = dict(base)
+    for k, v in over.items():
+        out[k] = _merged(out[k], v) if isinstance(v, dict) and isinstance(out.get(k), dict) else v
+    return out
 
 
 def _mission_scans(source: str, seed: int, every: int, n: int, overrides: dict) -> list[dict]:
@@ -274,6 +286,9 @@ def main(argv=None) -> int:
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--rays", type=int, default=100_000)
     ap.add_argument("--config", type=str, default="{}")
+    ap.add_argument(
+        "--config-b", type=str, default="{}", help="with --against: overrides for this checkout (B) only, over --config"
+    )
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--source", choices=("tank", "pipeline", "synthetic"), default="tank")
     ap.add_argument("--every", type=int, default=25, help="tank, pipeline: every n-th scan")
@@ -307,7 +322,11 @@ def main(argv=None) -> int:
     if args.scans_file is not None and not args.scans_file.exists():
         _save(args.scans_file, scans)
     if args.against is not None:
-        print(json.dumps(_paired(scans, overrides, args.against, args.repeat, args.process), indent=2))
+        print(
+            json.dumps(
+                _paired(scans, overrides, args.against, args.repeat, args.process, json.loads(args.config_b)), indent=2
+            )
+        )
         return 0
     cfg = LaserConfig.model_validate(overrides)
     _segment(scans[0], cfg)  # warm-up (imports, open3d initialisation)
