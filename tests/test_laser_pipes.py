@@ -266,27 +266,3 @@ def test_near_axis_test_matches_the_test_of_every_point():
     assert np.array_equal(near, ref)
     assert np.array_equal(inl, P.test(c, a, r, cfg)[ref])
     assert 0 < inl.sum() < len(ref) and len(ref) < 6000
-
-
-def test_round_extras_find_the_same_pipes_in_fewer_rounds(monkeypatch):
-    """``round_extras``: the hypotheses of a round left after its pipe give more pipes before new ones
-    are drawn; on the ray-cast scene the same six pipes are found, from fewer draws of hypotheses."""
-    import frontends.laser.pipes as pipes_module
-
-    calls = []
-    draw = pipes_module.patch_hypotheses
-
-    def counted(*args, **kwargs):
-        calls.append(1)
-        return draw(*args, **kwargs)
-
-    monkeypatch.setattr(pipes_module, "patch_hypotheses", counted)
-    scan = cached_scan()
-    rounds = {}
-    for extras in (0, 2):
-        calls.clear()
-        seg = segment_scan(scan.points, LaserConfig.model_validate({"pipes": {"round_extras": extras}}))
-        score = score_scan(scan.points, seg, truth_of(scan))
-        assert score.n_recalled_pipes == 6 and score.n_true_detections == score.n_detections == 6
-        rounds[extras] = len(calls)
-    assert rounds[2] < rounds[0]

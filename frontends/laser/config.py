@@ -287,13 +287,6 @@ class PipeConfig(_Section):
         "pipeline gained a pipe, while on the tank the extra rounds split pipes and cost 20 % more CPU ...",
     )
     max_failures_cap: int = Field(12, ge=1, description="... but never more than this many rounds in a row")
-    round_extras: int = Field(
-        0,
-        ge=0,
-        description="after a round's pipe, refine up to this many more of the round's hypotheses (best first: "
-        "a free seed, at least half of its sampled inliers left by the pipes found) before drawing new ones "
-        "(0: one pipe a round)",
-    )
     max_gap: float = Field(
         0.25,
         gt=0,

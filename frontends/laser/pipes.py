@@ -1051,29 +1051,6 @@ def detect_pipes(
     failures = 0
     cand = None  # the free points, narrowed when a pipe takes some
     stale = False
-
-    def take(refined) -> list[Pipe]:
-        """The pipe segments of a refined cylinder (cut at fittings, on the seabed those that lie
-        like pipes), which take their inliers from the free points; its inliers seed no more."""
-        nonlocal stale, max_failures, objects_only
-        cb, ab, rb, idx, held = refined
-        found = _cut_into_segments(points, normals, sq, cb, ab, rb, idx, cfg, foreign, seabed, rays, held)
-        if any(pipe.objects_only for pipe in found):  # kept aside: the search goes on as without them
-            short = [pipe for pipe in found if pipe.objects_only]
-            found = [pipe for pipe in found if not pipe.objects_only]
-            objects_only += short if seabed is None else [pipe for pipe in short if seabed.accept(pipe, colour=False)]
-        if seabed is not None:
-            found = seabed.accept_runs(found)
-        for pipe in found:
-            free[pipe.inliers] = False
-            stale = True
-        pipes.extend(found)
-        seedable[idx] = False
-        if found:
-            share = min(len(pipe.inliers) for pipe in found) / max(int((seedable & free).sum()) + len(idx), 1)
-            max_failures = max(max_failures, failure_budget(share, cfg))
-        return found
-
     for _ in range(3 * cfg.max_pipes):
         if len(pipes) >= cfg.max_pipes or failures >= max_failures:
             break
@@ -1107,14 +1084,12 @@ def detect_pipes(
         supported = scores * m / len(sample) >= cfg.min_points
         seedable[i[~supported]] = False
         # Refine the best hypothesis; if its fit leaves the radius range, the next best (up to 3).
-        refined, used = None, -1
-        tried_order = np.argsort(scores)[::-1]
-        tried = tried_order[:3]
+        refined = None
+        tried = np.argsort(scores)[::-1][:3]
         if supported[tried[0]]:
             for h in tried:
                 refined = _refine(cand, c[h], a[h], r[h], cfg)
                 if refined is not None:
-                    used = h
                     break
         if refined is None:
             # No pipe here: stop seeding from these hypotheses' seeds and sampled inliers.
@@ -1122,29 +1097,23 @@ def detect_pipes(
             seedable[sample[in_sample[tried].any(axis=0)]] = False
             failures += 1
             continue
-        found = take(refined)
+        cb, ab, rb, idx, held = refined
+        found = _cut_into_segments(points, normals, sq, cb, ab, rb, idx, cfg, foreign, seabed, rays, held)
+        if any(pipe.objects_only for pipe in found):  # kept aside: the search goes on as without them
+            short = [pipe for pipe in found if pipe.objects_only]
+            found = [pipe for pipe in found if not pipe.objects_only]
+            objects_only += short if seabed is None else [pipe for pipe in short if seabed.accept(pipe, colour=False)]
+        if seabed is not None:
+            found = seabed.accept_runs(found)
+        for pipe in found:
+            free[pipe.inliers] = False
+            stale = True
+        pipes += found
+        seedable[idx] = False
+        if found:
+            share = min(len(pipe.inliers) for pipe in found) / max(int((seedable & free).sum()) + len(idx), 1)
+            max_failures = max(max_failures, failure_budget(share, cfg))
         failures = 0 if found else failures + 1
-        if found and cfg.round_extras > 0:
-            # More pipes from this round's hypotheses, best first: those whose seed is still free and
-            # seedable and whose sampled inliers the pipes found keep at least half of (not the same
-            # cylinder again), each refined on the free points as the best one was.
-            extra = 0
-            for h in tried_order:
-                if extra >= cfg.round_extras or len(pipes) >= cfg.max_pipes or not supported[h]:
-                    break
-                if h == used or not (seedable[i[h]] and free[i[h]]):
-                    continue
-                left = int(np.count_nonzero(in_sample[h] & free[sample]))
-                if 2 * left < scores[h] or left * m / len(sample) < cfg.min_points:
-                    continue
-                extra += 1
-                if stale:
-                    cand, stale = cand.subset(free[cand.index]), False
-                refined = _refine(cand, c[h], a[h], r[h], cfg)
-                if refined is None:
-                    seedable[i[h]] = False
-                    continue
-                take(refined)
     if rays is not None:  # no segment the sensor sees through (all tested at once)
         pipes = [p for p, ok in zip(pipes, rays.solid(pipes, cfg)) if ok]
         if objects_only:
