@@ -33,6 +33,7 @@ Reports medians and 95th percentiles of the per-scan times (paired: of both chec
 from __future__ import annotations
 
 import argparse
+import copy
 import json
 import os
 import sys
@@ -45,6 +46,7 @@ import numpy as np
 sys.path.insert(0, os.environ.get("BENCH_LASER_ROOT") or str(Path(__file__).resolve().parents[1]))
 
 from frontends.laser import LaserConfig, segment_scan  # noqa: E402
+from semslam.sim.vary import merge_into  # noqa: E402
 from tests.support.synthetic import default_scene, raycast, viewpoint  # noqa: E402
 
 
@@ -179,7 +181,7 @@ def _paired(
                 "--worker",
                 str(path),
                 "--config",
-                json.dumps(overrides if name == "A" else _merged(overrides, overrides_b or {})),
+                json.dumps(overrides if name == "A" else merge_into(copy.deepcopy(overrides), overrides_b or {})),
             ]
             cmd += ["--process"] if process else []
             env = dict(os.environ, BENCH_LASER_ROOT=str(root))
@@ -223,14 +225,6 @@ def _paired(
         },
         "load_average_1min": round(os.getloadavg()[0], 2),
     }
-
-
-def _merged(base: dict, over: dict) -> dict:
-    """``over`` merged into ``base`` (nested sections merged key by key)."""
-    out = dict(base)
-    for k, v in over.items():
-        out[k] = _merged(out[k], v) if isinstance(v, dict) and isinstance(out.get(k), dict) else v
-    return out
 
 
 def _mission_scans(source: str, seed: int, every: int, n: int, overrides: dict) -> list[dict]:
