@@ -212,8 +212,177 @@ def settled_by_passes(
         agrees = turn < period / 4
         if by_fitness:
             agrees = (
-                np.degrees(turn) <= rc.max_turn_deg
-                and np.linalg.norm(vote.T[:3, 3] - best.T[:3, 3]) <= rc.max_jump_m
+                np.degrees(turn) <= rc.max_turn_deg and np.linalg.norm(vote.T[:3, 3] - best.T[:3, 3]) <= rc.max_jump_m
             )
         votes.append(agrees)
     return best if votes and all(votes) else None
+
+
+def summarise(fe) -> FrontendSummary:
+    cfg = fe.config
+    t_start = time.process_time()
+    final_pose = fe.place
+    nav_pose = lambda p: p.T_nav  # noqa: E731
+    pts_W, patch_ids = place_all(fe, final_pose)
+    # a last recognition pass over the whole map for structures the online search missed
+    late = []
+    if cfg.recognition.enabled and cfg.recognition.final_pass and len(pts_W):
+        t0 = time.process_time()
+        removed = [(fe._current_T(ks)[:2, 3], fe.library[ks.model].footprint_radius + 0.3) for ks in fe.structures]
+        dets = fe.recogniser.recognise(pts_W, None, None, removed, ground_kw=fe._ground_kw())
+        for det in dets:
+            ks = KnownStructure(det.model, det.registration.T.copy(), det, -1)
+            fe.structures.append(ks)
+            late.append(ks)
+            fe.timing["registration_s"] += det.timing.get("registration_s", 0.0)
+        fe.timing["recognition_s"] += time.process_time() - t0 - sum(d.timing.get("registration_s", 0.0) for d in dets)
+    final_registrations(fe, pts_W, patch_ids)
+    # the final map, its pipelines and the world model
+    map_em = ElevationMap.from_points(pts_W, cfg.figures.cell_m) if len(pts_W) else None
+    pipes = fe.detect_pipes(pts_W) if (cfg.pipes.enabled and len(pts_W)) else []
+    pairs = overlapping_pairs(fe)
+    before = swath_disagreement(fe, nav_pose, pairs)
+    after = swath_disagreement(fe, final_pose, pairs)
+    raw = None
+    extras = getattr(fe.metadata, "extras", None) or {}
+    if isinstance(extras.get("sonar"), dict) and extras["sonar"].get("raw_cloud_bytes"):
+        raw = int(extras["sonar"]["raw_cloud_bytes"])
+    raw = raw or fe.n_points * 12
+    world, world_info = None, {}
+    if map_em is not None:
+        from frontends.sonar.world_model import build_world_model
+
+        spec, bare = bare_seabed(fe, map_em, pipes)
+        structs = [
+            (fe.library[ks.model], ks.final.T if ks.final is not None else ks.T_WM)
+            for ks in fe.structures
+            if ks.confirmed
+        ]
+        world, world_info = build_world_model(structs, pipes, bare, spec, cfg.world_model, raw)
+        world_info["seabed_under_structures"] = cfg.world_model.seabed_under_structures
+    structures, unconfirmed = [], []
+    for ks in fe.structures:
+        reg = ks.final or ks.detection.registration
+        (structures if ks.confirmed else unconfirmed).append(
+            {
+                "model": ks.model,
+                "pose": (reg.T if reg is not None else ks.T_WM).tolist(),
+                "median_error_m": None if reg is None else float(reg.median_m),
+                "symmetry": fe.library[ks.model].symmetry,
+                "fitness": None if reg is None else float(reg.fitness),
+                "structure_points": None if reg is None else int(reg.n_structure),
+                "recognition_score": float(ks.detection.normalised),
+                "recognition_coverage": float(ks.detection.coverage),
+                "recognised_at_stamp": ks.stamp if ks.stamp >= 0 else None,
+                "online": ks not in late,
+                "settled_by_passes": ks.settled_by_passes,
+                "observations_emitted": ks.n_observations,
+                "landmark_id": ks.landmark_id,
+                "landmark_pose": None if ks.landmark_id is None else fe._current_T(ks).tolist(),
+                "support": [
+                    {"stamp": int(stamp), "points": n, "T_WB": np.round(T, 6).tolist()} for stamp, n, T in ks.support
+                ],
+            }
+        )
+    regs = fe.swath_registrations
+    t = dict(fe.timing)
+    metrics = {
+        "structures": structures,
+        # registered online but failing the quality test on all the data at the end (not map structures)
+        "unconfirmed_structures": unconfirmed,
+        "runtime_s": float(t.get("recognition_s", 0.0) + t.get("registration_s", 0.0)),
+        "world_model_bytes": world_info.get("bytes"),
+        "raw_cloud_bytes": raw,
+        "world_model_fraction": (world_info["bytes"] / raw) if world_info.get("bytes") and raw else None,
+        "world_model": world_info,
+        "swath_disagreement_before_m": before["median_m"],
+        "swath_disagreement_after_m": after["median_m"],
+        "swath_disagreement": {
+            "before": before,
+            "after": after,
+            "before_is": "as navigated: each patch placed with the estimate when it closed",
+            "after_is": "re-placed with the final graph estimate",
+        },
+        "swath_registration": {
+            "accepted": len(regs),
+            "rejected": dict(fe.rejected),
+            "both_directions": int(sum(r["informative"] == 2 for r in regs)),
+            "median_shift_m": float(np.median([np.hypot(*r["shift"]) for r in regs])) if regs else None,
+            "median_sigma_m": float(np.median([r["sigma"] for r in regs])) if regs else None,
+        },
+        "pipes": [
+            {
+                "p": s.p.tolist(),
+                "q": s.q.tolist(),
+                "radius_m": s.radius,
+                "length_m": s.length,
+                "connected_models": list(s.connected),
+            }
+            for s in pipes
+        ],
+        "pipe_observations": fe.pipe_observations,
+        "patches": len(fe.patches),
+        "points": fe.n_points,
+        "timing_s": {k: float(v) for k, v in t.items()},
+    }
+    fe.timing["summary_s"] += time.process_time() - t_start
+    fe.final = {
+        "map": map_em,
+        "pipes": pipes,
+        "world": world,
+        "pts_W": pts_W,
+        "pairs": pairs,
+        "before": before,
+        "after": after,
+        "world_info": world_info,
+        "raw_bytes": raw,
+    }
+    files = {}
+    if world is not None:
+        from frontends.sonar.world_model import write_ply
+
+        files["world_model.ply"] = lambda path, w=world: write_ply(w, path)
+    if cfg.figures.enabled and map_em is not None:
+        from frontends.sonar import figures
+
+        files["figures/sonar_elevation_map.png"] = lambda path: figures.elevation_figure(fe, path)
+        files["figures/sonar_world_model.png"] = lambda path: figures.world_model_figure(fe, path)
+        files["figures/sonar_swath_registration.png"] = lambda path: figures.disagreement_figure(fe, path)
+    return FrontendSummary(section="sonar", metrics=metrics, files=files)
+
+
+def bare_seabed(fe, map_em: ElevationMap, pipes) -> tuple[GridSpec, np.ndarray]:
+    """The seabed without structures and pipes on the world model's grid: the map's median depth,
+    and the seabed level interpolated around them under their footprints."""
+    cfg = fe.config
+    c = map_em.spec.cell
+    ground = estimate_ground(map_em.depth, c, **fe._ground_kw())
+    mask = fe._structure_mask(map_em.spec, 0.3)
+    N, E = map_em.spec.centres()
+    nn, ee = np.meshgrid(N, E, indexing="ij")
+    for s in pipes:
+        a, b = s.p[:2], s.q[:2]
+        ab = b - a
+        t = np.clip(((nn - a[0]) * ab[0] + (ee - a[1]) * ab[1]) / max(ab @ ab, 1e-9), 0, 1)
+        d = np.hypot(nn - a[0] - t * ab[0], ee - a[1] - t * ab[1])
+        mask |= d <= s.radius + 0.25
+    # anything standing clearly above the seabed (an unrecognised object) is not seabed either
+    mask |= (ground - map_em.depth) > 0.15
+    depth = np.where(mask & map_em.filled, ground, map_em.depth)
+    if cfg.world_model.seabed_under_structures == "cut":
+        depth[fe._structure_mask(map_em.spec, 0.0)] = np.nan
+    f = max(int(round(cfg.world_model.seabed_cell_m / c)), 1)
+    H, W = depth.shape
+    Hc, Wc = -(-H // f), -(-W // f)
+    pad = np.full((Hc * f, Wc * f), np.nan)
+    pad[:H, :W] = depth
+    blocks = pad.reshape(Hc, f, Wc, f).transpose(0, 2, 1, 3).reshape(Hc, Wc, f * f)
+    cnt = np.isfinite(blocks).sum(-1)
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        coarse = np.nanmedian(blocks, axis=-1)
+    coarse[cnt < max(1, f * f // 4)] = np.nan
+    spec = GridSpec(map_em.spec.n0, map_em.spec.e0, c * f, (Hc, Wc))
+    return spec, coarse
