@@ -126,8 +126,8 @@ def final_registrations(fe, pts_W: np.ndarray, patch_ids: np.ndarray) -> None:
 
     The quality test of a new structure applies again, now on all the data (with ``final_min_fitness``):
     a structure whose ICP does not pass it is registered afresh there (4-D search, half-turn
-    alternative); one that still fails is not confirmed (reported apart, never as a structure of the
-    map)."""
+    alternative); one that still fails may be settled by its passes (:func:`settled_by_passes`, with
+    ``final_pass_vote``), else it is not confirmed (reported apart, never as a structure of the map)."""
     rc = fe.config.registration
     for ks in fe.structures:
         t0 = time.process_time()
