@@ -163,3 +163,49 @@ def test_passes_against_the_final_fit_leave_it_refused(wellhead_two_passes):
     assert settled_by_passes(rec, "wellhead", Q, second.astype(int), reg) is None
     # the passes not told apart (one pass of all the data): it is as ambiguous alone, no vote
     assert settled_by_passes(rec, "wellhead", Q, np.zeros(len(Q), int), reg) is None
+
+
+def _second_pass_moved(P, second, north, up):
+    Q = _second_pass_shifted(P, second, north)
+    Q[second, 2] += up
+    return Q
+
+
+def test_final_fit_refused_for_its_fitness_settled_by_its_passes(wellhead_two_passes):
+    """The second pass 12 cm north and 8 cm up of the first: on all the data the wellhead's fit is not
+    ambiguous but fits 0.79 < final_min_fitness, so the final test refuses it; each pass alone passes a new
+    structure's test from the fit, the same way round and within a re-observation's jump of it: the fit is
+    kept (stop 47's field 53: fitness 0.766 on all the data)."""
+    from frontends.sonar.summary import settled_by_passes
+
+    P, second, T_true, rec, cfg = wellhead_two_passes
+    Q = _second_pass_moved(P, second, 0.12, 0.08)
+    reg = icp(rec.model_data["wellhead"], Q, T_true, cfg)
+    assert cfg.min_fitness <= reg.fitness < cfg.final_min_fitness
+    assert rec.quality_test("wellhead", Q, reg, cfg.final_min_fitness) is None
+    kept = settled_by_passes(rec, "wellhead", Q, second.astype(int), reg)
+    assert kept is not None
+    d, dyaw = _errors(kept.T, T_true)
+    assert d < 0.08 and dyaw < 1.0
+    # the passes not told apart: the one pass is all the data, which fails a new structure's test
+    assert settled_by_passes(rec, "wellhead", Q, np.zeros(len(Q), int), reg) is None
+
+
+def test_final_fit_refused_for_its_fitness_with_a_pass_elsewhere_stays_refused(wellhead_two_passes):
+    """The second pass 24 cm north and 8 cm up: the fit on all the data (0.76) sits on the first pass; the
+    second, alone, fits where it is, further from the fit than a re-observation may move a structure
+    (``max_jump_m``): it votes for another place and the fit stays refused. Moved 32 cm north, the second
+    pass does not pass a new structure's test registered alone from the fit: refused too."""
+    from frontends.sonar.summary import settled_by_passes
+
+    P, second, T_true, rec, cfg = wellhead_two_passes
+    md = rec.model_data["wellhead"]
+    for north in (0.24, 0.32):
+        Q = _second_pass_moved(P, second, north, 0.08)
+        reg = icp(md, Q, T_true, cfg)
+        assert cfg.min_fitness <= reg.fitness < cfg.final_min_fitness and reg.median_m <= cfg.max_median_m
+        assert rec.quality_test("wellhead", Q, reg, cfg.final_min_fitness) is None
+        assert rec.quality_test("wellhead", Q[~second], icp(md, Q[~second], reg.T, cfg)) is not None
+        alone = rec.quality_test("wellhead", Q[second], icp(md, Q[second], reg.T, cfg))
+        assert alone is None or np.linalg.norm(alone.T[:3, 3] - reg.T[:3, 3]) > cfg.max_jump_m
+        assert settled_by_passes(rec, "wellhead", Q, second.astype(int), reg) is None
