@@ -262,9 +262,7 @@ class StructureRegistrationConfig(_Section):
         description="at the end of the mission, a structure's fit on all its data refused only as ambiguous (its "
         "fitness and median pass) is kept when each pass over it that passes a new structure's test alone "
         "(passes split where the patches are swath_registration.min_age_s apart) votes for its orientation: "
-        "passes misaligned by the navigation lower both orientations' fitness on all the data; one refused for "
-        "its fitness (at least min_fitness, its median passing) is kept when every pass with min_points passes "
-        "a new structure's test alone and agrees with it in orientation and place (max_turn_deg, max_jump_m)",
+        "passes misaligned by the navigation lower both orientations' fitness on all the data",
     )
     correlation_points: float = Field(
         8.0,

@@ -126,8 +126,8 @@ def final_registrations(fe, pts_W: np.ndarray, patch_ids: np.ndarray) -> None:
 
     The quality test of a new structure applies again, now on all the data (with ``final_min_fitness``):
     a structure whose ICP does not pass it is registered afresh there (4-D search, half-turn
-    alternative); one that still fails may be settled by its passes (:func:`settled_by_passes`, with
-    ``final_pass_vote``), else it is not confirmed (reported apart, never as a structure of the map)."""
+    alternative); one that still fails is not confirmed (reported apart, never as a structure of the
+    map)."""
     rc = fe.config.registration
     for ks in fe.structures:
         t0 = time.process_time()
@@ -173,28 +173,17 @@ def settled_by_passes(
     recogniser, name: str, pts: np.ndarray, passes: np.ndarray, reg: Registration
 ) -> Registration | None:
     """A structure's fit ``reg`` on all its data ``pts`` (each point's pass in ``passes``) refused by the final
-    quality test, settled by its passes (passes misaligned by the navigation lower the fitness on all the data
-    of a right fit, and of its half-turn alike: each pass alone is not misaligned).
-
-    Refused only as ambiguous (its better orientation fits at least ``final_min_fitness``): each pass is
-    registered alone from the fit's better orientation and votes when it passes a new structure's test
-    (:meth:`Recogniser.quality_test`) for the orientation that test keeps; the better orientation is kept when
-    there is a vote and every vote is for it.
-
-    Refused for its fitness (below ``final_min_fitness``, at least ``min_fitness``, its median passing): every
-    pass with ``min_points`` must pass a new structure's test alone and agree with the fit in orientation and
-    in place (within a re-observation's ``max_jump_m`` and ``max_turn_deg``); the fit is then kept. A structure
-    fused in the wrong place has a pass that does not: registered alone there it fails the test, or slides
-    off to where it fits. None otherwise."""
+    quality test only as ambiguous, settled by its passes: each pass is registered alone from the fit's better
+    orientation and votes when it passes a new structure's test (:meth:`Recogniser.quality_test`) for the
+    orientation that test keeps. The better orientation is returned when there is a vote and every vote is
+    for it; None otherwise, and for a fit refused for its fitness or median (passes misaligned by the
+    navigation lower both orientations' fitness on all the data: each pass alone is not misaligned)."""
     rc = recogniser.reg_cfg
     md = recogniser.model_data[name]
     if reg.median_m > rc.max_median_m or reg.fitness < rc.min_fitness:
         return None
     best, ambiguous = half_turn_check(md, pts, reg, rc)
-    if best.median_m > rc.max_median_m:
-        return None
-    by_fitness = best.fitness < rc.final_min_fitness
-    if not ambiguous and not by_fitness:
+    if not ambiguous or best.median_m > rc.max_median_m or best.fitness < rc.final_min_fitness:
         return None
     period = md.model.yaw_period
     votes = []
@@ -203,18 +192,9 @@ def settled_by_passes(
         if len(own) < rc.min_points:
             continue
         vote = recogniser.quality_test(name, own, icp(md, own, best.T, rc))
-        if vote is None:
-            if by_fitness:
-                return None  # every pass must fit alone
-            continue
-        d = (yaw_of(vote.T) - yaw_of(best.T)) % period
-        turn = min(d, period - d)
-        agrees = turn < period / 4
-        if by_fitness:
-            agrees = (
-                np.degrees(turn) <= rc.max_turn_deg and np.linalg.norm(vote.T[:3, 3] - best.T[:3, 3]) <= rc.max_jump_m
-            )
-        votes.append(agrees)
+        if vote is not None:
+            d = (yaw_of(vote.T) - yaw_of(best.T)) % period
+            votes.append(min(d, period - d) < period / 4)
     return best if votes and all(votes) else None
 
 
