@@ -11,10 +11,11 @@ from typer.testing import CliRunner
 from semslam.cli import app
 from semslam.errors import ConfigError
 from semslam.study.cluster import frontend_workers_per_mission, local_workers
-from semslam.study.plan import parse_seeds, scenario_tasks
+from semslam.study.plan import MissionTask, parse_seeds, scenario_tasks
 from semslam.study.report import write_study_report
 from semslam.study.stats import bootstrap_ci, distribution, paired_ratio, study_statistics
 from semslam.study.summary import mission_summary
+from semslam.study.task import run_mission
 
 runner = CliRunner()
 
@@ -155,3 +156,21 @@ def test_local_cluster_default_is_one_mission_per_two_cores(monkeypatch, cores, 
     more workers than cores or missions."""
     monkeypatch.setattr("os.cpu_count", lambda: cores)
     assert local_workers(requested, tasks) == expected
+
+
+def test_a_missions_child_computes_with_the_workers_semslam_not_a_checkout_in_the_current_directory(
+    tmp_path, monkeypatch
+):
+    """A semslam checkout in the current directory (another version, a copy kept for a paired run) does
+    not compute the study's missions: `python -m` would put it first on the child's path. Here it
+    would exit at once; the worker's own semslam gets to the mission and fails on its missing bag."""
+    shadow = tmp_path / "cwd" / "semslam"
+    shadow.mkdir(parents=True)
+    (shadow / "__init__.py").write_text('raise SystemExit("the semslam of the current directory")\n')
+    monkeypatch.chdir(tmp_path / "cwd")
+    bag = tmp_path / "gone.bag"
+    task = MissionTask("m", str(tmp_path / "study"), {"kind": "bag", "path": str(bag)}, {})
+    out = run_mission(task.to_dict())
+    assert out["status"] == "failed"
+    assert "current directory" not in out["failure"]["error"], out["failure"]
+    assert "gone.bag" in out["failure"]["error"], out["failure"]

@@ -16,12 +16,14 @@ import json
 import os
 import shutil
 import signal
+import site
 import socket
 import subprocess
 import sys
 import time
 from pathlib import Path
 
+import semslam
 from semslam.study.plan import MissionTask
 from semslam.study.store import StudyStore
 
@@ -41,6 +43,21 @@ def _error(returncode: int, log: Path) -> str:
     return last or f"exit code {returncode}"
 
 
+def _child_environment() -> dict:
+    """The environment of a mission's child process: it imports the semslam this worker imports.
+    ``python -m`` puts the current directory first on the child's path, so a semslam checkout there (a
+    clone of another version, a copy kept for a paired run) would compute the missions instead of the
+    code that planned them. The child gets no current directory before its path (``PYTHONSAFEPATH``,
+    Python >= 3.11) and this semslam's root first on it, unless that root is a site directory (an
+    installed package: found there anyway, and kept behind the standard library)."""
+    root = str(Path(semslam.__file__).resolve().parents[1])
+    sites = {os.path.realpath(p) for p in (*site.getsitepackages(), site.getusersitepackages())}
+    path = [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p]
+    if os.path.realpath(root) not in sites:
+        path.insert(0, root)
+    return dict(os.environ, PYTHONPATH=os.pathsep.join(path), PYTHONSAFEPATH="1")
+
+
 def run_mission(task_dict: dict) -> dict:
     """Compute one mission of a study (the Dask task); see the module's docstring."""
     task = MissionTask.from_dict(task_dict)
@@ -57,6 +74,7 @@ def run_mission(task_dict: dict) -> dict:
             stdin=subprocess.PIPE,
             stdout=out,
             stderr=subprocess.STDOUT,
+            env=_child_environment(),
             start_new_session=True,  # its own process group: a timeout kills its front-end workers too
         )
         try:
