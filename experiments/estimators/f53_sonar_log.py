@@ -48,6 +48,46 @@ def main(bag: str, config_path: str, out: str) -> None:
         return obs
 
     SonarFrontend.process = logged
+
+    # every re-observation's ICP, accepted or not: (model, patch, anchor stamp, emitted, fitness, median, points,
+    # jump m, turn deg)
+    import frontends.sonar.reobservation as reob
+
+    icps: list = []
+    views: list[tuple] = []
+    icp = reob.icp
+
+    def icp_logged(md, pts, T0, *args, **kw):
+        reg = icp(md, pts, T0, *args, **kw)
+        icps.append((np.asarray(T0), reg))
+        return reg
+
+    reob.icp = icp_logged
+    observe = reob.StructureReobservation.observe
+
+    def observe_logged(self, patch, ks, *args, **kw):
+        n = len(icps)
+        obs = observe(self, patch, ks, *args, **kw)
+        if len(icps) > n:
+            T0, reg = icps[-1]
+            d = np.linalg.inv(T0) @ reg.T
+            turn = np.degrees(np.arccos(np.clip((np.trace(d[:3, :3]) - 1) / 2, -1, 1)))
+            views.append(
+                (
+                    ks.model,
+                    patch.id,
+                    int(patch.anchor_stamp),
+                    obs is not None,
+                    reg.fitness,
+                    reg.median_m,
+                    reg.n_structure,
+                    float(np.linalg.norm(d[:3, 3])),
+                    float(turn),
+                )
+            )
+        return obs
+
+    reob.StructureReobservation.observe = observe_logged
     config = load_config(config_path)
     mission = read_mission(bag, config.reader)
     result, metrics = run_comparison(mission, config, None, frontend_workers=1)
@@ -61,6 +101,7 @@ def main(bag: str, config_path: str, out: str) -> None:
         "anchors": {p.id: int(p.anchor_stamp) for p in fe.patches},
         "truth": (np.asarray(truth.stamps), np.asarray(truth.positions), np.asarray(truth.orientations)),
         "sonar": metrics.get("sonar"),
+        "views": views,
     }
     try:
         dump["ate"] = {k: v.get("ate_rmse_m") for k, v in metrics["estimators"].items()}

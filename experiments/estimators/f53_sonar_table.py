@@ -98,6 +98,13 @@ def main(argv):
         t0 = float(np.asarray(d["truth"][0])[0])
         t0 = t0 * 1e9 if t0 < 1e12 else t0
         anchors = d["anchors"]
+        for v in d.get("views", []):
+            s = (v[2] - t0) * 1e-9
+            if lo <= s <= hi:
+                print(
+                    f"  view ICP {v[0]} patch {v[1]} anchor {s:7.1f}: emitted {v[3]} fitness {v[4]:.3f} "
+                    f"median {v[5]:.3f} points {v[6]} jump {v[7]:.3f} m turn {v[8]:.2f} deg"
+                )
         for r in d["reobservation_log"]:
             s = (anchors.get(r[1], t0) - t0) * 1e-9
             if lo <= s <= hi:
