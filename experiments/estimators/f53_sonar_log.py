@@ -19,6 +19,16 @@ import sys
 import numpy as np
 
 
+def structure_truth(mission) -> dict:
+    """The true position of each structure model of the mission's ground-truth map (one per model)."""
+    gt = mission.metadata.ground_truth
+    structures = gt.structures if gt is not None else ()
+    models = [s.model for s in structures]
+    if len(set(models)) != len(models):
+        raise SystemExit(f"{models}: a model more than once; the table keys the truth by model")
+    return {s.model: tuple(s.position) for s in structures}
+
+
 def main(bag: str, config_path: str, out: str) -> None:
     from frontends.sonar.frontend import SonarFrontend
     from semslam.compare import run_comparison
@@ -102,6 +112,7 @@ def main(bag: str, config_path: str, out: str) -> None:
         "truth": (np.asarray(truth.stamps), np.asarray(truth.positions), np.asarray(truth.orientations)),
         "sonar": metrics.get("sonar"),
         "views": views,
+        "structures": structure_truth(mission),
     }
     try:
         dump["ate"] = {k: v.get("ate_rmse_m") for k, v in metrics["estimators"].items()}

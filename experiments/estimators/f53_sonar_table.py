@@ -17,12 +17,6 @@ import sys
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-WELLHEAD_TRUTH = {  # field 53's ground-truth map (semslam.mission.bag.read_mission(...).metadata.ground_truth)
-    "plet": (6.0528647343194, 15.69120362817633, 19.175662183799083),
-    "manifold": (0.7333715855363305, 4.863233021066414, 19.785546198096792),
-    "wellhead": (-9.107848369432721, -7.2210965347941425, 20.633510701114304),
-}
-
 
 def yaw(R):
     return np.arctan2(R[1, 0], R[0, 0])
@@ -65,7 +59,7 @@ def rows(d):
                 )
             )
         else:
-            pt = np.asarray(WELLHEAD_TRUTH[e["model"]])
+            pt = np.asarray(d["structures"][e["model"]])
             T_view_true = Tn @ e["T_BS"] @ e["T_SM"]
             T_view_nav = e["T_now"] @ e["T_BS"] @ e["T_SM"]
             a, b = T_view_true[:3, 3] - pt, T_view_nav[:3, 3] - pt
