@@ -1,0 +1,127 @@
+"""Stop 47 (s47-f53, diagnosis): one field run with every sonar observation the graph is given logged.
+
+Runs `run_comparison` as `semslam study` does (the study's config.yaml), with the sonar front-end's
+`process` wrapped: each emitted observation (swath registrations as OdometryObservation, structure
+views as StructureObservation) is recorded with the front-end's pose_at at its stamps, and after the
+run the front-end's logs (accepted window registrations, structure re-observation rejections, patch
+anchors). Then everything is compared with the bag's ground truth. Run it with the code to test first
+on PYTHONPATH (e.g. a `git archive` of f5c3156):
+
+    PYTHONPATH=/tmp/s47/s47-f53/code nice -n 5 .venv/bin/python experiments/estimators/f53_sonar_log.py \
+        BAG CONFIG.yaml OUT.pkl
+"""
+
+from __future__ import annotations
+
+import pickle
+import sys
+
+import numpy as np
+
+
+def structure_truth(mission) -> dict:
+    """The true position of each structure model of the mission's ground-truth map (one per model)."""
+    gt = mission.metadata.ground_truth
+    structures = gt.structures if gt is not None else ()
+    models = [s.model for s in structures]
+    if len(set(models)) != len(models):
+        raise SystemExit(f"{models}: a model more than once; the table keys the truth by model")
+    return {s.model: tuple(s.position) for s in structures}
+
+
+def main(bag: str, config_path: str, out: str) -> None:
+    from frontends.sonar.frontend import SonarFrontend
+    from semslam.compare import run_comparison
+    from semslam.config import load_config
+    from semslam.mission.bag import read_mission
+    from semslam.observations import OdometryObservation, StructureObservation
+
+    fes: list = []
+    emitted: list[dict] = []
+    process = SonarFrontend.process
+
+    def logged(self, measurement, view=None):
+        if not fes or fes[-1] is not self:
+            fes.append(self)
+        obs = process(self, measurement, view)
+        for o in obs:
+            row = {"stamp": int(o.stamp), "type": type(o).__name__, "T_now": self._pose(int(o.stamp))}
+            if isinstance(o, OdometryObservation):
+                row.update(stamp_from=int(o.stamp_from), rel=np.asarray(o.relative_pose), cov=np.asarray(o.covariance))
+            elif isinstance(o, StructureObservation):
+                row.update(
+                    model=o.model, T_SM=np.asarray(o.pose), cov=np.asarray(o.covariance), T_BS=self._T_BS(o.sensor)
+                )
+            else:
+                continue
+            emitted.append(row)
+        return obs
+
+    SonarFrontend.process = logged
+
+    # every re-observation's ICP, accepted or not: (model, patch, anchor stamp, emitted, fitness, median, points,
+    # jump m, turn deg)
+    import frontends.sonar.reobservation as reob
+
+    icps: list = []
+    views: list[tuple] = []
+    icp = reob.icp
+
+    def icp_logged(md, pts, T0, *args, **kw):
+        reg = icp(md, pts, T0, *args, **kw)
+        icps.append((np.asarray(T0), reg))
+        return reg
+
+    reob.icp = icp_logged
+    observe = reob.StructureReobservation.observe
+
+    def observe_logged(self, patch, ks, *args, **kw):
+        n = len(icps)
+        obs = observe(self, patch, ks, *args, **kw)
+        if len(icps) > n:
+            T0, reg = icps[-1]
+            d = np.linalg.inv(T0) @ reg.T
+            turn = np.degrees(np.arccos(np.clip((np.trace(d[:3, :3]) - 1) / 2, -1, 1)))
+            views.append(
+                (
+                    ks.model,
+                    patch.id,
+                    int(patch.anchor_stamp),
+                    obs is not None,
+                    reg.fitness,
+                    reg.median_m,
+                    reg.n_structure,
+                    float(np.linalg.norm(d[:3, 3])),
+                    float(turn),
+                )
+            )
+        return obs
+
+    reob.StructureReobservation.observe = observe_logged
+    config = load_config(config_path)
+    mission = read_mission(bag, config.reader)
+    result, metrics = run_comparison(mission, config, None, frontend_workers=1)
+    fe = fes[-1]
+    truth = result.truth
+    dump = {
+        "emitted": emitted,
+        "accepted": fe.windows.accepted,
+        "window_log": fe.windows.log,
+        "reobservation_log": fe.reobservation.log,
+        "anchors": {p.id: int(p.anchor_stamp) for p in fe.patches},
+        "truth": (np.asarray(truth.stamps), np.asarray(truth.positions), np.asarray(truth.orientations)),
+        "sonar": metrics.get("sonar"),
+        "views": views,
+        "structures": structure_truth(mission),
+    }
+    try:
+        dump["ate"] = {k: v.get("ate_rmse_m") for k, v in metrics["estimators"].items()}
+    except Exception:  # noqa: BLE001 - a diagnosis: the log matters, not the summary
+        dump["ate"] = None
+    with open(out, "wb") as f:
+        pickle.dump(dump, f)
+    print("emitted", len(emitted), "accepted", len(fe.windows.accepted), "ate", dump["ate"])
+
+
+if __name__ == "__main__":
+    main(*sys.argv[1:4])
