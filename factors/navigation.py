@@ -152,13 +152,13 @@ class DvlPreintegrator:
         """Whether the interval's samples are turned by the gyro: its rotation to the end and to every sample."""
         return dR_j is not None and all(d is not None for d in self._dR_gyro)
 
-    def _gyro_rotation_cov(self, w_u: np.ndarray) -> np.ndarray:
-        """The displacement's covariance from the gyro's rotation error, the samples weighted by ``w_u``: the
-        rate noise integrated since t_i, θ(t_k) = Σ_{m≤k} η_m with η_m ~ N(0, q (t_m − t_{m−1}) I), turns
-        sample k by δ = −w_k ΔR_k [v_k]× θ(t_k), so Σ = Σ_m q (t_m − t_{m−1}) T_m T_mᵀ with T_m the sum of
-        w_k ΔR_k [v_k]× over k ≥ m (the samples after a step share it)."""
-        S = skew_batch(np.array(self._v))
-        T = np.cumsum((w_u[:, None, None] * (np.array(self._dR_gyro) @ S))[::-1], axis=0)[::-1]
+    def _gyro_rotation_cov(self, w_u: np.ndarray, dR: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """The displacement's covariance from the gyro's rotation error, the samples (the gyro's rotations ``dR``,
+        M×3×3, velocities ``v``, M×3) weighted by ``w_u``: the rate noise integrated since t_i, θ(t_k) =
+        Σ_{m≤k} η_m with η_m ~ N(0, q (t_m − t_{m−1}) I), turns sample k by δ = −w_k ΔR_k [v_k]× θ(t_k), so
+        Σ = Σ_m q (t_m − t_{m−1}) T_m T_mᵀ with T_m the sum of w_k ΔR_k [v_k]× over k ≥ m (the samples after
+        a step share it)."""
+        T = np.cumsum((w_u[:, None, None] * (dR @ skew_batch(v)))[::-1], axis=0)[::-1]
         steps = np.diff(np.r_[self.t_i, self._t]) * self.rate_density**2
         return np.sum(steps[:, None, None] * (T @ T.transpose(0, 2, 1)), axis=0)
 
@@ -191,7 +191,7 @@ class DvlPreintegrator:
                 Sv = dR @ skew(v)
                 cov += wk**2 * self.attitude_sigma**2 * (Sv @ Sv.T)
         if gyro and self._t:
-            cov += self._gyro_rotation_cov(w[1:-1])
+            cov += self._gyro_rotation_cov(w[1:-1], np.array(self._dR_gyro), np.array(self._v))
         last = (self._v[-1], self._cov[-1]) if self._t else None
         return DisplacementIntegral(
             dt=dt,
@@ -240,7 +240,7 @@ class DvlPreintegrator:
         J[:, 6:9] = -w[-1] * (dR_j if gyro else self.R_i_T @ R_j)
         J[:, 9:] = (-w_u[:, None, None] * dR).transpose(1, 0, 2).reshape(3, 3 * M)
         if gyro:
-            cov_d += self._gyro_rotation_cov(w_u)
+            cov_d += self._gyro_rotation_cov(w_u, dR, v)
         elif self.attitude_sigma > 0:  # attitude noise rotates the sample: δ = −ΔR [v]× δθ
             Sv = dR @ skew_batch(v)
             cov_d += self.attitude_sigma**2 * np.sum((w_u**2)[:, None, None] * (Sv @ Sv.transpose(0, 2, 1)), axis=0)
