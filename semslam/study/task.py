@@ -50,10 +50,10 @@ def _child_environment() -> dict:
     code that planned them. The child gets no current directory before its path (``PYTHONSAFEPATH``,
     Python >= 3.11) and this semslam's root first on it, unless that root is a site directory (an
     installed package: found there anyway, and kept behind the standard library)."""
-    root = str(Path(semslam.__file__).resolve().parents[1])
+    root = str(Path(semslam.__file__).resolve().parents[1])  # resolved: comparable with the real site paths
     sites = {os.path.realpath(p) for p in (*site.getsitepackages(), site.getusersitepackages())}
     path = [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p]
-    if os.path.realpath(root) not in sites:
+    if root not in sites:
         path.insert(0, root)
     return dict(os.environ, PYTHONPATH=os.pathsep.join(path), PYTHONSAFEPATH="1")
 
