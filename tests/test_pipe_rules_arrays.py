@@ -1,6 +1,10 @@
 """The scan's pipe rules for all pairs at once (:meth:`Scan.excludes_all`, :class:`Lines`) decide as the rules pair
-by pair (:meth:`Scan.excludes`, :meth:`PipeExtent.seen_span`), to the bit: many pipes with different numbers of
-views, one view, parallel lines, a seen stretch of zero length, no / one / several objects."""
+by pair did on main (the references below, copied from main's ``PipeExtent.seen_span`` / ``excludes`` and
+``MapBuilder._on_pipe``), to the bit: many pipes with different numbers of views, one view, parallel lines, a seen
+stretch of zero length, no / one / several objects. The one-pair entry points (:meth:`Scan.excludes`,
+:meth:`PipeExtent.seen_span`, :meth:`PipeExtent.excludes`) are the array form of one row: they too."""
+
+import math
 
 import numpy as np
 import pytest
@@ -8,9 +12,70 @@ import pytest
 from semslam.config import AssociationConfig
 from semslam.mapping.book import LandmarkBook
 from semslam.mapping.builder import Scan
-from semslam.mapping.extent import Lines
+from semslam.mapping.extent import CROSSING_M, Lines, off_axis
+from semslam.mapping.pipes import object_between
 
 NONE = np.zeros((0, 3))
+
+
+# ------------------------------------------------------------------ main's pair-by-pair rules, the reference
+def _uncrossed(ext, objects, c, d, radius):
+    """main's ``PipeExtent.uncrossed``: the objects on the line (c, d) no view of the pipe runs across (the views
+    along the line as main's ``PipeExtent._positions`` gives them: the views are not public)."""
+    objects = np.asarray(objects, float).reshape(-1, 3)
+    r = objects - c
+    s_obj = r @ d
+    on = np.linalg.norm(r - np.outer(s_obj, d), axis=1) < radius
+    if not on.any() or not len(ext):
+        return objects[on]
+    s = ext._positions(c, d)
+    lo, hi = np.minimum(s[:, 0], s[:, 1]), np.maximum(s[:, 0], s[:, 1])
+    crossed = ((lo[:, None] < s_obj[on] - CROSSING_M) & (hi[:, None] > s_obj[on] + CROSSING_M)).any(axis=0)
+    return objects[on][~crossed]
+
+
+def _seen_span(ext, c, d, separators, cutters, radius):
+    """main's ``PipeExtent.seen_span``: the interval cut at the cutters and the uncrossed separators."""
+    mapped = np.asarray(cutters, float).reshape(-1, 3)
+    uncrossed = _uncrossed(ext, separators, c, d, radius)
+    return ext.interval(c, d, np.vstack([mapped, uncrossed]) if len(uncrossed) else mapped, radius)
+
+
+def _excludes(ext, ends_W, c, d, separators, cutters, radius, max_gap):
+    """main's ``PipeExtent.excludes`` (its ``gap`` and ``separated``)."""
+    a, b = span = _seen_span(ext, c, d, separators, cutters, radius)
+    s = (ends_W - c) @ d
+    if max(0.0, float(s.min()) - b, a - float(s.max())) > max_gap:
+        return True
+    if len(separators) == 0:
+        return False
+    r = separators - c
+    on_line = separators[np.linalg.norm(r - (r @ d)[:, None] * d, axis=1) < radius]
+    return object_between(span, ends_W, c, d, on_line, radius)
+
+
+def _scan_excludes(scan, pipe, seg_W, c, d):
+    """main's ``Scan.excludes`` (its memo of the seen stretch changes no answer)."""
+    a = scan.assoc
+    return _excludes(
+        scan.book.extent(pipe),
+        seg_W,
+        c,
+        d,
+        scan.separators,
+        scan.cutters,
+        a.inline_object_radius_m,
+        a.pipe_extent_gap_m,
+    )
+
+
+def _on_pipe(builder, ends, pipe, c, d, scan):
+    """main's ``MapBuilder._on_pipe``: the paper's collinear merge of a segment with a pipe."""
+    a = builder.assoc
+    u = (ends[1] - ends[0]) / np.linalg.norm(ends[1] - ends[0])
+    if abs(float(u @ d)) < math.cos(a.merge_angle_rad) or off_axis(ends, c, d) > a.merge_distance_m:
+        return False
+    return not _scan_excludes(scan, pipe, ends, c, d)
 
 
 def _unit(v):
@@ -79,10 +144,15 @@ def test_the_rules_of_all_pairs_at_once_equal_those_pair_by_pair(n_seps, n_cut):
         cut = _objects(rng, lines, n_cut)
         seps = np.vstack([cut, _objects(rng, lines, max(n_seps - n_cut, 0))])[:n_seps] if n_seps else NONE
         pipes, segs, cs, ds = _pairs(rng, lines, 60)
-        one_by_one = Scan(book, a, seps, cut)
-        expected = np.array([one_by_one.excludes(p, s, c, d) for p, s, c, d in zip(pipes, segs, cs, ds)])
-        got = Scan(book, a, seps, cut).excludes_all(pipes, segs, np.array(cs), np.array(ds))
+        scan = Scan(book, a, seps, cut)
+        expected = np.array([_scan_excludes(scan, p, s, c, d) for p, s, c, d in zip(pipes, segs, cs, ds)])
+        got = scan.excludes_all(pipes, segs, np.array(cs), np.array(ds))
         assert got.dtype == bool and np.array_equal(got, expected), seed
+        # the one-pair entry points: the array form of one row
+        assert [scan.excludes(p, s, c, d) for p, s, c, d in zip(pipes, segs, cs, ds)] == expected.tolist(), seed
+        r, gap = a.inline_object_radius_m, a.pipe_extent_gap_m
+        one_pipe = [book.extent(p).excludes(s, c, d, seps, cut, r, gap) for p, s, c, d in zip(pipes, segs, cs, ds)]
+        assert one_pipe == expected.tolist(), seed
         decided.append(expected)
         # the seen stretches themselves, number for number
         pids = sorted(lines)
@@ -94,8 +164,10 @@ def test_the_rules_of_all_pairs_at_once_equal_those_pair_by_pair(n_seps, n_cut):
             cut,
             a.inline_object_radius_m,
         )
-        one = [book.extent(p).seen_span(lines[p][0], lines[p][1], seps, cut, a.inline_object_radius_m) for p in pids]
+        r = a.inline_object_radius_m
+        one = [_seen_span(book.extent(p), lines[p][0], lines[p][1], seps, cut, r) for p in pids]
         assert np.array_equal(at_once.spans, np.array(one)), seed
+        assert [book.extent(p).seen_span(lines[p][0], lines[p][1], seps, cut, r) for p in pids] == one, seed
         for row, p in enumerate(pids):  # the separators on each line, where object_between puts them
             on = at_once.on[row]
             assert np.array_equal(at_once.between[row][on], (seps[on] - lines[p][0]) @ lines[p][1])
@@ -124,6 +196,7 @@ def test_each_pair_is_judged_against_its_own_pipe_and_line():
     got = Scan(book, a, NONE, NONE).excludes_all(pipes, segs, lines_c, lines_d)
     assert got.tolist() == [False, True, True, False, False, True]
     one = Scan(book, a, NONE, NONE)
+    assert got.tolist() == [_scan_excludes(one, *q) for q in zip(pipes, segs, lines_c, lines_d)]
     assert got.tolist() == [one.excludes(*q) for q in zip(pipes, segs, lines_c, lines_d)]
     # a valve between the two pipes keeps the second's segment from the first even where the gap would allow it
     valve = (c + 1.1 * d)[None, :]
@@ -161,10 +234,7 @@ class _Pipes:
 def _duplicate_pipes_pair_by_pair(builder, touched, separators):
     """The duplicate test of pipes as main had it: pair by pair (the screen one touched pipe at a time, ``_on_pipe``,
     each screened pipe's stretch by ``PipeExtent.ends``); the verdict on a screened pair is the builder's."""
-    import math
-
     from semslam.mapping.association import chi2_gate
-    from semslam.mapping.builder import Scan as Scan_
 
     self = builder
     a_cfg, (ids, cutters), pipes = self.assoc, self.state.objects(), self.state.pipes()
@@ -172,7 +242,7 @@ def _duplicate_pipes_pair_by_pair(builder, touched, separators):
     mids = np.array([self.book.extent(pid).centre() for pid, _, _ in pipes])
     gate = chi2_gate(a_cfg.confidence, 4)
     fittings = None
-    scan = Scan_(self.book, a_cfg, separators, cutters)
+    scan = Scan(self.book, a_cfg, separators, cutters)
     ends_of = {}
     out = []
     for a, (pid_a, c_a, d_a) in enumerate(pipes):
@@ -197,9 +267,11 @@ def _duplicate_pipes_pair_by_pair(builder, touched, separators):
                 ends_b = ends_of.get(pid_b)
                 if ends_b is None:
                     ext_b, rad = self.book.extent(pid_b), a_cfg.inline_object_radius_m
-                    cut = ext_b.cutting(fittings, separators, c_b, d_b, rad)
+                    uncrossed = _uncrossed(ext_b, separators, c_b, d_b, rad)  # main's PipeExtent.cutting
+                    mapped = np.asarray(fittings, float).reshape(-1, 3)
+                    cut = np.vstack([mapped, uncrossed]) if len(uncrossed) else mapped
                     ends_b = ends_of[pid_b] = ext_b.ends(c_b, d_b, cut, rad)
-                on_pipe = self._on_pipe(ends_b, pid_a, c_a, d_a, scan)
+                on_pipe = _on_pipe(self, ends_b, pid_a, c_a, d_a, scan)
             verdict = self._duplicate_pair(pipes[a], pipes[b], collinear, on_pipe, gate, cutters)
             if verdict is not None:
                 out.append(verdict)
@@ -240,8 +312,6 @@ def test_the_duplicate_test_of_pipes_at_once_equals_it_pair_by_pair(monkeypatch)
 
 
 def test_the_duplicate_screen_gives_the_numbers_of_one_pipe_at_a_time():
-    import math
-
     from semslam.mapping.builder import _duplicate_screen
 
     a = AssociationConfig()

@@ -13,7 +13,7 @@ For each batch of observations (one front-end's, of one measurement) the builder
    within ``min_separation_m`` of the axis, nearly parallel, half within what was seen of it, no object between), is that
    landmark seen badly: ambiguous, it starts nothing. What was seen of a pipe is cut, for these rules, at the
    mapped objects and at the tentative ones that no view of it runs across
-   (:meth:`~semslam.mapping.extent.PipeExtent.uncrossed`: a view that reached past a valve before the valve was
+   (:class:`~semslam.mapping.extent.Lines`: a view that reached past a valve before the valve was
    seen must not join the pipe beyond it); the tentative objects include those forgotten for the timeout whose
    place is still remembered (:meth:`~semslam.mapping.tracks.TrackSet.object_points`);
 4. has the estimator apply the pairings (its own update), extends or starts tentative landmarks with
@@ -66,26 +66,19 @@ class Scan:
         self.assoc = assoc
         self.separators = separators
         self.cutters = cutters
-        self._spans: dict[tuple, tuple[float, float]] = {}  # (pipe, its line, its views) → what was seen of it
 
     def excludes(self, pipe: int, seg_W: np.ndarray, c: np.ndarray, d: np.ndarray) -> bool:
         """Segment ``seg_W`` (2×3, {W}) cannot be mapped pipe ``pipe`` (line c, d): beyond the gap from
-        what was seen of it, or across an in-line object (:meth:`PipeExtent.excludes`). What was seen of
-        the pipe is found once per line and views in the batch (several segments ask of one pipe)."""
-        a = self.assoc
-        extent = self.book.extent(pipe)
-        key = (pipe, np.asarray(c, float).tobytes(), np.asarray(d, float).tobytes(), len(extent))
-        span = self._spans.get(key)
-        if span is None:
-            span = self._spans[key] = extent.seen_span(c, d, self.separators, self.cutters, a.inline_object_radius_m)
-        return extent.excludes(
-            seg_W, c, d, self.separators, self.cutters, a.inline_object_radius_m, a.pipe_extent_gap_m, span
+        what was seen of it, or across an in-line object (:meth:`excludes_all` of this one pair)."""
+        return bool(
+            self.excludes_all([pipe], np.asarray(seg_W, float)[None], np.asarray(c)[None], np.asarray(d)[None])[0]
         )
 
     def excludes_all(self, pipes: Sequence[int], segs_W: np.ndarray, c: np.ndarray, d: np.ndarray) -> np.ndarray:
-        """:meth:`excludes` of many pairs at once: segment q (``segs_W[q]``, 2×3) against pipe ``pipes[q]`` on the
-        line (``c[q]``, ``d[q]``); a bool array. Each distinct line's seen stretch is found once, all lines
-        together (:class:`~semslam.mapping.extent.Lines`: the same numbers as one by one)."""
+        """For each pair q: segment ``segs_W[q]`` (2×3, {W}) cannot be mapped pipe ``pipes[q]`` on the line
+        (``c[q]``, ``d[q]``): beyond the gap from what was seen of it, or across an in-line object; a bool array.
+        What was seen of each distinct (pipe, line, views) is found once, all lines together
+        (:class:`~semslam.mapping.extent.Lines`)."""
         if not len(pipes):
             return np.zeros(0, bool)
         c = np.ascontiguousarray(c, float).reshape(-1, 3)
@@ -106,8 +99,6 @@ class Scan:
             self.cutters,
             a.inline_object_radius_m,
         )
-        for key, row in rows.items():
-            self._spans.setdefault(key, (float(lines.spans[row, 0]), float(lines.spans[row, 1])))
         return lines.excludes(np.array(line, int), segs_W, a.pipe_extent_gap_m)
 
 
@@ -442,7 +433,7 @@ class MapBuilder:
         collinear = [bool(cos_ab[t, b] >= math.cos(a_cfg.merge_angle_rad)) for t, _, b in pairs]
         # b's stretch cut at the mapped fittings: views of b that ran on through a tee into a's stretch must not
         # make the two collinear pipes one (an object without ports, which a pipe may run through, cuts a's
-        # stretch only); and at the tentative objects no view of b runs across (:meth:`PipeExtent.uncrossed`)
+        # stretch only); and at the tentative objects no view of b runs across (:class:`Lines`)
         on_pipe = self._on_pipes(
             [(a, b) for (_, a, b), col in zip(pairs, collinear) if col], pipes, separators, ids, cutters
         )
@@ -454,7 +445,7 @@ class MapBuilder:
 
     def _duplicate_pair(self, pipe_a, pipe_b, collinear: bool, on_pipe: bool | None, gate: float, cutters: np.ndarray):
         """Whether the screened pipes a, b (id, c, d) are one: (χ² of their difference or inf, a, b, gate), or None.
-        ``collinear``: within ``merge_angle_rad``; then ``on_pipe``: b's stretch on a's line (:meth:`_on_pipe`)."""
+        ``collinear``: within ``merge_angle_rad``; then ``on_pipe``: b's stretch on a's line (:meth:`_on_pipes`)."""
         nis = None
         if collinear:
             if not on_pipe:
@@ -469,9 +460,11 @@ class MapBuilder:
         return None
 
     def _on_pipes(self, pairs: list[tuple[int, int]], pipes, separators: np.ndarray, ids: list[int], cutters):
-        """For each pair (a, b) of rows of ``pipes``: :meth:`_on_pipe` of b's stretch (cut at the mapped fittings
-        and at the tentative objects no view of b runs across) on a's line, all pairs at once (each b's
-        stretch once: :class:`~semslam.mapping.extent.Lines`); a dict (a, b) → bool."""
+        """The paper's collinear merge, for each pair (a, b) of rows of ``pipes``: b's stretch (cut at the mapped
+        fittings and at the tentative objects no view of b runs across) is within ``merge_angle_rad`` of a's axis,
+        both its ends within ``merge_distance_m`` of it, within the extent gap of a's seen stretch and not across
+        an object (:meth:`Scan.excludes_all`); all pairs at once (each b's stretch once:
+        :class:`~semslam.mapping.extent.Lines`); a dict (a, b) → bool."""
         if not pairs:
             return {}
         a_cfg = self.assoc
@@ -485,7 +478,7 @@ class MapBuilder:
         ends = ends_b[[row[b] for _, b in pairs]]  # (Q, 2, 3)
         c = np.array([pipes[a][1] for a, _ in pairs])
         d = np.array([pipes[a][2] for a, _ in pairs])
-        # _on_pipe's angle and distance, as numpy gives them for one segment (its norm and products: BLAS dots)
+        # the angle and distance, as numpy gives them for one segment (its norm and products: BLAS dots)
         e = ends[:, 1] - ends[:, 0]
         u = e / np.sqrt(stacked_dots(e[:, None, :], e))
         rr = ends - c[:, None, :]
@@ -524,16 +517,6 @@ class MapBuilder:
             off_axis(cut, c_x, d_x) <= a.duplicate_pipe_distance_m
             and self.book.extent(pid_x).overlap_fraction(cut, c_x, d_x, cutters, r) >= 0.5
         )
-
-    def _on_pipe(self, ends: np.ndarray, pipe: int, c, d, scan: Scan) -> bool:
-        """The paper's collinear merge: the segment is within ``merge_angle_rad`` of the pipe's axis,
-        both its ends within ``merge_distance_m`` of it, within the extent gap and not across an object
-        (``scan``: the separators and cutters, see :meth:`Scan.excludes`)."""
-        a = self.assoc
-        u = (ends[1] - ends[0]) / np.linalg.norm(ends[1] - ends[0])
-        if abs(float(u @ d)) < math.cos(a.merge_angle_rad) or off_axis(ends, c, d) > a.merge_distance_m:
-            return False
-        return not scan.excludes(pipe, ends, c, d)
 
 
 def well_formed(
