@@ -1,6 +1,6 @@
 """A mapped pipe's views that meet only across an in-line object (tentative, not yet mapped) may be of two
 pipes joined by it: the object cuts what was seen of the pipe when a segment beyond it is judged
-(semslam.mapping.extent.PipeExtent.uncrossed). Pipeline seed 34 (stop 44): one view of the next pipe,
+(semslam.mapping.extent.Lines). Pipeline seed 34 (stop 44): one view of the next pipe,
 0.18 m beyond the mapped pipe's seen end, paired with it a scan before the valve between them was seen;
 from then on the valve lay inside the seen stretch, every view of the next pipe paired with the first
 and the next pipe (1.34 m) was never mapped."""
@@ -48,8 +48,10 @@ def test_a_tentative_object_the_views_run_across_does_not_cut_the_pipe():
     the object does not cut, and the pipe's views beyond it still continue it."""
     book = _book(SEEN + [(1.9, 2.4), STRAY])
     assert not Scan(book, AssociationConfig(), VALVE, NONE).excludes(2, NEXT, C, D)
-    assert len(book.extent(2).uncrossed(VALVE, C, D, 0.15)) == 0
-    assert len(book.extent(2).uncrossed(VALVE + [0.0, 0.3, 0.0], C, D, 0.15)) == 0  # off the line
+    ext, uncut = book.extent(2), book.extent(2).seen_span(C, D, NONE, NONE, 0.15)
+    assert ext.seen_span(C, D, VALVE, NONE, 0.15) == uncut  # a tentative valve the views run across cuts nothing
+    assert ext.seen_span(C, D, VALVE + [0.0, 0.3, 0.0], NONE, 0.15) == uncut  # off the line
+    assert ext.seen_span(C, D, NONE, VALVE, 0.15)[1] < uncut[1]  # mapped, the valve cuts
 
 
 class _State:

@@ -124,16 +124,18 @@ def test_robust_ends_are_not_biased_outwards_by_noise():
 def test_gap_and_separation_by_an_in_line_object():
     ext = PipeExtent()
     ext.add(_seg(0.0, 2.0), 0.05)
-    span = ext.interval(C, D)
-    assert ext.gap(_seg(1.0, 2.5), C, D, span) == 0.0
-    assert abs(ext.gap(_seg(2.4, 3.5), C, D, span) - 0.4) < 1e-9
+    none = np.zeros((0, 3))
+    assert ext.seen_span(C, D, none, none, 0.15) == ext.interval(C, D)
+    assert not ext.excludes(_seg(1.0, 2.5), C, D, none, none, 0.15, 0.0)  # overlapping: no gap
+    assert ext.excludes(_seg(2.4, 3.5), C, D, none, none, 0.15, 0.39)  # 0.4 m beyond the seen end
+    assert not ext.excludes(_seg(2.4, 3.5), C, D, none, none, 0.15, 0.41)
     valve = np.array([[2.2, 2.0, 4.0]])
     off_line = np.array([[2.2, 2.5, 4.0]])
-    assert ext.separated(_seg(2.3, 3.5), C, D, valve, 0.15, span)  # pipe B beyond the valve
-    assert not ext.separated(_seg(2.3, 3.5), C, D, off_line, 0.15, span)
-    assert not ext.separated(_seg(0.5, 1.8), C, D, valve, 0.15, span)  # a view inside pipe A
+    assert ext.excludes(_seg(2.3, 3.5), C, D, valve, none, 0.15, 1.0)  # pipe B beyond the valve
+    assert not ext.excludes(_seg(2.3, 3.5), C, D, off_line, none, 0.15, 1.0)
+    assert not ext.excludes(_seg(0.5, 1.8), C, D, valve, none, 0.15, 1.0)  # a view inside pipe A
     elbow_at_end = np.array([[2.08, 2.0, 4.0]])
-    assert not ext.separated(_seg(1.0, 1.9), C, D, elbow_at_end, 0.15, span)
+    assert not ext.excludes(_seg(1.0, 1.9), C, D, elbow_at_end, none, 0.15, 1.0)
 
 
 def test_pipe_extent_gap_and_inline_object_radius_are_the_shared_association_settings(tmp_path):

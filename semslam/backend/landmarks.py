@@ -358,9 +358,7 @@ class GraphLandmarks:
             len(observations), [t for t in pairs if t[2] is not None], pose_cov, problem.landmark_covariance, confidence
         )
         # the scan's pipe rules after the gate: they cost more than a linearisation, and most pairs fail the gate
-        found = found.subset(
-            np.array([k for k, (i, j) in enumerate(zip(found.obs, found.lm)) if not problem.excluded(i, j)], int)
-        )
+        found = found.subset(np.flatnonzero(~problem.excluded_all(found.obs, found.lm)))
         self._problem = problem
         return found, [lm.id for lm in cand_lms]
 

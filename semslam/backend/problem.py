@@ -36,7 +36,7 @@ class Candidate:
 
 class GraphAssociationProblem:
     """Observations of one batch against pre-gated candidate landmarks (``allowed``: the pairs the
-    pre-gates keep); ``scan``: the batch's rules (:meth:`excluded`: a pipe pair is ruled out where
+    pre-gates keep); ``scan``: the batch's rules (:meth:`excluded_all`: a pipe pair is ruled out where
     ``scan.excludes``)."""
 
     def __init__(
@@ -163,17 +163,26 @@ class GraphAssociationProblem:
             return PairLinearization(-r, H_x, H_l, z.covariance)
         return None
 
-    def excluded(self, i: int, j: int) -> bool:
-        """Whether the rules of the scan rule out pair (i, j): a pipe segment must overlap what has been
-        seen of the pipe (collinear pipes on either side of a valve share one infinite line), and no
-        in-line part (valve, socket) may lie between them: that is the next pipe. Asked only of the
-        pairs that pass the χ² gate (the rules cost more than the linearisation)."""
-        z, lm = self.observations[i], self.candidates[j].landmark
-        if not (isinstance(z, LineObservation) and lm.kind == "pipe"):
-            return False
-        _, _, d = self._line_frame(j)
-        _, seg = self._segment(i)
-        return self.scan.excludes(lm.id, seg, lm.line()[0], d)
+    def excluded_all(self, obs: np.ndarray, cands: np.ndarray) -> np.ndarray:
+        """Whether the rules of the scan rule out each pair (obs[k], cands[k]): a pipe segment must overlap what
+        has been seen of the pipe (collinear pipes on either side of a valve share one infinite line), and no
+        in-line part (valve, socket) may lie between them: that is the next pipe. Asked only of the pairs that
+        pass the χ² gate; all pairs at once (:meth:`Scan.excludes_all`)."""
+        pipe_pairs = [
+            k
+            for k, (i, j) in enumerate(zip(obs.tolist(), cands.tolist()))
+            if isinstance(self.observations[i], LineObservation) and self.candidates[j].landmark.kind == "pipe"
+        ]
+        out = np.zeros(len(obs), bool)
+        if pipe_pairs:
+            lms = [self.candidates[int(cands[k])].landmark for k in pipe_pairs]
+            out[pipe_pairs] = self.scan.excludes_all(
+                [lm.id for lm in lms],
+                np.array([self._segment(int(obs[k]))[1] for k in pipe_pairs]),
+                np.array([lm.line()[0] for lm in lms]),
+                np.array([self._line_frame(int(cands[k]))[2] for k in pipe_pairs]),
+            )
+        return out
 
     def landmark_covariance(self, j: int) -> np.ndarray:
         """Candidate j's gating covariance (uncorrelated with the pose and the other candidates)."""

@@ -403,10 +403,16 @@ class ScanPairs:
                     S = Hx @ Pvv @ HxT + cross + np.transpose(cross, (0, 2, 1)) + HlK @ Pll @ HlT + R
                     nis = np.einsum("ki,ki->k", nu, np.linalg.solve(S, nu[..., None])[..., 0])
                     keep = nis < chi2_gate(confidence, size)
-                    if kind == "pipe":
-                        for k in np.flatnonzero(keep):
-                            f = feats[fj[k]]
-                            keep[k] = not scan.excludes(f.id, obs[oi[k]].ends_W, *f.world_line(x[f.cols]))
+                    if kind == "pipe" and keep.any():
+                        ks = np.flatnonzero(keep)
+                        fs = [feats[fj[k]] for k in ks]
+                        lines = [f.world_line(x[f.cols]) for f in fs]
+                        keep[ks] = ~scan.excludes_all(
+                            [f.id for f in fs],
+                            np.array([obs[oi[k]].ends_W for k in ks]),
+                            np.array([c for c, _ in lines]),
+                            np.array([d for _, d in lines]),
+                        )
                     obs_i.append(oi[keep])
                     feat_j.append(fj[keep])
                     nus += list(nu[keep])

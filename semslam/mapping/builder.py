@@ -13,7 +13,7 @@ For each batch of observations (one front-end's, of one measurement) the builder
    within ``min_separation_m`` of the axis, nearly parallel, half within what was seen of it, no object between), is that
    landmark seen badly: ambiguous, it starts nothing. What was seen of a pipe is cut, for these rules, at the
    mapped objects and at the tentative ones that no view of it runs across
-   (:meth:`~semslam.mapping.extent.PipeExtent.uncrossed`: a view that reached past a valve before the valve was
+   (:class:`~semslam.mapping.extent.Lines`: a view that reached past a valve before the valve was
    seen must not join the pipe beyond it); the tentative objects include those forgotten for the timeout whose
    place is still remembered (:meth:`~semslam.mapping.tracks.TrackSet.object_points`);
 4. has the estimator apply the pairings (its own update), extends or starts tentative landmarks with
@@ -46,7 +46,7 @@ from semslam.config import AssociationConfig
 from semslam.estimation import LandmarkEstimate
 from semslam.mapping.association import Candidates, JointCovariance, PairLinearization, chi2_gate, jcbb
 from semslam.mapping.book import LandmarkBook
-from semslam.mapping.extent import along_sigma, off_axis
+from semslam.mapping.extent import Lines, along_sigma, off_axis, stacked_dots
 from semslam.mapping.fittings import port_depths
 from semslam.mapping.pipes import merge_collinear, object_between
 from semslam.mapping.tracks import Track, TrackSet, TrackView
@@ -66,21 +66,40 @@ class Scan:
         self.assoc = assoc
         self.separators = separators
         self.cutters = cutters
-        self._spans: dict[tuple, tuple[float, float]] = {}  # (pipe, its line, its views) → what was seen of it
 
     def excludes(self, pipe: int, seg_W: np.ndarray, c: np.ndarray, d: np.ndarray) -> bool:
         """Segment ``seg_W`` (2×3, {W}) cannot be mapped pipe ``pipe`` (line c, d): beyond the gap from
-        what was seen of it, or across an in-line object (:meth:`PipeExtent.excludes`). What was seen of
-        the pipe is found once per line and views in the batch (several segments ask of one pipe)."""
-        a = self.assoc
-        extent = self.book.extent(pipe)
-        key = (pipe, np.asarray(c, float).tobytes(), np.asarray(d, float).tobytes(), len(extent))
-        span = self._spans.get(key)
-        if span is None:
-            span = self._spans[key] = extent.seen_span(c, d, self.separators, self.cutters, a.inline_object_radius_m)
-        return extent.excludes(
-            seg_W, c, d, self.separators, self.cutters, a.inline_object_radius_m, a.pipe_extent_gap_m, span
+        what was seen of it, or across an in-line object (:meth:`excludes_all` of this one pair)."""
+        return bool(
+            self.excludes_all([pipe], np.asarray(seg_W, float)[None], np.asarray(c)[None], np.asarray(d)[None])[0]
         )
+
+    def excludes_all(self, pipes: Sequence[int], segs_W: np.ndarray, c: np.ndarray, d: np.ndarray) -> np.ndarray:
+        """For each pair q: segment ``segs_W[q]`` (2×3, {W}) cannot be mapped pipe ``pipes[q]`` on the line
+        (``c[q]``, ``d[q]``): beyond the gap from what was seen of it, or across an in-line object; a bool array.
+        What was seen of each distinct (pipe, line, views) is found once, all lines together
+        (:class:`~semslam.mapping.extent.Lines`)."""
+        if not len(pipes):
+            return np.zeros(0, bool)
+        c = np.ascontiguousarray(c, float).reshape(-1, 3)
+        d = np.ascontiguousarray(d, float).reshape(-1, 3)
+        rows: dict[tuple, int] = {}  # (pipe, its line, its views) → row of the lines
+        line = [
+            rows.setdefault((pipe, c[q].tobytes(), d[q].tobytes(), len(self.book.extent(pipe))), len(rows))
+            for q, pipe in enumerate(pipes)
+        ]
+        first = {row: q for q, row in reversed(list(enumerate(line)))}  # a pair of each line
+        pick = [first[row] for row in range(len(rows))]
+        a = self.assoc
+        lines = Lines(
+            [self.book.extent(pipes[q]) for q in pick],
+            c[pick],
+            d[pick],
+            self.separators,
+            self.cutters,
+            a.inline_object_radius_m,
+        )
+        return lines.excludes(np.array(line, int), segs_W, a.pipe_extent_gap_m)
 
 
 class LandmarkState(Protocol):
@@ -403,51 +422,77 @@ class MapBuilder:
         points = np.array([c for _, c, _ in pipes])
         mids = np.array([self.book.extent(pid).centre() for pid, _, _ in pipes])
         ids, cutters = self.state.objects()
-        fittings = None  # the mapped objects that end pipes, once a collinear pair needs them
-        scan = Scan(self.book, a_cfg, separators, cutters)  # each touched pipe's seen stretch found once
-        ends_of: dict[int, np.ndarray] = {}  # each screened pipe's stretch cut at the fittings, found once
-        out = []
-        for a, (pid_a, c_a, d_a) in enumerate(pipes):
-            if pid_a not in touched:
-                continue
-            r = mids - c_a
-            off = np.linalg.norm(r - np.outer(r @ d_a, d_a), axis=1)  # each pipe's middle from a's axis
-            r = mids[a] - points
-            back = np.linalg.norm(r - np.sum(r * dirs, axis=1)[:, None] * dirs, axis=1)  # a's middle from each axis
-            cos_ab = np.abs(dirs @ d_a)
-            near = np.minimum(off, back) <= a_cfg.merge_distance_m
-            screen = (cos_ab >= math.cos(a_cfg.duplicate_pipe_angle_rad)) & near
-            for b in np.flatnonzero(screen):
-                pid_b, c_b, d_b = pipes[b]
-                if pid_b == pid_a or (pid_b in touched and pid_b < pid_a):  # each pair once
-                    continue
-                nis = None
-                if cos_ab[b] >= math.cos(a_cfg.merge_angle_rad):
-                    # b's stretch cut at the mapped fittings: views of b that ran on through a tee into
-                    # a's stretch must not make the two collinear pipes one (an object without ports,
-                    # which a pipe may run through, cuts a's stretch only)
-                    if fittings is None:
-                        fittings = self._fittings(ids, cutters)
-                    # (and at the tentative objects no view of b runs across: :meth:`PipeExtent.uncrossed`)
-                    ends_b = ends_of.get(pid_b)
-                    if ends_b is None:
-                        ext_b, r = self.book.extent(pid_b), a_cfg.inline_object_radius_m
-                        ends_b = ends_of[pid_b] = ext_b.ends(
-                            c_b, d_b, ext_b.cutting(fittings, separators, c_b, d_b, r), r
-                        )
-                    if not self._on_pipe(ends_b, pid_a, c_a, d_a, scan):
-                        continue
-                    nis = self.state.difference_nis(pid_a, pid_b)
-                    if nis is not None and nis < gate:
-                        out.append((nis, pid_a, pid_b, gate))
-                        continue
-                # sharing a stretch, either way round: a short twin 12° off lies along its pipe's axis, while
-                # the pipe's ends are far from the twin's axis
-                if self._shares_stretch(pipes[b], pipes[a], cutters) or self._shares_stretch(
-                    pipes[a], pipes[b], cutters
-                ):
-                    out.append((math.inf if nis is None else nis, pid_a, pid_b, gate))
-        return out
+        rows = [a for a, (pid, _, _) in enumerate(pipes) if pid in touched]
+        screen, cos_ab = _duplicate_screen(rows, points, dirs, mids, a_cfg)
+        pairs = []  # (a, b): rows of the touched pipe and of a screened one, each pair once
+        for t, a in enumerate(rows):
+            for b in np.flatnonzero(screen[t]).tolist():
+                pid_a, pid_b = pipes[a][0], pipes[b][0]
+                if not (pid_b == pid_a or (pid_b in touched and pid_b < pid_a)):
+                    pairs.append((t, a, b))
+        collinear = [bool(cos_ab[t, b] >= math.cos(a_cfg.merge_angle_rad)) for t, _, b in pairs]
+        # b's stretch cut at the mapped fittings: views of b that ran on through a tee into a's stretch must not
+        # make the two collinear pipes one (an object without ports, which a pipe may run through, cuts a's
+        # stretch only); and at the tentative objects no view of b runs across (:class:`Lines`)
+        on_pipe = self._on_pipes(
+            [(a, b) for (_, a, b), col in zip(pairs, collinear) if col], pipes, separators, ids, cutters
+        )
+        verdicts = (
+            self._duplicate_pair(pipes[a], pipes[b], col, on_pipe.get((a, b)), gate, cutters)
+            for (_, a, b), col in zip(pairs, collinear)
+        )
+        return [v for v in verdicts if v is not None]
+
+    def _duplicate_pair(self, pipe_a, pipe_b, collinear: bool, on_pipe: bool | None, gate: float, cutters: np.ndarray):
+        """Whether the screened pipes a, b (id, c, d) are one: (χ² of their difference or inf, a, b, gate), or None.
+        ``collinear``: within ``merge_angle_rad``; then ``on_pipe``: b's stretch on a's line (:meth:`_on_pipes`)."""
+        nis = None
+        if collinear:
+            if not on_pipe:
+                return None
+            nis = self.state.difference_nis(pipe_a[0], pipe_b[0])
+            if nis is not None and nis < gate:
+                return (nis, pipe_a[0], pipe_b[0], gate)
+        # sharing a stretch, either way round: a short twin 12° off lies along its pipe's axis, while
+        # the pipe's ends are far from the twin's axis
+        if self._shares_stretch(pipe_b, pipe_a, cutters) or self._shares_stretch(pipe_a, pipe_b, cutters):
+            return (math.inf if nis is None else nis, pipe_a[0], pipe_b[0], gate)
+        return None
+
+    def _on_pipes(self, pairs: list[tuple[int, int]], pipes, separators: np.ndarray, ids: list[int], cutters):
+        """The paper's collinear merge, for each pair (a, b) of rows of ``pipes``: b's stretch (cut at the mapped
+        fittings and at the tentative objects no view of b runs across) is within ``merge_angle_rad`` of a's axis,
+        both its ends within ``merge_distance_m`` of it, within the extent gap of a's seen stretch and not across
+        an object (:meth:`Scan.excludes_all`); all pairs at once (each b's stretch once:
+        :class:`~semslam.mapping.extent.Lines`); a dict (a, b) → bool."""
+        if not pairs:
+            return {}
+        a_cfg = self.assoc
+        r = a_cfg.inline_object_radius_m
+        bs = list(dict.fromkeys(b for _, b in pairs))
+        c_b, d_b = np.array([pipes[b][1] for b in bs]), np.array([pipes[b][2] for b in bs])
+        fittings = self._fittings(ids, cutters)
+        spans = Lines([self.book.extent(pipes[b][0]) for b in bs], c_b, d_b, separators, fittings, r).spans
+        ends_b = c_b[:, None, :] + spans[:, :, None] * d_b[:, None, :]  # PipeExtent.ends: c + s d
+        row = {b: k for k, b in enumerate(bs)}
+        ends = ends_b[[row[b] for _, b in pairs]]  # (Q, 2, 3)
+        c = np.array([pipes[a][1] for a, _ in pairs])
+        d = np.array([pipes[a][2] for a, _ in pairs])
+        # the angle and distance, as numpy gives them for one segment (its norm and products: BLAS dots)
+        e = ends[:, 1] - ends[:, 0]
+        u = e / np.sqrt(stacked_dots(e[:, None, :], e))
+        rr = ends - c[:, None, :]
+        off = np.linalg.norm(rr - stacked_dots(rr, d)[:, :, None] * d[:, None, :], axis=2).max(axis=1)
+        near = ~(
+            (np.abs(stacked_dots(u[:, None, :], d)[:, 0]) < math.cos(a_cfg.merge_angle_rad))
+            | (off > a_cfg.merge_distance_m)
+        )
+        on = np.zeros(len(pairs), bool)
+        ks = np.flatnonzero(near)
+        if len(ks):
+            scan = Scan(self.book, a_cfg, separators, cutters)
+            on[ks] = ~scan.excludes_all([pipes[pairs[k][0]][0] for k in ks], ends[ks], c[ks], d[ks])
+        return dict(zip(pairs, on.tolist()))
 
     def _fittings(self, ids: list[int], positions: np.ndarray) -> np.ndarray:
         """The mapped objects (``ids`` at ``positions``, N×3) that end pipes: fittings, whose class
@@ -472,16 +517,6 @@ class MapBuilder:
             off_axis(cut, c_x, d_x) <= a.duplicate_pipe_distance_m
             and self.book.extent(pid_x).overlap_fraction(cut, c_x, d_x, cutters, r) >= 0.5
         )
-
-    def _on_pipe(self, ends: np.ndarray, pipe: int, c, d, scan: Scan) -> bool:
-        """The paper's collinear merge: the segment is within ``merge_angle_rad`` of the pipe's axis,
-        both its ends within ``merge_distance_m`` of it, within the extent gap and not across an object
-        (``scan``: the separators and cutters, see :meth:`Scan.excludes`)."""
-        a = self.assoc
-        u = (ends[1] - ends[0]) / np.linalg.norm(ends[1] - ends[0])
-        if abs(float(u @ d)) < math.cos(a.merge_angle_rad) or off_axis(ends, c, d) > a.merge_distance_m:
-            return False
-        return not scan.excludes(pipe, ends, c, d)
 
 
 def well_formed(
@@ -508,3 +543,21 @@ def _finite(z: Observation) -> bool:
     else:
         arrays = (z.pose, z.covariance)
     return all(np.isfinite(a).all() for a in arrays)
+
+
+def _duplicate_screen(
+    rows: list[int], points: np.ndarray, dirs: np.ndarray, mids: np.ndarray, assoc: AssociationConfig
+):
+    """The duplicate test's screen of every pipe b against each touched pipe a (``rows``; lines ``points``,
+    ``dirs``, P×3; ``mids`` the middles of what was seen of each): within ``duplicate_pipe_angle_rad`` of each
+    other and either middle within ``merge_distance_m`` of the other's axis; (T×P) the screen and |cos| of the
+    angle, all touched pipes at once (the products as numpy gives them for one: :func:`stacked_dots`)."""
+    T, P = len(rows), len(points)
+    c_a, d_a = points[rows], dirs[rows]
+    r = mids[None, :, :] - c_a[:, None, :]  # (T, P, 3)
+    off = np.linalg.norm(r - stacked_dots(r, d_a)[:, :, None] * d_a[:, None, :], axis=2)  # each middle from a's axis
+    r = mids[rows][:, None, :] - points[None, :, :]
+    back = np.linalg.norm(r - np.sum(r * dirs[None], axis=2)[:, :, None] * dirs[None], axis=2)  # a's middle from each
+    cos_ab = np.abs(stacked_dots(np.broadcast_to(dirs, (T, P, 3)), d_a))
+    near = np.minimum(off, back) <= assoc.merge_distance_m
+    return (cos_ab >= math.cos(assoc.duplicate_pipe_angle_rad)) & near, cos_ab

@@ -192,7 +192,7 @@ class TrackSet:
         The object tracks forgotten for the timeout whose place is still remembered count too: a valve seen
         in two scans of a pass, forgotten before the vehicle comes back, still lies between the pipes either
         side of it (the pipes' views end at it; where a pipe's views run across a place, the place cuts
-        nothing: :meth:`~semslam.mapping.extent.PipeExtent.uncrossed`)."""
+        nothing: :class:`~semslam.mapping.extent.Lines`)."""
         pts = [tr.place for tr in self.tracks if tr.kind == "object"] + [tr.place for tr in self._lapsed]
         return np.array(pts).reshape(-1, 3)
 
