@@ -28,13 +28,6 @@ from laser_real_eval import map_scores, offsets_split, parse_seeds  # noqa: E402
 from replay_study import RecordedFrontend  # noqa: E402
 
 
-def _deep_update(base: dict, new: dict) -> dict:
-    out = dict(base)
-    for k, v in new.items():
-        out[k] = _deep_update(base.get(k, {}), v) if isinstance(v, dict) else v
-    return out
-
-
 def light_mission(seed: int, sim: dict, cache: Path):
     """The pipeline mission of ``seed`` (simulator overrides ``sim``) with its clouds emptied (the
     observations are recorded), cached in ``cache``: a replay then costs the graph's time alone."""
@@ -45,13 +38,14 @@ def light_mission(seed: int, sim: dict, cache: Path):
     from semslam.mission.mission import Mission
     from semslam.sim.pipeline_config import PipelineSimConfig
     from semslam.sim.pipeline_mission import simulate_pipeline
+    from semslam.sim.vary import merge_into
 
     key = hashlib.sha1(json.dumps(sim, sort_keys=True).encode()).hexdigest()[:8]
     path = cache / f"light_{seed}_{key}.pkl"
     if path.exists():
         meta, items = pickle.loads(path.read_bytes())
         return Mission.from_measurements(meta, items)
-    sim_cfg = PipelineSimConfig.model_validate(_deep_update(PipelineSimConfig(seed=seed).model_dump(), sim))
+    sim_cfg = PipelineSimConfig.model_validate(merge_into(PipelineSimConfig(seed=seed).model_dump(), sim))
     mission = simulate_pipeline(sim_cfg)
     empty = np.zeros((0, 3), np.float32)
     items = [

@@ -7,6 +7,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from factors.geometry import skew_batch  # numpy only, as the prior's SO(3) helpers
+
 #: σ (rad) of the rotation of a relative pose that constrains the translation alone (``factor_rotation: free``):
 #: a radian is ~1000 times the held rotation σ between two scans (~0.05°), and keeps the covariance well conditioned
 FREE_ROTATION_SIGMA_RAD = 1.0
@@ -35,23 +37,13 @@ def translation_given_rotation(cov: np.ndarray) -> np.ndarray:
     return (out + out.T) / 2
 
 
-def skew(v: np.ndarray) -> np.ndarray:
-    """[v]× for one vector (3,) or a stack (n, 3) → (n, 3, 3)."""
-    v = np.asarray(v, float)
-    out = np.zeros(v.shape[:-1] + (3, 3))
-    out[..., 0, 1], out[..., 0, 2] = -v[..., 2], v[..., 1]
-    out[..., 1, 0], out[..., 1, 2] = v[..., 2], -v[..., 0]
-    out[..., 2, 0], out[..., 2, 1] = -v[..., 1], v[..., 0]
-    return out
-
-
 def adjoint(T: np.ndarray) -> np.ndarray:
     """Ad_T (6×6) for the (rotation, translation) tangent: Exp(Ad_T ξ) = T Exp(ξ) T⁻¹."""
     R, t = T[:3, :3], T[:3, 3]
     A = np.zeros((6, 6))
     A[:3, :3] = R
     A[3:, 3:] = R
-    A[3:, :3] = skew(t) @ R
+    A[3:, :3] = skew_batch(t) @ R
     return A
 
 
@@ -99,7 +91,7 @@ def plane_information(
     residual = np.einsum("ni,ni->n", normals, world - centroids)
     # d/dξ of n·(R(p + ω×p) + t + R v) = nᵀR [−[p]×, I]
     nR = normals @ R  # rows nᵀR
-    J = np.concatenate([np.einsum("ni,nij->nj", nR, -skew(source)), nR], axis=1)
+    J = np.concatenate([np.einsum("ni,nij->nj", nR, -skew_batch(source)), nR], axis=1)
     n = len(source)
     var = float(residual @ residual / max(n - 6, 1))
     return J.T @ J, n, var
