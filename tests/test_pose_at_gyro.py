@@ -40,10 +40,7 @@ def without_rates(mission):
     """The same mission with the AHRS's rates taken out."""
     return type(mission).from_measurements(
         mission.metadata,
-        [
-            Attitude(m.stamp, m.sensor, m.orientation, m.covariance) if isinstance(m, Attitude) else m
-            for m in mission
-        ],
+        [Attitude(m.stamp, m.sensor, m.orientation, m.covariance) if isinstance(m, Attitude) else m for m in mission],
     )
 
 
