@@ -335,7 +335,6 @@ class SonarFrontend(Frontend):
             m.stamp,
             m.sensor,
             gap_m=abs(at - ks.seen_track_m),
-            search=lambda pts, centre: self.recogniser.register_anew(ks.model, pts, centre, self._ground_kw()),
         )
         if obs is not None:
             ks.seen_track_m = max(ks.seen_track_m, at)
