@@ -7,9 +7,10 @@ the estimated motion's σ per metre, exceeds ``max_jump_m``, the reach the ICP f
 allowed), the vehicle's pose relative to the structure is uncertain by more than that reach: an ICP
 started from the prior placed by the drifted pose, allowed to move at most ``max_jump_m``, may settle
 on a wrong-place fit next to the prior and so confirm the drift. Such a view is searched instead:
-the same ICP (coarse to fine) from every north/east start on the recognition's grid (``coarse_cell_m``)
-within the recognition's search range (``shift_range_m``, ``shift_range_frac`` of the footprint
-radius) around the prior, the prior's attitude kept; the best fit (fitness, then median) is the view,
+the coarse ICP (``icp_distances_m[0]``) from every north/east start, spaced by that distance (its
+reach), within the recognition's search range (``shift_range_m``, ``shift_range_frac`` of the
+footprint radius) around the prior, the prior's attitude kept; each distinct place it reaches (more
+than ``tukey_k_m`` apart) refined by the view's own ICP; the best fit (fitness, then median) is the view,
 with the usual checks but for the jump (its turn still at most ``max_turn_deg``), and every other fit
 within ``ambiguity_margin`` of its fitness that lies elsewhere grows its translation covariance by
 that offset (the search's ambiguity), so that two places that fit alike give no view
@@ -119,19 +120,27 @@ class StructureReobservation:
         rc = self.config
         c = T_AM0[:3, 3]
         rng = max(rc.shift_range_m, rc.shift_range_frac * md.model.footprint_radius)
-        g = np.arange(-np.floor(rng / rc.coarse_cell_m), np.floor(rng / rc.coarse_cell_m) + 1) * rc.coarse_cell_m
+        step = rc.icp_distances_m[0]  # the coarse ICP's reach
+        g = np.arange(-np.floor(rng / step), np.floor(rng / step) + 1) * step
         starts = [(a, b) for a in g for b in g if np.hypot(a, b) <= rng + 1e-9]
         near = np.hypot(patch.points[:, 0] - c[0], patch.points[:, 1] - c[1]) <= md.model.footprint_radius + 0.5 + rng
         pts = patch.points[near].astype(float)
         t0 = time.process_time()
-        fits = []
+        # coarse ICP from every start; the distinct places it reaches refined as the view's ICP is
+        places: list[np.ndarray] = []
         for a, b in starts:
             T0 = T_AM0.copy()
             T0[0, 3] += a
             T0[1, 3] += b
-            reg = icp(md, pts, T0, rc)
-            if reg.n_structure >= rc.min_points and _turn(inv(T_AM0) @ reg.T) <= np.radians(rc.max_turn_deg):
-                fits.append(reg)
+            r = icp(md, pts, T0, rc, distances=rc.icp_distances_m[:1])
+            ok = r.n_structure >= rc.min_points and _turn(inv(T_AM0) @ r.T) <= np.radians(rc.max_turn_deg)
+            if ok and all(np.linalg.norm(r.T[:3, 3] - q[:3, 3]) > rc.tukey_k_m for q in places):
+                places.append(r.T)
+        fits = []
+        for T1 in places:
+            r = icp(md, pts, T1, rc, distances=rc.icp_distances_m[-1:])
+            if r.n_structure >= rc.min_points and _turn(inv(T_AM0) @ r.T) <= np.radians(rc.max_turn_deg):
+                fits.append(r)
         self.timing["registration_s"] += time.process_time() - t0
         self.timing["reobservations_searched"] += 1
         if not fits:
