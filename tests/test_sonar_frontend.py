@@ -94,15 +94,6 @@ def test_swath_registration_makes_the_second_line_agree_with_the_first(mission, 
     assert after < 0.95 * before, (before, after)
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="since the gyro links the keyframes (stop 43) navigation alone puts this survey's second line at "
-    "0.143 m (0.264 before) and the sonar's views no longer improve it (0.150 m; with stop 42's pipe cadence "
-    "0.132, pipes off 0.149; stop 44, the pipe axis' depth corrected: 0.150). Stop 44: not the views' weight: at "
-    "the true poses the structure views are conservative (NIS per dof median 0.19 against the χ² median 0.79, 17 "
-    "views of seeds 23-26), the pipe views consistent (0.64 against 0.84); frontends/sonar/README.md, stop 44. "
-    "Stop 46, the DVL turned by the gyro: navigation alone 0.1185 m, with the sonar's views 0.1340 m",
-)
 def test_structure_landmark_brings_the_second_line_nearer_the_truth(structure_run, baseline):
     res, _ = structure_run
     assert _second_line_error(res) < _second_line_error(baseline)

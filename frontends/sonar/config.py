@@ -291,7 +291,15 @@ class StructureRegistrationConfig(_Section):
         0.01,
         ge=0,
         description="σ added per metre of track between a patch's anchor and the current swath (the "
-        "observation is re-expressed in the current sensor frame with the estimated motion)",
+        "observation is re-expressed in the current sensor frame with the estimated motion); the same σ per "
+        "metre of the vehicle's pose relative to a structure since its last accepted view (see gap_search)",
+    )
+    gap_search: bool = Field(
+        True,
+        description="a re-observation after a gap whose track times carry_sigma_per_m exceeds max_jump_m (the "
+        "pose relative to the structure uncertain beyond the reach of an ICP from the prior) is registered "
+        "afresh (the recognition's 4-D search, then ICP) and emitted only if that fit passes a new structure's "
+        "test; false: the ICP from the prior, as after a short gap",
     )
     recent_s: float = Field(
         12.0,

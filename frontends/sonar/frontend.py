@@ -69,6 +69,8 @@ class SonarFrontend(Frontend):
         self._recogniser: Recogniser | None = None
         self._swaths: list[tuple[int, str, np.ndarray, np.ndarray | None]] = []
         self._track = 0.0
+        self._odometer = 0.0  # track since the first placed swath (m)
+        self._patch_odometer: dict[int, float] = {}  # the odometer when each patch closed
         self._last_pos: np.ndarray | None = None
         self.patches: list[Patch] = []
         self.structures: list[KnownStructure] = []
@@ -168,7 +170,9 @@ class SonarFrontend(Frontend):
             return []  # before the estimator's first pose: nothing to place the swath with
         self._swaths.append((m.stamp, m.sensor, pts, T))
         if self._last_pos is not None:
-            self._track += float(np.linalg.norm(T[:3, 3] - self._last_pos))
+            step = float(np.linalg.norm(T[:3, 3] - self._last_pos))
+            self._track += step
+            self._odometer += step
         self._last_pos = T[:3, 3].copy()
         out: list[Observation] = []
         if self._track >= cfg.patches.length_m or len(self._swaths) >= cfg.patches.max_swaths:
@@ -203,6 +207,7 @@ class SonarFrontend(Frontend):
         if patch is None:
             return []
         self.patches.append(patch)
+        self._patch_odometer[patch.id] = self._odometer
         if m is None:
             return []
         out: list[Observation] = []
@@ -282,7 +287,7 @@ class SonarFrontend(Frontend):
             self._failed.append((d.model, d.centre, n_near(d.centre, self.library[d.model].footprint_radius)))
         new = []
         for det in dets:
-            ks = KnownStructure(det.model, det.registration.T.copy(), det, m.stamp)
+            ks = KnownStructure(det.model, det.registration.T.copy(), det, m.stamp, seen_track_m=self._odometer)
             self.structures.append(ks)
             new.append(ks)
             self.timing["registration_s"] += det.timing.get("registration_s", 0.0)
@@ -318,9 +323,22 @@ class SonarFrontend(Frontend):
         if T_WA is None or T_now is None:
             return None
         md = self.recogniser.model_data[ks.model]
-        return self.reobservation.observe(
-            patch, ks, md, T_WA, self._current_T(ks), T_now, self._T_BS(m.sensor), m.stamp, m.sensor
+        at = self._patch_odometer.get(patch.id, self._odometer)
+        obs = self.reobservation.observe(
+            patch,
+            ks,
+            md,
+            T_WA,
+            self._current_T(ks),
+            T_now,
+            self._T_BS(m.sensor),
+            m.stamp,
+            m.sensor,
+            gap_m=abs(at - ks.seen_track_m),
         )
+        if obs is not None:
+            ks.seen_track_m = max(ks.seen_track_m, at)
+        return obs
 
     # ------------------------------------------------------------------------------------------
     # pipelines

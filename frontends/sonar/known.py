@@ -24,6 +24,7 @@ class KnownStructure:
     final: Registration | None = None
     confirmed: bool = True  # False: its registration on all the data failed the quality test (end of mission)
     settled_by_passes: bool = False  # confirmed by its passes' votes (summary.settled_by_passes)
+    seen_track_m: float = 0.0  # the front-end's odometer at its last accepted view (or its recognition)
     history: list = field(default_factory=list)  # (stamp, patch id, T_SM, cov) of the observations
     # the patches its final registration used: (anchor stamp, points near it, T_W,B of the anchor as placed)
     support: list = field(default_factory=list)

@@ -458,7 +458,7 @@ class Keyframes:
 
     def pose_at(self, stamp: int) -> gtsam.Pose3 | None:
         """T_WB at ``stamp``: interpolated between keyframe estimates, or predicted from the
-        newest keyframe with the DVL/AHRS integrated since."""
+        newest keyframe with the DVL and the gyro (the AHRS reading without its rates) integrated since."""
         if not self.stamps:
             return None
         if stamp >= self.stamps[-1]:
@@ -467,8 +467,12 @@ class Keyframes:
             t = stamp * 1e-9
             R, _ = self.nav.attitude_at(t)
             d = self.nav.preint.integrate(t, R, self.nav.dvl_turn(t))
-            p = self.pose.translation() + self.pose.rotation().matrix() @ (d.c + (d.A + d.B) @ self.vel)
-            return gtsam.Pose3(gtsam.Rot3(self.unbiased(R)), p)
+            R_k = self.pose.rotation().matrix()
+            p = self.pose.translation() + R_k @ (d.c + (d.A + d.B) @ self.vel)
+            # the rotation: the keyframe's estimate turned by the gyro since it, where the interval has its rates (its
+            # error the rate noise integrated since the keyframe), else the single AHRS reading at t
+            dR = self.nav.gyro_rotation_at(t) if self.gyro_link else None
+            return gtsam.Pose3(gtsam.Rot3(self.unbiased(R) if dR is None else R_k @ dR), p)
         i = bisect.bisect_right(self.stamps, stamp)
         if i == 0:
             return None

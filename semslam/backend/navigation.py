@@ -4,6 +4,7 @@ and the DVL preintegrator running since the last keyframe."""
 
 from __future__ import annotations
 
+import bisect
 from dataclasses import dataclass
 
 import numpy as np
@@ -116,6 +117,10 @@ class NavigationBuffer:
         self.gyro: tuple[float, float, np.ndarray, np.ndarray] | None = None
         self.gyro_measured = True  # every AHRS reading of the interval so far carried a measured rate
         self.gyro_bias = np.zeros(3)  # b̄: the gyro bias the interval's rates are integrated with (body axes)
+        # :attr:`gyro` at the interval's start and at each reading since, with the reading then latest (its rate held
+        # on from there): the gyro's rotation at a time before the newest reading (:meth:`gyro_rotation_at`)
+        self.gyro_knots: list[tuple[tuple, AttitudeSample | None]] = []
+        self.gyro_knot_t: list[float] = []
 
     def _T_BS(self, sensor: str) -> np.ndarray:
         return self.metadata.extrinsic(sensor)
@@ -136,6 +141,9 @@ class NavigationBuffer:
                 # Finite difference of consecutive attitudes when the AHRS gives no rate.
                 omega = so3_log(self.attitude.R_WB.T @ R_WB) / (t - self.attitude.t)
             self.attitude = AttitudeSample(t, R_WB, cov, omega, from_gyro)
+            if self.gyro is not None and omega is not None and from_gyro:
+                self.gyro_knots.append((self.gyro, self.attitude))
+                self.gyro_knot_t.append(self.gyro[1])
             if self.fused is None:
                 self.fused = FusedAttitude(t, R_WB, cov, omega, from_gyro)
             else:
@@ -181,8 +189,13 @@ class NavigationBuffer:
         return R, cov, n
 
     def _gyro_to(self, t: float) -> tuple[float, float, np.ndarray, np.ndarray]:
-        t0, t1, dR, J = self.gyro
-        a = self.attitude
+        return self._gyro_from(self.gyro, self.attitude, t)
+
+    def _gyro_from(
+        self, gyro: tuple[float, float, np.ndarray, np.ndarray], a: AttitudeSample | None, t: float
+    ) -> tuple[float, float, np.ndarray, np.ndarray]:
+        """``gyro`` (integrated to t1) carried on to t by ``a``'s rate less b̄, held from t1."""
+        t0, t1, dR, J = gyro
         # the latest rate held from t1 to t, as long as it is younger than rate_max_age (held still after)
         h = 0.0 if a is None or a.omega_B is None else max(min(t, a.t + self.rate_max_age) - t1, 0.0)
         if h == 0.0:
@@ -203,6 +216,19 @@ class NavigationBuffer:
         t0, _, dR, J = self._gyro_to(t)
         return dR, t - t0, J
 
+    def gyro_rotation_at(self, t: float) -> np.ndarray | None:
+        """R_{k-1}ᵀ R(t) by the gyro (:meth:`gyro_rotation`'s ΔR) at any t since the interval's start, also before its
+        newest reading: from the last reading at or before t, by that reading's rate. None where
+        :meth:`gyro_rotation` is."""
+        g = self.gyro_rotation(t)
+        if g is None or t >= self.gyro[1]:
+            return None if g is None else g[0]
+        i = bisect.bisect_right(self.gyro_knot_t, t) - 1
+        if i < 0:
+            return None
+        gyro, a = self.gyro_knots[i]
+        return self._gyro_from(gyro, a, t)[2]
+
     def dvl_turn(self, t: float) -> np.ndarray | None:
         """R_{k-1}ᵀ R(t) by the gyro (:meth:`gyro_rotation`) to turn the DVL's samples and the end keyframe's velocity
         into the interval's start frame with: its error is the rate noise integrated since the keyframe, where
@@ -216,6 +242,7 @@ class NavigationBuffer:
         the interval's rates are integrated with (None: 0)."""
         self.gyro = (t, t, np.eye(3), np.zeros((3, 3)))
         self.gyro_measured = True
+        self.gyro_knots, self.gyro_knot_t = [(self.gyro, self.attitude)], [t]
         self.gyro_bias = np.zeros(3) if gyro_bias is None else np.asarray(gyro_bias, float)
         self.preint = DvlPreintegrator(t, R_WB, self.accel_sigma, attitude_sigma, self.rate_sigma)
         self.depths = [d for d in self.depths if d[0] > t]

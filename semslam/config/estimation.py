@@ -72,8 +72,9 @@ class MotionNoiseConfig(BaseModel):
         True,
         description="the graph links consecutive keyframes' attitudes by the body rates integrated between them, "
         "with the gyro's bias as a state (sensors.gyro_bias_sigma_rad_s), and turns the DVL's samples into a "
-        "keyframe's frame by the same rates; false: no link and no bias state in the graph, the DVL's samples turned "
-        "by the AHRS's readings, a keyframe without an AHRS reading carried from the one before, as before stop 42 "
+        "keyframe's frame, and the pose predicted after the newest keyframe from it, by the same rates; false: no "
+        "link and no bias state in the graph, the DVL's samples turned by the AHRS's readings and the predicted pose's "
+        "rotation the AHRS reading, a keyframe without an AHRS reading carried from the one before, as before stop 42 "
         "(the EKF's and dead reckoning's prediction integrates the rates either way)",
     )
 
