@@ -429,8 +429,8 @@ def _site(members, ends, out, guess, up, cfg: ObjectConfig) -> _Site:
 def flank_site(site: _Site, pipes: list[Pipe], lying: np.ndarray | None, up: np.ndarray, cfg: ObjectConfig) -> _Site:
     """A lone end of a pipe lying on the seabed that touches the flank of another lying pipe: the
     end's axis, extended by ``attach_distance`` beyond it, enters that pipe's cylinder (passes
-    within its radius of its axis, at more than ``collinear_angle_deg`` to it, the end not past that
-    axis by more than ``line_tolerance``), where that pipe runs on both ways by at least the end's
+    within its radius of its axis, square to it within ``collinear_angle_deg``: a tee's branch, the
+    end not past that axis by more than ``line_tolerance``), where that pipe runs on both ways by at least the end's
     pipe radius (its whole port on the flank, away from the run's ends: those meet in
     :func:`join_ends`). That is a junction (a tee's branch against its run, which the run's fit
     took in): the branch's direction and the run's both ways, placed where the axes cross; not a
@@ -445,13 +445,13 @@ def flank_site(site: _Site, pipes: list[Pipe], lying: np.ndarray | None, up: np.
     if not lying[a] or branch.objects_only:
         return site
     e, o = site.ends[0], -site.dirs[0]  # the end and its outward direction
-    cos_c = np.cos(np.radians(cfg.collinear_angle_deg))
+    sin_c = np.sin(np.radians(cfg.collinear_angle_deg))  # |cos| of the angle to the run, at most
     best = None
     for b, run in enumerate(pipes):
         if b == a or not lying[b] or run.objects_only:
             continue
         dot = float(o @ run.axis)
-        if abs(dot) >= cos_c:
+        if abs(dot) > sin_c:
             continue
         d = run.p - e
         e_o, e_a = float(o @ d), float(run.axis @ d)
