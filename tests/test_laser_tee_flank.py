@@ -40,10 +40,11 @@ def _stones(rng, centres):
     return np.repeat(np.asarray(centres, float), 150, axis=0) + 0.045 * u / np.linalg.norm(u, axis=1)[:, None]
 
 
-def _tee(seed: int, branch_end: float = R + 0.01, run: bool = True):
+def _tee(seed: int, branch_end: float = R + 0.01, run: bool = True, run_angle_deg: float = 0.0):
     """A run along x (-0.4..0.4 m) and a branch along +y from ``branch_end`` to 0.4 m, both lying on
     the seabed, the tee's run a sleeve 5 mm proud of the run (x in -0.08..0.08, not the run's inliers)
-    centred at the origin. Without ``run``: the branch alone, stones where the run would be."""
+    centred at the origin, the run turned by ``run_angle_deg`` about the vertical. Without ``run``: the
+    branch alone, stones where the run would be."""
     rng = np.random.default_rng(seed)
     b_pts, b_nrm = _arc(rng, branch_end, 0.4, R, 500, along_y=True)
     branch = _pipe(b_pts, b_nrm, [0, 1.0, 0])
@@ -54,12 +55,15 @@ def _tee(seed: int, branch_end: float = R + 0.01, run: bool = True):
     r_pts, r_nrm = _arc(rng, -0.4, 0.4, R, 900)
     sleeve = _arc(rng, -0.08, 0.08, R + 0.005, 300)[0]
     sleeve = sleeve[sleeve[:, 1] < R]  # the branch port's side is open: the branch enters there
+    c, s = np.cos(np.radians(run_angle_deg)), np.sin(np.radians(run_angle_deg))
+    turn = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    r_pts, r_nrm, sleeve = r_pts @ turn.T, r_nrm @ turn.T, (sleeve - [0, 0, 2.0]) @ turn.T + [0, 0, 2.0]
     points = np.vstack([b_pts, r_pts, sleeve])
     run_pipe = _make_pipe(
         points,
         np.vstack([b_nrm, r_nrm, np.zeros((len(sleeve), 3))]),
         len(b_pts) + np.arange(len(r_pts)),
-        np.array([1.0, 0, 0]),
+        turn[:, 0],
         PipeConfig(radius_prior=R),
     )
     return segment_objects(points, [branch, run_pipe], UP, ObjectConfig(), lying=np.array([True, True]))
@@ -81,3 +85,5 @@ def test_a_lone_end_with_no_pipe_beside_it_or_too_far_from_one_is_not():
         assert _tee(seed, run=False) == [], seed  # stones beyond a lone end: the seabed test refuses them
         far = _tee(seed, branch_end=R + 0.2)  # the branch's end 20 cm short of the run's flank
         assert all(len(o.directions) < 3 for o in far), seed
+        slant = _tee(seed, run_angle_deg=40.0)  # a pipe crossing at 50°: no tee's branch
+        assert all(len(o.directions) < 3 for o in slant), seed
