@@ -5,7 +5,8 @@ Objects (valves, elbows, tees...) sit where pipes end. Pipe ends that face each 
 object, and the directions the pipes leave it in give its connectivity: 1 = one pipe, 2 = two
 collinear pipes, 3 = two orthogonal pipes, 4 = three or more (a fitting's body fitted as a short
 pipe between collinear pipes adds ends, not directions). A lone pipe end is an object only if
-something is there, other than the pipe running on. The object is cropped from the structure points
+something is there, other than the pipe running on; on the seabed, a lying pipe's lone end against
+another lying pipe's flank is a junction (a tee's branch against its run). The object is cropped from the structure points
 (pipe inliers excluded) with an oriented box in a frame (pipe direction, across, up): the
 "mushroom" (body box plus a handle box above it) when the object has one connection or two
 collinear ones — a valve's handle stands above its body — and the body box alone otherwise. The
@@ -381,6 +382,7 @@ class _Site(NamedTuple):
     dirs: np.ndarray  # distinct pipe axes leaving the object (the first: the first member's)
     ends: np.ndarray  # of the members
     config: int
+    flank: tuple[int, ...] = ()  # pipes on whose flank the (lone) member's end stands (:func:`flank_site`)
 
 
 def distinct_directions(directions: np.ndarray, collinear_angle_deg: float) -> np.ndarray:
@@ -422,6 +424,55 @@ def _site(members, ends, out, guess, up, cfg: ObjectConfig) -> _Site:
     else:
         center = guess[members[0]]
     return _Site(center, box_frame(dirs[0], up), members, distinct, e, config)
+
+
+def flank_site(site: _Site, pipes: list[Pipe], lying: np.ndarray | None, up: np.ndarray, cfg: ObjectConfig) -> _Site:
+    """A lone end of a pipe lying on the seabed that touches the flank of another lying pipe: the
+    end's axis, extended by ``attach_distance`` beyond it, enters that pipe's cylinder (passes
+    within its radius of its axis, square to it within ``collinear_angle_deg``: a tee's branch, the
+    end not past that axis by more than ``line_tolerance``), where that pipe runs on both ways by at least the end's
+    pipe radius (its whole port on the flank, away from the run's ends: those meet in
+    :func:`join_ends`). That is a junction (a tee's branch against its run, which the run's fit
+    took in): the branch's direction and the run's both ways, placed where the axes cross; not a
+    lone end, whose seabed test (:func:`stands_over`, :func:`sleeve_over`) asks for a body rising
+    over the branch where a tee's run lies beyond it. The seabed's stones and sand do not hold a
+    pipe's end against another pipe's flank. Reported pipes only (not ``objects_only``: a short
+    held run may be a stone's top). Any other site is returned as it is."""
+    if site.config != 1 or lying is None or len(site.members) != 1:
+        return site
+    a = int(site.members[0] // 2)
+    branch = pipes[a]
+    if not lying[a] or branch.objects_only:
+        return site
+    e, o = site.ends[0], -site.dirs[0]  # the end and its outward direction
+    sin_c = np.sin(np.radians(cfg.collinear_angle_deg))  # |cos| of the angle to the run, at most
+    best = None
+    for b, run in enumerate(pipes):
+        if b == a or not lying[b] or run.objects_only:
+            continue
+        dot = float(o @ run.axis)
+        if abs(dot) > sin_c:
+            continue
+        d = run.p - e
+        e_o, e_a = float(o @ d), float(run.axis @ d)
+        den = 1.0 - dot * dot
+        s = (e_o - dot * e_a) / den  # along o from the end, to the closest approach
+        u = (dot * e_o - e_a) / den  # along the run's axis from its p
+        miss = float(np.linalg.norm(e + s * o - run.p - u * run.axis))
+        if miss > run.radius or s < -cfg.line_tolerance:
+            continue
+        entry = s - np.sqrt(run.radius**2 - miss**2) / np.sqrt(den)  # where the axis enters the run's surface
+        if entry > cfg.attach_distance or not (branch.radius <= u <= run.length - branch.radius):
+            continue
+        if best is None or entry < best[0]:
+            best = (entry, b)
+    if best is None:
+        return site
+    run = pipes[best[1]]
+    center = _line_intersection(np.array([e, run.p]), np.array([o, run.axis]))
+    dirs = np.array([-o, run.axis, -run.axis])
+    config = configuration_of(dirs, cfg.collinear_angle_deg)
+    return _Site(center, box_frame(dirs[0], up), site.members, dirs, site.ends, config, (best[1],))
 
 
 def _crop(X: np.ndarray, rows: np.ndarray, site: _Site, cfg: ObjectConfig) -> np.ndarray:
@@ -531,9 +582,10 @@ def segment_objects(
     group = join_ends(ends, out, owner, cfg)
 
     handle = np.asarray(cfg.handle_size)
-    sites = [
-        _site(members, ends, out, guess, _local_up(up, ground, guess[members[0]]), cfg) for members in _groups(group)
-    ]
+    sites = []
+    for members in _groups(group):
+        site_up = _local_up(up, ground, guess[members[0]])
+        sites.append(flank_site(_site(members, ends, out, guess, site_up, cfg), pipes, lying, site_up, cfg))
     # Points within reach of each site (all sites at once), then the exact boxes on those only.
     reach = np.linalg.norm(np.maximum(body, handle) / 2 + [0, 0, body[2] / 2 + handle[2] / 2])
     centres = np.array([site.center for site in sites])
@@ -553,6 +605,7 @@ def segment_objects(
         if len(group) > 1:
             members = np.concatenate([sites[k].members for k in group])
             site = _site(members, ends, out, guess, _local_up(up, ground, guess[members[0]]), cfg)
+            site = next((sites[k] for k in group if sites[k].flank), site)  # a junction on a flank stays one
             crop = np.unique(np.concatenate([crops[k] for k in group]))
         if len(crop) < cfg.min_points:
             continue
@@ -614,7 +667,7 @@ def segment_objects(
                 dirs, config = np.vstack([dirs, -dirs]), 2
         held_run = any(pipes[m // 2].objects_only for m in site.members)
         cov = position_covariance(site.config, site.R, cfg, held_run)
-        pipe_ids = tuple(int(m // 2) for m in site.members)
+        pipe_ids = tuple(int(m // 2) for m in site.members) + site.flank
         objects.append(SegmentedObject(center, cov, crop, dirs, config, pipe_ids))
     return one_per_cluster(objects, pipes, len(points))
 
