@@ -59,12 +59,13 @@ def main(bag: str, config_path: str, out: str) -> None:
 
     SonarFrontend.process = logged
 
-    # every re-observation's ICP, accepted or not: (model, patch, anchor stamp, emitted, fitness, median, points,
-    # jump m, turn deg)
+    # every re-observation's ICP from the prior, accepted or not: (model, patch, anchor stamp, emitted, fitness,
+    # median, points, jump m, turn deg, gap m, its reobservation-log entry (None: emitted unsearched), ICPs run)
     import frontends.sonar.reobservation as reob
 
     icps: list = []
     views: list[tuple] = []
+    views_T: list[tuple] = []
     icp = reob.icp
 
     def icp_logged(md, pts, T0, *args, **kw):
@@ -76,10 +77,14 @@ def main(bag: str, config_path: str, out: str) -> None:
     observe = reob.StructureReobservation.observe
 
     def observe_logged(self, patch, ks, *args, **kw):
-        n = len(icps)
+        n, nlog = len(icps), len(self.log)
+        last_search.clear()
         obs = observe(self, patch, ks, *args, **kw)
         if len(icps) > n:
-            T0, reg = icps[-1]
+            # the ICP from the prior is the first (a searched view runs many more after it)
+            T0, reg = icps[n]
+            gap = kw.get("gap_m", args[7] if len(args) > 7 else 0.0)
+            entry = self.log[nlog] if len(self.log) > nlog else None
             d = np.linalg.inv(T0) @ reg.T
             turn = np.degrees(np.arccos(np.clip((np.trace(d[:3, :3]) - 1) / 2, -1, 1)))
             views.append(
@@ -93,11 +98,34 @@ def main(bag: str, config_path: str, out: str) -> None:
                     reg.n_structure,
                     float(np.linalg.norm(d[:3, 3])),
                     float(turn),
+                    float(gap),
+                    entry,
+                    len(icps) - n,
+                )
+            )
+            views_T.append(
+                (
+                    np.asarray(reg.T),
+                    last_search[-1] if last_search else None,
+                    None
+                    if obs is None
+                    else {"stamp": int(obs.stamp), "T_SM": np.asarray(obs.pose), "cov": obs.covariance},
                 )
             )
         return obs
 
     reob.StructureReobservation.observe = observe_logged
+    # a searched view's registration (the search's best fit), and each view's patch-frame poses: views_T
+    # (parallel to views) = (ICP from the prior's T_AM, the search's T_AM or None, the emitted observation or None)
+    searched = reob.StructureReobservation._searched
+    last_search: list = []
+
+    def searched_logged(self, *args, **kw):
+        out = searched(self, *args, **kw)
+        last_search.append(np.asarray(out[0].T))
+        return out
+
+    reob.StructureReobservation._searched = searched_logged
     config = load_config(config_path)
     mission = read_mission(bag, config.reader)
     result, metrics = run_comparison(mission, config, None, frontend_workers=1)
@@ -112,6 +140,7 @@ def main(bag: str, config_path: str, out: str) -> None:
         "truth": (np.asarray(truth.stamps), np.asarray(truth.positions), np.asarray(truth.orientations)),
         "sonar": metrics.get("sonar"),
         "views": views,
+        "views_T": views_T,
         "structures": structure_truth(mission),
     }
     try:
