@@ -13,6 +13,7 @@ on PYTHONPATH (e.g. a `git archive` of f5c3156):
 
 from __future__ import annotations
 
+import os
 import pickle
 import sys
 
@@ -106,23 +107,34 @@ def main(bag: str, config_path: str, out: str) -> None:
             views_T.append(
                 (
                     np.asarray(reg.T),
-                    last_search[-1] if last_search else None,
+                    last_search[-1][0] if last_search else None,
                     None
                     if obs is None
                     else {"stamp": int(obs.stamp), "T_SM": np.asarray(obs.pose), "cov": obs.covariance},
+                    last_search[-1][1] if last_search else None,
                 )
             )
         return obs
 
     reob.StructureReobservation.observe = observe_logged
     # a searched view's registration (the search's best fit), and each view's patch-frame poses: views_T
-    # (parallel to views) = (ICP from the prior's T_AM, the search's T_AM or None, the emitted observation or None)
+    # (parallel to views) = (ICP from the prior's T_AM, the search's T_AM or None, the emitted observation or None,
+    # the search's fit: points, fitness, footprint coverage, unexplained share, translation covariance, or None)
     searched = reob.StructureReobservation._searched
     last_search: list = []
 
-    def searched_logged(self, *args, **kw):
-        out = searched(self, *args, **kw)
-        last_search.append(np.asarray(out[0].T))
+    # a diagnosis of one view's part: DROP="model:patch,..." refuses those searched views (reason "gap",
+    # info ("dropped", ...)), as if the search had found no acceptable fit
+    drop = {tuple(k.split(":")) for k in os.environ.get("DROP", "").split(",") if k}
+
+    def searched_logged(self, patch, ks, *args, **kw):
+        out = searched(self, patch, ks, *args, **kw)
+        r = out[0]
+        fit = {"n_structure": r.n_structure, "fitness": r.fitness, "coverage": r.coverage}
+        fit.update(unexplained=r.unexplained, cov_t=np.asarray(r.cov)[3:, 3:])
+        last_search.append((np.asarray(r.T), fit))
+        if (ks.model, str(patch.id)) in drop and out[1] is None:
+            out = (out[0], "gap", ("dropped", *out[2]))
         return out
 
     reob.StructureReobservation._searched = searched_logged

@@ -81,6 +81,12 @@ def view_rows(d, gap_min):
             + (f"{sea_err[0]:+.3f} {sea_err[1]:+.3f}" if sea_err is not None else "-")
             + f" | {outcome}"
         )
+        if len(vT) > 3 and vT[3] is not None:
+            f = vT[3]
+            line += (
+                f"\n      search fit: points {f['n_structure']}, fitness {f['fitness']:.3f}, footprint coverage "
+                f"{f['coverage']:.2f}, unexplained {f['unexplained']:.2f}"
+            )
         if vT[2] is not None:
             e = emitted_row(d, model, vT[2])
             if e is not None:
