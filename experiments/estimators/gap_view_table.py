@@ -58,12 +58,18 @@ def view_rows(d, gap_min):
         sea_err = implied_err(d, model, anchor, vT[1])
         if entry is None:
             outcome, local_why = "emitted (ICP from the prior)", None
+        elif entry[2] == "searched" and not v[3]:  # the search's view refused by f53_sonar_log's DROP
+            outcome, local_why = (
+                f"not emitted (DROP; search local fitness {entry[5]:.3f}, moved {entry[10]:.3f} m)",
+                entry[4],
+            )
         elif entry[2] == "searched":
             outcome, local_why = f"emitted (searched; local fitness {entry[5]:.3f}, moved {entry[10]:.3f} m)", entry[4]
         elif entry[2] == "gap":
             info = entry[3:]
             if info[2] == "no fit":  # (gap, local_why, "no fit", starts)
                 outcome, local_why = "refused: gap, no fit", info[1]
+                sea_err = None  # the search returns the ICP from the prior when nothing fits
             else:  # (why, gap, local_why, local fitness, fitness, median, ambiguity, sigma, moved)
                 why, local_why = info[0], info[2]
                 outcome = (
