@@ -13,6 +13,7 @@ on PYTHONPATH (e.g. a `git archive` of f5c3156):
 
 from __future__ import annotations
 
+import os
 import pickle
 import sys
 
@@ -59,12 +60,13 @@ def main(bag: str, config_path: str, out: str) -> None:
 
     SonarFrontend.process = logged
 
-    # every re-observation's ICP, accepted or not: (model, patch, anchor stamp, emitted, fitness, median, points,
-    # jump m, turn deg)
+    # every re-observation's ICP from the prior, accepted or not: (model, patch, anchor stamp, emitted, fitness,
+    # median, points, jump m, turn deg, gap m, its reobservation-log entry (None: emitted unsearched), ICPs run)
     import frontends.sonar.reobservation as reob
 
     icps: list = []
     views: list[tuple] = []
+    views_T: list[tuple] = []
     icp = reob.icp
 
     def icp_logged(md, pts, T0, *args, **kw):
@@ -76,10 +78,14 @@ def main(bag: str, config_path: str, out: str) -> None:
     observe = reob.StructureReobservation.observe
 
     def observe_logged(self, patch, ks, *args, **kw):
-        n = len(icps)
+        n, nlog = len(icps), len(self.log)
+        last_search.clear()
         obs = observe(self, patch, ks, *args, **kw)
         if len(icps) > n:
-            T0, reg = icps[-1]
+            # the ICP from the prior is the first (a searched view runs many more after it)
+            T0, reg = icps[n]
+            gap = kw.get("gap_m", args[7] if len(args) > 7 else 0.0)
+            entry = self.log[nlog] if len(self.log) > nlog else None
             d = np.linalg.inv(T0) @ reg.T
             turn = np.degrees(np.arccos(np.clip((np.trace(d[:3, :3]) - 1) / 2, -1, 1)))
             views.append(
@@ -93,11 +99,45 @@ def main(bag: str, config_path: str, out: str) -> None:
                     reg.n_structure,
                     float(np.linalg.norm(d[:3, 3])),
                     float(turn),
+                    float(gap),
+                    entry,
+                    len(icps) - n,
+                )
+            )
+            views_T.append(
+                (
+                    np.asarray(reg.T),
+                    last_search[-1][0] if last_search else None,
+                    None
+                    if obs is None
+                    else {"stamp": int(obs.stamp), "T_SM": np.asarray(obs.pose), "cov": obs.covariance},
+                    last_search[-1][1] if last_search else None,
                 )
             )
         return obs
 
     reob.StructureReobservation.observe = observe_logged
+    # a searched view's registration (the search's best fit), and each view's patch-frame poses: views_T
+    # (parallel to views) = (ICP from the prior's T_AM, the search's T_AM or None, the emitted observation or None,
+    # the search's fit: points, fitness, footprint coverage, unexplained share, translation covariance, or None)
+    searched = reob.StructureReobservation._searched
+    last_search: list = []
+
+    # a diagnosis of one view's part: DROP="model:patch,..." refuses those searched views (reason "gap",
+    # info ("dropped", ...)), as if the search had found no acceptable fit
+    drop = {tuple(k.split(":")) for k in os.environ.get("DROP", "").split(",") if k}
+
+    def searched_logged(self, patch, ks, *args, **kw):
+        out = searched(self, patch, ks, *args, **kw)
+        r = out[0]
+        fit = {"n_structure": r.n_structure, "fitness": r.fitness, "coverage": r.coverage}
+        fit.update(unexplained=r.unexplained, cov_t=np.asarray(r.cov)[3:, 3:])
+        last_search.append((np.asarray(r.T), fit))
+        if (ks.model, str(patch.id)) in drop and out[1] is None:
+            out = (out[0], "gap", ("dropped", *out[2]))
+        return out
+
+    reob.StructureReobservation._searched = searched_logged
     config = load_config(config_path)
     mission = read_mission(bag, config.reader)
     result, metrics = run_comparison(mission, config, None, frontend_workers=1)
@@ -112,6 +152,7 @@ def main(bag: str, config_path: str, out: str) -> None:
         "truth": (np.asarray(truth.stamps), np.asarray(truth.positions), np.asarray(truth.orientations)),
         "sonar": metrics.get("sonar"),
         "views": views,
+        "views_T": views_T,
         "structures": structure_truth(mission),
     }
     try:
