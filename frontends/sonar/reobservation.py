@@ -18,6 +18,7 @@ that offset (the search's ambiguity), so that two places that fit alike give no 
 
 from __future__ import annotations
 
+import dataclasses
 import time
 
 import numpy as np
@@ -126,20 +127,23 @@ class StructureReobservation:
         near = np.hypot(patch.points[:, 0] - c[0], patch.points[:, 1] - c[1]) <= md.model.footprint_radius + 0.5 + rng
         pts = patch.points[near].astype(float)
         t0 = time.process_time()
+
         # coarse ICP from every start; the distinct places it reaches refined as the view's ICP is
+        def usable(r: Registration) -> bool:  # enough of the structure, turned no more than a view may be
+            return r.n_structure >= rc.min_points and _turn(inv(T_AM0) @ r.T) <= np.radians(rc.max_turn_deg)
+
         places: list[np.ndarray] = []
         for a, b in starts:
             T0 = T_AM0.copy()
             T0[0, 3] += a
             T0[1, 3] += b
             r = icp(md, pts, T0, rc, distances=rc.icp_distances_m[:1])
-            ok = r.n_structure >= rc.min_points and _turn(inv(T_AM0) @ r.T) <= np.radians(rc.max_turn_deg)
-            if ok and all(np.linalg.norm(r.T[:3, 3] - q[:3, 3]) > rc.tukey_k_m for q in places):
+            if usable(r) and all(np.linalg.norm(r.T[:3, 3] - q[:3, 3]) > rc.tukey_k_m for q in places):
                 places.append(r.T)
         fits = []
         for T1 in places:
             r = icp(md, pts, T1, rc, distances=rc.icp_distances_m[-1:])
-            if r.n_structure >= rc.min_points and _turn(inv(T_AM0) @ r.T) <= np.radians(rc.max_turn_deg):
+            if usable(r):
                 fits.append(r)
         self.timing["registration_s"] += time.process_time() - t0
         self.timing["reobservations_searched"] += 1
@@ -153,17 +157,7 @@ class StructureReobservation:
         far = max(d, key=np.linalg.norm)
         cov = best.cov.copy()
         cov[3:, 3:] += np.outer(far, far)
-        reg = Registration(
-            best.T,
-            best.median_m,
-            best.fitness,
-            best.n_structure,
-            cov,
-            best.sigma,
-            best.coverage,
-            None,
-            best.unexplained,
-        )
+        reg = dataclasses.replace(best, cov=cov, cost_4d=None)
         sig_t = np.sqrt(np.linalg.eigvalsh(reg.cov[3:, 3:]).max())
         checks = {
             "fitness": reg.fitness < rc.min_fitness,
