@@ -116,3 +116,21 @@ def test_a_view_after_a_short_gap_is_unchanged(wellhead_patches, monkeypatch):
             assert dict(ra.rejected) == dict(rb.rejected) and ra.timing.keys() == rb.timing.keys()
             assert [r[:3] for r in ra.log] == [r[:3] for r in rb.log]
     assert n >= 6
+
+
+def test_a_searched_view_lies_within_the_searched_range(wellhead_patches):
+    """The search looks for rival places within its range of the prior only: a fit that ends beyond it
+    (an ICP that wandered from a start near the range's edge) has had no rival searched for, so it is
+    no view. With the range (0.2 m) shorter than the drift (0.35 m), the right place lies beyond it."""
+    patches, T, md, T_BS, rc = wellhead_patches
+    small = rc.model_copy(update={"shift_range_m": 0.2, "shift_range_frac": 0.0})
+    shift = np.eye(4)
+    for P in patches:
+        for drift in DRIFT_M:
+            shift[0, 3] = drift
+            T_AM0 = inv(shift @ P.T_nav) @ T  # the prior in the patch's anchor frame
+            _, obs, ro = _view(P, T, md, T_BS, small, drift, LONG_GAP_M)
+            assert ro.timing["reobservations_searched"] == 1
+            if obs is not None:
+                fit = T_BS @ obs.pose  # the vehicle now at the anchor: the fit in the anchor frame
+                assert np.hypot(*(fit[:2, 3] - T_AM0[:2, 3])) <= 0.2 + 1e-9

@@ -10,7 +10,8 @@ on a wrong-place fit next to the prior and so confirm the drift. Such a view is 
 the coarse ICP (``icp_distances_m[0]``) from every north/east start, spaced by that distance (its
 reach), within the recognition's search range (``shift_range_m``, ``shift_range_frac`` of the
 footprint radius) around the prior, the prior's attitude kept; each distinct place it reaches (more
-than ``tukey_k_m`` apart) refined by the view's own ICP; the best fit (fitness, then median) is the view,
+than ``tukey_k_m`` apart) refined by the view's own ICP, kept only where it ends within that range (beyond it
+no start looked for a rival place); the best fit (fitness, then median) is the view,
 with the usual checks but for the jump (its turn still at most ``max_turn_deg``), and every other fit
 within ``ambiguity_margin`` of its fitness that lies elsewhere grows its translation covariance by
 that offset (the search's ambiguity), so that two places that fit alike give no view
@@ -143,7 +144,9 @@ class StructureReobservation:
         fits = []
         for T1 in places:
             r = icp(md, pts, T1, rc, distances=rc.icp_distances_m[-1:])
-            if usable(r):
+            # a fit beyond the searched range lies where no start looked for a rival place: its uniqueness is unknown
+            inside = np.hypot(*(r.T[:2, 3] - c[:2])) <= rng
+            if inside and usable(r):
                 fits.append(r)
         self.timing["registration_s"] += time.process_time() - t0
         self.timing["reobservations_searched"] += 1
