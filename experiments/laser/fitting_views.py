@@ -89,6 +89,8 @@ def main(argv=None) -> int:
         results[seed] = r = fitting_views(seed, args.dump, args.light or args.dump, args.min_points)
         parts = [
             f"{name}: {f['views_in_clouds']}/{f['clouds']} (all {f['views']}, {f['median_cm']} cm, {f['configurations']})"
+            if f["clouds"]
+            else f"{name}: in no cloud with {args.min_points} points on it (all {f['views']} views)"
             for name, f in r["fittings"].items()
         ]
         print(f"seed {seed}: far views {r['far_views']}; " + "; ".join(parts), flush=True)
