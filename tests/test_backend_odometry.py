@@ -145,7 +145,9 @@ class HeldRotation(TrueRelativePose):
         z = out[0]
         rel = z.relative_pose.copy()
         rel[:3, :3] = rel[:3, :3] @ so3_exp(self.bias_B * (z.stamp - z.stamp_from) * 1e-9)
-        return [OdometryObservation(z.stamp, z.sensor, stamp_from=z.stamp_from, relative_pose=rel, covariance=z.covariance)]
+        return [
+            OdometryObservation(z.stamp, z.sensor, stamp_from=z.stamp_from, relative_pose=rel, covariance=z.covariance)
+        ]
 
 
 def test_held_rotations_take_the_graphs_gyro_bias():
@@ -156,9 +158,7 @@ def test_held_rotations_take_the_graphs_gyro_bias():
     base = simulate(SyntheticConfig(duration_s=120.0, n_objects=0, n_pipes=0, n_structures=0, seed=3))
     R_BS = base.metadata.extrinsic("ahrs")[:3, :3]
     bias_B = np.array([1e-4, -1e-4, 4e-4])
-    items = [
-        replace(m, angular_rate=m.angular_rate + R_BS.T @ bias_B) if isinstance(m, Attitude) else m for m in base
-    ]
+    items = [replace(m, angular_rate=m.angular_rate + R_BS.T @ bias_B) if isinstance(m, Attitude) else m for m in base]
     mission = Mission.from_measurements(base.metadata, items)
 
     def bias_error(kinds: list[str]) -> tuple[np.ndarray, np.ndarray]:  # the graph's at the end, its σ
