@@ -65,10 +65,19 @@ def errors(result, truth, lo: int, hi: int, delta_s: float) -> dict:
     }
 
 
-def run(mission: Mission, frontends: list[str], gaussian: bool = False, odometry: dict | None = None):
+def run(
+    mission: Mission,
+    frontends: list[str],
+    gaussian: bool = False,
+    odometry: dict | None = None,
+    graph: dict | None = None,
+):
     """The graph on ``mission`` with ``frontends``: the tank's demo configuration, or (``odometry`` given)
-    the defaults with that odometry section (the pipeline: no known pipe radius)."""
+    the defaults with that odometry section (the pipeline: no known pipe radius); ``graph``: keys of the graph's
+    section over it."""
     cfg = demo_config() if odometry is None else SemslamConfig(frontends={"odometry": odometry})
+    if graph:
+        cfg.graph = cfg.graph.model_copy(update=graph)
     if gaussian:  # the odometry factors without their m-estimator
         cfg.graph = cfg.graph.model_copy(update={"odometry_cauchy_k": {}})
     ests = [create_estimator("graph", mission.metadata, cfg)]
@@ -184,6 +193,7 @@ def main() -> None:
     ap.add_argument(
         "--odometry", help="with --shared: the odometry's section as JSON over the tank's demo configuration"
     )
+    ap.add_argument("--graph", help="keys of the graph's section as JSON (e.g. '{\"odometry_gyro_bias\": []}')")
     ap.add_argument("--starts", help="several outage starts (s, ','-separated): one row per seed and start")
     ap.add_argument(
         "--shared",
@@ -194,6 +204,7 @@ def main() -> None:
     args = ap.parse_args()
     pipeline = args.scenario == "pipeline"
     odometry = json.loads(args.config) if args.config else STEREO_SEABED if pipeline else None
+    graph = json.loads(args.graph) if args.graph else None
     starts = [float(v) for v in args.starts.split(",")] if args.starts else [args.start]
     for seed, start in ((int(s), st) for s in args.seeds.split(",") for st in starts):
         args.start = start
@@ -227,7 +238,7 @@ def main() -> None:
         for name in args.variants.split(";"):
             sets, _, kernel = name.partition("/")
             fes = [f for f in sets.split("+") if f and f != "navigation"]
-            result = run(mission, fes, gaussian=kernel == "gaussian", odometry=odometry)
+            result = run(mission, fes, gaussian=kernel == "gaussian", odometry=odometry, graph=graph)
             row[name] = errors(result.results["graph"], result.truth, lo, hi, args.delta)
             if "odometry" in result.frontend_summaries:
                 row[name]["odometry"] = result.frontend_summaries["odometry"].metrics
