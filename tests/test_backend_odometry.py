@@ -152,9 +152,9 @@ class HeldRotation(TrueRelativePose):
 
 def test_held_rotations_take_the_graphs_gyro_bias():
     """Rates biased by 4e-4 rad/s (body z; 8e-4 rad over a factor's ~2 s) in the AHRS and in the odometry's held
-    rotation (σ 3e-4 rad per factor): with the factor through G (the default) the graph's bias stays within 3σ of
-    the truth; as a plain relative pose (the kind not listed) the odometry says the bias is not there and pulls
-    G away from it."""
+    rotation (σ 3e-4 rad per factor): with the factor through G (``graph.odometry_gyro_bias: [laser]``) the
+    graph's bias stays within 3σ of the truth; as a plain relative pose (the kind not listed: the default) the
+    odometry says the bias is not there and pulls G away from it."""
     base = simulate(SyntheticConfig(duration_s=120.0, n_objects=0, n_pipes=0, n_structures=0, seed=3))
     R_BS = base.metadata.extrinsic("ahrs")[:3, :3]
     bias_B = np.array([1e-4, -1e-4, 4e-4])
