@@ -71,16 +71,27 @@ def run(
     gaussian: bool = False,
     odometry: dict | None = None,
     graph: dict | None = None,
+    oracle_bias: bool = False,
 ):
     """The graph on ``mission`` with ``frontends``: the tank's demo configuration, or (``odometry`` given)
     the defaults with that odometry section (the pipeline: no known pipe radius); ``graph``: keys of the graph's
-    section over it."""
+    section over it; ``oracle_bias``: the odometry's observations reach the graph with the simulator's true gyro
+    bias taken out of their rotation (a diagnostic: no estimator knows it)."""
     cfg = demo_config() if odometry is None else SemslamConfig(frontends={"odometry": odometry})
     if graph:
         cfg.graph = cfg.graph.model_copy(update=graph)
     if gaussian:  # the odometry factors without their m-estimator
         cfg.graph = cfg.graph.model_copy(update={"odometry_cauchy_k": {}})
     ests = [create_estimator("graph", mission.metadata, cfg)]
+    if oracle_bias:
+        b_true = true_bias(mission)
+        ests = [
+            _fed(
+                ests[0],
+                "graph",
+                lambda obs: [_bias_removed(z, b_true) if isinstance(z, OdometryObservation) else z for z in obs],
+            )
+        ]
     fes = create_frontends(frontends, mission.metadata, cfg.frontends)
     return run_pipeline(mission, ests, fes)
 
@@ -151,6 +162,13 @@ def _bias_removed(z: OdometryObservation, bias_rad_s: np.ndarray) -> OdometryObs
     return replace(z, relative_pose=z.relative_pose @ P)
 
 
+def true_bias(mission: Mission) -> np.ndarray | None:
+    """The simulator's gyro bias in the body frame (rad/s; it draws it in the AHRS's axes), None if not simulated."""
+    b_S = mission.metadata.extras.get("gyro_bias_rad_s")
+    ahrs = mission.metadata.sensors_of_kind("ahrs")
+    return ahrs[0].T_BS[:3, :3] @ np.asarray(b_S) if b_S is not None and ahrs else None
+
+
 def graph_bias_nees(mission: Mission, result, lo: int, hi: int) -> dict:
     """The run's odometry observations' 6-DoF NEES against the truth as emitted ("raw": a BetweenFactorPose3's
     measurement), with the graph's final gyro-bias estimate taken out of their rotation ("graph": the
@@ -159,9 +177,7 @@ def graph_bias_nees(mission: Mission, result, lo: int, hi: int) -> dict:
     odo = [r.observation for r in result.observations if isinstance(r.observation, OdometryObservation)]
     hist = result.results["graph"].history
     b_graph = np.asarray(hist.get("gyro_bias_rad_s", np.zeros(3)), float)
-    b_S = mission.metadata.extras.get("gyro_bias_rad_s")
-    ahrs = mission.metadata.sensors_of_kind("ahrs")
-    b_true = ahrs[0].T_BS[:3, :3] @ np.asarray(b_S) if b_S is not None and ahrs else None
+    b_true = true_bias(mission)
     out = {"raw": nees_of(mission, odo, lo, hi), "graph_bias_rad_s": b_graph.tolist()}
     out["graph"] = nees_of(mission, [_bias_removed(z, b_graph) for z in odo], lo, hi)
     if b_true is not None:
@@ -194,6 +210,11 @@ def main() -> None:
         "--odometry", help="with --shared: the odometry's section as JSON over the tank's demo configuration"
     )
     ap.add_argument("--graph", help="keys of the graph's section as JSON (e.g. '{\"odometry_gyro_bias\": []}')")
+    ap.add_argument(
+        "--oracle-bias",
+        action="store_true",
+        help="the odometry's observations reach the graph with the simulator's true gyro bias taken out (diagnostic)",
+    )
     ap.add_argument("--starts", help="several outage starts (s, ','-separated): one row per seed and start")
     ap.add_argument(
         "--shared",
@@ -238,7 +259,8 @@ def main() -> None:
         for name in args.variants.split(";"):
             sets, _, kernel = name.partition("/")
             fes = [f for f in sets.split("+") if f and f != "navigation"]
-            result = run(mission, fes, gaussian=kernel == "gaussian", odometry=odometry, graph=graph)
+            oracle = args.oracle_bias and "odometry" in fes
+            result = run(mission, fes, kernel == "gaussian", odometry, graph, oracle_bias=oracle)
             row[name] = errors(result.results["graph"], result.truth, lo, hi, args.delta)
             if "odometry" in result.frontend_summaries:
                 row[name]["odometry"] = result.frontend_summaries["odometry"].metrics
