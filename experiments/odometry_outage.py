@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 from odometry_eval import TruthInterpolator, evaluate, pose_error, scenario_config, simulated
+from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
 from frontends.odometry.config import STEREO_SEABED
@@ -64,13 +65,33 @@ def errors(result, truth, lo: int, hi: int, delta_s: float) -> dict:
     }
 
 
-def run(mission: Mission, frontends: list[str], gaussian: bool = False, odometry: dict | None = None):
+def run(
+    mission: Mission,
+    frontends: list[str],
+    gaussian: bool = False,
+    odometry: dict | None = None,
+    graph: dict | None = None,
+    oracle_bias: bool = False,
+):
     """The graph on ``mission`` with ``frontends``: the tank's demo configuration, or (``odometry`` given)
-    the defaults with that odometry section (the pipeline: no known pipe radius)."""
+    the defaults with that odometry section (the pipeline: no known pipe radius); ``graph``: keys of the graph's
+    section over it; ``oracle_bias``: the odometry's observations reach the graph with the simulator's true gyro
+    bias taken out of their rotation (a diagnostic: no estimator knows it)."""
     cfg = demo_config() if odometry is None else SemslamConfig(frontends={"odometry": odometry})
+    if graph:
+        cfg.graph = cfg.graph.model_copy(update=graph)
     if gaussian:  # the odometry factors without their m-estimator
         cfg.graph = cfg.graph.model_copy(update={"odometry_cauchy_k": {}})
     ests = [create_estimator("graph", mission.metadata, cfg)]
+    if oracle_bias:
+        b_true = true_bias(mission)
+        ests = [
+            _fed(
+                ests[0],
+                "graph",
+                lambda obs: [_bias_removed(z, b_true) if isinstance(z, OdometryObservation) else z for z in obs],
+            )
+        ]
     fes = create_frontends(frontends, mission.metadata, cfg.frontends)
     return run_pipeline(mission, ests, fes)
 
@@ -133,6 +154,38 @@ def nees_of(mission: Mission, observations: list, lo: int, hi: int) -> dict:
     }
 
 
+def _bias_removed(z: OdometryObservation, bias_rad_s: np.ndarray) -> OdometryObservation:
+    """``z`` with its rotation turned by Exp(−b·T) (T its interval): what the graph's factor measures at the bias b
+    when ``graph.odometry_gyro_bias`` lists its sensor's kind."""
+    P = np.eye(4)
+    P[:3, :3] = Rotation.from_rotvec(-np.asarray(bias_rad_s) * (z.stamp - z.stamp_from) * 1e-9).as_matrix()
+    return replace(z, relative_pose=z.relative_pose @ P)
+
+
+def true_bias(mission: Mission) -> np.ndarray | None:
+    """The simulator's gyro bias in the body frame (rad/s; it draws it in the AHRS's axes), None if not simulated."""
+    b_S = mission.metadata.extras.get("gyro_bias_rad_s")
+    ahrs = mission.metadata.sensors_of_kind("ahrs")
+    return ahrs[0].T_BS[:3, :3] @ np.asarray(b_S) if b_S is not None and ahrs else None
+
+
+def graph_bias_nees(mission: Mission, result, lo: int, hi: int) -> dict:
+    """The run's odometry observations' 6-DoF NEES against the truth as emitted ("raw": a BetweenFactorPose3's
+    measurement), with the graph's final gyro-bias estimate taken out of their rotation ("graph": the
+    bias-taking factor's measurement at that estimate) and with the simulator's true bias taken out ("truth": a
+    diagnostic); the biases in the body frame (rad/s)."""
+    odo = [r.observation for r in result.observations if isinstance(r.observation, OdometryObservation)]
+    hist = result.results["graph"].history
+    b_graph = np.asarray(hist.get("gyro_bias_rad_s", np.zeros(3)), float)
+    b_true = true_bias(mission)
+    out = {"raw": nees_of(mission, odo, lo, hi), "graph_bias_rad_s": b_graph.tolist()}
+    out["graph"] = nees_of(mission, [_bias_removed(z, b_graph) for z in odo], lo, hi)
+    if b_true is not None:
+        out["true_bias_rad_s"] = b_true.tolist()
+        out["truth"] = nees_of(mission, [_bias_removed(z, b_true) for z in odo], lo, hi)
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scenario", choices=("tank", "pipeline"), default="tank")
@@ -156,6 +209,12 @@ def main() -> None:
     ap.add_argument(
         "--odometry", help="with --shared: the odometry's section as JSON over the tank's demo configuration"
     )
+    ap.add_argument("--graph", help="keys of the graph's section as JSON (e.g. '{\"odometry_gyro_bias\": []}')")
+    ap.add_argument(
+        "--oracle-bias",
+        action="store_true",
+        help="the odometry's observations reach the graph with the simulator's true gyro bias taken out (diagnostic)",
+    )
     ap.add_argument("--starts", help="several outage starts (s, ','-separated): one row per seed and start")
     ap.add_argument(
         "--shared",
@@ -166,6 +225,7 @@ def main() -> None:
     args = ap.parse_args()
     pipeline = args.scenario == "pipeline"
     odometry = json.loads(args.config) if args.config else STEREO_SEABED if pipeline else None
+    graph = json.loads(args.graph) if args.graph else None
     starts = [float(v) for v in args.starts.split(",")] if args.starts else [args.start]
     for seed, start in ((int(s), st) for s in args.seeds.split(",") for st in starts):
         args.start = start
@@ -199,10 +259,12 @@ def main() -> None:
         for name in args.variants.split(";"):
             sets, _, kernel = name.partition("/")
             fes = [f for f in sets.split("+") if f and f != "navigation"]
-            result = run(mission, fes, gaussian=kernel == "gaussian", odometry=odometry)
+            oracle = args.oracle_bias and "odometry" in fes
+            result = run(mission, fes, kernel == "gaussian", odometry, graph, oracle_bias=oracle)
             row[name] = errors(result.results["graph"], result.truth, lo, hi, args.delta)
             if "odometry" in result.frontend_summaries:
                 row[name]["odometry"] = result.frontend_summaries["odometry"].metrics
+                row[name]["odometry_nees_bias"] = graph_bias_nees(mission, result, lo, hi)
         for a, b in (("laser", "laser+odometry"), ("laser", "laser+odometry/gaussian"), ("navigation", "odometry")):
             if a in row and b in row:
                 row[f"rpe_ratio {b} / {a}"] = row[b]["rpe_outage_rmse_m"] / row[a]["rpe_outage_rmse_m"]
