@@ -156,7 +156,7 @@ def nees_of(mission: Mission, observations: list, lo: int, hi: int) -> dict:
 
 def _bias_removed(z: OdometryObservation, bias_rad_s: np.ndarray) -> OdometryObservation:
     """``z`` with its rotation turned by Exp(−b·T) (T its interval): what the graph's factor measures at the bias b
-    when ``graph.odometry_gyro_bias`` lists its sensor's kind."""
+    when ``graph.odometry_gyro_bias`` lists its sensor's kind (that key lives only in 0372d41, s49-odomgraph)."""
     P = np.eye(4)
     P[:3, :3] = Rotation.from_rotvec(-np.asarray(bias_rad_s) * (z.stamp - z.stamp_from) * 1e-9).as_matrix()
     return replace(z, relative_pose=z.relative_pose @ P)
@@ -209,7 +209,7 @@ def main() -> None:
     ap.add_argument(
         "--odometry", help="with --shared: the odometry's section as JSON over the tank's demo configuration"
     )
-    ap.add_argument("--graph", help="keys of the graph's section as JSON (e.g. '{\"odometry_gyro_bias\": []}')")
+    ap.add_argument("--graph", help="keys of the graph's section as JSON (e.g. '{\"window_s\": 130}')")
     ap.add_argument(
         "--oracle-bias",
         action="store_true",

@@ -553,49 +553,6 @@ def gyro_rotation_factor(
     return gtsam.CustomFactor(noise, [xi, xj, g], error)
 
 
-def gyro_biased_between_residual(
-    T_i: gtsam.Pose3, T_j: gtsam.Pose3, g: np.ndarray, measured: gtsam.Pose3, interval_s: float, jac: bool = False
-):
-    """r = Local(Z, T_iᵀT_j · (Exp(g T/τ), 0)): a relative pose Z whose rotation is the body rates integrated over
-    T = ``interval_s`` without their bias (raw rates ω + b integrate to ΔR Exp(b T) to first order), the bias b =
-    g/τ (g in rad per τ = GYRO_BIAS_UNIT_S s, body axes, as G(k)); the translation as a BetweenFactorPose3's.
-    Local is GTSAM's Pose3 chart (a BetweenFactorPose3's error at g = 0). Jacobians 6×6 wrt X(i), X(j) (right
-    perturbation, rotation first) and 6×3 wrt g, from GTSAM's own between/compose/localCoordinates."""
-    k = float(interval_s) / GYRO_BIAS_UNIT_S
-    H_exp = np.zeros((3, 3), order="F")
-    P = gtsam.Pose3(gtsam.Rot3.Expmap(np.asarray(g, float) * k, H_exp), np.zeros(3))
-    if not jac:
-        return np.asarray(measured.localCoordinates(T_i.between(T_j).compose(P)), float)
-    H_1, H_2 = np.zeros((6, 6), order="F"), np.zeros((6, 6), order="F")
-    B = T_i.between(T_j, H_1, H_2)
-    H_c1, H_c2 = np.zeros((6, 6), order="F"), np.zeros((6, 6), order="F")
-    h = B.compose(P, H_c1, H_c2)
-    H_m, H_h = np.zeros((6, 6), order="F"), np.zeros((6, 6), order="F")
-    r = np.asarray(measured.localCoordinates(h, H_m, H_h), float)
-    H_lc = H_h @ H_c1
-    # P(g + δ) = P · (Exp(J_r(φ) δ k), 0): the rotation's block of P's tangent
-    H_g = H_h @ H_c2[:, :3] @ H_exp * k
-    return r, H_lc @ H_1, H_lc @ H_2, H_g
-
-
-def gyro_biased_between_factor(
-    xi: int, xj: int, g: int, measured: gtsam.Pose3, interval_s: float, noise: gtsam.noiseModel.Base
-) -> gtsam.CustomFactor:
-    """A relative pose X(i) → X(j) whose rotation is the raw body rates integrated over ``interval_s`` (the
-    laser odometry's held rotation), through the gyro-bias state G (key ``g``, G's units):
-    :func:`gyro_biased_between_residual` under ``noise`` (CustomFactor: no built-in factor composes a
-    Pose3 between with a rotation of a vector state; at g = 0 it is a BetweenFactorPose3, tested)."""
-
-    def error(this, values, H):
-        Ti, Tj, gv = values.atPose3(xi), values.atPose3(xj), values.atVector(g)
-        if H is None:
-            return gyro_biased_between_residual(Ti, Tj, gv, measured, interval_s)
-        r, H[0], H[1], H[2] = gyro_biased_between_residual(Ti, Tj, gv, measured, interval_s, jac=True)
-        return r
-
-    return gtsam.CustomFactor(noise, [xi, xj, g], error)
-
-
 def biased_attitude_residual(T_WB: gtsam.Pose3, b: float, R_meas: np.ndarray, jac: bool = False):
     """r = Log(R_measᵀ Rz(b) R_WB): an AHRS whose heading reads the true one plus a bias b (rad)
     about the world's vertical, R_meas = Rz(b) R_WB. Jacobians 3×6 wrt X (right perturbation,

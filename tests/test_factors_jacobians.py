@@ -560,35 +560,3 @@ def test_point_residual_jacobians_against_central_differences(seed):
     )
     np.testing.assert_allclose(H_x, num_x, atol=1e-6)
     np.testing.assert_allclose(H_l, num_l, atol=1e-6)
-
-
-@pytest.mark.parametrize("seed", range(4))
-def test_gyro_biased_between_factor_jacobians_and_its_zero_bias(seed):
-    """The odometry's factor through the gyro-bias state: its Jacobians (X(i), X(j), G) against central
-    differences at random poses and a large bias, and at G = 0 a BetweenFactorPose3 on the same noise."""
-    from factors.navigation import GYRO_BIAS_UNIT_S, gyro_biased_between_factor
-
-    rng = np.random.default_rng(600 + seed)
-    Z = random_pose(rng, 1.0)
-    noise = gtsam.noiseModel.Gaussian.Covariance(random_cov(rng, 6, 0.02))
-    interval_s = 1.0 + 2.0 * rng.random()
-    f = gyro_biased_between_factor(1, 2, 3, Z, interval_s, noise)
-    v = gtsam.Values()
-    v.insert(1, random_pose(rng))
-    v.insert(2, random_pose(rng))
-    v.insert(3, rng.normal(size=3) * 0.3)  # G's units: 3e-3 rad/s, turning the rotation by ~1e-2 rad
-    check_factor_jacobians(f, v)
-    # the bias turns the predicted rotation on its right: at G = 0 with X(j) turned on by Exp(b·T), the same error
-    b = v.atVector(3) / GYRO_BIAS_UNIT_S
-    turned = gtsam.Values()
-    turned.insert(1, v.atPose3(1))
-    turned.insert(2, v.atPose3(2).compose(gtsam.Pose3(gtsam.Rot3.Expmap(b * interval_s), np.zeros(3))))
-    turned.insert(3, np.zeros(3))
-    np.testing.assert_allclose(f.whitenedError(turned), f.whitenedError(v), atol=1e-9)
-    plain = gtsam.BetweenFactorPose3(1, 2, Z, noise)
-    v.update(3, np.zeros(3))
-    np.testing.assert_allclose(f.whitenedError(v), plain.whitenedError(v), rtol=1e-12, atol=1e-12)
-    A, rhs = f.linearize(v).jacobian()
-    A_ref, rhs_ref = plain.linearize(v).jacobian()
-    np.testing.assert_allclose(A[:, :12], A_ref, rtol=1e-10, atol=1e-10)
-    np.testing.assert_allclose(rhs, rhs_ref, rtol=1e-12, atol=1e-12)

@@ -34,7 +34,6 @@ from factors.navigation import (
     depth_factor,
     displacement_factor,
     dvl_velocity_factor,
-    gyro_biased_between_factor,
     gyro_rotation_factor,
     heading_bias_drift_factor,
     heading_bias_walk_factor,
@@ -137,12 +136,6 @@ class Keyframes:
             for s in metadata.sensors.values()
             if s.kind in config.graph.odometry_cauchy_k
         }
-        # relative-pose factors whose rotation is the raw rates', by measuring sensor: through G(i)
-        self.odometry_gyro = (
-            {s.name for s in metadata.sensors.values() if s.kind in config.graph.odometry_gyro_bias}
-            if self.has_gyro_bias
-            else set()
-        )
 
     def __len__(self) -> int:
         return len(self.stamps)
@@ -514,9 +507,7 @@ class Keyframes:
         """Relative-pose constraints (e.g. swath registrations). An end that is not a keyframe is
         carried to the nearest keyframe with the estimated motion in between (short: at most half
         a keyframe interval of dead reckoning, whose error is far below the constraint's). A Cauchy
-        m-estimator bounds the pull of one that converged wrong, for the sensor kinds the config names. One
-        whose rotation is the raw rates' (``graph.odometry_gyro_bias``) takes the gyro-bias state G(i) of its
-        first keyframe over its own interval (the carried ends are the estimate's, already without the bias)."""
+        m-estimator bounds the pull of one that converged wrong, for the sensor kinds the config names."""
         out = []
         for z in odom:
             i, T_i_from = self.nearest(z.stamp_from)
@@ -530,9 +521,5 @@ class Keyframes:
             noise = gtsam.noiseModel.Gaussian.Covariance(z.covariance)
             if z.sensor in self.odometry_kernels:
                 noise = gtsam.noiseModel.Robust.Create(self.odometry_kernels[z.sensor], noise)
-            if z.sensor in self.odometry_gyro:  # its rotation carries the gyro's bias over its interval
-                interval_s = (z.stamp - z.stamp_from) * 1e-9
-                out.append(gyro_biased_between_factor(X(i), X(j), G(i), meas, interval_s, noise))
-            else:
-                out.append(gtsam.BetweenFactorPose3(X(i), X(j), meas, noise))
+            out.append(gtsam.BetweenFactorPose3(X(i), X(j), meas, noise))
         return out

@@ -49,15 +49,6 @@ class GraphConfig(BaseModel):
         "wrong are heavy-tailed beyond their covariance; 5.3 is the maximum-likelihood width on the tuning seeds' "
         "registrations (experiments/odometry/README.md)",
     )
-    odometry_gyro_bias: tuple[Literal["laser", "sonar"], ...] = Field(
-        (),
-        description="relative-pose factors whose rotation is the body rates integrated between their two stamps "
-        "without the gyro's bias (the laser odometry's held rotation, its attitude 'navigation'), by the kind of the "
-        "sensor that measured them: with the gyro's bias modelled (G(k)), such a factor takes G at its first "
-        "keyframe (measured rotation = R_iᵀR_j·Exp(b·T), T its interval), so that the bias is one state for the "
-        "gyro link and the odometry (e.g. [laser]). A kind not listed, or no bias state: the relative pose as "
-        "measured (the default: experiments/odometry/README.md, stop 49)",
-    )
     window_s: float | None = Field(
         600.0,
         gt=0,
