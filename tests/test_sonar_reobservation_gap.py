@@ -116,3 +116,56 @@ def test_a_view_after_a_short_gap_is_unchanged(wellhead_patches, monkeypatch):
             assert dict(ra.rejected) == dict(rb.rejected) and ra.timing.keys() == rb.timing.keys()
             assert [r[:3] for r in ra.log] == [r[:3] for r in rb.log]
     assert n >= 6
+
+
+def _stub_search(monkeypatch, places):
+    """``reobservation.icp`` replaced by a stub: every ICP ends at the place (north, east) of ``places`` nearest
+    its start, with that place's (fitness, structure points, median); the ICP from the prior too."""
+    import frontends.sonar.reobservation as reob
+    from frontends.sonar.registration import Registration
+
+    def icp(md, pts, T0, rc, distances=None):
+        ne, (fit, n, med) = min(places.items(), key=lambda kv: np.hypot(*(T0[:2, 3] - kv[0])))
+        T = np.eye(4)
+        T[:2, 3] = ne
+        return Registration(T, med, fit, n, np.eye(6) * 0.03**2, 0.005, 0.5)
+
+    monkeypatch.setattr(reob, "icp", icp)
+
+
+def _stub_view(rc, gap_m):
+    from types import SimpleNamespace
+
+    pts = np.column_stack([np.linspace(-1, 1, 400), np.zeros(400), np.full(400, -1.0)])
+    patch = SimpleNamespace(points=pts, id=7)
+    md = SimpleNamespace(model=SimpleNamespace(footprint_radius=1.5))
+    ro = StructureReobservation(rc, defaultdict(int), defaultdict(float))
+    I4 = np.eye(4)
+    obs = ro.observe(patch, KnownStructure("plet", I4.copy(), None, 0), md, I4, I4, I4, I4, 0, "sonar", gap_m=gap_m)
+    return obs, ro
+
+
+def test_a_searched_view_is_the_place_that_explains_the_most_points(monkeypatch):
+    """Field 68's manifold patch 192 (stop 49): the right place fits 1.000 on 634 structure points, a slide
+    0.6 m along the structure 1.000 on 209 (its median lower by a millimetre). The view is the right place,
+    the slide no rival; two places that explain as many points stay ambiguous (no view); a place with more
+    points but a fitness beyond the margin of the best does not win."""
+    rc = SonarConfig().registration
+    right, slid = (0.0, 0.0), (0.0, 0.6)
+    _stub_search(monkeypatch, {right: (1.0, 634, 0.0056), slid: (1.0, 209, 0.0044)})
+    obs, ro = _view_of(rc)
+    assert obs is not None and ro.timing["reobservations_searched"] == 1
+    assert np.linalg.norm(obs.pose[:2, 3] - right) < 1e-9
+    assert np.sqrt(np.linalg.eigvalsh(obs.covariance[3:, 3:]).max()) < 0.1
+
+    _stub_search(monkeypatch, {right: (1.0, 634, 0.0056), slid: (0.99, 630, 0.0044)})
+    obs, ro = _view_of(rc)
+    assert obs is None and ro.rejected["structure_observation_gap"] == 1
+
+    _stub_search(monkeypatch, {right: (1.0, 634, 0.0056), slid: (0.9, 2000, 0.0044)})
+    obs, _ = _view_of(rc)
+    assert obs is not None and np.linalg.norm(obs.pose[:2, 3] - right) < 1e-9
+
+
+def _view_of(rc):
+    return _stub_view(rc, LONG_GAP_M)

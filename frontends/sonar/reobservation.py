@@ -10,11 +10,13 @@ on a wrong-place fit next to the prior and so confirm the drift. Such a view is 
 the coarse ICP (``icp_distances_m[0]``) from every north/east start, spaced by that distance (its
 reach), within the recognition's search range (``shift_range_m``, ``shift_range_frac`` of the
 footprint radius) around the prior, the prior's attitude kept; each distinct place it reaches (more
-than ``tukey_k_m`` apart) refined by the view's own ICP; the best fit (fitness, then median) is the view,
-with the usual checks but for the jump (its turn still at most ``max_turn_deg``), and every other fit
-within ``ambiguity_margin`` of its fitness that lies elsewhere grows its translation covariance by
-that offset (the search's ambiguity), so that two places that fit alike give no view
-(``max_sigma_m``) and a view that slides along the structure says so."""
+than ``tukey_k_m`` apart) refined by the view's own ICP. Of the fits within ``ambiguity_margin`` of the
+highest fitness, the one that explains the most structure points (fitness × points, then median) is the
+view: a partial view slid along the structure keeps its share of points on the model on fewer of them.
+It has the usual checks but for the jump (its turn still at most ``max_turn_deg``), and every other of
+those fits that explains within ``ambiguity_margin`` (a share) as many points and lies elsewhere grows
+its translation covariance by that offset (the search's ambiguity), so that two places that fit alike
+give no view (``max_sigma_m``) and a view that slides along the structure says so."""
 
 from __future__ import annotations
 
@@ -32,6 +34,11 @@ from semslam.observations import StructureObservation
 
 def _turn(d: np.ndarray) -> float:
     return abs(float(np.arccos(np.clip((np.trace(d[:3, :3]) - 1) / 2, -1, 1))))
+
+
+def _explained(r: Registration) -> float:
+    """The structure points a fit explains (within the kernel width of the model)."""
+    return r.fitness * r.n_structure
 
 
 class StructureReobservation:
@@ -151,9 +158,15 @@ class StructureReobservation:
             if local_why is None:  # today's checks would have emitted the ICP from the prior
                 self.rejected["structure_observation_gap_local_passed"] += 1
             return local, "gap", (gap_m, local_why, "no fit", len(starts))
-        best = max(fits, key=lambda r: (r.fitness, -r.median_m))
-        # the search's ambiguity: every other place that fits about as well
-        d = [r.T[:3, 3] - best.T[:3, 3] for r in fits if r.fitness >= best.fitness - rc.ambiguity_margin]
+        # the places that fit as well as any (fitness within the margin of the highest); of those, the one
+        # that explains the most structure points: a partial view slid along the structure keeps its
+        # share (1.000 on a flat top) on fewer points
+        top = max(r.fitness for r in fits)
+        alike = [r for r in fits if r.fitness >= top - rc.ambiguity_margin]
+        best = max(alike, key=lambda r: (_explained(r), -r.median_m))
+        # the search's ambiguity: every other such place that explains about as many points
+        least = (1 - rc.ambiguity_margin) * _explained(best)
+        d = [r.T[:3, 3] - best.T[:3, 3] for r in alike if _explained(r) >= least]
         far = max(d, key=np.linalg.norm)
         cov = best.cov.copy()
         cov[3:, 3:] += np.outer(far, far)
