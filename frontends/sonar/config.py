@@ -297,9 +297,10 @@ class StructureRegistrationConfig(_Section):
     gap_search: bool = Field(
         True,
         description="a re-observation after a gap whose track times carry_sigma_per_m exceeds max_jump_m (the "
-        "pose relative to the structure uncertain beyond the reach of an ICP from the prior) is registered "
-        "afresh (the recognition's 4-D search, then ICP) and emitted only if that fit passes a new structure's "
-        "test; false: the ICP from the prior, as after a short gap",
+        "pose relative to the structure uncertain beyond the reach of an ICP from the prior) is searched: the "
+        "coarse ICP from a grid of starts over the recognition's shift range, each distinct place refined, the "
+        "best fit within that range the view, its covariance grown by any rival place that fits within "
+        "ambiguity_margin (two alike give no view); false: the ICP from the prior, as after a short gap",
     )
     recent_s: float = Field(
         12.0,
