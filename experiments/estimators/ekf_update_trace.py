@@ -37,7 +37,14 @@ class Trace:
     """The tagged steps of one EKF run: ``rows`` (stamp, tag, Δp (3), mean Δ of the objects (3) or None),
     ``shares`` (stamp, feature id, kind, Δp (3)) of map updates, ``truth`` (stamp → true position)."""
 
-    def __init__(self, est: EkfEstimator, drop: int | None = None, refresh_deg: float | None = None, watch=None):
+    def __init__(
+        self,
+        est: EkfEstimator,
+        drop: int | None = None,
+        refresh_deg: float | None = None,
+        watch=None,
+        first_from_views: bool = False,
+    ):
         self.est = est
         self.watch = watch  # a feature id: each of its updates logged in ``watched``
         self.watched: list = []  # (stamp, ν, ∂ν/∂p used, ∂ν/∂p at the current estimate, NIS)
@@ -97,6 +104,14 @@ class Trace:
             trace.tag = "promote"
             lid = promote(track)
             trace.first[lid] = nav.t
+            f = fmap.feature(lid)
+            if first_from_views and f.kind == "pipe":  # a variant: the Jacobians' point fitted to every view
+                pts = np.concatenate([v.world for v in track.views])
+                c = pts.mean(axis=0)
+                d = np.linalg.svd(pts - c)[2][0]
+                d_now = geo.line_plucker(nav.state.x[f.cols])[1]
+                d = d if d @ d_now >= 0 else -d
+                f.l_first = geo.line_params(np.cross(c - f.anchor, d), d)
             trace.tag = "predict"
             return lid
 
@@ -237,13 +252,26 @@ def main() -> None:
     ap.add_argument(
         "--refresh-deg", type=float, help="a variant: a pipe's first estimate re-taken when turned this far"
     )
+    ap.add_argument(
+        "--first-from-views",
+        action="store_true",
+        help="a variant: a pipe's Jacobians at a line fitted to all its track's views",
+    )
     ap.add_argument("--watch", type=int, help="log each pairing of this pipe (ν, ∂ν/∂p on the axis, NIS, Δ)")
     args = ap.parse_args()
     sets = {}
     for kv in filter(None, args.variant.split(",")):
         k, v = kv.split("=", 1)
         sets[k] = yaml.safe_load(v)
-    tr, est = run(args.cache, args.seed, sets, drop=args.drop, refresh_deg=args.refresh_deg, watch=args.watch)
+    tr, est = run(
+        args.cache,
+        args.seed,
+        sets,
+        drop=args.drop,
+        refresh_deg=args.refresh_deg,
+        watch=args.watch,
+        first_from_views=args.first_from_views,
+    )
     ax = args.axis
     ts = np.array(sorted(tr.truth))
     tp = np.array([tr.truth[t] for t in ts])
