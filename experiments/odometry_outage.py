@@ -133,14 +133,18 @@ def nees_of(mission: Mission, observations: list, lo: int, hi: int) -> dict:
     """The odometry observations' 6-DoF NEES against the truth: mean over the mission (its 95 % band),
     inside [lo, hi] and outside."""
     truth = TruthInterpolator([m for m in mission if isinstance(m, GroundTruthPose)])
-    nees, nees_t, inside = [], [], []
+    nees, nees_t, nees_r, inside = [], [], [], []
     for z in observations:
         xi = pose_error(np.linalg.inv(truth(z.stamp_from)) @ truth(z.stamp), z.relative_pose)
         nees.append(float(xi @ np.linalg.solve(z.covariance, xi)))
         nees_t.append(float(xi[3:] @ np.linalg.solve(z.covariance[3:, 3:], xi[3:])))
+        nees_r.append(float(xi[:3] @ np.linalg.solve(z.covariance[:3, :3], xi[:3])))
         inside.append(lo <= z.stamp <= hi)
     nees, nees_t, inside, n = np.array(nees), np.array(nees_t), np.array(inside), len(nees)
+    given = nees - np.array(nees_r)  # the translation's NEES given the rotation (the 6-DoF's less the rotation's)
     return {
+        "nees_translation_given_rotation_mean": float(given.mean()) if n else None,
+        "nees_translation_given_rotation_outside_window": float(given[~inside].mean()) if (~inside).any() else None,
         # the translation's 3-DoF NEES (its marginal: what a factor with the rotation freed carries), its band
         "nees_translation_mean": float(nees_t.mean()) if n else None,
         "nees_translation_band_95": [chi2.ppf(0.025, 3 * n) / n, chi2.ppf(0.975, 3 * n) / n] if n else None,
