@@ -72,12 +72,16 @@ def run(
     odometry: dict | None = None,
     graph: dict | None = None,
     oracle_bias: bool = False,
+    odometry_over_demo: dict | None = None,
 ):
     """The graph on ``mission`` with ``frontends``: the tank's demo configuration, or (``odometry`` given)
     the defaults with that odometry section (the pipeline: no known pipe radius); ``graph``: keys of the graph's
     section over it; ``oracle_bias``: the odometry's observations reach the graph with the simulator's true gyro
-    bias taken out of their rotation (a diagnostic: no estimator knows it)."""
+    bias taken out of their rotation (a diagnostic: no estimator knows it); ``odometry_over_demo``: the odometry's
+    section over the tank's demo configuration (the laser's as in the default run)."""
     cfg = demo_config() if odometry is None else SemslamConfig(frontends={"odometry": odometry})
+    if odometry_over_demo is not None:
+        cfg = SemslamConfig(frontends={**cfg.frontends, "odometry": odometry_over_demo})
     if graph:
         cfg.graph = cfg.graph.model_copy(update=graph)
     if gaussian:  # the odometry factors without their m-estimator
@@ -211,7 +215,7 @@ def main() -> None:
         help="front-end sets, ';'-separated ('/gaussian': the odometry factors without their Cauchy m-estimator)",
     )
     ap.add_argument(
-        "--odometry", help="with --shared: the odometry's section as JSON over the tank's demo configuration"
+        "--odometry", help="the odometry's section as JSON over the tank's demo configuration (--config: over none)"
     )
     ap.add_argument("--graph", help="keys of the graph's section as JSON (e.g. '{\"window_s\": 130}')")
     ap.add_argument(
@@ -264,7 +268,10 @@ def main() -> None:
             sets, _, kernel = name.partition("/")
             fes = [f for f in sets.split("+") if f and f != "navigation"]
             oracle = args.oracle_bias and "odometry" in fes
-            result = run(mission, fes, kernel == "gaussian", odometry, graph, oracle_bias=oracle)
+            over = json.loads(args.odometry) if args.odometry else None
+            result = run(
+                mission, fes, kernel == "gaussian", odometry, graph, oracle_bias=oracle, odometry_over_demo=over
+            )
             row[name] = errors(result.results["graph"], result.truth, lo, hi, args.delta)
             if "odometry" in result.frontend_summaries:
                 row[name]["odometry"] = result.frontend_summaries["odometry"].metrics
