@@ -72,12 +72,16 @@ def run(
     odometry: dict | None = None,
     graph: dict | None = None,
     oracle_bias: bool = False,
+    odometry_over_demo: dict | None = None,
 ):
     """The graph on ``mission`` with ``frontends``: the tank's demo configuration, or (``odometry`` given)
     the defaults with that odometry section (the pipeline: no known pipe radius); ``graph``: keys of the graph's
     section over it; ``oracle_bias``: the odometry's observations reach the graph with the simulator's true gyro
-    bias taken out of their rotation (a diagnostic: no estimator knows it)."""
+    bias taken out of their rotation (a diagnostic: no estimator knows it); ``odometry_over_demo``: the odometry's
+    section over the tank's demo configuration (the laser's as in the default run)."""
     cfg = demo_config() if odometry is None else SemslamConfig(frontends={"odometry": odometry})
+    if odometry_over_demo is not None:
+        cfg = SemslamConfig(frontends={**cfg.frontends, "odometry": odometry_over_demo})
     if graph:
         cfg.graph = cfg.graph.model_copy(update=graph)
     if gaussian:  # the odometry factors without their m-estimator
@@ -133,14 +137,18 @@ def nees_of(mission: Mission, observations: list, lo: int, hi: int) -> dict:
     """The odometry observations' 6-DoF NEES against the truth: mean over the mission (its 95 % band),
     inside [lo, hi] and outside."""
     truth = TruthInterpolator([m for m in mission if isinstance(m, GroundTruthPose)])
-    nees, nees_t, inside = [], [], []
+    nees, nees_t, nees_r, inside = [], [], [], []
     for z in observations:
         xi = pose_error(np.linalg.inv(truth(z.stamp_from)) @ truth(z.stamp), z.relative_pose)
         nees.append(float(xi @ np.linalg.solve(z.covariance, xi)))
         nees_t.append(float(xi[3:] @ np.linalg.solve(z.covariance[3:, 3:], xi[3:])))
+        nees_r.append(float(xi[:3] @ np.linalg.solve(z.covariance[:3, :3], xi[:3])))
         inside.append(lo <= z.stamp <= hi)
     nees, nees_t, inside, n = np.array(nees), np.array(nees_t), np.array(inside), len(nees)
+    given = nees - np.array(nees_r)  # the translation's NEES given the rotation (the 6-DoF's less the rotation's)
     return {
+        "nees_translation_given_rotation_mean": float(given.mean()) if n else None,
+        "nees_translation_given_rotation_outside_window": float(given[~inside].mean()) if (~inside).any() else None,
         # the translation's 3-DoF NEES (its marginal: what a factor with the rotation freed carries), its band
         "nees_translation_mean": float(nees_t.mean()) if n else None,
         "nees_translation_band_95": [chi2.ppf(0.025, 3 * n) / n, chi2.ppf(0.975, 3 * n) / n] if n else None,
@@ -207,7 +215,7 @@ def main() -> None:
         help="front-end sets, ';'-separated ('/gaussian': the odometry factors without their Cauchy m-estimator)",
     )
     ap.add_argument(
-        "--odometry", help="with --shared: the odometry's section as JSON over the tank's demo configuration"
+        "--odometry", help="the odometry's section as JSON over the tank's demo configuration (--config: over none)"
     )
     ap.add_argument("--graph", help="keys of the graph's section as JSON (e.g. '{\"window_s\": 130}')")
     ap.add_argument(
@@ -260,7 +268,10 @@ def main() -> None:
             sets, _, kernel = name.partition("/")
             fes = [f for f in sets.split("+") if f and f != "navigation"]
             oracle = args.oracle_bias and "odometry" in fes
-            result = run(mission, fes, kernel == "gaussian", odometry, graph, oracle_bias=oracle)
+            over = json.loads(args.odometry) if args.odometry else None
+            result = run(
+                mission, fes, kernel == "gaussian", odometry, graph, oracle_bias=oracle, odometry_over_demo=over
+            )
             row[name] = errors(result.results["graph"], result.truth, lo, hi, args.delta)
             if "odometry" in result.frontend_summaries:
                 row[name]["odometry"] = result.frontend_summaries["odometry"].metrics
