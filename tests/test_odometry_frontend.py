@@ -260,25 +260,3 @@ def test_two_passes_over_a_mission_give_the_same_observations_to_the_bit(mission
     for x, y in zip(a, b):
         np.testing.assert_array_equal(x.relative_pose, y.relative_pose)
         np.testing.assert_array_equal(x.covariance, y.covariance)
-
-
-def test_the_calibrated_translation_scale_is_held_in_a_dvl_outage(mission):
-    """``covariance.calibrate_translation``: the same registrations as without it, the rotation's covariance
-    untouched, only the translation's scaled; pairs counted while the DVL is valid, none in the outage."""
-    outage, (lo, hi) = _with_outage(mission, 45.0, 12.0)
-    _, plain = _register(outage)
-    fe = OdometryFrontend(outage.metadata, {"covariance": {"calibrate_translation": True}})
-    obs, pairs = [], []
-    for m in outage:
-        for z in fe.process(m):
-            obs.append(z)
-            pairs.append(fe.translation_scale.pairs)
-    assert [z.stamp for z in obs] == [z.stamp for z in plain]
-    for z, p in zip(obs, plain):
-        np.testing.assert_array_equal(z.relative_pose, p.relative_pose)
-        np.testing.assert_allclose(z.covariance[:3, :3], p.covariance[:3, :3], rtol=1e-12)
-    stamps, pairs = np.array([z.stamp for z in obs]), np.array(pairs)
-    inside = (stamps >= lo) & (stamps <= hi + int(1.5e9))  # a pair spanning the outage's end is not counted
-    assert inside.sum() >= 5 and pairs[-1] >= 8 and np.all(np.diff(pairs[inside]) == 0)
-    assert fe.finish().metrics["translation_scale_pairs"] == pairs[-1]
-    assert "translation_scale" not in _register(outage)[0].finish().metrics  # off: no metric, main's summary

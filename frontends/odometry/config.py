@@ -149,13 +149,6 @@ class CovarianceSettings(BaseModel):
     held_floor_sigma_m: float = Field(
         0.0, ge=0, description="with the attitude held, the translation's least σ per axis (m)"
     )
-    calibrate_translation: bool = Field(
-        False,
-        description="with attitude 'navigation', scale the translation's measured covariance (the part given the "
-        "rotation) by s, the world's scale estimated online from the registrations' disagreement with the "
-        "navigation prior while the DVL is valid (frontends.odometry.calibration; s held in a DVL outage, 1 until "
-        "a pair is seen); other attitudes: no effect",
-    )
     gyro_sigma_rad_s: float | None = Field(
         None,
         gt=0,

@@ -8,7 +8,6 @@ from typing import ClassVar
 
 import numpy as np
 
-from frontends.odometry.calibration import TranslationScale
 from frontends.odometry.config import OdometryConfig
 from frontends.odometry.information import (
     adjoint,
@@ -61,9 +60,6 @@ class OdometryFrontend(Frontend):
         self.sensors = set(self.config.sensors) or {s.name for s in metadata.sensors_of_kind("laser")}
         self._tracks: dict[str, _Track] = {}
         self.counts: Counter[str] = Counter()
-        # the translation's measured covariance scaled by the world's s (with the attitude held to the navigation's)
-        cal = self.config.covariance.calibrate_translation and self.config.attitude == "navigation"
-        self.translation_scale = TranslationScale() if cal else None
 
     def process(self, measurement: Measurement, view=None) -> list[Observation]:
         if not isinstance(measurement, PointCloud):
@@ -102,9 +98,7 @@ class OdometryFrontend(Frontend):
         relative_B = T_BS @ relative_S @ np.linalg.inv(T_BS)
         track.velocity_B = relative_B[:3, 3] / ((scan.stamp - stamp_from) * 1e-9)
         A = adjoint(T_BS)
-        scale = 1.0 if self.translation_scale is None else self.translation_scale.scale  # from the pairs before
-        cov_B = A @ self._tail_scaled(reg, A, stamp_from, scan.stamp, scale) @ A.T
-        self._calibrate(reg, relative_S, T_BS, A, stamp_from, scan.stamp)
+        cov_B = A @ self._tail_scaled(reg, A, stamp_from, scan.stamp) @ A.T
         if self.config.factor_rotation == "free":
             cov_B = translation_only(cov_B)
         elif self.config.factor_rotation == "conditional":
@@ -145,36 +139,13 @@ class OdometryFrontend(Frontend):
         R_SB = T_BS[:3, :3].T
         return R_SB @ prior_B[:3, :3] @ R_SB.T
 
-    def _tail_scaled(self, reg, A: np.ndarray, stamp_from: int, stamp_to: int, scale: float = 1.0) -> np.ndarray:
+    def _tail_scaled(self, reg, A: np.ndarray, stamp_from: int, stamp_to: int) -> np.ndarray:
         """The registration's covariance (sensor frame) with its part that ICP's disagreement with the prior
         makes (``Registration.tail_part``: with the attitude held, the translation's measured part; the
-        rotation is the prior's own) times :meth:`_tail_factor` and ``scale`` (the world's calibration)."""
-        factor = scale * self._tail_factor(reg, A, stamp_from, stamp_to)
+        rotation is the prior's own) times :meth:`_tail_factor`."""
+        factor = self._tail_factor(reg, A, stamp_from, stamp_to)
         part = reg.covariance if reg.tail_part is None else reg.tail_part
         return reg.covariance + (factor - 1.0) * part
-
-    def _calibrate(self, reg, relative_S: np.ndarray, T_BS: np.ndarray, A: np.ndarray, a: int, b: int) -> None:
-        """One pair for the translation's scale while the DVL is valid over [a, b] (held in an outage): d the
-        registration's translation minus the prior's (sensor frame, both with the prior's rotation), its
-        covariance s·M + J·Σ_prior·Jᵀ, M the translation's measured part, J = [K, −I] (K the translation's error
-        per error of the held rotation, which is the prior's own: shared by both)."""
-        held = self.prior.dvl_held_s(a, b)
-        if self.translation_scale is None or held is None or held > self.config.dropout_after_s:
-            return
-        motion, prior_B = self.prior.motion(a, b), self.prior.motion_covariance(a, b)
-        if motion is None or prior_B is None or reg.tail_part is None:
-            return
-        T_SB = np.linalg.inv(T_BS)
-        d = (np.linalg.inv(T_SB @ motion @ T_BS) @ relative_S)[:3, 3]
-        A_inv = np.linalg.inv(A)
-        prior_S = A_inv @ prior_B @ A_inv.T
-        cov = reg.covariance
-        try:
-            K = cov[3:, :3] @ np.linalg.inv(cov[:3, :3])
-        except np.linalg.LinAlgError:
-            return
-        J = np.concatenate([K, -np.eye(3)], axis=1)
-        self.translation_scale.add(d, reg.tail_part[3:, 3:], J @ prior_S @ J.T)
 
     def _tail_factor(self, reg, A: np.ndarray, stamp_from: int, stamp_to: int) -> float:
         """(ν + d²)/(ν + 6), d² the correction ICP made to the prior, under the prior's covariance over the
@@ -201,11 +172,6 @@ class OdometryFrontend(Frontend):
         else:
             self.counts["rejected_sparse"] += 1
 
-    def _calibration_metrics(self) -> dict:
-        """The translation's scale and the pairs it came from (only with the calibration on)."""
-        cal = self.translation_scale
-        return {} if cal is None else {"translation_scale": cal.scale, "translation_scale_pairs": cal.pairs}
-
     def finish(self, view=None) -> FrontendSummary:
         c = self.counts
         rejected = {k.removeprefix("rejected_"): v for k, v in sorted(c.items()) if k.startswith("rejected_")}
@@ -217,6 +183,5 @@ class OdometryFrontend(Frontend):
                 "rejected": rejected,
                 "map_starts": c["map_starts"],
                 "without_prior": c["no_prior"],
-                **self._calibration_metrics(),
             },
         )

@@ -163,21 +163,6 @@ class NavigationPrior:
         """Seconds from the last valid DVL reading to ``stamp`` (None before any): how long its velocity has been held."""
         return (stamp - self._holds[-1][0]) * NS if self._holds else None
 
-    def dvl_held_s(self, stamp_from: int, stamp_to: int) -> float | None:
-        """The longest any DVL reading was held over [stamp_from, stamp_to] (s): its age where the next
-        reading came or the interval ends; None when no reading is known from before ``stamp_from``."""
-        starts = [h for h, _ in self._holds]
-        k = bisect.bisect_right(starts, stamp_from) - 1
-        if k < 0:
-            return None
-        worst = 0.0
-        for i in range(k, len(starts)):
-            if starts[i] >= stamp_to:
-                break
-            end = starts[i + 1] if i + 1 < len(starts) else stamp_to
-            worst = max(worst, (min(end, stamp_to) - starts[i]) * NS)
-        return worst
-
     def pose_at(self, stamp: int) -> np.ndarray | None:
         """T_DB at ``stamp``: the last stored pose before it, carried on at the current velocity;
         None before the first attitude or when ``stamp`` is older than the horizon."""
