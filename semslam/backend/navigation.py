@@ -120,7 +120,6 @@ class NavigationBuffer:
         # :attr:`gyro` at the interval's start and at each reading since, with the reading then latest (its rate held
         # on from there): the gyro's rotation at a time before the newest reading (:meth:`gyro_rotation_at`)
         self.gyro_knots: list[tuple[tuple, AttitudeSample | None]] = []
-        self.gyro_knot_t: list[float] = []
 
     def _T_BS(self, sensor: str) -> np.ndarray:
         return self.metadata.extrinsic(sensor)
@@ -143,7 +142,6 @@ class NavigationBuffer:
             self.attitude = AttitudeSample(t, R_WB, cov, omega, from_gyro)
             if self.gyro is not None and omega is not None and from_gyro:
                 self.gyro_knots.append((self.gyro, self.attitude))
-                self.gyro_knot_t.append(self.gyro[1])
             if self.fused is None:
                 self.fused = FusedAttitude(t, R_WB, cov, omega, from_gyro)
             else:
@@ -223,7 +221,7 @@ class NavigationBuffer:
         g = self.gyro_rotation(t)
         if g is None or t >= self.gyro[1]:
             return None if g is None else g[0]
-        i = bisect.bisect_right(self.gyro_knot_t, t) - 1
+        i = bisect.bisect_right(self.gyro_knots, t, key=lambda knot: knot[0][1]) - 1  # by the time integrated to
         if i < 0:
             return None
         gyro, a = self.gyro_knots[i]
@@ -242,7 +240,7 @@ class NavigationBuffer:
         the interval's rates are integrated with (None: 0)."""
         self.gyro = (t, t, np.eye(3), np.zeros((3, 3)))
         self.gyro_measured = True
-        self.gyro_knots, self.gyro_knot_t = [(self.gyro, self.attitude)], [t]
+        self.gyro_knots = [(self.gyro, self.attitude)]
         self.gyro_bias = np.zeros(3) if gyro_bias is None else np.asarray(gyro_bias, float)
         self.preint = DvlPreintegrator(t, R_WB, self.accel_sigma, attitude_sigma, self.rate_sigma)
         self.depths = [d for d in self.depths if d[0] > t]
