@@ -35,6 +35,20 @@ def _turn(d: np.ndarray) -> float:
     return abs(float(np.arccos(np.clip((np.trace(d[:3, :3]) - 1) / 2, -1, 1))))
 
 
+def _failed_check(reg: Registration, rc: StructureRegistrationConfig, jumped: bool) -> tuple[str | None, float]:
+    """The first check ``reg`` fails (points, fitness, median, jump, σ; None: it passes) and its largest
+    translation σ; ``jumped``: it moved or turned beyond what a view may."""
+    sig_t = float(np.sqrt(np.linalg.eigvalsh(reg.cov[3:, 3:]).max()))
+    checks = {
+        "points": reg.n_structure < rc.min_points,
+        "fitness": reg.fitness < rc.min_fitness,
+        "median": reg.median_m > rc.max_median_m,
+        "jump": jumped,
+        "sigma": sig_t > rc.max_sigma_m,
+    }
+    return next((k for k, failed in checks.items() if failed), None), sig_t
+
+
 class StructureReobservation:
     """Registers known structures on single patches.
 
@@ -63,15 +77,7 @@ class StructureReobservation:
         d = inv(T_start) @ reg.T
         jump = np.linalg.norm(d[:3, 3])
         turn = _turn(d)
-        sig_t = np.sqrt(np.linalg.eigvalsh(reg.cov[3:, 3:]).max())
-        checks = {
-            "points": reg.n_structure < rc.min_points,
-            "fitness": reg.fitness < rc.min_fitness,
-            "median": reg.median_m > rc.max_median_m,
-            "jump": jump > rc.max_jump_m or turn > np.radians(rc.max_turn_deg),
-            "sigma": sig_t > rc.max_sigma_m,
-        }
-        why = next((k for k, failed in checks.items() if failed), None)
+        why, sig_t = _failed_check(reg, rc, jumped=jump > rc.max_jump_m or turn > np.radians(rc.max_turn_deg))
         return reg, why, (reg.n_structure, reg.fitness, reg.median_m, jump, np.degrees(turn), sig_t)
 
     def observe(
@@ -161,13 +167,8 @@ class StructureReobservation:
         cov = best.cov.copy()
         cov[3:, 3:] += np.outer(far, far)
         reg = dataclasses.replace(best, cov=cov, cost_4d=None)
-        sig_t = np.sqrt(np.linalg.eigvalsh(reg.cov[3:, 3:]).max())
-        checks = {
-            "fitness": reg.fitness < rc.min_fitness,
-            "median": reg.median_m > rc.max_median_m,
-            "sigma": sig_t > rc.max_sigma_m,
-        }
-        why = next((k for k, failed in checks.items() if failed), None)
+        # the search moves the view on purpose (no jump check); usable() already asked for the points
+        why, sig_t = _failed_check(reg, rc, jumped=False)
         moved = float(np.linalg.norm(reg.T[:3, 3] - local.T[:3, 3]))
         info = (gap_m, local_why, local.fitness, reg.fitness, reg.median_m, float(np.linalg.norm(far)), sig_t, moved)
         if why is not None:
