@@ -77,7 +77,11 @@ class NavigationPrior:
             self._rate(m, T_BS)
         elif isinstance(m, DvlVelocity):
             if m.valid and np.isfinite(m.velocity).all():
-                self._v_B = T_BS[:3, :3] @ np.asarray(m.velocity, float)  # the lever arm's ω×r is mm/s here
+                # the head moves with v_B + ω × t_BS: aft of the origin it swings sideways in every turn
+                # (0.25 m × 0.1 rad/s is 2.5 cm/s), so the last angular rate's part is taken out
+                self._v_B = T_BS[:3, :3] @ np.asarray(m.velocity, float)
+                if self._w_B is not None:
+                    self._v_B = self._v_B - np.cross(self._w_B, T_BS[:3, 3])
                 var_v = float(np.trace(np.asarray(m.covariance, float))) / 3
                 self._holds.append((m.stamp, var_v if np.isfinite(var_v) and var_v > 0 else 0.0))
         elif self._R_WB is not None:  # depth: the sensor's z in {D} is its reading plus a fixed offset
