@@ -123,3 +123,13 @@ def test_a_dvl_behind_the_body_origin_gives_the_body_motion_while_the_vehicle_tu
         truth = Rotation.from_euler("z", turn * a).as_matrix().T @ (position(b) - position(a))
         predicted = p.motion(int(a * S), int(b * S))[:3, 3]
         assert np.linalg.norm(predicted - truth) < 0.005, (a, b, predicted, truth)
+
+
+def test_before_the_first_dvl_reading_the_displacement_is_not_known_to_a_millimetre():
+    """A vehicle descending without bottom lock: the AHRS and the depth sensor report, the DVL not yet. The prior
+    predicts no horizontal motion, and its covariance must say that this is a guess (the velocity's random walk
+    since the start), not a millimetre: else every registration there is a many-σ 'disagreement'."""
+    p = _prior(valid=lambda t: t > 20 * S, seconds=24.0)
+    sigma = np.sqrt(p.motion_covariance(8 * S, 10 * S)[3, 3])
+    assert sigma == pytest.approx(0.02 * np.sqrt(8.0 * 2.0**2 + 2.0**3 / 3), rel=0.02)  # q²((a − t0)Δ² + Δ³/3)
+    assert p.motion_covariance(21 * S, 23 * S)[3, 3] < 0.01**2  # the readings' own, once they come
