@@ -84,8 +84,8 @@ def test_relative_poses_are_accurate_and_consistent(mission, registered):
     assert metrics["accepted"] == len(obs)
 
 
-def _corrupted(mission, shifted: int, floor_only: int):
-    """The mission with scan ``shifted`` moved 1 m along its x axis and scan ``floor_only`` reduced
+def _corrupted(mission, shifted: int, floor_only: int, shift_m: float = 1.0):
+    """The mission with scan ``shifted`` moved ``shift_m`` along its x axis and scan ``floor_only`` reduced
     to a flat patch of floor (a plane 2.7 m ahead, as the tank floor is seen)."""
     scans = [m for m in mission if isinstance(m, PointCloud)]
     bad = {scans[shifted].stamp: "shift", scans[floor_only].stamp: "floor"}
@@ -95,7 +95,7 @@ def _corrupted(mission, shifted: int, floor_only: int):
         if not isinstance(m, PointCloud) or m.stamp not in bad:
             return m
         if bad[m.stamp] == "shift":
-            return dataclasses.replace(m, points=m.points + np.float32([1.0, 0.0, 0.0]), intensity=None)
+            return dataclasses.replace(m, points=m.points + np.float32([shift_m, 0.0, 0.0]), intensity=None)
         xy = rng.uniform(-1.5, 1.5, size=(60000, 2))
         plane = np.column_stack([xy, 2.7 + 0.005 * rng.standard_normal(len(xy))]).astype(np.float32)
         return dataclasses.replace(m, points=plane, intensity=None)
@@ -129,16 +129,31 @@ def test_gate_rejects_a_shifted_and_a_featureless_scan(mission, registered):
             assert err.max() < baseline + 0.02
 
 
+def test_gate_rejects_a_shift_inside_the_absolute_bound_that_the_prior_rules_out(mission, registered):
+    """A scan shifted by 0.2 m registers (ICP follows the shift), and 0.2 m is inside D4.2's 0.35 m bound; but
+    the navigation prior knows the 2 s motion to about a centimetre, so the correction is many of its σ."""
+    _, clean = registered
+    corrupted, bad = _corrupted(mission, shifted=-8, floor_only=-4, shift_m=0.2)
+    shifted = next(s for s, kind in bad.items() if kind == "shift")
+    assert shifted in {z.stamp for z in clean}
+    fe, obs = _register(corrupted)
+    assert shifted not in {z.stamp for z in obs}
+    assert fe.finish().metrics["rejected"].get("prior_distance", 0) >= 1
+    off = _register(corrupted, {"gate": {"max_prior_distance": None}})[1]
+    assert shifted in {z.stamp for z in off}  # what the absolute bounds alone let through
+
+
 def test_gate_rejects_the_shifted_scan_with_the_tight_re_solve_bound(mission):
     """With ``held_max_distance_m`` the translation is re-solved among the correspondences within a few
     centimetres, which holds kiss-icp's wrong minimum for the shifted scan in place (0.16 m from the prior,
     half the scan's points matched): the gate also judges the re-solve at kiss-icp's own threshold, where
-    that minimum walks off past the 0.35 m bound."""
+    that minimum walks off, tens of the prior's σ (and, with the DVL's lever arm left in the prior, past 0.35 m)."""
     corrupted, bad = _corrupted(mission, shifted=-8, floor_only=-4)
     fe, obs = _register(corrupted, {"held_max_distance_m": 0.045})
     assert not set(bad) & {z.stamp for z in obs}
     rejected = fe.finish().metrics["rejected"]
-    assert rejected.get("translation_correction", 0) >= 1  # the shifted scan, for its walk (registered when clean)
+    # the shifted scan, for its walk (registered when clean)
+    assert rejected.get("translation_correction", 0) + rejected.get("prior_distance", 0) >= 1
     assert sum(z.stamp > max(bad) for z in obs) >= 2
 
 

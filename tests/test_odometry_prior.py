@@ -88,3 +88,48 @@ def test_rotation_between_stamps_is_the_integrated_angular_rate_with_its_own_noi
     assert np.sqrt(p.gyro_variance()) == pytest.approx(sigma_w, rel=0.1)
     assert np.degrees(np.median(errors)) < 0.1
     assert 1.5 < np.mean(nees) < 5.0  # 3 DoF
+
+
+def test_a_dvl_behind_the_body_origin_gives_the_body_motion_while_the_vehicle_turns():
+    """The DVL head sits 0.25 m aft and 0.30 m below the body origin (the simulator's mount) and measures its own
+    velocity, v_B + ω × t_BS. Turning at 0.1 rad/s, the head swings sideways at 2.5 cm/s: over a 2 s interval the
+    body's motion is 5 cm off across the track unless the lever arm's ω × t_BS is taken out."""
+    from scipy.spatial.transform import Rotation
+
+    turn, speed, t_BS = 0.1, 0.2, np.array([-0.25, 0.0, 0.30])
+    T_dvl = np.eye(4)
+    T_dvl[:3, 3] = t_BS
+    meta = MissionMetadata(
+        sensors={
+            "ahrs": SensorInfo("ahrs", "ahrs"),
+            "dvl": SensorInfo("dvl", "dvl", T_BS=T_dvl),
+            "depth": SensorInfo("depth", "depth"),
+        }
+    )
+    p = NavigationPrior(meta, horizon_s=60.0)
+    omega = np.array([0.0, 0.0, turn])
+    for k in range(20 * 6 + 1):
+        t = k / 20
+        R = Rotation.from_euler("z", turn * t)
+        p.add(Attitude(int(t * S), "ahrs", orientation=R.as_quat(), covariance=np.eye(3) * 1e-6, angular_rate=omega))
+        if k % 4 == 0:
+            head = np.array([speed, 0.0, 0.0]) + np.cross(omega, t_BS)
+            p.add(DvlVelocity(int(t * S), "dvl", velocity=head, covariance=np.eye(3) * 1e-4))
+
+    def position(t):  # the body origin on its circle, world frame
+        return speed / turn * np.array([np.sin(turn * t), 1.0 - np.cos(turn * t), 0.0])
+
+    for a, b in ((1.0, 3.0), (2.0, 4.0), (3.5, 5.5)):
+        truth = Rotation.from_euler("z", turn * a).as_matrix().T @ (position(b) - position(a))
+        predicted = p.motion(int(a * S), int(b * S))[:3, 3]
+        assert np.linalg.norm(predicted - truth) < 0.005, (a, b, predicted, truth)
+
+
+def test_before_the_first_dvl_reading_the_displacement_is_not_known_to_a_millimetre():
+    """A vehicle descending without bottom lock: the AHRS and the depth sensor report, the DVL not yet. The prior
+    predicts no horizontal motion, and its covariance must say that this is a guess (the velocity's random walk
+    since the start), not a millimetre: else every registration there is a many-σ 'disagreement'."""
+    p = _prior(valid=lambda t: t > 20 * S, seconds=24.0)
+    sigma = np.sqrt(p.motion_covariance(8 * S, 10 * S)[3, 3])
+    assert sigma == pytest.approx(0.02 * np.sqrt(8.0 * 2.0**2 + 2.0**3 / 3), rel=0.02)  # q²((a − t0)Δ² + Δ³/3)
+    assert p.motion_covariance(21 * S, 23 * S)[3, 3] < 0.01**2  # the readings' own, once they come

@@ -9,7 +9,7 @@ few map points per surface, more only slow the neighbour search), ``initial_thre
 centimetres, not metres), ``max_iterations`` (30: the prior starts ICP close) and no deskewing
 (ours are snapshots without per-point times). kiss-icp runs single-threaded: the front-end has a
 process of its own beside the others. The gate is BUGWRIGHT2 D4.2's: a registration that corrects the navigation prior by
-more than 0.05 rad or 0.35 m is rejected.
+more than 0.05 rad or 0.35 m is rejected; and one that corrects it by more than ten of the prior's own σ.
 """
 
 from __future__ import annotations
@@ -78,6 +78,13 @@ class GateSettings(BaseModel):
     )
     max_translation_correction_m: float = Field(
         0.35, gt=0, description="largest translation it may apply to the navigation prior (m)"
+    )
+    max_prior_distance: float | None = Field(
+        10.0,
+        gt=0,
+        description="largest translation correction in units of the navigation prior's σ over the interval "
+        "(Mahalanobis distance; null: no such bound). The prior's σ grows while a DVL reading is held, so in a "
+        "dropout the absolute bound above decides",
     )
     min_inliers: int = Field(200, ge=6, description="fewest scan points matched to the map within the threshold")
     min_inlier_fraction: float = Field(

@@ -83,7 +83,15 @@ class OdometryFrontend(Frontend):
             return []
         motion = self._dropout_motion(track, motion, scan.stamp)
         predicted = track.last_pose @ np.linalg.inv(T_BS) @ motion @ T_BS
-        reg = track.matcher.register(scan.points, predicted, scan.stamp, self._rotation_cov(T_BS, track, scan.stamp))
+        A = adjoint(T_BS)
+        prior_S = self._prior_cov_S(A, track.anchor_stamp, scan.stamp)
+        reg = track.matcher.register(
+            scan.points,
+            predicted,
+            scan.stamp,
+            None if prior_S is None else prior_S[:3, :3],
+            None if prior_S is None else prior_S[3:, 3:],
+        )
         track.last_stamp = scan.stamp
         if reg.rejected is not None:
             track.last_pose = predicted  # the chain goes on with the prior; the map is untouched
@@ -97,7 +105,6 @@ class OdometryFrontend(Frontend):
         self.counts["accepted"] += 1
         relative_B = T_BS @ relative_S @ np.linalg.inv(T_BS)
         track.velocity_B = relative_B[:3, 3] / ((scan.stamp - stamp_from) * 1e-9)
-        A = adjoint(T_BS)
         cov_B = A @ self._tail_scaled(reg, A, stamp_from, scan.stamp) @ A.T
         if self.config.factor_rotation == "free":
             cov_B = translation_only(cov_B)
@@ -128,16 +135,15 @@ class OdometryFrontend(Frontend):
         out[:3, 3] = track.velocity_B * ((stamp - track.last_stamp) * 1e-9)
         return out
 
-    def _rotation_cov(self, T_BS: np.ndarray, track: _Track, stamp: int) -> np.ndarray | None:
-        """The navigation prior's covariance of the sensor's rotation since the map's last accepted scan
-        (3×3, sensor frame): what the registration's attitude is when it is held to the AHRS's."""
-        if track.anchor_stamp is None:
-            return None
-        prior_B = self.prior.motion_covariance(track.anchor_stamp, stamp)
+    def _prior_cov_S(self, A: np.ndarray, stamp_from: int | None, stamp: int) -> np.ndarray | None:
+        """The navigation prior's covariance of the sensor's motion since ``stamp_from`` (the map's last accepted
+        scan; 6×6, rotation then translation, sensor frame; ``A`` the extrinsic's adjoint): the registration's
+        attitude where it is held to the AHRS's, and the gate's and the Student-t scaling's yardstick."""
+        prior_B = None if stamp_from is None else self.prior.motion_covariance(stamp_from, stamp)
         if prior_B is None:
             return None
-        R_SB = T_BS[:3, :3].T
-        return R_SB @ prior_B[:3, :3] @ R_SB.T
+        A_inv = np.linalg.inv(A)
+        return A_inv @ prior_B @ A_inv.T
 
     def _tail_scaled(self, reg, A: np.ndarray, stamp_from: int, stamp_to: int) -> np.ndarray:
         """The registration's covariance (sensor frame) with its part that ICP's disagreement with the prior
@@ -151,11 +157,10 @@ class OdometryFrontend(Frontend):
         """(ν + d²)/(ν + 6), d² the correction ICP made to the prior, under the prior's covariance over the
         same interval (1 without the scaling or a prior)."""
         nu = self.config.covariance.tail_dof
-        prior_B = self.prior.motion_covariance(stamp_from, stamp_to)
-        if nu <= 0 or prior_B is None:
+        prior_S = self._prior_cov_S(A, stamp_from, stamp_to)
+        if nu <= 0 or prior_S is None:
             return 1.0
-        A_inv = np.linalg.inv(A)
-        d2 = mahalanobis2(tangent(reg.correction), A_inv @ prior_B @ A_inv.T)
+        d2 = mahalanobis2(tangent(reg.correction), prior_S)
         return 1.0 if d2 is None else (nu + d2) / (nu + 6)
 
     def _start(self, track: _Track, scan: PointCloud) -> None:

@@ -22,7 +22,13 @@ from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from frontends.odometry.config import CovarianceSettings, OdometryConfig
-from frontends.odometry.information import fitted_planes, plane_information, rotation_angle, twist_angle
+from frontends.odometry.information import (
+    fitted_planes,
+    mahalanobis2,
+    plane_information,
+    rotation_angle,
+    twist_angle,
+)
 
 NORMAL_NEIGHBOURS = 8
 PLANE_NOISE_SCANS = 50  # scans over which the range noise's median is taken
@@ -241,13 +247,19 @@ class ScanMatcher:
         return True
 
     def register(
-        self, points: np.ndarray, predicted: np.ndarray, stamp: int, rotation_cov: np.ndarray | None = None
+        self,
+        points: np.ndarray,
+        predicted: np.ndarray,
+        stamp: int,
+        rotation_cov: np.ndarray | None = None,
+        translation_cov: np.ndarray | None = None,
     ) -> Registration:
         """Align ``points`` (sensor frame, taken at ``stamp``) to the map starting from ``predicted``
         (T_OS, in a map frame whose z axis is the vertical); the map takes the scan only if the
         registration passes the gate. ``rotation_cov``: the navigation prior's covariance (3×3, sensor
         frame) of the scan's rotation relative to the map's, used where the attitude is held to it
-        (``attitude``)."""
+        (``attitude``); ``translation_cov``: the prior's covariance (3×3, sensor frame) of the translation, for
+        the gate's ``max_prior_distance``."""
         source, down = self._prepared(points)
         gate = self.cfg.gate
         if len(source) < gate.min_inliers:
@@ -290,7 +302,7 @@ class ScanMatcher:
         # and at the tight bound (a wrong minimum of ICP, kept in place by the tight bound, walks off in the wide one)
         judged = icp_correction.copy()
         judged[:3, 3] = max(walks, key=np.linalg.norm)
-        rejected = self._judge(judged, cov, overlap, len(source))
+        rejected = self._judge(judged, cov, overlap, len(source), translation_cov)
         if rejected is None:
             self.kiss.adaptive_threshold.update_model_deviation(correction)
             self._add(stamp, down, pose)
@@ -326,7 +338,9 @@ class ScanMatcher:
         floor = np.array([c.floor_sigma_rad] * 3 + [c.floor_sigma_m] * 3) ** 2
         return cov + np.diag(floor)
 
-    def _judge(self, correction: np.ndarray, cov: np.ndarray, inliers: int, points: int) -> str | None:
+    def _judge(
+        self, correction: np.ndarray, cov: np.ndarray, inliers: int, points: int, translation_cov: np.ndarray | None
+    ) -> str | None:
         g = self.cfg.gate
         if inliers < g.min_inliers or inliers < g.min_inlier_fraction * points:
             return "overlap"
@@ -341,6 +355,10 @@ class ScanMatcher:
             return "rotation_correction"
         if np.linalg.norm(correction[:3, 3]) > g.max_translation_correction_m:
             return "translation_correction"
+        if g.max_prior_distance is not None and translation_cov is not None:
+            d2 = mahalanobis2(correction[:3, 3], translation_cov)
+            if d2 is not None and d2 > g.max_prior_distance**2:
+                return "prior_distance"
         return None
 
 

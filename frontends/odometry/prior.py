@@ -3,7 +3,8 @@ sensor predict it, integrated by the front-end itself (so it needs no estimator 
 of them in a process of its own).
 
 Attitude is the AHRS's (its slowly drifting heading bias cancels over a few seconds); the position
-integrates the DVL's body velocity rotated by it; depth readings replace the integrated depth. The
+integrates the DVL's body velocity rotated by it (the head's velocity less its lever arm's ω × t_BS, with the
+AHRS's last angular rate; without rates the lever arm is ignored); depth readings replace the integrated depth. The
 rotation between two stamps is the AHRS's angular rate integrated when its readings carry one: its
 white noise integrates to σ_ω·√(dt·T) (0.04° over a 2 s scan interval at the simulator's 0.002 rad/s and
 20 Hz), where the difference of two attitude readings carries both readings' errors (0.7° of heading).
@@ -58,6 +59,8 @@ class NavigationPrior:
         self._v_B = np.zeros(3)
         self._p = np.zeros(3)
         self._t: int | None = None
+        self._t0: int | None = None  # the first measurement's stamp
+        self._first_reading: int | None = None  # the first valid DVL reading's stamp (kept past the horizon)
         self._depth_offset: float | None = None  # depth sensor's z in {D} − its reading, set once
         self._holds: deque[tuple[int, float]] = deque()  # (stamp, per-axis variance m²/s²) of each valid reading
         self._var_att = np.zeros(3)  # the AHRS's roll, pitch, yaw variances (rad²)
@@ -77,9 +80,14 @@ class NavigationPrior:
             self._rate(m, T_BS)
         elif isinstance(m, DvlVelocity):
             if m.valid and np.isfinite(m.velocity).all():
-                self._v_B = T_BS[:3, :3] @ np.asarray(m.velocity, float)  # the lever arm's ω×r is mm/s here
+                # the head moves with v_B + ω × t_BS: aft of the origin it swings sideways in every turn
+                # (0.25 m × 0.1 rad/s is 2.5 cm/s), so the last angular rate's part is taken out
+                self._v_B = T_BS[:3, :3] @ np.asarray(m.velocity, float)
+                if self._w_B is not None:
+                    self._v_B = self._v_B - np.cross(self._w_B, T_BS[:3, 3])
                 var_v = float(np.trace(np.asarray(m.covariance, float))) / 3
                 self._holds.append((m.stamp, var_v if np.isfinite(var_v) and var_v > 0 else 0.0))
+                self._first_reading = m.stamp if self._first_reading is None else self._first_reading
         elif self._R_WB is not None:  # depth: the sensor's z in {D} is its reading plus a fixed offset
             self._var_depth = m.variance if np.isfinite(m.variance) and m.variance > 0 else 0.0
             z_sensor = self._p[2] + (self._R_WB @ T_BS[:3, 3])[2]
@@ -94,6 +102,7 @@ class NavigationPrior:
             if self._R_GB is not None and self._w_B is not None:
                 self._R_GB = self._R_GB @ so3_exp(self._w_B * ((stamp - self._t) * NS))
         self._t = stamp if self._t is None else max(self._t, stamp)
+        self._t0 = stamp if self._t0 is None else self._t0
 
     def _rate(self, m: Attitude, T_BS: np.ndarray) -> None:
         """Takes the reading's angular rate (held until the next reading); without one the gyro
@@ -128,8 +137,14 @@ class NavigationPrior:
     def _displacement_variance(self, a: int, b: int) -> float:
         """Variance (m² per axis) of the DVL-integrated displacement over [a, b]: per held reading,
         its own error over the part of [a, b] it covers and the velocity's random walk since it was
-        read (before the first reading: nothing known, nothing added)."""
+        read. Before the first reading the velocity is the start's zero, walking since the first measurement
+        (a vehicle descending without bottom lock moves: its displacement is not known to a millimetre)."""
         q2, total = self.hold_walk**2, 0.0
+        first = b if self._first_reading is None else self._first_reading
+        if self._t0 is not None and min(b, first) > max(a, self._t0):
+            lo, hi = max(a, self._t0), min(b, first)
+            age, span = (lo - self._t0) * NS, (hi - lo) * NS
+            total += q2 * (age * span**2 + span**3 / 3)
         starts = [h for h, _ in self._holds]
         k = max(bisect.bisect_right(starts, a) - 1, 0)
         for i in range(k, len(self._holds)):
