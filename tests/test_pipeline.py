@@ -313,3 +313,44 @@ def test_one_measurements_observations_of_every_frontend_reach_an_estimator_in_o
     assert all(len(positions) == 2 for _, _, positions in calls)  # the first front-end's, then the second's
     assert all(p2[0] == p1[0] + 1.0 for _, _, (p1, p2) in calls)
     assert [r.frontend for r in res.observations] == ["counting", "second"] * 5  # kept per front-end
+
+
+def test_a_run_collects_the_young_generation_less_often_and_restores_the_collector():
+    import gc
+
+    from semslam.collector import YOUNG_THRESHOLD
+
+    class Watching(Recorder):  # the collector's state as each measurement reaches the estimator
+        def process_measurement(self, m):
+            super().process_measurement(m)
+            self.seen = gc.get_threshold(), gc.get_freeze_count()
+
+    before = gc.get_threshold()
+    a = Watching("a")
+    run_pipeline(_mission(), [a], [CountingFrontend()])
+    threshold, frozen = a.seen
+    assert threshold == (max(YOUNG_THRESHOLD, before[0]), *before[1:])  # the older generations as they were
+    assert frozen > 0  # what existed before the run is out of its collections
+    assert gc.get_threshold() == before and gc.get_freeze_count() == 0
+
+    class Failing(Recorder):
+        def process_observations(self, stamp, obs):
+            raise RuntimeError("boom")
+
+    with pytest.raises(RuntimeError, match="boom"):
+        run_pipeline(_mission(), [Failing("a")], [CountingFrontend()])
+    assert gc.get_threshold() == before and gc.get_freeze_count() == 0  # restored after an error too
+
+
+def test_nested_blocks_of_fewer_collections_restore_the_outer_ones_state():
+    import gc
+
+    from semslam.collector import fewer_collections
+
+    before = gc.get_threshold()
+    with fewer_collections(10_000):
+        outer = gc.get_threshold()
+        with fewer_collections(5_000):  # never more often than the block it is in
+            assert gc.get_threshold() == outer and gc.get_freeze_count() > 0
+        assert gc.get_threshold() == outer and gc.get_freeze_count() > 0  # the outer block still frozen
+    assert gc.get_threshold() == before and gc.get_freeze_count() == 0

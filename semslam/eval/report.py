@@ -8,6 +8,7 @@ from pathlib import Path
 
 import matplotlib.pyplot as plt
 
+from semslam.collector import fewer_collections
 from semslam.eval import figures
 from semslam.mission.mission import MissionMetadata
 from semslam.results import PipelineResult
@@ -187,6 +188,7 @@ REPLAY_NOTE = (
 )
 
 
+@fewer_collections()
 def write_report(
     out_dir: str | Path, pipeline: PipelineResult, metadata: MissionMetadata, metrics: dict, replay: bool = False
 ) -> Path:
