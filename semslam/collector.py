@@ -1,8 +1,8 @@
-"""The cyclic garbage collector's pace during the long passes of a run (the pipeline, the metrics, the
-output files and the report): they allocate and drop small containers by the million, and with Python's
-default (a young-generation collection every 700 net allocations, a full one as the heap grows) the
-collector walked the run's whole heap again and again (experiments/speed/README.md, stop 50). What is
-collected does not change, only when: no number of a run depends on it."""
+"""The cyclic garbage collector during the long passes of a run (the pipeline, the metrics, the output files
+and the report): what exists when one starts (the modules, the mission, the front-ends' models; after the
+run, its whole result) is frozen out of the collections for its length, so that each full collection walks
+only what the pass itself made, not the heap again and again (experiments/speed/README.md, stop 50). What
+is collected, and when the young generations are, does not change: no number of a run depends on it."""
 
 from __future__ import annotations
 
@@ -10,24 +10,18 @@ import gc
 from collections.abc import Iterator
 from contextlib import contextmanager
 
-# The young generation's collection threshold inside :func:`fewer_collections` (Python's default: 700).
-YOUNG_THRESHOLD = 50_000
-
-_depth = 0  # open blocks: only the outermost one freezes and restores
+_depth = 0  # open blocks: only the outermost one freezes and unfreezes
 
 
 @contextmanager
-def fewer_collections(young: int = YOUNG_THRESHOLD) -> Iterator[None]:
-    """Inside the block (or a function decorated with ``@fewer_collections()``), the youngest generation
-    is collected every ``young`` net allocations (never more often than before), and the objects that
-    existed at its start (modules, the mission, the front-ends' models; in the report, the run's result)
-    are frozen out of the collections (:func:`gc.freeze`); the older generations' thresholds are kept.
-    Restored on leaving, also on an error; blocks may nest."""
+def heap_frozen() -> Iterator[None]:
+    """Inside the block (or a function decorated with ``@heap_frozen()``), the objects that existed at its
+    start are out of the collector's generations (:func:`gc.freeze`): never walked, never collected (one of
+    them that becomes garbage meanwhile waits for the block's end); back in the oldest generation on leaving,
+    also on an error. Blocks may nest: the outermost one decides."""
     global _depth
-    before = gc.get_threshold()
     outermost = _depth == 0
     _depth += 1
-    gc.set_threshold(max(young, before[0]), *before[1:])
     if outermost:
         gc.freeze()
     try:
@@ -36,4 +30,3 @@ def fewer_collections(young: int = YOUNG_THRESHOLD) -> Iterator[None]:
         _depth -= 1
         if outermost:
             gc.unfreeze()
-        gc.set_threshold(*before)

@@ -11,7 +11,7 @@ from contextvars import ContextVar
 from pathlib import Path
 from typing import Protocol
 
-from semslam.collector import fewer_collections
+from semslam.collector import heap_frozen
 from semslam.determinism import one_thread_per_library
 from semslam.estimation import EstimateView, Estimator, spilling_into
 from semslam.frontend_process import FrontendProcess, default_workers, runs_in_process
@@ -101,7 +101,7 @@ def run_pipeline(
     apart = [fe for fe in frontends if frontend_process and runs_in_process(fe)]
     worker = FrontendProcess(apart, frontend_workers or default_workers()) if apart else None
     try:
-        with one_thread_per_library(), spilling_into(spill_dir), fewer_collections():
+        with one_thread_per_library(), spilling_into(spill_dir), heap_frozen():
             result = _run_pipeline(
                 mission, estimators, frontends, view_estimator, progress, keep_observations, worker, watchers
             )

@@ -38,7 +38,6 @@ class LiveObjects:
         self._next = stamp if self._next is None else self._next
         if stamp >= self._next:
             self._next += self.every_ns
-            gc.collect()  # live, not garbage awaiting its collection (a run collects the young less often)
             live = gc.get_objects()
             self.rows.append(
                 {

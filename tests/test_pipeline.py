@@ -315,10 +315,8 @@ def test_one_measurements_observations_of_every_frontend_reach_an_estimator_in_o
     assert [r.frontend for r in res.observations] == ["counting", "second"] * 5  # kept per front-end
 
 
-def test_a_run_collects_the_young_generation_less_often_and_restores_the_collector():
+def test_a_run_freezes_the_heap_it_starts_with_and_unfreezes_it_after():
     import gc
-
-    from semslam.collector import YOUNG_THRESHOLD
 
     class Watching(Recorder):  # the collector's state as each measurement reaches the estimator
         def process_measurement(self, m):
@@ -329,9 +327,9 @@ def test_a_run_collects_the_young_generation_less_often_and_restores_the_collect
     a = Watching("a")
     run_pipeline(_mission(), [a], [CountingFrontend()])
     threshold, frozen = a.seen
-    assert threshold == (max(YOUNG_THRESHOLD, before[0]), *before[1:])  # the older generations as they were
+    assert threshold == before  # when the generations are collected is not changed
     assert frozen > 0  # what existed before the run is out of its collections
-    assert gc.get_threshold() == before and gc.get_freeze_count() == 0
+    assert gc.get_freeze_count() == 0
 
     class Failing(Recorder):
         def process_observations(self, stamp, obs):
@@ -339,18 +337,16 @@ def test_a_run_collects_the_young_generation_less_often_and_restores_the_collect
 
     with pytest.raises(RuntimeError, match="boom"):
         run_pipeline(_mission(), [Failing("a")], [CountingFrontend()])
-    assert gc.get_threshold() == before and gc.get_freeze_count() == 0  # restored after an error too
+    assert gc.get_freeze_count() == 0  # unfrozen after an error too
 
 
-def test_nested_blocks_of_fewer_collections_restore_the_outer_ones_state():
+def test_the_outermost_frozen_block_decides():
     import gc
 
-    from semslam.collector import fewer_collections
+    from semslam.collector import heap_frozen
 
-    before = gc.get_threshold()
-    with fewer_collections(10_000):
-        outer = gc.get_threshold()
-        with fewer_collections(5_000):  # never more often than the block it is in
-            assert gc.get_threshold() == outer and gc.get_freeze_count() > 0
-        assert gc.get_threshold() == outer and gc.get_freeze_count() > 0  # the outer block still frozen
-    assert gc.get_threshold() == before and gc.get_freeze_count() == 0
+    with heap_frozen():
+        with heap_frozen():
+            assert gc.get_freeze_count() > 0
+        assert gc.get_freeze_count() > 0  # the inner block's end leaves the outer one frozen
+    assert gc.get_freeze_count() == 0

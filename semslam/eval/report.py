@@ -8,7 +8,7 @@ from pathlib import Path
 
 import matplotlib.pyplot as plt
 
-from semslam.collector import fewer_collections
+from semslam.collector import heap_frozen
 from semslam.eval import figures
 from semslam.mission.mission import MissionMetadata
 from semslam.results import PipelineResult
@@ -188,7 +188,7 @@ REPLAY_NOTE = (
 )
 
 
-@fewer_collections()
+@heap_frozen()
 def write_report(
     out_dir: str | Path, pipeline: PipelineResult, metadata: MissionMetadata, metrics: dict, replay: bool = False
 ) -> Path:
