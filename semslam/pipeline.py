@@ -11,6 +11,7 @@ from contextvars import ContextVar
 from pathlib import Path
 from typing import Protocol
 
+from semslam.collector import heap_frozen
 from semslam.determinism import one_thread_per_library
 from semslam.estimation import EstimateView, Estimator, spilling_into
 from semslam.frontend_process import FrontendProcess, default_workers, runs_in_process
@@ -100,7 +101,7 @@ def run_pipeline(
     apart = [fe for fe in frontends if frontend_process and runs_in_process(fe)]
     worker = FrontendProcess(apart, frontend_workers or default_workers()) if apart else None
     try:
-        with one_thread_per_library(), spilling_into(spill_dir):
+        with one_thread_per_library(), spilling_into(spill_dir), heap_frozen():
             result = _run_pipeline(
                 mission, estimators, frontends, view_estimator, progress, keep_observations, worker, watchers
             )
@@ -133,6 +134,7 @@ def _in_order(mission: Mission, worker: FrontendProcess | None, timing: dict):
     it = iter(mission)
     pending: deque = deque()
     exhausted = False
+    consumed: dict[type, bool] = {}  # by the measurement's type: whether the front-end process takes it
     while True:
         while not exhausted and (len(pending) < LOOKAHEAD if worker is not None else not pending):
             t0 = time.perf_counter()
@@ -141,7 +143,12 @@ def _in_order(mission: Mission, worker: FrontendProcess | None, timing: dict):
             if m is None:
                 exhausted = True
                 break
-            sent = worker is not None and worker.consumes(m) and worker.submit(m)
+            sent = False
+            if worker is not None:
+                takes = consumed.get(type(m))
+                if takes is None:
+                    takes = consumed[type(m)] = worker.consumes(m)
+                sent = takes and worker.submit(m)
             pending.append((m, sent))
         if not pending:
             return
@@ -162,6 +169,7 @@ def _run_pipeline(
     labelled_views = LabelledViews()
     consumers = [(fe, tuple(fe.consumes)) for fe in frontends]
     apart = set(worker.names) if worker is not None else set()
+    timed = [(est, f"estimator:{est.name}") for est in estimators]  # each estimator with its stage's name
 
     fed: list[tuple[str, list]] = []  # this step's observations, for the watchers
 
@@ -184,10 +192,10 @@ def _run_pipeline(
         stop 45)."""
         if not step:
             return
-        for est in estimators:
+        for est, stage in timed:
             t0 = time.perf_counter()
             est.process_observations(stamp, step)
-            timing[f"estimator:{est.name}"] += time.perf_counter() - t0
+            timing[stage] += time.perf_counter() - t0
 
     bar = None
     if progress:
@@ -208,10 +216,10 @@ def _run_pipeline(
         last = m.stamp
         if isinstance(m, GroundTruthPose):
             truth.append(m.stamp, m.position, m.orientation)
-        for est in estimators:
+        for est, stage in timed:
             t0 = time.perf_counter()
             est.process_measurement(m)
-            timing[f"estimator:{est.name}"] += time.perf_counter() - t0
+            timing[stage] += time.perf_counter() - t0
         done = worker.result() if sent else {}
         step: list = []
         for fe, types in consumers:  # in the front-ends' order, wherever they ran

@@ -313,3 +313,40 @@ def test_one_measurements_observations_of_every_frontend_reach_an_estimator_in_o
     assert all(len(positions) == 2 for _, _, positions in calls)  # the first front-end's, then the second's
     assert all(p2[0] == p1[0] + 1.0 for _, _, (p1, p2) in calls)
     assert [r.frontend for r in res.observations] == ["counting", "second"] * 5  # kept per front-end
+
+
+def test_a_run_freezes_the_heap_it_starts_with_and_unfreezes_it_after():
+    import gc
+
+    class Watching(Recorder):  # the collector's state as each measurement reaches the estimator
+        def process_measurement(self, m):
+            super().process_measurement(m)
+            self.seen = gc.get_threshold(), gc.get_freeze_count()
+
+    before = gc.get_threshold()
+    a = Watching("a")
+    run_pipeline(_mission(), [a], [CountingFrontend()])
+    threshold, frozen = a.seen
+    assert threshold == before  # when the generations are collected is not changed
+    assert frozen > 0  # what existed before the run is out of its collections
+    assert gc.get_freeze_count() == 0
+
+    class Failing(Recorder):
+        def process_observations(self, stamp, obs):
+            raise RuntimeError("boom")
+
+    with pytest.raises(RuntimeError, match="boom"):
+        run_pipeline(_mission(), [Failing("a")], [CountingFrontend()])
+    assert gc.get_freeze_count() == 0  # unfrozen after an error too
+
+
+def test_the_outermost_frozen_block_decides():
+    import gc
+
+    from semslam.collector import heap_frozen
+
+    with heap_frozen():
+        with heap_frozen():
+            assert gc.get_freeze_count() > 0
+        assert gc.get_freeze_count() > 0  # the inner block's end leaves the outer one frozen
+    assert gc.get_freeze_count() == 0

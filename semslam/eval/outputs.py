@@ -24,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
+from semslam.collector import heap_frozen
 from semslam.config import SemslamConfig, dump_config
 from semslam.errors import SemslamError
 from semslam.estimation import EstimatorResult, LandmarkEstimate, spilling_into
@@ -277,6 +278,7 @@ def _has_distinct_online(result: EstimatorResult) -> bool:
     return not (len(on) == len(tr) and np.array_equal(on.positions, tr.positions))
 
 
+@heap_frozen()
 def build_metrics(pipeline: PipelineResult, metadata: MissionMetadata) -> dict:
     """metrics.json (DESIGN.md): mission, per-estimator, recognition and sonar blocks."""
     gt = metadata.ground_truth
@@ -323,6 +325,7 @@ def build_metrics(pipeline: PipelineResult, metadata: MissionMetadata) -> dict:
     return metrics
 
 
+@heap_frozen()
 def write_results(directory: Path, config: SemslamConfig, pipeline: PipelineResult, metrics: dict) -> None:
     """Write config.yaml, trajectory_<est>.tum, map_<est>.json/.ply, the front-ends' files and
     metrics.json into ``directory`` (a staging directory: see :func:`staged_output`)."""

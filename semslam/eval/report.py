@@ -8,6 +8,7 @@ from pathlib import Path
 
 import matplotlib.pyplot as plt
 
+from semslam.collector import heap_frozen
 from semslam.eval import figures
 from semslam.mission.mission import MissionMetadata
 from semslam.results import PipelineResult
@@ -187,6 +188,7 @@ REPLAY_NOTE = (
 )
 
 
+@heap_frozen()
 def write_report(
     out_dir: str | Path, pipeline: PipelineResult, metadata: MissionMetadata, metrics: dict, replay: bool = False
 ) -> Path:
