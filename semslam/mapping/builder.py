@@ -25,7 +25,8 @@ For each batch of observations (one front-end's, of one measurement) the builder
    by the collinearity criterion (the touched one's seen stretch cut at the mapped in-line objects, the
    other's at the mapped fittings that end pipes) whose line difference is compatible with zero or which
    share over
-   half of a stretch within ``duplicate_pipe_distance_m`` of each other's axis. The younger goes into the older (the estimator constrains the two to be one
+   half of a stretch within ``duplicate_pipe_distance_m`` of each other's axis (also two collinear pipes that
+   an object "between" them keeps apart by the first criterion: it may lie inside the stretch both saw). The younger goes into the older (the estimator constrains the two to be one
    where the χ² test passed; otherwise it just drops the younger), except that of two χ²-incompatible
    objects within one body the one with fewer views goes (one of them is misplaced: e.g. a track that
    joined views of two objects while the pose was uncertain).
