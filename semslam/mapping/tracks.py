@@ -1,7 +1,7 @@
 """Tentative landmarks (Himri et al. 2018: a landmark enters the map only after consistent repeated
 observations). A scan's unpaired observations continue tracks or start new ones; a track seen
 ``association.min_observations`` times is promoted (each estimator then initialises the landmark in
-its own state; a pipe only from a view whose own direction is known to
+its own state; with it set, a pipe only from a view whose own direction is known to
 ``association.pipe_promote_direction_sigma_rad``: the EKF starts a pipe from its latest view and keeps
 its Jacobians at that first estimate, so a short, far view a few degrees off is read as vehicle motion
 for the rest of the mission); one not seen again within ``association.track_timeout_s`` is forgotten (an object's
