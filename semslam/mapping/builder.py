@@ -25,7 +25,8 @@ For each batch of observations (one front-end's, of one measurement) the builder
    by the collinearity criterion (the touched one's seen stretch cut at the mapped in-line objects, the
    other's at the mapped fittings that end pipes) whose line difference is compatible with zero or which
    share over
-   half of a stretch within ``duplicate_pipe_distance_m`` of each other's axis. The younger goes into the older (the estimator constrains the two to be one
+   half of a stretch within ``duplicate_pipe_distance_m`` of each other's axis (also two collinear pipes that
+   an object "between" them keeps apart by the first criterion: it may lie inside the stretch both saw). The younger goes into the older (the estimator constrains the two to be one
    where the χ² test passed; otherwise it just drops the younger), except that of two χ²-incompatible
    objects within one body the one with fewer views goes (one of them is misplaced: e.g. a track that
    joined views of two objects while the pose was uncertain).
@@ -447,15 +448,18 @@ class MapBuilder:
         """Whether the screened pipes a, b (id, c, d) are one: (χ² of their difference or inf, a, b, gate), or None.
         ``collinear``: within ``merge_angle_rad``; then ``on_pipe``: b's stretch on a's line (:meth:`_on_pipes`)."""
         nis = None
-        if collinear:
-            if not on_pipe:
-                return None
+        if collinear and on_pipe:
             nis = self.state.difference_nis(pipe_a[0], pipe_b[0])
             if nis is not None and nis < gate:
                 return (nis, pipe_a[0], pipe_b[0], gate)
         # sharing a stretch, either way round: a short twin 12° off lies along its pipe's axis, while
-        # the pipe's ends are far from the twin's axis
+        # the pipe's ends are far from the twin's axis. Also of two collinear pipes that are not on one
+        # pipe by the extent rule: an object "between" them may sit inside the stretch both saw (a false
+        # or tentative object view on a short pipe, crossed by their views), and the stretches, cut at
+        # the mapped in-line objects, still lie on each other
         if self._shares_stretch(pipe_b, pipe_a, cutters) or self._shares_stretch(pipe_a, pipe_b, cutters):
+            if collinear and not on_pipe:
+                nis = self.state.difference_nis(pipe_a[0], pipe_b[0])
             return (math.inf if nis is None else nis, pipe_a[0], pipe_b[0], gate)
         return None
 

@@ -1,7 +1,10 @@
 """Tentative landmarks (Himri et al. 2018: a landmark enters the map only after consistent repeated
 observations). A scan's unpaired observations continue tracks or start new ones; a track seen
 ``association.min_observations`` times is promoted (each estimator then initialises the landmark in
-its own state); one not seen again within ``association.track_timeout_s`` is forgotten (an object's
+its own state; with it set, a pipe only from a view whose own direction is known to
+``association.pipe_promote_direction_sigma_rad``: the EKF starts a pipe from its latest view and keeps
+its Jacobians at that first estimate, so a short, far view a few degrees off is read as vehicle motion
+for the rest of the mission); one not seen again within ``association.track_timeout_s`` is forgotten (an object's
 place is remembered a while longer: its counts go on, and it keeps collinear pipes apart). An object
 must also have been seen in at least ``association.object_view_ratio`` of the scans that had its
 place in view since its first view: the scans that saw anything (a mapped or tentative landmark, an
@@ -273,7 +276,11 @@ class TrackSet:
             went.append(tr)
         self._credit(views, went)
         for tr in went:  # (one view a track: the assignment is one-to-one)
-            if len(tr.views) >= self.assoc.min_observations and self._seen_when_in_view(tr):
+            if (
+                len(tr.views) >= self.assoc.min_observations
+                and self._seen_when_in_view(tr)
+                and self._direction_known(tr)
+            ):
                 self.tracks.remove(tr)
                 promoted.append(tr)
         return went, promoted
@@ -404,6 +411,12 @@ class TrackSet:
         ratio = self.assoc.object_view_ratio
         return tr.kind != "object" or ratio <= 0 or tr.seen + tr.seen_before >= ratio * tr.in_view
 
+    def _direction_known(self, tr: Track) -> bool:
+        """A pipe's latest view knows its direction to ``pipe_promote_direction_sigma_rad`` (other kinds, or
+        the rule off: always)."""
+        limit = self.assoc.pipe_promote_direction_sigma_rad
+        return tr.kind != "pipe" or limit is None or direction_sigma(tr.views[-1].z) <= limit
+
     def _gate(self, z: Observation) -> float:
         """The largest :meth:`_cost` that continues a track."""
         if isinstance(z, LineObservation):
@@ -451,3 +464,15 @@ def split_pose_covariance(P: np.ndarray, drifting) -> tuple[np.ndarray, np.ndarr
     on[list(drifting)] = True
     mask = np.equal.outer(on, on)
     return np.where(mask & on, P, 0.0), np.where(mask & ~on, P, 0.0)
+
+
+def direction_sigma(z: LineObservation) -> float:
+    """The σ (rad, largest across the segment) of a pipe segment's direction from its ends' covariance:
+    the difference of the ends across the segment over its length."""
+    e = z.q - z.p
+    length = float(np.linalg.norm(e))
+    u = e / length
+    C = np.asarray(z.covariance, float)
+    D = C[:3, :3] + C[3:, 3:] - C[:3, 3:] - C[3:, :3]  # covariance of q − p
+    A = np.eye(3) - np.outer(u, u)
+    return float(np.sqrt(max(np.linalg.eigvalsh(A @ D @ A).max(), 0.0))) / length
