@@ -471,6 +471,8 @@ def direction_sigma(z: LineObservation) -> float:
     the difference of the ends across the segment over its length."""
     e = z.q - z.p
     length = float(np.linalg.norm(e))
+    if not length > 0:  # a point, not a segment: no direction
+        return float("inf")
     u = e / length
     C = np.asarray(z.covariance, float)
     D = C[:3, :3] + C[3:, 3:] - C[:3, 3:] - C[3:, :3]  # covariance of q − p
