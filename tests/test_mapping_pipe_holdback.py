@@ -1,9 +1,10 @@
-"""Two map-building rules for short pipes (both estimators; issue 21, stop 50):
+"""Two map-building rules for short pipes (issue 21, stop 50):
 
-- a pipe track is promoted only from a view that knows its direction (``association.
-  pipe_promote_direction_sigma_rad``, off by default: it delays the sonar fields' pipes): the EKF starts a pipe from its latest view and keeps its Jacobians at
-  that first estimate, so a short, far first view tilted a few degrees (held-out tank world 94: 7°, 2.5σ)
-  is read as vehicle motion for the rest of the mission;
+- the EKF's map promotes a pipe track only from a view that knows its direction
+  (``ekf.pipe_promote_direction_sigma_rad``; the graph does not wait, a pipe held back is a constraint lost): the
+  EKF starts a pipe from its latest view and keeps its Jacobians at that first estimate, so a short, far first
+  view tilted a few degrees (held-out tank world 94: 7°, 2.5σ) is read as vehicle motion for the rest of the
+  mission;
 - two collinear pipes that share a stretch are one, even when an object lies "between" them by the extent
   rule: a false or tentative object view inside the stretch both saw (held-out tank worlds 93 and 95).
 """
@@ -55,15 +56,26 @@ def _pipe_views(tracks: TrackSet, lengths: list[float], sigma: float = 0.004):
 
 
 def test_a_pipe_is_not_promoted_from_a_short_view_that_does_not_know_its_direction():
-    """The rule at 2.5° (off by default): three views, the latest short (4 mm ends over 12 cm: 2.7°) — held back;
-    the next, longer view (0.3 m: 1.1°) promotes it."""
-    assoc = SemslamConfig().association.model_copy(update={"pipe_promote_direction_sigma_rad": 0.044})
-    assert direction_sigma(_segment(0.12, 0.004)) > assoc.pipe_promote_direction_sigma_rad
-    assert direction_sigma(_segment(0.3, 0.004)) < assoc.pipe_promote_direction_sigma_rad
-    assert _pipe_views(TrackSet(assoc), [0.3, 0.3, 0.12, 0.3]) == [0, 0, 0, 1]
-    # off, the third view promotes it
-    off = assoc.model_copy(update={"pipe_promote_direction_sigma_rad": None})
-    assert _pipe_views(TrackSet(off), [0.3, 0.3, 0.12, 0.3]) == [0, 0, 1, 0]
+    """The EKF's default: three views, the latest short (4 mm ends over 12 cm: 2.7°) — held back; the next,
+    longer view (0.3 m: 1.1°) promotes it. Without a limit (the graph's map) the third view promotes it."""
+    config = SemslamConfig()
+    limit = config.ekf.pipe_promote_direction_sigma_rad
+    assert limit is not None
+    assert direction_sigma(_segment(0.12, 0.004)) > limit
+    assert direction_sigma(_segment(0.3, 0.004)) < limit
+    assert _pipe_views(TrackSet(config.association, limit), [0.3, 0.3, 0.12, 0.3]) == [0, 0, 0, 1]
+    assert _pipe_views(TrackSet(config.association), [0.3, 0.3, 0.12, 0.3]) == [0, 0, 1, 0]
+
+
+def test_only_the_ekf_waits_for_a_pipe_s_direction():
+    from semslam.estimators import create_estimator
+    from semslam.mission.mission import MissionMetadata, SensorInfo
+
+    meta = MissionMetadata(sensors={"laser": SensorInfo("laser", "laser")})
+    config = SemslamConfig()
+    ekf, graph = (create_estimator(name, meta, config) for name in ("ekf", "graph"))
+    assert ekf.mapper.tracks.pipe_direction_sigma_rad == config.ekf.pipe_promote_direction_sigma_rad
+    assert graph.mapper.tracks.pipe_direction_sigma_rad is None
 
 
 class _Pipes:

@@ -35,6 +35,15 @@ class EkfConfig(BaseModel):
         "Roumeliotis 2009), which keeps it unobservable; current: the textbook EKF, whose Jacobians at the "
         "updated estimates observe it spuriously (the heading wanders and the bias with it)",
     )
+    pipe_promote_direction_sigma_rad: float | None = Field(
+        0.044,
+        gt=0,
+        description="the EKF's map takes a pipe only once a view knows its direction to this σ (rad; the segment's "
+        "end covariances across it over its length): it starts a pipe from its latest view and, with "
+        "first_estimate line Jacobians, linearises it there for good, so a short, far view a few degrees off "
+        "is read as vehicle motion for the rest of the mission. The graph starts its pipes from all their views "
+        "and relinearises: it does not wait (a pipe held back is a constraint lost meanwhile). None: no wait",
+    )
     line_min_distance_m: float = Field(
         0.05, gt=0, description="pipe observations whose line passes closer than this to the sensor are ignored (ρ ≈ 0)"
     )

@@ -322,15 +322,6 @@ class AssociationConfig(BaseModel):
         "the shorter and whose axes are closer than this (a pipe diameter: pipes cannot interpenetrate) "
         "are one pipe mapped twice, even when their estimates fail the χ² test; the younger is dropped",
     )
-    pipe_promote_direction_sigma_rad: float | None = Field(
-        None,
-        gt=0,
-        description="a pipe track is promoted only from a view whose own direction is known to this σ (rad; the "
-        "segment's end covariances across it over its length): both estimators start a pipe from its views, the "
-        "EKF from the latest alone and linearises it there for good, so a short, far, tilted first view can "
-        "pull its vehicle for the rest of the mission; None: off (experiments/estimators/README.md, stop 50: "
-        "0.044 mends such EKF divergences on laser tank worlds and delays the sonar fields' pipes)",
-    )
     duplicate_pipe_angle_rad: float = Field(
         0.44,
         gt=0,

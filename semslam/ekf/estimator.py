@@ -132,8 +132,11 @@ class EkfEstimator(_Filter):
 
     def __init__(self, metadata: MissionMetadata, config: SemslamConfig | None = None):
         super().__init__(metadata, config)
-        self.map = FeatureMap(self.nav, config or SemslamConfig(), self.book)
-        self.mapper = MapBuilder(self.map, self.assoc, self.book, self.diagnostics)
+        cfg = config or SemslamConfig()
+        self.map = FeatureMap(self.nav, cfg, self.book)
+        self.mapper = MapBuilder(
+            self.map, self.assoc, self.book, self.diagnostics, cfg.ekf.pipe_promote_direction_sigma_rad
+        )
 
     def _observe(self, stamp: int, observations: list[Observation]) -> bool:
         self.map.begin()

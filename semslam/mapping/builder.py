@@ -160,11 +160,18 @@ class LandmarkState(Protocol):
 class MapBuilder:
     """The map-building rules (see the module) over one estimator's landmark state."""
 
-    def __init__(self, state: LandmarkState, assoc: AssociationConfig, book: LandmarkBook, diagnostics: list[str]):
+    def __init__(
+        self,
+        state: LandmarkState,
+        assoc: AssociationConfig,
+        book: LandmarkBook,
+        diagnostics: list[str],
+        pipe_direction_sigma_rad: float | None = None,
+    ):
         self.state = state
         self.assoc = assoc
         self.book = book
-        self.tracks = TrackSet(assoc)
+        self.tracks = TrackSet(assoc, pipe_direction_sigma_rad)
         self.in_view = InView(assoc.object_view_reach_m)
         self.views: dict[str, SensorView] = {}  # each sensor's view as its observations show it
         self.diagnostics = diagnostics

@@ -1,10 +1,10 @@
 """Tentative landmarks (Himri et al. 2018: a landmark enters the map only after consistent repeated
 observations). A scan's unpaired observations continue tracks or start new ones; a track seen
 ``association.min_observations`` times is promoted (each estimator then initialises the landmark in
-its own state; with it set, a pipe only from a view whose own direction is known to
-``association.pipe_promote_direction_sigma_rad``: the EKF starts a pipe from its latest view and keeps
-its Jacobians at that first estimate, so a short, far view a few degrees off is read as vehicle motion
-for the rest of the mission); one not seen again within ``association.track_timeout_s`` is forgotten (an object's
+its own state; the EKF's a pipe only from a view whose own direction is known to
+``ekf.pipe_promote_direction_sigma_rad``: it starts a pipe from its latest view and keeps its Jacobians
+at that first estimate, so a short, far view a few degrees off is read as vehicle motion for the rest of
+the mission); one not seen again within ``association.track_timeout_s`` is forgotten (an object's
 place is remembered a while longer: its counts go on, and it keeps collinear pipes apart). An object
 must also have been seen in at least ``association.object_view_ratio`` of the scans that had its
 place in view since its first view: the scans that saw anything (a mapped or tentative landmark, an
@@ -178,8 +178,9 @@ LAPSED_OUT_OF_VIEW_TIMEOUTS = 5
 class TrackSet:
     """The tentative landmarks of one estimator."""
 
-    def __init__(self, assoc: AssociationConfig):
+    def __init__(self, assoc: AssociationConfig, pipe_direction_sigma_rad: float | None = None):
         self.assoc = assoc
+        self.pipe_direction_sigma_rad = pipe_direction_sigma_rad  # the estimator's wait for a pipe's direction
         self.tracks: list[Track] = []
         self._next_key = 0
         self._retired: list[Track] = []  # forgotten as ambiguous (:meth:`_ambiguous`), until :meth:`purge`
@@ -412,9 +413,9 @@ class TrackSet:
         return tr.kind != "object" or ratio <= 0 or tr.seen + tr.seen_before >= ratio * tr.in_view
 
     def _direction_known(self, tr: Track) -> bool:
-        """A pipe's latest view knows its direction to ``pipe_promote_direction_sigma_rad`` (other kinds, or
-        the rule off: always)."""
-        limit = self.assoc.pipe_promote_direction_sigma_rad
+        """A pipe's latest view knows its direction to ``pipe_direction_sigma_rad`` (other kinds, or without
+        a limit: always)."""
+        limit = self.pipe_direction_sigma_rad
         return tr.kind != "pipe" or limit is None or direction_sigma(tr.views[-1].z) <= limit
 
     def _gate(self, z: Observation) -> float:
