@@ -30,9 +30,9 @@ def registrations(mission, config: dict | None = None, record: dict | None = Non
     obs, last = [], {}
     register = ScanMatcher.register
 
-    def recorded(self, points, predicted, stamp, rotation_cov=None):
+    def recorded(self, points, predicted, stamp, rotation_cov=None, translation_cov=None):
         sigma = self.kiss.adaptive_threshold.get_threshold()  # the σ this registration runs with
-        reg = register(self, points, predicted, stamp, rotation_cov)
+        reg = register(self, points, predicted, stamp, rotation_cov, translation_cov)
         last[stamp] = (float(sigma), float(np.linalg.norm(reg.correction[:3, 3])))
         return reg
 

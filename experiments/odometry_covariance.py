@@ -43,8 +43,8 @@ class RecordingMatcher(ScanMatcher):
         RecordingMatcher.log.append(("start", ok))
         return ok
 
-    def register(self, points, predicted, stamp, rotation_cov=None):
-        reg = super().register(points, predicted, stamp, rotation_cov)
+    def register(self, points, predicted, stamp, rotation_cov=None, translation_cov=None):
+        reg = super().register(points, predicted, stamp, rotation_cov, translation_cov)
         RecordingMatcher.log.append(("register", reg))
         return reg
 

@@ -49,8 +49,8 @@ class _PartsMatcher(ScanMatcher):
         }
         return super()._held_covariance(info, residual_var, n, icp_cov, rotation_cov, R_OS)
 
-    def register(self, points, predicted, stamp, rotation_cov=None):
-        reg = super().register(points, predicted, stamp, rotation_cov)
+    def register(self, points, predicted, stamp, rotation_cov=None, translation_cov=None):
+        reg = super().register(points, predicted, stamp, rotation_cov, translation_cov)
         self.parts.update(points=reg.points, correction_S=pose_error(np.eye(4), reg.correction))
         return reg
 
