@@ -56,8 +56,8 @@ class _PartsMatcher(ScanMatcher):
 
 
 class _PartsFrontend(OdometryFrontend):
-    def _tail_factor(self, reg, A, stamp_from, stamp_to):
-        self.tail = super()._tail_factor(reg, A, stamp_from, stamp_to)
+    def _tail_factor(self, reg, prior_S):
+        self.tail = super()._tail_factor(reg, prior_S)
         return self.tail
 
 

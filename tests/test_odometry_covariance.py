@@ -88,7 +88,7 @@ def test_the_held_covariance_is_its_parts_and_the_tail_leaves_the_rotation_alone
 
     frontend = OdometryFrontend.__new__(OdometryFrontend)  # the tail's factor alone, without a mission
     frontend._tail_factor = lambda *args: 5.0
-    scaled = frontend._tail_scaled(reg, np.eye(6), 0, 2 * S)
+    scaled = frontend._tail_scaled(reg, np.eye(6))
     assert np.array_equal(scaled[:3, :], reg.covariance[:3, :])  # the rotation and the cross terms: unchanged
     assert np.allclose(scaled[3:, 3:] - reg.covariance[3:, 3:], 4.0 * measured, rtol=1e-9, atol=1e-15)
 

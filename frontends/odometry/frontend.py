@@ -105,7 +105,7 @@ class OdometryFrontend(Frontend):
         self.counts["accepted"] += 1
         relative_B = T_BS @ relative_S @ np.linalg.inv(T_BS)
         track.velocity_B = relative_B[:3, 3] / ((scan.stamp - stamp_from) * 1e-9)
-        cov_B = A @ self._tail_scaled(reg, A, stamp_from, scan.stamp) @ A.T
+        cov_B = A @ self._tail_scaled(reg, prior_S) @ A.T
         if self.config.factor_rotation == "free":
             cov_B = translation_only(cov_B)
         elif self.config.factor_rotation == "conditional":
@@ -145,19 +145,18 @@ class OdometryFrontend(Frontend):
         A_inv = np.linalg.inv(A)
         return A_inv @ prior_B @ A_inv.T
 
-    def _tail_scaled(self, reg, A: np.ndarray, stamp_from: int, stamp_to: int) -> np.ndarray:
+    def _tail_scaled(self, reg, prior_S: np.ndarray | None) -> np.ndarray:
         """The registration's covariance (sensor frame) with its part that ICP's disagreement with the prior
         makes (``Registration.tail_part``: with the attitude held, the translation's measured part; the
         rotation is the prior's own) times :meth:`_tail_factor`."""
-        factor = self._tail_factor(reg, A, stamp_from, stamp_to)
+        factor = self._tail_factor(reg, prior_S)
         part = reg.covariance if reg.tail_part is None else reg.tail_part
         return reg.covariance + (factor - 1.0) * part
 
-    def _tail_factor(self, reg, A: np.ndarray, stamp_from: int, stamp_to: int) -> float:
-        """(ν + d²)/(ν + 6), d² the correction ICP made to the prior, under the prior's covariance over the
-        same interval (1 without the scaling or a prior)."""
+    def _tail_factor(self, reg, prior_S: np.ndarray | None) -> float:
+        """(ν + d²)/(ν + 6), d² the correction ICP made to the prior, under ``prior_S``, the prior's covariance
+        over the same interval (:meth:`_prior_cov_S`; 1 without the scaling or a prior)."""
         nu = self.config.covariance.tail_dof
-        prior_S = self._prior_cov_S(A, stamp_from, stamp_to)
         if nu <= 0 or prior_S is None:
             return 1.0
         d2 = mahalanobis2(tangent(reg.correction), prior_S)
