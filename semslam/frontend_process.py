@@ -208,7 +208,9 @@ class FrontendProcess:
             raise
 
     def consumes(self, m: Measurement) -> bool:
-        return any(isinstance(m, t) for t in self._types)
+        """Whether some front-end of the process takes ``m`` (its type's route, worked out once)."""
+        route = self._route(m)
+        return route.answered or route.everywhere
 
     def _route(self, m: Measurement) -> _Route:
         route = self._routes.get(type(m))

@@ -134,7 +134,6 @@ def _in_order(mission: Mission, worker: FrontendProcess | None, timing: dict):
     it = iter(mission)
     pending: deque = deque()
     exhausted = False
-    consumed: dict[type, bool] = {}  # by the measurement's type: whether the front-end process takes it
     while True:
         while not exhausted and (len(pending) < LOOKAHEAD if worker is not None else not pending):
             t0 = time.perf_counter()
@@ -143,12 +142,7 @@ def _in_order(mission: Mission, worker: FrontendProcess | None, timing: dict):
             if m is None:
                 exhausted = True
                 break
-            sent = False
-            if worker is not None:
-                takes = consumed.get(type(m))
-                if takes is None:
-                    takes = consumed[type(m)] = worker.consumes(m)
-                sent = takes and worker.submit(m)
+            sent = worker is not None and worker.consumes(m) and worker.submit(m)
             pending.append((m, sent))
         if not pending:
             return
