@@ -143,6 +143,21 @@ def test_gate_rejects_a_shift_inside_the_absolute_bound_that_the_prior_rules_out
     assert shifted in {z.stamp for z in off}  # what the absolute bounds alone let through
 
 
+def test_a_run_whose_scans_are_mostly_refused_says_so(mission, caplog):
+    """A gate no registration passes (here a prior distance of 0.01 σ): the run ends normally with no odometry,
+    and one warning line says how many scans were refused and why; a normal run says nothing."""
+    with caplog.at_level("WARNING", logger="frontends.odometry.frontend"):
+        fe, obs = _register(mission, {"gate": {"max_prior_distance": 0.01}})
+        metrics = fe.finish().metrics
+    assert not obs and metrics["rejected"]["prior_distance"] > 0
+    warned = [r.getMessage() for r in caplog.records if "odometry front-end" in r.getMessage()]
+    assert len(warned) == 1 and "prior_distance" in warned[0] and "0 accepted" in warned[0]
+    caplog.clear()
+    with caplog.at_level("WARNING", logger="frontends.odometry.frontend"):
+        _register(mission)[0].finish()
+    assert not [r for r in caplog.records if "odometry front-end" in r.getMessage()]
+
+
 def test_gate_rejects_the_shifted_scan_with_the_tight_re_solve_bound(mission):
     """With ``held_max_distance_m`` the translation is re-solved among the correspondences within a few
     centimetres, which holds kiss-icp's wrong minimum for the shifted scan in place (0.16 m from the prior,

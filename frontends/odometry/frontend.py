@@ -3,6 +3,7 @@ sensors agree (BUGWRIGHT2 D4.2)."""
 
 from __future__ import annotations
 
+import logging
 from collections import Counter
 from typing import ClassVar
 
@@ -23,6 +24,8 @@ from semslam.mission.measurements import Attitude, Depth, DvlVelocity, Measureme
 from semslam.mission.mission import MissionMetadata
 from semslam.observations import Observation, OdometryObservation
 from semslam.registry import Frontend, FrontendSummary
+
+log = logging.getLogger(__name__)
 
 
 class _Track:
@@ -179,6 +182,17 @@ class OdometryFrontend(Frontend):
     def finish(self, view=None) -> FrontendSummary:
         c = self.counts
         rejected = {k.removeprefix("rejected_"): v for k, v in sorted(c.items()) if k.startswith("rejected_")}
+        refused = sum(rejected.values())
+        if refused > c["accepted"]:  # the run still ends well, with little odometry in it: say so
+            log.warning(
+                "semslam: warning: odometry front-end: %d of %d scans refused (%s), %d accepted: the odometry "
+                "constrains little of this mission (the clouds' stamps against the navigation's, or the gate "
+                "frontends.odometry.gate)",
+                refused,
+                c["scans"],
+                ", ".join(f"{k} {v}" for k, v in rejected.items()),
+                c["accepted"],
+            )
         return FrontendSummary(
             section="odometry",
             metrics={
