@@ -101,8 +101,9 @@ class GateSettings(BaseModel):
 
 class CovarianceSettings(BaseModel):
     """The registration's covariance: σ²·H⁻¹ of the point-to-plane residuals at the solution (σ² from
-    them), scaled and floored; with ``tail_dof`` > 0 (off by default since stop 51) also scaled by how far ICP
-    moved from the navigation prior against the prior's own covariance (a Student-t error). Shape tuned on tank seeds
+    them), scaled and floored, then scaled by how far ICP moved from the navigation prior against the
+    prior's own covariance (a Student-t error: most registrations are good to a centimetre, a few
+    converge wrong, and those are the ones that disagree with the prior). Shape tuned on tank seeds
     0–5 (150 s); scale and floors recalibrated (× 0.833) on whole missions of tuning seeds 0–1 with
     the windowed map (experiments/odometry_covariance.py; experiments/odometry/README.md). With the
     attitude held (the default) the covariance is made of the parts ``held_*`` and ``range_noise_scale``
@@ -124,12 +125,11 @@ class CovarianceSettings(BaseModel):
         0.0024, ge=0, description="least rotation σ per axis (rad) of the 6-DoF registration (not the held rotation)"
     )
     tail_dof: float = Field(
-        0.0,
+        34.0,
         ge=0,
         description="ν of the Student-t scaling: the covariance (with the attitude held, the translation's measured "
         "part alone) is multiplied by (ν + d²)/(ν + 6), d² the squared Mahalanobis distance of ICP's correction "
-        "under the prior's covariance (0, the default: no scaling; against the navigation prior with the DVL's lever "
-        "arm, d² does not tell a registration's error: experiments/odometry/README.md, stop 51)",
+        "under the prior's covariance (0: no scaling)",
     )
     hold_walk_m_s: float = Field(
         0.02,
