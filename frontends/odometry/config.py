@@ -151,7 +151,8 @@ class CovarianceSettings(BaseModel):
         description="with the attitude held, adds this times σ_r²·n·H_tt⁻¹ to the translation's measured covariance: "
         "σ_r² the laser's range noise across a surface (the largest removed plane's points' mean squared distance to "
         "it, median over the last scans), n the inliers; the map's noise is shared by the scan points matched to it "
-        "and does not average out over them. Until a plane is seen: without it",
+        "and does not average out over them. Where no plane is removed (none seen yet, or `planes.max_planes` 0): half the "
+        "registration's residual variance (they carry the scan's noise and the map's)",
     )
     held_floor_sigma_m: float = Field(
         0.0, ge=0, description="with the attitude held, the translation's least σ per axis (m)"

@@ -33,6 +33,9 @@ from frontends.odometry.information import (
 NORMAL_NEIGHBOURS = 8
 PLANE_NOISE_SCANS = 50  # scans over which the range noise's median is taken
 PLANE_NOISE_POINTS = 50  # fewest plane points for a scan's range noise
+# Without a removed plane the range noise is taken from the registration's point-to-plane residuals,
+# which carry the scan's noise and the map's (the same sensor's): half of their variance each
+RESIDUAL_NOISE_SHARE = 0.5
 TRANSLATION_ITERATIONS = 10
 VERTICAL = np.array([0.0, 0.0, 1.0])  # the map frame's z: the navigation frame's (NED) down
 
@@ -325,7 +328,10 @@ class ScanMatcher:
             up = R_OS.T @ VERTICAL  # the vertical in the sensor frame
             tilt = np.eye(3) - np.outer(up, up)
             cov_rot = tilt @ rotation_cov @ tilt + (up @ icp_cov[:3, :3] @ up) * np.outer(up, up)
-        return held_covariance(info, residual_var, self.range_variance, n, cov_rot, self.cfg.covariance)
+        range_var = self.range_variance
+        if range_var is None:  # no plane to measure it on (a seabed under a stereo camera): the residuals'
+            range_var = RESIDUAL_NOISE_SHARE * residual_var
+        return held_covariance(info, residual_var, range_var, n, cov_rot, self.cfg.covariance)
 
     def _covariance(self, info: np.ndarray, residual_var: float, n: int) -> np.ndarray:
         c = self.cfg.covariance
