@@ -158,6 +158,32 @@ def test_a_run_whose_scans_are_mostly_refused_says_so(mission, caplog):
     assert not [r for r in caplog.records if "odometry front-end" in r.getMessage()]
 
 
+def test_a_run_whose_registrations_fall_short_of_the_dvl_path_says_so(mission, caplog):
+    """Every pair passes its gate, yet the registrations and the DVL disagree on the distance travelled (here the
+    DVL reads 12 % fast, as a stereo seabed's registrations fall 8-15 % short): the summary gives the ratio of the
+    registrations' horizontal path to the DVL's, and one warning line says the odometry will pull the trajectory.
+    With the mission as simulated the ratio is 1 within a DVL's scale error, and the run says nothing."""
+    fast = Mission.from_measurements(
+        mission.metadata,
+        [
+            dataclasses.replace(m, velocity=np.asarray(m.velocity) * 1.12) if isinstance(m, DvlVelocity) else m
+            for m in mission
+        ],
+    )
+    with caplog.at_level("WARNING", logger="frontends.odometry.frontend"):
+        fe, obs = _register(fast)
+        ratio = fe.finish().metrics["path_ratio_to_dvl"]
+    assert obs and abs(ratio - 1 / 1.12) < 0.03
+    warned = [r.getMessage() for r in caplog.records if "horizontal path" in r.getMessage()]
+    assert len(warned) == 1 and f"{100 * ratio:.0f} %" in warned[0]
+    caplog.clear()
+    with caplog.at_level("WARNING", logger="frontends.odometry.frontend"):
+        fe, _ = _register(mission)
+        ratio = fe.finish().metrics["path_ratio_to_dvl"]
+    assert abs(ratio - 1.0) < 0.02
+    assert not [r for r in caplog.records if "odometry front-end" in r.getMessage()]
+
+
 def test_gate_rejects_the_shifted_scan_with_the_tight_re_solve_bound(mission):
     """With ``held_max_distance_m`` the translation is re-solved among the correspondences within a few
     centimetres, which holds kiss-icp's wrong minimum for the shifted scan in place (0.16 m from the prior,

@@ -10,6 +10,7 @@ from typing import ClassVar
 import numpy as np
 
 from frontends.odometry.config import OdometryConfig
+from frontends.odometry.consistency import FRESH_DVL_S, PathAgreement
 from frontends.odometry.information import (
     adjoint,
     mahalanobis2,
@@ -39,6 +40,7 @@ class _Track:
         self.anchor_pose: np.ndarray | None = None
         self.rejections = 0  # rejected registrations since the last accepted one
         self.velocity_B: np.ndarray | None = None  # body velocity of the last accepted registration (m/s)
+        self.anchor_dvl_fresh = False  # a fresh DVL reading at the anchor's stamp (the prior measured, not held)
 
 
 class OdometryFrontend(Frontend):
@@ -63,6 +65,7 @@ class OdometryFrontend(Frontend):
         self.sensors = set(self.config.sensors) or {s.name for s in metadata.sensors_of_kind("laser")}
         self._tracks: dict[str, _Track] = {}
         self.counts: Counter[str] = Counter()
+        self.path = PathAgreement()
 
     def process(self, measurement: Measurement, view=None) -> list[Observation]:
         if not isinstance(measurement, PointCloud):
@@ -107,6 +110,7 @@ class OdometryFrontend(Frontend):
         track.anchor_stamp, track.anchor_pose = scan.stamp, reg.pose
         self.counts["accepted"] += 1
         relative_B = T_BS @ relative_S @ np.linalg.inv(T_BS)
+        self._compare_path(track, relative_B, stamp_from, scan.stamp)
         track.velocity_B = relative_B[:3, 3] / ((scan.stamp - stamp_from) * 1e-9)
         cov_B = A @ self._tail_scaled(reg, prior_S) @ A.T
         if self.config.factor_rotation == "free":
@@ -122,6 +126,17 @@ class OdometryFrontend(Frontend):
                 covariance=(cov_B + cov_B.T) / 2,
             )
         ]
+
+    def _compare_path(self, track: _Track, relative_B: np.ndarray, stamp_from: int, stamp: int) -> None:
+        """Adds the pair to the path check when the DVL was fresh at both its ends."""
+        age = self.prior.dvl_age_s(stamp)
+        fresh = age is not None and 0.0 <= age <= FRESH_DVL_S
+        if fresh and track.anchor_dvl_fresh:
+            prior = self.prior.motion(stamp_from, stamp)
+            start = self.prior.pose_at(stamp_from)
+            if prior is not None and start is not None:
+                self.path.add(relative_B[:3, 3], prior[:3, 3], start[:3, :3])
+        track.anchor_dvl_fresh = fresh
 
     def _dropout_motion(self, track: _Track, motion: np.ndarray, stamp: int) -> np.ndarray:
         """``motion`` (the prior's, since the track's last scan), its translation the last accepted registration's
@@ -173,6 +188,8 @@ class OdometryFrontend(Frontend):
         start[:3, :3] = self.prior.pose_at(scan.stamp)[:3, :3] @ self.metadata.extrinsic(scan.sensor)[:3, :3]
         track.last_stamp, track.last_pose = scan.stamp, start
         track.rejections = 0
+        age = self.prior.dvl_age_s(scan.stamp)
+        track.anchor_dvl_fresh = age is not None and 0.0 <= age <= FRESH_DVL_S
         if track.matcher.start(scan.points, start, scan.stamp):
             track.anchor_stamp, track.anchor_pose = scan.stamp, start
             self.counts["map_starts"] += 1
@@ -193,6 +210,18 @@ class OdometryFrontend(Frontend):
                 ", ".join(f"{k} {v}" for k, v in rejected.items()),
                 c["accepted"],
             )
+        ratio = self.path.ratio
+        if self.path.disagrees:  # each pair passed its gate, yet the odometry will pull the trajectory
+            log.warning(
+                "semslam: warning: odometry front-end: the accepted registrations travel %.0f %% of the horizontal "
+                "path the DVL measured over the same %d scan pairs (%.1f m), more than a DVL's scale error: the "
+                "odometry's factors will pull the trajectory along the track (registrations biased towards no "
+                "motion, as over a featureless seabed, or a wrong extrinsic); with a working DVL, consider running "
+                "without the odometry front-end (experiments/odometry/README.md, stop 51)",
+                100 * ratio,
+                self.path.pairs,
+                self.path.path,
+            )
         return FrontendSummary(
             section="odometry",
             metrics={
@@ -201,5 +230,6 @@ class OdometryFrontend(Frontend):
                 "rejected": rejected,
                 "map_starts": c["map_starts"],
                 "without_prior": c["no_prior"],
+                "path_ratio_to_dvl": ratio,
             },
         )
