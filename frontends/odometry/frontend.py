@@ -129,14 +129,18 @@ class OdometryFrontend(Frontend):
 
     def _compare_path(self, track: _Track, relative_B: np.ndarray, stamp_from: int, stamp: int) -> None:
         """Adds the pair to the path check when the DVL was fresh at both its ends."""
-        age = self.prior.dvl_age_s(stamp)
-        fresh = age is not None and 0.0 <= age <= FRESH_DVL_S
+        fresh = self._dvl_fresh(stamp)
         if fresh and track.anchor_dvl_fresh:
             prior = self.prior.motion(stamp_from, stamp)
             start = self.prior.pose_at(stamp_from)
             if prior is not None and start is not None:
                 self.path.add(relative_B[:3, 3], prior[:3, 3], start[:3, :3])
         track.anchor_dvl_fresh = fresh
+
+    def _dvl_fresh(self, stamp: int) -> bool:
+        """A DVL reading at most ``FRESH_DVL_S`` old at ``stamp``: the prior's motion there is measured, not held."""
+        age = self.prior.dvl_age_s(stamp)
+        return age is not None and 0.0 <= age <= FRESH_DVL_S
 
     def _dropout_motion(self, track: _Track, motion: np.ndarray, stamp: int) -> np.ndarray:
         """``motion`` (the prior's, since the track's last scan), its translation the last accepted registration's
@@ -188,8 +192,7 @@ class OdometryFrontend(Frontend):
         start[:3, :3] = self.prior.pose_at(scan.stamp)[:3, :3] @ self.metadata.extrinsic(scan.sensor)[:3, :3]
         track.last_stamp, track.last_pose = scan.stamp, start
         track.rejections = 0
-        age = self.prior.dvl_age_s(scan.stamp)
-        track.anchor_dvl_fresh = age is not None and 0.0 <= age <= FRESH_DVL_S
+        track.anchor_dvl_fresh = self._dvl_fresh(scan.stamp)
         if track.matcher.start(scan.points, start, scan.stamp):
             track.anchor_stamp, track.anchor_pose = scan.stamp, start
             self.counts["map_starts"] += 1

@@ -329,7 +329,7 @@ class ScanMatcher:
             tilt = np.eye(3) - np.outer(up, up)
             cov_rot = tilt @ rotation_cov @ tilt + (up @ icp_cov[:3, :3] @ up) * np.outer(up, up)
         range_var = self.range_variance
-        if range_var is None:  # no plane to measure it on (a seabed under a stereo camera): the residuals'
+        if range_var is None:  # no plane to measure it on (a seabed under a stereo camera): from the residuals
             range_var = RESIDUAL_NOISE_SHARE * residual_var
         return held_covariance(info, residual_var, range_var, n, cov_rot, self.cfg.covariance)
 
