@@ -13,11 +13,12 @@ from __future__ import annotations
 
 import numpy as np
 
+from frontends.odometry.information import VERTICAL
+
 FRESH_DVL_S = 1.0  # a DVL reading at most this old at both ends of a pair: the prior is measured, not held
 PATH_RATIO_TOLERANCE = 0.05
 MIN_PATH_M = 2.0  # the prior's horizontal path the ratio is judged on, at least
 MIN_PAIRS = 10
-VERTICAL = np.array([0.0, 0.0, 1.0])  # the navigation frame's z
 
 
 class PathAgreement:

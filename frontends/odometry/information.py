@@ -13,6 +13,9 @@ from factors.geometry import skew_batch  # numpy only, as the prior's SO(3) help
 #: a radian is ~1000 times the held rotation σ between two scans (~0.05°), and keeps the covariance well conditioned
 FREE_ROTATION_SIGMA_RAD = 1.0
 
+#: the navigation frame's z (NED: down), which the odometry's map frames share
+VERTICAL = np.array([0.0, 0.0, 1.0])
+
 
 def translation_only(cov: np.ndarray) -> np.ndarray:
     """``cov`` (6×6, rotation then translation) with the translation's marginal kept, the rotation's variance

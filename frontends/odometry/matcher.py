@@ -23,6 +23,7 @@ from scipy.spatial.transform import Rotation
 
 from frontends.odometry.config import CovarianceSettings, OdometryConfig
 from frontends.odometry.information import (
+    VERTICAL,
     fitted_planes,
     mahalanobis2,
     plane_information,
@@ -37,7 +38,6 @@ PLANE_NOISE_POINTS = 50  # fewest plane points for a scan's range noise
 # which carry the scan's noise and the map's (the same sensor's): half of their variance each
 RESIDUAL_NOISE_SHARE = 0.5
 TRANSLATION_ITERATIONS = 10
-VERTICAL = np.array([0.0, 0.0, 1.0])  # the map frame's z: the navigation frame's (NED) down
 
 
 @dataclass(frozen=True)
