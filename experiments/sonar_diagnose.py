@@ -10,7 +10,6 @@ import sys
 from pathlib import Path
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from frontends.sonar.config import SonarConfig
 from frontends.sonar.descriptor import search
@@ -28,9 +27,7 @@ def main(argv: list[str]) -> None:
     model = argv[1]
     mission = read_mission(d / "mission.bag")
     g = next(s for s in mission.metadata.ground_truth.structures if s.model == model)
-    T_true = np.eye(4)
-    T_true[:3, :3] = Rotation.from_quat(g.orientation).as_matrix()
-    T_true[:3, 3] = g.position
+    T_true = g.matrix()
     a = np.loadtxt(d / "trajectory_graph.tum")
     graph_at = pose_at(Trajectory((a[:, 0] * 1e9).round().astype(np.int64), a[:, 1:4], a[:, 4:8]), clip=True)
     T_BS = mission.metadata.sensors["sonar"].T_BS

@@ -17,7 +17,6 @@ from __future__ import annotations
 import sys
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from frontends.sonar.config import SonarConfig
 from frontends.sonar.descriptor import search
@@ -65,9 +64,7 @@ def structure_rows(bag: str, rec: Recogniser, cfg: SonarConfig) -> list[dict]:
         sel = (d <= 0.5) & np.isfinite(h)
         res = search(tpl.spec.bin_of(h), tpl, np.column_stack([ii[sel], jj[sel]]), 3.0 * tpl.flat_score, 0.0)
         disc = d <= model.footprint_radius
-        T_true = np.eye(4)
-        T_true[:3, :3] = Rotation.from_quat(g.orientation).as_matrix()
-        T_true[:3, 3] = g.position
+        T_true = g.matrix()
         near = P[np.hypot(P[:, 0] - g.position[0], P[:, 1] - g.position[1]) <= model.footprint_radius + 0.5]
         reg = icp(rec.model_data[g.model], near, T_true, cfg.registration)
         rows.append(

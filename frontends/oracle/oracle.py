@@ -190,10 +190,7 @@ class OracleFrontend(Frontend):
         cfg = self.config
         out = []
         for st in self.metadata.ground_truth.structures:
-            T_WM = np.eye(4)
-            T_WM[:3, :3] = Rotation.from_quat(st.orientation).as_matrix()
-            T_WM[:3, 3] = st.position
-            T_SM = np.linalg.inv(T_WS) @ T_WM
+            T_SM = np.linalg.inv(T_WS) @ st.matrix()
             if not (self._visible(T_SM[None, :3, 3])[0] and self._kept(1)[0]):
                 continue
             xi_r = self.rng.normal(size=3) * cfg.structure_sigma_rad

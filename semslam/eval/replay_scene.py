@@ -176,8 +176,7 @@ def truth_markers(stamp: int, frame: str, truth: GroundTruthMap) -> list:
         if m is not None:
             out.append(m)
     for s in truth.structures:
-        T = np.eye(4)
-        T[:3, :3] = Rotation.from_quat(s.orientation).as_matrix()
-        T[:3, 3] = s.position
-        out.append(_mesh_marker(stamp, frame, "truth_structures", s.id, "structure", s.model, T, (0.7, 0.7, 0.7, 0.5)))
+        out.append(
+            _mesh_marker(stamp, frame, "truth_structures", s.id, "structure", s.model, s.matrix(), (0.7, 0.7, 0.7, 0.5))
+        )
     return out

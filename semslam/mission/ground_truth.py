@@ -41,6 +41,15 @@ class GtStructure:
     position: tuple[float, float, float]
     orientation: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 1.0)
 
+    def matrix(self) -> np.ndarray:
+        """T_W,model as a 4×4 homogeneous matrix."""
+        from scipy.spatial.transform import Rotation
+
+        T = np.eye(4)
+        T[:3, :3] = Rotation.from_quat(self.orientation).as_matrix()
+        T[:3, 3] = self.position
+        return T
+
 
 @dataclass(frozen=True)
 class GroundTruthMap:
