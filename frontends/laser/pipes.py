@@ -23,6 +23,7 @@ that cylinder reach the valve body and the floor behind it.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -31,6 +32,14 @@ import numpy as np
 from frontends.laser.config import PipeConfig
 from frontends.laser.eigen import eigen3_parts
 from frontends.laser.grid import median_of, row_dot, single_threaded_blas, split_sorted
+
+
+@functools.lru_cache(maxsize=64)
+def _cos_deg(deg: float) -> np.float64:
+    """``np.cos(np.radians(deg))`` (the same value), once per angle: the tolerances' cosines are
+    read in every inlier test, ~250 times a scan."""
+    return np.cos(np.radians(deg))
+
 
 _REFINE_REACH = 0.05  # m beyond a pipe's surface over which a refinement looks for its inliers
 # A patch's normals must turn (mean sin² of their spread across the axis, a pipe of radius r over
@@ -212,7 +221,7 @@ def inlier_mask(points, normals, c, a, r, cfg: PipeConfig, sq=None, pn=None) -> 
     rn -= an
     np.subtract(dist, r[:, None], out=tmp)  # |dist − r| within the tolerance
     close = np.abs(tmp, out=tmp) <= cfg.distance_tolerance
-    np.multiply(np.cos(np.radians(cfg.normal_tolerance_deg)), dist, out=tmp)
+    np.multiply(_cos_deg(cfg.normal_tolerance_deg), dist, out=tmp)
     close &= rn >= tmp
     return close
 
@@ -277,9 +286,7 @@ class _Points:
         else:
             nc, na, pn = (self.n @ c)[rows], (self.n @ a)[rows], pn[rows]
         rn = pn - nc - along * na
-        return (np.abs(dist - r) <= cfg.distance_tolerance) & (
-            rn >= np.cos(np.radians(cfg.normal_tolerance_deg)) * dist
-        )
+        return (np.abs(dist - r) <= cfg.distance_tolerance) & (rn >= _cos_deg(cfg.normal_tolerance_deg) * dist)
 
 
 class Rays:
@@ -418,7 +425,8 @@ def fit_cylinder(points: np.ndarray, normals: np.ndarray, a0: np.ndarray, cfg: P
     o = np.add.reduce(points, 0) / n
     d = points - o
     pv, pvecs = _eigh(d.T @ d)
-    if pv[2] > 9.0 * max(pv[1], 1e-12 * n):
+    _, pv1, pv2 = pv.tolist()  # (Python floats: the same comparison without numpy's scalar overhead)
+    if pv2 > 9.0 * max(pv1, 1e-12 * n):
         a = pvecs[:, 2]
     else:
         _, vecs = _eigh(normals.T @ normals)
@@ -925,7 +933,7 @@ def _facing_sensor(P: np.ndarray, c: np.ndarray, a: np.ndarray, cfg: PipeConfig)
     toward /= max(np.linalg.norm(toward), 1e-12)
     v = P - c
     v -= np.outer(v @ a, a)
-    return v @ toward >= np.cos(np.radians(cfg.fitting_window_deg)) * np.sqrt(row_dot(v, v))
+    return v @ toward >= _cos_deg(cfg.fitting_window_deg) * np.sqrt(row_dot(v, v))
 
 
 def _cut_into_segments(
