@@ -182,3 +182,47 @@ def test_eigen3_parts_equals_eigen3_on_the_assembled_matrices():
     parts = np.stack([C[:, 0, 0], C[:, 0, 1], C[:, 0, 2], C[:, 1, 1], C[:, 1, 2], C[:, 2, 2]])
     for got, want in zip(eigen3_parts(parts), eigen3(C)):
         assert np.array_equal(got, want)
+
+
+def test_stable_order_is_numpys_stable_argsort():
+    from frontends.laser.grid import stable_order
+
+    rng = np.random.default_rng(8)
+    cases = [
+        rng.integers(0, 50, 5000),  # one 16-bit digit, many ties
+        rng.integers(0, 1 << 25, 20000),  # two digits, as a scan's voxel keys
+        rng.integers(0, 1 << 40, 3000) // 7 * 7,  # three digits, ties
+        np.repeat(rng.integers(0, 1 << 33, 40), 30),  # runs of equal keys (cells come in runs)
+        rng.integers(0, 1 << 20, 1000).astype(np.uint32),
+        np.array([(1 << 48) + 1, 1 << 48, 5, 0, 1 << 48]),
+        np.zeros(0, np.int64),
+        np.array([3, -1, 2, -1]),  # negative: numpy's own sort
+    ]
+    for keys in cases:
+        assert np.array_equal(stable_order(keys), np.argsort(keys, kind="stable"))
+
+
+def test_stable_order_float_is_numpys_stable_argsort():
+    from frontends.laser.grid import stable_order_float
+
+    rng = np.random.default_rng(9)
+    x = rng.normal(size=4000) * 10.0 ** rng.integers(-300, 300, 4000)
+    x[::7] = np.round(x[::7], 1) * 0.0 + rng.integers(-3, 3, len(x[::7]))  # ties
+    x[::11] = -0.0  # equal to 0.0 for a comparison sort: the order of the two is kept
+    x[5::13] = 0.0
+    x[::17] = np.array([5e-324, -5e-324, np.inf, -np.inf])[rng.integers(0, 4, len(x[::17]))]
+    heights = np.round(rng.normal(size=3000) * 0.3, 3)  # heights in mm: many ties
+    for v in (x, heights, np.zeros(0), np.array([np.nan, 1.0, np.nan, -2.0])):
+        assert np.array_equal(stable_order_float(v), np.argsort(v, kind="stable"))
+
+
+def test_raw_index_built_on_first_use_finds_the_raw_points_of_voxels():
+    from frontends.laser.frontend import RawIndex
+
+    rng = np.random.default_rng(10)
+    raw_to_structure = rng.integers(-1, 300, 5000)
+    index = RawIndex(raw_to_structure, 300)
+    assert index._built is None  # nothing sorted until asked (a scan without colour never asks)
+    for voxels in (np.array([3]), rng.integers(0, 300, 40), np.array([299, 0, 299])):
+        assert np.array_equal(index(voxels), np.flatnonzero(np.isin(raw_to_structure, voxels)))
+    assert index._built is not None

@@ -266,3 +266,48 @@ def test_near_axis_test_matches_the_test_of_every_point():
     assert np.array_equal(near, ref)
     assert np.array_equal(inl, P.test(c, a, r, cfg)[ref])
     assert 0 < inl.sum() < len(ref) and len(ref) < 6000
+
+
+def _count_one_by_one(rays, sel, c, a, r, t0, t1, cfg, deep=None):
+    """The see-through count of one cylinder as written before the rays of several were taken
+    together (a reference for ``Rays._counts``)."""
+    d, rng = rays.directions.take(sel, axis=0).astype(np.float64), rays.ranges[sel]
+    da = d @ a
+    w = d - da[:, None] * a
+    cp = c - (c @ a) * a
+    A = np.maximum((w * w).sum(axis=1), 1e-12)
+    B = -2.0 * (w @ cp)
+    disc = B * B - 4.0 * A * (cp @ cp - r * r)
+    hit = disc > 0
+    A, B, disc, da, rng = A[hit], B[hit], disc[hit], da[hit], rng[hit]
+    root = np.sqrt(np.maximum(disc, 0.0))
+    s1, s2 = (-B - root) / (2 * A), (-B + root) / (2 * A)
+    t_mid = 0.5 * (s1 + s2) * da - c @ a
+    crossing = (s1 > 0) & (s2 - s1 >= cfg.see_through_chord) & (t_mid > t0 + 0.01) & (t_mid < t1 - 0.01)
+    behind = crossing & (rng > (s2 + cfg.see_through_margin if deep is None else s1 + deep))
+    return int(behind.sum()), int(crossing.sum())
+
+
+def test_see_through_counts_of_several_cylinders_are_those_one_by_one():
+    from frontends.laser.pipes import Rays
+
+    rng = np.random.default_rng(11)
+    cfg = PipeConfig()
+    # a floor 1.5 m below the sensor with pipes on it, and rays ending on, behind and short of them
+    floor = np.column_stack([rng.uniform(-1, 1, 30000), rng.uniform(-1, 1, 30000), np.full(30000, 1.5)])
+    rays = Rays(floor * rng.uniform(0.9, 1.0, (30000, 1)))
+    cylinders, sels = [], []
+    for k in range(12):
+        a = rng.normal(size=3) * [1.0, 1.0, 0.1]
+        a /= np.linalg.norm(a)
+        c = np.array([rng.uniform(-0.6, 0.6), rng.uniform(-0.6, 0.6), rng.uniform(1.3, 1.5)])
+        t0, t1 = 0.0, float(rng.uniform(0.05, 0.6))
+        (sel,) = rays._cones((c + a * 0.5 * (t0 + t1))[None], np.array([np.hypot(0.5 * (t1 - t0), 0.03)]))
+        cylinders.append((c, a, 0.03, t0, t1))
+        sels.append(sel[:1] if k == 5 else sel[:0] if k == 7 else sel)  # a cone of one ray, one of none
+    for deep in (None, [0.015] * 12):
+        behind, crossing = rays._counts(sels, cylinders, cfg, deep)
+        for k, (sel, cyl) in enumerate(zip(sels, cylinders)):
+            want = _count_one_by_one(rays, sel, *cyl, cfg, None if deep is None else deep[k])
+            assert (int(behind[k]), int(crossing[k])) == want
+    assert (crossing > 0).sum() >= 6  # the cylinders are crossed: the counts are not all zeros

@@ -16,7 +16,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from frontends.laser.config import LaserConfig, PipeConfig
-from frontends.laser.grid import VoxelGrid, adjacency_of
+from frontends.laser.grid import VoxelGrid, adjacency_of, stable_order
 from frontends.laser.ground import GroundModel, fit_ground
 from frontends.laser.noise import NoiseModel, measure_noise
 from frontends.laser.objects import SegmentedObject, segment_objects
@@ -108,12 +108,28 @@ class ScanSegmentation:
 class RawIndex:
     """The raw points of fine structure voxels: ``raw_to_structure`` (N,) each raw point's voxel
     (−1: none), ``n`` voxels. The raw points are grouped by voxel once (not a pass over the raw scan
-    per query): voxel v's raw points are order[start[v]:start[v + 1]]."""
+    per query), on the first query (a scan without colour never asks): voxel v's raw points are
+    order[start[v]:start[v + 1]]."""
 
     def __init__(self, raw_to_structure: np.ndarray, n: int):
-        inside = np.flatnonzero(raw_to_structure >= 0)
-        self.order = inside[np.argsort(raw_to_structure[inside], kind="stable")]
-        self.start = np.r_[0, np.cumsum(np.bincount(raw_to_structure[inside], minlength=n))]
+        self._raw_to_structure, self._n = raw_to_structure, n
+        self._built: tuple[np.ndarray, np.ndarray] | None = None
+
+    @property
+    def order(self) -> np.ndarray:
+        return self._tables()[0]
+
+    @property
+    def start(self) -> np.ndarray:
+        return self._tables()[1]
+
+    def _tables(self) -> tuple[np.ndarray, np.ndarray]:
+        if self._built is None:
+            r2s = self._raw_to_structure
+            inside = np.flatnonzero(r2s >= 0)
+            order = inside[stable_order(r2s[inside])]
+            self._built = order, np.r_[0, np.cumsum(np.bincount(r2s[inside], minlength=self._n))]
+        return self._built
 
     def __call__(self, structure_indices: np.ndarray) -> np.ndarray:
         """Raw scan points that fell in the given voxels (sorted)."""

@@ -29,6 +29,7 @@ import numpy as np
 from scipy.ndimage import maximum_filter, minimum_filter
 
 from frontends.laser.config import GroundConfig
+from frontends.laser.grid import stable_order_float
 
 _MIN_FIT = 6  # fewest candidates for a cell's plane
 _LOW_SHARE = 0.1  # a cell's low height: below it lie this share of its raw points
@@ -166,8 +167,9 @@ def _low_heights(flat: np.ndarray, h: np.ndarray, w: np.ndarray, n_cells: int) -
     for an empty cell."""
     if n_cells <= 1 << 16:
         # np.lexsort((h, flat))'s order by two stable sorts, the second on 16-bit cells (a radix
-        # sort, several times faster than the comparison sort lexsort runs on int64)
-        by_h = np.argsort(h, kind="stable")
+        # sort, several times faster than the comparison sort lexsort runs on int64), the first
+        # by the heights' digits (stable_order_float: np.argsort(h, kind="stable")'s order)
+        by_h = stable_order_float(h)
         order = by_h[np.argsort(flat[by_h].astype(np.uint16), kind="stable")]
     else:
         order = np.lexsort((h, flat))

@@ -23,6 +23,7 @@ that cylinder reach the valve body and the floor behind it.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -31,6 +32,14 @@ import numpy as np
 from frontends.laser.config import PipeConfig
 from frontends.laser.eigen import eigen3_parts
 from frontends.laser.grid import median_of, row_dot, single_threaded_blas, split_sorted
+
+
+@functools.lru_cache(maxsize=64)
+def _cos_deg(deg: float) -> np.float64:
+    """``np.cos(np.radians(deg))`` (the same value), once per angle: the tolerances' cosines are
+    read in every inlier test, ~250 times a scan."""
+    return np.cos(np.radians(deg))
+
 
 _REFINE_REACH = 0.05  # m beyond a pipe's surface over which a refinement looks for its inliers
 # A patch's normals must turn (mean sin² of their spread across the axis, a pipe of radius r over
@@ -212,7 +221,7 @@ def inlier_mask(points, normals, c, a, r, cfg: PipeConfig, sq=None, pn=None) -> 
     rn -= an
     np.subtract(dist, r[:, None], out=tmp)  # |dist − r| within the tolerance
     close = np.abs(tmp, out=tmp) <= cfg.distance_tolerance
-    np.multiply(np.cos(np.radians(cfg.normal_tolerance_deg)), dist, out=tmp)
+    np.multiply(_cos_deg(cfg.normal_tolerance_deg), dist, out=tmp)
     close &= rn >= tmp
     return close
 
@@ -277,9 +286,7 @@ class _Points:
         else:
             nc, na, pn = (self.n @ c)[rows], (self.n @ a)[rows], pn[rows]
         rn = pn - nc - along * na
-        return (np.abs(dist - r) <= cfg.distance_tolerance) & (
-            rn >= np.cos(np.radians(cfg.normal_tolerance_deg)) * dist
-        )
+        return (np.abs(dist - r) <= cfg.distance_tolerance) & (rn >= _cos_deg(cfg.normal_tolerance_deg) * dist)
 
 
 class Rays:
@@ -314,24 +321,51 @@ class Rays:
         return C, least_float32_not_below(cos), ok
 
     def _count(self, sel, c, a, r, t0, t1, cfg: PipeConfig, deep: float | None = None) -> tuple[int, int]:
-        d, rng = self.directions.take(sel, axis=0).astype(np.float64), self.ranges[sel]
-        da = d @ a
-        w = d - da[:, None] * a
-        cp = c - (c @ a) * a
+        """(rays of ``sel`` returning behind the cylinder (c, a, r) between t0 and t1 along a — past
+        its exit by ``see_through_margin``, or with ``deep`` past their entry by that much — rays
+        crossing it) for :meth:`see_through` and :meth:`hollow`."""
+        behind, crossing = self._counts([sel], [(c, a, r, t0, t1)], cfg, None if deep is None else [deep])
+        return int(behind[0]), int(crossing[0])
+
+    def _counts(self, sels: list, cylinders: list, cfg: PipeConfig, deep: list | None = None):
+        """:meth:`_count` of several cylinders (c, a, r, t0, t1) and their rays ``sels`` at once:
+        (behind, crossing) as arrays. The rays of all are taken together and every elementwise
+        step runs once on all of them (each ray with its own cylinder's values); the two
+        matrix-vector products run per cylinder, on its own rows (a contiguous block: a product
+        gives a row the same value whichever other rows it holds), so every count is the one
+        cylinder by cylinder."""
+        n = len(sels)
+        sizes = np.array([len(x) for x in sels], np.int64)
+        bounds = [0, *np.cumsum(sizes).tolist()]
+        sel = np.concatenate(sels) if n > 1 else np.asarray(sels[0], np.int64)
+        cyl = np.repeat(np.arange(n), sizes)  # each ray's cylinder
+        d = self.directions.take(sel, axis=0).astype(np.float64)
+        da, wcp = np.empty(len(sel)), np.empty(len(sel))
+        axes, ca, q, lo, hi = np.empty((n, 3)), np.empty(n), np.empty(n), np.empty(n), np.empty(n)
+        cps = []
+        for k, (c, a, r, t0, t1) in enumerate(cylinders):
+            da[bounds[k] : bounds[k + 1]] = d[bounds[k] : bounds[k + 1]] @ a
+            cp = c - (c @ a) * a
+            cps.append(cp)
+            axes[k], ca[k], q[k], lo[k], hi[k] = a, c @ a, cp @ cp - r * r, t0 + 0.01, t1 - 0.01
+        w = d - da[:, None] * axes.take(cyl, axis=0)
+        for k, cp in enumerate(cps):
+            wcp[bounds[k] : bounds[k + 1]] = w[bounds[k] : bounds[k + 1]] @ cp
         A = np.maximum(row_dot(w, w), 1e-12)
-        B = -2.0 * (w @ cp)
-        disc = B * B - 4.0 * A * (cp @ cp - r * r)
-        hit = (disc > 0).nonzero()[0]  # (the rest miss the cylinder: the chords of these only)
-        A, B, disc, da, rng = A[hit], B[hit], disc[hit], da[hit], rng[hit]
+        B = -2.0 * wcp
+        disc = B * B - 4.0 * A * q.take(cyl)
+        hit = (disc > 0).nonzero()[0]  # (the rest miss their cylinder: the chords of these only)
+        A, B, disc, da, cyl = A[hit], B[hit], disc[hit], da[hit], cyl[hit]
         root = np.sqrt(np.maximum(disc, 0.0))
         s1, s2 = (-B - root) / (2 * A), (-B + root) / (2 * A)
-        t_mid = 0.5 * (s1 + s2) * da - c @ a
-        crossing = (s1 > 0) & (s2 - s1 >= cfg.see_through_chord) & (t_mid > t0 + 0.01) & (t_mid < t1 - 0.01)
+        t_mid = 0.5 * (s1 + s2) * da - ca.take(cyl)
+        crossing = (s1 > 0) & (s2 - s1 >= cfg.see_through_chord) & (t_mid > lo.take(cyl)) & (t_mid < hi.take(cyl))
+        rng = self.ranges[sel[hit]]
         if deep is None:
             behind = crossing & (rng > s2 + cfg.see_through_margin)
         else:
-            behind = crossing & (rng > s1 + deep)
-        return int(np.count_nonzero(behind)), int(np.count_nonzero(crossing))
+            behind = crossing & (rng > s1 + np.asarray(deep, float).take(cyl))
+        return np.bincount(cyl[behind], minlength=n), np.bincount(cyl[crossing], minlength=n)
 
     def hollow(self, c, a, r, t0, t1, cfg: PipeConfig) -> tuple[int, int]:
         """(rays returning more than half the radius past their entry into the cylinder (c, a, r)
@@ -362,11 +396,9 @@ class Rays:
             return np.zeros(0, bool)
         centres = np.array([0.5 * (p.p + p.q) for p in pipes])
         halves = np.array([np.hypot(0.5 * p.length, p.radius) for p in pipes])
-        out = np.ones(len(pipes), bool)
-        for k, (p, sel) in enumerate(zip(pipes, self._cones(centres, halves))):
-            behind, crossing = self._count(sel, p.p, p.axis, p.radius, 0.0, p.length, cfg)
-            out[k] = behind <= cfg.max_see_through * crossing
-        return out
+        cylinders = [(p.p, p.axis, p.radius, 0.0, p.length) for p in pipes]
+        behind, crossing = self._counts(self._cones(centres, halves), cylinders, cfg)
+        return behind <= cfg.max_see_through * crossing
 
 
 def least_float32_not_below(x: np.ndarray) -> np.ndarray:
@@ -393,7 +425,8 @@ def fit_cylinder(points: np.ndarray, normals: np.ndarray, a0: np.ndarray, cfg: P
     o = np.add.reduce(points, 0) / n
     d = points - o
     pv, pvecs = _eigh(d.T @ d)
-    if pv[2] > 9.0 * max(pv[1], 1e-12 * n):
+    _, pv1, pv2 = pv.tolist()  # (Python floats: the same comparison without numpy's scalar overhead)
+    if pv2 > 9.0 * max(pv1, 1e-12 * n):
         a = pvecs[:, 2]
     else:
         _, vecs = _eigh(normals.T @ normals)
@@ -900,7 +933,7 @@ def _facing_sensor(P: np.ndarray, c: np.ndarray, a: np.ndarray, cfg: PipeConfig)
     toward /= max(np.linalg.norm(toward), 1e-12)
     v = P - c
     v -= np.outer(v @ a, a)
-    return v @ toward >= np.cos(np.radians(cfg.fitting_window_deg)) * np.sqrt(row_dot(v, v))
+    return v @ toward >= _cos_deg(cfg.fitting_window_deg) * np.sqrt(row_dot(v, v))
 
 
 def _cut_into_segments(
