@@ -56,10 +56,10 @@ def test_planes_kept_between_steps_are_the_planes_fitted_afresh():
     source = _scene(rng, 0.003)
     pose = np.eye(4)
     pose[:3, 3] = [0.01, -0.005, 0.004]
-    warm = _MapPlanes(map_points, source, 0.15)
+    warm = _MapPlanes(map_points, source, 0.15, 8)
     t = warm.translation(source, pose, 0.15, 0.05)  # fits and keeps planes at every step
     pose[:3, 3] = t
-    cold = _MapPlanes(map_points, source, 0.15)
+    cold = _MapPlanes(map_points, source, 0.15, 8)
     for a, b in zip(warm.information(source, pose, 0.15), cold.information(source, pose, 0.15), strict=True):
         assert np.allclose(a, b, rtol=1e-12, atol=0)
 

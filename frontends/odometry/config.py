@@ -222,6 +222,14 @@ class OdometryConfig(BaseModel):
         "'conditional' (the rotation's own information replaced by σ 1 rad's, the rest kept: the translation given "
         "the rotation, information.translation_given_rotation)",
     )
+    normal_neighbours: int = Field(
+        8,
+        ge=3,
+        description="map points a scan point's plane is fitted to (its nearest, all within twice the correspondence "
+        "distance): they must span much more than the sensor's noise, or the plane's normal is the noise's and tilts "
+        "at random; at a map edge such a plane pulls the scan back onto the map (a stereo seabed: "
+        "experiments/odometry/README.md, stop 52)",
+    )
     restart_after: int = Field(
         3, ge=1, description="this many rejected scans in a row start a new local map at the next usable scan"
     )
@@ -237,9 +245,13 @@ class OdometryConfig(BaseModel):
 #: textured seabed (the pipeline scenario: ~40k points over ~0.6 × 0.5 m at 1.5–2 m): 5 cm voxels would
 #: leave ~50 points, and the seabed's ripples, gravel and rocks are the structure to register, not a plane
 #: to remove; so small a patch fixes the rotation to 1–3° only (the AHRS fixes it in the estimators), and a
-#: fixed 1 cm correspondence σ keeps ICP off the view's edges (measured: experiments/odometry/README.md).
+#: fixed 1 cm correspondence σ keeps ICP off the view's edges; each map plane is fitted to 60 map points within 6 cm
+#: (the stereo depth noise is several millimetres: 8 points a centimetre apart gave planes tilted by the noise, and
+#: planes extrapolated past the map's leading edge pulled the scan back onto the map, short of the motion; measured:
+#: experiments/odometry/README.md, stops 51–52).
 STEREO_SEABED: dict = {
     "kiss_icp": {"voxel_size_m": 0.02, "fixed_threshold_m": 0.01},
     "planes": {"max_planes": 0},
     "gate": {"max_sigma_rad": 0.08},
+    "normal_neighbours": 60,
 }

@@ -31,7 +31,6 @@ from frontends.odometry.information import (
     twist_angle,
 )
 
-NORMAL_NEIGHBOURS = 8
 PLANE_NOISE_SCANS = 50  # scans over which the range noise's median is taken
 PLANE_NOISE_POINTS = 50  # fewest plane points for a scan's range noise
 # Without a removed plane the range noise is taken from the registration's point-to-plane residuals,
@@ -272,7 +271,7 @@ class ScanMatcher:
         pose = self.kiss.registration.align_points_to_map(source, self.kiss.local_map, predicted, 3 * sigma, sigma)
         icp_correction = np.linalg.inv(predicted) @ pose
         world = source @ pose[:3, :3].T + pose[:3, 3]
-        planes = _MapPlanes(np.asarray(self.kiss.local_map.point_cloud()), world, 3 * sigma)
+        planes = _MapPlanes(np.asarray(self.kiss.local_map.point_cloud()), world, 3 * sigma, self.cfg.normal_neighbours)
         walks = [icp_correction[:3, 3]]  # the translations the gate judges (as corrections to the prior)
         held = self.cfg.attitude != "registration" and rotation_cov is not None
         bound = self.cfg.held_max_distance_m
@@ -377,13 +376,14 @@ class _MapPlanes:
     between queries, as the translation re-solve moves the scan by millimetres between its steps (the
     same neighbours give the same plane, bit for bit)."""
 
-    def __init__(self, map_points: np.ndarray, world: np.ndarray, max_distance: float):
+    def __init__(self, map_points: np.ndarray, world: np.ndarray, max_distance: float, neighbours: int):
         reach = 2 * max_distance  # the map beyond the scan's box by more than the queries' bound is never a neighbour
         box = np.all((map_points >= world.min(axis=0) - reach) & (map_points <= world.max(axis=0) + reach), axis=1)
         self.points = map_points[box]
-        self.tree = cKDTree(self.points) if len(self.points) >= NORMAL_NEIGHBOURS else None
+        self.k = neighbours
+        self.tree = cKDTree(self.points) if len(self.points) >= neighbours else None
         n = len(world)
-        self._neighbours = np.full((n, NORMAL_NEIGHBOURS), -1)  # per scan point: the map indices of its last plane
+        self._neighbours = np.full((n, neighbours), -1)  # per scan point: the map indices of its last plane
         self._normals = np.zeros((n, 3))
         self._centroids = np.zeros((n, 3))
 
@@ -392,7 +392,7 @@ class _MapPlanes:
         planes fitted to their neighbours)."""
         if self.tree is None:
             return np.zeros(len(world), bool), np.zeros((0, 3)), np.zeros((0, 3))
-        dist, idx = self.tree.query(world, k=NORMAL_NEIGHBOURS, distance_upper_bound=max_distance * 2)
+        dist, idx = self.tree.query(world, k=self.k, distance_upper_bound=max_distance * 2)
         near = np.isfinite(dist[:, 0]) & (dist[:, 0] <= max_distance) & np.isfinite(dist).all(axis=1)
         rows, idx = np.flatnonzero(near), idx[near]
         changed = ~np.all(self._neighbours[rows] == idx, axis=1)
