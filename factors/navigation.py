@@ -216,7 +216,7 @@ class DvlPreintegrator:
         ``R_j``, ``dR_j``: as :meth:`integrate`'s."""
         dt = t_j - self.t_i
         knots_t = np.array([self.t_i, *self._t, t_j])
-        seg = np.maximum(np.diff(knots_t), 1e-3)  # a sample at t_j itself: a stiff, not singular, link
+        seg = np.diff(knots_t)  # the trapezoid's weights sum to t_j − t_i exactly, a sample at t_j itself included
         w = np.zeros(len(knots_t))
         w[:-1] += seg / 2
         w[1:] += seg / 2
@@ -249,7 +249,7 @@ class DvlPreintegrator:
         # the random walk, knot to knot along v_i, u_1 … u_M, v_j: k = 1/(σ_a² Δt) on each knot's
         # diagonal per neighbour, −k between neighbours
         pos = np.r_[3, 9 + 3 * np.arange(M), 6]
-        k = 1.0 / (q * seg)
+        k = 1.0 / (q * np.maximum(seg, 1e-3))  # a sample at t_j itself: a stiff, not singular, link
         diag = np.zeros(M + 2)
         diag[:-1] += k
         diag[1:] += k
