@@ -136,17 +136,12 @@ class DvlPreintegrator:
         """A valid DVL sample (already in the body frame, :func:`dvl_to_body`) at time t (s), with the AHRS's
         attitude R_WB at t and, when known, the gyro's rotation R_iᵀ R(t) since the keyframe."""
         if t <= self.t_i or (self._t and t <= self._t[-1]):
-            return  # out of order or at the keyframe itself: the keyframe's own prior carries it
+            return  # out of order, or at the keyframe itself: the interval before holds it as its last knot
         self._t.append(t)
         self._dR.append(self.R_i_T @ R_WB)
         self._dR_gyro.append(dR_gyro)
         self._v.append(np.asarray(v_B, float))
         self._cov.append(np.asarray(cov_B, float))
-
-    def drop_last(self) -> None:
-        """Forget the newest sample (used when it becomes the next keyframe's velocity factor)."""
-        for lst in (self._t, self._dR, self._dR_gyro, self._v, self._cov):
-            lst.pop()
 
     def _by_gyro(self, dR_j: np.ndarray | None) -> bool:
         """Whether the interval's samples are turned by the gyro: its rotation to the end and to every sample."""
@@ -221,7 +216,7 @@ class DvlPreintegrator:
         ``R_j``, ``dR_j``: as :meth:`integrate`'s."""
         dt = t_j - self.t_i
         knots_t = np.array([self.t_i, *self._t, t_j])
-        seg = np.maximum(np.diff(knots_t), 1e-3)  # a sample at t_j itself: a stiff, not singular, link
+        seg = np.diff(knots_t)  # the trapezoid's weights sum to t_j − t_i exactly, a sample at t_j itself included
         w = np.zeros(len(knots_t))
         w[:-1] += seg / 2
         w[1:] += seg / 2
@@ -254,7 +249,7 @@ class DvlPreintegrator:
         # the random walk, knot to knot along v_i, u_1 … u_M, v_j: k = 1/(σ_a² Δt) on each knot's
         # diagonal per neighbour, −k between neighbours
         pos = np.r_[3, 9 + 3 * np.arange(M), 6]
-        k = 1.0 / (q * seg)
+        k = 1.0 / (q * np.maximum(seg, 1e-3))  # a sample at t_j itself: a stiff, not singular, link
         diag = np.zeros(M + 2)
         diag[:-1] += k
         diag[1:] += k

@@ -11,7 +11,10 @@ from semslam.mission.mission import MissionMetadata
 ESTIMATORS = ("graph", "ekf", "dr")
 
 
-def create_estimator(name: str, metadata: MissionMetadata, config: SemslamConfig, batch: bool = False) -> Estimator:
+def create_estimator(
+    name: str, metadata: MissionMetadata, config: SemslamConfig, batch: bool | None = None
+) -> Estimator:
+    """``batch``: the graph's batch re-optimisation on (True) or as the config's ``graph.batch`` says (None)."""
     if name not in ESTIMATORS:
         raise ConfigError(f"unknown estimator {name!r} (choose from {', '.join(ESTIMATORS)})")
     if batch and name != "graph":

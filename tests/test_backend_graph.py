@@ -79,6 +79,19 @@ def test_online_and_batch_agree_within_1cm(nav_runs):
     assert "batch_time_s" in batch.history
 
 
+def test_config_alone_turns_the_batch_on():
+    """``graph.batch: true`` in a config file is honoured by every entry point's estimator factory (it was
+    silently ignored: the factory's default ``False`` overrode it)."""
+    from semslam.estimators import create_estimator
+
+    mission = simulate(SyntheticConfig(duration_s=30.0, ahrs_yaw_bias_rad=0.0, seed=3))
+    est = create_estimator("graph", mission.metadata, SemslamConfig(graph={"batch": True}))
+    result = run_pipeline(mission, [est], [], keep_observations=False).results[est.name]
+    assert "batch_time_s" in result.history
+    plain = create_estimator("graph", mission.metadata, SemslamConfig())
+    assert "batch_time_s" not in run_pipeline(mission, [plain], [], keep_observations=False).results[plain.name].history
+
+
 def test_result_fields(nav_runs):
     mission, online, _ = nav_runs
     tr = online.trajectory

@@ -253,6 +253,19 @@ def test_smoothed_interval_samples_inform_the_velocity_states():
     assert cov[3, 3] < 0.6 * sigma**2 and cov[6, 6] < 0.6 * sigma**2
 
 
+def test_smoothed_interval_with_a_sample_at_its_end_integrates_over_the_interval_only():
+    """A keyframe made at a DVL sample's stamp (the sample is the interval's last knot, at t_j itself): the
+    displacement of a constant velocity is v·Δt, not v·(Δt + 1 ms) — the floor that keeps the random walk's link
+    to that knot finite must not lengthen the trapezoid (it did: a 0.1 % scale error per interval, which made the
+    trajectory depend on how many keyframes fell on DVL stamps)."""
+    v, sigma = np.array([0.25, -0.1, 0.02]), 0.01
+    pre = DvlPreintegrator(0.0, np.eye(3), accel_sigma=0.02)
+    for t in (0.2, 0.4, 0.6, 0.8, 1.0):
+        pre.add(t, np.eye(3), v, np.eye(3) * sigma**2)
+    s = pre.smoothed(1.0, np.eye(3))
+    np.testing.assert_allclose(s.z0, np.r_[v * 1.0, v, v], atol=1e-9)
+
+
 def test_preintegration_motion_model_uncertainty_grows_with_gap():
     """A dropout is bridged by the velocity states with σ² = σ_a² Δt³/12, not by a fixed velocity."""
     sig = []

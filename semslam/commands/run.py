@@ -58,7 +58,8 @@ def run(
     with staged_output(out, overwrite) as stage:
         cfg = load_config(config)
         m, names, warnings = checked_mission(mission, cfg, frontends, allow_missing)
-        est = create_estimator(estimator, m.metadata, cfg, batch=batch)
+        # --batch turns it on; without the flag the config's graph.batch decides (it was ignored before)
+        est = create_estimator(estimator, m.metadata, cfg, batch=True if batch else None)
         fes = create_frontends(names, m.metadata, cfg.frontends)
         recorder = make_recorder(record, m.metadata, record_points)
         observers = [recorder] if recorder is not None else []
