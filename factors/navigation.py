@@ -136,12 +136,17 @@ class DvlPreintegrator:
         """A valid DVL sample (already in the body frame, :func:`dvl_to_body`) at time t (s), with the AHRS's
         attitude R_WB at t and, when known, the gyro's rotation R_iᵀ R(t) since the keyframe."""
         if t <= self.t_i or (self._t and t <= self._t[-1]):
-            return  # out of order, or at the keyframe itself: the interval before holds it as its last knot
+            return  # out of order or at the keyframe itself: the keyframe's own prior carries it
         self._t.append(t)
         self._dR.append(self.R_i_T @ R_WB)
         self._dR_gyro.append(dR_gyro)
         self._v.append(np.asarray(v_B, float))
         self._cov.append(np.asarray(cov_B, float))
+
+    def drop_last(self) -> None:
+        """Forget the newest sample (used when it becomes the next keyframe's velocity factor)."""
+        for lst in (self._t, self._dR, self._dR_gyro, self._v, self._cov):
+            lst.pop()
 
     def _by_gyro(self, dR_j: np.ndarray | None) -> bool:
         """Whether the interval's samples are turned by the gyro: its rotation to the end and to every sample."""

@@ -5,7 +5,7 @@ modelled, B(k) and, with its drift rate modelled, D(k), and when the gyro's bias
 factors.navigation). Between consecutive keyframes: the preintegrated DVL/AHRS
 displacement (with the velocity motion model across dropouts), over intervals with no DVL at
 all, the velocity random walk, and the body rates integrated between the two attitudes (with G(k−1) to
-first order, and G's random walk, when the gyro's bias is modelled). At each keyframe: the AHRS attitude (keyframe 0: and the latest DVL velocity) and the
+first order, and G's random walk, when the gyro's bias is modelled). At each keyframe: the AHRS attitude, the latest DVL velocity and the
 depth: every reading of the interval, each at the nearer of its two keyframes, brought there through
 the DVL's vertical velocity and averaged (the newest reading alone when the interval has none).
 
@@ -165,8 +165,8 @@ class Keyframes:
         return None
 
     def _nav_factors_at(self, k: int, t: float) -> tuple[list, np.ndarray, np.ndarray | None, bool]:
-        """AHRS and depth factors of keyframe k at time t (keyframe 0: and the DVL's); returns (factors, R_WB, the
-        newest fresh DVL sample's v_B or None, whether an AHRS factor is among them)."""
+        """AHRS, depth and DVL factors of keyframe k at time t; returns (factors, R_WB, v_B prior mean,
+        whether an AHRS factor is among them)."""
         factors = []
         R, _ = self.nav.attitude_at(t)
         fused = self.nav.take_fused_attitude(t)
@@ -180,18 +180,16 @@ class Keyframes:
             )
         v_prior = None
         dvl = self.nav.dvl
-        if dvl is not None and 0 <= t - dvl.t <= self.cfg.dvl_max_age_s:
-            v_prior = dvl.v_B  # the start value of V(k)
-            if not self.stamps:
-                # Keyframe 0 only: after it every DVL sample is a knot of the interval it falls in, at its own time
-                # (DvlPreintegrator.smoothed), which informs both keyframes' velocities. A sample also taken as
-                # V(k)'s factor at the keyframe's time moved it there, and one reused at close keyframes counted
-                # it twice: the trajectory then depended on where keyframes fell (tens of mm across a DVL dropout).
-                factors.append(
-                    dvl_velocity_factor(
-                        V(k), dvl.v_S, dvl.cov_S, dvl.T_BS, dvl.omega_B, self.accel_sigma**2 * (t - dvl.t)
-                    )
-                )
+        # The newest DVL sample is the velocity factor when it is fresh, and also when it is the last
+        # knot of the interval that ends here (a dropout starting inside it): the displacement alone
+        # cannot pin V(k), and the σ_a²·age inflation is the motion model's growth over the gap.
+        in_interval = bool(self.stamps) and dvl is not None and dvl.t > self.stamps[-1] * 1e-9
+        if dvl is not None and 0 <= t - dvl.t and (t - dvl.t <= self.cfg.dvl_max_age_s or in_interval):
+            age = t - dvl.t
+            factors.append(
+                dvl_velocity_factor(V(k), dvl.v_S, dvl.cov_S, dvl.T_BS, dvl.omega_B, self.accel_sigma**2 * age)
+            )
+            v_prior = dvl.v_B
         readings = [r for r in self.nav.depths if r[0] <= t]
         dep = self.nav.depth
         if not readings and not self.stamps and dep is not None and 0 <= t - dep.t <= self.cfg.depth_max_age_s:
@@ -262,6 +260,9 @@ class Keyframes:
         k = len(self.stamps)
         t = stamp * 1e-9
         factors, R, v_prior, has_attitude = self._nav_factors_at(k, t)
+        # A DVL sample used as V(k)'s prior is removed from the displacement's knots (no double use).
+        if v_prior is not None and self.nav.preint.last_stamp == self.nav.dvl.t:
+            self.nav.preint.drop_last()
         v_init = v_prior if v_prior is not None else self.vel
         if self.nav.preint.n_samples:  # the displacement and both velocity states jointly, every DVL
             # sample inside informing all three, with the velocity random walk between them

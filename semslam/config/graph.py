@@ -19,11 +19,7 @@ class GraphConfig(BaseModel):
         1.0, gt=0, description="a keyframe at least this often, besides one per exteroceptive observation batch"
     )
     dvl_max_age_s: float = Field(
-        0.5,
-        gt=0,
-        description="keyframe 0's velocity factor is the newest DVL sample unless older than this (after it, every "
-        "sample is a knot of the interval between keyframes it falls in, at its own time), and a keyframe's velocity "
-        "starts at the newest sample unless older",
+        0.5, gt=0, description="a DVL sample older than this at a keyframe is not a velocity factor"
     )
     ahrs_max_age_s: float = Field(
         0.5,
