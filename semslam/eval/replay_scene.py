@@ -16,7 +16,7 @@ from scipy.stats import chi2
 
 from semslam.estimation import LandmarkEstimate
 from semslam.eval import ros_messages as rm
-from semslam.mission.ground_truth import GroundTruthMap
+from semslam.mission.ground_truth import GroundTruthMap, homogeneous
 from semslam.models.cad import CLASS_COLORS, CLASSES
 
 M = rm.Marker
@@ -152,10 +152,8 @@ def truth_markers(stamp: int, frame: str, truth: GroundTruthMap) -> list:
     pipes as cylinders of their true radius, structures as their CAD meshes."""
     out = [rm.delete_all(stamp, frame)]
     for o in truth.objects:
-        T = np.eye(4)
-        T[:3, :3] = Rotation.from_quat(o.orientation).as_matrix()
-        T[:3, 3] = o.position
         rgba = (*class_rgb(o.cls), 0.6)
+        T = homogeneous(o.position, o.orientation)
         out.append(_mesh_marker(stamp, frame, "truth_objects", o.id, "object", o.model or o.cls, T, rgba))
         label_at = np.asarray(o.position) + UP * (OBJECT_DIAMETER_M + 2 * LABEL_HEIGHT_M)
         out.append(

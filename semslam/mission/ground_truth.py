@@ -10,6 +10,16 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 
+def homogeneous(position, orientation_xyzw) -> np.ndarray:
+    """The 4×4 transform of a position and a unit quaternion (x, y, z, w)."""
+    from scipy.spatial.transform import Rotation
+
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_quat(orientation_xyzw).as_matrix()
+    T[:3, 3] = position
+    return T
+
+
 @dataclass(frozen=True)
 class GtObject:
     """An object (valve, elbow, ...) with its class, pose T_W,object and the pipes attached to it."""
@@ -43,12 +53,7 @@ class GtStructure:
 
     def matrix(self) -> np.ndarray:
         """T_W,model as a 4×4 homogeneous matrix."""
-        from scipy.spatial.transform import Rotation
-
-        T = np.eye(4)
-        T[:3, :3] = Rotation.from_quat(self.orientation).as_matrix()
-        T[:3, 3] = self.position
-        return T
+        return homogeneous(self.position, self.orientation)
 
 
 @dataclass(frozen=True)

@@ -13,6 +13,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from semslam.mission.ground_truth import homogeneous
+
 
 def _frozen(a, dtype=np.float64, shape=None) -> np.ndarray:
     arr = np.array(a, dtype=dtype, copy=True)
@@ -211,12 +213,7 @@ class GroundTruthPose(Measurement):
 
     def matrix(self) -> np.ndarray:
         """T_WB as a 4×4 homogeneous matrix."""
-        from scipy.spatial.transform import Rotation
-
-        T = np.eye(4)
-        T[:3, :3] = Rotation.from_quat(self.orientation).as_matrix()
-        T[:3, 3] = self.position
-        return T
+        return homogeneous(self.position, self.orientation)
 
 
 MEASUREMENT_TYPES: tuple[type[Measurement], ...] = (
